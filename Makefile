@@ -1,0 +1,20 @@
+# Two entry points (see README): `make demo` and `make test`. Both set up first.
+PY := .venv/bin/python
+BCF := .venv/bin/bcfpipe
+PYTEST_ARGS ?=
+
+.PHONY: setup demo test test-all clean
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(PY) -m bcfpipe.demo samples
+
+test: setup
+	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
+
+test-all: setup
+	$(PY) -m pytest -n 2 -m "" $(PYTEST_ARGS)
+
+clean:
+	rm -rf .venv build *.egg-info out
