@@ -13,14 +13,7 @@ import sys
 import click
 
 from . import __version__
-
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
-
-
-class BcfError(click.ClickException):
-    """A user-facing error: printed as one line, exit code 2."""
-
-    exit_code = EXIT_USAGE
+from .errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, BcfError  # noqa: F401  (re-exported)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -43,5 +36,7 @@ def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
 
 # Sub-commands live next to the code they drive; each module exposes one click command/group.
 from .dds_cli import dds  # noqa: E402
+from .scan_cli import scan  # noqa: E402
 
-main.add_command(dds)
+for _cmd in (dds, scan):
+    main.add_command(_cmd)

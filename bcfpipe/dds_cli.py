@@ -8,7 +8,7 @@ import click
 import numpy as np
 
 from . import dds as ddsmod
-from .cli import BcfError
+from .errors import BcfError
 
 
 def _load(path: str) -> ddsmod.DdsTexture:

@@ -1,0 +1,4 @@
+"""`python -m bcfpipe` runs the command line."""
+from .cli import main
+
+main()
