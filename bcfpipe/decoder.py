@@ -1,0 +1,190 @@
+"""The decoder MLP f_eta (paper eq. 2) and its portable forms: fp16 weight records and ONNX.
+
+Output post-processing, identical in torch, ONNX and GLSL:
+  y = clamp(mlp(features) * out_scale + out_bias, lo, hi)   per channel
+  lo, hi = (-1, 1) for normal x/y, (0, 1) otherwise
+  normal z = sqrt(max(0, 1 - x^2 - y^2)) is appended right after normal y.
+
+Weight record (``BCFW`` version 1), little-endian, 4-byte aligned, used for one material's
+``weights.bin`` and as the per-material record inside the combined build buffer:
+  offset 0   char[4]  magic "BCFW"
+  offset 4   u32      version (1)
+  offset 8   u32      n_in   (12)
+  offset 12  u32      n_hidden
+  offset 16  u32      n_out  (model channels c, before normal z)
+  offset 20  u32      n_halves: count of fp16 values that follow
+  offset 24  fp16     W1[n_hidden][n_in]   row-major (hidden unit j's weights contiguous)
+             fp16     b1[n_hidden]
+             fp16     W2[n_out][n_hidden]
+             fp16     b2[n_out]
+             fp16     out_scale[n_out]
+             fp16     out_bias[n_out]
+             zero padding to a multiple of 4 bytes
+The fp16 values start at byte 24, so a shader indexing 32-bit words finds value e in word
+(24/4 + e/2), low half when e is even.
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+MAGIC = b"BCFW"
+VERSION = 1
+HEADER = struct.Struct("<4s5I")
+HEADER_BYTES = HEADER.size  # 24
+
+ONNX_INPUT = "features"
+ONNX_OUTPUT = "channels"
+
+
+@dataclass(frozen=True)
+class MlpWeights:
+    """Decoder parameters as float32 numpy arrays (values exactly representable in fp16 once rounded)."""
+
+    w1: np.ndarray  # (hidden, n_in)
+    b1: np.ndarray  # (hidden,)
+    w2: np.ndarray  # (n_out, hidden)
+    b2: np.ndarray  # (n_out,)
+    out_scale: np.ndarray  # (n_out,)
+    out_bias: np.ndarray  # (n_out,)
+
+    @property
+    def dims(self) -> tuple[int, int, int]:
+        return self.w1.shape[1], self.w1.shape[0], self.w2.shape[0]
+
+    def to_fp16(self) -> "MlpWeights":
+        """Round every array to fp16 (kept as float32 so every consumer computes in fp32)."""
+        return MlpWeights(*(np.asarray(a, np.float32).astype(np.float16).astype(np.float32) for a in self.arrays()))
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return (self.w1, self.b1, self.w2, self.b2, self.out_scale, self.out_bias)
+
+    def halves(self) -> np.ndarray:
+        return np.concatenate([np.asarray(a, np.float32).reshape(-1) for a in self.arrays()]).astype(np.float16)
+
+
+def to_bytes(w: MlpWeights) -> bytes:
+    """Serialise one weight record (see module docstring)."""
+    n_in, hidden, n_out = w.dims
+    h = w.halves()
+    body = h.astype("<f2").tobytes()
+    body += b"\0" * (-len(body) % 4)
+    return HEADER.pack(MAGIC, VERSION, n_in, hidden, n_out, h.size) + body
+
+
+def from_bytes(data: bytes, offset: int = 0) -> tuple[MlpWeights, int]:
+    """Parse one weight record at ``offset``; returns the weights and the record's byte size."""
+    if len(data) < offset + HEADER_BYTES:
+        raise ValueError(f"weight record at byte {offset} is truncated")
+    magic, version, n_in, hidden, n_out, n_halves = HEADER.unpack_from(data, offset)
+    if magic != MAGIC or version != VERSION:
+        raise ValueError(f"no BCFW v{VERSION} weight record at byte {offset} (found {magic!r} v{version})")
+    expect = hidden * n_in + hidden + n_out * hidden + 3 * n_out
+    if n_halves != expect:
+        raise ValueError(f"weight record at byte {offset}: {n_halves} values, expected {expect} for {n_in}-{hidden}-{n_out}")
+    size = HEADER_BYTES + 2 * n_halves + (-2 * n_halves % 4)
+    if len(data) < offset + size:
+        raise ValueError(f"weight record at byte {offset} is truncated")
+    h = np.frombuffer(data, dtype="<f2", count=n_halves, offset=offset + HEADER_BYTES).astype(np.float32)
+    parts, i = [], 0
+    for shape in ((hidden, n_in), (hidden,), (n_out, hidden), (n_out,), (n_out,), (n_out,)):
+        n = int(np.prod(shape))
+        parts.append(h[i:i + n].reshape(shape))
+        i += n
+    return MlpWeights(*parts), size
+
+
+def output_ranges(kinds: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.array([-1.0 if k == "normal" else 0.0 for k in kinds], np.float32)
+    return lo, np.ones(len(kinds), np.float32)
+
+
+def normal_xy_index(kinds: tuple[str, ...]) -> int | None:
+    """Index of normal x (normal y follows) among the model channels, or None."""
+    for i, k in enumerate(kinds):
+        if k == "normal":
+            if i + 1 >= len(kinds) or kinds[i + 1] != "normal":
+                raise ValueError("normal channels must come as an adjacent x, y pair")
+            return i
+    return None
+
+
+def mlp_raw(params: dict[str, torch.Tensor], feats: torch.Tensor) -> torch.Tensor:
+    """12 -> hidden (ReLU) -> c, no post-processing (the training loss sees this, scaled)."""
+    h = torch.relu(feats @ params["w1"].t() + params["b1"])
+    return h @ params["w2"].t() + params["b2"]
+
+
+def postprocess(raw: torch.Tensor, out_scale: torch.Tensor, out_bias: torch.Tensor,
+                kinds: tuple[str, ...], clamp: bool = True) -> torch.Tensor:
+    """Scale/bias, clamp, and append normal z (see module docstring)."""
+    y = raw * out_scale + out_bias
+    if clamp:
+        lo, hi = (torch.as_tensor(a, device=y.device) for a in output_ranges(kinds))
+        y = torch.maximum(torch.minimum(y, hi), lo)
+    n = normal_xy_index(kinds)
+    if n is None:
+        return y
+    z = torch.sqrt(torch.clamp(1 - y[:, n] ** 2 - y[:, n + 1] ** 2, min=0)).unsqueeze(1)
+    return torch.cat([y[:, : n + 2], z, y[:, n + 2:]], 1)
+
+
+def decode_numpy(w: MlpWeights, feats: np.ndarray, kinds: tuple[str, ...]) -> np.ndarray:
+    """Reference float32 evaluation of the whole decoder (used by tests and verify)."""
+    t = {k: torch.from_numpy(np.asarray(v, np.float32)) for k, v in zip(("w1", "b1", "w2", "b2"), w.arrays())}
+    raw = mlp_raw(t, torch.from_numpy(np.asarray(feats, np.float32)))
+    return postprocess(raw, torch.from_numpy(w.out_scale), torch.from_numpy(w.out_bias), kinds).numpy()
+
+
+def to_onnx(w: MlpWeights, kinds: tuple[str, ...], name: str = "bcf_decoder"):
+    """An onnx.ModelProto of the full decoder: features (N, n_in) float32 -> channels (N, c_out)."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    n_in, hidden, n_out = w.dims
+    lo, hi = output_ranges(kinds)
+    inits = [numpy_helper.from_array(np.asarray(a, np.float32), n) for a, n in (
+        (w.w1, "W1"), (w.b1, "b1"), (w.w2, "W2"), (w.b2, "b2"),
+        (w.out_scale, "out_scale"), (w.out_bias, "out_bias"), (lo, "lo"), (hi, "hi"))]
+    nodes = [
+        helper.make_node("Gemm", [ONNX_INPUT, "W1", "b1"], ["h_pre"], transB=1),
+        helper.make_node("Relu", ["h_pre"], ["h"]),
+        helper.make_node("Gemm", ["h", "W2", "b2"], ["raw"], transB=1),
+        helper.make_node("Mul", ["raw", "out_scale"], ["scaled"]),
+        helper.make_node("Add", ["scaled", "out_bias"], ["biased"]),
+        helper.make_node("Max", ["biased", "lo"], ["above"]),
+        helper.make_node("Min", ["above", "hi"], ["clamped"]),
+    ]
+    n = normal_xy_index(kinds)
+    n_total = n_out
+    if n is None:
+        nodes.append(helper.make_node("Identity", ["clamped"], [ONNX_OUTPUT]))
+    else:
+        n_total += 1
+        inits += [numpy_helper.from_array(np.array(v, np.int64), k) for k, v in (
+            ("i_head", [0]), ("i_xy_end", [n + 2]), ("i_end", [n_out]), ("i_xy", [n]), ("axis1", [1]))]
+        inits += [numpy_helper.from_array(np.array(1.0, np.float32), "one"),
+                  numpy_helper.from_array(np.array(0.0, np.float32), "zero")]
+        nodes += [
+            helper.make_node("Slice", ["clamped", "i_head", "i_xy_end", "axis1"], ["head"]),
+            helper.make_node("Slice", ["clamped", "i_xy_end", "i_end", "axis1"], ["tail"]),
+            helper.make_node("Slice", ["clamped", "i_xy", "i_xy_end", "axis1"], ["xy"]),
+            helper.make_node("Mul", ["xy", "xy"], ["xy2"]),
+            helper.make_node("ReduceSum", ["xy2", "axis1"], ["r2"], keepdims=1),
+            helper.make_node("Sub", ["one", "r2"], ["z2"]),
+            helper.make_node("Max", ["z2", "zero"], ["z2c"]),
+            helper.make_node("Sqrt", ["z2c"], ["z"]),
+            helper.make_node("Concat", ["head", "z", "tail"], [ONNX_OUTPUT], axis=1),
+        ]
+    graph = helper.make_graph(
+        nodes, name,
+        [helper.make_tensor_value_info(ONNX_INPUT, TensorProto.FLOAT, ["N", n_in])],
+        [helper.make_tensor_value_info(ONNX_OUTPUT, TensorProto.FLOAT, ["N", n_total])],
+        inits)
+    model = helper.make_model(graph, producer_name="bcfpipe", opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    return model
