@@ -35,8 +35,12 @@ def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
 
 
 # Sub-commands live next to the code they drive; each module exposes one click command/group.
+from .build_cli import build  # noqa: E402
 from .dds_cli import dds  # noqa: E402
+from .decode_cli import decode  # noqa: E402
 from .scan_cli import scan  # noqa: E402
+from .train_cli import train_cmd  # noqa: E402
+from .verify_cli import verify  # noqa: E402
 
-for _cmd in (dds, scan):
+for _cmd in (build, decode, dds, scan, train_cmd, verify):
     main.add_command(_cmd)
