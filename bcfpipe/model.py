@@ -92,12 +92,14 @@ def _floor_ste(v: torch.Tensor) -> torch.Tensor:
     return v + (torch.floor(v) - v).detach()
 
 
-def decode_texels(ea: torch.Tensor, eb: torch.Tensor, x: torch.Tensor, signed: bool) -> torch.Tensor:
+def decode_texels(ea: torch.Tensor, eb: torch.Tensor, x: torch.Tensor, signed: bool,
+                  quantized: bool = False) -> torch.Tensor:
     """BC6H mode-11110 decode of single texels from their subset's endpoints ``ea``, ``eb`` (M, 3)
-    and continuous index ``x`` (M,): the same arithmetic as ``emulate.decode_blocks``, per texel."""
-    ua = emulate.unquantize(ea, signed=signed)
-    ub = emulate.unquantize(eb, signed=signed)
-    wgt = emulate.index_weight(x).unsqueeze(1)
+    and continuous index ``x`` (M,): the same arithmetic as ``emulate.decode_blocks``, per texel.
+    ``quantized`` rounds endpoints and indices straight-through (quantization-aware training)."""
+    ua = emulate.unquantize(ea, signed=signed, quantized=quantized)
+    ub = emulate.unquantize(eb, signed=signed, quantized=quantized)
+    wgt = emulate.index_weight(x, quantized=quantized).unsqueeze(1)
     v = _floor_ste((ua * (64.0 - wgt) + ub * wgt + 32.0) / 64.0)
     if signed:
         f = v * (31.0 / 32.0)
@@ -117,9 +119,11 @@ def free_tap_fn(free: list[list[torch.Tensor]], signed: bool) -> TapFn:
     return fn
 
 
-def block_tap_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig) -> TapFn:
+def block_tap_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
+                 quantized: Callable[[], bool] = lambda: False) -> TapFn:
     """Texel values straight from block parameters: texel (y, x) lives in block
-    (y // 4) * (w // 4) + x // 4 at position (y % 4) * 4 + x % 4."""
+    (y // 4) * (w // 4) + x // 4 at position (y % 4) * 4 + x % 4. ``quantized()`` is asked per
+    call, so a schedule can switch quantization-aware decoding on mid-phase."""
     def fn(i: int, k: int):
         b = blocks[i][k]
         r = max(4, cfg.resolutions[i] >> k)
@@ -132,7 +136,7 @@ def block_tap_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig) 
             m = b["mask"][blk, pos].unsqueeze(1)
             ea = torch.where(m, e[:, 2], e[:, 0])
             eb = torch.where(m, e[:, 3], e[:, 1])
-            return decode_texels(ea, eb, b["x"][blk, pos], cfg.signed)
+            return decode_texels(ea, eb, b["x"][blk, pos], cfg.signed, quantized())
         return texels
     return fn
 
@@ -143,11 +147,13 @@ def free_level_fn(free: list[list[torch.Tensor]], signed: bool) -> LevelFn:
 
 
 def block_level_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
-                   quantized: bool = False) -> LevelFn:
+                   quantized: bool | Callable[[], bool] = False) -> LevelFn:
+    q = quantized if callable(quantized) else (lambda: quantized)
+
     def fn(i: int, k: int) -> torch.Tensor:
         b = blocks[i][k]
         r = max(4, cfg.resolutions[i] >> k)
-        texels = emulate.decode_blocks(b["endpoints"], b["x"], b["mask"], signed=cfg.signed, quantized=quantized)
+        texels = emulate.decode_blocks(b["endpoints"], b["x"], b["mask"], signed=cfg.signed, quantized=q())
         return blocks_to_image(texels, r, r)
     return fn
 

@@ -178,11 +178,13 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
 
     taps = cfg.tap_decode
 
-    def run_phase(name, level_fn, feature_params, sched, project=None, tap_fn=None):
+    def run_phase(name, level_fn, feature_params, sched, project=None, tap_fn=None, on_step=None):
         t0 = time.perf_counter()
         opt, lr = _optimizer(feature_params, mlp_params, sched, device)
         ema = None
         for step in range(1, sched.steps + 1):
+            if on_step is not None:
+                on_step(step)
             uv, s = random_batch(preset.batch, gen, device, s_max)
             target = sample_reference(ref, uv, s, mc.wrap)
             pred = M.forward(level_fn, mlp, mc, biases, uv, s, tap_fn if taps else None)
@@ -240,8 +242,17 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
                 b["endpoints"].clamp_(lo, hi)
                 b["x"].clamp_(0.0, 1.0)
 
-    run_phase("constrained", M.block_level_fn(blocks, mc), feat, preset.constrained, project=project_blocks,
-              tap_fn=M.block_tap_fn(blocks, mc))
+    # quantization-aware tail: the last qat_fraction of phase 2 decodes with rounded parameters
+    # (straight-through), so phase 3's rounding costs little
+    qat_from = preset.constrained.steps - int(round(preset.qat_fraction * preset.constrained.steps))
+    qat = {"on": False}
+
+    def switch(step):
+        qat["on"] = step > qat_from
+
+    run_phase("constrained", M.block_level_fn(blocks, mc, lambda: qat["on"]), feat, preset.constrained,
+              project=project_blocks, tap_fn=M.block_tap_fn(blocks, mc, lambda: qat["on"]), on_step=switch)
+    qat["on"] = False
 
     ref_shapes = [tuple(m.shape[1:]) for m in ref.mips]
     float_mips = (evaluate_levels(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases, ref_shapes)

@@ -1,0 +1,59 @@
+"""End-to-end training on small real data, and determinism."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bcfpipe.config import ModelConfig, PhaseSchedule, Preset, TrainConfig
+from bcfpipe.material import fit_material
+from bcfpipe.texset import Channel, TextureSet, TextureSpec, load_texture_set
+
+# a short schedule for tests: ~2 s of training per run on one core
+QUICK = Preset(PhaseSchedule(120, 0.5, 5e-3, 0.98, 0.98), PhaseSchedule(240, 0.1, 5e-3, 0.99, 0.99),
+               PhaseSchedule(40, 0.0, 2.5e-3, 1.0, 0.95), 2048, qat_fraction=0.2)
+TINY = ModelConfig(resolutions=(32, 16, 8, 4))
+
+
+def _crop(ts: TextureSet, y: int, x: int, size: int) -> TextureSet:
+    return TextureSet(np.ascontiguousarray(ts.data[y:y + size, x:x + size]), ts.channels, size, size)
+
+
+@pytest.fixture(scope="module")
+def teapot_crop(shared_scenes):
+    t = shared_scenes / "usdwg_teapot" / "textures"
+    ts = load_texture_set([TextureSpec.parse(f"albedo={t / 'tea_set_01_diff_2k.jpg'}:rgb"),
+                           TextureSpec.parse(f"roughness={t / 'tea_set_01_arm_2k.jpg'}:g")], resolution=512)
+    return _crop(ts, 192, 160, 64)  # a 64x64 crop with the painted flowers
+
+
+def test_tiny_training_reaches_stated_psnr(tmp_path, teapot_crop):
+    """Tiny profile on a 64x64 real crop: the exported BC6H + fp16 decoder must reach 30 dB (all mips)."""
+    cfg = TrainConfig(model=TINY, preset=QUICK, preset_name="test", seed=0, device="cpu", threads=1)
+    res, tm = fit_material(teapot_crop, tmp_path / "m", cfg, "tiny")
+    assert res.metrics.psnr >= 30.0, res.metrics.psnr_per_mip
+    assert res.float_metrics.psnr - res.metrics.psnr <= 0.5  # quantization loss
+    d = res.to_dict()
+    assert {"psnr", "ssim", "flip", "size_bytes", "train_seconds"} <= d.keys()
+    json.dumps(d)
+    assert res.size_bytes == sum(p.stat().st_size for p in (tmp_path / "m").iterdir() if p.suffix in (".dds", ".bin"))
+
+
+def test_training_is_deterministic_on_cpu(tmp_path):
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:32, 0:32] / 32.0
+    data = np.stack([0.5 + 0.4 * np.sin(6 * xx), 0.5 + 0.4 * np.cos(5 * yy), rng.uniform(0, 1, (32, 32))], -1)
+    ch = tuple(Channel("albedo", c, "color", "gen", i) for i, c in enumerate("rgb"))
+    ts = TextureSet(data.astype(np.float32), ch, 32, 32)
+    quick = Preset(PhaseSchedule(30, 0.5, 5e-3, 0.99, 0.99), PhaseSchedule(30, 0.1, 5e-3, 0.99, 0.99),
+                   PhaseSchedule(10, 0.0, 2e-3, 1.0, 0.99), 512)
+    cfg = TrainConfig(model=ModelConfig(resolutions=(16, 8, 8, 4)), preset=quick, seed=3, device="cpu", threads=1)
+    outs = []
+    for run in range(2):
+        fit_material(ts, tmp_path / str(run), cfg, "t")
+        outs.append({p.name: p.read_bytes() for p in (tmp_path / str(run)).iterdir() if p.suffix in (".dds", ".bin")})
+    assert outs[0] == outs[1]
+    cfg2 = cfg.with_(seed=4)
+    fit_material(ts, tmp_path / "other", cfg2, "t")
+    assert (tmp_path / "other" / "weights.bin").read_bytes() != outs[0]["weights.bin"]
