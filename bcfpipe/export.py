@@ -8,6 +8,7 @@ Folder layout (``material.json`` describes it completely for consumers that do n
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
@@ -106,6 +107,10 @@ def export(tm, out_dir: str | os.PathLike, extra: dict | None = None) -> Path:
     }
     if extra:
         desc.update(extra)
+    # digests let `bcfpipe verify` detect any changed byte, which a decode comparison cannot
+    # (a flipped index bit still decodes identically on every correct decoder)
+    desc["sha256"] = {f: hashlib.sha256((out / f).read_bytes()).hexdigest()
+                      for f in [l["file"] for l in layers] + [WEIGHTS, ONNX]}
     _atomic_write(out / DESCRIPTION, (json.dumps(desc, indent=2) + "\n").encode())
     return out
 

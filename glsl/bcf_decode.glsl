@@ -1,0 +1,152 @@
+// bcf_decode.glsl - runtime decoder for bcfpipe neural materials (BC6H features + fp16 MLP).
+//
+// GLSL 4.50 core, no extensions, no #version and no bindings: the host inserts this file right
+// after the #version line of the shader that uses it (see glsl/README.md; ES 3.2 notes there).
+// Optional #defines placed before it: BCF_MAX_HIDDEN (default 64), BCF_MAX_OUT (default 16),
+// and BCF_N_HIDDEN / BCF_N_OUT to compile for one network shape (constant loop bounds the
+// compiler can unroll, hidden activations in registers; records of another shape are rejected).
+//
+// The including shader must define the weight-buffer accessor (declared here, so the library
+// does not fix a binding or a buffer type):
+//     uint bcfWeightWord(uint wordIndex);   // 32-bit little-endian word wordIndex of the buffer
+//
+// G(u, v, s) = f(T0(u, v, s_0), ..., T3(u, v, s_3)),  s_i = s + b_i        (paper eq. 2, sec. 5.2)
+//   uv: u along the width, v along the height, v = 0 is the first stored row (GL's t = 0 row);
+//       texel i of a w-texel level has its centre at (i + 0.5) / w; wrapping is sampler state.
+//   s : lod in the reference material's mip units (0 = full-resolution reference texels).
+//   Each layer is sampled with the hardware trilinear filter (LINEAR_MIPMAP_LINEAR, mag LINEAR,
+//   GL_TEXTURE_MAX_LEVEL = mip_count - 1, so s_i is clamped to [0, mip_count - 1] by the sampler).
+//   f : relu MLP 12 -> n_hidden -> n_out in fp32 with fp16 weights, then per channel
+//       y = clamp(raw * out_scale + out_bias, lo, hi), lo = -1 for the normal x/y pair, else 0,
+//       and normal z = sqrt(max(0, 1 - x^2 - y^2)) inserted right after normal y.
+
+#ifndef BCF_MAX_HIDDEN
+#define BCF_MAX_HIDDEN 64
+#endif
+#ifndef BCF_MAX_OUT
+#define BCF_MAX_OUT 16
+#endif
+#ifdef BCF_N_HIDDEN
+#undef BCF_MAX_HIDDEN
+#define BCF_MAX_HIDDEN BCF_N_HIDDEN
+#endif
+
+// Weight record "BCFW" v1 (bcfpipe/decoder.py), at a 4-byte aligned byte offset in the buffer:
+//   word 0 magic 'BCFW' (0x57464342), 1 version (1), 2 n_in (12), 3 n_hidden, 4 n_out,
+//   5 n_halves, then fp16 values from word 6: W1[n_hidden][12], b1[n_hidden], W2[n_out][n_hidden],
+//   b2[n_out], out_scale[n_out], out_bias[n_out]. Value e sits in word 6 + e/2, low half if e even.
+const uint BCF_MAGIC = 0x57464342u;
+const uint BCF_HEADER_WORDS = 6u;
+
+uint bcfWeightWord(uint wordIndex);
+
+struct BcfMaterial {
+    uint weightOffset;  // byte offset of the material's BCFW record in the weight buffer
+    vec4 lodBias;       // b_0..b_3 (material.json layers[i].lod_bias)
+    vec2 refSize;       // reference width, height (material.json reference; derivative path only)
+    int normalIndex;    // index of normal x among the n_out model channels (y follows); -1: none
+};
+
+// fp16 value e of the record whose first fp16 word is 'base'.
+float bcfHalf(uint base, uint e) {
+    vec2 p = unpackHalf2x16(bcfWeightWord(base + (e >> 1u)));
+    return (e & 1u) == 0u ? p.x : p.y;
+}
+
+vec4 bcfHalf4(uint base, uint word) {  // four consecutive values starting at an even index
+    return vec4(unpackHalf2x16(bcfWeightWord(base + word)), unpackHalf2x16(bcfWeightWord(base + word + 1u)));
+}
+
+// Number of channels bcfDecode* writes for this record: n_out (+1 with a normal), 0 if invalid.
+int bcfChannelCount(BcfMaterial m) {
+    uint w0 = m.weightOffset >> 2u;
+    if (bcfWeightWord(w0) != BCF_MAGIC || bcfWeightWord(w0 + 1u) != 1u || bcfWeightWord(w0 + 2u) != 12u)
+        return 0;
+    uint nh = bcfWeightWord(w0 + 3u), no = bcfWeightWord(w0 + 4u);
+    int extra = m.normalIndex >= 0 ? 1 : 0;
+#ifdef BCF_N_HIDDEN
+    if (nh != uint(BCF_N_HIDDEN)) return 0;
+#endif
+#ifdef BCF_N_OUT
+    if (no != uint(BCF_N_OUT)) return 0;
+#endif
+    if (nh == 0u || nh > uint(BCF_MAX_HIDDEN) || no == 0u || int(no) + extra > BCF_MAX_OUT ||
+        m.normalIndex + 1 >= int(no))
+        return 0;
+    return int(no) + extra;
+}
+
+// The decoder MLP and post-processing on already sampled features; returns the channel count
+// (see bcfChannelCount; 0 = invalid record, ch untouched).
+int bcfDecodeFeatures(BcfMaterial m, vec3 t0, vec3 t1, vec3 t2, vec3 t3, out float ch[BCF_MAX_OUT]) {
+    int count = bcfChannelCount(m);
+    if (count == 0) return 0;
+    uint w0 = m.weightOffset >> 2u;
+#ifdef BCF_N_HIDDEN
+    const uint nh = uint(BCF_N_HIDDEN);
+#else
+    uint nh = bcfWeightWord(w0 + 3u);
+#endif
+#ifdef BCF_N_OUT
+    const uint no = uint(BCF_N_OUT);
+#else
+    uint no = bcfWeightWord(w0 + 4u);
+#endif
+    uint base = w0 + BCF_HEADER_WORDS;
+    // input order T0.rgb, T1.rgb, T2.rgb, T3.rgb; a W1 row is 12 halves = 6 whole words
+    vec4 fa = vec4(t0, t1.x), fb = vec4(t1.yz, t2.xy), fc = vec4(t2.z, t3);
+    float hid[BCF_MAX_HIDDEN];
+    uint b1 = nh * 12u;
+    for (uint j = 0u; j < nh; ++j) {
+        uint row = j * 6u;
+        float a = bcfHalf(base, b1 + j);
+        a += dot(bcfHalf4(base, row), fa) + dot(bcfHalf4(base, row + 2u), fb) + dot(bcfHalf4(base, row + 4u), fc);
+        hid[j] = max(a, 0.0);
+    }
+    uint w2 = b1 + nh, b2 = w2 + no * nh, sc = b2 + no, bi = sc + no;
+    int o = 0;
+    for (uint c = 0u; c < no; ++c) {
+        float a = bcfHalf(base, b2 + c);
+        for (uint j = 0u; j < nh; ++j) a += bcfHalf(base, w2 + c * nh + j) * hid[j];
+        float y = a * bcfHalf(base, sc + c) + bcfHalf(base, bi + c);
+        bool isNormal = m.normalIndex >= 0 && (int(c) == m.normalIndex || int(c) == m.normalIndex + 1);
+        ch[o++] = clamp(y, isNormal ? -1.0 : 0.0, 1.0);
+        if (isNormal && int(c) == m.normalIndex + 1) {
+            float x = ch[o - 2], yy = ch[o - 1];
+            ch[o++] = sqrt(max(0.0, 1.0 - x * x - yy * yy));
+        }
+    }
+    return count;
+}
+
+// Hardware trilinear samples of the four layers at s_i = s + b_i.
+void bcfSampleFeatures(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, vec4 lodBias, vec2 uv, float s,
+                       out vec3 t0, out vec3 t1, out vec3 t2, out vec3 t3) {
+    vec4 l = vec4(s) + lodBias;
+    t0 = textureLod(T0, uv, l.x).rgb;
+    t1 = textureLod(T1, uv, l.y).rgb;
+    t2 = textureLod(T2, uv, l.z).rgb;
+    t3 = textureLod(T3, uv, l.w).rgb;
+}
+
+// s from uv derivatives (paper sec. 5.2): log2 of the larger pixel footprint in reference texels.
+// This is GL's isotropic scale factor rho (OpenGL 4.5 eq. 8.5), so with square layers whose
+// b_i = log2(w_i / W) it equals the lod textureGrad(T_i, uv, dx, dy) would pick for each layer.
+float bcfLodFromGrad(vec2 duvdx, vec2 duvdy, vec2 refSize) {
+    float rho = max(length(duvdx * refSize), length(duvdy * refSize));
+    return log2(max(rho, 1e-20));
+}
+
+// Decode at an explicit lod s (reference mip units). Returns the channel count, 0 if invalid.
+int bcfDecodeLod(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, float s,
+                 out float ch[BCF_MAX_OUT]) {
+    vec3 t0, t1, t2, t3;
+    bcfSampleFeatures(T0, T1, T2, T3, m.lodBias, uv, s, t0, t1, t2, t3);
+    return bcfDecodeFeatures(m, t0, t1, t2, t3, ch);
+}
+
+// Decode with the lod from uv derivatives (e.g. dFdx(uv), dFdy(uv) in a fragment shader).
+int bcfDecodeGrad(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, vec2 duvdx,
+                  vec2 duvdy, out float ch[BCF_MAX_OUT]) {
+    return bcfDecodeLod(T0, T1, T2, T3, m, uv, bcfLodFromGrad(duvdx, duvdy, m.refSize), ch);
+}
