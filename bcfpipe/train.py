@@ -126,6 +126,23 @@ def exact_level(bl: BlockLevel, signed: bool, device) -> torch.Tensor:
     return M.blocks_to_image(emulate.decode_blocks(e, x, mask, signed=signed, quantized=True), bl.size, bl.size)
 
 
+class StratifiedScale:
+    """One random s per batch, stratified: every ``strata`` consecutive steps draw one s from each
+    of ``strata`` equal slices of [0, s_max], in random order. Each step still sees a single s
+    (as in the paper), but every lod range is revisited every few steps, so short CPU schedules do
+    not end with some scales under-trained."""
+
+    def __init__(self, s_max: float, gen: torch.Generator, strata: int = 16):
+        self.s_max, self.gen, self.strata = s_max, gen, strata
+        self.order: list[int] = []
+
+    def __call__(self) -> float:
+        if not self.order:
+            self.order = torch.randperm(self.strata, generator=self.gen).tolist()
+        k = self.order.pop()
+        return (k + float(torch.rand((), generator=self.gen))) / self.strata * self.s_max
+
+
 def _flat(layers):
     return [t for mips in layers for t in mips]
 
@@ -177,6 +194,7 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     history: list[tuple[str, int, float]] = []
 
     taps = cfg.tap_decode
+    next_s = StratifiedScale(s_max, gen)
 
     def run_phase(name, level_fn, feature_params, sched, project=None, tap_fn=None, on_step=None):
         t0 = time.perf_counter()
@@ -185,7 +203,8 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
         for step in range(1, sched.steps + 1):
             if on_step is not None:
                 on_step(step)
-            uv, s = random_batch(preset.batch, gen, device, s_max)
+            uv, _ = random_batch(preset.batch, gen, device, s_max)
+            s = next_s()
             target = sample_reference(ref, uv, s, mc.wrap)
             pred = M.forward(level_fn, mlp, mc, biases, uv, s, tap_fn if taps else None)
             loss = torch.mean((pred - target) ** 2)

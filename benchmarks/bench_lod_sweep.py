@@ -1,0 +1,100 @@
+"""PSNR of an exported material as a function of the lod s (the paper's learnfilter figure).
+
+For each s the reference is F(M)(u, v, s): bicubic in mips floor(s), floor(s)+1 lerped by frac(s),
+exactly the training target; the model is the exported BC6H DDS + fp16 decoder through
+onnxruntime. Points are the texel centres of mip floor(s) (at most --points of them, a fixed
+random subset). A dip is a value more than 1.5 dB below the mean of its two neighbours.
+
+  python benchmarks/bench_lod_sweep.py OUT_MATERIAL_DIR [--png docs/lod_sweep.png]
+(the texture set is rebuilt from material.json's sources; pass --teapot for the teapot set)
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import machine, teapot_specs  # noqa: E402
+
+from bcfpipe import export as E  # noqa: E402
+from bcfpipe.decoder import ONNX_INPUT, ONNX_OUTPUT, normal_xy_index  # noqa: E402
+from bcfpipe.reference import ReferencePyramid, sample_reference  # noqa: E402
+from bcfpipe.texset import load_texture_set  # noqa: E402
+
+
+def sweep(folder: Path, ts, n_values: int = 41, points: int = 1 << 16, seed: int = 0):
+    em = E.load(folder)
+    ref = ReferencePyramid.from_texture_set(ts)
+    s_max = ref.num_levels - 1
+    sess = E.onnx_session(em)
+    nz = normal_xy_index(em.kinds)
+    peaks = np.array([c.peak for c in ts.channels], np.float32)
+    rng = np.random.default_rng(seed)
+    rows = []
+    for s in np.linspace(0, s_max, n_values):
+        k = int(np.floor(s))
+        h, w = ref.mips[min(k, s_max)].shape[1:]
+        ids = np.arange(h * w) if h * w <= points else rng.choice(h * w, points, replace=False)
+        uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1).astype(np.float32)
+        target = sample_reference(ref, torch.from_numpy(uv), float(s), em.wrap).numpy()
+        y = sess.run([ONNX_OUTPUT], {ONNX_INPUT: E.sample_exported_features(em, uv, float(s))})[0]
+        if nz is not None:
+            y = np.delete(y, nz + 2, axis=1)
+        mse = float(np.mean(((y - target) / peaks) ** 2))
+        rows.append((float(s), 10 * np.log10(1 / mse)))
+    return rows
+
+
+def dips(rows):
+    p = [r[1] for r in rows]
+    return [(rows[i][0], (p[i - 1] + p[i + 1]) / 2 - p[i]) for i in range(1, len(p) - 1)]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("material", type=Path)
+    ap.add_argument("--teapot", action="store_true", help="the reference is the teapot set (6 channels)")
+    ap.add_argument("--values", type=int, default=41)
+    ap.add_argument("--png", type=Path)
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args()
+    if a.teapot:
+        specs = teapot_specs()
+    else:
+        from bcfpipe.texset import TextureSpec
+        desc = json.loads((a.material / "material.json").read_text())
+        specs = [TextureSpec.parse(s) for s in desc["sources"]]
+    ts = load_texture_set(specs)
+    rows = sweep(a.material, ts, a.values)
+    d = dips(rows)
+    worst = max(d, key=lambda t: t[1])
+    print(f"# PSNR over lod: {a.material}  ({machine()})")
+    print("| s | PSNR (dB) |\n|---:|---:|")
+    for s, p in rows:
+        print(f"| {s:.3f} | {p:.2f} |")
+    print(f"\nlargest dip below the neighbours' mean: {worst[1]:.2f} dB at s = {worst[0]:.3f} "
+          f"({'PASS' if worst[1] <= 1.5 else 'FAIL'}: limit 1.5 dB)")
+    if a.json:
+        a.json.write_text(json.dumps({"rows": rows, "worst_dip_db": worst[1], "worst_dip_s": worst[0]}, indent=1))
+    if a.png:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(figsize=(7, 3.2), dpi=120)
+        ax.plot([r[0] for r in rows], [r[1] for r in rows], "o-", ms=3)
+        ax.set_xlabel("lod s (reference mip units)")
+        ax.set_ylabel("PSNR (dB)")
+        ax.set_title(f"{a.material.name}: PSNR over lod (exported BC6H + fp16 decoder)")
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(a.png)
+        print(f"wrote {a.png}")
+
+
+if __name__ == "__main__":
+    main()

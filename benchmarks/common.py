@@ -1,0 +1,36 @@
+"""Shared bits of the benchmark scripts: the teapot texture set and machine description."""
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared" / "scenes"
+TEAPOT = SHARED / "usdwg_teapot" / "textures"
+
+
+def teapot_specs():
+    from bcfpipe.texset import TextureSpec
+
+    if not TEAPOT.is_dir():
+        raise SystemExit(f"needs the shared scenes at {SHARED}")
+    d, a = TEAPOT / "tea_set_01_diff_2k.jpg", TEAPOT / "tea_set_01_arm_2k.jpg"
+    return [TextureSpec.parse(f"albedo={d}:rgb"), TextureSpec.parse(f"occlusion={a}:r"),
+            TextureSpec.parse(f"roughness={a}:g"), TextureSpec.parse(f"metallic={a}:b")]
+
+
+def machine() -> str:
+    """CPU model, cores, and the GPU torch sees, for the record in docs/benchmarks.md."""
+    cpu = platform.processor() or "cpu"
+    try:
+        for line in subprocess.run(["lscpu"], capture_output=True, text=True).stdout.splitlines():
+            if line.startswith("Model name:"):
+                cpu = line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import torch
+
+    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
+    return f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__}, {gpu}"
