@@ -8,7 +8,7 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(PY) -m bcfpipe.demo samples
+	$(BCF) build samples/sample_scene.usda --quality draft --verify
 
 test: setup
 	$(PY) -m pytest -n 2 $(PYTEST_ARGS)

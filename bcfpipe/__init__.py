@@ -1,3 +1,20 @@
 """bcfpipe: neural materials with block-compressed (BC6H) features for USD scenes."""
+import os as _os
 
 __version__ = "0.1.0"
+
+# torch's OpenMP workers spin while waiting; on a machine whose cores are busy (parallel builds,
+# CI) that made training steps 10-50x slower in our measurements (docs/benchmarks.md). Passive
+# waiting costs nothing measurable when the machine is idle. Set before torch is imported; an
+# explicit user setting wins.
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+def __getattr__(name: str):
+    """Lazy ``bcfpipe.build`` (the Python API of `bcfpipe build`, in bcfpipe.pipeline), so light
+    imports such as ``bcfpipe.dds`` do not pull in torch and USD."""
+    if name == "build":
+        from .pipeline import build
+
+        return build
+    raise AttributeError(f"module 'bcfpipe' has no attribute {name!r}")

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import struct
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -118,14 +117,9 @@ def write(path: str | os.PathLike, levels: Sequence[Level], signed: bool = False
     _, w0, h0 = levels[0]
     data = encode_header(w0, h0, len(levels), signed) + b"".join(
         np.ascontiguousarray(b, dtype=np.uint8).tobytes() for b, _, _ in levels)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from .errors import atomic_write
+
+    atomic_write(path, data)
 
 
 def read(path: str | os.PathLike) -> DdsTexture:

@@ -10,3 +10,24 @@ class BcfError(click.ClickException):
     """A user-facing error: printed as one line, exit code 2."""
 
     exit_code = EXIT_USAGE
+
+
+def atomic_write(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary sibling and a rename, so a failure never
+    leaves a partial file; the result gets the usual umask-based permissions (mkstemp's are 0600)."""
+    import os
+    import tempfile
+    from pathlib import Path
+
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -11,7 +11,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from .bc6h import decode as bc6h_decode
 from .bc6h import mode10
 from .config import N_LAYERS, ModelConfig
 from .decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_bytes, normal_xy_index, to_bytes, to_onnx
+from .errors import atomic_write
 from .texset import Channel, semantic_info
 
 FORMAT = "bcfpipe-material"
@@ -55,15 +55,7 @@ def output_channels(channels: tuple[Channel, ...]) -> list[dict]:
     return out
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+_atomic_write = atomic_write
 
 
 def export(tm, out_dir: str | os.PathLike, extra: dict | None = None) -> Path:

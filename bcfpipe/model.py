@@ -40,8 +40,16 @@ def endpoint_value(p: torch.Tensor, signed: bool = False) -> torch.Tensor:
     return emulate.half_from_bits(u * (31.0 / 32.0 if signed else 31.0 / 64.0))
 
 
-def endpoint_range(signed: bool) -> tuple[float, float]:
-    return (-32.0, 31.0) if signed else (0.0, 63.0)
+def endpoint_range(signed: bool, max_feature: float | None = None) -> tuple[float, float]:
+    """Endpoint bounds used in training: the format's range, narrowed so decoded features stay
+    within +-``max_feature``. Large features make no better MLP inputs but make the 6-bit log-like
+    endpoint steps coarse in absolute terms and magnify hardware filtering error at decode time."""
+    lo, hi = (-32.0, 31.0) if signed else (0.0, 63.0)
+    if max_feature is None:
+        return lo, hi
+    e = torch.arange(0.0, hi + 1)
+    top = float(e[endpoint_value(e, signed) <= max_feature].max())
+    return (-top, top) if signed else (0.0, top)
 
 
 def blocks_to_image(texels: torch.Tensor, width: int, height: int) -> torch.Tensor:
@@ -109,8 +117,8 @@ def decode_texels(ea: torch.Tensor, eb: torch.Tensor, x: torch.Tensor, signed: b
     return emulate.half_from_bits(f)
 
 
-def free_tap_fn(free: list[list[torch.Tensor]], signed: bool) -> TapFn:
-    lo, hi = endpoint_range(signed)
+def free_tap_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: float | None = None) -> TapFn:
+    lo, hi = endpoint_range(signed, max_feature)
 
     def fn(i: int, k: int):
         p = free[i][k]
@@ -141,8 +149,8 @@ def block_tap_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
     return fn
 
 
-def free_level_fn(free: list[list[torch.Tensor]], signed: bool) -> LevelFn:
-    lo, hi = endpoint_range(signed)
+def free_level_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: float | None = None) -> LevelFn:
+    lo, hi = endpoint_range(signed, max_feature)
     return lambda i, k: endpoint_value(free[i][k].clamp(lo, hi), signed)
 
 

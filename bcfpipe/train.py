@@ -228,9 +228,10 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
 
     # phase 1: unconstrained warm-up
     free = M.init_free(mc, gen, device)
-    lo, hi = M.endpoint_range(mc.signed)
-    run_phase("warmup", M.free_level_fn(free, mc.signed), _flat(free), preset.warmup,
-              project=lambda: [t.clamp_(lo, hi) for t in _flat(free)], tap_fn=M.free_tap_fn(free, mc.signed))
+    lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
+    run_phase("warmup", M.free_level_fn(free, mc.signed, mc.max_feature), _flat(free), preset.warmup,
+              project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],
+              tap_fn=M.free_tap_fn(free, mc.signed, mc.max_feature))
 
     # phase 2: BC6H init by encoding the warm features (chooses each block's partition)
     t0 = time.perf_counter()

@@ -119,7 +119,7 @@ def _first(d: dict, *keys, default=None):
 
 
 def _manifest_targets(root: Path, manifest: dict) -> list[Target]:
-    """Built materials listed in a build manifest (bcfpipe.build): each entry's ``outputs`` gives
+    """Built materials listed in a build manifest (bcfpipe.pipeline): each entry's ``outputs`` gives
     its ``folder`` and its record in the combined buffer (``weights_offset``, or ``weights_index``
     into the BCFB table); materials sharing one trained folder and record are verified once (the
     others are kept as aliases). Entries whose status is not ``built`` are skipped."""

@@ -58,7 +58,7 @@ def print_report(report, console=None) -> None:
 
 
 def run_verify(path: str, tolerance: float | None = None, as_json: bool = False, glsl: bool = True,
-               filter_bits: int | None = None, seed: int = 0, echo=click.echo) -> int:
+               filter_bits: int | None = None, seed: int = 0, echo=click.echo, to_stderr: bool = False) -> int:
     """Verify ``path`` and print the report; returns the exit code (what `bcfpipe build --verify` calls)."""
     from . import verify as V
 
@@ -74,7 +74,9 @@ def run_verify(path: str, tolerance: float | None = None, as_json: bool = False,
     if as_json:
         echo(json.dumps(report.to_dict(), indent=2))
     else:
-        print_report(report)
+        from rich.console import Console
+
+        print_report(report, Console(stderr=True) if to_stderr else None)
     return report.exit_code
 
 

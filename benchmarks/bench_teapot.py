@@ -28,6 +28,7 @@ def main():
     ap.add_argument("--presets", default="draft,fast,standard")
     ap.add_argument("--profile", default="1k")
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads per training (1: see the throughput bench)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/bcf_bench_teapot"))
     ap.add_argument("--no-baselines", action="store_true")
     ap.add_argument("--json", type=Path)
@@ -45,7 +46,7 @@ def main():
                              seconds=time.perf_counter() - t0, per_mip=m.psnr_per_mip))
             print(f"{name}: {m.psnr:.2f} dB", file=sys.stderr, flush=True)
     for preset in a.presets.split(","):
-        name, cfg = make_config(ts, profile=a.profile, preset=preset, device=a.device)
+        name, cfg = make_config(ts, profile=a.profile, preset=preset, device=a.device, threads=a.threads)
         t0 = time.perf_counter()
         res, _ = fit_material(ts, a.out / preset, cfg, name)
         m = res.metrics

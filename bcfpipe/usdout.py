@@ -1,0 +1,192 @@
+"""The USD side of a build: a root layer over the input stage, and an overrides layer that applies
+``BcfNeuralMaterialAPI`` to every modelled Material.
+
+``<OUT>/<scene>.bcf.usda`` (the stage to open)::
+
+    #usda 1.0
+    (
+        defaultPrim, upAxis, metersPerUnit (and time-code metadata) copied from the input
+        subLayers = [@./overrides.usda@, @../<scene>.usda@]   # relative: moves with OUT + input
+    )
+
+``<OUT>/overrides.usda`` holds only ``over`` opinions: the variant selections the build was made
+with (so the output composes the variant that was modelled), and per modelled Material::
+
+    over "Mat" (prepend apiSchemas = ["BcfNeuralMaterialAPI"]) {
+        uniform asset[] bcf:featureTextures = [@./materials/Mat/T0.dds@, ...]
+        ... every schema attribute authored explicitly (see schemas/schema.usda) ...
+        rel bcf:fallbackSurface = </.../PreviewSurface>
+    }
+
+Every attribute is authored with its schema type and variability, so the layers read back
+identically with or without the schema plugin registered. The input stage is never written.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from pxr import Gf, Sdf, Usd, Vt
+
+__all__ = ["SCHEMA", "NeuralMaterialOverride", "relative_asset", "write_overrides_layer", "write_root_layer",
+           "read_override"]
+
+SCHEMA = "BcfNeuralMaterialAPI"
+_T = Sdf.ValueTypeNames
+_U = Sdf.VariabilityUniform
+
+# Stage metadata copied from the input's root layer to the output root layer when authored there.
+_COPIED_METADATA = ("startTimeCode", "endTimeCode", "timeCodesPerSecond", "framesPerSecond")
+
+
+def relative_asset(target: str | os.PathLike, layer_dir: str | os.PathLike) -> str:
+    """An asset path to `target` relative to `layer_dir` (``./x`` or ``../x``), POSIX separators;
+    absolute when no relative path exists (another drive)."""
+    try:
+        rel = os.path.relpath(os.fspath(target), os.fspath(layer_dir))
+    except ValueError:
+        return Path(target).resolve().as_posix()
+    rel = rel.replace(os.sep, "/")
+    return rel if rel.startswith("../") else f"./{rel}"
+
+
+@dataclass(frozen=True)
+class NeuralMaterialOverride:
+    """Every value of one Material's BcfNeuralMaterialAPI (asset paths relative to the overrides
+    layer's folder)."""
+
+    material: str
+    feature_textures: tuple[str, ...]
+    feature_resolutions: tuple[int, ...]
+    feature_mip_counts: tuple[int, ...]
+    feature_lod_biases: tuple[float, ...]
+    feature_signed: bool
+    addressing: str
+    reference_resolution: tuple[int, int]
+    st_primvar: str
+    st_scale: tuple[float, float]
+    st_rotation: float
+    st_translation: tuple[float, float]
+    weights: str
+    weights_offset: int
+    weights_size: int
+    weights_index: int
+    mlp_inputs: int
+    mlp_hidden: int
+    mlp_outputs: int
+    mlp_precision: str
+    mlp_activation: str
+    decoder: str
+    targets: tuple[str, ...]
+    channels: tuple[int, ...]
+    scale: tuple[float, ...]
+    bias: tuple[float, ...]
+    color_spaces: tuple[str, ...]
+    fallback_surface: str | None
+    version: str
+
+    def attributes(self) -> list[tuple[str, Sdf.ValueTypeName, object]]:
+        """(name, type, value) of every attribute, in schema order."""
+        return [
+            ("bcf:featureTextures", _T.AssetArray,
+             Sdf.AssetPathArray([Sdf.AssetPath(p) for p in self.feature_textures])),
+            ("bcf:featureResolutions", _T.IntArray, Vt.IntArray([int(v) for v in self.feature_resolutions])),
+            ("bcf:featureMipCounts", _T.IntArray, Vt.IntArray([int(v) for v in self.feature_mip_counts])),
+            ("bcf:featureLodBiases", _T.FloatArray, Vt.FloatArray([float(b) for b in self.feature_lod_biases])),
+            ("bcf:featureSigned", _T.Bool, bool(self.feature_signed)),
+            ("bcf:addressing", _T.Token, self.addressing),
+            ("bcf:referenceResolution", _T.Int2, Gf.Vec2i(*(int(v) for v in self.reference_resolution))),
+            ("bcf:st:primvar", _T.Token, self.st_primvar),
+            ("bcf:st:scale", _T.Float2, Gf.Vec2f(*(float(v) for v in self.st_scale))),
+            ("bcf:st:rotation", _T.Float, float(self.st_rotation)),
+            ("bcf:st:translation", _T.Float2, Gf.Vec2f(*(float(v) for v in self.st_translation))),
+            ("bcf:weights", _T.Asset, Sdf.AssetPath(self.weights)),
+            ("bcf:weightsOffset", _T.Int, int(self.weights_offset)),
+            ("bcf:weightsSize", _T.Int, int(self.weights_size)),
+            ("bcf:weightsIndex", _T.Int, int(self.weights_index)),
+            ("bcf:mlp:inputs", _T.Int, int(self.mlp_inputs)),
+            ("bcf:mlp:hidden", _T.Int, int(self.mlp_hidden)),
+            ("bcf:mlp:outputs", _T.Int, int(self.mlp_outputs)),
+            ("bcf:mlp:precision", _T.Token, self.mlp_precision),
+            ("bcf:mlp:activation", _T.Token, self.mlp_activation),
+            ("bcf:decoder", _T.Asset, Sdf.AssetPath(self.decoder)),
+            ("bcf:outputs:targets", _T.TokenArray, Vt.TokenArray(list(self.targets))),
+            ("bcf:outputs:channels", _T.IntArray, Vt.IntArray([int(c) for c in self.channels])),
+            ("bcf:outputs:scale", _T.FloatArray, Vt.FloatArray([float(v) for v in self.scale])),
+            ("bcf:outputs:bias", _T.FloatArray, Vt.FloatArray([float(v) for v in self.bias])),
+            ("bcf:outputs:colorSpaces", _T.TokenArray, Vt.TokenArray(list(self.color_spaces))),
+            ("bcf:version", _T.String, self.version),
+        ]
+
+
+def _over(layer: Sdf.Layer, path: str) -> Sdf.PrimSpec:
+    """The prim spec at `path` (``over``s created for it and its ancestors)."""
+    return Sdf.CreatePrimInLayer(layer, Sdf.Path(path))
+
+
+def _author(layer: Sdf.Layer, ov: NeuralMaterialOverride) -> None:
+    spec = _over(layer, ov.material)
+    spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=[SCHEMA]))
+    for name, type_name, value in ov.attributes():
+        attr = Sdf.AttributeSpec(spec, name, type_name, _U)
+        attr.default = value
+    if ov.fallback_surface:
+        rel = Sdf.RelationshipSpec(spec, "bcf:fallbackSurface", False, _U)
+        rel.targetPathList.explicitItems = [Sdf.Path(ov.fallback_surface)]
+
+
+def write_overrides_layer(path: str | os.PathLike, overrides: Iterable[NeuralMaterialOverride],
+                          variant_selections: Sequence[tuple[str, str, str]] = (), comment: str = "") -> Path:
+    """Write the overrides layer: variant selections (prim, set, value), then one API-schema
+    ``over`` per material (in the order given)."""
+    path = Path(path)
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    if comment:
+        layer.comment = comment
+    for prim, vset, value in variant_selections:
+        _over(layer, prim).variantSelections[vset] = value
+    for ov in overrides:
+        _author(layer, ov)
+    layer.Export(str(path))
+    return path
+
+
+def write_root_layer(path: str | os.PathLike, sublayers: Sequence[str], up_axis: str, meters_per_unit: float,
+                     default_prim: str | None, source_root_layer: str | None = None, comment: str = "") -> Path:
+    """Write the root layer: `sublayers` (strongest first, already relative), the stage metrics,
+    and time-code metadata copied from `source_root_layer` when authored there."""
+    path = Path(path)
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    if comment:
+        layer.comment = comment
+    layer.subLayerPaths = list(sublayers)
+    root = layer.pseudoRoot
+    root.SetInfo("upAxis", up_axis)
+    root.SetInfo("metersPerUnit", float(meters_per_unit))
+    if default_prim:
+        dp = default_prim[1:] if default_prim.startswith("/") and default_prim.count("/") == 1 else default_prim
+        layer.defaultPrim = dp
+    if source_root_layer:
+        src = Sdf.Layer.FindOrOpen(source_root_layer)
+        if src is not None:
+            for key in _COPIED_METADATA:
+                if src.pseudoRoot.HasInfo(key):
+                    root.SetInfo(key, src.pseudoRoot.GetInfo(key))
+    layer.Export(str(path))
+    return path
+
+
+def read_override(prim: Usd.Prim) -> dict[str, object]:
+    """Every authored ``bcf:`` property of a prim, by name (works without the schema plugin)."""
+    out: dict[str, object] = {}
+    for prop in prim.GetAuthoredProperties():
+        name = prop.GetName()
+        if not name.startswith("bcf:"):
+            continue
+        if isinstance(prop, Usd.Relationship):
+            out[name] = [str(t) for t in prop.GetTargets()]
+        else:
+            out[name] = prop.Get()
+    return out

@@ -1,0 +1,509 @@
+"""Tests for `bcfpipe build` (bcfpipe.pipeline, build_cli, usdout, weightsbuf, schemas/, samples/).
+
+Training runs use the tiny profile and the draft preset. The sample scene is built once per module
+(two workers); a second small stage checks failure isolation, de-duplication and ``--json``.
+Checks that depend on process-wide USD plug-in state (schema registered or not) run in
+subprocesses, as a user's tool would.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+from bcfpipe import weightsbuf
+from bcfpipe.pipeline import (MANIFEST, BuildError, MaterialJob, build, plan, root_layer_name)
+from bcfpipe.build_cli import BuildDisplay
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLES = REPO / "samples"
+SCHEMAS = REPO / "schemas"
+SCENES = REPO.parent / "shared" / "scenes"
+FAST = {"profile": "tiny", "preset": "draft", "seed": 0}
+
+
+def run_py(code: str, plugin: bool, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Run python code in a fresh interpreter, with or without schemas/ registered."""
+    env = dict(os.environ)
+    env.pop("PXR_PLUGINPATH_NAME", None)
+    if plugin:
+        env["PXR_PLUGINPATH_NAME"] = str(SCHEMAS)
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, env=env,
+                          cwd=cwd, timeout=300)
+
+
+def copy_samples(dst: Path) -> Path:
+    shutil.copytree(SAMPLES / "textures", dst / "textures")
+    shutil.copy2(SAMPLES / "sample_scene.usda", dst / "sample_scene.usda")
+    return dst / "sample_scene.usda"
+
+
+@pytest.fixture(scope="module")
+def sample(tmp_path_factory):
+    """The sample scene (copied) built with the default OUT next to it."""
+    root = tmp_path_factory.mktemp("sample")
+    scene = copy_samples(root)
+    result = build(scene, jobs=2, **FAST)
+    return scene, result
+
+
+# ---------------------------------------------------------------------------------------------
+# small authored stages
+
+
+def write_png(path: Path, data: np.ndarray) -> Path:
+    import OpenImageIO as oiio
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    a = np.round(np.clip(data, 0, 1) * 255).astype(np.uint8)
+    assert oiio.ImageBuf(np.ascontiguousarray(a)).write(str(path))
+    return path
+
+
+def pattern(n: int = 64, c: int = 3, seed: int = 0) -> np.ndarray:
+    y, x = np.mgrid[0:n, 0:n] / n
+    k = np.arange(c)[None, None, :] + 1 + seed
+    return 0.5 + 0.4 * np.sin((x[..., None] * 3 + y[..., None] * 2) * np.pi * k)
+
+
+def new_stage(path: Path) -> Usd.Stage:
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    stage.SetDefaultPrim(stage.DefinePrim("/World", "Xform"))
+    return stage
+
+
+def add_material(stage: Usd.Stage, path: str, textures: dict[str, tuple[str, str, dict]] | None = None,
+                 mesh: str | None = None) -> UsdShade.Material:
+    """A UsdPreviewSurface material reading {input: (file, output, extra texture inputs)}."""
+    T = Sdf.ValueTypeNames
+    mat = UsdShade.Material.Define(stage, path)
+    surf = UsdShade.Shader.Define(stage, f"{path}/Surface")
+    surf.CreateIdAttr("UsdPreviewSurface")
+    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+    reader = UsdShade.Shader.Define(stage, f"{path}/St")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", T.String).Set("st")
+    st = reader.CreateOutput("result", T.Float2)
+    for name, (file, output, extra) in (textures or {}).items():
+        tex = UsdShade.Shader.Define(stage, f"{path}/Tex_{name}")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", T.Asset).Set(file)
+        tex.CreateInput("st", T.Float2).ConnectToSource(st)
+        for k, v in extra.items():
+            tex.CreateInput(k, T.Float4 if k in ("scale", "bias") else T.Token).Set(v)
+        out = tex.CreateOutput(output, T.Float3 if output == "rgb" else T.Float)
+        in_type = {"diffuseColor": T.Color3f, "emissiveColor": T.Color3f, "normal": T.Normal3f}.get(name, T.Float)
+        surf.CreateInput(name, in_type).ConnectToSource(out)
+    if mesh:
+        m = UsdGeom.Mesh.Define(stage, mesh)
+        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(mat)
+    return mat
+
+
+def constant_stage(path: Path) -> Path:
+    """A stage whose only material is untextured: builds instantly (nothing to train)."""
+    stage = new_stage(path)
+    mat = add_material(stage, "/World/Looks/Plain", mesh="/World/Mesh")
+    UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Plain/Surface")).CreateInput(
+        "roughness", Sdf.ValueTypeNames.Float).Set(0.3)
+    assert mat
+    stage.Save()
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# the sample scene
+
+
+def test_sample_outputs(sample) -> None:
+    scene, result = sample
+    out = scene.parent / "sample_scene.bcf"
+    assert result.out == out and result.exit_code == 0 and result.ok
+    for name in ("sample_scene.bcf.usda", "overrides.usda", "weights.bin", MANIFEST):
+        assert (out / name).is_file(), name
+    manifest = json.loads((out / MANIFEST).read_text())
+    status = {m["path"].rsplit("/", 1)[-1]: (m["status"], m["reason"]) for m in manifest["materials"]}
+    assert status == {"Bricks": ("built", None), "Tiles": ("built", None), "TilesWorn": ("built", None),
+                      "Leaves": ("built", None), "Plastic": ("skipped", "no-textures"),
+                      "Unused": ("skipped", "unbound")}
+    # identical texture sets train once and share their outputs
+    assert [j["name"] for j in manifest["jobs"]] == ["Bricks", "Tiles", "Leaves"]
+    mats = {m["path"].rsplit("/", 1)[-1]: m for m in manifest["materials"]}
+    assert mats["Tiles"]["job"] == mats["TilesWorn"]["job"] == "Tiles"
+    assert mats["Tiles"]["outputs"] == mats["TilesWorn"]["outputs"]
+    for job in manifest["jobs"]:
+        folder = out / "materials" / job["name"]
+        for f in ("T0.dds", "T1.dds", "T2.dds", "T3.dds", "weights.bin", "decoder.onnx", "material.json"):
+            assert (folder / f).is_file(), folder / f
+    b = mats["Bricks"]
+    assert [t["target"] for t in b["targets"]] == ["diffuseColor.r", "diffuseColor.g", "diffuseColor.b",
+                                                   "roughness", "normal.x", "normal.y", "normal.z", "displacement"]
+    assert [t["color_space"] for t in b["targets"][:4]] == ["sRGB", "sRGB", "sRGB", "raw"]
+    normal = [t for t in b["targets"] if t["target"].startswith("normal")]
+    assert [(t["scale"], t["bias"]) for t in normal] == [(1.0, 0.0)] * 3  # scale 2 / bias -1 in the input
+    leaves = {t["target"]: t for t in mats["Leaves"]["targets"]}
+    assert leaves["opacity"]["source_channel"] == "a" and leaves["opacity"]["color_space"] == "raw"
+    for m in (b, mats["Leaves"]):
+        assert m["metrics"]["psnr"] > 15 and m["sizes"]["total_bytes"] > 0 and m["train_seconds"] > 0
+        assert m["device"] == "cpu" and all(len(s["xxh3_128"]) == 32 for s in m["sources"])
+    assert manifest["totals"]["built"] == 4 and manifest["totals"]["trained"] == 3
+    # every model channel is read once: Tiles has 3 (albedo) + 2 (normal) + 3 (ORM) outputs
+    desc = json.loads((out / "materials" / "Tiles" / "material.json").read_text())
+    assert desc["mlp"]["n_out"] == 8
+
+
+def test_weights_buffer(sample) -> None:
+    scene, result = sample
+    out = result.out
+    data, entries = weightsbuf.read(out / "weights.bin")
+    assert len(entries) == 3
+    for e, job in zip(entries, result.manifest["jobs"]):
+        assert e.offset % 16 == 0
+        assert data[e.offset:e.offset + e.size] == (out / "materials" / job["name"] / "weights.bin").read_bytes()
+        assert job["weights_index"] == e.index
+    stage = Usd.Stage.Open(str(result.root_layer))
+    for m in result.manifest["materials"]:
+        if m["status"] != "built":
+            continue
+        prim = stage.GetPrimAtPath(m["path"])
+        e = entries[prim.GetAttribute("bcf:weightsIndex").Get()]
+        assert prim.GetAttribute("bcf:weightsOffset").Get() == e.offset
+        assert prim.GetAttribute("bcf:weightsSize").Get() == e.size
+        assert weightsbuf.record(data, e.index).dims[2] == prim.GetAttribute("bcf:mlp:outputs").Get()
+
+
+def test_root_layer(sample) -> None:
+    scene, result = sample
+    layer = Sdf.Layer.FindOrOpen(str(result.root_layer))
+    assert list(layer.subLayerPaths) == ["./overrides.usda", "../sample_scene.usda"]
+    assert layer.defaultPrim == "World"
+    assert layer.pseudoRoot.GetInfo("upAxis") == "Y" and layer.pseudoRoot.GetInfo("metersPerUnit") == 1.0
+
+
+CHECK_ATTRS = """
+    import json, sys
+    from pxr import Usd
+    stage = Usd.Stage.Open(sys.argv[1] if len(sys.argv) > 1 else {root!r})
+    manifest = json.load(open({manifest!r}))
+    report = {{}}
+    for m in manifest["materials"]:
+        prim = stage.GetPrimAtPath(m["path"])
+        props = {{p.GetName(): p for p in prim.GetAuthoredProperties() if p.GetName().startswith("bcf:")}}
+        values = {{}}
+        for name, p in props.items():
+            v = p.GetTargets() if isinstance(p, Usd.Relationship) else p.Get()
+            values[name] = None if v is None else str(v)
+        report[m["path"]] = {{"n": len(props), "none": [k for k, v in values.items() if v is None],
+                             "has_api": prim.HasAPI("BcfNeuralMaterialAPI"),
+                             "targets": values.get("bcf:outputs:targets")}}
+    print(json.dumps(report))
+"""
+
+
+@pytest.mark.parametrize("plugin", [False, True], ids=["no-plugin", "plugin"])
+def test_attributes_readable(sample, plugin: bool) -> None:
+    scene, result = sample
+    code = CHECK_ATTRS.format(root=str(result.root_layer), manifest=str(result.out / MANIFEST))
+    proc = run_py(code, plugin)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    for m in result.manifest["materials"]:
+        r = report[m["path"]]
+        if m["status"] == "built":
+            assert r["n"] == 28 and r["none"] == [] and r["has_api"] is plugin
+            assert "normal.z" in r["targets"] or m["path"].endswith("Leaves")
+        else:
+            assert r["n"] == 0
+
+
+VALIDATE = """
+    import sys
+    from pxr import Usd, UsdValidation
+    registry = UsdValidation.ValidationRegistry()
+    context = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
+    errors = context.Validate(Usd.Stage.Open(sys.argv[1]))
+    for e in errors:
+        print(e.GetType(), e.GetName(), e.GetMessage())
+    print("ERRORS", sum(1 for e in errors if e.GetType() == UsdValidation.ValidationErrorType.Error))
+"""
+
+
+def validate(root: Path, plugin: bool = True) -> tuple[int, str]:
+    env = dict(os.environ, PXR_PLUGINPATH_NAME=str(SCHEMAS)) if plugin else dict(os.environ)
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(VALIDATE), str(root)], capture_output=True,
+                          text=True, env=env, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return int(proc.stdout.rsplit("ERRORS", 1)[1]), proc.stdout
+
+
+def test_validation(sample) -> None:
+    scene, result = sample
+    n, text = validate(result.root_layer)
+    assert n == 0, text
+
+
+def dependencies(root: Path) -> tuple[list[str], list[str], list[str]]:
+    from pxr import UsdUtils
+
+    layers, assets, unresolved = UsdUtils.ComputeAllDependencies(str(root))
+    return [lyr.realPath for lyr in layers], [str(a) for a in assets], [str(u) for u in unresolved]
+
+
+def test_dependencies(sample) -> None:
+    scene, result = sample
+    layers, assets, unresolved = dependencies(result.root_layer)
+    assert unresolved == []
+    out = result.out.resolve()
+    want = {str(out / "weights.bin")} | {str(p.resolve()) for p in out.glob("materials/*/T?.dds")}
+    assert len(want) == 1 + 4 * 3
+    assert want <= {str(Path(a).resolve()) for a in assets}
+    assert str(scene.resolve()) in {str(Path(p).resolve()) for p in layers}
+
+
+def test_relocation(sample, tmp_path: Path) -> None:
+    scene, result = sample
+    moved = tmp_path / "elsewhere" / "deeper"
+    shutil.copytree(scene.parent, moved)
+    root = moved / "sample_scene.bcf" / root_layer_name(scene)
+    layers, assets, unresolved = dependencies(root)
+    assert unresolved == []
+    assert all(Path(p).is_relative_to(moved) for p in layers + assets), (layers, assets)
+    assert all(Path(a).exists() for a in assets)
+    stage = Usd.Stage.Open(str(root))
+    attr = stage.GetPrimAtPath("/World/Looks/Bricks").GetAttribute("bcf:featureTextures")
+    resolved = [a.resolvedPath for a in attr.Get()]
+    assert all(r and Path(r).is_relative_to(moved) and Path(r).exists() for r in resolved), resolved
+
+
+@pytest.mark.slow
+def test_deterministic(sample, tmp_path: Path) -> None:
+    """The same job and seed (and thread count) give byte-identical exported files."""
+    from bcfpipe.pipeline import run_job
+
+    scene, result = sample
+    job = result.plan.job("Leaves")
+    threads = next(j["threads"] for j in result.manifest["jobs"] if j["name"] == "Leaves")
+    r = run_job(job.to_dict(), str(tmp_path / "Leaves"), threads, "cpu")
+    assert r["status"] == "built", r
+    for f in ("T0.dds", "T1.dds", "T2.dds", "T3.dds", "weights.bin", "decoder.onnx"):
+        assert (tmp_path / "Leaves" / f).read_bytes() == (result.out / "materials" / "Leaves" / f).read_bytes(), f
+
+
+# ---------------------------------------------------------------------------------------------
+# planning (no training)
+
+
+def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
+    a = copy_samples(tmp_path / "a")
+    b = copy_samples(tmp_path / "b")
+    pa, pb = plan(a, **FAST), plan(b, **FAST)
+    assert [j.content_hash for j in pa.jobs] == [j.content_hash for j in pb.jobs]  # paths do not matter
+    for job in pa.jobs:
+        assert MaterialJob.from_dict(json.loads(json.dumps(job.to_dict()))) == job
+    json.dumps(pa.to_dict())
+    assert plan(a, profile="tiny", preset="draft", seed=1).jobs[0].content_hash != pa.jobs[0].content_hash
+    # --all-materials adds the unbound material
+    names = [m.path for m in plan(a, all_materials=True, **FAST).materials if m.decision == "model"]
+    assert "/World/Looks/Unused" in names
+
+
+def test_plan_channel_mapping(tmp_path: Path) -> None:
+    write_png(tmp_path / "tex" / "color.png", pattern())
+    write_png(tmp_path / "tex" / "normal.png", pattern(seed=1))
+    write_png(tmp_path / "tex" / "grey.png", pattern(c=1, seed=2)[..., 0])
+    stage = new_stage(tmp_path / "scene.usda")
+    clamp = {"wrapS": "clamp", "wrapT": "clamp"}
+    add_material(stage, "/World/Looks/M", {
+        "diffuseColor": ("./tex/color.png", "rgb", clamp),
+        "emissiveColor": ("./tex/color.png", "rgb", {**clamp, "scale": (2.0, 2.0, 2.0, 1.0)}),
+        "opacity": ("./tex/color.png", "r", clamp),
+        "normal": ("./tex/normal.png", "rgb", {**clamp, "sourceColorSpace": "raw"}),  # scale 1 / bias 0
+        "roughness": ("./tex/grey.png", "r", clamp),
+    }, mesh="/World/Mesh")
+    stage.Save()
+    p = plan(tmp_path / "scene.usda", **FAST)
+    (job,) = p.jobs
+    assert job.wrap == "clamp"
+    # color.png rgb read once for diffuse, emissive and opacity; normal x, y; grey r
+    assert [(Path(c.file).name, c.channel, c.kind) for c in job.channels] == [
+        ("color.png", "r", "value"), ("color.png", "g", "value"), ("color.png", "b", "value"),
+        ("grey.png", "r", "value"), ("normal.png", "r", "normal"), ("normal.png", "g", "normal")]
+    (m,) = [m for m in p.materials if m.decision == "model"]
+    t = {x.target: x for x in m.targets}
+    assert t["diffuseColor.g"].channel == t["emissiveColor.g"].channel == 1
+    assert t["emissiveColor.r"].scale == 2.0 and t["diffuseColor.r"].color_space == "sRGB"  # auto, 8-bit RGB
+    assert t["opacity"].channel == 0
+    assert (t["normal.x"].scale, t["normal.x"].bias, t["normal.x"].channel) == (0.5, 0.5, 4)
+    assert (t["normal.z"].channel, t["roughness"].channel) == (6, 3)
+    assert t["roughness"].color_space == "raw"  # auto on a 1-channel file
+
+
+@pytest.mark.shared
+def test_plan_packaged_textures(tmp_path: Path) -> None:
+    """Textures inside a usdz are hashed through Ar and copied out for the loader."""
+    from bcfpipe.pipeline import local_file
+    from bcfpipe.texset import TextureSpec, load_texture_set
+
+    scene = SCENES / "usdwg_roughness_test" / "RoughnessTest.usdz"
+    if not scene.exists():
+        pytest.skip(f"needs {scene}")
+    p = plan(scene, **FAST)
+    assert p.jobs and all(m.reason != "failed" for m in p.materials)
+    job = p.jobs[0]
+    assert all("[" in s.path and s.width > 0 and len(s.xxh3_128) == 32 for s in job.sources)
+    ts = load_texture_set([TextureSpec(sem, local_file(path, tmp_path), ch) for sem, path, ch in job.specs])
+    assert ts.num_channels == len(job.channels)
+
+
+# ---------------------------------------------------------------------------------------------
+# failures, dedup, --json, OUT handling
+
+
+def test_failure_isolation_dedup_and_json(tmp_path: Path) -> None:
+    write_png(tmp_path / "tex" / "a.png", pattern())
+    write_png(tmp_path / "tex" / "r.png", pattern(c=1, seed=3)[..., 0])
+    (tmp_path / "tex" / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not a png")
+    stage = new_stage(tmp_path / "scene.usda")
+    good = {"diffuseColor": ("./tex/a.png", "rgb", {}), "roughness": ("./tex/r.png", "r", {})}
+    add_material(stage, "/World/Looks/Good", good, mesh="/World/A")
+    add_material(stage, "/World/Looks/Twin", good, mesh="/World/B")
+    add_material(stage, "/World/Looks/Broken", {"diffuseColor": ("./tex/broken.png", "rgb", {})}, mesh="/World/C")
+    stage.Save()
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(tmp_path / "scene.usda"), "-o", str(out),
+                           "--profile", "tiny", "--quality", "draft", "--jobs", "2", "--threads", "1", "--json"],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 1, proc.stderr
+    manifest = json.loads(proc.stdout)  # stdout is the JSON manifest and nothing else
+    status = {m["path"].rsplit("/", 1)[-1]: m for m in manifest["materials"]}
+    assert status["Good"]["status"] == status["Twin"]["status"] == "built"
+    assert status["Good"]["job"] == status["Twin"]["job"] and len(manifest["jobs"]) == 2
+    assert status["Broken"]["status"] == "failed"
+    reason = status["Broken"]["reason"]
+    assert "\n" not in reason and "broken.png" in reason
+    assert manifest["exit_code"] == 1 and manifest["totals"]["failed"] == 1
+    assert {j["threads"] for j in manifest["jobs"]} == {1}
+    # the failed material keeps its original shading: no API schema, and the output still validates
+    overrides = (out / "overrides.usda").read_text()
+    assert "Broken" not in overrides and '"Good"' in overrides
+    n, text = validate(out / "scene.bcf.usda")
+    assert n == 0, text
+    assert not list(tmp_path.glob(".out.*")), "no staging folders left behind"
+
+
+def test_refuses_foreign_out(tmp_path: Path) -> None:
+    scene = constant_stage(tmp_path / "scene.usda")
+    out = tmp_path / "precious"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(BuildError, match="--force"):
+        build(scene, out, **FAST)
+    assert (out / "notes.txt").read_text() == "mine"
+    proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "--force" in proc.stderr and (out / "notes.txt").exists()
+    result = build(scene, out, force=True, **FAST)
+    assert result.exit_code == 0 and not (out / "notes.txt").exists() and (out / MANIFEST).exists()
+    # a bcfpipe output is replaced without --force
+    again = build(scene, out, **FAST)
+    assert again.exit_code == 0 and again.manifest["totals"]["skipped"] == 1
+    # an OUT containing the input is refused even with --force
+    with pytest.raises(BuildError, match="contains the input"):
+        build(scene, tmp_path, force=True, **FAST)
+    assert scene.exists()
+
+
+def test_default_out_and_constant_only(tmp_path: Path) -> None:
+    scene = constant_stage(tmp_path / "scene.usda")
+    result = build(scene, **FAST)
+    assert result.out == tmp_path / "scene.bcf" and result.root_layer == tmp_path / "scene.bcf" / "scene.bcf.usda"
+    (m,) = result.manifest["materials"]
+    assert (m["status"], m["reason"]) == ("skipped", "no-textures")
+    assert result.manifest["totals"]["trained"] == 0
+    data, entries = weightsbuf.read(result.out / "weights.bin")
+    assert entries == [] and len(data) == 16
+    n, text = validate(result.root_layer)
+    assert n == 0, text
+
+
+def test_bad_variant_and_missing_scene(tmp_path: Path) -> None:
+    with pytest.raises(BuildError, match="no such file"):
+        build(tmp_path / "nope.usda", **FAST)
+    scene = constant_stage(tmp_path / "scene.usda")
+    with pytest.raises(BuildError):
+        build(scene, variants=["novalue"], **FAST)
+
+
+def test_plain_progress_lines() -> None:
+    from rich.console import Console
+
+    buf = io.StringIO()
+    display = BuildDisplay(Console(file=buf, width=200), live=False)
+    with display:
+        display({"event": "queued", "job": "A", "materials": ["/W/A"]})
+        display({"event": "progress", "job": "A", "phase": "warmup", "step": 50, "steps": 200, "psnr": 20.0,
+                 "eta": 10.0})
+        display({"event": "progress", "job": "A", "phase": "warmup", "step": 100, "steps": 200, "psnr": 21.0,
+                 "eta": 8.0})
+        display({"event": "done", "job": "A", "status": "built", "psnr": 30.5, "seconds": 12.0})
+    lines = buf.getvalue().splitlines()
+    assert len(lines) == 2 and "A: warmup" in lines[0] and "PSNR 30.50" in lines[1]
+    assert "[1/1]" in lines[1]
+
+
+def test_schema_helper() -> None:
+    from bcfpipe import schema
+
+    d = schema.schema_dir()
+    assert {"plugInfo.json", "generatedSchema.usda", "schema.usda"} <= {p.name for p in d.iterdir()}
+    assert str(d) in schema.plugin_path_env("")
+    proc = run_py("""
+        from bcfpipe import schema
+        assert schema.register() and schema.is_registered()
+        from pxr import Usd, UsdShade
+        stage = Usd.Stage.CreateInMemory()
+        prim = UsdShade.Material.Define(stage, "/M").GetPrim()
+        assert prim.CanApplyAPI(schema.SCHEMA)
+        prim.ApplyAPI(schema.SCHEMA)
+        assert prim.GetAttribute("bcf:mlp:precision").Get() == "fp16"
+        assert not stage.DefinePrim("/X", "Xform").CanApplyAPI(schema.SCHEMA)
+        print("ok")
+    """, plugin=False)
+    assert proc.stdout.strip() == "ok", proc.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# the teapot
+
+
+@pytest.mark.slow
+@pytest.mark.shared
+def test_teapot_fancy(tmp_path: Path) -> None:
+    scene = SCENES / "usdwg_teapot" / "Teapot.usd"
+    if not scene.exists():
+        pytest.skip(f"needs {scene}")
+    out = tmp_path / "Teapot.bcf"
+    result = build(scene, out, variants={"modelVariant": "Fancy"}, preset="draft")
+    assert result.exit_code == 0
+    mats = {m["path"]: m for m in result.manifest["materials"]}
+    fancy = mats["/Teapot/Materials/PorcelainFlowers"]
+    assert fancy["status"] == "built" and fancy["profile"] == "2k"
+    assert mats["/Teapot/Materials/Ceramic"]["status"] == "skipped"
+    n, text = validate(result.root_layer)
+    assert n == 0, text
+    layers, assets, unresolved = dependencies(result.root_layer)
+    assert unresolved == []
+    assert {str(p.resolve()) for p in out.glob("materials/*/T?.dds")} | {str(out / "weights.bin")} <= set(assets)
+    overrides = (out / "overrides.usda").read_text()
+    assert 'string modelVariant = "Fancy"' in overrides
