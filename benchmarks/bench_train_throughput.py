@@ -98,7 +98,10 @@ def main():
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--steps", type=int, default=6)
     ap.add_argument("--batches", default="262144,16384")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     a = ap.parse_args()
+    if a.threads:
+        torch.set_num_threads(a.threads)
     dev = torch.device(a.device)
     gen = torch.Generator().manual_seed(0)
     ts = load_texture_set(teapot_specs())
