@@ -139,7 +139,9 @@ class TrainConfig:
     seed: int = 0
     device: str = "cpu"
     threads: int | None = None  # torch intra-op threads; None = torch's default
-    tap_decode: bool = True  # decode only sampled texels per step (False: whole levels; same result)
+    # decode only the sampled texels each step instead of whole levels (same forward values). Off by
+    # default: on a quiet 2-core machine whole levels were faster at batch 128² and 512² (benchmarks.md)
+    tap_decode: bool = False
 
     def with_(self, **kw) -> "TrainConfig":
         return replace(self, **kw)

@@ -12,7 +12,7 @@ from bcfpipe.texset import Channel, TextureSet, TextureSpec, load_texture_set
 
 # a short schedule for tests: ~2 s of training per run on one core
 QUICK = Preset(PhaseSchedule(120, 0.5, 5e-3, 0.98, 0.98), PhaseSchedule(240, 0.1, 5e-3, 0.99, 0.99),
-               PhaseSchedule(40, 0.0, 2.5e-3, 1.0, 0.95), 2048, qat_fraction=0.2)
+               PhaseSchedule(40, 0.0, 2.5e-3, 1.0, 0.95), 2048, qat_fraction=0.5)
 TINY = ModelConfig(resolutions=(32, 16, 8, 4))
 
 
