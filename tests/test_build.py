@@ -507,3 +507,17 @@ def test_teapot_fancy(tmp_path: Path) -> None:
     assert {str(p.resolve()) for p in out.glob("materials/*/T?.dds")} | {str(out / "weights.bin")} <= set(assets)
     overrides = (out / "overrides.usda").read_text()
     assert 'string modelVariant = "Fancy"' in overrides
+
+
+@pytest.mark.gl
+def test_verify_passes_on_the_sample_build(sample) -> None:
+    """`bcfpipe verify` on a real (tiny) build: GLSL through OpenGL against ONNX, every material."""
+    from bcfpipe import verify as V
+
+    scene, result = sample
+    try:
+        report = V.verify(result.out)
+    except V.VerifyInputError as e:  # no EGL/OpenGL on this machine
+        pytest.skip(f"no OpenGL: {e}")
+    assert report.exit_code == 0, report.to_dict()
+    assert len(report.materials) == 3 and all(m.passed for m in report.materials)
