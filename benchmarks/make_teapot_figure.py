@@ -57,7 +57,7 @@ def main():
         ax.set_title(name + ("" if img is ref else f"\ncrop PSNR {psnr_from_mse(mse):.2f} dB"), fontsize=9)
         ax.axis("off")
     fig.suptitle(f"teapot albedo at lod 0, crop {n}x{n} at ({x}, {y})", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.92))
     a.png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(a.png)
     print(f"wrote {a.png}")
