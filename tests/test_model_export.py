@@ -154,3 +154,20 @@ def test_description_is_self_contained(tmp_path):
     assert [o["usd_target"] for o in d["outputs"]] == ["diffuseColor.r", "diffuseColor.g", "diffuseColor.b",
                                                        "normal.x", "normal.y", "normal.z", "roughness"]
     assert d["onnx"]["input"] == "features" and d["mlp"]["n_in"] == 12 and d["sampling"]["addressing"] == "repeat"
+
+
+@pytest.mark.parametrize("profile, ref", [("0.5k", 2048), ("1k", 2048), ("2k", 2048), ("2k++", 2048),
+                                          ("tiny", 64), ("1k", 1024)])
+def test_lod_biases_span_the_reference_lod_range(profile, ref):
+    """T_0 keeps the texel density of the reference; the coarsest layer's last mip is reached at the
+    reference's last lod, so some layer still changes with s all the way to the 1x1 mip."""
+    from bcfpipe.config import PROFILES, mip_count
+
+    res = PROFILES[profile]
+    b = M.lod_biases(res, ref, ref)
+    natural = [np.log2(r / ref) for r in res]
+    assert b[0] == natural[0]
+    assert all(bi <= ni for bi, ni in zip(b, natural))
+    last = [mip_count(r) - 1 - bi for r, bi in zip(res, b)]  # s at which layer i reaches its 4x4 mip
+    assert max(last) == np.log2(ref)
+    assert last == sorted(last)
