@@ -192,3 +192,215 @@ def test_bit_exact_on_cuda():
         out = emulate.decode_blocks(E, X, M, signed=signed).cpu().numpy()
         assert out.dtype == np.float32
         assert np.array_equal(out.astype(np.float16).view(np.uint16), decode_to_u16(blocks, signed=signed))
+
+
+# ---------------------------------------------------------------------------
+# fused decode (one autograd node) against the composed reference
+# ---------------------------------------------------------------------------
+
+N_FUSED = 50_000
+
+
+@pytest.fixture
+def one_thread():
+    """The fused tests run many small kernels: on a loaded machine torch's OpenMP threads mostly
+    wait for each other, so these tests use one thread (restored afterwards)."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+_INT = {torch.float32: torch.int32, torch.float64: torch.int64}
+
+
+def _bits(t: torch.Tensor) -> torch.Tensor:
+    """Exact bit patterns (tells -0 from +0)."""
+    return t.detach().contiguous().view(_INT[t.dtype])
+
+
+def _pick(gen, choices: list[torch.Tensor], shape) -> torch.Tensor:
+    """Elementwise random choice among same-shaped candidate tensors."""
+    which = torch.randint(0, len(choices), shape, generator=gen)
+    out = choices[0].clone()
+    for i, c in enumerate(choices[1:], 1):
+        out = torch.where(which == i, c, out)
+    return out
+
+
+def _edge_inputs(n, signed, dtype, seed):
+    """Endpoints and indices mixing continuous values, integers, the clamps and values beyond,
+    round ties, exact knots k/7, values at and around the snap epsilon, and a few ulps either
+    side of the snap threshold."""
+    gen = torch.Generator().manual_seed(seed)
+    lo, hi = (-32.0, 31.0) if signed else (0.0, 63.0)
+    es = (n, 4, 3)
+    rnd = lambda shape: torch.rand(shape, generator=gen, dtype=dtype)  # noqa: E731
+    special = torch.tensor([lo, hi, lo + 1, hi - 1, lo - 1e-3, hi + 1e-3, lo + 1e-6, hi - 1e-6, 0.0, -0.0,
+                            0.5, -0.5, 1.5, 2.5, 0.49999997, 30.5, 31.0, -31.0, -32.0, 62.5, 63.0,
+                            -7e-4, -8e-4, -9e-4, 7e-4], dtype=dtype)  # -1 < p < 0 for the floor
+    e = _pick(gen, [
+        rnd(es) * (hi - lo + 3) + lo - 1.5,  # continuous, partly beyond the clamps
+        torch.randint(int(lo), int(hi) + 1, es, generator=gen).to(dtype),  # integers
+        torch.randint(int(lo), int(hi) + 1, es, generator=gen).to(dtype) + 0.5,  # round ties
+        special[torch.randint(0, len(special), es, generator=gen)],
+    ], es)
+    xs = (n, 16)
+    k = torch.randint(0, 8, xs, generator=gen).to(dtype)
+    knot = k / 7.0
+    eps = torch.tensor(1e-4, dtype=dtype)
+    # the snap test is |7x - k| < 7e-4 (in the compute dtype): a few ulps around x = (k +- 7e-4) / 7
+    t_edge = (k + torch.where(rnd(xs) < 0.5, 1.0, -1.0).to(dtype) * torch.tensor(7e-4, dtype=dtype)) / 7.0
+    ulps = torch.randint(-8, 9, xs, generator=gen).to(_INT[dtype])
+    near_threshold = (t_edge.view(_INT[dtype]) + ulps).view(dtype)
+    x = _pick(gen, [
+        rnd(xs) * 1.1 - 0.05,  # continuous, partly beyond [0, 1]
+        knot,  # exact k/7 in this dtype
+        knot + (rnd(xs) * 2.4 - 1.2) * eps,  # within (and just beyond) the snap epsilon
+        near_threshold,
+        (k + 0.5) / 7.0,  # round ties of 7x
+        torch.tensor([0.0, 1.0, -0.0, 1e-30, 1.0 - 1e-7, -1e-7, 1.0 + 1e-7], dtype=dtype)[
+            torch.randint(0, 7, xs, generator=gen)],
+    ], xs)
+    mask = torch.rand(xs, generator=gen) < 0.5
+    return e, x, mask
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("signed", [False, True])
+def test_fused_forward_bit_identical_to_composed(signed, dtype, one_thread):
+    e, x, mask = _edge_inputs(N_FUSED, signed, dtype, seed=11 + signed)
+    for quantized in (False, True):
+        with torch.no_grad():
+            ref = emulate.decode_blocks_composed(e, x, mask, signed=signed, quantized=quantized)
+            got = emulate.decode_blocks(e, x, mask, signed=signed, quantized=quantized)
+        assert got.shape == ref.shape and got.dtype == ref.dtype == dtype
+        diff = int((_bits(got) != _bits(ref)).sum())
+        assert diff == 0, f"{diff} texel values differ (quantized={quantized})"
+    # with gradients enabled the fused forward takes another path: same values
+    eg, xg = e[:2000].clone().requires_grad_(True), x[:2000].clone().requires_grad_(True)
+    got = emulate.decode_blocks(eg, xg, mask[:2000], signed=signed, quantized=quantized)
+    assert torch.equal(_bits(got), _bits(ref[:2000]))
+
+
+def _grads(fn, e, x, mask, g, signed, quantized):
+    e, x = e.clone().requires_grad_(True), x.clone().requires_grad_(True)
+    out = fn(e, x, mask, signed=signed, quantized=quantized)
+    ge, gx = torch.autograd.grad(out, (e, x), g)
+    return out.detach(), ge, gx
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("signed", [False, True])
+@pytest.mark.parametrize("quantized", [False, True])
+def test_fused_gradients_equal_composed(signed, quantized, dtype, one_thread):
+    n = 4000
+    e, x, mask = _edge_inputs(n, signed, dtype, seed=21 + 2 * signed + quantized)
+    g = torch.randn((n, 16, 3), generator=torch.Generator().manual_seed(3), dtype=dtype)
+    g[: n // 4] = 1.0  # also the plain sum
+    ref = _grads(emulate.decode_blocks_composed, e, x, mask, g, signed, quantized)
+    got = _grads(emulate.decode_blocks, e, x, mask, g, signed, quantized)
+    assert torch.equal(_bits(got[0]), _bits(ref[0]))
+    # float32: the composed backward itself has rounding (e.g. dL/dw = sum g ub - sum g ua
+    # cancels), hence a small absolute term relative to the gradient's scale
+    rtol, atol_rel = (1e-5, 1e-6) if dtype == torch.float32 else (1e-10, 1e-13)
+    for name, a, b in (("endpoints", got[1], ref[1]), ("x", got[2], ref[2])):
+        assert a.dtype == dtype
+        atol = atol_rel * float(b.abs().max())
+        assert torch.allclose(a, b, rtol=rtol, atol=atol), (
+            f"{name}: max |diff| {float((a - b).abs().max()):.3g}, max |grad| {float(b.abs().max()):.3g}")
+    # outside the clamps the gradient is exactly zero, at the clamps it is passed
+    lo, hi = (-32.0, 31.0) if signed else (0.0, 63.0)
+    assert torch.all(got[1][(e < lo) | (e > hi)] == 0) and torch.all(got[2][(x < 0) | (x > 1)] == 0)
+    at = (e == lo) | (e == hi)
+    assert torch.equal(got[1][at] == 0, ref[1][at] == 0)
+
+
+@pytest.mark.parametrize("signed", [False, True])
+def test_fused_backward_gradcheck(signed, one_thread):
+    """The fused backward is the derivative of the straight-through surrogate (every floor /
+    trunc / round taken away, the half exponent h held at its decoded value).  torch's gradcheck
+    compares it, as the analytic Jacobian, with central differences of that surrogate, in
+    float64 at points away from every kink (the decoder itself is piecewise constant)."""
+    gen = torch.Generator().manual_seed(5 + signed)
+    lo, hi = (-32.0, 31.0) if signed else (0.0, 63.0)
+    n = 6
+    e = torch.randint(int(lo) + 1, int(hi) - 1, (n, 4, 3), generator=gen).double()
+    e += 0.2 + 0.6 * torch.rand((n, 4, 3), generator=gen, dtype=torch.float64)
+    x = (torch.randint(0, 7, (n, 16), generator=gen).double() + 0.2
+         + 0.6 * torch.rand((n, 16), generator=gen, dtype=torch.float64)) / 7.0
+    mask = emulate.partition_mask(torch.arange(n) * 5 % 32)
+    with torch.no_grad():
+        decoded = emulate.decode_blocks(e, x, mask, signed=signed)
+    abs_f = decoded.numpy().astype(np.float16).view(np.uint16).astype(np.int64) & 0x7FFF  # |F|
+    h = torch.tensor(np.maximum(abs_f // 1024 - 1, 0), dtype=torch.float64)
+    sign = torch.sign(decoded)
+    c = 31.0 / 32.0 if signed else 31.0 / 64.0
+
+    class SurrogateWithFusedBackward(torch.autograd.Function):
+        @staticmethod
+        def forward(ctx, ee, xx):
+            ctx.save_for_backward(ee, xx)
+            u = emulate.unquantize(ee, signed=signed)
+            m = mask.unsqueeze(-1)
+            ua = torch.where(m, u[:, None, 2], u[:, None, 0])
+            ub = torch.where(m, u[:, None, 3], u[:, None, 1])
+            w = emulate.index_weight(xx).unsqueeze(-1)
+            f = (ua * (64 - w) + ub * w + 32) / 64 * c
+            return torch.exp2(h - 14) * (f / 1024 - sign * h)
+
+        @staticmethod
+        def backward(ctx, g):
+            ee, xx = (t.detach().requires_grad_(True) for t in ctx.saved_tensors)
+            with torch.enable_grad():
+                out = emulate.decode_blocks(ee, xx, mask, signed=signed)  # the fused node
+            return torch.autograd.grad(out, (ee, xx), g)
+
+    assert torch.autograd.gradcheck(SurrogateWithFusedBackward.apply,
+                                    (e.requires_grad_(True), x.requires_grad_(True)), eps=1e-6, atol=1e-9)
+
+
+def test_fused_input_handling(one_thread):
+    rng = np.random.default_rng(9)
+    n = 300
+    e0 = torch.tensor(rng.uniform(-1, 64, (n, 3, 4)), dtype=torch.float32)
+    x0 = torch.tensor(rng.uniform(0, 1, (16, n)), dtype=torch.float32)
+    mask = emulate.partition_mask(rng.integers(0, 32, n))
+    e, x = e0.transpose(1, 2), x0.t()  # non-contiguous views
+    ref = emulate.decode_blocks_composed(e, x, mask)
+    assert torch.equal(emulate.decode_blocks(e, x, mask), ref)
+    assert torch.equal(emulate.decode_blocks(e, x, mask.float()), ref)  # float mask
+    assert torch.equal(emulate.decode_blocks(e.half(), x, mask), emulate.decode_blocks_composed(e.half(), x, mask))
+    # gradient for one input only, a broadcast grad_output (out.sum())
+    xg = x.clone().requires_grad_(True)
+    emulate.decode_blocks(e, xg, mask).sum().backward()
+    xr = x.clone().requires_grad_(True)
+    emulate.decode_blocks_composed(e, xr, mask).sum().backward()
+    assert torch.allclose(xg.grad, xr.grad, rtol=1e-5, atol=1e-6 * float(xr.grad.abs().max()))
+    eg = e.clone().requires_grad_(True)
+    emulate.decode_blocks(eg, x, mask, signed=False).sum().backward()
+    assert eg.grad.shape == (n, 4, 3) and torch.isfinite(eg.grad).all()
+    # no blocks
+    empty = emulate.decode_blocks(torch.zeros(0, 4, 3, requires_grad=True), torch.zeros(0, 16), torch.zeros(0, 16))
+    assert empty.shape == (0, 16, 3)
+    # double precision half_from_bits is the bit-cast too (the fused forward relies on it)
+    y = np.arange(0, 31744)
+    want = y.astype(np.uint16).view(np.float16).astype(np.float64)
+    got = emulate.half_from_bits(torch.tensor(np.concatenate([y, -y]), dtype=torch.float64)).numpy()
+    assert np.array_equal(got, np.concatenate([want, -want]))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_fused_equals_composed_on_cuda():
+    for signed in (False, True):
+        e, x, mask = _edge_inputs(20_000, signed, torch.float32, seed=31 + signed)
+        e, x, mask = e.cuda(), x.cuda(), mask.cuda()
+        g = torch.randn((20_000, 16, 3), device="cuda")
+        for quantized in (False, True):
+            ref = _grads(emulate.decode_blocks_composed, e, x, mask, g, signed, quantized)
+            got = _grads(emulate.decode_blocks, e, x, mask, g, signed, quantized)
+            assert torch.equal(_bits(got[0]), _bits(ref[0]))
+            assert torch.equal(_bits(got[0].cpu()), _bits(emulate.decode_blocks(
+                e.cpu(), x.cpu(), mask.cpu(), signed=signed, quantized=quantized)))
+            for a, b in zip(got[1:], ref[1:]):
+                assert torch.allclose(a, b, rtol=1e-5, atol=1e-6 * float(b.abs().max()))

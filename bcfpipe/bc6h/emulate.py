@@ -59,6 +59,12 @@ Parameter tensors (see :mod:`bcfpipe.bc6h.mode10` for the integer conventions):
 signed -- ordered (e0, e1) subset 0, (e2, e3) subset 1; ``x`` float (n, 16) in
 [0, 1]; ``partition_mask`` (n, 16) bool/float, True for texels of subset 1.
 Inputs are clamped to these ranges (gradient zero outside, passed at the bounds).
+
+:func:`decode_blocks` runs all of this as one autograd node (``_DecodeBlocks``): the
+forward values are bit-identical to the composition of torch ops above (still
+available as ``decode_blocks(..., fused=False)`` / :func:`decode_blocks_composed`),
+the backward is the gradient autograd computes through that composition, written
+out by hand (see the comment above ``_DecodeBlocks``).
 """
 
 from __future__ import annotations
@@ -71,6 +77,7 @@ from .tables import PARTITIONS2, WEIGHTS3
 
 __all__ = [
     "decode_blocks",
+    "decode_blocks_composed",
     "index_weight",
     "unquantize",
     "half_from_bits",
@@ -105,10 +112,13 @@ def _table(name: str, like: torch.Tensor) -> torch.Tensor:
     key = (name, like.device, like.dtype)
     tab = _TABLES.get(key)
     if tab is None:
-        if name == "w3":
+        base = name[:-5] if name.endswith("_diff") else name
+        if base == "w3":
             vals = np.asarray(WEIGHTS3, dtype=np.float64)
         else:  # "u_unsigned" / "u_signed": unquantized value of every 6-bit endpoint
-            vals = mode10.unquantize_table(name == "u_signed")[1].astype(np.float64)
+            vals = mode10.unquantize_table(base == "u_signed")[1].astype(np.float64)
+        if name.endswith("_diff"):  # slope of segment k: table[k + 1] - table[k] (exact integers)
+            vals = np.append(np.diff(vals), 0.0)
         tab = torch.tensor(vals, dtype=like.dtype, device=like.device)
         _TABLES[key] = tab
     return tab
@@ -158,23 +168,7 @@ def half_from_bits(y: torch.Tensor) -> torch.Tensor:
     return torch.exp2(h - 14.0) * (y / 1024.0 - s * h)
 
 
-def decode_blocks(
-    endpoints: torch.Tensor,
-    x: torch.Tensor,
-    partition_mask: torch.Tensor,
-    signed: bool = False,
-    quantized: bool = False,
-) -> torch.Tensor:
-    """Emulated BC6H mode-10 decode of n blocks -> (n, 16, 3) texel values.
-
-    ``endpoints`` (n, 4, 3), ``x`` (n, 16), ``partition_mask`` (n, 16) (True/1 =
-    subset 1).  ``quantized=True`` rounds endpoints and indices straight-through
-    first (quantization-aware forward); with ``quantized=False`` the parameters are
-    used as they are, but every integer step of the decoder is still applied
-    (straight-through), so integer endpoints and ``x = k/7`` reproduce the spec
-    decoder bit-exactly either way.  Output dtype is float32 (float64 if the
-    endpoints are float64) on the endpoints' device.
-    """
+def _check_and_convert(endpoints, x, partition_mask):
     if endpoints.ndim != 3 or endpoints.shape[1:] != (4, 3):
         raise ValueError(f"endpoints must have shape (n, 4, 3), got {tuple(endpoints.shape)}")
     n = endpoints.shape[0]
@@ -185,8 +179,57 @@ def decode_blocks(
     x = x.to(device=endpoints.device, dtype=dtype)
     mask = partition_mask.to(device=endpoints.device)
     mask = (mask > 0.5) if mask.dtype != torch.bool else mask
-    mask = mask.unsqueeze(-1)  # (n, 16, 1)
+    return endpoints, x, mask
 
+
+def decode_blocks(
+    endpoints: torch.Tensor,
+    x: torch.Tensor,
+    partition_mask: torch.Tensor,
+    signed: bool = False,
+    quantized: bool = False,
+    fused: bool = True,
+) -> torch.Tensor:
+    """Emulated BC6H mode-10 decode of n blocks -> (n, 16, 3) texel values.
+
+    ``endpoints`` (n, 4, 3), ``x`` (n, 16), ``partition_mask`` (n, 16) (True/1 =
+    subset 1).  ``quantized=True`` rounds endpoints and indices straight-through
+    first (quantization-aware forward); with ``quantized=False`` the parameters are
+    used as they are, but every integer step of the decoder is still applied
+    (straight-through), so integer endpoints and ``x = k/7`` reproduce the spec
+    decoder bit-exactly either way.  Output dtype is float32 (float64 if the
+    endpoints are float64) on the endpoints' device.
+
+    ``fused=True`` (default) runs the single autograd node :class:`_DecodeBlocks`;
+    ``fused=False`` the composition of elementwise torch ops
+    (:func:`decode_blocks_composed`).  Both give bit-identical values and the same
+    gradients (up to float rounding of the backward arithmetic); the fused one is
+    several times faster and saves far less for backward, but is differentiable
+    only once (no double backward).  Its result is a (n, 16, 3) view of a
+    channel-planar (3, n, 16) tensor (not contiguous).
+    """
+    endpoints, x, mask = _check_and_convert(endpoints, x, partition_mask)
+    if not fused:
+        return _decode_composed(endpoints, x, mask, signed, quantized)
+    if torch.is_grad_enabled() and (endpoints.requires_grad or x.requires_grad):
+        return _DecodeBlocks.apply(endpoints, x, mask, bool(signed), bool(quantized))
+    return _fused_forward(endpoints, x, mask, bool(signed), bool(quantized), False, False)[0]
+
+
+def decode_blocks_composed(
+    endpoints: torch.Tensor,
+    x: torch.Tensor,
+    partition_mask: torch.Tensor,
+    signed: bool = False,
+    quantized: bool = False,
+) -> torch.Tensor:
+    """:func:`decode_blocks` as a composition of elementwise torch ops (the reference
+    implementation: autograd differentiates it; kept for tests and benchmarks)."""
+    return decode_blocks(endpoints, x, partition_mask, signed, quantized, fused=False)
+
+
+def _decode_composed(endpoints, x, mask, signed, quantized):
+    mask = mask.unsqueeze(-1)  # (n, 16, 1)
     u = unquantize(endpoints, signed=signed, quantized=quantized)  # (n, 4, 3)
     ua = torch.where(mask, u[:, None, 2], u[:, None, 0])  # (n, 16, 3)
     ub = torch.where(mask, u[:, None, 3], u[:, None, 1])
@@ -198,6 +241,161 @@ def decode_blocks(
     else:
         f = _floor_ste(v * (31.0 / 64.0))
     return half_from_bits(f)
+
+
+# ---------------------------------------------------------------------------
+# fused decode: one autograd node
+# ---------------------------------------------------------------------------
+#
+# The forward repeats the composed version's float operations on the same values
+# (in place, without a graph), so it is bit-identical, with rewrites that are exact
+# for every finite input:
+#
+# * ``torch.where(mask, u2, u0) * (64 - w)`` (where is slow on CPU: not vectorised,
+#   and with the (n, 16, 3) layout its broadcast inner loop is 3 long) ->
+#   ``u0 * W0 + u2 * W2`` with ``W0 = (1 - m)(64 - w)``, ``W2 = m (64 - w)``: one
+#   product is the one the composed version rounds, the other is +-0, and adding
+#   +-0 is exact (the sign of a zero is lost in the ``+ 32`` that follows anyway).
+#   Likewise ``ub * w``.  (An FMA in addcmul is harmless: it adds to a +-0 or a 0.)
+# * ``_floor_ste(p) = p + (floor(p) - p)`` -> ``floor(p)``: ``floor(p) - p`` is
+#   exact (Sterbenz) unless -1 < p < 0, where the sum still rounds to -1; p is never
+#   -0.  ``_ste(s, trunc(s))`` -> ``trunc(s) + 0.0`` (the ``+ 0.0`` turns the -0 of
+#   trunc(-0.5) into the +0 the STE gives).
+# * ``half_from_bits(f)`` of the integer ``f`` (|f| <= 31743) -> the IEEE half
+#   bit-cast of ``|f|`` (eq. 8 *is* that bit-cast, see the tests), with the sign
+#   copied from ``f``.
+# * ``where(|t - k| < eps, t + (k - t), t)`` -> ``t + (k - t) * [|k - t| < eps]``
+#   (t is not 0 where the snap is off, so adding +-0 changes nothing).
+#
+# The texel-sized work is done channel-planar, (3, n, 16), so that the per-texel
+# weight (n, 16) broadcasts over a contiguous inner dimension.
+#
+# Backward: with ``p = (ua (64 - w) + ub w + 32) / 64`` and the straight-through
+# steps as identity, d out / d p = c * exp2(h - 14) / 1024 (c = 31/64, 31/32
+# signed) with h = max(floor(|f| / 1024) - 1, 0) = max(E, 1) - 1 for the half
+# exponent field E of the output; exp2(max(E, 1) - 15) is the half with bits
+# max(|f| & 0x7C00, 0x0400).  Saved: those int16 bits (3, n, 16), w and dw/dx (n, 16),
+# ub - ua per subset (3, n, 2), du/de (n, 4, 3) and the mask.
+
+
+def _lookup(name: str, k: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(table[k], table[k + 1] - table[k]) for integer-valued float ``k`` (index_select with
+    int32 indices: cheaper than advanced indexing, which needs int64)."""
+    ki = k.to(torch.int32).reshape(-1)
+    lo = _table(name, k).index_select(0, ki).view(k.shape)
+    return lo, _table(name + "_diff", k).index_select(0, ki).view(k.shape)
+
+
+def _eq(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a == b`` as 0.0 / 1.0 in a's dtype (bool results are slow to make and to use on CPU)."""
+    return torch.eq(a, b, out=torch.empty_like(a))
+
+
+def _unquantize_fwd(e: torch.Tensor, signed: bool, quantized: bool, need_grad: bool):
+    """(unquantize(e), d unquantize / d e or None), no graph; bit-identical to :func:`unquantize`."""
+    lo, hi = (-32.0, 31.0) if signed else (0.0, 63.0)
+    pos = e.clamp(lo, hi)
+    inside = _eq(pos, e) if need_grad else None  # clamp passes the gradient on [lo, hi]
+    if quantized:
+        pos.add_(torch.round(pos).sub_(pos))  # _ste(e, round(e))
+    if lo:
+        pos.sub_(lo)
+    k0 = torch.floor(pos).clamp_(0, 62)
+    u, slope = _lookup("u_signed" if signed else "u_unsigned", k0)
+    u.add_(pos.sub_(k0).mul_(slope))  # a + (pos - k0) * (table[k0 + 1] - a)
+    return u, (slope.mul_(inside) if need_grad else None)
+
+
+def _index_weight_fwd(x: torch.Tensor, quantized: bool, need_grad: bool):
+    """(index_weight(x), d index_weight / d x or None), no graph; bit-identical."""
+    t = x.clamp(0.0, 1.0)
+    inside = _eq(t, x) if need_grad else None
+    t.mul_(7.0)
+    d = torch.round(t).sub_(t)  # k - t
+    if quantized:
+        t.add_(d)
+    else:  # where(|t - k| < eps, t + (k - t), t), as t + d * snap (t != 0 where snap is False)
+        t.add_(d.mul_(torch.lt(d.abs(), 7.0 * _SNAP_EPS, out=torch.empty_like(d))))
+    k0 = torch.floor(t).clamp_(0, 6)
+    w, slope = _lookup("w3", k0)
+    w.add_(t.sub_(k0).mul_(slope))
+    return w, (slope.mul_(inside).mul_(7.0) if need_grad else None)
+
+
+def _texel_weights(w: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(4, n, 16): the weight of endpoint j in texel t, ``(1-m)(64-w), (1-m) w, m (64-w), m w``
+    (each exactly 0, 64 - w or w)."""
+    mf = mask.to(w.dtype)
+    nm = torch.sub(1.0, mf)
+    om = torch.sub(64.0, w)
+    wts = torch.empty((4,) + w.shape, dtype=w.dtype, device=w.device)
+    torch.mul(nm, om, out=wts[0])
+    torch.mul(nm, w, out=wts[1])
+    torch.mul(mf, om, out=wts[2])
+    torch.mul(mf, w, out=wts[3])
+    return wts
+
+
+def _fused_forward(endpoints, x, mask, signed, quantized, need_e, need_x):
+    """Decoded texels (n, 16, 3) and what the backward needs (None if it needs nothing)."""
+    u, dude = _unquantize_fwd(endpoints, signed, quantized, need_e)  # (n, 4, 3)
+    w, dwdx = _index_weight_fwd(x, quantized, need_x)  # (n, 16)
+    wts = _texel_weights(w, mask)
+    up = u.permute(2, 0, 1).contiguous()  # (3, n, 4)
+    # ua (64 - w) = u0 wts0 + u2 wts2 and ub w = u1 wts1 + u3 wts3, exactly: one term is the
+    # product the composed version rounds, the other is +-0
+    f = torch.mul(up[..., 0:1], wts[0]).addcmul_(up[..., 2:3], wts[2])  # (3, n, 16)
+    f.add_(torch.mul(up[..., 1:2], wts[1]).addcmul_(up[..., 3:4], wts[3]))
+    f.add_(32.0).div_(64.0).floor_()  # V
+    del wts
+    if signed:
+        f.mul_(31.0 / 32.0).trunc_().add_(0.0)  # F
+    else:
+        f.mul_(31.0 / 64.0).floor_()
+    bits = f.to(torch.int16)
+    if signed:
+        bits.abs_()
+    out = bits.view(torch.float16).to(endpoints.dtype)  # half_from_bits(|F|)
+    if signed:
+        out.copysign_(f)
+    del f
+    saved = None
+    if need_e or need_x:
+        du = up[..., 1::2] - up[..., 0::2]  # (3, n, 2): ub - ua of subsets 0 and 1
+        saved = (bits, w, dwdx, mask, du, dude)
+    return out.permute(1, 2, 0), saved  # (n, 16, 3) view of the planar result
+
+
+class _DecodeBlocks(torch.autograd.Function):
+    """Fused :func:`decode_blocks` (see the comment above); inputs already converted."""
+
+    @staticmethod
+    def forward(ctx, endpoints, x, mask, signed, quantized):
+        out, saved = _fused_forward(endpoints, x, mask, signed, quantized, *ctx.needs_input_grad[:2])
+        if saved is not None:
+            ctx.save_for_backward(*saved)
+            ctx.signed = signed
+        return out
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad):
+        bits, w, dwdx, mask, du, dude = ctx.saved_tensors
+        need_e, need_x = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        # d out / d p = c 2^-10 exp2(max(E, 1) - 15); gp = grad exp2(max(E, 1) - 15), the constant
+        # c 2^-10 / 64 is applied to the (smaller) results
+        k = (31.0 / 32.0 if ctx.signed else 31.0 / 64.0) * 2.0**-16
+        gp = torch.bitwise_and(bits, 0x7C00).clamp_min_(0x400).view(torch.float16).to(w.dtype)
+        gp.mul_(grad.permute(2, 0, 1))  # (3, n, 16)
+        ge = gx = None
+        if need_x:  # d p / d w = (ub - ua) / 64
+            mf = mask.to(w.dtype)
+            d = torch.mul(du[..., 0:1], torch.sub(1.0, mf)).addcmul_(du[..., 1:2], mf)
+            gx = d.mul_(gp).sum(0).mul_(dwdx).mul_(k)
+        if need_e:  # d p / d ua = (64 - w) / 64, d p / d ub = w / 64, summed per subset
+            gu = torch.bmm(_texel_weights(w, mask).permute(1, 0, 2), gp.permute(1, 2, 0))  # (n, 4, 3)
+            ge = gu.mul_(dude).mul_(k)
+        return ge, gx, None, None, None
 
 
 # ---------------------------------------------------------------------------
