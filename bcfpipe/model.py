@@ -11,7 +11,8 @@ Pure functions over tensors. A material's state is a dict of tensors:
 - ``mlp``      w1, b1, w2, b2 of the decoder, plus fixed out_scale / out_bias.
 
 Each layer i is sampled at lod s_i = s + b_i, where s is in the reference's mip units and
-b_i = log2(max(w_i / W, h_i / H)) (paper §5.2) for a w_i x h_i layer and a W x H reference.
+b_i (``lod_biases``) starts from log2(max(w_i / W, h_i / H)) for a w_i x h_i layer and a W x H
+reference, the layer's texel density.
 """
 from __future__ import annotations
 
