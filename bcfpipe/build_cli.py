@@ -159,7 +159,8 @@ def _variants(_ctx, _param, values: tuple[str, ...]) -> dict[str, str]:
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
               help="Materials trained in parallel [default: one per core, or per GPU].")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
-              help="Torch threads per worker [default: cores // jobs].")
+              help="Torch threads per worker [default: 1, which trained fastest on 2 cores; "
+                   "parallelism comes from --jobs].")
 @click.option("--device", default="auto", show_default=True, help="auto, cpu or cuda.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the manifest as JSON on stdout instead of a table.")

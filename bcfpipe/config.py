@@ -109,6 +109,12 @@ PRESETS: dict[str, Preset] = {
 }
 DEFAULT_PRESET = "standard"
 
+# Torch threads per training, unless --threads says otherwise. A training step is many small
+# kernels: on the 2-core reference machine, quiet, the teapot at `fast` trained its constrained
+# phase in 105 s with 1 thread and 156 s with 2 (docs/benchmarks.md), and under load extra
+# threads are far worse. Parallelism comes from training materials side by side (--jobs).
+DEFAULT_THREADS = 1
+
 
 @dataclass(frozen=True)
 class ModelConfig:

@@ -10,8 +10,8 @@ between them):
    (xxh3-128 over the source file *bytes* and the training configuration, never paths or times)
    names its result.
 2. `execute` trains the jobs, each in its own worker process (``ProcessPoolExecutor``, spawn
-   context), with ``threads = max(1, cores // workers)`` torch threads each. A job that raises, or
-   whose worker dies, becomes ``failed`` with a one-line reason; the others go on.
+   context), with ``config.DEFAULT_THREADS`` (1) torch threads each unless told otherwise. A job
+   that raises, or whose worker dies, becomes ``failed`` with a one-line reason; the others go on.
 3. `assemble` writes the combined ``weights.bin`` (`bcfpipe.weightsbuf`), the USD layers
    (`bcfpipe.usdout`) and ``manifest.json``.
 
@@ -84,7 +84,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Sequence
 import xxhash
 
 from . import __version__, weightsbuf
-from .config import DEFAULT_PRESET, PRESETS, PROFILE_NAMES
+from .config import DEFAULT_PRESET, DEFAULT_THREADS, PRESETS, PROFILE_NAMES
 from .errors import EXIT_FAILED, EXIT_OK, BcfError
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
@@ -759,7 +759,7 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
 
     Each job runs in a worker process of a spawn-context ``ProcessPoolExecutor`` (or of
     ``executor``, anything with the concurrent.futures interface that runs `run_job`), with
-    ``threads`` torch threads each (default ``max(1, cores // workers)``). A job whose worker process
+    ``threads`` torch threads each (default ``config.DEFAULT_THREADS``). A job whose worker process
     dies is retried once in a fresh single-worker pool (so one crash cannot take others with it),
     then marked failed.
     ``progress`` receives event dicts: ``queued``, ``progress`` (phase, step, steps, psnr, eta) and
@@ -771,7 +771,7 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
         return {}
     device = jobs[0].device
     workers = max(1, int(workers)) if workers else default_jobs(len(jobs), device)
-    threads = max(1, int(threads)) if threads else max(1, cpu_count() // workers)
+    threads = max(1, int(threads)) if threads else DEFAULT_THREADS
     gpus = _gpu_count(device)
     devices = [f"cuda:{i}" for i in range(gpus)] if gpus else [device]
     manager = mp.get_context("spawn").Manager() if progress else None
@@ -1053,7 +1053,7 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
 
     ``variants``: {set: value} or ["set=value", ...]. ``jobs``: worker processes (default: one per
     core, or per GPU, at most one per job). ``threads``: torch threads per worker (default
-    ``max(1, cores // jobs)``). ``progress``: a callable receiving event dicts (see
+    ``config.DEFAULT_THREADS``, 1). ``progress``: a callable receiving event dicts (see
     `execute`). Raises `BuildError` (exit code 2) before any training for bad input or a refused
     ``out``; per-material failures are reported in the result (``exit_code`` 1), never raised.
     """

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from .config import DEFAULT_PRESET, PRESETS, PROFILE_NAMES
+from .config import DEFAULT_PRESET, DEFAULT_THREADS, PRESETS, PROFILE_NAMES
 from .errors import EXIT_FAILED, BcfError
 from .train import Progress
 
@@ -86,7 +86,8 @@ def _table(res) -> "object":
 @click.option("--signed", is_flag=True, help="Store features as BC6H_SF16 instead of BC6H_UF16.")
 @click.option("--wrap", type=click.Choice(["repeat", "clamp"]), default="repeat", show_default=True,
               help="Texture addressing used in training and recorded for the runtime.")
-@click.option("--threads", type=int, default=None, help="torch CPU threads (default: all cores).")
+@click.option("--threads", type=click.IntRange(min=1), default=DEFAULT_THREADS, show_default=True,
+              help="Torch CPU threads; 1 trained fastest on a 2-core machine (docs/benchmarks.md).")
 @click.option("-f", "--force", is_flag=True, help="Overwrite a non-empty output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object to stdout (progress stays on stderr).")
 @click.pass_context
