@@ -31,7 +31,7 @@ def read(path: Path) -> np.ndarray:
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("build", type=Path)
-    ap.add_argument("--material", default="/TeaSet/Materials/PorcelainFlowers")
+    ap.add_argument("--material", default="/Teapot/Materials/PorcelainFlowers")
     ap.add_argument("--crop", type=int, nargs=3, default=(700, 860, 256), metavar=("Y", "X", "SIZE"))
     ap.add_argument("--png", type=Path, default=Path("docs/teapot_albedo.png"))
     ap.add_argument("--backend", default="glsl")
