@@ -1,13 +1,13 @@
-"""Classic block-compression baselines (BC1/BC5, ASTC) evaluated through the same metric code.
+"""Classic block-compression baselines (BC1/BC4/BC5, ASTC) evaluated through the same metric code.
 
 Each codec function takes a mip chain of (H, W, c) float arrays in [0, 1] (stored values),
 quantises to 8 bits as a texture exporter would, encodes and decodes every mip, and returns the
 decoded mips (float32, same shapes) with the compressed size in bytes (block payload only, no
 container headers).
 
-* BC1 / BC5: quicktex (``BC1Encoder(18)``, its slowest and best preset, four-colour mode;
-  ``BC5Encoder``). Levels whose sides are not multiples of 4 (including 2x2, 1x1) are padded to
-  whole 4x4 blocks by edge replication and cropped after decoding. BC1 = 8 bytes / block,
+* BC1 / BC4 / BC5: quicktex (``BC1Encoder(18)``, its slowest and best preset, four-colour mode;
+  ``BC4Encoder``, ``BC5Encoder``). Levels whose sides are not multiples of 4 (including 2x2, 1x1) are padded to
+  whole 4x4 blocks by edge replication and cropped after decoding. BC1 = BC4 = 8 bytes / block,
   BC5 = 16 bytes / block.
 * ASTC: the ``astcenc`` CLI in LDR-linear mode, one ``-tl`` (compress + decompress, identical to
   ``-cl`` then ``-dl``) process per mip through temporary 8-bit PNGs, ``-thorough`` by default.
@@ -29,7 +29,7 @@ import numpy as np
 
 from .texset import TextureSet, build_mip_chain
 
-__all__ = ["bc1_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline", "astcenc_path",
+__all__ = ["bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline", "astcenc_path",
            "pack_texture_set", "CODECS", "BC1_LEVEL"]
 
 CODECS = ("bc", "astc")
@@ -89,6 +89,14 @@ def bc5_mips(mips_xy: Sequence[np.ndarray]) -> tuple[list[np.ndarray], int]:
 
     _check_mips(mips_xy, 2, "bc5")
     return _quicktex_roundtrip(mips_xy, BC5Encoder(0, 1), BC5Decoder(0, 1), 2, 16)
+
+
+def bc4_mips(mips_x: Sequence[np.ndarray]) -> tuple[list[np.ndarray], int]:
+    """BC4-encode and decode every (H, W, 1) mip of [0, 1] data; returns (decoded mips, bytes)."""
+    from quicktex.s3tc.bc4 import BC4Decoder, BC4Encoder
+
+    _check_mips(mips_x, 1, "bc4")
+    return _quicktex_roundtrip(mips_x, BC4Encoder(0), BC4Decoder(0), 1, 8)
 
 
 def astcenc_path() -> str | None:
@@ -152,9 +160,11 @@ def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
     """How an engine would pack the set's channels into textures: [(format, channel indices)].
 
     Colour groups (albedo, emissiveColor): one 3-channel texture each. Normal x, y: one BC5
-    texture ('bc') or an ASTC texture with b = 0 ('astc'). All scalar and generic channels, in
-    set order: packed 3 per 3-channel texture (ARM-style); a last texture with 1 channel
-    replicates it into r, g, b (a grey image), one with 2 leaves b = 0.
+    texture ('bc') or an ASTC texture with b = 0 ('astc'). Scalar and generic channels ('bc'):
+    those that share a source file with other scalars stay packed as that file packs them
+    (ARM-style, BC1), a scalar alone in its file gets its own BC4 texture. ('astc'): all of them,
+    in set order, packed 3 per 3-channel texture; a last texture with 1 channel replicates it into
+    r, g, b (a grey image), one with 2 leaves b = 0.
     """
     if codec not in CODECS:
         raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
@@ -169,6 +179,16 @@ def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
             textures.append(("bc5" if codec == "bc" else "astc", idx))
         else:
             scalars.extend(idx)
+    if codec == "bc":
+        by_file: dict[str, list[int]] = {}
+        for i in scalars:
+            by_file.setdefault(ts.channels[i].source, []).append(i)
+        alone = [i for i in scalars if len(by_file[ts.channels[i].source]) == 1]
+        scalars = [i for i in scalars if i not in alone]
+        for i in range(0, len(scalars), 3):
+            textures.append((rgb, scalars[i:i + 3]))
+        textures.extend(("bc4", [i]) for i in alone)
+        return textures
     for i in range(0, len(scalars), 3):
         textures.append((rgb, scalars[i:i + 3]))
     return textures
@@ -197,8 +217,8 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
                                 astc_preset: str = "-thorough") -> tuple[list[np.ndarray], int]:
     """Compress `ts` with a classic codec; returns (decoded mips in the reference's shapes, bytes).
 
-    `codec` 'bc': BC1 for colour and packed scalar textures, BC5 for normals (the paper's BC
-    setup); 'astc': ASTC `astc_block` for every texture. Packing: `pack_texture_set`.
+    `codec` 'bc': BC1 for colour and packed scalar textures, BC4 for a lone scalar, BC5 for
+    normals (the paper's BC setup); 'astc': ASTC `astc_block` for every texture. Packing: `pack_texture_set`.
 
     Resolution: `resolution` (a power of two, default the set's larger side) caps the larger side
     of the shipped textures. When it is smaller than the set by 2^d, the baseline's level 0 is the
@@ -225,6 +245,8 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
         stored = [_to_storage(m[..., idx], normal[idx]) for m in src]
         if fmt == "bc5":
             out, size = bc5_mips(stored)
+        elif fmt == "bc4":
+            out, size = bc4_mips(stored)
         else:
             n = len(idx)
             padded = [np.repeat(s, 3, axis=-1) if n == 1 else

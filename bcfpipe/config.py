@@ -85,6 +85,9 @@ class Preset:
     finetune: PhaseSchedule
     batch: int
     qat_fraction: float = 0.0  # last fraction of phase 2 trained quantization-aware
+    lod_power: float = 1.0  # batch lods s = s_max * u**lod_power, u stratified uniform: > 1 favours fine mips
+    fine_batch: int = 1  # up to this many times ``batch`` samples in steps at large reference mips
+    centre_targets: bool = False  # draw steps at large mips at precomputed texel centres (reference.CentreTargets)
 
     @property
     def total_steps(self) -> int:
@@ -148,6 +151,8 @@ class TrainConfig:
     # decode only the sampled texels each step instead of whole levels (same forward values). Off by
     # default: on a quiet 2-core machine whole levels were faster at batch 128² and 512² (benchmarks.md)
     tap_decode: bool = False
+    feature_init: str = "random"  # "pca": start from the reference's principal components (feature_init.py)
+    init_layers: int = 4  # layers T_0.. that the PCA start fills
 
     def with_(self, **kw) -> "TrainConfig":
         return replace(self, **kw)

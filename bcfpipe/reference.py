@@ -27,7 +27,7 @@ import torch
 
 from .texset import TextureSet, build_mip_chain
 
-__all__ = ["ReferencePyramid", "keys_weights", "sample_reference", "random_batch", "WRAP_MODES"]
+__all__ = ["ReferencePyramid", "CentreTargets", "keys_weights", "sample_reference", "random_batch", "WRAP_MODES"]
 
 WRAP_MODES = ("repeat", "clamp")
 KEYS_A = -0.5
@@ -160,3 +160,52 @@ def random_batch(n: int, generator: torch.Generator | None, device: torch.device
     uv = torch.rand((n, 2), generator=generator, device=gdev).to(device)
     s = float(torch.rand((), generator=generator, device=gdev)) * float(s_max)
     return uv, s
+
+
+def texel_centres(h: int, w: int, ids: torch.Tensor) -> torch.Tensor:
+    """uv (N, 2) of the centres of flat row-major texel ids of an h x w level."""
+    return torch.stack((((ids % w).to(torch.float32) + 0.5) / w, ((ids // w).to(torch.float32) + 0.5) / h), 1)
+
+
+class CentreTargets:
+    """The reference at the texel centres of its large mips, precomputed (issue #9, "a faster step").
+
+    At the centre of a texel of mip k, bicubic filtering of mip k returns the texel itself
+    (Catmull-Rom interpolates), so the training target F(u, v, s) for k = floor(s) is
+    lerp(mip_k[texel], B_k+1[texel], frac(s)), where B_k+1 is mip k+1's bicubic at mip k's texel
+    centres: one image per large mip, computed once. A step whose uv are texel centres of mip k
+    then gathers 2 values per channel instead of 32. Mips smaller than ``min_texels`` are not
+    precomputed: there a batch covers the level densely and continuous uv stay cheap.
+    """
+
+    def __init__(self, pyr: ReferencePyramid, wrap: str, min_texels: int, chunk: int = 1 << 18):
+        self.pyr, self.wrap, self.min_texels = pyr, wrap, min_texels
+        self.up: list[torch.Tensor | None] = []
+        for k, m in enumerate(pyr.mips):
+            c, h, w = m.shape
+            if h * w < min_texels or k + 1 >= pyr.num_levels:
+                self.up.append(None)
+                continue
+            ids = torch.arange(h * w, device=m.device)
+            nxt = pyr.mips[k + 1]
+            parts = [_bicubic(nxt, texel_centres(h, w, ids[a:a + chunk]).to(nxt.dtype), wrap)
+                     for a in range(0, h * w, chunk)]
+            self.up.append(torch.cat(parts).t().contiguous())
+
+    def covers(self, s: float) -> bool:
+        """Whether a batch at scale ``s`` can be drawn at precomputed texel centres."""
+        l0, _, _ = _level_split(s, self.pyr.num_levels)
+        return self.up[l0] is not None
+
+    def batch(self, n: int, s: float, gen: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``n`` uniformly random texel centres of mip floor(s) and their targets at ``s``:
+        (uv (n, 2), target (n, c)), equal to sample_reference(pyr, uv, s)."""
+        l0, _, t = _level_split(s, self.pyr.num_levels)
+        m, up = self.pyr.mips[l0], self.up[l0]
+        c, h, w = m.shape
+        gdev = gen.device if gen is not None else torch.device("cpu")
+        ids = torch.randint(0, h * w, (n,), generator=gen, device=gdev).to(m.device)
+        target = m.reshape(c, -1).index_select(1, ids)
+        if t > 0.0:
+            target = torch.lerp(target, up.reshape(c, -1).index_select(1, ids), t)
+        return texel_centres(h, w, ids), target.t()

@@ -25,7 +25,8 @@ from .bc6h import emulate
 from .bc6h.encode import encode_params
 from .config import TrainConfig
 from .decoder import MlpWeights
-from .reference import ReferencePyramid, random_batch, sample_reference
+from .feature_init import pca_init
+from .reference import CentreTargets, ReferencePyramid, random_batch, sample_reference
 from .texset import TextureSet
 
 PHASES = ("warmup", "constrained", "quantize", "finetune")
@@ -132,15 +133,15 @@ class StratifiedScale:
     (as in the paper), but every lod range is revisited every few steps, so short CPU schedules do
     not end with some scales under-trained."""
 
-    def __init__(self, s_max: float, gen: torch.Generator, strata: int = 16):
-        self.s_max, self.gen, self.strata = s_max, gen, strata
+    def __init__(self, s_max: float, gen: torch.Generator, strata: int = 16, power: float = 1.0):
+        self.s_max, self.gen, self.strata, self.power = s_max, gen, strata, power
         self.order: list[int] = []
 
     def __call__(self) -> float:
         if not self.order:
             self.order = torch.randperm(self.strata, generator=self.gen).tolist()
         k = self.order.pop()
-        return (k + float(torch.rand((), generator=self.gen))) / self.strata * self.s_max
+        return ((k + float(torch.rand((), generator=self.gen))) / self.strata) ** self.power * self.s_max
 
 
 def _flat(layers):
@@ -194,7 +195,20 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     history: list[tuple[str, int, float]] = []
 
     taps = cfg.tap_decode
-    next_s = StratifiedScale(s_max, gen)
+    next_s = StratifiedScale(s_max, gen, power=preset.lod_power)
+    centres = CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch) if preset.centre_targets else None
+
+    def batch_at(s: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """uv and targets of one step at scale s: up to ``fine_batch`` times the preset's batch
+        where the reference mip is large (a step there costs mostly the fixed decode of the
+        large feature mips, so more samples are nearly free), at texel centres where covered."""
+        mip = ref.mips[min(int(s), ref.num_levels - 1)]
+        n = preset.batch * min(preset.fine_batch, max(1, mip.shape[1] * mip.shape[2] // (16 * preset.batch)))
+        if centres is not None and centres.covers(s):
+            uv, target = centres.batch(n, s, gen)
+            return uv.to(device), target
+        uv, _ = random_batch(n, gen, device, s_max)
+        return uv, sample_reference(ref, uv, s, mc.wrap)
 
     def run_phase(name, level_fn, feature_params, sched, project=None, tap_fn=None, on_step=None):
         t0 = time.perf_counter()
@@ -203,9 +217,8 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
         for step in range(1, sched.steps + 1):
             if on_step is not None:
                 on_step(step)
-            uv, _ = random_batch(preset.batch, gen, device, s_max)
             s = next_s()
-            target = sample_reference(ref, uv, s, mc.wrap)
+            uv, target = batch_at(s)
             pred = M.forward(level_fn, mlp, mc, biases, uv, s, tap_fn if taps else None)
             loss = torch.mean((pred - target) ** 2)
             opt.zero_grad(set_to_none=True)
@@ -228,6 +241,8 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
 
     # phase 1: unconstrained warm-up
     free = M.init_free(mc, gen, device)
+    if cfg.feature_init == "pca":
+        pca_init(mc, ref.mips, biases, free, mlp, cfg.init_layers)
     lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
     run_phase("warmup", M.free_level_fn(free, mc.signed, mc.max_feature), _flat(free), preset.warmup,
               project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from bcfpipe.baselines import (
-    astc_mips, astcenc_path, bc1_mips, bc5_mips, encode_texture_set_baseline, pack_texture_set,
+    astc_mips, astcenc_path, bc1_mips, bc4_mips, bc5_mips, encode_texture_set_baseline, pack_texture_set,
 )
 from bcfpipe.metrics import compute_metrics
 from bcfpipe.texset import Channel, TextureSet, build_mip_chain
@@ -73,9 +73,18 @@ def test_astc_runs_and_sizes():
         astc_mips(const, "12")
 
 
+def test_bc4_is_near_exact_on_constant_and_sizes():
+    mips = build_mip_chain(np.full((16, 8, 1), 0.3, np.float32))
+    dec, size = bc4_mips(mips)
+    assert [d.shape for d in dec] == [m.shape for m in mips]
+    assert size == 8 * (8 + 2 + 1 + 1 + 1)  # 16x8 -> 4x2 blocks, 8x4 -> 2x1, then 1 per level
+    for d, m in zip(dec, mips):
+        assert np.abs(d - m).max() <= 1 / 255 + 1e-6
+
+
 def test_packing_follows_engine_layout():
     ts = make_set()
-    assert pack_texture_set(ts, "bc") == [("bc1", [0, 1, 2]), ("bc5", [6, 7]), ("bc1", [3, 4, 5]), ("bc1", [8])]
+    assert pack_texture_set(ts, "bc") == [("bc1", [0, 1, 2]), ("bc5", [6, 7]), ("bc1", [3, 4, 5]), ("bc4", [8])]
     assert [f for f, _ in pack_texture_set(ts, "astc")] == ["astc"] * 4
     with pytest.raises(ValueError, match="codec"):
         pack_texture_set(ts, "etc2")

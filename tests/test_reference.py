@@ -143,3 +143,25 @@ def test_random_batch():
     assert torch.equal(uv, uv2) and s == s2  # reproducible from the generator
     with pytest.raises(ValueError):
         random_batch(0, g, "cpu", 1.0)
+
+
+@pytest.mark.parametrize("wrap", ["repeat", "clamp"])
+def test_centre_targets_equal_sample_reference(wrap):
+    """Precomputed texel-centre targets are the bicubic reference at those points, bit for bit,
+    for integer and fractional s and for the last mips (where floor(s) + 1 is clamped)."""
+    from bcfpipe.reference import CentreTargets
+
+    rng = np.random.default_rng(5)
+    data = rng.uniform(0, 1, (64, 32, 3)).astype(np.float32)
+    pyr = ReferencePyramid.from_mips(build_mip_chain(data))
+    ct = CentreTargets(pyr, wrap, min_texels=64)
+    gen = torch.Generator().manual_seed(0)
+    covered = [s for s in (0.0, 0.25, 1.0, 1.5, 2.75, 3.0, 5.9) if ct.covers(s)]
+    assert covered == [0.0, 0.25, 1.0, 1.5, 2.75]  # mips of >= 64 texels: 64x32, 32x16, 16x8
+    for s in covered:
+        uv, target = ct.batch(500, s, gen)
+        torch.testing.assert_close(target, sample_reference(pyr, uv, s, wrap), rtol=0, atol=0)
+        k = int(s)
+        h, w = pyr.mips[k].shape[1:]
+        cx, cy = uv[:, 0] * w - 0.5, uv[:, 1] * h - 0.5
+        assert torch.equal(cx, torch.round(cx)) and torch.equal(cy, torch.round(cy))  # texel centres
