@@ -73,6 +73,8 @@ def _cpu_preset(warm: int, bc: int, mlp: int, batch: int) -> "Preset":
         finetune=PhaseSchedule(mlp, 0.0, 2.5e-3, 1.0, _decay(mlp, 0.1)),
         batch=batch,
         qat_fraction=0.5,
+        lod_power=2.0,
+        centre_targets=True,
     )
 
 
@@ -86,7 +88,6 @@ class Preset:
     batch: int
     qat_fraction: float = 0.0  # last fraction of phase 2 trained quantization-aware
     lod_power: float = 1.0  # batch lods s = s_max * u**lod_power, u stratified uniform: > 1 favours fine mips
-    fine_batch: int = 1  # up to this many times ``batch`` samples in steps at large reference mips
     centre_targets: bool = False  # draw steps at large mips at precomputed texel centres (reference.CentreTargets)
 
     @property
@@ -97,8 +98,11 @@ class Preset:
 # "paper" is §6.1 verbatim: 5k warm-up steps (lr 5e-2 / 1e-3, gamma 0.9995), 200k constrained
 # steps (lr 1e-2 / 1e-3, gamma 0.9999), 1k MLP fine-tune steps; batches of 512x512.
 # The CPU presets shorten the phases and batch and pick gammas that decay about as far over
-# their shorter phases (warm-up ends at 0.9995^5000 = 0.082 of its start, as in the paper), and
-# train the second half of phase 2 quantization-aware (the paper's 200k steps do not need it).
+# their shorter phases (warm-up ends at 0.9995^5000 = 0.082 of its start, as in the paper),
+# train the second half of phase 2 quantization-aware (the paper's 200k steps do not need it),
+# draw s = s_max * u^2 so the fine mips, which hold most texels, get more of the few steps
+# (teapot, fast: +2.5 dB at mips 0-1, +1 dB over all mips; docs/benchmarks.md, issue #9), and
+# take the steps at large mips at precomputed texel-centre targets (the same target, cheaper).
 PRESETS: dict[str, Preset] = {
     "draft": _cpu_preset(200, 600, 100, 64 * 64),
     "fast": _cpu_preset(400, 2000, 200, 128 * 128),
@@ -117,6 +121,12 @@ DEFAULT_PRESET = "standard"
 # phase in 105 s with 1 thread and 156 s with 2 (docs/benchmarks.md), and under load extra
 # threads are far worse. Parallelism comes from training materials side by side (--jobs).
 DEFAULT_THREADS = 1
+
+
+# How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
+# components with the matching linear decoder (bcfpipe/feature_init.py: sharper fine mips, weaker
+# coarse ones; issue #9).
+FEATURE_INITS = ("random", "pca")
 
 
 @dataclass(frozen=True)
@@ -151,8 +161,7 @@ class TrainConfig:
     # decode only the sampled texels each step instead of whole levels (same forward values). Off by
     # default: on a quiet 2-core machine whole levels were faster at batch 128² and 512² (benchmarks.md)
     tap_decode: bool = False
-    feature_init: str = "random"  # "pca": start from the reference's principal components (feature_init.py)
-    init_layers: int = 4  # layers T_0.. that the PCA start fills
+    feature_init: str = "random"  # see FEATURE_INITS
 
     def with_(self, **kw) -> "TrainConfig":
         return replace(self, **kw)

@@ -1,21 +1,26 @@
-"""Initial features and decoder from a PCA of the reference (issue #9, "initialisation").
+"""Initial features and decoder from a PCA of the reference (issue #9, "initialisation"); opt-in.
 
 Random features make the warm-up spend its steps discovering what a linear projection already
-knows. Here layer T_i starts as principal components 3i..3i+2 of the texture set, each mip k
-holding the components of the reference at the lod where the sampler reads it (s = k - b_i),
-resized to the mip's size, and the MLP starts as the matching linear decoder: one ReLU unit
-passes each used feature through (features are positive, so ReLU is the identity there) and
-W2 maps them back onto the channels. The other hidden units keep their random first layer and
-start with zero output weights, so the start is exactly the projection; layers past the texture
-set's channel count keep the random start.
+knows. ``pca_init`` starts T_0 with principal components 0-2 of the texture set and T_1 with
+components 3-5; mip k of layer i holds the reference at the lod the sampler reads it at,
+s = k - b_i, resized to the mip's size. The decoder starts as the matching linear map: each used
+feature gets one ReLU unit that passes it through (features are positive, so ReLU is the
+identity there) and a W2 column that maps it back onto the channels. The other hidden units keep
+their random first layer and start with zero output weights, so the start is exactly the
+projection; T_2, T_3 and layer channels without a component keep the random start.
 
-The component values are mapped affinely onto a feature range [F_LO, F_HI] that BC6H's
-unsigned half domain resolves evenly enough, then onto the free parameters' 6-bit endpoint
-domain through the inverse of :func:`bcfpipe.model.endpoint_value`.
+Measured on the teapot and brick sets (docs/benchmarks.md, "Fine mips"): +1.5 to 2 dB at mips
+0-2, but 1 to 10 dB lower at the coarse mips and about 1 dB lower over all mips on the teapot,
+so the presets keep the paper's random start and ``--init pca`` is a choice for close-ups.
+A two-band variant (coarse layers holding the components, fine layers the residual) and a PCA
+start without warm-up measured worse on every mip and were dropped.
+
+Component values are mapped affinely onto a feature range [F_LO, F_HI] per (layer, component),
+then onto the free parameters' 6-bit endpoint domain through the inverse of
+:func:`bcfpipe.model.endpoint_value`.
 """
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import numpy as np
@@ -27,6 +32,7 @@ from .config import LAYER_CHANNELS, ModelConfig
 
 F_LO, F_HI = 0.25, 1.7  # feature range of the initial components (decoded BC6H values)
 _SAMPLE_TEXELS = 1 << 16  # texels of the mip the PCA is computed on (about 256²)
+LAYERS = (0, 1)  # the layers holding components 0-2 and 3-5
 
 
 def principal_axes(mips: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -48,58 +54,69 @@ def _inverse_endpoint_value(f: torch.Tensor, signed: bool) -> torch.Tensor:
     return torch.as_tensor(np.interp(f.cpu().numpy(), v, p), dtype=torch.float32, device=f.device)
 
 
-def _reference_at(mips: Sequence[torch.Tensor], lod: float, size: int) -> torch.Tensor:
-    """The reference at integer ``lod`` (clamped to the chain), resized to size x size: (c, r, r)."""
+def _resize(img: torch.Tensor, size: int) -> torch.Tensor:
+    """(c, h, w) -> (c, size, size): box-average down, bilinear (texel-centre aligned) up."""
+    if img.shape[1:] == (size, size):
+        return img
+    if img.shape[1] >= size and img.shape[2] >= size:
+        return F.interpolate(img[None], size=(size, size), mode="area")[0]
+    return F.interpolate(img[None], size=(size, size), mode="bilinear", align_corners=False)[0]
+
+
+def _components(mips, lod: float, size: int, mean, axes) -> torch.Tensor:
+    """Principal components (n, size, size) of the reference at integer ``lod`` (clamped)."""
     k = min(max(int(round(lod)), 0), len(mips) - 1)
-    m = mips[k]
-    if m.shape[1:] == (size, size):
-        return m
-    mode = "area" if m.shape[1] > size else "bilinear"
-    kw = {} if mode == "area" else {"align_corners": False}
-    return F.interpolate(m[None], size=(size, size), mode=mode, **kw)[0]
+    ref = _resize(mips[k], size)
+    return torch.einsum("chw,jc->jhw", ref - mean[:, None, None], axes)
 
 
 def pca_init(cfg: ModelConfig, mips: Sequence[torch.Tensor], biases: Sequence[float],
-             free: list[list[torch.Tensor]], mlp: dict[str, torch.Tensor], layers: int = 4) -> int:
+             free: list[list[torch.Tensor]], mlp: dict[str, torch.Tensor]) -> int:
     """Overwrite ``free`` (phase-1 parameters) and ``mlp`` in place with the PCA start.
 
-    ``mips`` are the reference's (c, H, W) levels. Returns the number of components used
-    (min(c, 3 * layers)). Unsigned features only; signed models keep the random start."""
-    if cfg.signed:
+    ``mips`` are the reference's (c, H, W) levels on the parameters' device. Returns the number
+    of components used (at most 6). Unsigned features only; signed models keep the random start."""
+    if cfg.signed or len(free) < 4:
         return 0
+    dev = free[0][0].device
+    mips = [m.to(dev) for m in mips]
     c = mips[0].shape[0]
     mean, axes = principal_axes(mips)
-    n_comp = min(c, LAYER_CHANNELS * min(layers, len(free)))
-    coarse = mips[min(len(mips) - 1, max(0, int(math.log2(max(1, mips[0].shape[1] // 256)))))]
-    proj = (coarse.reshape(c, -1).t() - mean) @ axes[:n_comp].t()
-    lo = torch.quantile(proj[:: max(1, proj.shape[0] // 65536)], 0.001, dim=0)
-    hi = torch.quantile(proj[:: max(1, proj.shape[0] // 65536)], 0.999, dim=0)
-    span = torch.where(hi - lo > 1e-6, hi - lo, torch.ones_like(hi))
-    scale = (F_HI - F_LO) / span  # feature per unit of component
+    mean, axes = mean.to(dev), axes.to(dev)
+    n_comp = min(c, 2 * LAYER_CHANNELS)
+    content: dict[int, list[torch.Tensor]] = {}  # layer -> per-mip component images
+    comps_of: dict[int, list[int]] = {}
+    for g, i in enumerate(LAYERS):
+        comps = list(range(LAYER_CHANNELS * g, min(n_comp, LAYER_CHANNELS * (g + 1))))
+        if comps:
+            content[i] = [_components(mips, k - biases[i], p.shape[-1], mean, axes[comps]) for k, p in enumerate(free[i])]
+            comps_of[i] = comps
+
+    w1, b1 = mlp["w1"], mlp["b1"]
+    w2 = torch.zeros_like(mlp["w2"])  # units other than the pass-throughs start silent
+    b2 = torch.zeros_like(mlp["b2"])
+    unit = 0
     with torch.no_grad():
-        for i, layer in enumerate(free):
-            comps = list(range(LAYER_CHANNELS * i, min(n_comp, LAYER_CHANNELS * (i + 1))))
-            if not comps:
-                continue
-            for k, p in enumerate(layer):
-                r = p.shape[-1]
-                ref = _reference_at(mips, k - biases[i], r).to(p.device)
-                comp = torch.einsum("chw,jc->jhw", ref - mean.to(p.device)[:, None, None], axes[comps].to(p.device))
-                f = (F_LO + (comp - lo[comps, None, None].to(p.device)) * scale[comps, None, None].to(p.device))
-                p[: len(comps)] = _inverse_endpoint_value(f.clamp(F_LO * 0.5, F_HI * 1.1), False)
-        # decoder: hidden unit j passes feature j (positive) through; W2 undoes the projection
-        dev = mlp["w1"].device
-        used = [3 * i + j for i in range(len(free)) for j in range(LAYER_CHANNELS)
-                if 3 * i + j < n_comp]
-        w2 = torch.zeros_like(mlp["w2"])  # the other units start silent; their W2 learns first
-        b2 = torch.zeros_like(mlp["b2"])
-        for h, col in enumerate(used):
-            mlp["w1"][h].zero_()
-            mlp["w1"][h, col] = 1.0
-            mlp["b1"][h] = 0.0
-            # channel value = mean + sum_j comp_j * axis_j, comp_j = lo_j + (f_j - F_LO) / scale_j
-            w2[:, h] = axes[col].to(dev) / scale[col].to(dev)
-            b2 += axes[col].to(dev) * (lo[col].to(dev) - F_LO / scale[col].to(dev))
+        for i in sorted(content):
+            top = content[i][0].reshape(len(comps_of[i]), -1)
+            sub = top[:, :: max(1, top.shape[1] // 65536)]
+            lo = torch.quantile(sub, 0.001, dim=1)
+            hi = torch.quantile(sub, 0.999, dim=1)
+            scale = (F_HI - F_LO) / torch.where(hi - lo > 1e-6, hi - lo, torch.ones_like(hi))
+            for k, p in enumerate(free[i]):
+                f = F_LO + (content[i][k] - lo[:, None, None]) * scale[:, None, None]
+                p[: len(comps_of[i])] = _inverse_endpoint_value(f.clamp(F_LO * 0.5, F_HI * 1.1), False)
+            for j, comp in enumerate(comps_of[i]):
+                if unit >= w1.shape[0]:
+                    break
+                col = LAYER_CHANNELS * i + j
+                w1[unit].zero_()
+                w1[unit, col] = 1.0
+                b1[unit] = 0.0
+                # channel value = mean + sum comp * axis, comp = lo + (f - F_LO) / scale
+                w2[:, unit] = axes[comp] / scale[j]
+                b2 += axes[comp] * (lo[j] - F_LO / scale[j])
+                unit += 1
         mlp["w2"].copy_(w2)
-        mlp["b2"].copy_(b2 + mean.to(dev) - mlp["out_bias"])
+        mlp["b2"].copy_(b2 + mean - mlp["out_bias"])
     return n_comp

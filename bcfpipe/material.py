@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import export as E
-from .config import PRESETS, ModelConfig, TrainConfig, resolve_profile
+from .config import FEATURE_INITS, PRESETS, ModelConfig, TrainConfig, resolve_profile
 from .metrics import Metrics, compute_metrics
 from .texset import TextureSet, build_mip_chain
 from .train import ProgressFn, TrainedMaterial, resolve_device, train
@@ -27,6 +27,7 @@ class MaterialResult:
     size_bytes: int
     train_seconds: float
     phase_seconds: dict[str, float]
+    phase_samples: dict[str, int] | None = None
 
     def to_dict(self) -> dict:
         m = self.metrics
@@ -34,6 +35,7 @@ class MaterialResult:
              "size_mib": self.size_bytes / 2**20, "train_seconds": self.train_seconds,
              "out": str(self.out_dir), "profile": self.profile, "resolutions": list(self.resolutions),
              "preset": self.preset, "device": self.device, "phase_seconds": self.phase_seconds,
+             "phase_samples": self.phase_samples,
              "metrics": m.to_dict()}
         if self.float_metrics is not None:
             d["float_psnr"] = self.float_metrics.psnr
@@ -43,17 +45,19 @@ class MaterialResult:
 
 def make_config(ts: TextureSet, profile: str = "auto", preset: str = "standard", device: str = "auto",
                 seed: int = 0, hidden: int = 16, signed: bool = False, wrap: str = "repeat",
-                threads: int | None = None) -> tuple[str, TrainConfig]:
+                threads: int | None = None, init: str = "random") -> tuple[str, TrainConfig]:
     """A TrainConfig from CLI-style choices; returns the resolved profile name too."""
     if preset not in PRESETS:
         raise ValueError(f"unknown quality preset {preset!r}; choose from {', '.join(PRESETS)}")
+    if init not in FEATURE_INITS:
+        raise ValueError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
     if wrap not in ("repeat", "clamp"):
         raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
     name, res = resolve_profile(profile, max(ts.width, ts.height))
     dev = str(resolve_device(device))
     mc = ModelConfig(resolutions=res, hidden=hidden, signed=signed, wrap=wrap)
     return name, TrainConfig(model=mc, preset=PRESETS[preset], preset_name=preset, seed=seed, device=dev,
-                             threads=threads)
+                             threads=threads, feature_init=init)
 
 
 def exported_size(out_dir: Path) -> int:
@@ -73,5 +77,6 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
     float_metrics = compute_metrics(ref, tm.float_mips, ts.channels, ssim=False, flip=False) if tm.float_mips else None
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)
     res = MaterialResult(out, profile, cfg.model.resolutions, cfg.preset_name, cfg.device, metrics, float_metrics,
-                         exported_size(out), tm.train_seconds, {k: round(v, 3) for k, v in phases.items()})
+                         exported_size(out), tm.train_seconds, {k: round(v, 3) for k, v in phases.items()},
+                         dict(tm.phase_samples))
     return res, tm

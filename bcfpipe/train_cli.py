@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from .config import DEFAULT_PRESET, DEFAULT_THREADS, PRESETS, PROFILE_NAMES
+from .config import DEFAULT_PRESET, DEFAULT_THREADS, FEATURE_INITS, PRESETS, PROFILE_NAMES
 from .errors import EXIT_FAILED, BcfError
 from .train import Progress
 
@@ -82,6 +82,9 @@ def _table(res) -> "object":
 @click.option("--device", default="auto", show_default=True, help="auto, cpu or cuda[:N].")
 @click.option("--seed", default=0, show_default=True, help="Random seed (runs are deterministic on CPU).")
 @click.option("--resolution", type=int, default=None, help="Resample the texture set to this power of two first.")
+@click.option("--init", "init", type=click.Choice(list(FEATURE_INITS)), default="random", show_default=True,
+              help="How training starts: 'random' as in the paper, or 'pca' from the texture set's principal "
+                   "components and their linear decoder (sharper fine mips, weaker coarse ones).")
 @click.option("--hidden", default=16, show_default=True, help="Hidden units of the decoder MLP.")
 @click.option("--signed", is_flag=True, help="Store features as BC6H_SF16 instead of BC6H_UF16.")
 @click.option("--wrap", type=click.Choice(["repeat", "clamp"]), default="repeat", show_default=True,
@@ -91,7 +94,7 @@ def _table(res) -> "object":
 @click.option("-f", "--force", is_flag=True, help="Overwrite a non-empty output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object to stdout (progress stays on stderr).")
 @click.pass_context
-def train_cmd(ctx, textures, output, profile, preset, device, seed, resolution, hidden, signed, wrap, threads,
+def train_cmd(ctx, textures, output, profile, preset, device, seed, resolution, init, hidden, signed, wrap, threads,
               force, as_json) -> None:
     """Train one neural material from a texture set and export it to OUTPUT.
 
@@ -117,7 +120,7 @@ def train_cmd(ctx, textures, output, profile, preset, device, seed, resolution, 
         specs = [TextureSpec.parse(t) for t in textures]
         ts = load_texture_set(specs, resolution=resolution)
         name, cfg = make_config(ts, profile=profile, preset=preset, device=device, seed=seed, hidden=hidden,
-                                signed=signed, wrap=wrap, threads=threads)
+                                signed=signed, wrap=wrap, threads=threads, init=init)
     except ValueError as e:
         raise BcfError(str(e)) from None
     quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False

@@ -39,7 +39,7 @@ def main():
     ap.add_argument("--int-frac", type=float, default=0.0)
     ap.add_argument("--preset", default="standard")
     ap.add_argument("--steps-x", type=float, default=1.0, help="multiply every phase's step count")
-    ap.add_argument("--values", type=int, default=73)
+    ap.add_argument("--step", type=float, default=0.125)
     ap.add_argument("--out", type=Path, default=Path("/tmp/bcf_ablate_lod"))
     a = ap.parse_args()
     torch.set_num_threads(1)
@@ -73,7 +73,7 @@ def main():
     cfg = TrainConfig(model=mc, preset=pre, preset_name=a.preset, threads=1)
     out = a.out / a.name
     res, _ = fit_material(ts, out, cfg)
-    rows = B.sweep(out, ts, a.values)
+    rows = B.sweep(out, ts, a.step)
     worst = max(B.dips(rows), key=lambda t: t[1])
     p = np.array([row[1] for row in rows])
     print(" ".join(f"{row[0]:.2f}:{row[1]:.2f}" for row in rows))

@@ -60,3 +60,17 @@ def test_training_is_deterministic_on_cpu(tmp_path):
     cfg2 = cfg.with_(seed=4)
     fit_material(ts, tmp_path / "other", cfg2, "t")
     assert (tmp_path / "other" / "weights.bin").read_bytes() != outs[0]["weights.bin"]
+
+
+def test_stratified_scale_power_favours_fine_lods():
+    """s = s_max * u**power with u stratified: power 1 is uniform over [0, s_max]; power 2 puts
+    sqrt(1/4) = half of the steps below s_max / 4, and every value stays inside [0, s_max]."""
+    import torch
+
+    from bcfpipe.train import StratifiedScale
+
+    for power, share in ((1.0, 0.25), (2.0, 0.5)):
+        nxt = StratifiedScale(11.0, torch.Generator().manual_seed(0), power=power)
+        s = np.array([nxt() for _ in range(16 * 200)])
+        assert s.min() >= 0 and s.max() <= 11.0
+        assert abs(np.mean(s < 11.0 / 4) - share) < 0.02

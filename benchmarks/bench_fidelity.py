@@ -1,0 +1,139 @@
+"""Issue #9: per-mip fidelity of BCf against BC@1024 on the teapot and brick sets, before/after.
+
+Every BCf row is trained, exported and measured from the exported files (BC6H DDS decoded by
+bcfpipe.bc6h.decode, fp16 decoder through onnxruntime), against the same 2048² reference chain as
+the BC row. BC@1024: BC1 for colour and packed maps, BC4 for a lone scalar, BC5 for normals, every
+mip encoded, level 0 magnified for reference mip 0 (bcfpipe.baselines).
+
+Variants run side by side (``--parallel``, one torch thread each) so load hits them alike:
+  before    session 2's `standard`: random start, s uniform, 800 + 4000 + 300 steps of 128²
+  <preset>  a preset of bcfpipe.config as it is now (draft, fast, standard, paper)
+
+  python benchmarks/bench_fidelity.py [--sets teapot,brick] [--variants before,standard]
+                                      [--profile 1k] [--parallel 2] [--json out.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import SHARED, machine, teapot_specs  # noqa: E402
+
+BRICK = SHARED / "materialx_texture_sets" / "brick"
+
+
+def specs(name: str):
+    from bcfpipe.texset import TextureSpec
+
+    if name == "teapot":
+        return teapot_specs()
+    if name == "brick":
+        if not BRICK.is_dir():
+            raise SystemExit(f"needs the shared scenes at {SHARED}")
+        return [TextureSpec.parse(f"generic={BRICK / 'brick_base_gray.jpg'}:r"),
+                TextureSpec.parse(f"normal={BRICK / 'brick_normal.jpg'}:xy"),
+                TextureSpec.parse(f"roughness={BRICK / 'brick_roughness.jpg'}:r")]
+    raise SystemExit(f"unknown set {name!r}: teapot or brick")
+
+
+def variant_config(ts, variant: str, profile: str, seed: int):
+    from bcfpipe.config import PRESETS, _cpu_preset
+    from bcfpipe.material import make_config
+
+    if variant == "before":
+        name, cfg = make_config(ts, profile=profile, preset="standard", device="cpu", seed=seed, threads=1)
+        legacy = replace(_cpu_preset(800, 4000, 300, 128 * 128), lod_power=1.0, fine_batch=1, centre_targets=False)
+        return name, cfg.with_(preset=legacy, preset_name="before", feature_init="random")
+    if variant not in PRESETS:
+        raise SystemExit(f"unknown variant {variant!r}: before or one of {', '.join(PRESETS)}")
+    return make_config(ts, profile=profile, preset=variant, device="cpu", seed=seed, threads=1)
+
+
+def run_variant(set_name: str, variant: str, profile: str, seed: int, out: str) -> dict:
+    from bcfpipe.material import fit_material
+    from bcfpipe.texset import load_texture_set
+
+    ts = load_texture_set(specs(set_name))
+    name, cfg = variant_config(ts, variant, profile, seed)
+    t0 = time.perf_counter()
+    res, tm = fit_material(ts, Path(out) / f"{set_name}_{variant}", cfg, name)
+    m = res.metrics
+    per_phase = {p: res.phase_samples.get(p, 0) / res.phase_seconds[p]
+                 for p in ("warmup", "constrained", "finetune") if res.phase_seconds.get(p)}
+    return dict(set=set_name, method=f"BCf {name} {variant}", psnr=m.psnr, ssim=m.ssim, flip=m.flip,
+                per_mip=m.psnr_per_mip, size_bytes=res.size_bytes, train_seconds=res.train_seconds,
+                wall_seconds=time.perf_counter() - t0, float_psnr=res.float_metrics.psnr,
+                samples_per_second=per_phase, phase_seconds=res.phase_seconds)
+
+
+def baseline(set_name: str) -> dict:
+    from bcfpipe.baselines import encode_texture_set_baseline
+    from bcfpipe.metrics import compute_metrics
+    from bcfpipe.texset import build_mip_chain, load_texture_set
+
+    ts = load_texture_set(specs(set_name))
+    ref = build_mip_chain(ts.data)
+    dec, size = encode_texture_set_baseline(ts, "bc", 1024, ref_mips=ref)
+    m = compute_metrics(ref, dec, ts.channels)
+    return dict(set=set_name, method="BC@1024", psnr=m.psnr, ssim=m.ssim, flip=m.flip, per_mip=m.psnr_per_mip,
+                size_bytes=size)
+
+
+def table(rows: list[dict], bc: dict) -> str:
+    n = len(bc["per_mip"])
+    lines = ["| method | " + " | ".join(str(k) for k in range(n)) + " | all mips | vs BC | SSIM mip 0 | MiB | train s |",
+             "|---|" + "---:|" * (n + 5)]
+    for r in rows:
+        train = f"{r['train_seconds']:.0f}" if "train_seconds" in r else "-"
+        lines.append(f"| {r['method']} | " + " | ".join(f"{x:.1f}" for x in r["per_mip"]) +
+                     f" | {r['psnr']:.2f} | {r['psnr'] - bc['psnr']:+.2f} | {r['ssim']:.4f} | "
+                     f"{r['size_bytes'] / 2**20:.2f} | {train} |")
+    return "\n".join(lines)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sets", default="teapot,brick")
+    ap.add_argument("--variants", default="before,standard")
+    ap.add_argument("--profile", default="1k")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--parallel", type=int, default=2, help="variants trained at once (1 torch thread each)")
+    ap.add_argument("--out", type=Path, default=Path("/tmp/bcf_bench_fidelity"))
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args()
+    sets, variants = a.sets.split(","), a.variants.split(",")
+    jobs = [(s, v) for v in variants for s in sets]
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=a.parallel, mp_context=ctx) as pool:
+        futs = [pool.submit(run_variant, s, v, a.profile, a.seed, str(a.out)) for s, v in jobs]
+        bcs = {s: baseline(s) for s in sets}
+        rows = []
+        for (s, v), f in zip(jobs, futs):
+            r = f.result()
+            print(f"{s} {v}: {r['psnr']:.2f} dB, train {r['train_seconds']:.0f} s", file=sys.stderr, flush=True)
+            rows.append(r)
+    print(f"# Per-mip PSNR (dB) against BC@1024, {machine()}, profile {a.profile}\n")
+    for s in sets:
+        print(f"## {s}\n")
+        print(table([bcs[s]] + [r for r in rows if r["set"] == s], bcs[s]))
+        print("\nsamples/s per phase:\n")
+        print("| method | warmup | constrained | finetune | wall s |\n|---|---:|---:|---:|---:|")
+        for r in rows:
+            if r["set"] == s:
+                sp = r["samples_per_second"]
+                print(f"| {r['method']} | " + " | ".join(f"{sp.get(p, 0):,.0f}" for p in ("warmup", "constrained", "finetune"))
+                      + f" | {r['wall_seconds']:.0f} |")
+        print()
+    if a.json:
+        a.json.write_text(json.dumps({"machine": machine(), "baselines": bcs, "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
