@@ -49,7 +49,7 @@ def variant_config(ts, variant: str, profile: str, seed: int):
 
     if variant == "before":
         name, cfg = make_config(ts, profile=profile, preset="standard", device="cpu", seed=seed, threads=1)
-        legacy = replace(_cpu_preset(800, 4000, 300, 128 * 128), lod_power=1.0, fine_batch=1, centre_targets=False)
+        legacy = replace(_cpu_preset(800, 4000, 300, 128 * 128), lod_power=1.0, centre_targets=False)
         return name, cfg.with_(preset=legacy, preset_name="before", feature_init="random")
     if variant not in PRESETS:
         raise SystemExit(f"unknown variant {variant!r}: before or one of {', '.join(PRESETS)}")
