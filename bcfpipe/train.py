@@ -199,7 +199,10 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
 
     taps = cfg.tap_decode
     next_s = StratifiedScale(s_max, gen, power=preset.lod_power)
+    t0 = time.perf_counter()
     centres = CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch) if preset.centre_targets else None
+    if centres is not None:
+        seconds["targets"] = time.perf_counter() - t0  # part of the training time, not hidden before it
 
     def batch_at(s: float) -> tuple[torch.Tensor, torch.Tensor]:
         """uv and targets of one step at scale s: at precomputed texel centres where the
