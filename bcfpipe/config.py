@@ -19,7 +19,10 @@ PAPER_PROFILES: dict[str, tuple[int, int, int, int]] = {
     "2k": (2048, 1024, 512, 256),
     "2k++": (2048, 2048, 512, 256),
 }
-PROFILES: dict[str, tuple[int, int, int, int]] = {"tiny": (64, 32, 16, 8), **PAPER_PROFILES}
+# "1k++" goes beyond the paper the way its 2k++ does: six channels at T_0's resolution (T_0 and T_1
+# both 1024²), for fine-mip detail that three features cannot hold (issue #9, benchmarks/bound_t0.py).
+PROFILES: dict[str, tuple[int, int, int, int]] = {"tiny": (64, 32, 16, 8), **PAPER_PROFILES,
+                                                  "1k++": (1024, 1024, 256, 128)}
 PROFILE_NAMES = (*PROFILES, "auto")
 
 
@@ -31,7 +34,7 @@ def scaled_profile(t0: int) -> tuple[int, int, int, int]:
 def resolve_profile(name: str, source_size: int) -> tuple[str, tuple[int, int, int, int]]:
     """Profile name -> (name, resolutions). ``auto`` is the largest of 0.5k/1k/2k whose T_0 is not
     larger than the source's larger side; below 512 it halves the paper pattern from the source's
-    power-of-two size (so a 32x32 texture gets 32/16/8/4). 2k++ is only used when asked for."""
+    power-of-two size (so a 32x32 texture gets 32/16/8/4). 2k++ and 1k++ are only used when asked for."""
     if name != "auto":
         if name not in PROFILES:
             raise ValueError(f"unknown profile {name!r}; choose from {', '.join(PROFILE_NAMES)}")
