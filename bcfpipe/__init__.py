@@ -9,12 +9,3 @@ __version__ = "0.1.0"
 # explicit user setting wins.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-
-def __getattr__(name: str):
-    """Lazy ``bcfpipe.build`` (the Python API of `bcfpipe build`, in bcfpipe.pipeline), so light
-    imports such as ``bcfpipe.dds`` do not pull in torch and USD."""
-    if name == "build":
-        from .pipeline import build
-
-        return build
-    raise AttributeError(f"module 'bcfpipe' has no attribute {name!r}")

@@ -1,4 +1,4 @@
 """`python -m bcfpipe` runs the command line."""
-from .cli import main
+from bcfpipe.cli import main
 
 main()

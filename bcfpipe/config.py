@@ -126,6 +126,12 @@ DEFAULT_PRESET = "standard"
 DEFAULT_THREADS = 1
 
 
+DEFAULT_PROFILE = "auto"
+DEFAULT_HIDDEN = 16  # hidden units of the decoder MLP
+DEFAULT_SEED = 0
+DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
+DEFAULT_INIT = "random"
+
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/feature_init.py: sharper fine mips, weaker
 # coarse ones; issue #9).
@@ -137,7 +143,7 @@ class ModelConfig:
     """Architecture of one neural material."""
 
     resolutions: tuple[int, int, int, int] = PROFILES["1k"]
-    hidden: int = 16
+    hidden: int = DEFAULT_HIDDEN
     signed: bool = False  # BC6H_UF16 by default: finer endpoint steps over the positive range
     wrap: str = "repeat"
     max_feature: float = 2.0  # decoded features are kept within +-max_feature (model.endpoint_range)
@@ -164,7 +170,7 @@ class TrainConfig:
     # decode only the sampled texels each step instead of whole levels (same forward values). Off by
     # default: on a quiet 2-core machine whole levels were faster at batch 128² and 512² (benchmarks.md)
     tap_decode: bool = False
-    feature_init: str = "random"  # see FEATURE_INITS
+    feature_init: str = DEFAULT_INIT  # see FEATURE_INITS
 
     def with_(self, **kw) -> "TrainConfig":
         return replace(self, **kw)

@@ -1,33 +1,45 @@
-"""User-facing errors and the documented exit codes shared by every command."""
-from __future__ import annotations
+"""One hierarchy of user-facing errors, each carrying its documented exit code.
 
-import click
+The library raises these; only ``bcfpipe.cli`` turns them into a one-line message and an exit
+status (`bcfpipe.cli.errors`). Nothing here depends on click.
+
+Exit codes (every command):
+  0  success
+  1  the work ran but failed (a material did not build, verification failed, ...)
+  2  usage error or unreadable input (bad arguments, missing or corrupt file, refused output)
+"""
+from __future__ import annotations
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 
-class BcfError(click.ClickException):
-    """A user-facing error: printed as one line, exit code 2."""
+class BcfError(Exception):
+    """A user-facing error: its message is one line, ``exit_code`` says how the command ends."""
 
     exit_code = EXIT_USAGE
 
 
-def atomic_write(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary sibling and a rename, so a failure never
-    leaves a partial file; the result gets the usual umask-based permissions (mkstemp's are 0600)."""
-    import os
-    import tempfile
-    from pathlib import Path
+class InputError(BcfError, ValueError):
+    """Bad input or options: a missing or unreadable file, a bad argument, a refused output (2)."""
 
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    exit_code = EXIT_USAGE
+
+
+class WorkFailed(BcfError):
+    """The work ran and failed: a material did not build, a check did not pass (1)."""
+
+    exit_code = EXIT_FAILED
+
+
+class Unavailable(BcfError, RuntimeError):
+    """Something the command needs is not available on this machine, e.g. OpenGL (2)."""
+
+    exit_code = EXIT_USAGE
+
+
+def one_line(exc: BaseException, limit: int = 300) -> str:
+    """``Type: message`` on one line, at most ``limit`` characters (for reports and manifests)."""
+    text = " ".join(str(exc).split())
+    name = type(exc).__name__
+    line = f"{name}: {text}" if text else name
+    return line if len(line) <= limit else line[: limit - 3] + "..."

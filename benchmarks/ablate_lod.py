@@ -23,11 +23,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_lod_sweep as B  # noqa: E402
 from common import teapot_specs  # noqa: E402
 
-from bcfpipe import model as M  # noqa: E402
-from bcfpipe import train as T  # noqa: E402
+from bcfpipe.model import neural as M  # noqa: E402
+from bcfpipe.train import trainer as T  # noqa: E402
 from bcfpipe.config import PRESETS, ModelConfig, TrainConfig  # noqa: E402
-from bcfpipe.material import fit_material  # noqa: E402
-from bcfpipe.texset import load_texture_set  # noqa: E402
+from bcfpipe.train.fit import fit_material  # noqa: E402
+from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
 
 
 def main():

@@ -35,7 +35,7 @@ def machine() -> dict:
     import torch
 
     from bcfpipe import __version__
-    from bcfpipe.pipeline import cpu_count
+    from bcfpipe.build import cpu_count
 
     return {"cpu": cpu, "cores": cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
             "bcfpipe": __version__, "platform": platform.platform(),
@@ -53,7 +53,7 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     args = ap.parse_args()
 
-    from bcfpipe.pipeline import build
+    from bcfpipe.build import build
 
     info = machine()
     if not args.json:

@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bcfpipe import glsl_runtime as G  # noqa: E402
+from bcfpipe.verify import glsl as G  # noqa: E402
 
 GL_COMPRESSED_RGB_S3TC_DXT1_EXT = 0x83F0
 GL_COMPRESSED_RED_RGTC1 = 0x8DBB
@@ -130,7 +130,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
 
-    from bcfpipe.decode_cli import select_target
+    from bcfpipe.cli.decode import select_target
 
     target = select_target(args.out, args.material)
     m = target.desc

@@ -30,7 +30,7 @@ BRICK = SHARED / "materialx_texture_sets" / "brick"
 
 
 def specs(name: str):
-    from bcfpipe.texset import TextureSpec
+    from bcfpipe.texset.texture_set import TextureSpec
 
     if name == "teapot":
         return teapot_specs()
@@ -45,7 +45,7 @@ def specs(name: str):
 
 def variant_config(ts, variant: str, profile: str, seed: int):
     from bcfpipe.config import PRESETS, _cpu_preset
-    from bcfpipe.material import make_config
+    from bcfpipe.train.fit import make_config
 
     if variant == "before":
         name, cfg = make_config(ts, profile=profile, preset="standard", device="cpu", seed=seed, threads=1)
@@ -57,8 +57,8 @@ def variant_config(ts, variant: str, profile: str, seed: int):
 
 
 def run_variant(set_name: str, variant: str, profile: str, seed: int, out: str) -> dict:
-    from bcfpipe.material import fit_material
-    from bcfpipe.texset import load_texture_set
+    from bcfpipe.train.fit import fit_material
+    from bcfpipe.texset.texture_set import load_texture_set
 
     ts = load_texture_set(specs(set_name))
     name, cfg = variant_config(ts, variant, profile, seed)
@@ -74,9 +74,9 @@ def run_variant(set_name: str, variant: str, profile: str, seed: int, out: str) 
 
 
 def baseline(set_name: str) -> dict:
-    from bcfpipe.baselines import encode_texture_set_baseline
-    from bcfpipe.metrics import compute_metrics
-    from bcfpipe.texset import build_mip_chain, load_texture_set
+    from bcfpipe.bench.baselines import encode_texture_set_baseline
+    from bcfpipe.verify.metrics import compute_metrics
+    from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 
     ts = load_texture_set(specs(set_name))
     ref = build_mip_chain(ts.data)

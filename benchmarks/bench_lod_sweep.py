@@ -30,11 +30,11 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, teapot_specs  # noqa: E402
 
-from bcfpipe import export as E  # noqa: E402
-from bcfpipe.decoder import ONNX_INPUT, ONNX_OUTPUT, normal_xy_index  # noqa: E402
-from bcfpipe.reference import ReferencePyramid, sample_reference  # noqa: E402
-from bcfpipe.sampling import sample_trilinear  # noqa: E402
-from bcfpipe.texset import load_texture_set  # noqa: E402
+from bcfpipe.export import writer as E  # noqa: E402
+from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, normal_xy_index  # noqa: E402
+from bcfpipe.texset.reference import ReferencePyramid, sample_reference  # noqa: E402
+from bcfpipe.model.sampling import sample_trilinear  # noqa: E402
+from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
 
 
 def sweep(folder: Path, ts, step: float = 0.25, points: int = 1 << 16, seed: int = 0):
@@ -80,7 +80,7 @@ def main():
     if a.teapot:
         specs = teapot_specs()
     else:
-        from bcfpipe.texset import TextureSpec
+        from bcfpipe.texset.texture_set import TextureSpec
         desc = json.loads((a.material / "material.json").read_text())
         specs = [TextureSpec.parse(s) for s in desc["sources"]]
     ts = load_texture_set(specs)

@@ -17,10 +17,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, teapot_specs  # noqa: E402
 
-from bcfpipe.baselines import encode_texture_set_baseline  # noqa: E402
-from bcfpipe.material import fit_material, make_config  # noqa: E402
-from bcfpipe.metrics import compute_metrics  # noqa: E402
-from bcfpipe.texset import build_mip_chain, load_texture_set  # noqa: E402
+from bcfpipe.bench.baselines import encode_texture_set_baseline  # noqa: E402
+from bcfpipe.train.fit import fit_material, make_config  # noqa: E402
+from bcfpipe.verify.metrics import compute_metrics  # noqa: E402
+from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set  # noqa: E402
 
 
 def main():

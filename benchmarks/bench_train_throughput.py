@@ -23,13 +23,13 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, teapot_specs  # noqa: E402
 
-from bcfpipe import model as M  # noqa: E402
+from bcfpipe.model import neural as M  # noqa: E402
 from bcfpipe.bc6h import emulate  # noqa: E402
 from bcfpipe.bc6h.encode import encode_params  # noqa: E402
 from bcfpipe.config import PROFILES, ModelConfig  # noqa: E402
-from bcfpipe.decoder import mlp_raw  # noqa: E402
-from bcfpipe.reference import ReferencePyramid, random_batch, sample_reference  # noqa: E402
-from bcfpipe.texset import load_texture_set  # noqa: E402
+from bcfpipe.model.decoder import mlp_raw  # noqa: E402
+from bcfpipe.texset.reference import ReferencePyramid, random_batch, sample_reference  # noqa: E402
+from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
 
 
 def _sync(dev):

@@ -55,9 +55,9 @@ def main() -> None:
     ap.add_argument("--sets", default="teapot,brick")
     args = ap.parse_args()
 
-    from bcfpipe.baselines import _bilinear_up, encode_texture_set_baseline
-    from bcfpipe.metrics import mse_per_mip, psnr_from_mse
-    from bcfpipe.texset import build_mip_chain, load_texture_set
+    from bcfpipe.bench.baselines import _bilinear_up, encode_texture_set_baseline
+    from bcfpipe.verify.metrics import mse_per_mip, psnr_from_mse
+    from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 
     print(f"machine: {machine()}")
     print("| set | method | bits at 1024² | mip 0 | mip 1 |")

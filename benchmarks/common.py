@@ -12,7 +12,7 @@ TEAPOT = SHARED / "usdwg_teapot" / "textures"
 
 
 def teapot_specs():
-    from bcfpipe.texset import TextureSpec
+    from bcfpipe.texset.texture_set import TextureSpec
 
     if not TEAPOT.is_dir():
         raise SystemExit(f"needs the shared scenes at {SHARED}")

@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bcfpipe.baselines import (
+from bcfpipe.bench.baselines import (
     astc_mips, astcenc_path, bc1_mips, bc4_mips, bc5_mips, encode_texture_set_baseline, pack_texture_set,
 )
-from bcfpipe.metrics import compute_metrics
-from bcfpipe.texset import Channel, TextureSet, build_mip_chain
+from bcfpipe.verify.metrics import compute_metrics
+from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
 
 pytest.importorskip("quicktex", reason="quicktex (the BC1/BC5 encoder) is not installed")
 needs_astcenc = pytest.mark.skipif(astcenc_path() is None, reason="astcenc not installed (apt-get install astcenc)")

@@ -325,7 +325,7 @@ def test_mip_chain_and_odd_sizes_match_mesa_gl(signed):
 
 
 def _write_dds(path, levels, signed):
-    from bcfpipe import dds
+    from bcfpipe.formats import dds
 
     dds.write(path, levels, signed=signed)
 

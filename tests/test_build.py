@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-from bcfpipe import weightsbuf
-from bcfpipe.pipeline import (MANIFEST, BuildError, MaterialJob, build, plan, root_layer_name)
-from bcfpipe.build_cli import BuildDisplay
+from bcfpipe.formats import weights as weightsbuf
+from bcfpipe.build import (MANIFEST, BuildError, MaterialJob, build, plan, root_layer_name)
+from bcfpipe.cli.build import BuildDisplay
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "samples"
@@ -289,7 +289,7 @@ def test_relocation(sample, tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_deterministic(sample, tmp_path: Path) -> None:
     """The same job and seed (and thread count) give byte-identical exported files."""
-    from bcfpipe.pipeline import run_job
+    from bcfpipe.build import run_job
 
     scene, result = sample
     job = result.plan.job("Leaves")
@@ -352,8 +352,8 @@ def test_plan_channel_mapping(tmp_path: Path) -> None:
 @pytest.mark.shared
 def test_plan_packaged_textures(tmp_path: Path) -> None:
     """Textures inside a usdz are hashed through Ar and copied out for the loader."""
-    from bcfpipe.pipeline import local_file
-    from bcfpipe.texset import TextureSpec, load_texture_set
+    from bcfpipe.scan.texture_sets import local_file
+    from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
     scene = SCENES / "usdwg_roughness_test" / "RoughnessTest.usdz"
     if not scene.exists():
@@ -463,13 +463,13 @@ def test_plain_progress_lines() -> None:
 
 
 def test_schema_helper() -> None:
-    from bcfpipe import schema
+    from bcfpipe.formats import usd_schema as schema
 
     d = schema.schema_dir()
     assert {"plugInfo.json", "generatedSchema.usda", "schema.usda"} <= {p.name for p in d.iterdir()}
     assert str(d) in schema.plugin_path_env("")
     proc = run_py("""
-        from bcfpipe import schema
+        from bcfpipe.formats import usd_schema as schema
         assert schema.register() and schema.is_registered()
         from pxr import Usd, UsdShade
         stage = Usd.Stage.CreateInMemory()
@@ -512,7 +512,7 @@ def test_teapot_fancy(tmp_path: Path) -> None:
 @pytest.mark.gl
 def test_verify_passes_on_the_sample_build(sample) -> None:
     """`bcfpipe verify` on a real (tiny) build: GLSL through OpenGL against ONNX, every material."""
-    from bcfpipe import verify as V
+    from bcfpipe.verify import checks as V
 
     scene, result = sample
     try:

@@ -6,7 +6,7 @@ import struct
 import numpy as np
 import pytest
 
-from bcfpipe import dds
+from bcfpipe.formats import dds
 
 
 def _chain(w, h, n=None, seed=0):

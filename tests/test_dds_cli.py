@@ -11,7 +11,7 @@ from click.testing import CliRunner
 import sys
 from pathlib import Path
 
-from bcfpipe import dds
+from bcfpipe.formats import dds
 from bcfpipe.bc6h import decode
 from bcfpipe.bc6h.encode import encode
 from bcfpipe.cli import main

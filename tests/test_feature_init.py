@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from bcfpipe import model as M
+from bcfpipe.model import neural as M
 from bcfpipe.config import ModelConfig
-from bcfpipe.feature_init import pca_init
-from bcfpipe.reference import ReferencePyramid, sample_reference
-from bcfpipe.texset import build_mip_chain
+from bcfpipe.train.feature_init import pca_init
+from bcfpipe.texset.reference import ReferencePyramid, sample_reference
+from bcfpipe.texset.texture_set import build_mip_chain
 
 
 def _psnr(pred, target):

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bcfpipe import glsl_runtime as G
+from bcfpipe.verify import glsl as G
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_verify import make_material  # noqa: E402

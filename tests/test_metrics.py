@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from bcfpipe.metrics import compute_metrics, mse_per_mip, psnr_from_mse
-from bcfpipe.texset import Channel, build_mip_chain
+from bcfpipe.verify.metrics import compute_metrics, mse_per_mip, psnr_from_mse
+from bcfpipe.texset.texture_set import Channel, build_mip_chain
 
 
 def channels(spec: str) -> tuple[Channel, ...]:

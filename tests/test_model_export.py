@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from bcfpipe import export as E
-from bcfpipe import model as M
+from bcfpipe.export import writer as E
+from bcfpipe.model import neural as M
 from bcfpipe.bc6h import emulate
 from bcfpipe.config import ModelConfig, TrainConfig
-from bcfpipe.decoder import MlpWeights, decode_numpy, from_bytes, mlp_raw, postprocess, to_bytes
-from bcfpipe.texset import Channel, TextureSet
-from bcfpipe.train import BlockLevel, TrainedMaterial, exact_level
+from bcfpipe.model.decoder import MlpWeights, decode_numpy, from_bytes, mlp_raw, postprocess, to_bytes
+from bcfpipe.texset.texture_set import Channel, TextureSet
+from bcfpipe.train.trainer import BlockLevel, TrainedMaterial, exact_level
 
 MC = ModelConfig(resolutions=(32, 16, 8, 4))
 

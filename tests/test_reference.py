@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from bcfpipe.reference import ReferencePyramid, keys_weights, random_batch, sample_reference
-from bcfpipe.texset import Channel, TextureSet, build_mip_chain
+from bcfpipe.texset.reference import ReferencePyramid, keys_weights, random_batch, sample_reference
+from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
 
 
 def keys(x: float, a: float = -0.5) -> float:
@@ -149,7 +149,7 @@ def test_random_batch():
 def test_centre_targets_equal_sample_reference(wrap):
     """Precomputed texel-centre targets are the bicubic reference at those points, bit for bit,
     for integer and fractional s and for the last mips (where floor(s) + 1 is clamped)."""
-    from bcfpipe.reference import CentreTargets
+    from bcfpipe.texset.reference import CentreTargets
 
     rng = np.random.default_rng(5)
     data = rng.uniform(0, 1, (64, 32, 3)).astype(np.float32)

@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from bcfpipe.sampling import sample_bilinear, sample_trilinear
+from bcfpipe.model.sampling import sample_bilinear, sample_trilinear
 
 
 def _grid_sample(tex, uv, wrap):

@@ -13,9 +13,9 @@ import pytest
 from click.testing import CliRunner
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-from bcfpipe import scan as scan_mod
-from bcfpipe.scan import ScanError, StageScan, parse_variant, scan_stage
-from bcfpipe.scan_cli import scan as scan_cmd
+from bcfpipe.scan import stage as scan_mod
+from bcfpipe.scan.stage import ScanError, StageScan, parse_variant, scan_stage
+from bcfpipe.cli.scan import scan as scan_cmd
 
 SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")

@@ -7,8 +7,8 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from bcfpipe import texset
-from bcfpipe.texset import (
+from bcfpipe.texset import texture_set as texset
+from bcfpipe.texset.texture_set import (
     SEMANTICS, TextureError, TextureSet, TextureSpec, build_mip_chain, common_resolution,
     load_texture_set, semantic_info,
 )

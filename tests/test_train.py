@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from bcfpipe.config import ModelConfig, PhaseSchedule, Preset, TrainConfig
-from bcfpipe.material import fit_material
-from bcfpipe.texset import Channel, TextureSet, TextureSpec, load_texture_set
+from bcfpipe.train.fit import fit_material
+from bcfpipe.texset.texture_set import Channel, TextureSet, TextureSpec, load_texture_set
 
 # a short schedule for tests: ~2 s of training per run on one core
 QUICK = Preset(PhaseSchedule(120, 0.5, 5e-3, 0.98, 0.98), PhaseSchedule(240, 0.1, 5e-3, 0.99, 0.99),
@@ -67,7 +67,7 @@ def test_stratified_scale_power_favours_fine_lods():
     sqrt(1/4) = half of the steps below s_max / 4, and every value stays inside [0, s_max]."""
     import torch
 
-    from bcfpipe.train import StratifiedScale
+    from bcfpipe.train.trainer import StratifiedScale
 
     for power, share in ((1.0, 0.25), (2.0, 0.5)):
         nxt = StratifiedScale(11.0, torch.Generator().manual_seed(0), power=power)

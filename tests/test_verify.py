@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from bcfpipe import export as E
-from bcfpipe import verify as V
-from bcfpipe.decoder import HEADER_BYTES, MlpWeights, decode_numpy
+from bcfpipe.export import writer as E
+from bcfpipe.verify import checks as V
+from bcfpipe.model.decoder import HEADER_BYTES, MlpWeights, decode_numpy
 
 SIZES = (32, 16, 8, 4)
 REF = 64
@@ -27,9 +27,9 @@ def make_material(folder: Path, signed: bool = False, wrap: str = "repeat", norm
                   resolutions=SIZES, ref: int = REF, hidden: int = 16, seed: int = 0) -> Path:
     """Export a synthetic material: random smooth-ish BC6H features, a random fp16 decoder."""
     from bcfpipe.config import ModelConfig, TrainConfig, mip_count
-    from bcfpipe.model import lod_biases
-    from bcfpipe.texset import Channel, TextureSet
-    from bcfpipe.train import BlockLevel
+    from bcfpipe.model.neural import lod_biases
+    from bcfpipe.texset.texture_set import Channel, TextureSet
+    from bcfpipe.train.trainer import BlockLevel
 
     rng = np.random.default_rng(seed)
     src = str(folder / "src.png")
@@ -67,7 +67,7 @@ def make_material(folder: Path, signed: bool = False, wrap: str = "repeat", norm
 
 @pytest.fixture(scope="module")
 def gl_runtime():
-    from bcfpipe.glsl_runtime import GLRuntime, GLUnavailable
+    from bcfpipe.verify.glsl import GLRuntime, GLUnavailable
 
     try:
         rt = GLRuntime()
@@ -121,7 +121,7 @@ def test_verify_passes_on_exported_materials(materials, gl_runtime, name):
 
 
 def test_grid_covers_the_extremes(materials):
-    from bcfpipe.glsl_runtime import read_material
+    from bcfpipe.verify.glsl import read_material
 
     m = read_material(materials["unsigned_repeat"])
     sizes = [[(max(4, r >> k),) * 2 for k in range(n)] for r, n in zip(SIZES, m.mip_counts)]
@@ -178,7 +178,7 @@ def test_one_ulp_weight_change_fails_the_weights_check(materials, gl_runtime, tm
 def test_flipped_dds_byte_fails(materials, gl_runtime, tmp_path):
     """A flipped byte is decoded identically by Mesa and bcfpipe, so it is caught by the file
     checks: the mode bits by the declared block mode, any byte by the recorded SHA-256."""
-    from bcfpipe import dds
+    from bcfpipe.formats import dds
 
     d = _copy(materials["unsigned_repeat"], tmp_path / "m")
     assert "sha256" in json.loads((d / "material.json").read_text())  # recorded by the exporter
@@ -213,7 +213,7 @@ def _quantized_features(em, uv, s, bits, mode):
     """Features as a texture unit with ``bits`` fractional bits (rounding or truncating) filters them."""
     import torch
 
-    from bcfpipe.sampling import sample_bilinear
+    from bcfpipe.model.sampling import sample_bilinear
 
     q = 2.0 ** bits
     quant = (lambda x: np.round(x * q) / q) if mode == "round" else (lambda x: np.floor(x * q) / q)
@@ -240,7 +240,7 @@ def _quantized_features(em, uv, s, bits, mode):
 def test_derived_tolerance_bounds_8bit_hardware_filtering(materials, name):
     """Simulate a texture unit with 8-bit sub-texel and mip fractions (rounded or truncated): its
     outputs stay within the derived per-point tolerance, which is nearly reached (tight)."""
-    from bcfpipe.glsl_runtime import read_material
+    from bcfpipe.verify.glsl import read_material
 
     m = read_material(materials[name])
     em = E.load(materials[name])
@@ -263,7 +263,7 @@ def test_derived_tolerance_bounds_8bit_hardware_filtering(materials, name):
 
 
 def test_tolerance_has_fp32_floor_at_texel_centres(materials):
-    from bcfpipe.glsl_runtime import read_material
+    from bcfpipe.verify.glsl import read_material
 
     em = E.load(materials["unsigned_repeat"])
     m = read_material(materials["unsigned_repeat"])
@@ -299,7 +299,7 @@ def test_cli_json_and_exit_codes(materials, tmp_path):
 
 
 def test_no_opengl_is_exit_2(materials, monkeypatch):
-    from bcfpipe import glsl_runtime as G
+    from bcfpipe.verify import glsl as G
 
     def boom(*a, **k):
         raise G.GLUnavailable("no EGL here (test)")
@@ -317,7 +317,7 @@ def test_build_folder_with_combined_weights(materials, gl_runtime, tmp_path):
     decoded from the combined buffer at its offset, shared records verified once."""
     import shutil
 
-    from bcfpipe import weightsbuf
+    from bcfpipe.formats import weights as weightsbuf
 
     root = tmp_path / "build"
     names = ["unsigned_repeat", "signed_clamp_normal"]

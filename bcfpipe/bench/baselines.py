@@ -1,0 +1,261 @@
+"""Classic block-compression baselines (BC1/BC4/BC5, ASTC) evaluated through the same metric code.
+
+Each codec function takes a mip chain of (H, W, c) float arrays in [0, 1] (stored values),
+quantises to 8 bits as a texture exporter would, encodes and decodes every mip, and returns the
+decoded mips (float32, same shapes) with the compressed size in bytes (block payload only, no
+container headers).
+
+* BC1 / BC4 / BC5: quicktex (``BC1Encoder(18)``, its slowest and best preset, four-colour mode;
+  ``BC4Encoder``, ``BC5Encoder``). Levels whose sides are not multiples of 4 (including 2x2, 1x1) are padded to
+  whole 4x4 blocks by edge replication and cropped after decoding. BC1 = BC4 = 8 bytes / block,
+  BC5 = 16 bytes / block.
+* ASTC: the ``astcenc`` CLI in LDR-linear mode, one ``-tl`` (compress + decompress, identical to
+  ``-cl`` then ``-dl``) process per mip through temporary 8-bit PNGs, ``-thorough`` by default.
+  16 bytes per block, ceil(w/bw) * ceil(h/bh) blocks.
+
+`encode_texture_set_baseline` packs a `TextureSet` into the textures an engine would ship and
+maps the result back to the reference mips; see its docstring for the resolution handling.
+"""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import subprocess
+import tempfile
+from typing import Sequence
+
+import numpy as np
+
+from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
+
+__all__ = ["bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline", "astcenc_path",
+           "pack_texture_set", "CODECS", "BC1_LEVEL"]
+
+CODECS = ("bc", "astc")
+BC1_LEVEL = 18  # quicktex presets run 0..18
+
+
+def _to_u8_rgba(img: np.ndarray) -> np.ndarray:
+    """(H, W, c<=4) floats in [0, 1] -> (H, W, 4) uint8, missing channels 0, alpha 255."""
+    h, w, c = img.shape
+    out = np.zeros((h, w, 4), np.uint8)
+    out[..., 3] = 255
+    out[..., :c] = np.rint(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8)
+    return out
+
+
+def _pad4(img: np.ndarray) -> np.ndarray:
+    h, w = img.shape[:2]
+    ph, pw = -h % 4, -w % 4
+    return np.pad(img, ((0, ph), (0, pw), (0, 0)), mode="edge") if ph or pw else img
+
+
+def _check_mips(mips: Sequence[np.ndarray], channels: int, what: str) -> None:
+    if not mips:
+        raise ValueError(f"{what}: no mips given")
+    for k, m in enumerate(mips):
+        if np.ndim(m) != 3 or np.shape(m)[2] != channels:
+            raise ValueError(f"{what}: mip {k} has shape {np.shape(m)}, expected (H, W, {channels})")
+
+
+def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, channels: int,
+                        block_bytes: int) -> tuple[list[np.ndarray], int]:
+    import quicktex
+
+    decoded, size = [], 0
+    for m in mips:
+        h, w = m.shape[:2]
+        px = _pad4(_to_u8_rgba(np.asarray(m)))
+        ph, pw = px.shape[:2]
+        enc = encoder.encode(quicktex.RawTexture.frombytes(px.tobytes(), pw, ph))
+        size += enc.width_blocks * enc.height_blocks * block_bytes
+        out = np.frombuffer(decoder.decode(enc).tobytes(), np.uint8).reshape(ph, pw, 4)
+        decoded.append(out[:h, :w, :channels].astype(np.float32) / 255.0)
+    return decoded, size
+
+
+def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL) -> tuple[list[np.ndarray], int]:
+    """BC1-encode and decode every (H, W, 3) mip; returns (decoded mips, bytes)."""
+    from quicktex.s3tc.bc1 import BC1Decoder, BC1Encoder
+
+    _check_mips(mips_rgb, 3, "bc1")
+    return _quicktex_roundtrip(mips_rgb, BC1Encoder(level), BC1Decoder(), 3, 8)
+
+
+def bc5_mips(mips_xy: Sequence[np.ndarray]) -> tuple[list[np.ndarray], int]:
+    """BC5-encode and decode every (H, W, 2) mip of [0, 1] data; returns (decoded mips, bytes)."""
+    from quicktex.s3tc.bc5 import BC5Decoder, BC5Encoder
+
+    _check_mips(mips_xy, 2, "bc5")
+    return _quicktex_roundtrip(mips_xy, BC5Encoder(0, 1), BC5Decoder(0, 1), 2, 16)
+
+
+def bc4_mips(mips_x: Sequence[np.ndarray]) -> tuple[list[np.ndarray], int]:
+    """BC4-encode and decode every (H, W, 1) mip of [0, 1] data; returns (decoded mips, bytes)."""
+    from quicktex.s3tc.bc4 import BC4Decoder, BC4Encoder
+
+    _check_mips(mips_x, 1, "bc4")
+    return _quicktex_roundtrip(mips_x, BC4Encoder(0), BC4Decoder(0), 1, 8)
+
+
+def astcenc_path() -> str | None:
+    """The astcenc executable ($ASTCENC, else the first astcenc* on PATH), or None."""
+    env = os.environ.get("ASTCENC")
+    if env:
+        return env
+    for name in ("astcenc", "astcenc-avx2", "astcenc-sse4.1", "astcenc-sse2", "astcenc-neon"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+def _parse_block(block: str) -> tuple[int, int]:
+    try:
+        bw, bh = (int(v) for v in block.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"ASTC block must look like '12x12', got {block!r}") from None
+    if not (4 <= bw <= 12 and 4 <= bh <= 12):
+        raise ValueError(f"ASTC 2D block sides must be in 4..12, got {block!r}")
+    return bw, bh
+
+
+def astc_mips(mips_rgb: Sequence[np.ndarray], block: str = "12x12", preset: str = "-thorough",
+              threads: int | None = None) -> tuple[list[np.ndarray], int]:
+    """ASTC (LDR linear) encode and decode every (H, W, 3) mip with astcenc; (decoded, bytes)."""
+    import OpenImageIO as oiio
+
+    _check_mips(mips_rgb, 3, "astc")
+    bw, bh = _parse_block(block)
+    exe = astcenc_path()
+    if exe is None:
+        raise RuntimeError("astcenc not found: install it (e.g. apt-get install astcenc) or set $ASTCENC")
+    threads = threads or min(os.cpu_count() or 1, 8)
+    decoded, size = [], 0
+    with tempfile.TemporaryDirectory(prefix="bcf-astc-") as tmp:
+        for k, m in enumerate(mips_rgb):
+            h, w = m.shape[:2]
+            src, dst = os.path.join(tmp, f"in{k}.png"), os.path.join(tmp, f"out{k}.png")
+            px = np.ascontiguousarray(_to_u8_rgba(np.asarray(m))[..., :3])
+            buf = oiio.ImageBuf(oiio.ImageSpec(w, h, 3, oiio.UINT8))
+            buf.set_pixels(oiio.ROI(0, w, 0, h, 0, 1, 0, 3), px)
+            if not buf.write(src):
+                raise RuntimeError(f"cannot write {src}: {buf.geterror()}")
+            cmd = [exe, "-tl", src, dst, f"{bw}x{bh}", preset, "-silent", "-j", str(threads)]
+            res = subprocess.run(cmd, capture_output=True, text=True)
+            if res.returncode != 0 or not os.path.isfile(dst):
+                raise RuntimeError(f"astcenc failed on mip {k} ({w}x{h}): {(res.stderr or res.stdout).strip()[-300:]}")
+            out = oiio.ImageBuf(dst).get_pixels(oiio.FLOAT)
+            decoded.append(np.asarray(out, np.float32).reshape(h, w, -1)[..., :3].copy())
+            size += math.ceil(w / bw) * math.ceil(h / bh) * 16
+    return decoded, size
+
+
+# --------------------------------------------------------------------------------------------
+# texture sets
+
+
+def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
+    """How an engine would pack the set's channels into textures: [(format, channel indices)].
+
+    Colour groups (albedo, emissiveColor): one 3-channel texture each. Normal x, y: one BC5
+    texture ('bc') or an ASTC texture with b = 0 ('astc'). Scalar and generic channels ('bc'):
+    those that share a source file with other scalars stay packed as that file packs them
+    (ARM-style, BC1), a scalar alone in its file gets its own BC4 texture. ('astc'): all of them,
+    in set order, packed 3 per 3-channel texture; a last texture with 1 channel replicates it into
+    r, g, b (a grey image), one with 2 leaves b = 0.
+    """
+    if codec not in CODECS:
+        raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
+    rgb = "bc1" if codec == "bc" else "astc"
+    textures: list[tuple[str, list[int]]] = []
+    scalars: list[int] = []
+    for sem, idx in ts.groups().items():
+        kind = ts.kind_of(sem)
+        if kind == "color" and len(idx) == 3:
+            textures.append((rgb, idx))
+        elif kind == "normal":
+            textures.append(("bc5" if codec == "bc" else "astc", idx))
+        else:
+            scalars.extend(idx)
+    if codec == "bc":
+        by_file: dict[str, list[int]] = {}
+        for i in scalars:
+            by_file.setdefault(ts.channels[i].source, []).append(i)
+        alone = [i for i in scalars if len(by_file[ts.channels[i].source]) == 1]
+        scalars = [i for i in scalars if i not in alone]
+        for i in range(0, len(scalars), 3):
+            textures.append((rgb, scalars[i:i + 3]))
+        textures.extend(("bc4", [i]) for i in alone)
+        return textures
+    for i in range(0, len(scalars), 3):
+        textures.append((rgb, scalars[i:i + 3]))
+    return textures
+
+
+def _to_storage(x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Set values -> stored [0, 1] values (normals v -> (v + 1) / 2)."""
+    return np.where(normal, (x + 1.0) * 0.5, x)
+
+
+def _from_storage(x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    return np.where(normal, x * 2.0 - 1.0, x).astype(np.float32)
+
+
+def _bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Bilinear magnification (texel-centre aligned, clamp to edge), as a GPU sampler would."""
+    import torch
+
+    t = torch.from_numpy(np.ascontiguousarray(np.moveaxis(img, -1, 0)))[None].double()
+    up = torch.nn.functional.interpolate(t, size=(height, width), mode="bilinear", align_corners=False)
+    return np.moveaxis(up[0].numpy(), 0, -1).astype(np.float32)
+
+
+def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | None = None, *,
+                                ref_mips: Sequence[np.ndarray] | None = None, astc_block: str = "12x12",
+                                astc_preset: str = "-thorough") -> tuple[list[np.ndarray], int]:
+    """Compress `ts` with a classic codec; returns (decoded mips in the reference's shapes, bytes).
+
+    `codec` 'bc': BC1 for colour and packed scalar textures, BC4 for a lone scalar, BC5 for
+    normals (the paper's BC setup); 'astc': ASTC `astc_block` for every texture. Packing: `pack_texture_set`.
+
+    Resolution: `resolution` (a power of two, default the set's larger side) caps the larger side
+    of the shipped textures. When it is smaller than the set by 2^d, the baseline's level 0 is the
+    reference's (box-filtered) mip d and its mip k is compared against reference mip k + d; the d
+    top reference mips it lacks are its decoded level 0 magnified bilinearly (what a GPU shows when
+    it samples a lower-resolution texture there). No upsampling of the source ever happens.
+    `ref_mips` may pass a precomputed `build_mip_chain(ts.data)`.
+    """
+    if codec not in CODECS:
+        raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
+    ref = list(ref_mips) if ref_mips is not None else build_mip_chain(ts.data)
+    side = max(ts.width, ts.height)
+    res = side if resolution is None else int(resolution)
+    if res < 1 or res & (res - 1):
+        raise ValueError(f"baseline resolution must be a power of two, got {resolution}")
+    d = max(0, int(round(math.log2(side / res))))
+    d = min(d, len(ref) - 1)
+    src = ref[d:]
+
+    normal = np.array([ch.kind == "normal" for ch in ts.channels])
+    dec_low = [np.zeros_like(m, dtype=np.float32) for m in src]
+    total = 0
+    for fmt, idx in pack_texture_set(ts, codec):
+        stored = [_to_storage(m[..., idx], normal[idx]) for m in src]
+        if fmt == "bc5":
+            out, size = bc5_mips(stored)
+        elif fmt == "bc4":
+            out, size = bc4_mips(stored)
+        else:
+            n = len(idx)
+            padded = [np.repeat(s, 3, axis=-1) if n == 1 else
+                      np.concatenate([s, np.zeros_like(s[..., :1])], axis=-1) if n == 2 else s for s in stored]
+            out, size = bc1_mips(padded) if fmt == "bc1" else astc_mips(padded, astc_block, astc_preset)
+            out = [o[..., :n] for o in out]
+        total += size
+        for k, o in enumerate(out):
+            dec_low[k][..., idx] = _from_storage(o, normal[idx])
+
+    decoded = [_bilinear_up(dec_low[0], *ref[k].shape[:2]) for k in range(d)] + dec_low
+    return decoded, total

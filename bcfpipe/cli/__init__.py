@@ -1,0 +1,47 @@
+"""The `bcfpipe` command line.
+
+Exit codes (all commands):
+  0  success
+  1  the work ran but failed (a material did not build, verification failed, ...)
+  2  usage error or unreadable input (bad arguments, missing or corrupt file)
+"""
+from __future__ import annotations
+
+import logging
+import sys
+
+import click
+
+from bcfpipe import __version__
+from bcfpipe.cli.errors import Group
+from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, BcfError  # noqa: F401  (re-exported)
+
+
+@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="bcfpipe")
+@click.option("-v", "--verbose", count=True, help="More logging (repeat for debug).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
+@click.pass_context
+def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
+    """Turn the PBR materials of a USD scene into real-time neural materials
+    with BC6H block-compressed features (Weinreich et al., EG 2024).
+
+    \b
+    Exit codes: 0 ok, 1 work failed, 2 usage error or bad input.
+    """
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    ctx.ensure_object(dict)
+    ctx.obj["quiet"] = quiet
+
+
+# Sub-commands live next to the code they drive; each module exposes one click command/group.
+from bcfpipe.cli.build import build  # noqa: E402
+from bcfpipe.cli.dds import dds  # noqa: E402
+from bcfpipe.cli.decode import decode  # noqa: E402
+from bcfpipe.cli.scan import scan  # noqa: E402
+from bcfpipe.cli.train import train_cmd  # noqa: E402
+from bcfpipe.cli.verify import verify  # noqa: E402
+
+for _cmd in (build, decode, dds, scan, train_cmd, verify):
+    main.add_command(_cmd)

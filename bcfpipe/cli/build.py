@@ -1,0 +1,193 @@
+"""`bcfpipe build`: a USD scene in, neural materials and a stage that uses them out.
+
+Exit codes: 0 every modelled material was built (materials the scan skipped are fine); 1 at least
+one material failed (the others are still written, and OUT is complete and consistent); 2 bad
+arguments, unreadable scene, or an OUT it refuses to replace (nothing is written).
+
+Live progress goes to stderr (a rich table on a terminal, plain lines otherwise); the summary
+table, or with ``--json`` the manifest as one JSON object, goes to stdout.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from bcfpipe.cli.errors import Command
+from bcfpipe.cli.options import all_materials_option, training_options, variant_option
+
+__all__ = ["build", "BuildDisplay", "summary_table"]
+
+
+def _fmt_eta(eta) -> str:
+    if eta is None:
+        return ""
+    eta = max(0.0, float(eta))
+    return f"{eta:.0f}s" if eta < 90 else f"{eta / 60:.1f}m"
+
+
+def _fmt_size(n: int | None) -> str:
+    if n is None:
+        return ""
+    return f"{n / 2**20:.2f} MiB" if n >= 2**20 else f"{n / 1024:.0f} KiB"
+
+
+class BuildDisplay:
+    """Progress of a build: a live rich table on a terminal, plain lines otherwise.
+
+    Call it with the event dicts of `bcfpipe.pipeline.execute`; use as a context manager.
+    """
+
+    STYLE = {"queued": "dim", "running": "cyan", "built": "green", "failed": "red"}
+
+    def __init__(self, console: Console | None = None, live: bool | None = None):
+        self.console = console or Console(stderr=True)
+        self.live_mode = self.console.is_terminal if live is None else live
+        self.jobs: dict[str, dict] = {}
+        self._live: Live | None = None
+        self.t0 = time.monotonic()
+
+    def __enter__(self) -> "BuildDisplay":
+        if self.live_mode:
+            self._live = Live(get_renderable=self.table, console=self.console, refresh_per_second=4,
+                              transient=False)
+            self._live.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._live is not None:
+            self._live.refresh()
+            self._live.__exit__(*exc)
+            self._live = None
+
+    def __call__(self, ev: dict) -> None:
+        name = ev.get("job", "?")
+        st = self.jobs.setdefault(name, {"status": "queued", "phase": "", "step": 0, "steps": 0, "psnr": None,
+                                         "eta": None, "materials": []})
+        kind = ev.get("event")
+        line = None
+        if kind == "queued":
+            st["materials"] = ev.get("materials", [])
+        elif kind == "progress":
+            phase_changed = ev.get("phase") != st["phase"]
+            st.update(status="running", phase=ev.get("phase", ""), step=ev.get("step", 0), steps=ev.get("steps", 0),
+                      eta=ev.get("eta"))
+            if ev.get("psnr") is not None:
+                st["psnr"] = ev["psnr"]
+            if phase_changed:
+                line = f"{name}: {st['phase']}"
+        elif kind == "done":
+            st.update(status=ev.get("status", "?"), phase="", eta=None)
+            if ev.get("psnr") is not None:
+                st["psnr"] = ev["psnr"]
+            if st["status"] == "built":
+                psnr = f", PSNR {st['psnr']:.2f} dB" if st["psnr"] is not None else ""
+                line = f"{name}: built in {ev.get('seconds') or 0:.1f}s{psnr}"
+            else:
+                line = f"{name}: FAILED: {ev.get('reason')}"
+        if line and not self.live_mode:
+            done = sum(1 for j in self.jobs.values() if j["status"] in ("built", "failed"))
+            self.console.print(f"[{time.monotonic() - self.t0:6.1f}s] [{done}/{len(self.jobs)}] {line}",
+                               highlight=False, markup=False, soft_wrap=True)
+
+    def table(self) -> Table:
+        t = Table(title="bcfpipe build", title_justify="left", expand=False)
+        for col in ("texture set", "materials", "status", "phase", "step", "PSNR", "ETA"):
+            t.add_column(col, overflow="fold", justify="right" if col in ("step", "PSNR", "ETA") else "left")
+        for name, st in self.jobs.items():
+            mats = st["materials"]
+            label = mats[0].rsplit("/", 1)[-1] + (f" +{len(mats) - 1}" if len(mats) > 1 else "") if mats else ""
+            step = f"{st['step']}/{st['steps']}" if st["steps"] else ""
+            psnr = f"{st['psnr']:.2f}" if st["psnr"] is not None else ""
+            t.add_row(name, label, Text(st["status"], style=self.STYLE.get(st["status"], "")), st["phase"], step,
+                      psnr, _fmt_eta(st["eta"]))
+        return t
+
+
+def summary_table(manifest: dict) -> Table:
+    """The end-of-run table: one row per material, then totals."""
+    tot = manifest["totals"]
+    t = Table(title=f"bcfpipe build: {manifest['root_layer']}", title_justify="left",
+              caption=(f"{tot['built']} built, {tot['failed']} failed, {tot['skipped']} skipped; "
+                       f"{tot['trained']} texture set(s) trained in {tot['wall_seconds']:.1f}s wall; "
+                       f"{_fmt_size(tot['total_bytes'])} (sources {_fmt_size(tot['source_bytes'])})"),
+              caption_justify="left")
+    for col in ("material", "status", "targets", "profile", "PSNR", "size", "train", "note"):
+        t.add_column(col, overflow="fold", justify="right" if col in ("PSNR", "size", "train") else "left")
+    style = {"built": "green", "failed": "red", "skipped": "yellow"}
+    for m in manifest["materials"]:
+        note = m["reason"] or ""
+        if m["status"] == "built" and m["shared_with"]:
+            note = f"shared: {m['job']} x{len(m['shared_with']) + 1}"
+        if m["status"] == "skipped":
+            note = m["reason"]
+        targets = len(m["targets"]) if m["targets"] else ""
+        psnr = f"{m['metrics']['psnr']:.2f}" if m.get("metrics") else ""
+        size = _fmt_size(m["sizes"]["total_bytes"]) if m.get("sizes") else ""
+        train = f"{m['train_seconds']:.1f}s" if m["status"] == "built" and m.get("train_seconds") else ""
+        t.add_row(m["path"], Text(m["status"], style=style.get(m["status"], "")), str(targets),
+                  m.get("profile") or "", psnr, size, train, note)
+    return t
+
+
+@click.command("build", cls=Command)
+@click.argument("scene", type=click.Path(path_type=Path, dir_okay=False))
+@click.option("-o", "--out", type=click.Path(path_type=Path, file_okay=False),
+              help="Output folder (default: <scene>.bcf/ next to the scene).")
+@variant_option
+@all_materials_option
+@training_options
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
+              help="Materials trained in parallel [default: one per core, or per GPU].")
+@click.option("--json", "as_json", is_flag=True, help="Print the manifest as JSON on stdout instead of a table.")
+@click.option("--force", is_flag=True, help="Replace an existing OUT even if bcfpipe did not write it.")
+@click.option("--verify", "run_verify_after", is_flag=True,
+              help="Run `bcfpipe verify` on OUT at the end (GLSL on OpenGL vs ONNX); a failure exits 1.")
+@click.pass_context
+def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str, str], all_materials: bool,
+          profile: str, preset: str, hidden: int, signed: bool, init: str, seed: int, device: str, threads: int,
+          jobs: int | None, as_json: bool, force: bool, run_verify_after: bool) -> None:
+    """Build neural materials for SCENE's textured UsdPreviewSurface materials.
+
+    Writes OUT/<scene>.bcf.usda (open this), overrides.usda, weights.bin, manifest.json and
+    materials/<name>/ (DDS features, ONNX, JSON). Exit codes: 0 all built, 1 a material failed,
+    2 bad input or OUT refused.
+    """
+    from bcfpipe.build import build as run_build
+
+    quiet = bool((ctx.obj or {}).get("quiet"))
+    display = None if quiet else BuildDisplay(Console(stderr=True))
+    options = dict(variants=variants, all_materials=all_materials, profile=profile, preset=preset, hidden=hidden,
+                   signed=signed, init=init, jobs=jobs, threads=threads, device=device, seed=seed, force=force)
+    if display is None:
+        result = run_build(scene, out, **options)
+    else:
+        with display:
+            result = run_build(scene, out, progress=display, **options)
+    code = result.exit_code
+    verify_code = None
+    if run_verify_after:
+        from bcfpipe.cli.verify import run_verify
+
+        # with --json the verify report goes to stderr so stdout stays one JSON object
+        verify_code = run_verify(str(result.out), as_json=False,
+                                 echo=(lambda m: click.echo(m, err=True)) if as_json else click.echo,
+                                 to_stderr=as_json)
+        code = max(code, 0 if verify_code == 0 else 1)
+    if as_json:
+        manifest = dict(result.manifest)
+        if verify_code is not None:
+            manifest["verify_exit_code"] = verify_code
+        click.echo(json.dumps(manifest, indent=2))
+    elif not quiet:
+        probe = Console()
+        out = probe if probe.is_terminal else Console(width=160)  # pipes/logs: do not wrap at 80 columns
+        out.print(summary_table(result.manifest))
+        out.print(f"open {result.root_layer}", highlight=False, soft_wrap=True)
+    ctx.exit(code)

@@ -1,0 +1,89 @@
+"""`bcfpipe dds`: look inside BC6H feature textures."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from bcfpipe.cli.errors import Group
+from bcfpipe.formats import dds as ddsmod
+from bcfpipe.errors import InputError
+
+
+def _load(path: str) -> ddsmod.DdsTexture:
+    try:
+        return ddsmod.read(path)
+    except ddsmod.DdsError as e:
+        raise InputError(str(e)) from None
+
+
+def _decode_level(tex: ddsmod.DdsTexture, k: int) -> np.ndarray:
+    from bcfpipe.bc6h import decode
+
+    blocks, w, h = tex.levels[k]
+    return decode(blocks, w, h, signed=tex.signed)
+
+
+@click.group(cls=Group)
+def dds() -> None:
+    """Inspect and decode BC6H DDS feature textures."""
+
+
+@dds.command("info")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+def info(file: str, as_json: bool) -> None:
+    """Format, size, mip chain and per-channel value range of FILE."""
+    tex = _load(file)
+    mips = []
+    for k, (blocks, w, h) in enumerate(tex.levels):
+        img = _decode_level(tex, k).astype(np.float32)
+        mips.append({"level": k, "width": w, "height": h, "blocks": int(blocks.shape[0]),
+                     "min": img.reshape(-1, 3).min(0).tolist(), "max": img.reshape(-1, 3).max(0).tolist()})
+    size = Path(file).stat().st_size
+    report = {"file": str(file), "format": tex.format_name, "dxgi_format": tex.dxgi_format,
+              "width": tex.width, "height": tex.height, "mip_count": tex.mip_count,
+              "size_bytes": size, "mips": mips}
+    if as_json:
+        click.echo(json.dumps(report, indent=2))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{file}: {tex.format_name} {tex.width}x{tex.height}, {tex.mip_count} mips, {size} bytes")
+    for col in ("mip", "size", "blocks", "min (r g b)", "max (r g b)"):
+        table.add_column(col, justify="right")
+    fmt = lambda v: " ".join(f"{x:.4g}" for x in v)  # noqa: E731
+    for m in mips:
+        table.add_row(str(m["level"]), f"{m['width']}x{m['height']}", str(m["blocks"]), fmt(m["min"]), fmt(m["max"]))
+    Console().print(table)
+
+
+@dds.command("decode")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Output image (OpenEXR recommended; any float-capable format OpenImageIO writes).")
+@click.option("--mip", default=0, show_default=True, help="Mip level to decode.")
+@click.option("-f", "--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
+def decode_cmd(file: str, output: str, mip: int, force: bool) -> None:
+    """Decode one mip of FILE to a half-float image through OpenImageIO."""
+    import OpenImageIO as oiio
+
+    tex = _load(file)
+    if not 0 <= mip < tex.mip_count:
+        raise InputError(f"{file}: mip {mip} out of range (0..{tex.mip_count - 1})")
+    out = Path(output)
+    if out.exists() and not force:
+        raise InputError(f"{out} exists; pass --force to overwrite")
+    img = _decode_level(tex, mip)
+    spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.HALF)
+    buf = oiio.ImageBuf(spec)
+    buf.set_pixels(oiio.ROI(), img)
+    tmp = out.with_name(out.name + ".tmp" + out.suffix)
+    if not buf.write(str(tmp)):
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"cannot write {out}: {buf.geterror()}")
+    tmp.replace(out)
+    click.echo(f"wrote {out} ({img.shape[1]}x{img.shape[0]}, mip {mip})", err=True)

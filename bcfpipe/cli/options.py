@@ -1,0 +1,52 @@
+"""Option groups shared by several commands, so `bcfpipe train` and `bcfpipe build` cannot drift:
+one definition per option, defaults from `bcfpipe.config`."""
+from __future__ import annotations
+
+import click
+
+from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
+                            DEFAULT_SEED, DEFAULT_THREADS, FEATURE_INITS, PRESETS, PROFILE_NAMES)
+
+# The training options, in --help order; `train` and `build` both take exactly these (a test checks).
+TRAINING_OPTIONS = (
+    click.option("--profile", type=click.Choice(PROFILE_NAMES), default=DEFAULT_PROFILE, show_default=True,
+                 help="Feature resolutions (paper Table 1, plus 1k++); auto = the largest of 0.5k/1k/2k not "
+                      "above the source textures."),
+    click.option("--quality", "--preset", "preset", type=click.Choice(list(PRESETS)), default=DEFAULT_PRESET,
+                 show_default=True, help="Training preset (steps, batch, learning rates): draft is fastest; "
+                                         "'paper' is the paper's 206k-step schedule (for a GPU)."),
+    click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
+                 help="Hidden units of the decoder MLP."),
+    click.option("--signed", is_flag=True, help="Store features as BC6H_SF16 instead of BC6H_UF16."),
+    click.option("--init", "init", type=click.Choice(list(FEATURE_INITS)), default=DEFAULT_INIT, show_default=True,
+                 help="How training starts: 'random' as in the paper, or 'pca' from the texture set's principal "
+                      "components and their linear decoder (sharper fine mips, weaker coarse ones)."),
+    click.option("--seed", type=int, default=DEFAULT_SEED, show_default=True,
+                 help="Random seed (CPU runs are deterministic)."),
+    click.option("--device", default=DEFAULT_DEVICE, show_default=True, help="auto, cpu or cuda[:N]."),
+    click.option("--threads", type=click.IntRange(min=1), default=DEFAULT_THREADS, show_default=True,
+                 help="Torch CPU threads per training; 1 trained fastest on a 2-core machine "
+                      "(docs/benchmarks.md). Parallelism comes from training materials side by side."),
+)
+TRAINING_OPTION_NAMES = ("profile", "preset", "hidden", "signed", "init", "seed", "device", "threads")
+
+
+def training_options(f):
+    """Decorate a command with every training option (`TRAINING_OPTIONS`)."""
+    for opt in reversed(TRAINING_OPTIONS):
+        f = opt(f)
+    return f
+
+
+def _variants(_ctx: click.Context, _param: click.Parameter, values: tuple[str, ...]) -> dict[str, str]:
+    """Parse repeated ``--variant SET=VALUE`` into a dict (later wins); a malformed one exits 2."""
+    from bcfpipe.scan.stage import parse_variant
+
+    return dict(parse_variant(v) for v in values)
+
+
+variant_option = click.option(
+    "--variant", "variants", multiple=True, callback=_variants, metavar="SET=VALUE",
+    help="Select VALUE in variant set SET on every prim offering it (repeatable).")
+all_materials_option = click.option(
+    "--all-materials", is_flag=True, help="Also model materials not bound to rendered geometry.")

@@ -1,0 +1,107 @@
+"""`bcfpipe scan`: list a scene's materials and whether `build` would model them.
+
+Exit codes: 0 when the stage was scanned (skipped materials included),
+2 when the stage cannot be read or ``--variant`` is malformed or unknown.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.table import Table
+from rich.text import Text
+
+from bcfpipe.cli.errors import Command
+from bcfpipe.cli.options import all_materials_option, variant_option
+from bcfpipe.scan.stage import MaterialScan, StageScan, scan_stage
+from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, Grouping, group_materials
+
+__all__ = ["scan"]
+
+
+def _texture_lines(material: MaterialScan) -> Text:
+    """One line per textured input: ``input ← file:channel`` (problems in red)."""
+    text = Text()
+    for i, inp in enumerate(material.texture_inputs):
+        tex = inp.texture
+        assert tex is not None
+        name = Path(tex.asset_path).name if tex.asset_path else "(no file)"
+        if i:
+            text.append("\n")
+        text.append(f"{inp.name} ← {name}:{tex.channel}", style=None if tex.ok else "red")
+    return text
+
+
+def _decision_text(material: MaterialScan) -> Text:
+    """``model`` in green, or ``skip: reason`` with the message below."""
+    if material.decision == "model":
+        return Text("model", style="green")
+    text = Text(f"skip: {material.reason}", style="yellow")
+    text.append(f"\n{material.message}", style="dim")
+    return text
+
+
+def _table(result: StageScan) -> Table:
+    """The per-material table."""
+    table = Table(show_lines=False, expand=False)
+    table.add_column("material", overflow="fold")
+    table.add_column("bound")
+    table.add_column("decision", overflow="fold")
+    table.add_column("textured inputs", overflow="fold")
+    for m in result.materials:
+        bound = "yes" if m.bound else "no"
+        path = m.path + (f" (+{len(m.aliases)} instances)" if m.aliases else "")
+        table.add_row(path, bound, _decision_text(m), _texture_lines(m))
+    return table
+
+
+def _print_human(result: StageScan, grouping: Grouping, console: Console) -> None:
+    """Stage facts, the table and a summary line."""
+    console.print(f"[bold]{result.path}[/bold]", highlight=False)
+    console.print(
+        f"upAxis={result.up_axis}  metersPerUnit={result.meters_per_unit:g}  "
+        f"defaultPrim={result.default_prim or '-'}  rendered gprims={result.rendered_gprims}",
+        highlight=False,
+    )
+    for prim, vset, value in result.variant_selections:
+        console.print(f"variant {vset}={value} on {prim}", highlight=False)
+    for target in result.dangling_bindings:
+        console.print(f"[yellow]warning:[/yellow] binding to missing material {target}", highlight=False)
+    for error in result.composition_errors:
+        console.print(f"[yellow]composition error:[/yellow] {error}", highlight=False)
+    for note in result.diagnostics:
+        console.print(f"[yellow]usd:[/yellow] {note}", highlight=False)
+    if result.materials:
+        console.print(_table(result))
+    for path in sorted(grouping.instanced):
+        console.print(f"[yellow]skip:[/yellow] {path}: {INSTANCED_MESSAGE}", highlight=False)
+    for path, message in grouping.failed.items():
+        console.print(f"[red]unreadable:[/red] {path}: {message}", highlight=False)
+    n_model = sum(len(g.materials) for g in grouping.groups)
+    console.print(
+        f"{len(result.materials)} material(s): {n_model} to model "
+        f"({len(grouping.groups)} distinct texture set(s), one training each), "
+        f"{len(result.materials) - n_model} not modelled",
+        highlight=False,
+    )
+
+
+@click.command("scan", cls=Command)
+@click.argument("scene", type=click.Path(path_type=Path, dir_okay=False))
+@variant_option
+@all_materials_option
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout instead of a table.")
+def scan(scene: Path, variants: dict[str, str], all_materials: bool, as_json: bool) -> None:
+    """Scan SCENE's UsdPreviewSurface materials: which ones `build` would model, and why not."""
+    result = scan_stage(scene, variants or None, all_materials=all_materials)
+    grouping = group_materials(scene, variants, result.materials)
+    if as_json:
+        d = result.to_dict()
+        d["texture_sets"] = [g.to_dict() for g in grouping.groups]
+        d["instanced"] = sorted(grouping.instanced)
+        d["unreadable"] = dict(grouping.failed)
+        click.echo(json.dumps(d, indent=2))
+        return
+    _print_human(result, grouping, Console())

@@ -1,0 +1,127 @@
+"""`bcfpipe train`: one texture set -> one exported neural material folder."""
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from bcfpipe.cli.errors import Command
+from bcfpipe.errors import EXIT_FAILED, InputError
+from bcfpipe.train.trainer import Progress
+from bcfpipe.cli.options import training_options
+
+
+def _fmt_eta(sec: float) -> str:
+    sec = int(max(sec, 0))
+    return f"{sec // 60}m{sec % 60:02d}s" if sec >= 60 else f"{sec}s"
+
+
+class _Reporter:
+    """Progress to stderr: a rich live line on a TTY, plain lines every few seconds otherwise."""
+
+    def __init__(self, quiet: bool):
+        from rich.console import Console
+
+        self.console = Console(stderr=True)
+        self.quiet = quiet
+        self.live = self.console.is_terminal and not quiet
+        self.last = 0.0
+        self.status = None
+
+    def __enter__(self):
+        if self.live:
+            self.status = self.console.status("starting")
+            self.status.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self.status is not None:
+            self.status.__exit__(*exc)
+
+    def __call__(self, p: Progress) -> None:
+        psnr = f"{p.psnr:5.2f} dB" if math.isfinite(p.psnr) else "  -  "
+        line = (f"{p.phase:<11} {p.step:>6}/{p.steps:<6} loss {p.loss:.2e}  psnr {psnr}  "
+                f"elapsed {_fmt_eta(p.elapsed)}  eta {_fmt_eta(p.eta)}") if math.isfinite(p.loss) else \
+            f"{p.phase:<11} (initialising BC6H blocks)  elapsed {_fmt_eta(p.elapsed)}"
+        if self.status is not None:
+            self.status.update(line)
+        elif not self.quiet and (time.monotonic() - self.last > 5 or p.step == p.steps):
+            self.last = time.monotonic()
+            print(line, file=sys.stderr, flush=True)
+
+
+def _table(res) -> "object":
+    from rich.table import Table
+
+    m = res.metrics
+    t = Table(title=f"{res.out_dir}  (profile {res.profile}, preset {res.preset}, {res.device})")
+    t.add_column("metric")
+    t.add_column("value", justify="right")
+    t.add_row("PSNR, all mips", f"{m.psnr:.2f} dB")
+    if res.float_metrics is not None:
+        t.add_row("PSNR, float model before quantization", f"{res.float_metrics.psnr:.2f} dB")
+    for g, v in m.psnr_per_group.items():
+        t.add_row(f"  PSNR {g}", f"{v:.2f} dB")
+    t.add_row("SSIM (mip 0)", f"{m.ssim:.4f}" if m.ssim is not None else "-")
+    t.add_row("FLIP (mip 0, colour)", f"{m.flip:.4f}" if m.flip is not None else "-")
+    t.add_row("size", f"{res.size_bytes} B ({res.size_bytes / 2**20:.2f} MiB)")
+    t.add_row("train time", f"{res.train_seconds:.1f} s")
+    return t
+
+
+@click.command("train", cls=Command)
+@click.argument("textures", nargs=-1, required=True, metavar="SEMANTIC=FILE[:CHANNELS]...")
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@training_options
+@click.option("--resolution", type=int, default=None, help="Resample the texture set to this power of two first.")
+@click.option("--wrap", type=click.Choice(["repeat", "clamp"]), default="repeat", show_default=True,
+              help="Texture addressing used in training and recorded for the runtime (build takes it from USD).")
+@click.option("-f", "--force", is_flag=True, help="Overwrite a non-empty output folder.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object to stdout (progress stays on stderr).")
+@click.pass_context
+def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, seed, device, threads, resolution, wrap,
+              force, as_json) -> None:
+    """Train one neural material from a texture set and export it to OUTPUT.
+
+    Each TEXTURE names a semantic, an image and the channels it contributes:
+
+    \b
+      albedo=diff.jpg:rgb      (alias diffuseColor)
+      normal=nrm.png:xy        (2 channels, z reconstructed at decode)
+      roughness=arm.jpg:g      occlusion=arm.jpg:r   metallic=arm.jpg:b
+      displacement=h.exr:r     opacity=a.png:a       emissiveColor=e.png:rgb
+      generic=data.tif:rgba    (anything else)
+
+    The JSON output's keys psnr, ssim, flip, size_bytes and train_seconds are a stable interface.
+    Exit codes: 0 ok, 1 training failed, 2 bad arguments or unreadable input.
+    """
+    from bcfpipe.train.fit import fit_material, make_config
+    from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
+
+    out = Path(output)
+    if out.exists() and any(out.iterdir()) and not force:
+        raise InputError(f"{out} is not empty; pass --force to overwrite")
+    try:
+        specs = [TextureSpec.parse(t) for t in textures]
+        ts = load_texture_set(specs, resolution=resolution)
+        name, cfg = make_config(ts, profile=profile, preset=preset, device=device, seed=seed, hidden=hidden,
+                                signed=signed, wrap=wrap, threads=threads, init=init)
+    except ValueError as e:
+        raise InputError(str(e)) from None
+    quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False
+    try:
+        with _Reporter(quiet) as rep:
+            res, _ = fit_material(ts, out, cfg, name, progress=rep)
+    except (FloatingPointError, RuntimeError, MemoryError) as e:
+        click.echo(f"bcfpipe train: training failed: {e}", err=True)
+        ctx.exit(EXIT_FAILED)
+    if as_json:
+        click.echo(json.dumps(res.to_dict(), default=float))
+    else:
+        from rich.console import Console
+
+        Console().print(_table(res))

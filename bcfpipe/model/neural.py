@@ -1,0 +1,236 @@
+"""The neural material G(u, v, s) = f_eta(T_0(u, v, s_0), ..., T_3(u, v, s_3))  (paper eq. 2).
+
+Pure functions over tensors. A material's state is a dict of tensors:
+
+- ``free``     phase 1: per layer, per mip, a (3, H, W) tensor of free texel parameters in the
+               6-bit endpoint domain; texel value = BC6H's unquantize -> finish -> half cast of it,
+               so warm features live in exactly the value domain BC6H can represent.
+- ``blocks``   phases 2-4: per layer, per mip: ``endpoints`` (n, 4, 3) (6-bit domain, continuous
+               during phase 2), ``x`` (n, 16) continuous indices in [0, 1], and fixed ``mask``
+               (n, 16) (subset-1 membership from the block's partition id) and ``partition`` (n,).
+- ``mlp``      w1, b1, w2, b2 of the decoder, plus fixed out_scale / out_bias.
+
+Each layer i is sampled at lod s_i = s + b_i, where s is in the reference's mip units and
+b_i (``lod_biases``) starts from log2(max(w_i / W, h_i / H)) for a w_i x h_i layer and a W x H
+reference, the layer's texel density.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Sequence
+
+import torch
+
+from bcfpipe.bc6h import emulate
+from bcfpipe.config import LAYER_CHANNELS, ModelConfig, mip_count
+from bcfpipe.model.decoder import mlp_raw
+from bcfpipe.model.sampling import level_weights, sample_bilinear, sample_bilinear_fn, sample_trilinear
+
+LevelFn = Callable[[int, int], torch.Tensor]  # (layer, mip) -> (3, H, W) texel values
+TapFn = Callable[[int, int], Callable[[torch.Tensor], torch.Tensor]]  # (layer, mip) -> texel ids -> (M, 3)
+
+
+def lod_biases(resolutions: Sequence[int], ref_width: int, ref_height: int) -> tuple[float, ...]:
+    """Per-layer lod bias b_i: layer T_i is sampled at s + b_i, with s in reference mip units.
+
+    The natural bias log2(max(w_i / W, h_i / H)) matches T_i's texel density to the reference's.
+    With it every layer of a Table-1 profile reaches its last (4x4) mip at the same s, two lods
+    before the reference's 1x1 mip, so over those last lods nothing in the model changes while the
+    target still does (a 6 dB dip at that s on the teapot). Layer i is therefore shifted a further
+    min(i, gap) mips coarser, gap being the lods left past the 4x4 mips: T_0 keeps its density for
+    detail, T_3 ends at the reference's last mip. Measured on a 512² teapot crop, all-mip PSNR
+    32.3 -> 34.0 dB at the same size (docs/benchmarks.md, "lod biases").
+    """
+    natural = [math.log2(max(r / ref_width, r / ref_height)) for r in resolutions]
+    s_max = math.log2(max(ref_width, ref_height))
+    last = max(mip_count(r) - 1 - b for r, b in zip(resolutions, natural))
+    gap = max(0, int(math.floor(s_max - last)))
+    return tuple(b - min(i, gap) for i, b in enumerate(natural))
+
+
+def endpoint_value(p: torch.Tensor, signed: bool = False) -> torch.Tensor:
+    """Smooth texel value of a constant BC6H block with endpoint ``p`` (continuous 6-bit domain)."""
+    u = emulate.unquantize(p, signed=signed)
+    return emulate.half_from_bits(u * (31.0 / 32.0 if signed else 31.0 / 64.0))
+
+
+def endpoint_range(signed: bool, max_feature: float | None = None) -> tuple[float, float]:
+    """Endpoint bounds used in training: the format's range, narrowed so decoded features stay
+    within +-``max_feature``. Large features make no better MLP inputs but make the 6-bit log-like
+    endpoint steps coarse in absolute terms and magnify hardware filtering error at decode time."""
+    lo, hi = (-32.0, 31.0) if signed else (0.0, 63.0)
+    if max_feature is None:
+        return lo, hi
+    e = torch.arange(0.0, hi + 1)
+    top = float(e[endpoint_value(e, signed) <= max_feature].max())
+    return (-top, top) if signed else (0.0, top)
+
+
+def blocks_to_image(texels: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    """(n, 16, 3) block texels in row-major block order -> (3, H, W)."""
+    by, bx = height // 4, width // 4
+    return texels.reshape(by, bx, 4, 4, LAYER_CHANNELS).permute(4, 0, 2, 1, 3).reshape(LAYER_CHANNELS, height, width)
+
+
+def image_to_blocks(img: torch.Tensor) -> torch.Tensor:
+    """(3, H, W) -> (n, 16, 3) in row-major block order (inverse of :func:`blocks_to_image`)."""
+    c, h, w = img.shape
+    return img.reshape(c, h // 4, 4, w // 4, 4).permute(1, 3, 2, 4, 0).reshape(-1, 16, c)
+
+
+def init_free(cfg: ModelConfig, gen: torch.Generator, device: torch.device) -> list[list[torch.Tensor]]:
+    """Phase-1 parameters: uniform in the endpoint range that decodes to about [0.03, 1.7]
+    (unsigned) or [-1, 1] (signed), where the MLP's inputs are well scaled."""
+    lo, hi = (-15.0, 15.0) if cfg.signed else (20.0, 32.0)
+    layers = []
+    for res, n in zip(cfg.resolutions, cfg.mip_counts):
+        mips = []
+        for k in range(n):
+            r = res >> k
+            t = torch.rand((LAYER_CHANNELS, r, r), generator=gen) * (hi - lo) + lo
+            mips.append(t.to(device).requires_grad_(True))
+        layers.append(mips)
+    return layers
+
+
+def init_mlp(n_in: int, hidden: int, n_out: int, gen: torch.Generator, device: torch.device,
+             out_bias: torch.Tensor) -> dict[str, torch.Tensor]:
+    """He-uniform first layer, small second layer; out_scale 1 and out_bias = channel means."""
+    b1 = 1.0 / math.sqrt(n_in)
+    b2 = 1.0 / math.sqrt(hidden)
+    p = {
+        "w1": (torch.rand((hidden, n_in), generator=gen) * 2 - 1) * math.sqrt(6.0 / n_in),
+        "b1": (torch.rand((hidden,), generator=gen) * 2 - 1) * b1,
+        "w2": (torch.rand((n_out, hidden), generator=gen) * 2 - 1) * b2 * 0.1,
+        "b2": torch.zeros(n_out),
+    }
+    p = {k: v.to(device).requires_grad_(True) for k, v in p.items()}
+    p["out_scale"] = torch.ones(n_out, device=device)
+    p["out_bias"] = out_bias.to(device=device, dtype=torch.float32)
+    return p
+
+
+def _floor_ste(v: torch.Tensor) -> torch.Tensor:
+    return v + (torch.floor(v) - v).detach()
+
+
+def decode_texels(ea: torch.Tensor, eb: torch.Tensor, x: torch.Tensor, signed: bool,
+                  quantized: bool = False) -> torch.Tensor:
+    """BC6H mode-11110 decode of single texels from their subset's endpoints ``ea``, ``eb`` (M, 3)
+    and continuous index ``x`` (M,): the same arithmetic as ``emulate.decode_blocks``, per texel.
+    ``quantized`` rounds endpoints and indices straight-through (quantization-aware training)."""
+    ua = emulate.unquantize(ea, signed=signed, quantized=quantized)
+    ub = emulate.unquantize(eb, signed=signed, quantized=quantized)
+    wgt = emulate.index_weight(x, quantized=quantized).unsqueeze(1)
+    v = _floor_ste((ua * (64.0 - wgt) + ub * wgt + 32.0) / 64.0)
+    if signed:
+        f = v * (31.0 / 32.0)
+        f = f + (torch.trunc(f) - f).detach()
+    else:
+        f = _floor_ste(v * (31.0 / 64.0))
+    return emulate.half_from_bits(f)
+
+
+def free_tap_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: float | None = None) -> TapFn:
+    lo, hi = endpoint_range(signed, max_feature)
+
+    def fn(i: int, k: int):
+        p = free[i][k]
+        flat = p.reshape(p.shape[0], -1)
+        return lambda ids: endpoint_value(flat[:, ids].t().clamp(lo, hi), signed)
+    return fn
+
+
+def block_tap_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
+                 quantized: Callable[[], bool] = lambda: False) -> TapFn:
+    """Texel values straight from block parameters: texel (y, x) lives in block
+    (y // 4) * (w // 4) + x // 4 at position (y % 4) * 4 + x % 4. ``quantized()`` is asked per
+    call, so a schedule can switch quantization-aware decoding on mid-phase."""
+    def fn(i: int, k: int):
+        b = blocks[i][k]
+        r = max(4, cfg.resolutions[i] >> k)
+
+        def texels(ids: torch.Tensor) -> torch.Tensor:
+            y, xx = ids // r, ids % r
+            blk = (y // 4) * (r // 4) + xx // 4
+            pos = (y % 4) * 4 + xx % 4
+            e = b["endpoints"][blk]  # (M, 4, 3)
+            m = b["mask"][blk, pos].unsqueeze(1)
+            ea = torch.where(m, e[:, 2], e[:, 0])
+            eb = torch.where(m, e[:, 3], e[:, 1])
+            return decode_texels(ea, eb, b["x"][blk, pos], cfg.signed, quantized())
+        return texels
+    return fn
+
+
+def free_level_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: float | None = None) -> LevelFn:
+    lo, hi = endpoint_range(signed, max_feature)
+    return lambda i, k: endpoint_value(free[i][k].clamp(lo, hi), signed)
+
+
+def block_level_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
+                   quantized: bool | Callable[[], bool] = False) -> LevelFn:
+    q = quantized if callable(quantized) else (lambda: quantized)
+
+    def fn(i: int, k: int) -> torch.Tensor:
+        b = blocks[i][k]
+        r = max(4, cfg.resolutions[i] >> k)
+        texels = emulate.decode_blocks(b["endpoints"], b["x"], b["mask"], signed=cfg.signed, quantized=q())
+        return blocks_to_image(texels, r, r)
+    return fn
+
+
+def cached_level_fn(levels: list[list[torch.Tensor]]) -> LevelFn:
+    return lambda i, k: levels[i][k]
+
+
+def sample_features_taps(tap_fn: TapFn, sizes: Sequence[Sequence[int]], biases: Sequence[float],
+                         uv: torch.Tensor, s: float, wrap: str) -> torch.Tensor:
+    """As :func:`sample_features` for one batch lod ``s``, decoding only the texels sampled."""
+    out = []
+    for i, (lvl_sizes, b) in enumerate(zip(sizes, biases)):
+        lo, hi, t = level_weights(s + b, len(lvl_sizes))
+        r = lvl_sizes[lo]
+        a = sample_bilinear_fn(tap_fn(i, lo), r, r, uv, wrap)
+        if hi != lo and t > 0:
+            r = lvl_sizes[hi]
+            a = a + (sample_bilinear_fn(tap_fn(i, hi), r, r, uv, wrap) - a) * t
+        out.append(a)
+    return torch.cat(out, 1)
+
+
+def level_sizes(cfg: ModelConfig) -> list[list[int]]:
+    return [[max(4, r >> k) for k in range(n)] for r, n in zip(cfg.resolutions, cfg.mip_counts)]
+
+
+def sample_features(level_fn: LevelFn, mip_counts: Sequence[int], biases: Sequence[float],
+                    uv: torch.Tensor, s: float | torch.Tensor, wrap: str) -> torch.Tensor:
+    """Concatenated trilinear samples of all layers -> (N, 3 * n_layers).
+
+    With a float ``s`` only the two levels each layer needs are decoded; with a per-point tensor
+    every level is decoded once and sampled (evaluation).
+    """
+    out = []
+    for i, (n, b) in enumerate(zip(mip_counts, biases)):
+        if isinstance(s, torch.Tensor):
+            out.append(sample_trilinear([level_fn(i, k) for k in range(n)], uv, s + b, wrap))
+            continue
+        lo, hi, t = level_weights(s + b, n)
+        a = sample_bilinear(level_fn(i, lo), uv, wrap)
+        if hi != lo and t > 0:
+            a = a + (sample_bilinear(level_fn(i, hi), uv, wrap) - a) * t
+        out.append(a)
+    return torch.cat(out, 1)
+
+
+def forward(level_fn: LevelFn, mlp: dict[str, torch.Tensor], cfg: ModelConfig, biases: Sequence[float],
+            uv: torch.Tensor, s: float | torch.Tensor, tap_fn: TapFn | None = None) -> torch.Tensor:
+    """Model output before clamping/normal-z (what the loss compares to the reference).
+
+    With ``tap_fn`` (training, float ``s``) features are decoded per sampled texel; the result is
+    identical to decoding whole levels with ``level_fn``."""
+    if tap_fn is not None and not isinstance(s, torch.Tensor):
+        feats = sample_features_taps(tap_fn, level_sizes(cfg), biases, uv, s, cfg.wrap)
+    else:
+        feats = sample_features(level_fn, cfg.mip_counts, biases, uv, s, cfg.wrap)
+    return mlp_raw(mlp, feats) * mlp["out_scale"] + mlp["out_bias"]

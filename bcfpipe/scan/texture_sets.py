@@ -1,0 +1,286 @@
+"""What a scanned material becomes: model channels, texture-set specs and targets, and the
+grouping of materials with identical texture sets into one training job. `bcfpipe scan` and
+`bcfpipe build` both read the scene through this module, so they agree on what is modelled."""
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Mapping, Sequence
+
+from bcfpipe.errors import one_line
+
+import xxhash
+
+if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
+    from bcfpipe.scan.stage import MaterialScan
+
+
+_COLOR_SEMANTIC = {"diffuseColor": "albedo", "emissiveColor": "emissiveColor"}
+_SCALAR_SEMANTICS = frozenset({"occlusion", "roughness", "metallic", "displacement", "opacity"})
+
+
+@dataclass(frozen=True)
+class SourceFile:
+    """One texture file a job reads: where it is, what it hashes to, how USD decodes it."""
+
+    path: str  # resolved (absolute, or ``package.usdz[inner]``)
+    asset_path: str  # as authored
+    xxh3_128: str
+    size_bytes: int
+    width: int
+    height: int
+    channels: int
+    format: str  # OpenImageIO base type of the stored texels, e.g. uint8
+    color_space: str  # sourceColorSpace as authored (auto/raw/sRGB)
+    resolved_color_space: str  # sRGB or raw (auto resolved as Hydra does)
+
+
+@dataclass(frozen=True)
+class ModelChannel:
+    """One decoder output before normal z: a file channel, read as a value or a normal component."""
+
+    file: str
+    channel: str  # r, g, b or a
+    kind: str  # "value" or "normal"
+
+
+def package_split(path: str) -> tuple[str, str] | None:
+    """``pkg.usdz[inner/a.png]`` -> (pkg.usdz, inner/a.png); None for plain files."""
+    m = re.match(r"^(.*)\[([^\[\]]+)\]$", path)
+    return (m.group(1), m.group(2)) if m else None
+
+
+def read_asset(path: str) -> bytes:
+    """The bytes of a resolved texture path (a plain file, or a file inside a package via Ar)."""
+    if package_split(path) is None:
+        return Path(path).read_bytes()
+    from pxr import Ar
+
+    asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(path))
+    if asset is None:
+        raise OSError(f"cannot open {path}")
+    return bytes(asset.GetBuffer())
+
+
+def local_file(path: str, tmp_dir: str | os.PathLike) -> str:
+    """A filesystem path with the asset's bytes: the file itself, or a copy of a packaged file."""
+    pkg = package_split(path)
+    if pkg is None:
+        return path
+    dst = Path(tmp_dir) / f"{xxhash.xxh3_64_hexdigest(path.encode())}_{Path(pkg[1]).name}"
+    if not dst.exists():
+        dst.write_bytes(read_asset(path))
+    return str(dst)
+
+
+def _probe(path: str) -> tuple[int, int, int, str]:
+    """(width, height, channels, base type) from the image header; zeros when unreadable."""
+    import OpenImageIO as oiio
+
+    with tempfile.TemporaryDirectory() as tmp:
+        local = local_file(path, tmp)
+        inp = oiio.ImageInput.open(local)
+        if inp is None:
+            oiio.geterror()
+            return 0, 0, 0, "unreadable"
+        try:
+            spec = inp.spec()
+            return spec.width, spec.height, spec.nchannels, str(spec.format)
+        finally:
+            inp.close()
+
+
+def _resolved_color_space(authored: str, channels: int, fmt: str) -> str:
+    """Hydra's reading of sourceColorSpace: auto is sRGB for 8-bit files with 3 or 4 channels."""
+    if authored == "sRGB":
+        return "sRGB"
+    if authored == "auto":
+        return "sRGB" if fmt == "uint8" and channels in (3, 4) else "raw"
+    return "raw"
+
+
+def source_file(path: str, asset_path: str, color_space: str, cache: dict) -> SourceFile:
+    key = path
+    if key not in cache:
+        data = read_asset(path)
+        cache[key] = (xxhash.xxh3_128_hexdigest(data), len(data), _probe(path))
+    digest, size, (w, h, c, fmt) = cache[key]
+    return SourceFile(path, asset_path, digest, size, w, h, c, fmt, color_space,
+                      _resolved_color_space(color_space, c, fmt))
+
+
+@dataclass
+class MaterialModel:
+    """A scanned material's channels, specs and targets (before grouping into jobs)."""
+
+    channels: list[ModelChannel]
+    specs: list[tuple[str, str, str]]
+    targets: list[tuple[str, str, ModelChannel, float, float, str]]  # target, input, key, scale, bias, cs
+    sources: dict[str, SourceFile]
+    wrap: str
+    st: tuple[str, tuple[float, float], float, tuple[float, float]]
+    warnings: list[str]
+
+
+def material_model(ms: MaterialScan, file_cache: dict) -> MaterialModel:
+    """Map a scanned material's texture inputs to model channels, texset specs and targets."""
+    channels: list[ModelChannel] = []
+    specs: list[tuple[str, str, str]] = []
+    targets: list[tuple[str, str, ModelChannel, float, float, str]] = []
+    sources: dict[str, SourceFile] = {}
+    warnings = list(ms.warnings)
+    wraps: set[str] = set()
+    sts: list[tuple[str, tuple[float, float], float, tuple[float, float]]] = []
+    for inp in ms.texture_inputs:
+        tex = inp.texture
+        assert tex is not None
+        src = source_file(tex.resolved_path, tex.asset_path, tex.source_color_space, file_cache)
+        sources[src.path] = src
+        uses = [u for u in ms.channel_uses if u.input == inp.name]
+        if not uses:
+            continue
+        is_normal = inp.name == "normal" and tex.channel == "rgb"
+        kind = "normal" if is_normal else "value"
+        keys = [ModelChannel(u.file, u.channel, kind) for u in uses]
+        new = [k for k in keys if k not in channels]
+        if new:
+            letters = "".join(k.channel for k in new)
+            if is_normal and len(new) == 2:
+                specs.append(("normal", src.path, "xy"))
+            elif inp.name in _COLOR_SEMANTIC and tex.channel == "rgb" and len(new) == 3:
+                specs.append((_COLOR_SEMANTIC[inp.name], src.path, letters))
+            elif inp.name in _SCALAR_SEMANTICS and len(new) == 1 and len(keys) == 1:
+                specs.append((inp.name, src.path, letters))
+            else:
+                specs.extend(("generic", src.path, k.channel) for k in new)
+            channels.extend(new)
+        if tex.source_color_space not in ("auto", "raw", "sRGB"):
+            warnings.append(f"{inp.name}: unknown sourceColorSpace {tex.source_color_space!r}, read as raw")
+        for u, key in zip(uses, keys):
+            comp = "rgba".index(u.channel)
+            s, b = float(tex.scale[comp]), float(tex.bias[comp])
+            cs = src.resolved_color_space if u.channel != "a" else "raw"
+            if is_normal:
+                if cs == "sRGB":
+                    warnings.append(f"{inp.name}: normal map colour space resolves to sRGB; modelled as raw")
+                cs = "raw"
+                s, b = s / 2.0, s / 2.0 + b  # the model stores 2 v - 1
+            elif cs == "sRGB" and inp.name not in ("diffuseColor", "emissiveColor", "specularColor") \
+                    and tex.source_color_space == "auto":
+                warnings.append(f"{inp.name}: sourceColorSpace auto resolves to sRGB for this 8-bit file "
+                                "(as in Hydra); the renderer decodes it as sRGB")
+            targets.append((u.target, inp.name, key, s, b, cs))
+        for w in tex.effective_wrap:
+            if w not in ("repeat", "clamp"):
+                warnings.append(f"{inp.name}: wrap mode {w!r} modelled as repeat")
+        wraps.update(tex.effective_wrap)
+        st = tex.st
+        xf = st.transform
+        sts.append((st.varname or "st", xf.scale if xf else (1.0, 1.0), xf.rotation if xf else 0.0,
+                    xf.translation if xf else (0.0, 0.0)))
+    wrap = "clamp" if wraps == {"clamp"} else "repeat"
+    if len(set(sts)) > 1:
+        warnings.append("textures use different st primvars or transforms; the model uses the first texture's")
+    st = sts[0] if sts else ("st", (1.0, 1.0), 0.0, (0.0, 0.0))
+    return MaterialModel(channels, specs, targets, sources, wrap, st, list(dict.fromkeys(warnings)))
+
+
+def decoder_index(channels: Sequence[ModelChannel]) -> tuple[dict[ModelChannel, int], int | None]:
+    """Decoder output index of every model channel (normal z inserted after normal y), and z's."""
+    normal = [i for i, c in enumerate(channels) if c.kind == "normal"]
+    ny = normal[1] if len(normal) == 2 else None
+    index = {c: i + (1 if ny is not None and i > ny else 0) for i, c in enumerate(channels)}
+    return index, (ny + 1 if ny is not None else None)
+
+
+def instance_proxies(scene, variants: Mapping[str, str], paths: Sequence[str]) -> set[str]:
+    """Which of ``paths`` are instance proxies on the composed stage (overrides cannot reach them)."""
+    if not paths:
+        return set()
+    from bcfpipe.scan.stage import apply_variants, open_stage
+
+    stage = open_stage(scene)
+    if variants:
+        apply_variants(stage, variants)
+    out = set()
+    for p in paths:
+        prim = stage.GetPrimAtPath(p)
+        if prim and prim.IsInstanceProxy():
+            out.add(p)
+    return out
+
+
+INSTANCED_MESSAGE = "inside an instance: instance proxies cannot take an API schema override"
+
+
+def job_name(material_path: str, taken: set[str]) -> str:
+    """A folder-safe, case-insensitively unique name for the texture set first used by ``material_path``."""
+    base = re.sub(r"[^A-Za-z0-9_.-]+", "_", material_path.rstrip("/").rsplit("/", 1)[-1]) or "material"
+    name, n = base, 2
+    while name.lower() in taken:
+        name, n = f"{base}_{n}", n + 1
+    taken.add(name.lower())
+    return name
+
+
+@dataclass(frozen=True)
+class TextureSetGroup:
+    """Materials whose texture sets are identical (same files and channels, same addressing):
+    one training job serves them all. ``models`` are the members' own models, in ``materials`` order."""
+
+    name: str
+    materials: tuple[str, ...]
+    models: tuple[MaterialModel, ...]
+
+    @property
+    def model(self) -> MaterialModel:
+        """The representative: the first member's channels, specs and addressing."""
+        return self.models[0]
+
+    def to_dict(self) -> dict:
+        m = self.model
+        return {"name": self.name, "materials": list(self.materials), "wrap": m.wrap,
+                "channels": [{"file": c.file, "channel": c.channel, "kind": c.kind} for c in m.channels]}
+
+
+@dataclass(frozen=True)
+class Grouping:
+    """The modelled materials of a scan, as texture-set groups; ``instanced`` ones cannot be
+    overridden and ``failed`` ones ({path: message}) had unreadable textures."""
+
+    groups: tuple[TextureSetGroup, ...]
+    instanced: frozenset[str]
+    failed: Mapping[str, str]
+
+    def group_of(self, material: str) -> tuple[TextureSetGroup, MaterialModel]:
+        for g in self.groups:
+            if material in g.materials:
+                return g, g.models[g.materials.index(material)]
+        raise KeyError(material)
+
+
+def group_materials(scene, variants: Mapping[str, str], materials: Sequence["MaterialScan"],
+                    file_cache: dict | None = None) -> Grouping:
+    """Group the materials decided ``model`` by texture set (channels and addressing); reads each
+    texture once (header and hash, cached in ``file_cache``)."""
+    modelled = [ms for ms in materials if ms.decision == "model"]
+    instanced = frozenset(instance_proxies(scene, variants, [m.path for m in modelled]))
+    cache = {} if file_cache is None else file_cache
+    by_key: dict[tuple, list[tuple[str, MaterialModel]]] = {}
+    failed: dict[str, str] = {}
+    for ms in modelled:
+        if ms.path in instanced:
+            continue
+        try:
+            mm = material_model(ms, cache)
+        except Exception as exc:  # noqa: BLE001 - an unreadable file fails this material only
+            failed[ms.path] = f"cannot read textures: {one_line(exc)}"
+            continue
+        by_key.setdefault((frozenset(mm.channels), mm.wrap), []).append((ms.path, mm))
+    taken: set[str] = set()
+    groups = tuple(TextureSetGroup(job_name(members[0][0], taken), tuple(p for p, _ in members),
+                                   tuple(m for _, m in members)) for members in by_key.values())
+    return Grouping(groups, instanced, failed)

@@ -1,0 +1,400 @@
+"""Texture sets: the reference data a neural material learns.
+
+A material's textures (albedo, normal, ARM, displacement, ...) are described by `TextureSpec`s
+(``semantic=path:channels``), loaded with OpenImageIO into one `TextureSet` (an (H, W, c) float32
+array plus a `Channel` per column), and turned into a mip chain with `build_mip_chain`.
+
+Conventions (documented here once, relied on by the sampler, trainer and metrics):
+
+* Values are the *stored* values, as a shader's texture fetch from a non-sRGB (UNORM / float)
+  texture format would return them: 8/16-bit integers are mapped to [0, 1] with no sRGB
+  linearisation and no colour management (a tag such as PQ / BT.2020 on a PNG is ignored), so the
+  model reproduces exactly what the original texture would have fed the shader. Float files (EXR,
+  half) are passed through unclamped.
+* Alpha is read unassociated (straight), as stored: OpenImageIO premultiplies colour by alpha by
+  default, which would corrupt e.g. a PNG whose alpha channel carries opacity or roughness.
+* Normals (semantic ``normal``) keep x, y only, mapped ``v * 2 - 1`` to [-1, 1]; z is
+  reconstructed at decode time.
+* Grey files feed r, g and b from their single channel; ``a`` of a file without alpha is an error.
+  CMYK JPEGs are converted to RGB by OpenImageIO (naive ``(1-C)(1-K)``, embedded ICC profile
+  ignored), so colours are plausible but not colour-managed.
+* All sources are resampled to one common size (see `common_resolution`) with OpenImageIO's
+  ``blackman-harris`` filter, once per file. That filter is positive everywhere, so resampling never
+  overshoots the stored range (no ringing, unlike lanczos3); integer files are clipped to [0, 1]
+  afterwards to remove float rounding (1.0000001).
+* uv / image layout: row 0 is the first row stored in the file; arrays are (rows, cols, channels).
+"""
+from __future__ import annotations
+
+
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+
+from bcfpipe.errors import InputError
+
+__all__ = [
+    "Semantic", "SEMANTICS", "ALIASES", "semantic_info", "TextureError", "TextureSpec", "Channel",
+    "TextureSet", "load_texture_set", "common_resolution", "build_mip_chain", "RESAMPLE_FILTER",
+]
+
+RESAMPLE_FILTER = "blackman-harris"
+
+
+class TextureError(InputError):
+    """A texture file is missing, unreadable, or lacks a requested channel."""
+
+
+# --------------------------------------------------------------------------------------------
+# semantic registry
+
+
+@dataclass(frozen=True)
+class Semantic:
+    """One kind of material channel group: its name, value kind, channel count and USD input."""
+
+    name: str
+    kind: str  # 'color' | 'normal' | 'scalar'
+    channels: int | None  # None: any count (generic)
+    usd_input: str | None  # UsdPreviewSurface input name; None for generic data
+    default_channels: str
+
+    @property
+    def value_range(self) -> tuple[float, float]:
+        """Nominal value range of this semantic's channels in a `TextureSet`."""
+        return (-1.0, 1.0) if self.kind == "normal" else (0.0, 1.0)
+
+
+SEMANTICS: Mapping[str, Semantic] = {
+    s.name: s
+    for s in (
+        Semantic("albedo", "color", 3, "diffuseColor", "rgb"),
+        Semantic("normal", "normal", 2, "normal", "xy"),
+        Semantic("occlusion", "scalar", 1, "occlusion", "r"),
+        Semantic("roughness", "scalar", 1, "roughness", "r"),
+        Semantic("metallic", "scalar", 1, "metallic", "r"),
+        Semantic("displacement", "scalar", 1, "displacement", "r"),
+        Semantic("opacity", "scalar", 1, "opacity", "r"),
+        Semantic("emissiveColor", "color", 3, "emissiveColor", "rgb"),
+        Semantic("generic", "scalar", None, None, "r"),
+    )
+}
+
+#: other spellings accepted by `semantic_info` / `TextureSpec.parse` (keys compared lower-case).
+ALIASES: Mapping[str, str] = {
+    "diffusecolor": "albedo", "basecolor": "albedo", "diffuse": "albedo",
+    "ao": "occlusion", "metalness": "metallic", "height": "displacement",
+    "emissive": "emissiveColor", "emission": "emissiveColor",
+}
+
+_CANONICAL = {name.lower(): name for name in SEMANTICS}
+
+
+def semantic_info(name: str) -> Semantic:
+    """The registry entry for a semantic name or alias (case-insensitive)."""
+    key = name.strip().lower()
+    canon = _CANONICAL.get(key) or ALIASES.get(key)
+    if canon is None:
+        raise ValueError(f"unknown texture semantic {name!r}; known: {', '.join(SEMANTICS)}")
+    return SEMANTICS[canon]
+
+
+# --------------------------------------------------------------------------------------------
+# specs and channels
+
+# channel letters: r/x=0, g/y=1, b/z=2, a/w=3 (logical RGBA slots of the file)
+_SLOT = {"r": 0, "g": 1, "b": 2, "a": 3, "x": 0, "y": 1, "z": 2, "w": 3}
+_CHANNELS_RE = re.compile(r"^[rgbaxyzw]+$")
+
+
+@dataclass(frozen=True)
+class TextureSpec:
+    """One source texture: which semantic it feeds, from which file, through which channels."""
+
+    semantic: str
+    path: str
+    channels: str
+
+    def __post_init__(self) -> None:
+        sem = semantic_info(self.semantic)
+        object.__setattr__(self, "semantic", sem.name)
+        object.__setattr__(self, "path", os.fspath(self.path))
+        ch = self.channels.lower()
+        if not _CHANNELS_RE.match(ch):
+            raise ValueError(f"{self.semantic}: bad channel selection {self.channels!r} (use letters from rgba or xyzw)")
+        if sem.channels is not None and len(ch) != sem.channels:
+            raise ValueError(f"{sem.name} needs {sem.channels} channel(s), got {self.channels!r} ({len(ch)})")
+        object.__setattr__(self, "channels", ch)
+
+    @classmethod
+    def parse(cls, text: str, base_dir: str | os.PathLike | None = None) -> "TextureSpec":
+        """Parse ``semantic=path[:channels]``, e.g. ``roughness=arm.jpg:g`` or ``normal=n.png:xy``.
+
+        The ``:channels`` suffix is only taken when it is made of channel letters, so paths with
+        colons (``C:\\tex.png``) still work. Default channels come from the semantic (colour: rgb,
+        normal: xy, scalar: r). A relative path is joined to `base_dir` when given.
+        """
+        sem_name, sep, rest = text.partition("=")
+        if not sep or not sem_name.strip() or not rest.strip():
+            raise ValueError(f"bad texture spec {text!r}: expected semantic=path[:channels]")
+        sem = semantic_info(sem_name)
+        path, channels = rest.strip(), sem.default_channels
+        head, colon, tail = path.rpartition(":")
+        if colon and head and _CHANNELS_RE.match(tail.lower()):
+            path, channels = head, tail
+        if base_dir is not None and not os.path.isabs(path):
+            path = os.path.join(os.fspath(base_dir), path)
+        return cls(sem.name, path, channels)
+
+    def __str__(self) -> str:
+        return f"{self.semantic}={self.path}:{self.channels}"
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One column of a `TextureSet`: what it means and where it came from.
+
+    `component` is the semantic component for colour ('r','g','b') and normal ('x','y') channels,
+    and the letter read from the file for scalar / generic channels (e.g. 'g' for ARM roughness).
+    `source_channel` is the index in the file's own channel list (a grey file has only 0).
+    """
+
+    semantic: str
+    component: str
+    kind: str
+    source: str
+    source_channel: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.semantic}.{self.component}"
+
+    @property
+    def value_range(self) -> tuple[float, float]:
+        return (-1.0, 1.0) if self.kind == "normal" else (0.0, 1.0)
+
+    @property
+    def peak(self) -> float:
+        """Width of the nominal value range (1 for [0,1] data, 2 for normals in [-1,1])."""
+        lo, hi = self.value_range
+        return hi - lo
+
+
+@dataclass(frozen=True)
+class TextureSet:
+    """A material's channels resampled to one size: ``data`` is (height, width, c) float32."""
+
+    data: np.ndarray
+    channels: tuple[Channel, ...]
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        d = self.data
+        if not isinstance(d, np.ndarray) or d.ndim != 3 or d.dtype != np.float32:
+            raise ValueError("TextureSet.data must be a float32 array of shape (height, width, c)")
+        if d.shape != (self.height, self.width, len(self.channels)):
+            raise ValueError(f"TextureSet.data has shape {d.shape}, expected "
+                             f"({self.height}, {self.width}, {len(self.channels)})")
+        object.__setattr__(self, "channels", tuple(self.channels))
+
+    @property
+    def num_channels(self) -> int:
+        return len(self.channels)
+
+    def groups(self) -> dict[str, list[int]]:
+        """Channel indices per semantic, in order of first appearance."""
+        out: dict[str, list[int]] = {}
+        for i, ch in enumerate(self.channels):
+            out.setdefault(ch.semantic, []).append(i)
+        return out
+
+    def kind_of(self, semantic: str) -> str:
+        """The channel kind ('color' | 'normal' | 'scalar') of a semantic present in this set."""
+        return self.channels[self.groups()[semantic][0]].kind
+
+
+# --------------------------------------------------------------------------------------------
+# loading
+
+
+def _nearest_pow2(n: int) -> int:
+    """Nearest power of two in log scale (1280 -> 1024, 1536 -> 2048, 2832 -> 2048)."""
+    return 1 << max(0, round(math.log2(n)))
+
+
+def common_resolution(sizes: Iterable[tuple[int, int]]) -> tuple[int, int]:
+    """The default common (width, height) of a texture set.
+
+    Per axis independently: the largest source size, rounded to the nearest power of two in log
+    scale (1280x1024 -> 1024x1024, 2048 stays 2048, 4256x2832 -> 4096x2048). Non-square sets stay
+    non-square.
+    """
+    sizes = list(sizes)
+    if not sizes:
+        raise ValueError("no texture sizes given")
+    return _nearest_pow2(max(w for w, _ in sizes)), _nearest_pow2(max(h for _, h in sizes))
+
+
+def _is_pow2(n: int) -> bool:
+    return n >= 1 and (n & (n - 1)) == 0
+
+
+def _check_resolution(resolution: int | tuple[int, int]) -> tuple[int, int]:
+    w, h = (resolution, resolution) if isinstance(resolution, (int, np.integer)) else tuple(resolution)
+    if not (_is_pow2(int(w)) and _is_pow2(int(h))):
+        raise ValueError(f"resolution must be powers of two, got {w}x{h}")
+    return int(w), int(h)
+
+
+@dataclass
+class _Source:
+    """A decoded file, kept for the duration of one `load_texture_set` call."""
+
+    path: str
+    names: tuple[str, ...]
+    buf: object  # OpenImageIO.ImageBuf (float)
+    is_float: bool  # stored as half/float/double (else integer UNORM, so [0, 1] by construction)
+    pixels: np.ndarray | None = field(default=None)  # (H, W, n) float32 at the common size
+
+    @property
+    def width(self) -> int:
+        return self.buf.spec().width
+
+    @property
+    def height(self) -> int:
+        return self.buf.spec().height
+
+
+def _open(path: str) -> _Source:
+    import OpenImageIO as oiio
+
+    if not os.path.isfile(path):
+        raise TextureError(f"{path}: texture file not found")
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # keep stored (straight) colour where alpha < 1
+    buf = oiio.ImageBuf(path, 0, 0, config)
+    if not buf.read(0, 0, True, oiio.FLOAT) or buf.has_error:
+        raise TextureError(f"{path}: cannot read image ({buf.geterror().strip() or 'unknown error'})")
+    spec = buf.spec()
+    if spec.width < 1 or spec.height < 1 or spec.nchannels < 1 or spec.depth > 1:
+        raise TextureError(f"{path}: not a 2D image ({spec.width}x{spec.height}x{spec.depth}, {spec.nchannels} ch)")
+    native = buf.nativespec().format.basetype
+    is_float = native in (oiio.BASETYPE.HALF, oiio.BASETYPE.FLOAT, oiio.BASETYPE.DOUBLE)
+    return _Source(path, tuple(n.upper() for n in spec.channelnames), buf, is_float)
+
+
+def _source_index(src: _Source, letter: str) -> int:
+    """The file channel that feeds a requested letter (grey replicates into r, g, b)."""
+    names, n = src.names, len(src.names)
+    alpha = names.index("A") if "A" in names else None
+    slot = _SLOT[letter]
+    if slot == 3:
+        if alpha is not None:
+            return alpha
+        if n >= 4:
+            return 3
+    else:
+        colour = [i for i in range(n) if i != alpha]
+        if len(colour) == 1:
+            return colour[0]
+        if slot < len(colour):
+            return colour[slot]
+    raise TextureError(f"{src.path}: has {n} channel(s) ({','.join(names)}); cannot read channel {letter!r}")
+
+
+def _resampled(src: _Source, width: int, height: int) -> np.ndarray:
+    import OpenImageIO as oiio
+
+    if src.pixels is None:
+        buf = src.buf
+        if (src.width, src.height) != (width, height):
+            roi = oiio.ROI(0, width, 0, height, 0, 1, 0, buf.nchannels)
+            buf = oiio.ImageBufAlgo.resize(buf, RESAMPLE_FILTER, 0.0, roi)
+            if buf.has_error:
+                raise TextureError(f"{src.path}: resize to {width}x{height} failed ({buf.geterror().strip()})")
+        px = np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(height, width, -1)
+        if not src.is_float:  # integer texels are UNORM: drop the filter's rounding excursions
+            np.clip(px, 0.0, 1.0, out=px)
+        src.pixels = px
+    return src.pixels
+
+
+def load_texture_set(
+    specs: Sequence[TextureSpec | str],
+    resolution: int | tuple[int, int] | None = None,
+) -> TextureSet:
+    """Load and resample a material's textures into one `TextureSet`.
+
+    `specs` are `TextureSpec`s or ``semantic=path[:channels]`` strings; channels appear in spec
+    order. `resolution` is a power-of-two side or (width, height); default `common_resolution` of
+    all sources. Each file is read and resampled once however many channels it feeds. Raises
+    `TextureError` (a ValueError) for missing/unreadable files or channels a file lacks.
+    """
+    specs = [TextureSpec.parse(s) if isinstance(s, str) else s for s in specs]
+    if not specs:
+        raise ValueError("a texture set needs at least one texture spec")
+    seen: set[str] = set()
+    for s in specs:
+        if s.semantic != "generic" and s.semantic in seen:
+            raise ValueError(f"semantic {s.semantic!r} given twice")
+        seen.add(s.semantic)
+
+    sources: dict[str, _Source] = {}
+    for s in specs:
+        key = os.path.realpath(s.path)
+        if key not in sources:
+            sources[key] = _open(s.path)
+    # Resolve every channel before any resampling so bad selections fail fast.
+    picks: list[tuple[_Source, int, Channel]] = []
+    for s in specs:
+        sem = SEMANTICS[s.semantic]
+        src = sources[os.path.realpath(s.path)]
+        for i, letter in enumerate(s.channels):
+            idx = _source_index(src, letter)
+            comp = "rgb"[i] if sem.kind == "color" else "xy"[i] if sem.kind == "normal" else letter
+            picks.append((src, idx, Channel(sem.name, comp, sem.kind, s.path, idx)))
+
+    if resolution is None:
+        width, height = common_resolution((src.width, src.height) for src in sources.values())
+    else:
+        width, height = _check_resolution(resolution)
+
+    data = np.empty((height, width, len(picks)), dtype=np.float32)
+    for col, (src, idx, ch) in enumerate(picks):
+        v = _resampled(src, width, height)[..., idx]
+        data[..., col] = v * 2.0 - 1.0 if ch.kind == "normal" else v
+    for src in sources.values():  # free decoded files now, not when the caller drops the set
+        src.pixels = None
+    return TextureSet(data, tuple(ch for _, _, ch in picks), width, height)
+
+
+# --------------------------------------------------------------------------------------------
+# mips
+
+
+def build_mip_chain(data: np.ndarray) -> list[np.ndarray]:
+    """Box-filtered mip chain of an (H, W[, c]) array with power-of-two sides.
+
+    Level 0 is `data` itself; each next level averages 2x2 texels (per axis: an axis already at 1
+    stays 1 and only the other is halved, i.e. 1x2 / 2x1 averages) until 1x1. Computed in float64,
+    returned as float32. Box filtering matches what GPU mip generation does for power-of-two sizes.
+    """
+    a = np.asarray(data)
+    if a.ndim not in (2, 3):
+        raise ValueError(f"mip data must be (H, W) or (H, W, c), got shape {a.shape}")
+    h, w = a.shape[:2]
+    if not (_is_pow2(h) and _is_pow2(w)):
+        raise ValueError(f"mip chain needs power-of-two sides, got {w}x{h}")
+    levels = [a.astype(np.float32, copy=False)]
+    cur = a.astype(np.float64)
+    while cur.shape[0] > 1 or cur.shape[1] > 1:
+        h, w = cur.shape[:2]
+        fy, fx = (2 if h > 1 else 1), (2 if w > 1 else 1)
+        cur = cur.reshape(h // fy, fy, w // fx, fx, *cur.shape[2:]).mean(axis=(1, 3))
+        levels.append(cur.astype(np.float32))
+    return levels

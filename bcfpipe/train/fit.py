@@ -1,0 +1,83 @@
+"""One material end to end: train, export, and measure the exported files (not the float state)."""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from bcfpipe.export import writer as E
+from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE, DEFAULT_SEED, FEATURE_INITS, ModelConfig, PRESETS, TrainConfig, resolve_profile)
+from bcfpipe.verify.metrics import Metrics, compute_metrics
+from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
+from bcfpipe.train.trainer import ProgressFn, TrainedMaterial, resolve_device, train
+
+
+@dataclass(frozen=True)
+class MaterialResult:
+    """What a trained and exported material measured."""
+
+    out_dir: Path
+    profile: str
+    resolutions: tuple[int, ...]
+    preset: str
+    device: str
+    metrics: Metrics  # of the exported files (BC6H DDS + fp16 weights through onnxruntime)
+    float_metrics: Metrics | None  # of the float model just before quantization (phase 3)
+    size_bytes: int
+    train_seconds: float
+    phase_seconds: dict[str, float]
+    phase_samples: dict[str, int] | None = None
+
+    def to_dict(self) -> dict:
+        m = self.metrics
+        d = {"psnr": m.psnr, "ssim": m.ssim, "flip": m.flip, "size_bytes": self.size_bytes,
+             "size_mib": self.size_bytes / 2**20, "train_seconds": self.train_seconds,
+             "out": str(self.out_dir), "profile": self.profile, "resolutions": list(self.resolutions),
+             "preset": self.preset, "device": self.device, "phase_seconds": self.phase_seconds,
+             "phase_samples": self.phase_samples,
+             "metrics": m.to_dict()}
+        if self.float_metrics is not None:
+            d["float_psnr"] = self.float_metrics.psnr
+            d["quantization_loss_db"] = self.float_metrics.psnr - m.psnr
+        return d
+
+
+def make_config(ts: TextureSet, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
+                device: str = DEFAULT_DEVICE, seed: int = DEFAULT_SEED, hidden: int = DEFAULT_HIDDEN,
+                signed: bool = False, wrap: str = "repeat", threads: int | None = None,
+                init: str = DEFAULT_INIT) -> tuple[str, TrainConfig]:
+    """A TrainConfig from CLI-style choices; returns the resolved profile name too."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown quality preset {preset!r}; choose from {', '.join(PRESETS)}")
+    if init not in FEATURE_INITS:
+        raise ValueError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
+    if wrap not in ("repeat", "clamp"):
+        raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
+    name, res = resolve_profile(profile, max(ts.width, ts.height))
+    dev = str(resolve_device(device))
+    mc = ModelConfig(resolutions=res, hidden=hidden, signed=signed, wrap=wrap)
+    return name, TrainConfig(model=mc, preset=PRESETS[preset], preset_name=preset, seed=seed, device=dev,
+                             threads=threads, feature_init=init)
+
+
+def exported_size(out_dir: Path) -> int:
+    return sum((out_dir / f).stat().st_size for f in (*(E.layer_file(i) for i in range(4)), E.WEIGHTS))
+
+
+def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
+                 progress: ProgressFn | None = None, extra: dict | None = None) -> tuple[MaterialResult, TrainedMaterial]:
+    """Train on ``ts``, export to ``out_dir``, then evaluate the exported files."""
+    tm = train(ts, cfg, progress)
+    out = E.export(tm, out_dir, extra)
+    t0 = time.perf_counter()
+    ref = build_mip_chain(ts.data)
+    em = E.load(out)
+    dec = E.decode_mips(em, [m.shape[:2] for m in ref])
+    metrics = compute_metrics(ref, dec, ts.channels)
+    float_metrics = compute_metrics(ref, tm.float_mips, ts.channels, ssim=False, flip=False) if tm.float_mips else None
+    phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)
+    res = MaterialResult(out, profile, cfg.model.resolutions, cfg.preset_name, cfg.device, metrics, float_metrics,
+                         exported_size(out), tm.train_seconds, {k: round(v, 3) for k, v in phases.items()},
+                         dict(tm.phase_samples))
+    return res, tm

@@ -1,0 +1,160 @@
+"""Evaluation metrics (paper §6.1): PSNR over mips, SSIM and FLIP at mip 0.
+
+Inputs are the reference mips and the decoded mips, lists of (H_k, W_k, c) float arrays of the
+same shapes, and the `Channel` tuple of the texture set they came from.
+
+PSNR (all values in dB, +inf for a perfect match):
+
+* Every channel's error is measured relative to its nominal range, the *peak*: 1 for colour and
+  scalar data in [0, 1], 2 for normals in [-1, 1]. So a normal error counts as its error in the
+  stored [0, 1] encoding and channels of both kinds can be averaged.
+* MSE_k of mip k = mean over all texels and all channels of (ref - dec)^2 / peak^2.
+* Headline ``psnr`` = 10 log10(1 / mean_k MSE_k): the MSE averaged over mips (each mip weighs the
+  same, as in NTC), then converted; mips whose smaller side is below `min_size` (default 4, i.e.
+  the 2x2 and 1x1 tail whose few texels would weigh as much as a full level) are left out of the
+  mean (all mips are used when none is that large).
+* ``psnr_per_mip[k]`` = 10 log10(1 / MSE_k) for every mip; ``psnr_per_group[semantic]`` is the
+  headline formula restricted to that semantic's channels.
+
+SSIM: skimage ``structural_similarity`` per channel group at mip 0 (Wang et al. settings: 11-tap
+Gaussian window, sigma 1.5, population covariance; data_range = the group's peak); ``ssim`` is the
+unweighted mean over groups. FLIP: ``flip_evaluator`` in LDR mode at mip 0 on colour groups
+(albedo, emissiveColor), values clipped to [0, 1] and treated as sRGB-encoded (as stored colour
+textures are), default 67 pixels per degree; ``flip`` is the mean over colour groups, or None when
+the set has none.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+
+from bcfpipe.texset.texture_set import Channel
+
+__all__ = ["Metrics", "compute_metrics", "psnr_from_mse", "mse_per_mip", "ssim_group", "flip_group"]
+
+COLOR_KIND = "color"
+
+
+def psnr_from_mse(mse: float, peak: float = 1.0) -> float:
+    """10 log10(peak^2 / mse); +inf when mse is 0."""
+    if mse < 0 or not math.isfinite(mse):
+        raise ValueError(f"MSE must be finite and >= 0, got {mse}")
+    return math.inf if mse == 0 else 10.0 * math.log10(peak * peak / mse)
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """Quality of a decoded texture set against its reference (see module docstring)."""
+
+    psnr: float
+    psnr_per_mip: list[float]
+    psnr_per_group: dict[str, float]
+    ssim: float | None
+    ssim_per_group: dict[str, float]
+    flip: float | None
+    flip_per_group: dict[str, float]
+    mips_in_mean: int
+
+    def to_dict(self) -> dict:
+        """Plain dict (floats, lists, dicts) for JSON reports; +inf stays float('inf')."""
+        return asdict(self)
+
+
+def _check(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray], channels: Sequence[Channel]) -> None:
+    if not ref_mips:
+        raise ValueError("no reference mips given")
+    if len(ref_mips) != len(dec_mips):
+        raise ValueError(f"{len(ref_mips)} reference mips but {len(dec_mips)} decoded mips")
+    for k, (r, d) in enumerate(zip(ref_mips, dec_mips)):
+        if np.shape(r) != np.shape(d):
+            raise ValueError(f"mip {k}: reference shape {np.shape(r)} != decoded shape {np.shape(d)}")
+        if np.ndim(r) != 3 or np.shape(r)[2] != len(channels):
+            raise ValueError(f"mip {k}: shape {np.shape(r)} does not match {len(channels)} channels")
+        if not np.all(np.isfinite(d)):
+            raise ValueError(f"decoded mip {k} contains NaN or inf")
+
+
+def mse_per_mip(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
+                channels: Sequence[Channel], select: Sequence[int] | None = None) -> list[float]:
+    """Peak-normalised MSE of each mip over the channels in `select` (default all)."""
+    sel = list(range(len(channels))) if select is None else list(select)
+    inv_peak2 = np.array([1.0 / channels[i].peak ** 2 for i in sel])
+    out = []
+    for r, d in zip(ref_mips, dec_mips):
+        diff = np.asarray(d, np.float64)[..., sel] - np.asarray(r, np.float64)[..., sel]
+        out.append(float(np.mean(diff * diff * inv_peak2)))
+    return out
+
+
+def _mean_psnr(mses: Sequence[float], use: Sequence[int]) -> float:
+    return psnr_from_mse(float(np.mean([mses[k] for k in use])))
+
+
+def ssim_group(ref: np.ndarray, dec: np.ndarray, peak: float) -> float | None:
+    """SSIM of one (H, W, g) group; None when the image is smaller than 3x3."""
+    from skimage.metrics import structural_similarity
+
+    h, w = ref.shape[:2]
+    kw: dict = dict(data_range=peak)
+    if min(h, w) >= 11:
+        kw.update(gaussian_weights=True, sigma=1.5, use_sample_covariance=False)
+    elif min(h, w) >= 3:
+        kw.update(win_size=min(h, w) - (1 - min(h, w) % 2))
+    else:
+        return None
+    r, d = np.asarray(ref, np.float64), np.asarray(dec, np.float64)
+    if r.shape[2] == 1:
+        return float(structural_similarity(r[..., 0], d[..., 0], **kw))
+    return float(structural_similarity(r, d, channel_axis=-1, **kw))
+
+
+def flip_group(ref: np.ndarray, dec: np.ndarray) -> float:
+    """Mean LDR FLIP of one (H, W, 3) sRGB-encoded colour group, values clipped to [0, 1]."""
+    import flip_evaluator as flip
+
+    r = np.ascontiguousarray(np.clip(ref, 0.0, 1.0), dtype=np.float32)
+    d = np.ascontiguousarray(np.clip(dec, 0.0, 1.0), dtype=np.float32)
+    _, mean, _ = flip.evaluate(r, d, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=True)
+    return float(mean)
+
+
+def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
+                    channels: Sequence[Channel], *, min_size: int = 4,
+                    ssim: bool = True, flip: bool = True) -> Metrics:
+    """PSNR (headline, per mip, per group), SSIM and FLIP of decoded mips against the reference."""
+    channels = tuple(channels)
+    _check(ref_mips, dec_mips, channels)
+    use = [k for k, m in enumerate(ref_mips) if min(m.shape[:2]) >= min_size] or list(range(len(ref_mips)))
+
+    groups: dict[str, list[int]] = {}
+    for i, ch in enumerate(channels):
+        groups.setdefault(ch.semantic, []).append(i)
+
+    mses = mse_per_mip(ref_mips, dec_mips, channels)
+    psnr_per_group = {g: _mean_psnr(mse_per_mip(ref_mips, dec_mips, channels, idx), use)
+                      for g, idx in groups.items()}
+
+    ssim_per_group: dict[str, float] = {}
+    flip_per_group: dict[str, float] = {}
+    r0, d0 = np.asarray(ref_mips[0]), np.asarray(dec_mips[0])
+    for g, idx in groups.items():
+        if ssim:
+            v = ssim_group(r0[..., idx], d0[..., idx], channels[idx[0]].peak)
+            if v is not None:
+                ssim_per_group[g] = v
+        if flip and channels[idx[0]].kind == COLOR_KIND and len(idx) == 3:
+            flip_per_group[g] = flip_group(r0[..., idx], d0[..., idx])
+
+    return Metrics(
+        psnr=_mean_psnr(mses, use),
+        psnr_per_mip=[psnr_from_mse(m) for m in mses],
+        psnr_per_group=psnr_per_group,
+        ssim=float(np.mean(list(ssim_per_group.values()))) if ssim_per_group else None,
+        ssim_per_group=ssim_per_group,
+        flip=float(np.mean(list(flip_per_group.values()))) if flip_per_group else None,
+        flip_per_group=flip_per_group,
+        mips_in_mean=len(use),
+    )
