@@ -1,0 +1,247 @@
+"""Step 2 of a build: train the jobs, each in its own worker process (the local executor)."""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import math
+import multiprocessing as mp
+import os
+import sys
+import tempfile
+import time
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from bcfpipe.config import DEFAULT_THREADS
+from bcfpipe.build.plan import MaterialJob, ProgressCallback
+from bcfpipe.scan.texture_sets import local_file
+
+
+def cpu_count() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _gpu_count(device: str) -> int:
+    if not device.startswith("cuda"):
+        return 0
+    import torch
+
+    return torch.cuda.device_count() if torch.cuda.is_available() else 0
+
+
+def default_jobs(n_jobs: int, device: str = "cpu") -> int:
+    """Worker count: one per GPU on CUDA, else one per core; never more than there are jobs."""
+    gpus = _gpu_count(device)
+    limit = gpus if gpus else cpu_count()
+    return max(1, min(max(n_jobs, 1), limit))
+
+
+@dataclass(frozen=True)
+class JobResult:
+    """What one job's worker reported."""
+
+    name: str
+    status: str  # built | failed
+    reason: str | None
+    seconds: float
+    device: str
+    threads: int
+    result: dict = field(default_factory=dict)  # MaterialResult.to_dict() when built
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    name = type(exc).__name__
+    line = f"{name}: {text}" if text else name
+    return line if len(line) <= 300 else line[:297] + "..."
+
+
+class _Throttle:
+    """Forwards a worker's training progress to the parent's queue, at most ~4 times a second."""
+
+    def __init__(self, queue, name: str):
+        self.queue, self.name, self.last_phase, self.last = queue, name, None, 0.0
+
+    def __call__(self, p) -> None:
+        now = time.monotonic()
+        if p.phase == self.last_phase and now - self.last < 0.25 and p.step != p.steps:
+            return
+        self.last_phase, self.last = p.phase, now
+        psnr = p.psnr if p.psnr == p.psnr and math.isfinite(p.psnr) else None
+        self.queue.put({"event": "progress", "job": self.name, "phase": p.phase, "step": p.step,
+                        "steps": p.steps, "psnr": psnr, "eta": p.eta, "elapsed": p.elapsed})
+
+    def phase(self, phase: str) -> None:
+        self.queue.put({"event": "progress", "job": self.name, "phase": phase, "step": 0, "steps": 0,
+                        "psnr": None, "eta": None, "elapsed": None})
+
+
+def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue=None) -> dict:
+    """Train and export one job into ``out_dir`` (runs in a worker process; never raises).
+
+    Returns a `JobResult` as a dict. Only this process's own thread settings are changed.
+    """
+    t0 = time.perf_counter()
+    name = job.get("name", "?")
+    try:
+        if mp.parent_process() is not None:  # a worker process: keep the build's stdout clean (--json)
+            try:
+                sys.stdout.flush()
+                os.dup2(2, 1)
+            except OSError:
+                pass
+        import warnings
+
+        warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad=True to a scalar")
+        import torch
+
+        torch.set_num_threads(max(1, threads))
+        try:
+            torch.set_num_interop_threads(1)
+        except RuntimeError:
+            pass
+        import OpenImageIO as oiio
+
+        oiio.attribute("threads", max(1, threads))
+        from bcfpipe.train.fit import fit_material, make_config
+        from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
+
+        mj = MaterialJob.from_dict(job)
+        progress = _Throttle(queue, mj.name) if queue is not None else None
+        if progress:
+            progress.phase("load")
+        with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
+            local = {path: local_file(path, tmp) for _, path, _ in mj.specs}
+            ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs])
+        prof, cfg = make_config(ts, profile=mj.profile, preset=mj.preset, device=device, seed=mj.seed,
+                                hidden=mj.hidden, signed=mj.signed, wrap=mj.wrap, threads=max(1, threads),
+                                init=mj.init)
+        extra = {"bcfpipe_build": {"job": mj.name, "materials": list(mj.materials),
+                                   "content_hash": mj.content_hash}}
+        res, _ = fit_material(ts, out_dir, cfg, prof, progress, extra)
+        _restore_sources(Path(out_dir) / "material.json", {v: k for k, v in local.items() if v != k})
+        d = res.to_dict()
+        d.pop("out", None)
+        return JobResult(mj.name, "built", None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
+    except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
+        return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
+
+
+def _restore_sources(desc_path: Path, originals: Mapping[str, str]) -> None:
+    """Name packaged textures by their package path in material.json, not by the temporary copy."""
+    if not originals or not desc_path.exists():
+        return
+    desc = json.loads(desc_path.read_text())
+    for out in desc.get("outputs", []):
+        if out.get("source") in originals:
+            out["source"] = originals[out["source"]]
+    desc_path.write_text(json.dumps(desc, indent=2) + "\n")
+
+
+def _drain(queue, progress: ProgressCallback | None) -> None:
+    if queue is None:
+        return
+    import queue as queue_mod
+
+    while True:
+        try:
+            ev = queue.get_nowait()
+        except (queue_mod.Empty, EOFError, OSError):
+            return
+        if progress:
+            progress(ev)
+
+
+def _emit(progress: ProgressCallback | None, **event) -> None:
+    if progress:
+        progress(event)
+
+
+def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, threads: int,
+              devices: Sequence[str], executor: cf.Executor | None, queue,
+              progress: ProgressCallback | None) -> tuple[dict[str, JobResult], list[MaterialJob]]:
+    """Run ``jobs``; returns results and the jobs whose worker process died (to retry alone)."""
+    results: dict[str, JobResult] = {}
+    broken: list[MaterialJob] = []
+    own = executor is None
+    pool = executor or cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+    try:
+        futures = {}
+        for i, job in enumerate(jobs):
+            dev = devices[i % len(devices)]
+            fut = pool.submit(run_job, job.to_dict(), str(materials_dir / job.name), threads, dev, queue)
+            futures[fut] = (job, dev)
+            _emit(progress, event="queued", job=job.name, materials=list(job.materials))
+        pending = set(futures)
+        while pending:
+            done, pending = cf.wait(pending, timeout=0.2, return_when=cf.FIRST_COMPLETED)
+            _drain(queue, progress)
+            for fut in done:
+                job, dev = futures[fut]
+                try:
+                    r = JobResult(**fut.result())
+                except BrokenProcessPool:
+                    broken.append(job)
+                    continue
+                except BaseException as exc:  # noqa: BLE001
+                    r = JobResult(job.name, "failed", one_line(exc), 0.0, dev, threads)
+                results[job.name] = r
+                _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
+                      psnr=r.result.get("psnr"), seconds=r.seconds)
+    except BaseException:
+        if own:
+            pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    if own:
+        pool.shutdown(wait=True)
+    _drain(queue, progress)
+    return results, broken
+
+
+def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, workers: int | None = None,
+            executor: cf.Executor | None = None, progress: ProgressCallback | None = None,
+            threads: int | None = None) -> dict[str, JobResult]:
+    """Train every job into ``materials_dir/<job.name>/``; returns {job name: JobResult}.
+
+    Each job runs in a worker process of a spawn-context ``ProcessPoolExecutor`` (or of
+    ``executor``, anything with the concurrent.futures interface that runs `run_job`), with
+    ``threads`` torch threads each (default ``config.DEFAULT_THREADS``). A job whose worker process
+    dies is retried once in a fresh single-worker pool (so one crash cannot take others with it),
+    then marked failed.
+    ``progress`` receives event dicts: ``queued``, ``progress`` (phase, step, steps, psnr, eta) and
+    ``done`` (status, reason, psnr, seconds).
+    """
+    materials_dir = Path(materials_dir)
+    materials_dir.mkdir(parents=True, exist_ok=True)
+    if not jobs:
+        return {}
+    device = jobs[0].device
+    workers = max(1, int(workers)) if workers else default_jobs(len(jobs), device)
+    threads = max(1, int(threads)) if threads else DEFAULT_THREADS
+    gpus = _gpu_count(device)
+    devices = [f"cuda:{i}" for i in range(gpus)] if gpus else [device]
+    manager = mp.get_context("spawn").Manager() if progress else None
+    try:
+        queue = manager.Queue() if manager else None
+        results, broken = _run_pool(jobs, materials_dir, workers, threads, devices, executor, queue, progress)
+        for job in broken:
+            retry, again = _run_pool([job], materials_dir, 1, threads, devices, None, queue, progress)
+            results.update(retry)
+            if again:
+                results[job.name] = JobResult(job.name, "failed", "worker process died (out of memory?)",
+                                              0.0, device, threads)
+                _emit(progress, event="done", job=job.name, status="failed", reason=results[job.name].reason,
+                      psnr=None, seconds=0.0)
+    finally:
+        if manager is not None:
+            manager.shutdown()
+    return {j.name: results[j.name] for j in jobs}

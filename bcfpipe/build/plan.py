@@ -1,0 +1,256 @@
+"""Step 1 of a build: the scanned scene as frozen, JSON-serialisable jobs, named by content hash."""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+
+import xxhash
+
+from bcfpipe import __version__
+from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
+                            DEFAULT_SEED, FEATURE_INITS, PRESETS, PROFILE_NAMES)
+from bcfpipe.scan.texture_sets import ModelChannel, SourceFile, decoder_index
+from bcfpipe.errors import InputError
+from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, group_materials
+
+if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
+    from bcfpipe.scan.stage import StageScan
+
+
+BUILD_FORMAT = "bcfpipe-build"
+BUILD_FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+WEIGHTS = "weights.bin"
+OVERRIDES = "overrides.usda"
+MATERIALS_DIR = "materials"
+
+ProgressCallback = Callable[[dict], None]
+
+
+class BuildError(InputError):
+    """A build that cannot start: unreadable scene, bad option, or an OUT it must not replace."""
+
+
+@dataclass(frozen=True)
+class TargetMap:
+    """One UsdPreviewSurface target of a material and the decoder output that drives it."""
+
+    target: str  # diffuseColor.r, normal.x, roughness, ...
+    input: str
+    channel: int  # decoder output index (normal z included)
+    scale: float
+    bias: float
+    color_space: str  # "sRGB" or "raw"
+    file: str | None  # None for the reconstructed normal.z
+    file_channel: str | None
+
+
+@dataclass(frozen=True)
+class MaterialJob:
+    """One training run (a texture set), shared by every material in ``materials``.
+
+    Frozen and JSON-serialisable (`to_dict` / `from_dict`). ``content_hash`` covers everything the
+    result depends on: source bytes, specs, addressing, profile, preset (its schedule), seed,
+    device, architecture and the bcfpipe version; not paths, not the machine's thread count.
+    """
+
+    name: str
+    materials: tuple[str, ...]
+    specs: tuple[tuple[str, str, str], ...]  # (semantic, file, channels) for bcfpipe.texset
+    channels: tuple[ModelChannel, ...]
+    sources: tuple[SourceFile, ...]
+    wrap: str
+    profile: str
+    preset: str
+    seed: int
+    device: str
+    hidden: int
+    signed: bool
+    content_hash: str
+    init: str = DEFAULT_INIT
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "MaterialJob":
+        d = dict(d)
+        d["materials"] = tuple(d["materials"])
+        d["specs"] = tuple(tuple(s) for s in d["specs"])
+        d["channels"] = tuple(ModelChannel(**c) for c in d["channels"])
+        d["sources"] = tuple(SourceFile(**s) for s in d["sources"])
+        return cls(**d)
+
+
+@dataclass(frozen=True)
+class MaterialPlan:
+    """What the build does with one scanned material."""
+
+    path: str
+    aliases: tuple[str, ...]
+    decision: str  # model | skip
+    reason: str | None
+    message: str
+    job: str | None = None
+    targets: tuple[TargetMap, ...] = ()
+    fallback_surface: str | None = None
+    st_primvar: str = "st"
+    st_scale: tuple[float, float] = (1.0, 1.0)
+    st_rotation: float = 0.0
+    st_translation: tuple[float, float] = (0.0, 0.0)
+    sources: tuple[str, ...] = ()  # files (SourceFile.path) this material reads
+    warnings: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class BuildPlan:
+    """A scanned scene turned into jobs: everything `execute` and `assemble` need."""
+
+    scene: str
+    root_layer: str
+    variants: tuple[tuple[str, str], ...]
+    variant_selections: tuple[tuple[str, str, str], ...]
+    all_materials: bool
+    up_axis: str
+    meters_per_unit: float
+    default_prim: str | None
+    materials: tuple[MaterialPlan, ...]
+    jobs: tuple[MaterialJob, ...]
+    options: dict = field(default_factory=dict)
+    diagnostics: tuple[str, ...] = ()
+
+    def job(self, name: str) -> MaterialJob:
+        for j in self.jobs:
+            if j.name == name:
+                return j
+        raise KeyError(name)
+
+    @property
+    def sources(self) -> dict[str, SourceFile]:
+        return {s.path: s for j in self.jobs for s in j.sources}
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["jobs"] = [j.to_dict() for j in self.jobs]
+        return d
+
+
+def _content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Mapping[str, Any]) -> str:
+    preset = options["preset"]
+    payload = {
+        "bcfpipe": __version__,
+        "specs": [[sem, sources[path].xxh3_128, ch] for sem, path, ch in specs],
+        "wrap": wrap,
+        "profile": options["profile"],
+        "preset": preset,
+        "schedule": asdict(PRESETS[preset]),
+        "seed": options["seed"],
+        "device": options["device"],
+        "hidden": options["hidden"],
+        "signed": options["signed"],
+    }
+    if options["init"] != DEFAULT_INIT:  # absent for the default, so existing builds keep their names
+        payload["init"] = options["init"]
+    return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
+
+
+def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[str, str]:
+    if not variants:
+        return {}
+    if isinstance(variants, Mapping):
+        return {str(k): str(v) for k, v in variants.items()}
+    from bcfpipe.scan.stage import ScanError, parse_variant
+
+    try:
+        return dict(parse_variant(v) for v in variants)
+    except ScanError as exc:
+        raise BuildError(str(exc)) from None
+
+
+def _resolve_device_name(device: str) -> str:
+    from bcfpipe.train.trainer import resolve_device
+
+    try:
+        return resolve_device(device).type
+    except (ValueError, RuntimeError) as exc:
+        raise BuildError(str(exc)) from None
+
+
+def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] | None = None,
+         all_materials: bool = False, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
+         seed: int = DEFAULT_SEED, device: str = DEFAULT_DEVICE, hidden: int = DEFAULT_HIDDEN,
+         signed: bool = False, init: str = DEFAULT_INIT) -> BuildPlan:
+    """Scan ``scene`` and list what to train. Reads the source textures (to hash them) but writes
+    nothing. Raises `BuildError` for an unreadable stage or bad options."""
+    if profile not in PROFILE_NAMES:
+        raise BuildError(f"unknown profile {profile!r}; choose from {', '.join(PROFILE_NAMES)}")
+    if preset not in PRESETS:
+        raise BuildError(f"unknown quality preset {preset!r}; choose from {', '.join(PRESETS)}")
+    if init not in FEATURE_INITS:
+        raise BuildError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
+    options = {"profile": profile, "preset": preset, "seed": int(seed), "device": _resolve_device_name(device),
+               "hidden": int(hidden), "signed": bool(signed), "init": init}
+    from bcfpipe.scan.stage import ScanError, scan_stage
+
+    vdict = _variants_dict(variants)
+    try:
+        scan: StageScan = scan_stage(scene, vdict or None, all_materials=all_materials)
+    except ScanError as exc:
+        raise BuildError(str(exc)) from None
+
+    grouping = group_materials(scene, vdict, scan.materials)
+    jobs: list[MaterialJob] = []
+    for g in grouping.groups:
+        rep = g.model
+        sources = {p: s for mm in g.models for p, s in mm.sources.items()}
+        rep_sources = {p: sources[p] for p in dict.fromkeys(path for _, path, _ in rep.specs)}
+        jobs.append(MaterialJob(
+            name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
+            sources=tuple(rep_sources.values()), wrap=rep.wrap,
+            profile=profile, preset=preset, seed=options["seed"], device=options["device"],
+            hidden=options["hidden"], signed=options["signed"], init=init,
+            content_hash=_content_hash(rep.specs, rep_sources, rep.wrap, options),
+        ))
+    job_by_name = {j.name: j for j in jobs}
+
+    plans: list[MaterialPlan] = []
+    for ms in scan.materials:
+        if ms.decision != "model":
+            plans.append(MaterialPlan(ms.path, ms.aliases, "skip", ms.reason, ms.message,
+                                      warnings=tuple(ms.warnings)))
+            continue
+        if ms.path in grouping.instanced:
+            plans.append(MaterialPlan(ms.path, ms.aliases, "skip", "instanced", INSTANCED_MESSAGE,
+                                      warnings=tuple(ms.warnings)))
+            continue
+        if ms.path in grouping.failed:
+            plans.append(MaterialPlan(ms.path, ms.aliases, "model", "failed", grouping.failed[ms.path],
+                                      warnings=tuple(ms.warnings)))
+            continue
+        group, mm = grouping.group_of(ms.path)
+        job = job_by_name[group.name]
+        index, z = decoder_index(job.channels)
+        targets: list[TargetMap] = []
+        for target, inp, key, s, b, cs in mm.targets:
+            targets.append(TargetMap(target, inp, index[key], s, b, cs, key.file, key.channel))
+            if target == "normal.y" and z is not None:
+                targets.append(TargetMap("normal.z", inp, z, 1.0, 0.0, "raw", None, None))
+        prim, scale, rot, trans = mm.st
+        plans.append(MaterialPlan(
+            ms.path, ms.aliases, "model", None, ms.message, job=job.name, targets=tuple(targets),
+            fallback_surface=ms.surface_shader, st_primvar=prim, st_scale=tuple(scale), st_rotation=float(rot),
+            st_translation=tuple(trans), sources=tuple(mm.sources), warnings=tuple(mm.warnings)))
+
+    return BuildPlan(
+        scene=scan.path, root_layer=scan.root_layer,
+        variants=tuple(sorted(vdict.items())),
+        variant_selections=tuple(tuple(v) for v in scan.variant_selections),
+        all_materials=all_materials, up_axis=scan.up_axis, meters_per_unit=scan.meters_per_unit,
+        default_prim=scan.default_prim, materials=tuple(plans), jobs=tuple(jobs), options=options,
+        diagnostics=tuple(scan.composition_errors) + tuple(scan.diagnostics),
+    )
