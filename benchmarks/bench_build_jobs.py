@@ -74,7 +74,7 @@ def main() -> None:
                 wall = time.perf_counter() - t0
             if res.exit_code != 0:
                 sys.exit(f"build failed: {res.failed}")
-            trained = res.manifest["totals"]["trained"]
+            trained = res.manifest.totals.trained
             runs[spec].append(wall)
             if not args.json:
                 print(f"run {r + 1}: --jobs {j} ({t} torch thread(s) per worker): {wall:.1f} s wall "

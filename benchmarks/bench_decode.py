@@ -68,14 +68,14 @@ void main() {{
 def classic_textures(rt: G.GLRuntime, m: G.MaterialDesc, rng) -> tuple[list[int], list[str]]:
     """One BC texture per semantic at the reference size with a full mip chain -> (names, formats)."""
     has_s3tc = "GL_EXT_texture_compression_s3tc" in rt.ctx.extensions
-    groups: dict[str, list[dict]] = {}
+    groups: dict[str, list] = {}
     for o in m.outputs:
-        if not o.get("reconstructed"):
-            groups.setdefault(o["semantic"], []).append(o)
+        if not o.reconstructed:
+            groups.setdefault(o.semantic, []).append(o)
     w0, h0 = m.ref_size
     texs, fmts = [], []
     for sem, outs in groups.items():
-        kind = outs[0]["kind"]
+        kind = outs[0].kind
         if kind == "normal":
             fmt, block, name = GL_COMPRESSED_RG_RGTC2, 16, "BC5"
         elif len(outs) == 1:
@@ -149,7 +149,7 @@ def main(argv=None) -> int:
         sizes, frames, warmup = [("256x144", (256, 144))], min(frames, 5), min(warmup, 1)
 
     gm = rt.load(m)
-    hidden = int(m.desc["mlp"]["n_hidden"])
+    hidden = m.file.mlp.n_hidden
     neural = rt.render_program({"BCF_N_HIDDEN": hidden, "BCF_N_OUT": m.n_out, "BCF_MAX_OUT": m.c_out})
     ctex, cfmts = classic_textures(rt, m, np.random.default_rng(0))
     classic = rt.ctx.program(vertex_shader=G.assemble("vert"), fragment_shader=classic_frag(len(ctex)))
@@ -173,7 +173,7 @@ def main(argv=None) -> int:
         rt.unload(gm)
     report = {"material": m.name, "renderer": rt.info, "software": software, "frames": frames,
               "classic_formats": cfmts, "network": f"12-{hidden}-{m.n_out}",
-              "layers": [int(x["resolution"]) for x in m.desc["layers"]], "rows": rows}
+              "layers": [x.resolution for x in m.file.layers], "rows": rows}
     rt.release()
     if args.json:
         print(json.dumps(report, indent=2))

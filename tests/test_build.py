@@ -163,17 +163,46 @@ def test_sample_outputs(sample) -> None:
     assert desc["mlp"]["n_out"] == 8
 
 
+
+def test_outputs_pass_their_schemas(sample) -> None:
+    """manifest.json and every material.json of a real build validate against the published
+    schemas (jsonschema, draft 2020-12), and read back through bcfpipe.formats unchanged."""
+    import jsonschema
+
+    from bcfpipe.formats import manifest as mfst
+    from bcfpipe.formats import material as mf
+
+    scene, result = sample
+    schemas = {n: json.loads((SCHEMAS / n).read_text()) for n in ("manifest.schema.json", "material.schema.json")}
+    for s in schemas.values():
+        jsonschema.Draft202012Validator.check_schema(s)
+    manifest = json.loads((result.out / MANIFEST).read_text())
+    jsonschema.Draft202012Validator(schemas["manifest.schema.json"]).validate(manifest)
+    assert mfst.read(result.out).to_json() == manifest
+    folders = sorted((result.out / "materials").iterdir())
+    assert [f.name for f in folders] == sorted(j["name"] for j in manifest["jobs"])
+    for folder in folders:
+        desc = json.loads((folder / "material.json").read_text())
+        jsonschema.Draft202012Validator(schemas["material.schema.json"]).validate(desc)
+        assert mf.read(folder).to_json() == desc
+        assert desc["bcfpipe_build"]["job"] == folder.name
+    # a broken file fails validation (the check can fail)
+    del manifest["totals"]["built"]
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.Draft202012Validator(schemas["manifest.schema.json"]).validate(manifest)
+
+
 def test_weights_buffer(sample) -> None:
     scene, result = sample
     out = result.out
     data, entries = weightsbuf.read(out / "weights.bin")
     assert len(entries) == 3
-    for e, job in zip(entries, result.manifest["jobs"]):
+    for e, job in zip(entries, result.manifest.to_json()["jobs"]):
         assert e.offset % 16 == 0
         assert data[e.offset:e.offset + e.size] == (out / "materials" / job["name"] / "weights.bin").read_bytes()
         assert job["weights_index"] == e.index
     stage = Usd.Stage.Open(str(result.root_layer))
-    for m in result.manifest["materials"]:
+    for m in result.manifest.to_json()["materials"]:
         if m["status"] != "built":
             continue
         prim = stage.GetPrimAtPath(m["path"])
@@ -218,7 +247,7 @@ def test_attributes_readable(sample, plugin: bool) -> None:
     proc = run_py(code, plugin)
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
-    for m in result.manifest["materials"]:
+    for m in result.manifest.to_json()["materials"]:
         r = report[m["path"]]
         if m["status"] == "built":
             assert r["n"] == 28 and r["none"] == [] and r["has_api"] is plugin
@@ -293,7 +322,7 @@ def test_deterministic(sample, tmp_path: Path) -> None:
 
     scene, result = sample
     job = result.plan.job("Leaves")
-    threads = next(j["threads"] for j in result.manifest["jobs"] if j["name"] == "Leaves")
+    threads = next(j["threads"] for j in result.manifest.to_json()["jobs"] if j["name"] == "Leaves")
     r = run_job(job.to_dict(), str(tmp_path / "Leaves"), threads, "cpu")
     assert r["status"] == "built", r
     for f in ("T0.dds", "T1.dds", "T2.dds", "T3.dds", "weights.bin", "decoder.onnx"):
@@ -417,7 +446,7 @@ def test_refuses_foreign_out(tmp_path: Path) -> None:
     assert result.exit_code == 0 and not (out / "notes.txt").exists() and (out / MANIFEST).exists()
     # a bcfpipe output is replaced without --force
     again = build(scene, out, **FAST)
-    assert again.exit_code == 0 and again.manifest["totals"]["skipped"] == 1
+    assert again.exit_code == 0 and again.manifest.to_json()["totals"]["skipped"] == 1
     # an OUT containing the input is refused even with --force
     with pytest.raises(BuildError, match="contains the input"):
         build(scene, tmp_path, force=True, **FAST)
@@ -428,9 +457,9 @@ def test_default_out_and_constant_only(tmp_path: Path) -> None:
     scene = constant_stage(tmp_path / "scene.usda")
     result = build(scene, **FAST)
     assert result.out == tmp_path / "scene.bcf" and result.root_layer == tmp_path / "scene.bcf" / "scene.bcf.usda"
-    (m,) = result.manifest["materials"]
+    (m,) = result.manifest.to_json()["materials"]
     assert (m["status"], m["reason"]) == ("skipped", "no-textures")
-    assert result.manifest["totals"]["trained"] == 0
+    assert result.manifest.to_json()["totals"]["trained"] == 0
     data, entries = weightsbuf.read(result.out / "weights.bin")
     assert entries == [] and len(data) == 16
     n, text = validate(result.root_layer)
@@ -496,7 +525,7 @@ def test_teapot_fancy(tmp_path: Path) -> None:
     out = tmp_path / "Teapot.bcf"
     result = build(scene, out, variants={"modelVariant": "Fancy"}, preset="draft")
     assert result.exit_code == 0
-    mats = {m["path"]: m for m in result.manifest["materials"]}
+    mats = {m["path"]: m for m in result.manifest.to_json()["materials"]}
     fancy = mats["/Teapot/Materials/PorcelainFlowers"]
     assert fancy["status"] == "built" and fancy["profile"] == "2k"
     assert mats["/Teapot/Materials/Ceramic"]["status"] == "skipped"

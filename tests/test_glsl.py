@@ -2,6 +2,7 @@
 and behaviour through the OpenGL driver (moderngl on EGL; skipped without a context)."""
 from __future__ import annotations
 
+import dataclasses
 import re
 import shutil
 import subprocess
@@ -135,7 +136,7 @@ def test_weight_offset_in_a_shared_buffer(rt, mat):
     base = rt.decode(gm, uv, s)
     rt.unload(gm)
     record = m.weights_file.read_bytes()
-    m.weight_offset = 1008  # any 4-byte aligned offset works
+    m = dataclasses.replace(m, weight_offset=1008)  # any 4-byte aligned offset works
     gm = rt.load(m, weights=b"\x55" * 1008 + record + b"\x77" * 64)
     try:
         np.testing.assert_array_equal(rt.decode(gm, uv, s), base)

@@ -2,6 +2,8 @@
 through the sampler, ONNX vs torch, and the fp16 weight record."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -143,7 +145,10 @@ def test_weight_record_round_trip_and_errors():
 
 
 def test_description_is_self_contained(tmp_path):
+    """material.json says everything a consumer needs, and passes the published schema."""
     import json
+
+    import jsonschema
 
     tm = _trained(MC)
     E.export(tm, tmp_path)
@@ -154,6 +159,8 @@ def test_description_is_self_contained(tmp_path):
     assert [o["usd_target"] for o in d["outputs"]] == ["diffuseColor.r", "diffuseColor.g", "diffuseColor.b",
                                                        "normal.x", "normal.y", "normal.z", "roughness"]
     assert d["onnx"]["input"] == "features" and d["mlp"]["n_in"] == 12 and d["sampling"]["addressing"] == "repeat"
+    jsonschema.validate(d, json.loads((Path(__file__).resolve().parents[1] / "schemas" /
+                                       "material.schema.json").read_text()))
 
 
 @pytest.mark.parametrize("profile, ref", [("0.5k", 2048), ("1k", 2048), ("2k", 2048), ("2k++", 2048),

@@ -317,6 +317,7 @@ def test_build_folder_with_combined_weights(materials, gl_runtime, tmp_path):
     decoded from the combined buffer at its offset, shared records verified once."""
     import shutil
 
+    from bcfpipe.formats import manifest as mfst
     from bcfpipe.formats import weights as weightsbuf
 
     root = tmp_path / "build"
@@ -326,12 +327,12 @@ def test_build_folder_with_combined_weights(materials, gl_runtime, tmp_path):
     records = [(root / "materials" / n / "weights.bin").read_bytes() for n in names]
     _, entries = weightsbuf.pack(records)
     weightsbuf.write(root / "weights.bin", records)
-    mats = [{"path": f"/World/Looks/{n}", "status": "built",
-             "outputs": {"folder": f"materials/{n}", "weights_index": e.index, "weights_offset": e.offset}}
+    mats = [mfst.Material(f"/World/Looks/{n}", "built",
+                          outputs=mfst.Outputs(f"materials/{n}", e.index, e.offset, e.size))
             for n, e in zip(names, entries)]
-    mats.append({"path": "/World/Looks/alias", "status": "built", "outputs": dict(mats[0]["outputs"])})
-    mats.append({"path": "/World/Looks/broken", "status": "failed", "outputs": None})
-    (root / "manifest.json").write_text(json.dumps({"weights": "weights.bin", "materials": mats}))
+    mats.append(mfst.Material("/World/Looks/alias", "built", outputs=mats[0].outputs))
+    mats.append(mfst.Material("/World/Looks/broken", "failed"))
+    mfst.write(root, mfst.Manifest(scene="scene.usda", root_layer="scene.bcf.usda", materials=tuple(mats)))
     rep = V.verify(root, runtime=gl_runtime)
     assert [m.name for m in rep.materials] == ["/World/Looks/unsigned_repeat", "/World/Looks/signed_clamp_normal"]
     assert rep.exit_code == 0

@@ -78,6 +78,7 @@ from .tables import PARTITIONS2, WEIGHTS3
 __all__ = [
     "decode_blocks",
     "decode_blocks_composed",
+    "decode_texels",
     "index_weight",
     "unquantize",
     "half_from_bits",
@@ -228,12 +229,9 @@ def decode_blocks_composed(
     return decode_blocks(endpoints, x, partition_mask, signed, quantized, fused=False)
 
 
-def _decode_composed(endpoints, x, mask, signed, quantized):
-    mask = mask.unsqueeze(-1)  # (n, 16, 1)
-    u = unquantize(endpoints, signed=signed, quantized=quantized)  # (n, 4, 3)
-    ua = torch.where(mask, u[:, None, 2], u[:, None, 0])  # (n, 16, 3)
-    ub = torch.where(mask, u[:, None, 3], u[:, None, 1])
-    w = index_weight(x, quantized=quantized).unsqueeze(-1)  # (n, 16, 1)
+def _interpolate_finish(ua: torch.Tensor, ub: torch.Tensor, w: torch.Tensor, signed: bool) -> torch.Tensor:
+    """Spec interpolation of unquantized endpoints with weight ``w`` (64ths), the finishing scale
+    and the half bit-cast (module doc, lines 2-4 of the per-texel formula)."""
     v = _floor_ste((ua * (64.0 - w) + ub * w + 32.0) / 64.0)
     if signed:
         s = v * (31.0 / 32.0)
@@ -241,6 +239,24 @@ def _decode_composed(endpoints, x, mask, signed, quantized):
     else:
         f = _floor_ste(v * (31.0 / 64.0))
     return half_from_bits(f)
+
+
+def _decode_composed(endpoints, x, mask, signed, quantized):
+    mask = mask.unsqueeze(-1)  # (n, 16, 1)
+    u = unquantize(endpoints, signed=signed, quantized=quantized)  # (n, 4, 3)
+    ua = torch.where(mask, u[:, None, 2], u[:, None, 0])  # (n, 16, 3)
+    ub = torch.where(mask, u[:, None, 3], u[:, None, 1])
+    w = index_weight(x, quantized=quantized).unsqueeze(-1)  # (n, 16, 1)
+    return _interpolate_finish(ua, ub, w, signed)
+
+
+def decode_texels(ea: torch.Tensor, eb: torch.Tensor, x: torch.Tensor, signed: bool = False,
+                  quantized: bool = False) -> torch.Tensor:
+    """Single texels from their subset's endpoints ``ea``, ``eb`` (M, 3) and continuous index
+    ``x`` (M,): :func:`decode_blocks`'s arithmetic per texel (the trainer's sparse taps)."""
+    ua = unquantize(ea, signed=signed, quantized=quantized)
+    ub = unquantize(eb, signed=signed, quantized=quantized)
+    return _interpolate_finish(ua, ub, index_weight(x, quantized=quantized).unsqueeze(1), signed)
 
 
 # ---------------------------------------------------------------------------

@@ -40,6 +40,8 @@ from .tables import ANCHOR2, PARTITIONS2, WEIGHTS3
 
 __all__ = [
     "MODE_VALUE",
+    "SPEC_MODE",
+    "DESCRIPTION",
     "pack",
     "unpack",
     "is_mode10",
@@ -54,6 +56,10 @@ __all__ = [
 
 #: Value of the 5 mode bits m[4:0] of this mode (bit i of the block = bit i of the value).
 MODE_VALUE = 0b11110
+#: The D3D11 spec's number for this mode ('BC6H modes' table, row 10).
+SPEC_MODE = 10
+#: How bcfpipe's files name the mode (material.json ``bc6h.block_mode``).
+DESCRIPTION = "11110 (two regions, 6-bit endpoints, 3-bit indices)"
 #: Endpoint precision of this mode.
 ENDPOINT_BITS = 6
 HEADER_BITS = 82

@@ -68,7 +68,8 @@ from __future__ import annotations
 
 from bcfpipe.build.assemble import assemble, default_out, root_layer_name
 from bcfpipe.build.executor import JobResult, cpu_count, default_jobs, execute, run_job
-from bcfpipe.build.plan import (BUILD_FORMAT, MANIFEST, MATERIALS_DIR, OVERRIDES, WEIGHTS, BuildError, BuildPlan,
+from bcfpipe.formats.manifest import FILE as MANIFEST, FORMAT as BUILD_FORMAT, WEIGHTS
+from bcfpipe.build.plan import (MATERIALS_DIR, OVERRIDES, BuildError, BuildPlan,
                                 MaterialJob, MaterialPlan, TargetMap, plan)
 from bcfpipe.build.run import BuildResult, build, check_out
 

@@ -1,16 +1,18 @@
 """Step 3 of a build: the combined weights.bin, the USD layers and manifest.json."""
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Mapping
 
 from bcfpipe import __version__
+from bcfpipe.formats import manifest as mfst
+from bcfpipe.formats import material as mf
 from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK
 from bcfpipe.build.executor import JobResult
-from bcfpipe.build.plan import BUILD_FORMAT, BUILD_FORMAT_VERSION, BuildPlan, MANIFEST, MATERIALS_DIR, OVERRIDES, WEIGHTS
+from bcfpipe.build.plan import BuildPlan, MATERIALS_DIR, OVERRIDES
+from bcfpipe.formats.manifest import WEIGHTS
 from bcfpipe.scan.texture_sets import package_split
 
 
@@ -33,7 +35,7 @@ def _features_bytes(folder: Path) -> int:
 
 
 def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | os.PathLike,
-             final_out: str | os.PathLike | None = None, wall_seconds: float = 0.0) -> dict:
+             final_out: str | os.PathLike | None = None, wall_seconds: float = 0.0) -> mfst.Manifest:
     """Write weights.bin, the USD layers and manifest.json into ``staging`` (whose contents will
     live at ``final_out``; relative paths are computed from there). Returns the manifest."""
     from bcfpipe.build import usd_layer as usdout
@@ -45,7 +47,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
     buffer, entries = weightsbuf.pack(records)
     (staging / WEIGHTS).write_bytes(buffer)
     entry_of = {j.name: e for j, e in zip(built, entries)}
-    descs = {j.name: json.loads((staging / MATERIALS_DIR / j.name / "material.json").read_text()) for j in built}
+    descs = {j.name: mf.read(staging / MATERIALS_DIR / j.name) for j in built}
 
     overrides: list[usdout.NeuralMaterialOverride] = []
     for mp_ in bplan.materials:
@@ -53,23 +55,22 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
             continue
         e, desc = entry_of[mp_.job], descs[mp_.job]
         folder = f"./{MATERIALS_DIR}/{mp_.job}"
-        layers = desc["layers"]
+        layers = desc.layers
         overrides.append(usdout.NeuralMaterialOverride(
             material=mp_.path,
-            feature_textures=tuple(f"{folder}/{layer['file']}" for layer in layers),
-            feature_resolutions=tuple(int(layer["resolution"]) for layer in layers),
-            feature_mip_counts=tuple(int(layer["mip_count"]) for layer in layers),
-            feature_lod_biases=tuple(float(layer["lod_bias"]) for layer in layers),
-            feature_signed=bool(desc["bc6h"]["signed"]),
-            addressing=desc["sampling"]["addressing"],
-            reference_resolution=(int(desc["reference"]["width"]), int(desc["reference"]["height"])),
+            feature_textures=tuple(f"{folder}/{layer.file}" for layer in layers),
+            feature_resolutions=tuple(layer.resolution for layer in layers),
+            feature_mip_counts=desc.mip_counts,
+            feature_lod_biases=desc.lod_biases,
+            feature_signed=desc.signed,
+            addressing=desc.wrap,
+            reference_resolution=(desc.reference.width, desc.reference.height),
             st_primvar=mp_.st_primvar, st_scale=mp_.st_scale, st_rotation=mp_.st_rotation,
             st_translation=mp_.st_translation,
             weights=f"./{WEIGHTS}", weights_offset=e.offset, weights_size=e.size, weights_index=e.index,
-            mlp_inputs=int(desc["mlp"]["n_in"]), mlp_hidden=int(desc["mlp"]["n_hidden"]),
-            mlp_outputs=int(desc["mlp"]["n_out"]), mlp_precision=desc["mlp"]["precision"],
-            mlp_activation=desc["mlp"]["activation"],
-            decoder=f"{folder}/{desc['onnx']['file']}",
+            mlp_inputs=desc.mlp.n_in, mlp_hidden=desc.mlp.n_hidden, mlp_outputs=desc.mlp.n_out,
+            mlp_precision=desc.mlp.precision, mlp_activation=desc.mlp.activation,
+            decoder=f"{folder}/{desc.onnx.file}",
             targets=tuple(t.target for t in mp_.targets), channels=tuple(t.channel for t in mp_.targets),
             scale=tuple(t.scale for t in mp_.targets), bias=tuple(t.bias for t in mp_.targets),
             color_spaces=tuple(t.color_space for t in mp_.targets),
@@ -83,88 +84,74 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
                             bplan.meters_per_unit, bplan.default_prim, bplan.root_layer, comment=stamp)
 
     sources = bplan.sources
-    mats: list[dict] = []
+
+    def rel(path: str | None) -> str | None:
+        return usdout.relative_asset(path, final_out) if path and package_split(path) is None else path
+
+    mats: list[mfst.Material] = []
     for mp_ in bplan.materials:
-        entry: dict[str, Any] = {"path": mp_.path, "aliases": list(mp_.aliases), "job": mp_.job}
         r = results.get(mp_.job) if mp_.job else None
         if mp_.decision == "skip":
-            entry.update(status="skipped", reason=mp_.reason, message=mp_.message)
+            status, reason = "skipped", mp_.reason
         elif mp_.reason == "failed" and mp_.job is None:
-            entry.update(status="failed", reason=mp_.message, message=mp_.message)
+            status, reason = "failed", mp_.message
         elif r is None or r.status != "built":
-            entry.update(status="failed", reason=r.reason if r else "not run", message=mp_.message)
+            status, reason = "failed", r.reason if r else "not run"
         else:
-            entry.update(status="built", reason=None, message=mp_.message)
+            status, reason = "built", None
         job = bplan.job(mp_.job) if mp_.job else None
-        entry["shared_with"] = [m for m in job.materials if m != mp_.path] if job else []
-        entry["sources"] = [
-            {"file": usdout.relative_asset(s.path, final_out) if package_split(s.path) is None else s.path,
-             "asset_path": s.asset_path, "xxh3_128": s.xxh3_128, "size_bytes": s.size_bytes,
-             "width": s.width, "height": s.height, "channels": s.channels, "format": s.format,
-             "color_space": s.color_space, "resolved_color_space": s.resolved_color_space}
-            for s in (sources[p] for p in mp_.sources if p in sources)]
-        entry["targets"] = [
-            {"target": t.target, "input": t.input, "channel": t.channel, "scale": t.scale, "bias": t.bias,
-             "color_space": t.color_space,
-             "source": (usdout.relative_asset(t.file, final_out) if t.file and package_split(t.file) is None
-                        else t.file),
-             "source_channel": t.file_channel} for t in mp_.targets]
-        if entry["status"] == "built" and r is not None:
-            folder = staging / MATERIALS_DIR / mp_.job
+        common = dict(
+            path=mp_.path, aliases=tuple(mp_.aliases), job=mp_.job, status=status, reason=reason, message=mp_.message,
+            shared_with=tuple(m for m in job.materials if m != mp_.path) if job else (),
+            sources=tuple(mfst.Source(rel(s.path), s.asset_path, s.xxh3_128, s.size_bytes, s.width, s.height,
+                                      s.channels, s.format, s.color_space, s.resolved_color_space)
+                          for s in (sources[p] for p in mp_.sources if p in sources)),
+            targets=tuple(mfst.Target(t.target, t.input, t.channel, t.scale, t.bias, t.color_space, rel(t.file),
+                                      t.file_channel) for t in mp_.targets),
+            warnings=tuple(mp_.warnings))
+        if status == "built":
             e = entry_of[mp_.job]
-            feats = _features_bytes(folder)
+            feats = _features_bytes(staging / MATERIALS_DIR / mp_.job)
             res = r.result
-            entry["metrics"] = {"psnr": res.get("psnr"), "ssim": res.get("ssim"), "flip": res.get("flip"),
-                                "float_psnr": res.get("float_psnr"), "detail": res.get("metrics")}
-            entry["sizes"] = {"features_bytes": feats, "weights_bytes": e.size, "total_bytes": feats + e.size,
-                              "source_bytes": sum(sources[p].size_bytes for p in mp_.sources if p in sources)}
-            entry["outputs"] = {"folder": f"{MATERIALS_DIR}/{mp_.job}", "weights_index": e.index,
-                                "weights_offset": e.offset, "weights_size": e.size}
-            entry["profile"] = res.get("profile")
-            entry["resolutions"] = res.get("resolutions")
-            entry["train_seconds"] = res.get("train_seconds")
-            entry["device"] = r.device
+            mats.append(mfst.Material(
+                **common,
+                metrics=mfst.Metrics(res.get("psnr"), res.get("ssim"), res.get("flip"), res.get("float_psnr"),
+                                     mfst.Quality.from_json(res["metrics"], "metrics")),
+                sizes=mfst.Sizes(feats, e.size, feats + e.size,
+                                 sum(sources[p].size_bytes for p in mp_.sources if p in sources)),
+                outputs=mfst.Outputs(f"{MATERIALS_DIR}/{mp_.job}", e.index, e.offset, e.size),
+                profile=res.get("profile"), resolutions=tuple(res.get("resolutions")),
+                train_seconds=res.get("train_seconds"), device=r.device))
         else:
-            entry.update(metrics=None, sizes=None, outputs=None, train_seconds=r.seconds if r else None,
-                         device=r.device if r else None)
-        entry["warnings"] = list(mp_.warnings)
-        mats.append(entry)
+            mats.append(mfst.Material(**common, train_seconds=r.seconds if r else None, device=r.device if r else None))
 
     job_entries = []
     for j in bplan.jobs:
         r = results.get(j.name)
-        job_entries.append({"name": j.name, "materials": list(j.materials), "content_hash": j.content_hash,
-                            "status": r.status if r else "not run", "reason": r.reason if r else None,
-                            "seconds": round(r.seconds, 3) if r else None, "device": r.device if r else None,
-                            "threads": r.threads if r else None,
-                            "weights_index": entry_of[j.name].index if j.name in entry_of else None})
-    counts = {s: sum(1 for m in mats if m["status"] == s) for s in ("built", "failed", "skipped")}
+        job_entries.append(mfst.Job(j.name, tuple(j.materials), j.content_hash, r.status if r else "not run",
+                                    r.reason if r else None, round(r.seconds, 3) if r else None,
+                                    r.device if r else None, r.threads if r else None,
+                                    entry_of[j.name].index if j.name in entry_of else None))
+    counts = {s: sum(1 for m in mats if m.status == s) for s in mfst.STATUSES}
     feature_total = sum(_features_bytes(staging / MATERIALS_DIR / j.name) for j in built)
     weights_size = (staging / WEIGHTS).stat().st_size
-    manifest = {
-        "format": BUILD_FORMAT, "format_version": BUILD_FORMAT_VERSION, "bcfpipe_version": __version__,
-        "scene": scene_rel, "root_layer": root_name, "overrides_layer": OVERRIDES, "weights": WEIGHTS,
-        "variants": [list(v) for v in bplan.variants],
-        "variant_selections": [{"prim": p, "set": s, "value": v} for p, s, v in bplan.variant_selections],
-        "all_materials": bplan.all_materials, "options": dict(bplan.options),
-        "stage": {"up_axis": bplan.up_axis, "meters_per_unit": bplan.meters_per_unit,
-                  "default_prim": bplan.default_prim},
-        "materials": mats,
-        "jobs": job_entries,
-        "weights_table": [e.to_dict() | {"job": j.name} for j, e in zip(built, entries)],
-        "totals": {
-            "materials": len(mats), **counts,
-            "jobs": len(bplan.jobs), "trained": len(built),
-            "train_seconds": round(sum((results[j.name].result.get("train_seconds") or 0.0) for j in built), 3),
-            "wall_seconds": round(wall_seconds, 3),
-            "features_bytes": feature_total, "weights_bytes": weights_size,
-            "total_bytes": feature_total + weights_size,
-            "source_bytes": sum(s.size_bytes for s in sources.values()),
-        },
-        "diagnostics": list(bplan.diagnostics),
-        "exit_code": EXIT_FAILED if counts["failed"] else EXIT_OK,
-    }
-    (staging / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
+    manifest = mfst.Manifest(
+        scene=scene_rel, root_layer=root_name, overrides_layer=OVERRIDES, weights=WEIGHTS,
+        variants=tuple(tuple(v) for v in bplan.variants),
+        variant_selections=tuple(mfst.VariantSelection(p, s, v) for p, s, v in bplan.variant_selections),
+        all_materials=bplan.all_materials, options=mfst.Options(**bplan.options),
+        stage=mfst.Stage(bplan.up_axis, bplan.meters_per_unit, bplan.default_prim),
+        materials=tuple(mats), jobs=tuple(job_entries),
+        weights_table=tuple(mfst.WeightsRecord(e.index, e.offset, e.size, e.n_hidden, e.n_out, j.name)
+                            for j, e in zip(built, entries)),
+        totals=mfst.Totals(
+            materials=len(mats), **counts, jobs=len(bplan.jobs), trained=len(built),
+            train_seconds=round(sum((results[j.name].result.get("train_seconds") or 0.0) for j in built), 3),
+            wall_seconds=round(wall_seconds, 3), features_bytes=feature_total, weights_bytes=weights_size,
+            total_bytes=feature_total + weights_size, source_bytes=sum(s.size_bytes for s in sources.values())),
+        diagnostics=tuple(bplan.diagnostics),
+        exit_code=EXIT_FAILED if counts["failed"] else EXIT_OK)
+    mfst.write(staging, manifest)
     _normalise_modes(staging)
     return manifest
 

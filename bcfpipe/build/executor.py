@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import concurrent.futures as cf
-import json
 import math
 import multiprocessing as mp
 import os
@@ -16,6 +15,7 @@ from typing import Any, Mapping, Sequence
 
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.build.plan import MaterialJob, ProgressCallback
+from bcfpipe.formats.material import BuildJob
 from bcfpipe.scan.texture_sets import local_file
 
 
@@ -125,26 +125,14 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
         prof, cfg = make_config(ts, profile=mj.profile, preset=mj.preset, device=device, seed=mj.seed,
                                 hidden=mj.hidden, signed=mj.signed, wrap=mj.wrap, threads=max(1, threads),
                                 init=mj.init)
-        extra = {"bcfpipe_build": {"job": mj.name, "materials": list(mj.materials),
-                                   "content_hash": mj.content_hash}}
-        res, _ = fit_material(ts, out_dir, cfg, prof, progress, extra)
-        _restore_sources(Path(out_dir) / "material.json", {v: k for k, v in local.items() if v != k})
+        build_job = BuildJob(mj.name, tuple(mj.materials), mj.content_hash)
+        res, _ = fit_material(ts, out_dir, cfg, prof, progress, build_job,
+                              sources={v: k for k, v in local.items() if v != k})
         d = res.to_dict()
         d.pop("out", None)
         return JobResult(mj.name, "built", None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
-
-
-def _restore_sources(desc_path: Path, originals: Mapping[str, str]) -> None:
-    """Name packaged textures by their package path in material.json, not by the temporary copy."""
-    if not originals or not desc_path.exists():
-        return
-    desc = json.loads(desc_path.read_text())
-    for out in desc.get("outputs", []):
-        if out.get("source") in originals:
-            out["source"] = originals[out["source"]]
-    desc_path.write_text(json.dumps(desc, indent=2) + "\n")
 
 
 def _drain(queue, progress: ProgressCallback | None) -> None:

@@ -19,10 +19,6 @@ if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
     from bcfpipe.scan.stage import StageScan
 
 
-BUILD_FORMAT = "bcfpipe-build"
-BUILD_FORMAT_VERSION = 1
-MANIFEST = "manifest.json"
-WEIGHTS = "weights.bin"
 OVERRIDES = "overrides.usda"
 MATERIALS_DIR = "materials"
 

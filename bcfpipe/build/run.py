@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import concurrent.futures as cf
-import json
 import os
 import shutil
 import time
@@ -16,7 +15,8 @@ from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAUL
 from bcfpipe.errors import EXIT_OK
 from bcfpipe.build.assemble import assemble, default_out
 from bcfpipe.build.executor import execute
-from bcfpipe.build.plan import BUILD_FORMAT, BuildError, BuildPlan, MANIFEST, MATERIALS_DIR, ProgressCallback, plan
+from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
+from bcfpipe.build.plan import BuildError, BuildPlan, MATERIALS_DIR, ProgressCallback, plan
 from bcfpipe.scan.texture_sets import package_split
 
 
@@ -26,12 +26,12 @@ class BuildResult:
 
     out: Path
     root_layer: Path
-    manifest: dict
+    manifest: Manifest
     plan: BuildPlan
 
     @property
     def exit_code(self) -> int:
-        return int(self.manifest["exit_code"])
+        return self.manifest.exit_code
 
     @property
     def ok(self) -> bool:
@@ -39,7 +39,7 @@ class BuildResult:
 
     @property
     def failed(self) -> list[str]:
-        return [m["path"] for m in self.manifest["materials"] if m["status"] == "failed"]
+        return self.manifest.failed()
 
 
 def _is_within(path: Path, folder: Path) -> bool:
@@ -47,13 +47,6 @@ def _is_within(path: Path, folder: Path) -> bool:
         path.resolve().relative_to(folder.resolve())
         return True
     except ValueError:
-        return False
-
-
-def _is_bcf_output(folder: Path) -> bool:
-    try:
-        return json.loads((folder / MANIFEST).read_text()).get("format") == BUILD_FORMAT
-    except (OSError, ValueError, AttributeError):
         return False
 
 
@@ -67,7 +60,7 @@ def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike]) -> No
         return
     if not out.is_dir():
         raise BuildError(f"output {out} exists and is not a folder")
-    if force or _is_bcf_output(out) or not any(out.iterdir()):
+    if force or is_manifest(out) or not any(out.iterdir()):
         return
     raise BuildError(f"output folder {out} exists and was not written by bcfpipe (no {MANIFEST}); "
                      "use --force to replace it")
@@ -124,4 +117,4 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return BuildResult(out_path, out_path / manifest["root_layer"], manifest, bplan)
+    return BuildResult(out_path, out_path / manifest.root_layer, manifest, bplan)

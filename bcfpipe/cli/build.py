@@ -9,8 +9,8 @@ table, or with ``--json`` the manifest as one JSON object, goes to stdout.
 """
 from __future__ import annotations
 
-import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -20,6 +20,7 @@ from rich.table import Table
 from rich.text import Text
 
 from bcfpipe.cli.errors import Command
+from bcfpipe.formats.manifest import Manifest
 from bcfpipe.cli.options import all_materials_option, training_options, variant_option
 
 __all__ = ["build", "BuildDisplay", "summary_table"]
@@ -110,29 +111,26 @@ class BuildDisplay:
         return t
 
 
-def summary_table(manifest: dict) -> Table:
+def summary_table(manifest: Manifest) -> Table:
     """The end-of-run table: one row per material, then totals."""
-    tot = manifest["totals"]
-    t = Table(title=f"bcfpipe build: {manifest['root_layer']}", title_justify="left",
-              caption=(f"{tot['built']} built, {tot['failed']} failed, {tot['skipped']} skipped; "
-                       f"{tot['trained']} texture set(s) trained in {tot['wall_seconds']:.1f}s wall; "
-                       f"{_fmt_size(tot['total_bytes'])} (sources {_fmt_size(tot['source_bytes'])})"),
+    tot = manifest.totals
+    t = Table(title=f"bcfpipe build: {manifest.root_layer}", title_justify="left",
+              caption=(f"{tot.built} built, {tot.failed} failed, {tot.skipped} skipped; "
+                       f"{tot.trained} texture set(s) trained in {tot.wall_seconds:.1f}s wall; "
+                       f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)})"),
               caption_justify="left")
     for col in ("material", "status", "targets", "profile", "PSNR", "size", "train", "note"):
         t.add_column(col, overflow="fold", justify="right" if col in ("PSNR", "size", "train") else "left")
     style = {"built": "green", "failed": "red", "skipped": "yellow"}
-    for m in manifest["materials"]:
-        note = m["reason"] or ""
-        if m["status"] == "built" and m["shared_with"]:
-            note = f"shared: {m['job']} x{len(m['shared_with']) + 1}"
-        if m["status"] == "skipped":
-            note = m["reason"]
-        targets = len(m["targets"]) if m["targets"] else ""
-        psnr = f"{m['metrics']['psnr']:.2f}" if m.get("metrics") else ""
-        size = _fmt_size(m["sizes"]["total_bytes"]) if m.get("sizes") else ""
-        train = f"{m['train_seconds']:.1f}s" if m["status"] == "built" and m.get("train_seconds") else ""
-        t.add_row(m["path"], Text(m["status"], style=style.get(m["status"], "")), str(targets),
-                  m.get("profile") or "", psnr, size, train, note)
+    for m in manifest.materials:
+        note = m.reason or ""
+        if m.status == "built" and m.shared_with:
+            note = f"shared: {m.job} x{len(m.shared_with) + 1}"
+        psnr = f"{m.metrics.psnr:.2f}" if m.metrics and m.metrics.psnr is not None else ""
+        size = _fmt_size(m.sizes.total_bytes) if m.sizes else ""
+        train = f"{m.train_seconds:.1f}s" if m.status == "built" and m.train_seconds else ""
+        t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(len(m.targets) or ""),
+                  m.profile or "", psnr, size, train, note)
     return t
 
 
@@ -181,10 +179,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
                                  to_stderr=as_json)
         code = max(code, 0 if verify_code == 0 else 1)
     if as_json:
-        manifest = dict(result.manifest)
-        if verify_code is not None:
-            manifest["verify_exit_code"] = verify_code
-        click.echo(json.dumps(manifest, indent=2))
+        click.echo(replace(result.manifest, verify_exit_code=verify_code).dumps(), nl=False)
     elif not quiet:
         probe = Console()
         out = probe if probe.is_terminal else Console(width=160)  # pipes/logs: do not wrap at 80 columns

@@ -10,12 +10,16 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING, Sequence
 
 import click
 import numpy as np
 
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import InputError
+
+if TYPE_CHECKING:
+    from bcfpipe.formats.material import Output
 
 __all__ = ["decode", "decode_material", "select_target", "write_images"]
 
@@ -114,24 +118,24 @@ def _is_8bit(source: str | None, cache: dict) -> bool:
     return cache[source]
 
 
-def write_images(img: np.ndarray, outputs: list[dict], out_dir: Path) -> list[Path]:
+def write_images(img: np.ndarray, outputs: Sequence[Output], out_dir: Path) -> list[Path]:
     """One file per semantic group of ``outputs`` (material.json order, normal z included)."""
     import OpenImageIO as oiio
 
     out_dir.mkdir(parents=True, exist_ok=True)
     groups: dict[str, list[int]] = {}
     for i, o in enumerate(outputs):
-        groups.setdefault(o["semantic"], []).append(i)
+        groups.setdefault(o.semantic, []).append(i)
     cache: dict = {}
     written = []
     for sem, idx in groups.items():
         data = img[..., idx].astype(np.float32)
-        kind = outputs[idx[0]]["kind"]
+        kind = outputs[idx[0]].kind
         if kind == "normal":
             data = data * 0.5 + 0.5
         if data.shape[-1] == 2:  # e.g. a two-channel generic: pad to RGB
             data = np.concatenate([data, np.zeros_like(data[..., :1])], -1)
-        sources = [outputs[i].get("source") for i in idx]
+        sources = [outputs[i].source for i in idx]
         eight = any(sources) and all(_is_8bit(src, cache) for src in sources)
         path = out_dir / f"{sem}.{'png' if eight else 'exr'}"
         h, w, c = data.shape

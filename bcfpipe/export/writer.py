@@ -4,21 +4,21 @@ Folder layout (``material.json`` describes it completely for consumers that do n
   T0.dds .. T3.dds   mipmapped BC6H feature layers (mode 11110 blocks), DX10 header
   weights.bin        the decoder as one BCFW v1 fp16 record (see bcfpipe.decoder)
   decoder.onnx       the decoder with output post-processing: features (N, 12) -> channels (N, c_out)
-  material.json      everything needed to decode
+  material.json      everything needed to decode (bcfpipe.formats.material, schemas/material.schema.json)
 """
 from __future__ import annotations
 
 import hashlib
-import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 import torch
 
-from bcfpipe import __version__
 from bcfpipe.formats import dds
+from bcfpipe.formats import material as mf
 from bcfpipe.model import neural as M
 from bcfpipe.bc6h import decode as bc6h_decode
 from bcfpipe.bc6h import mode10
@@ -27,40 +27,28 @@ from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_byte
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.texset.texture_set import Channel, semantic_info
 
-FORMAT = "bcfpipe-material"
-FORMAT_VERSION = 1
-DESCRIPTION = "material.json"
-WEIGHTS = "weights.bin"
-ONNX = "decoder.onnx"
-
-
-def layer_file(i: int) -> str:
-    return f"T{i}.dds"
-
-
-def output_channels(channels: tuple[Channel, ...]) -> list[dict]:
-    """Decoder outputs in order, with their UsdPreviewSurface targets; normal z follows normal y."""
+def output_channels(channels: tuple[Channel, ...], sources: Mapping[str, str] | None = None) -> tuple[mf.Output, ...]:
+    """Decoder outputs in order, with their UsdPreviewSurface targets; normal z follows normal y.
+    ``sources`` renames source files (a packaged texture's temporary copy -> its package path)."""
+    sources = sources or {}
     out = []
     for ch in channels:
         usd = semantic_info(ch.semantic).usd_input
         comp = ch.component
         target = None if usd is None else (usd if semantic_info(ch.semantic).channels == 1 else f"{usd}.{comp}")
         lo, hi = ch.value_range
-        out.append({"name": ch.name, "semantic": ch.semantic, "component": comp, "kind": ch.kind,
-                    "usd_target": target, "range": [lo, hi], "source": ch.source,
-                    "source_channel": ch.source_channel, "reconstructed": False})
+        out.append(mf.Output(ch.name, ch.semantic, comp, ch.kind, target, (lo, hi), sources.get(ch.source, ch.source),
+                             ch.source_channel, reconstructed=False))
         if ch.kind == "normal" and comp == "y":
-            out.append({"name": f"{ch.semantic}.z", "semantic": ch.semantic, "component": "z", "kind": "normal",
-                        "usd_target": "normal.z", "range": [0.0, 1.0], "source": None, "source_channel": None,
-                        "reconstructed": True})
-    return out
+            out.append(mf.Output(f"{ch.semantic}.z", ch.semantic, "z", "normal", "normal.z", (0.0, 1.0), None, None,
+                                 reconstructed=True))
+    return tuple(out)
 
 
-_atomic_write = atomic_write
-
-
-def export(tm, out_dir: str | os.PathLike, extra: dict | None = None) -> Path:
-    """Write a trained material (``bcfpipe.train.TrainedMaterial``) into ``out_dir``."""
+def export(tm, out_dir: str | os.PathLike, build_job: mf.BuildJob | None = None,
+           sources: Mapping[str, str] | None = None) -> Path:
+    """Write a trained material (``bcfpipe.train.TrainedMaterial``) into ``out_dir``; material.json
+    last, so a folder with one is complete. ``build_job`` is recorded when a build trained it."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     mc: ModelConfig = tm.config.model
@@ -69,42 +57,30 @@ def export(tm, out_dir: str | os.PathLike, extra: dict | None = None) -> Path:
     for i, layer in enumerate(tm.layers):
         levels = [(mode10.pack(bl.endpoints, bl.indices, bl.partition, signed=mc.signed), bl.size, bl.size)
                   for bl in layer]
-        dds.write(out / layer_file(i), levels, signed=mc.signed)
-        layers.append({"file": layer_file(i), "resolution": mc.resolutions[i], "mip_count": len(layer),
-                       "lod_bias": tm.lod_biases[i], "channels": 3})
+        dds.write(out / mf.layer_file(i), levels, signed=mc.signed)
+        layers.append(mf.Layer(mf.layer_file(i), mc.resolutions[i], len(layer), tm.lod_biases[i]))
     record = to_bytes(tm.mlp)
-    _atomic_write(out / WEIGHTS, record)
-    _atomic_write(out / ONNX, to_onnx(tm.mlp, tm.kinds).SerializeToString())
+    atomic_write(out / mf.WEIGHTS, record)
+    atomic_write(out / mf.ONNX, to_onnx(tm.mlp, tm.kinds).SerializeToString())
     n_in, hidden, n_out = tm.mlp.dims
-    desc = {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "bcfpipe_version": __version__,
-        "layers": layers,
-        "bc6h": {"dxgi_format": dds.DXGI_FORMAT_BC6H_SF16 if mc.signed else dds.DXGI_FORMAT_BC6H_UF16,
-                 "signed": mc.signed, "block_mode": "11110 (two regions, 6-bit endpoints, 3-bit indices)"},
-        "sampling": {
-            "addressing": mc.wrap, "filter": "trilinear (LINEAR_MIPMAP_LINEAR), lod clamped to [0, mip_count-1]",
-            "uv": "u along width, v along height; v = 0 is the first stored row (for USD st use v = 1 - t)",
-            "lod": "s_i = s + lod_bias_i, with s = log2 of the pixel footprint in reference texels",
-        },
-        "reference": {"width": ts.width, "height": ts.height,
-                      "mip_count": max(ts.width, ts.height).bit_length()},
-        "mlp": {"weights": WEIGHTS, "offset": 0, "size_bytes": len(record), "n_in": n_in, "n_hidden": hidden,
-                "n_out": n_out, "activation": "relu", "precision": "fp16", "record": "BCFW v1",
-                "input_order": [f"T{i}.{c}" for i in range(N_LAYERS) for c in "rgb"],
-                "out_scale": tm.mlp.out_scale.tolist(), "out_bias": tm.mlp.out_bias.tolist()},
-        "outputs": output_channels(ts.channels),
-        "onnx": {"file": ONNX, "input": ONNX_INPUT, "output": ONNX_OUTPUT, "opset": 17},
-        "training": {"profile_resolutions": list(mc.resolutions), "preset": tm.config.preset_name,
-                     "seed": tm.config.seed, "device": tm.config.device,
-                     "phase_seconds": {k: round(v, 3) for k, v in tm.phase_seconds.items()}},
-    }
-    if extra:
-        desc.update(extra)
+    desc = mf.MaterialFile(
+        layers=tuple(layers),
+        bc6h=mf.BC6H(dds.DXGI_FORMAT_BC6H_SF16 if mc.signed else dds.DXGI_FORMAT_BC6H_UF16, mc.signed,
+                     mode10.DESCRIPTION),
+        sampling=mf.Sampling(mc.wrap),
+        reference=mf.Reference(ts.width, ts.height, max(ts.width, ts.height).bit_length()),
+        mlp=mf.Mlp(mf.WEIGHTS, 0, len(record), n_in, hidden, n_out, "relu", "fp16", "BCFW v1",
+                   tuple(f"T{i}.{c}" for i in range(N_LAYERS) for c in "rgb"),
+                   tuple(tm.mlp.out_scale.tolist()), tuple(tm.mlp.out_bias.tolist())),
+        outputs=output_channels(ts.channels, sources),
+        onnx=mf.Onnx(mf.ONNX, ONNX_INPUT, ONNX_OUTPUT, 17),
+        training=mf.Training(tuple(mc.resolutions), tm.config.preset_name, tm.config.seed, tm.config.device,
+                             {k: round(v, 3) for k, v in tm.phase_seconds.items()}),
+        bcfpipe_build=build_job)
     # digests let `bcfpipe verify` detect any changed byte, which a decode comparison cannot
     # (a flipped index bit still decodes identically on every correct decoder)
-    desc["sha256"] = {f: hashlib.sha256((out / f).read_bytes()).hexdigest()
-                      for f in [l["file"] for l in layers] + [WEIGHTS, ONNX]}
-    _atomic_write(out / DESCRIPTION, (json.dumps(desc, indent=2) + "\n").encode())
+    desc = replace(desc, sha256={f: hashlib.sha256((out / f).read_bytes()).hexdigest() for f in desc.files})
+    mf.write(out, desc)
     return out
 
 
@@ -112,38 +88,34 @@ def export(tm, out_dir: str | os.PathLike, extra: dict | None = None) -> Path:
 class ExportedMaterial:
     """An exported material read back from disk: decoded feature levels and the fp16 decoder."""
 
-    desc: dict
+    desc: mf.MaterialFile
     levels: list[list[np.ndarray]]  # per layer, per mip: (H, W, 3) float32 decoded by bcfpipe.bc6h.decode
     weights: MlpWeights
     onnx_path: Path
 
     @property
     def kinds(self) -> tuple[str, ...]:
-        return tuple(o["kind"] for o in self.desc["outputs"] if not o["reconstructed"])
+        return self.desc.kinds
 
     @property
     def lod_biases(self) -> tuple[float, ...]:
-        return tuple(layer["lod_bias"] for layer in self.desc["layers"])
+        return self.desc.lod_biases
 
     @property
     def wrap(self) -> str:
-        return self.desc["sampling"]["addressing"]
+        return self.desc.wrap
 
 
 def load(folder: str | os.PathLike) -> ExportedMaterial:
     """Read an exported material folder back (DDS through bcfpipe.bc6h.decode, fp16 weights)."""
     folder = Path(folder)
-    desc = json.loads((folder / DESCRIPTION).read_text())
-    if desc.get("format") != FORMAT:
-        raise ValueError(f"{folder / DESCRIPTION}: not a bcfpipe material description")
+    desc = mf.read(folder)
     levels = []
-    for layer in desc["layers"]:
-        tex = dds.read(folder / layer["file"])
+    for layer in desc.layers:
+        tex = dds.read(folder / layer.file)
         levels.append([bc6h_decode(b, w, h, signed=tex.signed).astype(np.float32) for b, w, h in tex.levels])
-    m = desc["mlp"]
-    data = (folder / m["weights"]).read_bytes()
-    weights, _ = from_bytes(data, m.get("offset", 0))
-    return ExportedMaterial(desc, levels, weights, folder / desc["onnx"]["file"])
+    weights, _ = from_bytes((folder / desc.mlp.weights).read_bytes(), desc.mlp.offset)
+    return ExportedMaterial(desc, levels, weights, folder / desc.onnx.file)
 
 
 def sample_exported_features(em: ExportedMaterial, uv: np.ndarray, s: float | np.ndarray) -> np.ndarray:

@@ -110,27 +110,6 @@ def init_mlp(n_in: int, hidden: int, n_out: int, gen: torch.Generator, device: t
     return p
 
 
-def _floor_ste(v: torch.Tensor) -> torch.Tensor:
-    return v + (torch.floor(v) - v).detach()
-
-
-def decode_texels(ea: torch.Tensor, eb: torch.Tensor, x: torch.Tensor, signed: bool,
-                  quantized: bool = False) -> torch.Tensor:
-    """BC6H mode-11110 decode of single texels from their subset's endpoints ``ea``, ``eb`` (M, 3)
-    and continuous index ``x`` (M,): the same arithmetic as ``emulate.decode_blocks``, per texel.
-    ``quantized`` rounds endpoints and indices straight-through (quantization-aware training)."""
-    ua = emulate.unquantize(ea, signed=signed, quantized=quantized)
-    ub = emulate.unquantize(eb, signed=signed, quantized=quantized)
-    wgt = emulate.index_weight(x, quantized=quantized).unsqueeze(1)
-    v = _floor_ste((ua * (64.0 - wgt) + ub * wgt + 32.0) / 64.0)
-    if signed:
-        f = v * (31.0 / 32.0)
-        f = f + (torch.trunc(f) - f).detach()
-    else:
-        f = _floor_ste(v * (31.0 / 64.0))
-    return emulate.half_from_bits(f)
-
-
 def free_tap_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: float | None = None) -> TapFn:
     lo, hi = endpoint_range(signed, max_feature)
 
@@ -158,7 +137,7 @@ def block_tap_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
             m = b["mask"][blk, pos].unsqueeze(1)
             ea = torch.where(m, e[:, 2], e[:, 0])
             eb = torch.where(m, e[:, 3], e[:, 1])
-            return decode_texels(ea, eb, b["x"][blk, pos], cfg.signed, quantized())
+            return emulate.decode_texels(ea, eb, b["x"][blk, pos], cfg.signed, quantized())
         return texels
     return fn
 

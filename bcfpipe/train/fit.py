@@ -5,8 +5,10 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Mapping
 
 from bcfpipe.export import writer as E
+from bcfpipe.formats import material as mf
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE, DEFAULT_SEED, FEATURE_INITS, ModelConfig, PRESETS, TrainConfig, resolve_profile)
 from bcfpipe.verify.metrics import Metrics, compute_metrics
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
@@ -62,14 +64,16 @@ def make_config(ts: TextureSet, profile: str = DEFAULT_PROFILE, preset: str = DE
 
 
 def exported_size(out_dir: Path) -> int:
-    return sum((out_dir / f).stat().st_size for f in (*(E.layer_file(i) for i in range(4)), E.WEIGHTS))
+    return sum((out_dir / f).stat().st_size for f in (*(mf.layer_file(i) for i in range(4)), mf.WEIGHTS))
 
 
 def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
-                 progress: ProgressFn | None = None, extra: dict | None = None) -> tuple[MaterialResult, TrainedMaterial]:
-    """Train on ``ts``, export to ``out_dir``, then evaluate the exported files."""
+                 progress: ProgressFn | None = None, build_job: mf.BuildJob | None = None,
+                 sources: Mapping[str, str] | None = None) -> tuple[MaterialResult, TrainedMaterial]:
+    """Train on ``ts``, export to ``out_dir``, then evaluate the exported files. ``build_job`` and
+    ``sources`` (loaded path -> recorded name) go into material.json (:func:`bcfpipe.export.writer.export`)."""
     tm = train(ts, cfg, progress)
-    out = E.export(tm, out_dir, extra)
+    out = E.export(tm, out_dir, build_job, sources)
     t0 = time.perf_counter()
     ref = build_mip_chain(ts.data)
     em = E.load(out)

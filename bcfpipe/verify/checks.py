@@ -4,8 +4,8 @@ For every material (one exported folder, or every material of a build) the check
 
 ``files``      material.json agrees with the DDS headers (size, mip count, BC6H signedness) and the
                weight record (dimensions, output count); every block uses the declared BC6H mode.
-``integrity``  SHA-256 of each file, when material.json (``"sha256": {file: hex}``, written by
-               :func:`record_digests`) or the build manifest records them; "not recorded" otherwise.
+``integrity``  SHA-256 of each file against material.json's ``sha256`` (the exporter records them);
+               "not recorded" for a material.json without them.
 ``weights``    the fp16 record the runtime reads (the material's weights.bin, or the build's combined
                buffer at the material's offset) holds exactly the values of decoder.onnx.
 ``openimageio`` OpenImageIO reads every mip of every DDS to the same fp16 bits as bcfpipe.bc6h.decode.
@@ -51,7 +51,6 @@ Exit codes (verify_cli): 0 all checks passed, 1 a check failed, 2 bad input or n
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,7 +59,11 @@ from typing import Sequence
 import numpy as np
 
 from bcfpipe.errors import InputError
+from bcfpipe.bc6h import mode10
 from bcfpipe.formats import dds
+from bcfpipe.formats import manifest as mfst
+from bcfpipe.formats import material as mf
+from bcfpipe.formats.record import FormatError
 from bcfpipe.export import writer as E
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes
 from bcfpipe.verify.glsl import GLRuntime, GLUnavailable, MaterialDesc, read_material
@@ -68,9 +71,6 @@ from bcfpipe.verify.glsl import GLRuntime, GLUnavailable, MaterialDesc, read_mat
 FILTER_BITS = 8
 FP32_ULP = 2.0 ** -23
 TARGET = 2e-3
-MANIFEST = "manifest.json"
-DIGEST_KEY = "sha256"
-MODE_11110 = 10  # BC6H spec mode number of the '11110' blocks bcfpipe exports
 
 
 class VerifyInputError(InputError):
@@ -81,10 +81,9 @@ class VerifyInputError(InputError):
 
 @dataclass
 class Target:
-    """One material to verify: its description, and digests the build recorded (if any)."""
+    """One material to verify, and every name (prim path) that uses it."""
 
     desc: MaterialDesc
-    digests: dict[str, str] = field(default_factory=dict)
     aliases: list[str] = field(default_factory=list)  # every name (prim path) that uses it
 
 
@@ -96,78 +95,25 @@ def sha256_file(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
-def material_files(desc: dict) -> list[str]:
-    return [layer["file"] for layer in desc["layers"]] + [desc["mlp"]["weights"], desc["onnx"]["file"]]
-
-
-def record_digests(folder: str | os.PathLike) -> dict[str, str]:
-    """Add ``"sha256": {file: hex}`` for every file of the material to its material.json (what the
-    exporter should do as its last step); returns the digests."""
-    folder = Path(folder)
-    path = folder / E.DESCRIPTION
-    desc = json.loads(path.read_text())
-    digests = {f: sha256_file(folder / f) for f in material_files(desc)}
-    desc[DIGEST_KEY] = digests
-    path.write_text(json.dumps(desc, indent=2) + "\n")
-    return digests
-
-
-def _first(d: dict, *keys, default=None):
-    for k in keys:
-        if isinstance(d, dict) and d.get(k) is not None:
-            return d[k]
-    return default
-
-
-def _manifest_targets(root: Path, manifest: dict) -> list[Target]:
-    """Built materials listed in a build manifest (bcfpipe.pipeline): each entry's ``outputs`` gives
-    its ``folder`` and its record in the combined buffer (``weights_offset``, or ``weights_index``
-    into the BCFB table); materials sharing one trained folder and record are verified once (the
-    others are kept as aliases). Entries whose status is not ``built`` are skipped."""
-    mats = manifest.get("materials")
-    if isinstance(mats, dict):
-        mats = [dict(v, path=v.get("path", k)) for k, v in mats.items() if isinstance(v, dict)]
-    if not isinstance(mats, list):
-        raise VerifyInputError(f"{root / MANIFEST}: no 'materials' list")
-    wfile = manifest.get("weights")
-    combined = root / (wfile if isinstance(wfile, str) else "weights.bin")
-    table = None
-    if combined.is_file():
-        from bcfpipe.formats import weights as weightsbuf
-
-        try:
-            table = weightsbuf.unpack(combined.read_bytes())
-        except ValueError as ex:
-            raise VerifyInputError(f"{combined}: {ex}") from None
+def _manifest_targets(root: Path, manifest: mfst.Manifest) -> list[Target]:
+    """The built materials of a build manifest, each decoded with its record in the combined
+    weights.bin; materials sharing one trained folder and record are verified once (the others
+    are kept as aliases)."""
+    combined = root / manifest.weights
     by_key: dict[tuple, Target] = {}
-    for e in mats:
-        if not isinstance(e, dict) or e.get("status", "built") != "built":
-            continue
-        out = e.get("outputs") if isinstance(e.get("outputs"), dict) else e
-        folder = _first(out, "folder", "dir")
-        if folder is None:
-            continue
-        folder = root / folder
-        if not (folder / E.DESCRIPTION).is_file():
-            raise VerifyInputError(f"{root / MANIFEST} lists {folder}, which has no {E.DESCRIPTION}")
-        offset = _first(out, "weights_offset", "weightsOffset")
-        index = _first(out, "weights_index", "weightsIndex")
-        if offset is None and index is not None and table is not None and int(index) < len(table):
-            offset = table[int(index)].offset
-        if offset is not None and not combined.is_file():
-            raise VerifyInputError(f"{root / MANIFEST} points into {combined}, which is missing")
-        name = str(_first(e, "path", "prim", "material", "name", default=folder.name))
-        key = (str(folder.resolve()), offset)
+    for e in manifest.built():
+        if e.outputs is None:
+            raise VerifyInputError(f"{root / mfst.FILE}: built material {e.path} has no outputs")
+        folder = root / e.outputs.folder
+        if not (folder / mf.FILE).is_file():
+            raise VerifyInputError(f"{root / mfst.FILE} lists {folder}, which has no {mf.FILE}")
+        if not combined.is_file():
+            raise VerifyInputError(f"{root / mfst.FILE} points into {combined}, which is missing")
+        key = (str(folder.resolve()), e.outputs.weights_offset)
         if key in by_key:
-            by_key[key].aliases.append(name)
+            by_key[key].aliases.append(e.path)
             continue
-        try:
-            desc = read_material(folder, combined if offset is not None else None,
-                                 int(offset) if offset is not None else None, name=name)
-        except (OSError, KeyError, ValueError) as ex:
-            raise VerifyInputError(f"{folder / E.DESCRIPTION}: {ex}") from None
-        digests = e.get(DIGEST_KEY) if isinstance(e.get(DIGEST_KEY), dict) else {}
-        by_key[key] = Target(desc, dict(digests), [name])
+        by_key[key] = Target(read_material(folder, combined, e.outputs.weights_offset, name=e.path), [e.path])
     return list(by_key.values())
 
 
@@ -178,16 +124,16 @@ def find_targets(path: str | os.PathLike) -> list[Target]:
     if not root.is_dir():
         raise VerifyInputError(f"{root}: not a folder")
     try:
-        if (root / E.DESCRIPTION).is_file():
+        if (root / mf.FILE).is_file():
             return [Target(read_material(root))]
-        if (root / MANIFEST).is_file():  # a build: exactly what it built (possibly nothing)
-            return _manifest_targets(root, json.loads((root / MANIFEST).read_text()))
-        found = sorted({p.parent for pat in ("*/" + E.DESCRIPTION, "*/*/" + E.DESCRIPTION) for p in root.glob(pat)})
+        if (root / mfst.FILE).is_file():  # a build: exactly what it built (possibly nothing)
+            return _manifest_targets(root, mfst.read(root))
+        found = sorted({p.parent for pat in ("*/" + mf.FILE, "*/*/" + mf.FILE) for p in root.glob(pat)})
         targets = [Target(read_material(f, name=str(f.relative_to(root)))) for f in found]
-    except (OSError, KeyError, TypeError, json.JSONDecodeError) as ex:
-        raise VerifyInputError(f"{root}: cannot read the material description: {ex}") from None
+    except FormatError as ex:
+        raise VerifyInputError(str(ex)) from None
     if not targets:
-        raise VerifyInputError(f"{root}: no {E.DESCRIPTION} or {MANIFEST} here or in its subfolders")
+        raise VerifyInputError(f"{root}: no {mf.FILE} or {mfst.FILE} here or in its subfolders")
     return targets
 
 
@@ -423,20 +369,19 @@ def check_files(m: MaterialDesc) -> tuple[Check, list[dds.DdsTexture]]:
         except dds.DdsError as e:
             raise VerifyInputError(str(e)) from None
         texs.append(t)
-        layer = m.desc["layers"][i]
+        layer = m.file.layers[i]
         if t.mip_count != m.mip_counts[i]:
             problems.append(f"{path.name}: {t.mip_count} mips, material.json says {m.mip_counts[i]}")
-        if "resolution" in layer and (t.width, t.height) != (layer["resolution"], layer["resolution"]):
-            problems.append(f"{path.name}: {t.width}x{t.height}, material.json says {layer['resolution']}")
+        if (t.width, t.height) != (layer.resolution, layer.resolution):
+            problems.append(f"{path.name}: {t.width}x{t.height}, material.json says {layer.resolution}")
         if t.signed != m.signed:
             problems.append(f"{path.name}: {t.format_name}, material.json says signed={m.signed}")
-        if str(m.desc.get("bc6h", {}).get("block_mode", "")).startswith("11110"):
-            from bcfpipe.bc6h.decode import block_modes
-
+        if m.file.bc6h.block_mode == mode10.DESCRIPTION:
             for k, (blocks, w, h) in enumerate(t.levels):
-                bad = int((block_modes(blocks) != MODE_11110).sum())
+                bad = int((~mode10.is_mode10(blocks)).sum())
                 if bad:
-                    problems.append(f"{path.name} mip {k}: {bad} block(s) not in the declared mode 11110")
+                    problems.append(f"{path.name} mip {k}: {bad} block(s) not in the declared mode "
+                                    f"{mode10.MODE_VALUE:05b}")
     try:
         data = m.weights_file.read_bytes()
         w, size = from_bytes(data, m.weight_offset)
@@ -445,9 +390,8 @@ def check_files(m: MaterialDesc) -> tuple[Check, list[dds.DdsTexture]]:
     n_in, hidden, n_out = w.dims
     if n_in != 3 * len(m.layer_files) or n_out != m.n_out:
         problems.append(f"weight record is {n_in}-{hidden}-{n_out}, material.json has {m.n_out} outputs")
-    mlp = m.desc.get("mlp", {})
-    if mlp.get("n_hidden") not in (None, hidden):
-        problems.append(f"weight record has {hidden} hidden units, material.json says {mlp['n_hidden']}")
+    if m.file.mlp.n_hidden != hidden:
+        problems.append(f"weight record has {hidden} hidden units, material.json says {m.file.mlp.n_hidden}")
     return Check("files", not problems, "; ".join(problems) or
                  f"{len(texs)} BC6H layers ({'signed' if m.signed else 'unsigned'}), "
                  f"mips {list(m.mip_counts)}, decoder {n_in}-{hidden}-{n_out}"), texs
@@ -455,8 +399,7 @@ def check_files(m: MaterialDesc) -> tuple[Check, list[dds.DdsTexture]]:
 
 def check_integrity(t: Target) -> Check:
     m = t.desc
-    recorded = dict(m.desc.get(DIGEST_KEY) or {})
-    recorded.update(t.digests)
+    recorded = dict(m.file.sha256 or {})
     if not recorded:
         return Check("integrity", None, "no SHA-256 recorded (material.json has no 'sha256')")
     bad = []
@@ -476,9 +419,9 @@ def check_weights_onnx(m: MaterialDesc) -> Check:
 
     w, _ = from_bytes(m.weights_file.read_bytes(), m.weight_offset)
     try:
-        model = onnx.load(str(m.folder / m.desc["onnx"]["file"]))
+        model = onnx.load(str(m.folder / m.file.onnx.file))
     except Exception as e:  # noqa: BLE001
-        raise VerifyInputError(f"{m.folder / m.desc['onnx']['file']}: {e}") from None
+        raise VerifyInputError(f"{m.folder / m.file.onnx.file}: {e}") from None
     inits = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
     bad = []
     for name, arr in zip(("W1", "b1", "W2", "b2", "out_scale", "out_bias"), w.arrays()):
@@ -489,10 +432,10 @@ def check_weights_onnx(m: MaterialDesc) -> Check:
         diff = int((o.astype(np.float32) != arr).sum())
         if diff:
             bad.append(f"{name}: {diff} value(s) differ")
-    if m.weights_file != m.folder / m.desc["mlp"]["weights"]:
-        own = (m.folder / m.desc["mlp"]["weights"])
+    if m.weights_file != m.folder / m.file.mlp.weights:
+        own = m.folder / m.file.mlp.weights
         if own.is_file():
-            w_own, _ = from_bytes(own.read_bytes(), int(m.desc["mlp"].get("offset", 0)))
+            w_own, _ = from_bytes(own.read_bytes(), m.file.mlp.offset)
             if any((a != b).any() for a, b in zip(w.arrays(), w_own.arrays())):
                 bad.append(f"record at byte {m.weight_offset} of {m.weights_file.name} differs from {own}")
     where = f"{m.weights_file.name}@{m.weight_offset}"
@@ -556,7 +499,7 @@ def check_glsl(rt: GLRuntime, m: MaterialDesc, em: E.ExportedMaterial, tolerance
         tol = np.full(ref.shape, float(tolerance))
     err = np.abs(gl.astype(np.float64) - ref.astype(np.float64))
     err = np.where(np.isnan(err), np.inf, err)  # a NaN from GL (invalid record) always fails
-    names = [o["name"] for o in m.outputs]
+    names = [o.name for o in m.outputs]
     channels = []
     for c in range(ref.shape[1]):
         worst = int(np.argmax(err[:, c]))

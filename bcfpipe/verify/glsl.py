@@ -12,9 +12,8 @@ context is headless (EGL): Mesa llvmpipe where there is no GPU, the GPU's EGL dr
 from __future__ import annotations
 
 import ctypes
-import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -22,6 +21,7 @@ import numpy as np
 
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds
+from bcfpipe.formats import material as mf
 
 GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT = 0x8E8E
 GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT = 0x8E8F
@@ -74,24 +74,52 @@ def assemble(stage: str, defines: dict[str, object] | None = None, version: str 
     return "\n".join(parts)
 
 
-@dataclass
+@dataclass(frozen=True)
 class MaterialDesc:
-    """What the runtime needs from material.json (and, for a build, the combined weight buffer)."""
+    """A material as the runtime loads it: its material.json, and where its weight record lives
+    (its own weights.bin, or its record in a build's combined buffer)."""
 
     folder: Path
     name: str
-    layer_files: list[Path]
-    lod_biases: tuple[float, ...]
-    mip_counts: tuple[int, ...]
-    wrap: str
-    signed: bool
-    ref_size: tuple[int, int]
-    normal_index: int  # among the model outputs (before normal z), -1 if none
-    n_out: int  # model outputs
+    file: mf.MaterialFile
     weights_file: Path
     weight_offset: int
-    outputs: list[dict] = field(default_factory=list)  # material.json outputs (after normal z)
-    desc: dict = field(default_factory=dict)
+
+    @property
+    def layer_files(self) -> list[Path]:
+        return [self.folder / layer.file for layer in self.file.layers]
+
+    @property
+    def lod_biases(self) -> tuple[float, ...]:
+        return self.file.lod_biases
+
+    @property
+    def mip_counts(self) -> tuple[int, ...]:
+        return self.file.mip_counts
+
+    @property
+    def wrap(self) -> str:
+        return self.file.wrap
+
+    @property
+    def signed(self) -> bool:
+        return self.file.signed
+
+    @property
+    def ref_size(self) -> tuple[int, int]:
+        return self.file.reference.width, self.file.reference.height
+
+    @property
+    def normal_index(self) -> int:
+        return self.file.normal_index
+
+    @property
+    def n_out(self) -> int:
+        return len(self.file.kinds)
+
+    @property
+    def outputs(self) -> tuple[mf.Output, ...]:
+        return self.file.outputs
 
     @property
     def c_out(self) -> int:
@@ -100,25 +128,14 @@ class MaterialDesc:
 
 def read_material(folder: str | os.PathLike, weights_file: str | os.PathLike | None = None,
                   weight_offset: int | None = None, name: str | None = None) -> MaterialDesc:
-    """Parse ``folder/material.json``. ``weights_file``/``weight_offset`` point at a combined
+    """Read ``folder/material.json``. ``weights_file``/``weight_offset`` point at a combined
     weight buffer (a build) instead of the material's own record."""
     folder = Path(folder)
-    desc = json.loads((folder / "material.json").read_text())
-    kinds = [o["kind"] for o in desc["outputs"] if not o.get("reconstructed")]
-    normal = next((i for i, k in enumerate(kinds) if k == "normal"), -1)
-    layers = desc["layers"]
-    ref = desc["reference"]
-    mlp = desc["mlp"]
+    desc = mf.read(folder)
     return MaterialDesc(
-        folder=folder, name=name or folder.name,
-        layer_files=[folder / layer["file"] for layer in layers],
-        lod_biases=tuple(float(layer["lod_bias"]) for layer in layers),
-        mip_counts=tuple(int(layer["mip_count"]) for layer in layers),
-        wrap=desc["sampling"]["addressing"], signed=bool(desc["bc6h"]["signed"]),
-        ref_size=(int(ref["width"]), int(ref["height"])), normal_index=normal, n_out=len(kinds),
-        weights_file=Path(weights_file) if weights_file is not None else folder / mlp["weights"],
-        weight_offset=int(weight_offset if weight_offset is not None else mlp.get("offset", 0)),
-        outputs=list(desc["outputs"]), desc=desc)
+        folder=folder, name=name or folder.name, file=desc,
+        weights_file=Path(weights_file) if weights_file is not None else folder / desc.mlp.weights,
+        weight_offset=int(weight_offset if weight_offset is not None else desc.mlp.offset))
 
 
 @dataclass

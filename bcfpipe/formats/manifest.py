@@ -1,0 +1,259 @@
+"""``manifest.json``: what a ``bcfpipe build`` wrote, material by material.
+
+The contract is this module's records and schemas/manifest.schema.json, which says what each key
+means. The only writer is :func:`bcfpipe.build.assemble.assemble`; readers (``bcfpipe verify``,
+re-runs of ``bcfpipe build``) go through :func:`read`. Paths are relative to the build folder.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from bcfpipe.formats.atomic import atomic_write
+from bcfpipe.formats.record import Record, optional, read as read_record
+
+FORMAT = "bcfpipe-build"
+FORMAT_VERSION = 1
+FILE = "manifest.json"
+WEIGHTS = "weights.bin"
+
+STATUSES = ("built", "failed", "skipped")
+
+
+@dataclass(frozen=True)
+class Source(Record):
+    """A texture file a material reads: ``file`` relative to the build folder (or package.usdz[inner])."""
+
+    file: str
+    asset_path: str
+    xxh3_128: str
+    size_bytes: int
+    width: int
+    height: int
+    channels: int
+    format: str
+    color_space: str
+    resolved_color_space: str
+
+
+@dataclass(frozen=True)
+class Target(Record):
+    """A UsdPreviewSurface input channel and the decoder output ``channel`` that drives it."""
+
+    target: str
+    input: str
+    channel: int
+    scale: float
+    bias: float
+    color_space: str
+    source: str | None
+    source_channel: str | None
+
+
+@dataclass(frozen=True)
+class Quality(Record):
+    """bcfpipe.verify.metrics.Metrics of the exported files: PSNR (dB) over the mips counted in the
+    mean and per mip (mip 0 first), per channel group; SSIM and FLIP at mip 0."""
+
+    psnr: float
+    psnr_per_mip: tuple[float, ...]
+    psnr_per_group: dict[str, float]
+    ssim: float | None
+    ssim_per_group: dict[str, float]
+    flip: float | None
+    flip_per_group: dict[str, float]
+    mips_in_mean: int
+
+
+@dataclass(frozen=True)
+class Metrics(Record):
+    """Quality of the exported files (DDS + fp16 decoder through onnxruntime) against the source."""
+
+    psnr: float | None
+    ssim: float | None
+    flip: float | None
+    float_psnr: float | None
+    detail: Quality | None
+
+
+@dataclass(frozen=True)
+class Sizes(Record):
+    """Bytes on disk of a built material, and of the sources it replaces."""
+
+    features_bytes: int
+    weights_bytes: int
+    total_bytes: int
+    source_bytes: int
+
+
+@dataclass(frozen=True)
+class Outputs(Record):
+    """Where a built material's files are: its folder and its record in the combined weights.bin."""
+
+    folder: str
+    weights_index: int
+    weights_offset: int
+    weights_size: int
+
+
+@dataclass(frozen=True)
+class Material(Record):
+    """One material of the scene and what became of it (status built, failed or skipped)."""
+
+    path: str
+    status: str
+    aliases: tuple[str, ...] = ()
+    job: str | None = None
+    reason: str | None = None
+    message: str = ""
+    shared_with: tuple[str, ...] = ()
+    sources: tuple[Source, ...] = ()
+    targets: tuple[Target, ...] = ()
+    metrics: Metrics | None = None
+    sizes: Sizes | None = None
+    outputs: Outputs | None = None
+    profile: str | None = optional()
+    resolutions: tuple[int, ...] | None = optional()
+    train_seconds: float | None = None
+    device: str | None = None
+    warnings: tuple[str, ...] = ()
+
+    _ORDER = ("path", "aliases", "job", "status")
+
+
+@dataclass(frozen=True)
+class Job(Record):
+    """One training run, shared by ``materials``; ``content_hash`` names its inputs and settings."""
+
+    name: str
+    materials: tuple[str, ...]
+    content_hash: str
+    status: str
+    reason: str | None
+    seconds: float | None
+    device: str | None
+    threads: int | None
+    weights_index: int | None
+
+
+@dataclass(frozen=True)
+class WeightsRecord(Record):
+    """One record of the combined weights.bin (bcfpipe.formats.weights)."""
+
+    index: int
+    offset: int
+    size_bytes: int
+    n_hidden: int
+    n_out: int
+    job: str
+
+
+@dataclass(frozen=True)
+class VariantSelection(Record):
+    """A variant selection authored into the root layer."""
+
+    prim: str
+    set: str
+    value: str
+
+
+@dataclass(frozen=True)
+class Options(Record):
+    """The build's training options (bcfpipe.config names them)."""
+
+    profile: str
+    preset: str
+    seed: int
+    device: str
+    hidden: int
+    signed: bool
+    init: str
+
+
+@dataclass(frozen=True)
+class Stage(Record):
+    """Stage metadata carried over to the root layer."""
+
+    up_axis: str
+    meters_per_unit: float
+    default_prim: str | None
+
+
+@dataclass(frozen=True)
+class Totals(Record):
+    """Counts, sizes and times over the whole build."""
+
+    materials: int
+    built: int
+    failed: int
+    skipped: int
+    jobs: int
+    trained: int
+    train_seconds: float
+    wall_seconds: float
+    features_bytes: int
+    weights_bytes: int
+    total_bytes: int
+    source_bytes: int
+
+
+@dataclass(frozen=True)
+class Manifest(Record):
+    """The manifest.json at the top of a build folder."""
+
+    scene: str
+    root_layer: str
+    materials: tuple[Material, ...]
+    overrides_layer: str = "overrides.usda"
+    weights: str = WEIGHTS
+    variants: tuple[tuple[str, ...], ...] = ()
+    variant_selections: tuple[VariantSelection, ...] = ()
+    all_materials: bool = False
+    options: Options | None = None
+    stage: Stage | None = None
+    jobs: tuple[Job, ...] = ()
+    weights_table: tuple[WeightsRecord, ...] = ()
+    totals: Totals | None = None
+    diagnostics: tuple[str, ...] = ()
+    exit_code: int = 0
+    verify_exit_code: int | None = optional()
+    format: str = FORMAT
+    format_version: int = FORMAT_VERSION
+    bcfpipe_version: str = field(default_factory=lambda: _version())
+
+    _ORDER = ("format", "format_version", "bcfpipe_version", "scene", "root_layer", "overrides_layer", "weights",
+              "variants", "variant_selections", "all_materials", "options", "stage", "materials")
+
+    def built(self) -> list[Material]:
+        return [m for m in self.materials if m.status == "built"]
+
+    def failed(self) -> list[str]:
+        return [m.path for m in self.materials if m.status == "failed"]
+
+
+def _version() -> str:
+    from bcfpipe import __version__
+
+    return __version__
+
+
+def read(folder: str | os.PathLike) -> Manifest:
+    """``folder/manifest.json``; a missing, foreign or malformed file raises FormatError."""
+    return read_record(Manifest, Path(folder) / FILE, FORMAT, FORMAT_VERSION)
+
+
+def is_manifest(folder: str | os.PathLike) -> bool:
+    """Whether ``folder`` holds a bcfpipe build manifest (of any version)."""
+    import json
+
+    try:
+        return json.loads((Path(folder) / FILE).read_text()).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def write(folder: str | os.PathLike, manifest: Manifest) -> Path:
+    path = Path(folder) / FILE
+    atomic_write(path, manifest.dumps().encode())
+    return path

@@ -1,0 +1,203 @@
+"""``material.json``: everything a consumer needs to decode one exported material.
+
+The contract is this module's records and schemas/material.schema.json, which says what each key
+means; tests check that the two agree and that every file bcfpipe writes passes the schema. The
+only writer is :func:`bcfpipe.export.writer.export`; every reader goes through :func:`read`.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Mapping
+
+from bcfpipe.formats.atomic import atomic_write
+from bcfpipe.formats.record import Record, optional, read as read_record
+
+FORMAT = "bcfpipe-material"
+FORMAT_VERSION = 1
+FILE = "material.json"
+WEIGHTS = "weights.bin"
+ONNX = "decoder.onnx"
+
+
+def layer_file(i: int) -> str:
+    """File name of feature texture T_i."""
+    return f"T{i}.dds"
+
+
+@dataclass(frozen=True)
+class Layer(Record):
+    """Feature texture T_i: a mipmapped BC6H DDS of ``resolution``², sampled at s + ``lod_bias``."""
+
+    file: str
+    resolution: int
+    mip_count: int
+    lod_bias: float
+    channels: int = 3
+
+
+@dataclass(frozen=True)
+class BC6H(Record):
+    """How the feature textures are block-compressed."""
+
+    dxgi_format: int
+    signed: bool
+    block_mode: str
+
+
+@dataclass(frozen=True)
+class Sampling(Record):
+    """How a decoder samples the feature layers (hardware trilinear filtering)."""
+
+    addressing: str
+    filter: str = "trilinear (LINEAR_MIPMAP_LINEAR), lod clamped to [0, mip_count-1]"
+    uv: str = "u along width, v along height; v = 0 is the first stored row (for USD st use v = 1 - t)"
+    lod: str = "s_i = s + lod_bias_i, with s = log2 of the pixel footprint in reference texels"
+
+
+@dataclass(frozen=True)
+class Reference(Record):
+    """The source texture set's size; s = 0 is its mip 0."""
+
+    width: int
+    height: int
+    mip_count: int
+
+
+@dataclass(frozen=True)
+class Mlp(Record):
+    """The decoder: ``n_in`` features -> ``n_hidden`` ReLU units -> ``n_out`` outputs, then
+    ``out_scale`` * y + ``out_bias`` per output."""
+
+    weights: str
+    offset: int
+    size_bytes: int
+    n_in: int
+    n_hidden: int
+    n_out: int
+    activation: str
+    precision: str
+    record: str
+    input_order: tuple[str, ...]
+    out_scale: tuple[float, ...]
+    out_bias: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Output(Record):
+    """One decoded channel and the UsdPreviewSurface input it feeds; ``reconstructed`` outputs
+    (normal z) are computed by the decoder's post-processing, not by the MLP."""
+
+    name: str
+    semantic: str
+    component: str
+    kind: str
+    usd_target: str | None
+    range: tuple[float, float]
+    source: str | None
+    source_channel: int | None
+    reconstructed: bool
+
+
+@dataclass(frozen=True)
+class Onnx(Record):
+    """The decoder as an ONNX model: features (N, n_in) -> channels (N, outputs)."""
+
+    file: str
+    input: str
+    output: str
+    opset: int
+
+
+@dataclass(frozen=True)
+class Training(Record):
+    """How the material was trained; informative, times vary between runs."""
+
+    profile_resolutions: tuple[int, ...]
+    preset: str
+    seed: int
+    device: str
+    phase_seconds: dict[str, float]
+
+
+@dataclass(frozen=True)
+class BuildJob(Record):
+    """Present when ``bcfpipe build`` trained the material: its job and the materials it serves."""
+
+    job: str
+    materials: tuple[str, ...]
+    content_hash: str
+
+
+@dataclass(frozen=True)
+class MaterialFile(Record):
+    """The material.json of one exported material folder."""
+
+    layers: tuple[Layer, ...]
+    bc6h: BC6H
+    sampling: Sampling
+    reference: Reference
+    mlp: Mlp
+    outputs: tuple[Output, ...]
+    onnx: Onnx
+    training: Training
+    bcfpipe_build: BuildJob | None = optional()
+    sha256: dict[str, str] | None = optional()
+    format: str = FORMAT
+    format_version: int = FORMAT_VERSION
+    bcfpipe_version: str = field(default_factory=lambda: _version())
+
+    _ORDER = ("format", "format_version", "bcfpipe_version")
+
+    @property
+    def signed(self) -> bool:
+        return self.bc6h.signed
+
+    @property
+    def wrap(self) -> str:
+        return self.sampling.addressing
+
+    @property
+    def lod_biases(self) -> tuple[float, ...]:
+        return tuple(layer.lod_bias for layer in self.layers)
+
+    @property
+    def mip_counts(self) -> tuple[int, ...]:
+        return tuple(layer.mip_count for layer in self.layers)
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        """Kinds of the MLP's outputs (reconstructed outputs excluded)."""
+        return tuple(o.kind for o in self.outputs if not o.reconstructed)
+
+    @property
+    def normal_index(self) -> int:
+        """Index of normal x among the MLP's outputs, -1 without a normal map."""
+        return next((i for i, k in enumerate(self.kinds) if k == "normal"), -1)
+
+    @property
+    def files(self) -> list[str]:
+        """Every file of the material besides material.json, in digest order."""
+        return [layer.file for layer in self.layers] + [self.mlp.weights, self.onnx.file]
+
+    def with_sources(self, names: Mapping[str, str]) -> MaterialFile:
+        """The same description with each output's ``source`` renamed through ``names``."""
+        return replace(self, outputs=tuple(replace(o, source=names.get(o.source, o.source)) for o in self.outputs))
+
+
+def _version() -> str:
+    from bcfpipe import __version__
+
+    return __version__
+
+
+def read(folder: str | os.PathLike) -> MaterialFile:
+    """``folder/material.json``; a missing, foreign or malformed file raises FormatError."""
+    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION)
+
+
+def write(folder: str | os.PathLike, desc: MaterialFile) -> Path:
+    path = Path(folder) / FILE
+    atomic_write(path, desc.dumps().encode())
+    return path

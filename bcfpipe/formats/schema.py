@@ -1,0 +1,295 @@
+"""JSON Schemas of material.json and manifest.json, derived from their records.
+
+The records (:mod:`bcfpipe.formats.material`, :mod:`bcfpipe.formats.manifest`) give the keys and
+types; :data:`DESCRIPTIONS` says what each key means. ``python -m bcfpipe.formats.schema`` writes
+schemas/material.schema.json and schemas/manifest.schema.json; a test checks that the committed
+files are what this module generates, and that every file bcfpipe writes validates against them.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import types
+import typing
+from pathlib import Path
+from typing import Any
+
+from bcfpipe.formats import manifest, material
+from bcfpipe.formats.record import _hints, key_order
+
+SCHEMA_DIR = Path(__file__).resolve().parents[2] / "schemas"
+BASE_URI = "https://bcfpipe.dev/schemas/"
+
+# (record, key) -> meaning. Every key of every record has one (a test checks).
+DESCRIPTIONS: dict[tuple[str, str], str] = {
+    # ---------------------------------------------------------------- material.json
+    ("MaterialFile", "format"): "Always \"bcfpipe-material\".",
+    ("MaterialFile", "format_version"): "Version of this contract; a reader refuses versions it does not know.",
+    ("MaterialFile", "bcfpipe_version"): "The bcfpipe release that wrote the file.",
+    ("MaterialFile", "layers"): "The feature textures T_0..T_3, in MLP input order.",
+    ("MaterialFile", "bc6h"): "How the feature textures are compressed.",
+    ("MaterialFile", "sampling"): "How a decoder samples the feature textures (the paper's section 5.2).",
+    ("MaterialFile", "reference"): "The source texture set the material reproduces.",
+    ("MaterialFile", "mlp"): "The decoder network and where its fp16 weights are.",
+    ("MaterialFile", "outputs"): "Decoded channels in output order, normal z included after normal y.",
+    ("MaterialFile", "onnx"): "The decoder as an ONNX model (features in, post-processed channels out).",
+    ("MaterialFile", "training"): "How the material was trained (informative; times vary between runs).",
+    ("MaterialFile", "bcfpipe_build"): "Present when `bcfpipe build` trained the material.",
+    ("MaterialFile", "sha256"): "SHA-256 (hex) of every other file of the material, by file name.",
+    ("Layer", "file"): "DDS file name, relative to the material folder.",
+    ("Layer", "resolution"): "Width and height of mip 0 in texels (square, a power of two).",
+    ("Layer", "mip_count"): "Number of mips stored (down to 4x4, the BC6H block size).",
+    ("Layer", "lod_bias"): "Added to the level of detail s before sampling this layer: s_i = s + lod_bias.",
+    ("Layer", "channels"): "Feature channels (BC6H stores RGB).",
+    ("BC6H", "dxgi_format"): "95 (BC6H_UF16) or 96 (BC6H_SF16).",
+    ("BC6H", "signed"): "Whether the features use the signed BC6H format.",
+    ("BC6H", "block_mode"): "The one BC6H mode every block uses (bcfpipe.bc6h.mode10).",
+    ("Sampling", "addressing"): "Texture addressing of every layer: repeat or clamp (to edge).",
+    ("Sampling", "filter"): "Texture filtering a decoder must use.",
+    ("Sampling", "uv"): "Texture coordinate convention.",
+    ("Sampling", "lod"): "How the level of detail is chosen.",
+    ("Reference", "width"): "Source width in texels; s = 0 samples at this density.",
+    ("Reference", "height"): "Source height in texels.",
+    ("Reference", "mip_count"): "Mips of the source's full chain (down to 1x1).",
+    ("Mlp", "weights"): "File holding the fp16 weight record, relative to the material folder.",
+    ("Mlp", "offset"): "Byte offset of the record in that file.",
+    ("Mlp", "size_bytes"): "Byte size of the record.",
+    ("Mlp", "n_in"): "Inputs: 3 features per layer.",
+    ("Mlp", "n_hidden"): "Hidden units.",
+    ("Mlp", "n_out"): "MLP outputs (normal z excluded).",
+    ("Mlp", "activation"): "Hidden-layer activation.",
+    ("Mlp", "precision"): "Storage precision of the weights.",
+    ("Mlp", "record"): "Layout of the weight record (bcfpipe.model.decoder).",
+    ("Mlp", "input_order"): "Feature order of the MLP input, layer.channel.",
+    ("Mlp", "out_scale"): "Per output: y = out_scale * mlp(x) + out_bias, before clamping to its range.",
+    ("Mlp", "out_bias"): "Per output: see out_scale.",
+    ("Output", "name"): "semantic.component, e.g. albedo.r.",
+    ("Output", "semantic"): "The texture-set semantic (albedo, normal, roughness, ...).",
+    ("Output", "component"): "The component within the semantic: r, g, b for colour, x, y, z for normals, "
+                             "the source channel letter for scalars.",
+    ("Output", "kind"): "color, normal or scalar: how the output is post-processed and measured.",
+    ("Output", "usd_target"): "The UsdPreviewSurface input (and component) it feeds; null if none.",
+    ("Output", "range"): "Output range [lo, hi]; decoded values are clamped to it.",
+    ("Output", "source"): "Source image of the channel, as the trainer read it; null when reconstructed.",
+    ("Output", "source_channel"): "Channel index in the source image; null when reconstructed.",
+    ("Output", "reconstructed"): "True for normal z = sqrt(1 - x^2 - y^2), computed, not learned.",
+    ("Onnx", "file"): "ONNX file name, relative to the material folder.",
+    ("Onnx", "input"): "Input tensor name: float32 (N, n_in) features.",
+    ("Onnx", "output"): "Output tensor name: float32 (N, outputs) channels.",
+    ("Onnx", "opset"): "ONNX opset version.",
+    ("Training", "profile_resolutions"): "Resolutions of T_0..T_3 (the profile).",
+    ("Training", "preset"): "Quality preset (bcfpipe.config.PRESETS).",
+    ("Training", "seed"): "Random seed.",
+    ("Training", "device"): "torch device that trained it (cpu, cuda, ...).",
+    ("Training", "phase_seconds"): "Seconds spent in each training phase.",
+    ("BuildJob", "job"): "The build job (texture set) name: the folder under materials/.",
+    ("BuildJob", "materials"): "USD Material prims that use this trained material.",
+    ("BuildJob", "content_hash"): "Hash of the job's source bytes and settings.",
+    # ---------------------------------------------------------------- manifest.json
+    ("Manifest", "format"): "Always \"bcfpipe-build\".",
+    ("Manifest", "format_version"): "Version of this contract; a reader refuses versions it does not know.",
+    ("Manifest", "bcfpipe_version"): "The bcfpipe release that wrote the file.",
+    ("Manifest", "scene"): "The input scene, relative to the build folder.",
+    ("Manifest", "root_layer"): "The USD layer to open: the overrides over the untouched scene.",
+    ("Manifest", "overrides_layer"): "The USD layer with the neural-material overrides.",
+    ("Manifest", "weights"): "The combined weight buffer (bcfpipe.formats.weights).",
+    ("Manifest", "variants"): "Variant selections given on the command line, as [set, value].",
+    ("Manifest", "variant_selections"): "Variant selections authored into the root layer.",
+    ("Manifest", "all_materials"): "Whether unbound materials were built too (--all-materials).",
+    ("Manifest", "options"): "Training options of the build.",
+    ("Manifest", "stage"): "Stage metadata copied to the root layer.",
+    ("Manifest", "materials"): "Every Material prim of the scene, in stage order.",
+    ("Manifest", "jobs"): "Every training job (texture set) the build planned.",
+    ("Manifest", "weights_table"): "The records of the combined weights.bin, by index.",
+    ("Manifest", "totals"): "Counts, sizes and times over the whole build.",
+    ("Manifest", "diagnostics"): "USD composition errors and warnings met while scanning.",
+    ("Manifest", "exit_code"): "0 every material built or skipped, 1 a material failed.",
+    ("Manifest", "verify_exit_code"): "Exit code of `bcfpipe verify` (only in `build --verify --json` output).",
+    ("Options", "profile"): "Feature-texture profile (auto, tiny, 0.5k, 1k, ...).",
+    ("Options", "preset"): "Quality preset.",
+    ("Options", "seed"): "Random seed.",
+    ("Options", "device"): "Requested torch device.",
+    ("Options", "hidden"): "Hidden units of each decoder.",
+    ("Options", "signed"): "Signed BC6H features.",
+    ("Options", "init"): "How the features start (random or pca).",
+    ("Stage", "up_axis"): "The scene's upAxis.",
+    ("Stage", "meters_per_unit"): "The scene's metersPerUnit.",
+    ("Stage", "default_prim"): "The scene's defaultPrim path, null if unset.",
+    ("VariantSelection", "prim"): "Prim path.",
+    ("VariantSelection", "set"): "Variant set name.",
+    ("VariantSelection", "value"): "Selected variant.",
+    ("Material", "path"): "The Material prim path.",
+    ("Material", "aliases"): "Other prim paths (instance proxies) that resolve to the same material.",
+    ("Material", "job"): "The job that trains it; null when skipped.",
+    ("Material", "status"): "built, failed or skipped.",
+    ("Material", "reason"): "Why it was skipped or failed (a short code or one line); null when built.",
+    ("Material", "message"): "What the scan found (human-readable).",
+    ("Material", "shared_with"): "Other materials served by the same trained material.",
+    ("Material", "sources"): "Texture files it reads.",
+    ("Material", "targets"): "UsdPreviewSurface input channels the neural material drives.",
+    ("Material", "metrics"): "Quality of the exported files; null unless built.",
+    ("Material", "sizes"): "Bytes on disk; null unless built.",
+    ("Material", "outputs"): "Where its files are; null unless built.",
+    ("Material", "profile"): "Resolved profile (only when built).",
+    ("Material", "resolutions"): "Resolutions of T_0..T_3 (only when built).",
+    ("Material", "train_seconds"): "Seconds its job trained.",
+    ("Material", "device"): "torch device its job ran on.",
+    ("Material", "warnings"): "Scan warnings about this material.",
+    ("Source", "file"): "The file, relative to the build folder, or package.usdz[inner/path].",
+    ("Source", "asset_path"): "The asset path as authored in the scene.",
+    ("Source", "xxh3_128"): "XXH3-128 of the file's bytes (hex).",
+    ("Source", "size_bytes"): "File size in bytes.",
+    ("Source", "width"): "Image width.",
+    ("Source", "height"): "Image height.",
+    ("Source", "channels"): "Image channels.",
+    ("Source", "format"): "Stored texel type (OpenImageIO base type, e.g. uint8, half).",
+    ("Source", "color_space"): "sourceColorSpace as authored (auto, raw or sRGB).",
+    ("Source", "resolved_color_space"): "sRGB or raw, with auto resolved as Hydra does.",
+    ("Target", "target"): "UsdPreviewSurface input and component, e.g. diffuseColor.r.",
+    ("Target", "input"): "UsdPreviewSurface input.",
+    ("Target", "channel"): "Decoder output index that drives it (normal z included).",
+    ("Target", "scale"): "UsdUVTexture scale applied to the decoded value.",
+    ("Target", "bias"): "UsdUVTexture bias added after the scale.",
+    ("Target", "color_space"): "sRGB or raw: how the decoded value is interpreted.",
+    ("Target", "source"): "Source file of the channel, as in sources; null when reconstructed.",
+    ("Target", "source_channel"): "Channel of the source file (r, g, b, a); null when reconstructed.",
+    ("Metrics", "psnr"): "PSNR in dB over the mips counted in the mean (the headline figure).",
+    ("Metrics", "ssim"): "SSIM at mip 0.",
+    ("Metrics", "flip"): "FLIP at mip 0 of the colour channels (lower is better); null without colour.",
+    ("Metrics", "float_psnr"): "PSNR of the float model before quantization (what BC6H costs).",
+    ("Metrics", "detail"): "Per-mip and per-group figures.",
+    ("Quality", "psnr"): "PSNR in dB over the mips counted in the mean.",
+    ("Quality", "psnr_per_mip"): "PSNR in dB of each mip, mip 0 first.",
+    ("Quality", "psnr_per_group"): "PSNR in dB of each channel group (semantic).",
+    ("Quality", "ssim"): "SSIM at mip 0.",
+    ("Quality", "ssim_per_group"): "SSIM at mip 0 of each channel group.",
+    ("Quality", "flip"): "FLIP at mip 0 of the colour channels.",
+    ("Quality", "flip_per_group"): "FLIP at mip 0 of each colour group.",
+    ("Quality", "mips_in_mean"): "How many mips, from mip 0, the mean PSNR covers.",
+    ("Sizes", "features_bytes"): "Bytes of the four DDS files.",
+    ("Sizes", "weights_bytes"): "Bytes of its weight record.",
+    ("Sizes", "total_bytes"): "features_bytes + weights_bytes.",
+    ("Sizes", "source_bytes"): "Bytes of the source files it replaces.",
+    ("Outputs", "folder"): "Its material folder, relative to the build folder.",
+    ("Outputs", "weights_index"): "Index of its record in the combined weights.bin.",
+    ("Outputs", "weights_offset"): "Byte offset of its record in the combined weights.bin.",
+    ("Outputs", "weights_size"): "Byte size of its record.",
+    ("Job", "name"): "Job name: its folder under materials/.",
+    ("Job", "materials"): "Material prims it serves.",
+    ("Job", "content_hash"): "Hash of its source bytes and settings.",
+    ("Job", "status"): "built, failed or \"not run\".",
+    ("Job", "reason"): "Why it failed (one line); null when built.",
+    ("Job", "seconds"): "Wall seconds of its worker.",
+    ("Job", "device"): "torch device it ran on.",
+    ("Job", "threads"): "torch threads of its worker.",
+    ("Job", "weights_index"): "Index of its record in the combined weights.bin; null unless built.",
+    ("WeightsRecord", "index"): "Record index (the material id of the paper's section 5.3).",
+    ("WeightsRecord", "offset"): "Byte offset of the record.",
+    ("WeightsRecord", "size_bytes"): "Byte size of the record.",
+    ("WeightsRecord", "n_hidden"): "Hidden units.",
+    ("WeightsRecord", "n_out"): "MLP outputs.",
+    ("WeightsRecord", "job"): "The job whose decoder it is.",
+    ("Totals", "materials"): "Material prims in the scene.",
+    ("Totals", "built"): "Materials built.",
+    ("Totals", "failed"): "Materials that failed.",
+    ("Totals", "skipped"): "Materials skipped (not modelled).",
+    ("Totals", "jobs"): "Jobs planned.",
+    ("Totals", "trained"): "Jobs trained.",
+    ("Totals", "train_seconds"): "Sum of the jobs' training seconds.",
+    ("Totals", "wall_seconds"): "Wall seconds of the whole build.",
+    ("Totals", "features_bytes"): "Bytes of every DDS file.",
+    ("Totals", "weights_bytes"): "Bytes of the combined weights.bin.",
+    ("Totals", "total_bytes"): "features_bytes + weights_bytes.",
+    ("Totals", "source_bytes"): "Bytes of every source file of the scene's modelled materials.",
+}
+
+ENUMS: dict[tuple[str, str], list] = {
+    ("MaterialFile", "format"): [material.FORMAT],
+    ("MaterialFile", "format_version"): [material.FORMAT_VERSION],
+    ("Manifest", "format"): [manifest.FORMAT],
+    ("Manifest", "format_version"): [manifest.FORMAT_VERSION],
+    ("Sampling", "addressing"): ["repeat", "clamp"],
+    ("Output", "kind"): ["color", "normal", "scalar"],
+    ("Material", "status"): list(manifest.STATUSES),
+    ("Job", "status"): ["built", "failed", "not run"],
+    ("BC6H", "dxgi_format"): [95, 96],
+}
+
+_SCALARS = {str: "string", int: "integer", float: "number", bool: "boolean", type(None): "null"}
+
+
+def _type(tp: Any, defs: dict[str, Any]) -> dict[str, Any]:
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if tp is Any:
+        return {}
+    if tp in _SCALARS:
+        return {"type": _SCALARS[tp]}
+    if origin in (typing.Union, types.UnionType):
+        parts = [_type(a, defs) for a in args]
+        if all(set(p) == {"type"} for p in parts):
+            return {"type": [p["type"] for p in parts]}
+        return {"anyOf": parts}
+    if dataclasses.is_dataclass(tp):
+        _define(tp, defs)
+        return {"$ref": f"#/$defs/{tp.__name__}"}
+    if origin in (tuple, list):
+        if origin is tuple and args and not (len(args) == 2 and args[1] is Ellipsis):
+            return {"type": "array", "prefixItems": [_type(a, defs) for a in args],
+                    "minItems": len(args), "maxItems": len(args)}
+        return {"type": "array", "items": _type(args[0], defs) if args else {}}
+    if origin is dict:
+        return {"type": "object", "additionalProperties": _type(args[1], defs)}
+    raise TypeError(f"no JSON Schema for {tp!r}")
+
+
+def _object(cls, defs: dict[str, Any]) -> dict[str, Any]:
+    hints = _hints(cls)
+    order = key_order(cls)
+    props = {}
+    for name in order:
+        p = _type(hints[name], defs)
+        if (cls.__name__, name) in ENUMS:
+            p["enum"] = ENUMS[(cls.__name__, name)]
+        props[name] = {"description": DESCRIPTIONS[(cls.__name__, name)], **p}
+    optional = {f.name for f in dataclasses.fields(cls) if f.metadata.get("omit_none")}
+    required = [n for n in order if n not in optional]
+    return {"type": "object", "description": " ".join((cls.__doc__ or cls.__name__).split()),
+            "properties": props, "required": required, "additionalProperties": False}
+
+
+def _define(cls, defs: dict[str, Any]) -> None:
+    if cls.__name__ not in defs:
+        defs[cls.__name__] = None  # recursion guard
+        defs[cls.__name__] = _object(cls, defs)
+
+
+def json_schema(cls, file_name: str, title: str) -> dict[str, Any]:
+    """A draft 2020-12 schema for the record ``cls`` (the file's top level)."""
+    defs: dict[str, Any] = {}
+    top = _object(cls, defs)
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "$id": BASE_URI + file_name,
+            "title": title, **top, "$defs": dict(sorted(defs.items()))}
+
+
+SCHEMAS = {
+    "material.schema.json": (material.MaterialFile, "bcfpipe material.json"),
+    "manifest.schema.json": (manifest.Manifest, "bcfpipe build manifest.json"),
+}
+
+
+def render(name: str) -> str:
+    cls, title = SCHEMAS[name]
+    return json.dumps(json_schema(cls, name, title), indent=2) + "\n"
+
+
+def main(argv: list[str]) -> int:
+    out = Path(argv[0]) if argv else SCHEMA_DIR
+    for name in SCHEMAS:
+        (out / name).write_text(render(name))
+        print(out / name)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

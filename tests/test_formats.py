@@ -1,0 +1,98 @@
+"""The file contract (bcfpipe.formats): records read and write material.json / manifest.json, the
+published schemas are what the records generate, and bad files are refused naming the key."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bcfpipe.formats import manifest as mfst
+from bcfpipe.formats import material as mf
+from bcfpipe.formats import schema
+from bcfpipe.formats.record import FormatError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _material() -> mf.MaterialFile:
+    layers = tuple(mf.Layer(mf.layer_file(i), 64 >> i, 5 - i, -float(i)) for i in range(4))
+    return mf.MaterialFile(
+        layers=layers, bc6h=mf.BC6H(95, False, "11110 (two regions, 6-bit endpoints, 3-bit indices)"),
+        sampling=mf.Sampling("repeat"), reference=mf.Reference(64, 32, 7),
+        mlp=mf.Mlp("weights.bin", 0, 100, 12, 16, 2, "relu", "fp16", "BCFW v1", tuple(f"T{i}.{c}" for i in range(4)
+                                                                                     for c in "rgb"),
+                   (1.0, 1.0), (0.0, 0.5)),
+        outputs=(mf.Output("roughness.r", "roughness", "r", "scalar", "roughness", (0.0, 1.0), "r.png", 0, False),
+                 mf.Output("metallic.r", "metallic", "r", "scalar", "metallic", (0.0, 1.0), "m.png", 0, False)),
+        onnx=mf.Onnx("decoder.onnx", "features", "channels", 17),
+        training=mf.Training((64, 32, 16, 8), "draft", 0, "cpu", {"warmup": 1.5}))
+
+
+@pytest.mark.parametrize("name", sorted(schema.SCHEMAS))
+def test_published_schemas_are_generated(name):
+    """schemas/*.schema.json are exactly what the records generate (regenerate with
+    `python -m bcfpipe.formats.schema`), every key has a description, and they are valid schemas."""
+    import jsonschema
+
+    text = (REPO / "schemas" / name).read_text()
+    assert text == schema.render(name), f"schemas/{name} is stale: run python -m bcfpipe.formats.schema"
+    s = json.loads(text)
+    jsonschema.Draft202012Validator.check_schema(s)
+    for obj in [s, *s["$defs"].values()]:
+        assert obj["description"] and all(p["description"] for p in obj["properties"].values())
+
+
+def test_material_round_trip_and_schema(tmp_path):
+    import jsonschema
+
+    m = _material()
+    mf.write(tmp_path, m)
+    data = json.loads((tmp_path / mf.FILE).read_text())
+    assert list(data)[:3] == ["format", "format_version", "bcfpipe_version"]
+    assert "bcfpipe_build" not in data and "sha256" not in data  # optional keys are left out, not null
+    jsonschema.validate(data, json.loads(schema.render("material.schema.json")))
+    back = mf.read(tmp_path)
+    assert back == m and back.kinds == ("scalar", "scalar") and back.normal_index == -1
+    renamed = m.with_sources({"r.png": "pkg.usdz[r.png]"})
+    assert [o.source for o in renamed.outputs] == ["pkg.usdz[r.png]", "m.png"]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.update(extra=1), "unknown key 'extra'"),
+    (lambda d: d["layers"][2].pop("lod_bias"), "material.json.layers[2]: missing key 'lod_bias'"),
+    (lambda d: d["mlp"].update(n_hidden="16"), "material.json.mlp.n_hidden: expected an integer"),
+    (lambda d: d["outputs"][0].update(range=[0.0]), "material.json.outputs[0].range: expected 2 items"),
+    (lambda d: d.update(format="something-else"), "not a bcfpipe-material file"),
+    (lambda d: d.update(format_version=99), "version 99; this bcfpipe reads version 1"),
+])
+def test_malformed_material_is_refused(tmp_path, edit, message):
+    data = _material().to_json()
+    edit(data)
+    (tmp_path / mf.FILE).write_text(json.dumps(data))
+    with pytest.raises(FormatError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        mf.read(tmp_path)
+
+
+def test_unreadable_files_are_format_errors(tmp_path):
+    with pytest.raises(FormatError, match="No such file"):
+        mf.read(tmp_path)
+    (tmp_path / mfst.FILE).write_text("{ not json")
+    with pytest.raises(FormatError, match="not JSON"):
+        mfst.read(tmp_path)
+    assert FormatError("x").exit_code == 2
+
+
+def test_minimal_manifest(tmp_path):
+    """A manifest needs only its scene, root layer and materials; the rest has defaults, and what
+    is written is complete (it passes the schema)."""
+    import jsonschema
+
+    m = mfst.Manifest(scene="s.usda", root_layer="s.bcf.usda",
+                      materials=(mfst.Material("/World/M", "skipped", reason="unbound"),))
+    mfst.write(tmp_path, m)
+    data = json.loads((tmp_path / mfst.FILE).read_text())
+    jsonschema.validate(data, json.loads(schema.render("manifest.schema.json")))
+    assert mfst.is_manifest(tmp_path) and mfst.read(tmp_path) == m and m.failed() == []
+    assert list(data["materials"][0])[:4] == ["path", "aliases", "job", "status"]
+    assert "profile" not in data["materials"][0] and "verify_exit_code" not in data
