@@ -95,12 +95,12 @@ def test_no_colour_group_means_no_flip(ref):
     assert m.flip is None and m.flip_per_group == {} and m.ssim == pytest.approx(1.0)
 
 
-def test_small_images_and_to_dict():
+def test_small_images_and_to_json():
     ref = build_mip_chain(np.random.default_rng(3).random((4, 4, 3)).astype(np.float32))
     dec = [r * 0.9 for r in ref]
     m = compute_metrics(ref, dec, channels("albedo:3"), flip=False)
     assert m.mips_in_mean == 1 and m.ssim is not None  # 4x4: SSIM with a 3x3 window
-    d = m.to_dict()
+    d = m.to_json()
     assert set(d) >= {"psnr", "psnr_per_mip", "psnr_per_group", "ssim", "flip"}
     json.dumps(d)
 

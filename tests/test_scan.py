@@ -14,7 +14,9 @@ from click.testing import CliRunner
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from bcfpipe.scan import stage as scan_mod
-from bcfpipe.scan.stage import ScanError, StageScan, parse_variant, scan_stage
+from bcfpipe.scan.composition import parse_variant
+from bcfpipe.scan.results import ScanError, StageScan, Transform2d
+from bcfpipe.scan.stage import scan_stage
 from bcfpipe.cli.scan import scan as scan_cmd
 
 SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
@@ -270,7 +272,7 @@ def test_interface_inputs_and_st_transform(tmp_path: Path, textures: dict[str, s
     assert m.decision == "model"
     assert t.resolved_path == str((tmp_path / "tex" / "base.png").resolve())
     assert (t.st.kind, t.st.varname) == ("transform2d", "uv1")
-    assert t.st.transform == scan_mod.Transform2d((1.0, 1.0), 45.0, (0.5, -0.2))
+    assert t.st.transform == Transform2d((1.0, 1.0), 45.0, (0.5, -0.2))
     assert (t.wrap_s, t.wrap_t, t.effective_wrap) == ("clamp", "useMetadata", ("clamp", "repeat"))
     assert (t.scale, t.bias, t.fallback) == ((2, 2, 2, 1), (0, 0, 0, 0), (0, 0, 1, 1))
     assert t.source_color_space == "auto"
@@ -723,7 +725,7 @@ def test_texture_transform_test() -> None:
     by_name = {m.path.rsplit("/", 1)[1]: m.input("diffuseColor").texture for m in result.materials}
     offset = by_name["Offset_U_53148"]
     assert offset.st.kind == "transform2d" and offset.st.varname == "st"
-    assert offset.st.transform == scan_mod.Transform2d((1.0, 1.0), 0.0, (0.5, 0.0))
+    assert offset.st.transform == Transform2d((1.0, 1.0), 0.0, (0.5, 0.0))
     assert by_name["All_53140"].st.transform.scale == (1.5, 1.5)
     assert by_name["All_53140"].st.transform.rotation == pytest.approx(17.188734)
     assert offset.effective_wrap == ("clamp", "clamp")

@@ -139,7 +139,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
         scene=scene_rel, root_layer=root_name, overrides_layer=OVERRIDES, weights=WEIGHTS,
         variants=tuple(tuple(v) for v in bplan.variants),
         variant_selections=tuple(mfst.VariantSelection(p, s, v) for p, s, v in bplan.variant_selections),
-        all_materials=bplan.all_materials, options=mfst.Options(**bplan.options),
+        all_materials=bplan.all_materials, options=bplan.options,
         stage=mfst.Stage(bplan.up_axis, bplan.meters_per_unit, bplan.default_prim),
         materials=tuple(mats), jobs=tuple(job_entries),
         weights_table=tuple(mfst.WeightsRecord(e.index, e.offset, e.size, e.n_hidden, e.n_out, j.name)

@@ -122,9 +122,9 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
         with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
             local = {path: local_file(path, tmp) for _, path, _ in mj.specs}
             ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs])
-        prof, cfg = make_config(ts, profile=mj.profile, preset=mj.preset, device=device, seed=mj.seed,
-                                hidden=mj.hidden, signed=mj.signed, wrap=mj.wrap, threads=max(1, threads),
-                                init=mj.init)
+        o = mj.options
+        prof, cfg = make_config(ts, profile=o.profile, preset=o.preset, device=device, seed=o.seed, hidden=o.hidden,
+                                signed=o.signed, wrap=mj.wrap, threads=max(1, threads), init=o.init)
         build_job = BuildJob(mj.name, tuple(mj.materials), mj.content_hash)
         res, _ = fit_material(ts, out_dir, cfg, prof, progress, build_job,
                               sources={v: k for k, v in local.items() if v != k})
@@ -212,7 +212,7 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
     materials_dir.mkdir(parents=True, exist_ok=True)
     if not jobs:
         return {}
-    device = jobs[0].device
+    device = jobs[0].options.device
     workers = max(1, int(workers)) if workers else default_jobs(len(jobs), device)
     threads = max(1, int(threads)) if threads else DEFAULT_THREADS
     gpus = _gpu_count(device)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 import xxhash
@@ -13,10 +13,11 @@ from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAUL
                             DEFAULT_SEED, FEATURE_INITS, PRESETS, PROFILE_NAMES)
 from bcfpipe.scan.texture_sets import ModelChannel, SourceFile, decoder_index
 from bcfpipe.errors import InputError
+from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, group_materials
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
-    from bcfpipe.scan.stage import StageScan
+    from bcfpipe.scan.results import StageScan
 
 
 OVERRIDES = "overrides.usda"
@@ -58,14 +59,8 @@ class MaterialJob:
     channels: tuple[ModelChannel, ...]
     sources: tuple[SourceFile, ...]
     wrap: str
-    profile: str
-    preset: str
-    seed: int
-    device: str
-    hidden: int
-    signed: bool
+    options: Options
     content_hash: str
-    init: str = DEFAULT_INIT
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -77,6 +72,7 @@ class MaterialJob:
         d["specs"] = tuple(tuple(s) for s in d["specs"])
         d["channels"] = tuple(ModelChannel(**c) for c in d["channels"])
         d["sources"] = tuple(SourceFile(**s) for s in d["sources"])
+        d["options"] = Options.from_json(d["options"], "options")
         return cls(**d)
 
 
@@ -117,7 +113,7 @@ class BuildPlan:
     default_prim: str | None
     materials: tuple[MaterialPlan, ...]
     jobs: tuple[MaterialJob, ...]
-    options: dict = field(default_factory=dict)
+    options: Options
     diagnostics: tuple[str, ...] = ()
 
     def job(self, name: str) -> MaterialJob:
@@ -136,22 +132,21 @@ class BuildPlan:
         return d
 
 
-def _content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Mapping[str, Any]) -> str:
-    preset = options["preset"]
+def _content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options) -> str:
     payload = {
         "bcfpipe": __version__,
         "specs": [[sem, sources[path].xxh3_128, ch] for sem, path, ch in specs],
         "wrap": wrap,
-        "profile": options["profile"],
-        "preset": preset,
-        "schedule": asdict(PRESETS[preset]),
-        "seed": options["seed"],
-        "device": options["device"],
-        "hidden": options["hidden"],
-        "signed": options["signed"],
+        "profile": options.profile,
+        "preset": options.preset,
+        "schedule": asdict(PRESETS[options.preset]),
+        "seed": options.seed,
+        "device": options.device,
+        "hidden": options.hidden,
+        "signed": options.signed,
     }
-    if options["init"] != DEFAULT_INIT:  # absent for the default, so existing builds keep their names
-        payload["init"] = options["init"]
+    if options.init != DEFAULT_INIT:  # absent for the default, so existing builds keep their names
+        payload["init"] = options.init
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
 
 
@@ -160,7 +155,8 @@ def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[s
         return {}
     if isinstance(variants, Mapping):
         return {str(k): str(v) for k, v in variants.items()}
-    from bcfpipe.scan.stage import ScanError, parse_variant
+    from bcfpipe.scan.composition import parse_variant
+    from bcfpipe.scan.results import ScanError
 
     try:
         return dict(parse_variant(v) for v in variants)
@@ -189,9 +185,10 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         raise BuildError(f"unknown quality preset {preset!r}; choose from {', '.join(PRESETS)}")
     if init not in FEATURE_INITS:
         raise BuildError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
-    options = {"profile": profile, "preset": preset, "seed": int(seed), "device": _resolve_device_name(device),
-               "hidden": int(hidden), "signed": bool(signed), "init": init}
-    from bcfpipe.scan.stage import ScanError, scan_stage
+    options = Options(profile=profile, preset=preset, seed=int(seed), device=_resolve_device_name(device),
+                      hidden=int(hidden), signed=bool(signed), init=init)
+    from bcfpipe.scan.results import ScanError
+    from bcfpipe.scan.stage import scan_stage
 
     vdict = _variants_dict(variants)
     try:
@@ -207,9 +204,7 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         rep_sources = {p: sources[p] for p in dict.fromkeys(path for _, path, _ in rep.specs)}
         jobs.append(MaterialJob(
             name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
-            sources=tuple(rep_sources.values()), wrap=rep.wrap,
-            profile=profile, preset=preset, seed=options["seed"], device=options["device"],
-            hidden=options["hidden"], signed=options["signed"], init=init,
+            sources=tuple(rep_sources.values()), wrap=rep.wrap, options=options,
             content_hash=_content_hash(rep.specs, rep_sources, rep.wrap, options),
         ))
     job_by_name = {j.name: j for j in jobs}

@@ -40,7 +40,7 @@ def training_options(f):
 
 def _variants(_ctx: click.Context, _param: click.Parameter, values: tuple[str, ...]) -> dict[str, str]:
     """Parse repeated ``--variant SET=VALUE`` into a dict (later wins); a malformed one exits 2."""
-    from bcfpipe.scan.stage import parse_variant
+    from bcfpipe.scan.composition import parse_variant
 
     return dict(parse_variant(v) for v in values)
 

@@ -15,7 +15,8 @@ from rich.text import Text
 
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import all_materials_option, variant_option
-from bcfpipe.scan.stage import MaterialScan, StageScan, scan_stage
+from bcfpipe.scan.results import MaterialScan, StageScan
+from bcfpipe.scan.stage import scan_stage
 from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, Grouping, group_materials
 
 __all__ = ["scan"]
@@ -96,7 +97,7 @@ def _print_human(result: StageScan, grouping: Grouping, console: Console) -> Non
 def scan(scene: Path, variants: dict[str, str], all_materials: bool, as_json: bool) -> None:
     """Scan SCENE's UsdPreviewSurface materials: which ones `build` would model, and why not."""
     result = scan_stage(scene, variants or None, all_materials=all_materials)
-    grouping = group_materials(scene, variants, result.materials)
+    grouping = group_materials(scene, variants, result.materials, digest=False)
     if as_json:
         d = result.to_dict()
         d["texture_sets"] = [g.to_dict() for g in grouping.groups]

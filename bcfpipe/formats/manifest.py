@@ -53,8 +53,9 @@ class Target(Record):
 
 @dataclass(frozen=True)
 class Quality(Record):
-    """bcfpipe.verify.metrics.Metrics of the exported files: PSNR (dB) over the mips counted in the
-    mean and per mip (mip 0 first), per channel group; SSIM and FLIP at mip 0."""
+    """Quality of a decoded texture set against its reference (bcfpipe.verify.metrics computes it):
+    PSNR in dB over the mips counted in the mean and per mip (mip 0 first), per channel group;
+    SSIM and FLIP at mip 0."""
 
     psnr: float
     psnr_per_mip: tuple[float, ...]

@@ -15,7 +15,7 @@ from bcfpipe.errors import one_line
 import xxhash
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
-    from bcfpipe.scan.stage import MaterialScan
+    from bcfpipe.scan.results import MaterialScan
 
 
 _COLOR_SEMANTIC = {"diffuseColor": "albedo", "emissiveColor": "emissiveColor"}
@@ -102,13 +102,26 @@ def _resolved_color_space(authored: str, channels: int, fmt: str) -> str:
     return "raw"
 
 
-def source_file(path: str, asset_path: str, color_space: str, cache: dict) -> SourceFile:
-    key = path
+def _readable_size(path: str) -> int:
+    """Byte size of an asset, after checking that it can be opened (raises OSError if not)."""
+    if package_split(path) is not None:
+        return len(read_asset(path))
+    with open(path, "rb") as f:
+        return os.fstat(f.fileno()).st_size
+
+
+def source_file(path: str, asset_path: str, color_space: str, cache: dict, digest: bool = True) -> SourceFile:
+    """The file's header facts; with ``digest`` also the XXH3-128 of its bytes (the build's content
+    hash needs it, a scan does not: without it ``xxh3_128`` is empty and only the header is read)."""
+    key = (path, digest)
     if key not in cache:
-        data = read_asset(path)
-        cache[key] = (xxhash.xxh3_128_hexdigest(data), len(data), _probe(path))
-    digest, size, (w, h, c, fmt) = cache[key]
-    return SourceFile(path, asset_path, digest, size, w, h, c, fmt, color_space,
+        if digest:
+            data = read_asset(path)
+            cache[key] = (xxhash.xxh3_128_hexdigest(data), len(data), _probe(path))
+        else:
+            cache[key] = ("", _readable_size(path), _probe(path))
+    digest_hex, size, (w, h, c, fmt) = cache[key]
+    return SourceFile(path, asset_path, digest_hex, size, w, h, c, fmt, color_space,
                       _resolved_color_space(color_space, c, fmt))
 
 
@@ -125,7 +138,7 @@ class MaterialModel:
     warnings: list[str]
 
 
-def material_model(ms: MaterialScan, file_cache: dict) -> MaterialModel:
+def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True) -> MaterialModel:
     """Map a scanned material's texture inputs to model channels, texset specs and targets."""
     channels: list[ModelChannel] = []
     specs: list[tuple[str, str, str]] = []
@@ -137,7 +150,7 @@ def material_model(ms: MaterialScan, file_cache: dict) -> MaterialModel:
     for inp in ms.texture_inputs:
         tex = inp.texture
         assert tex is not None
-        src = source_file(tex.resolved_path, tex.asset_path, tex.source_color_space, file_cache)
+        src = source_file(tex.resolved_path, tex.asset_path, tex.source_color_space, file_cache, digest)
         sources[src.path] = src
         uses = [u for u in ms.channel_uses if u.input == inp.name]
         if not uses:
@@ -200,7 +213,7 @@ def instance_proxies(scene, variants: Mapping[str, str], paths: Sequence[str]) -
     """Which of ``paths`` are instance proxies on the composed stage (overrides cannot reach them)."""
     if not paths:
         return set()
-    from bcfpipe.scan.stage import apply_variants, open_stage
+    from bcfpipe.scan.composition import apply_variants, open_stage
 
     stage = open_stage(scene)
     if variants:
@@ -263,9 +276,9 @@ class Grouping:
 
 
 def group_materials(scene, variants: Mapping[str, str], materials: Sequence["MaterialScan"],
-                    file_cache: dict | None = None) -> Grouping:
-    """Group the materials decided ``model`` by texture set (channels and addressing); reads each
-    texture once (header and hash, cached in ``file_cache``)."""
+                    file_cache: dict | None = None, digest: bool = True) -> Grouping:
+    """Group the materials decided ``model`` by texture set (channels and addressing); opens each
+    texture once (its header, and with ``digest`` its bytes for the hash; cached in ``file_cache``)."""
     modelled = [ms for ms in materials if ms.decision == "model"]
     instanced = frozenset(instance_proxies(scene, variants, [m.path for m in modelled]))
     cache = {} if file_cache is None else file_cache
@@ -275,7 +288,7 @@ def group_materials(scene, variants: Mapping[str, str], materials: Sequence["Mat
         if ms.path in instanced:
             continue
         try:
-            mm = material_model(ms, cache)
+            mm = material_model(ms, cache, digest)
         except Exception as exc:  # noqa: BLE001 - an unreadable file fails this material only
             failed[ms.path] = f"cannot read textures: {one_line(exc)}"
             continue

@@ -38,7 +38,7 @@ class MaterialResult:
              "out": str(self.out_dir), "profile": self.profile, "resolutions": list(self.resolutions),
              "preset": self.preset, "device": self.device, "phase_seconds": self.phase_seconds,
              "phase_samples": self.phase_samples,
-             "metrics": m.to_dict()}
+             "metrics": m.to_json()}
         if self.float_metrics is not None:
             d["float_psnr"] = self.float_metrics.psnr
             d["quantization_loss_db"] = self.float_metrics.psnr - m.psnr

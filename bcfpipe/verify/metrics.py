@@ -26,11 +26,11 @@ the set has none.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
 from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.formats.manifest import Quality as Metrics
 from bcfpipe.texset.texture_set import Channel
 
 __all__ = ["Metrics", "compute_metrics", "psnr_from_mse", "mse_per_mip", "ssim_group", "flip_group"]
@@ -43,24 +43,6 @@ def psnr_from_mse(mse: float, peak: float = 1.0) -> float:
     if mse < 0 or not math.isfinite(mse):
         raise ValueError(f"MSE must be finite and >= 0, got {mse}")
     return math.inf if mse == 0 else 10.0 * math.log10(peak * peak / mse)
-
-
-@dataclass(frozen=True)
-class Metrics:
-    """Quality of a decoded texture set against its reference (see module docstring)."""
-
-    psnr: float
-    psnr_per_mip: list[float]
-    psnr_per_group: dict[str, float]
-    ssim: float | None
-    ssim_per_group: dict[str, float]
-    flip: float | None
-    flip_per_group: dict[str, float]
-    mips_in_mean: int
-
-    def to_dict(self) -> dict:
-        """Plain dict (floats, lists, dicts) for JSON reports; +inf stays float('inf')."""
-        return asdict(self)
 
 
 def _check(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray], channels: Sequence[Channel]) -> None:
@@ -150,7 +132,7 @@ def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
 
     return Metrics(
         psnr=_mean_psnr(mses, use),
-        psnr_per_mip=[psnr_from_mse(m) for m in mses],
+        psnr_per_mip=tuple(psnr_from_mse(m) for m in mses),
         psnr_per_group=psnr_per_group,
         ssim=float(np.mean(list(ssim_per_group.values()))) if ssim_per_group else None,
         ssim_per_group=ssim_per_group,

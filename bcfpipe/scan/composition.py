@@ -1,0 +1,181 @@
+"""Opening a stage, applying variant selections, and finding the rendered geometry and the
+materials it binds (the rules are in bcfpipe.scan.stage's docstring)."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterable, Mapping
+
+from pxr import Tf, Usd, UsdGeom, UsdShade
+
+from bcfpipe.scan.results import ScanError
+
+
+_MAX_VARIANT_PASSES = 16
+
+
+def parse_variant(text: str) -> tuple[str, str]:
+    """Split ``SET=VALUE`` (both non-empty) into (set, value)."""
+    name, sep, value = text.partition("=")
+    name, value = name.strip(), value.strip()
+    if not sep or not name or not value:
+        raise ScanError(f"bad variant {text!r}: expected SET=VALUE, e.g. modelVariant=Fancy")
+    return name, value
+
+
+def first_line(exc: BaseException) -> str:
+    """The first non-empty line of an exception message (pxr errors are verbose)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    text = lines[0] if lines else type(exc).__name__
+    # Tf errors read "Error in '...' at line N in file F : 'the message'"
+    if " : " in text and text.startswith("Error in"):
+        text = text.split(" : ", 1)[1].strip("'")
+    return text
+
+
+def open_stage(path: str | os.PathLike[str]) -> Usd.Stage:
+    """Open a stage with all payloads loaded; ScanError if missing or unparsable."""
+    p = Path(path)
+    if not p.exists():
+        raise ScanError(f"no such file: {p}")
+    if p.is_dir():
+        raise ScanError(f"not a USD file (a directory): {p}")
+    try:
+        stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        raise ScanError(f"cannot read stage {p}: {first_line(exc)}") from None
+    if stage is None:
+        raise ScanError(f"cannot read stage {p}")
+    return stage
+
+
+def _variant_requests(
+    stage: Usd.Stage, variants: Mapping[str, str]
+) -> tuple[list[tuple[Usd.Prim, str, str]], dict[str, set[str]]]:
+    """Selections still to author, and for each requested set the values seen on the stage."""
+    todo: list[tuple[Usd.Prim, str, str]] = []
+    offered: dict[str, set[str]] = {}
+    for prim in stage.Traverse():
+        vsets = prim.GetVariantSets()
+        for name, value in variants.items():
+            if not vsets.HasVariantSet(name):
+                continue
+            vset = vsets.GetVariantSet(name)
+            names = set(vset.GetVariantNames())
+            offered.setdefault(name, set()).update(names)
+            if value in names and vset.GetVariantSelection() != value:
+                todo.append((prim, name, value))
+    return todo, offered
+
+
+def apply_variants(stage: Usd.Stage, variants: Mapping[str, str]) -> tuple[tuple[str, str, str], ...]:
+    """Select ``variants`` in the session layer on every prim offering them.
+
+    Returns the (prim path, set, value) selections authored (a selection already
+    in effect is not repeated).  Raises ScanError when
+    a requested set/value exists nowhere on the composed stage.
+    """
+    applied: dict[tuple[str, str], str] = {}
+    offered_all: dict[str, set[str]] = {}
+    with Usd.EditContext(stage, stage.GetSessionLayer()):
+        for _ in range(_MAX_VARIANT_PASSES):
+            todo, offered = _variant_requests(stage, variants)
+            for name, values in offered.items():
+                offered_all.setdefault(name, set()).update(values)
+            if not todo:
+                break
+            for prim, name, value in todo:
+                prim.GetVariantSets().GetVariantSet(name).SetVariantSelection(value)
+                applied[(str(prim.GetPath()), name)] = value
+    for name, value in variants.items():
+        values = offered_all.get(name)
+        if not values:
+            raise ScanError(f"variant set {name!r} not found on any prim")
+        if value not in values:
+            raise ScanError(
+                f"variant {name}={value} not found: {name!r} offers {', '.join(sorted(values))}"
+            )
+    return tuple(sorted((p, s, v) for (p, s), v in applied.items()))
+
+
+_HIDDEN_PURPOSES = frozenset({UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide})
+
+
+def _draws_stand_in(prim: Usd.Prim) -> bool:
+    """True when a model is drawn as cards/bounds/origin instead of its geometry.
+
+    Mirrors UsdImaging: a non-default (inherited) ``model:drawMode`` applies on
+    component models and on models with ``model:applyDrawMode = true``.
+    """
+    if not prim.IsModel():
+        return False
+    api = UsdGeom.ModelAPI(prim)
+    if api.ComputeModelDrawMode() == UsdGeom.Tokens.default_:
+        return False
+    return bool(api.GetModelApplyDrawModeAttr().Get()) or Usd.ModelAPI(prim).IsKind("component")
+
+
+def _hides_subtree(prim: Usd.Prim) -> bool:
+    """True when `prim` hides itself and its descendants (invisible, proxy/guide purpose, draw mode)."""
+    if not prim.IsA(UsdGeom.Imageable):
+        return False
+    img = UsdGeom.Imageable(prim)
+    if img.GetVisibilityAttr().Get() == UsdGeom.Tokens.invisible:
+        return True
+    if img.GetPurposeAttr().Get() in _HIDDEN_PURPOSES:
+        return True
+    return _draws_stand_in(prim)
+
+
+def rendered_gprims(stage: Usd.Stage) -> list[Usd.Prim]:
+    """Gprims a renderer draws (default/render purpose, visible), instance proxies included."""
+    found: list[Usd.Prim] = []
+    it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
+    for prim in it:
+        if _hides_subtree(prim):
+            it.PruneChildren()
+            continue
+        if prim.IsA(UsdGeom.Gprim):
+            found.append(prim)
+    return found
+
+
+def definition_path(prim: Usd.Prim) -> str:
+    """The path identifying a prim's definition: its prototype prim for instance proxies."""
+    if prim.IsInstanceProxy():
+        return str(prim.GetPrimInPrototype().GetPath())
+    return str(prim.GetPath())
+
+
+def _binding_prims(gprims: Iterable[Usd.Prim]) -> list[Usd.Prim]:
+    """The gprims plus their ``materialBind`` GeomSubsets."""
+    prims: list[Usd.Prim] = []
+    for g in gprims:
+        prims.append(g)
+        prims.extend(s.GetPrim() for s in UsdShade.MaterialBindingAPI(g).GetMaterialBindSubsets())
+    return prims
+
+
+def _binding_target(rel: Usd.Relationship) -> str | None:
+    """The material path a binding relationship names (last target; collections list two)."""
+    targets = rel.GetTargets() if rel else []
+    return str(targets[-1]) if targets else None
+
+
+def bound_materials(stage: Usd.Stage, gprims: list[Usd.Prim]) -> tuple[dict[str, set[str]], set[str]]:
+    """Map definition path of each bound material to the purposes binding it; and dangling targets."""
+    prims = _binding_prims(gprims)
+    bound: dict[str, set[str]] = {}
+    dangling: set[str] = set()
+    if not prims:
+        return bound, dangling
+    for purpose in (UsdShade.Tokens.preview, UsdShade.Tokens.full):
+        materials, rels = UsdShade.MaterialBindingAPI.ComputeBoundMaterials(prims, purpose)
+        for mat, rel in zip(materials, rels):
+            if mat:
+                bound.setdefault(definition_path(mat.GetPrim()), set()).add(str(purpose))
+            elif rel:
+                target = _binding_target(rel)
+                if target and not stage.GetPrimAtPath(target):
+                    dangling.add(target)
+    return bound, dangling
