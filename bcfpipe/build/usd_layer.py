@@ -30,6 +30,8 @@ from typing import Iterable, Sequence
 
 from pxr import Gf, Sdf, Usd, Vt
 
+from bcfpipe.formats.material import Mlp
+
 __all__ = ["SCHEMA", "NeuralMaterialOverride", "relative_asset", "write_overrides_layer", "write_root_layer",
            "read_override"]
 
@@ -73,11 +75,7 @@ class NeuralMaterialOverride:
     weights_offset: int
     weights_size: int
     weights_index: int
-    mlp_inputs: int
-    mlp_hidden: int
-    mlp_outputs: int
-    mlp_precision: str
-    mlp_activation: str
+    mlp: Mlp  # the material.json record; its weights/offset are superseded by the combined buffer's
     decoder: str
     targets: tuple[str, ...]
     channels: tuple[int, ...]
@@ -106,11 +104,11 @@ class NeuralMaterialOverride:
             ("bcf:weightsOffset", _T.Int, int(self.weights_offset)),
             ("bcf:weightsSize", _T.Int, int(self.weights_size)),
             ("bcf:weightsIndex", _T.Int, int(self.weights_index)),
-            ("bcf:mlp:inputs", _T.Int, int(self.mlp_inputs)),
-            ("bcf:mlp:hidden", _T.Int, int(self.mlp_hidden)),
-            ("bcf:mlp:outputs", _T.Int, int(self.mlp_outputs)),
-            ("bcf:mlp:precision", _T.Token, self.mlp_precision),
-            ("bcf:mlp:activation", _T.Token, self.mlp_activation),
+            ("bcf:mlp:inputs", _T.Int, self.mlp.n_in),
+            ("bcf:mlp:hidden", _T.Int, self.mlp.n_hidden),
+            ("bcf:mlp:outputs", _T.Int, self.mlp.n_out),
+            ("bcf:mlp:precision", _T.Token, self.mlp.precision),
+            ("bcf:mlp:activation", _T.Token, self.mlp.activation),
             ("bcf:decoder", _T.Asset, Sdf.AssetPath(self.decoder)),
             ("bcf:outputs:targets", _T.TokenArray, Vt.TokenArray(list(self.targets))),
             ("bcf:outputs:channels", _T.IntArray, Vt.IntArray([int(c) for c in self.channels])),
