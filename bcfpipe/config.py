@@ -132,6 +132,11 @@ DEFAULT_SEED = 0
 DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
 
+# Version of what training and export produce from the same inputs and options. It is part of
+# every cache key (bcfpipe.build.plan.content_hash): bump it with any change to the trainer, the
+# encoder, the export or the files' contents, so that no cached material from before is reused.
+MODEL_FORMAT = 2
+
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/feature_init.py: sharper fine mips, weaker
 # coarse ones; issue #9).

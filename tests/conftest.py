@@ -14,3 +14,18 @@ def shared_scenes() -> Path:
     if not SHARED_SCENES.is_dir():
         pytest.skip(f"needs the shared scenes at {SHARED_SCENES} (not present)")
     return SHARED_SCENES
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory):
+    """Builds in the tests use a cache of their own (one per xdist worker), never the user's."""
+    import os
+
+    root = tmp_path_factory.mktemp("bcfpipe-cache")
+    old = os.environ.get("BCFPIPE_CACHE")
+    os.environ["BCFPIPE_CACHE"] = str(root)
+    yield root
+    if old is None:
+        os.environ.pop("BCFPIPE_CACHE", None)
+    else:
+        os.environ["BCFPIPE_CACHE"] = old

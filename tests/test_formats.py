@@ -23,10 +23,10 @@ def _material() -> mf.MaterialFile:
         mlp=mf.Mlp("weights.bin", 0, 100, 12, 16, 2, "relu", "fp16", "BCFW v1", tuple(f"T{i}.{c}" for i in range(4)
                                                                                      for c in "rgb"),
                    (1.0, 1.0), (0.0, 0.5)),
-        outputs=(mf.Output("roughness.r", "roughness", "r", "scalar", "roughness", (0.0, 1.0), "r.png", 0, False),
-                 mf.Output("metallic.r", "metallic", "r", "scalar", "metallic", (0.0, 1.0), "m.png", 0, False)),
+        outputs=(mf.Output("roughness.r", "roughness", "r", "scalar", "roughness", (0.0, 1.0), 0, "uint8", False),
+                 mf.Output("metallic.r", "metallic", "r", "scalar", "metallic", (0.0, 1.0), 0, "uint16", False)),
         onnx=mf.Onnx("decoder.onnx", "features", "channels", 17),
-        training=mf.Training((64, 32, 16, 8), "draft", 0, "cpu", {"warmup": 1.5}))
+        training=mf.Training((64, 32, 16, 8), "draft", 0, "cpu"))
 
 
 @pytest.mark.parametrize("name", sorted(schema.SCHEMAS))
@@ -50,12 +50,10 @@ def test_material_round_trip_and_schema(tmp_path):
     mf.write(tmp_path, m)
     data = json.loads((tmp_path / mf.FILE).read_text())
     assert list(data)[:3] == ["format", "format_version", "bcfpipe_version"]
-    assert "bcfpipe_build" not in data and "sha256" not in data  # optional keys are left out, not null
+    assert "sha256" not in data  # optional keys are left out, not null
     jsonschema.validate(data, json.loads(schema.render("material.schema.json")))
     back = mf.read(tmp_path)
     assert back == m and back.kinds == ("scalar", "scalar") and back.normal_index == -1
-    renamed = m.with_sources({"r.png": "pkg.usdz[r.png]"})
-    assert [o.source for o in renamed.outputs] == ["pkg.usdz[r.png]", "m.png"]
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -64,7 +62,7 @@ def test_material_round_trip_and_schema(tmp_path):
     (lambda d: d["mlp"].update(n_hidden="16"), "material.json.mlp.n_hidden: expected an integer"),
     (lambda d: d["outputs"][0].update(range=[0.0]), "material.json.outputs[0].range: expected 2 items"),
     (lambda d: d.update(format="something-else"), "not a bcfpipe-material file"),
-    (lambda d: d.update(format_version=99), "version 99; this bcfpipe reads version 1"),
+    (lambda d: d.update(format_version=99), "version 99; this bcfpipe reads version 2"),
 ])
 def test_malformed_material_is_refused(tmp_path, edit, message):
     data = _material().to_json()
@@ -95,4 +93,4 @@ def test_minimal_manifest(tmp_path):
     jsonschema.validate(data, json.loads(schema.render("manifest.schema.json")))
     assert mfst.is_manifest(tmp_path) and mfst.read(tmp_path) == m and m.failed() == []
     assert list(data["materials"][0])[:4] == ["path", "aliases", "job", "status"]
-    assert "profile" not in data["materials"][0] and "verify_exit_code" not in data
+    assert "profile" not in data["materials"][0]

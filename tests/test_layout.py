@@ -40,7 +40,8 @@ def test_train_and_build_take_the_same_training_options():
     only_train = set(train) - set(TRAINING_OPTION_NAMES)
     only_build = set(build) - set(TRAINING_OPTION_NAMES)
     assert only_train == {"output", "resolution", "wrap", "force", "as_json"}
-    assert only_build == {"out", "variants", "all_materials", "jobs", "as_json", "force", "run_verify_after"}
+    assert only_build == {"out", "variants", "all_materials", "jobs", "as_json", "force", "run_verify_after",
+                          "cache_dir", "no_cache", "depfile", "depfile_target"}
 
 
 def _scenes(root):

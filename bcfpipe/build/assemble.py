@@ -20,9 +20,9 @@ def _scene_name(scene: str | os.PathLike) -> str:
     return Path(scene).name.split(".")[0] or "scene"
 
 
-def default_out(scene: str | os.PathLike) -> Path:
-    """``<scene>.bcf/`` next to the scene."""
-    p = Path(scene).resolve()
+def default_out(scene: str | os.PathLike, resolve: bool = True) -> Path:
+    """``<scene>.bcf/`` next to the scene (as given, or resolved)."""
+    p = Path(scene).resolve() if resolve else Path(scene)
     return p.parent / f"{_scene_name(p)}.bcf"
 
 
@@ -30,12 +30,17 @@ def root_layer_name(scene: str | os.PathLike) -> str:
     return f"{_scene_name(scene)}.bcf.usda"
 
 
+def _device_class(device: str) -> str:
+    """cpu / cuda: what the manifest records (the device index does not change results)."""
+    return device.split(":")[0]
+
+
 def _features_bytes(folder: Path) -> int:
     return sum((folder / f"T{i}.dds").stat().st_size for i in range(4) if (folder / f"T{i}.dds").exists())
 
 
 def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | os.PathLike,
-             final_out: str | os.PathLike | None = None, wall_seconds: float = 0.0) -> mfst.Manifest:
+             final_out: str | os.PathLike | None = None) -> mfst.Manifest:
     """Write weights.bin, the USD layers and manifest.json into ``staging`` (whose contents will
     live at ``final_out``; relative paths are computed from there). Returns the manifest."""
     from bcfpipe.build import usd_layer as usdout
@@ -120,16 +125,15 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
                                  sum(sources[p].size_bytes for p in mp_.sources if p in sources)),
                 outputs=mfst.Outputs(f"{MATERIALS_DIR}/{mp_.job}", e.index, e.offset, e.size),
                 profile=res.get("profile"), resolutions=tuple(res.get("resolutions")),
-                train_seconds=res.get("train_seconds"), device=r.device))
+                device=_device_class(res.get("device") or r.device)))
         else:
-            mats.append(mfst.Material(**common, train_seconds=r.seconds if r else None, device=r.device if r else None))
+            mats.append(mfst.Material(**common, device=_device_class(r.device) if r else None))
 
     job_entries = []
     for j in bplan.jobs:
         r = results.get(j.name)
         job_entries.append(mfst.Job(j.name, tuple(j.materials), j.content_hash, r.status if r else "not run",
-                                    r.reason if r else None, round(r.seconds, 3) if r else None,
-                                    r.device if r else None, r.threads if r else None,
+                                    r.reason if r else None, _device_class(r.device) if r else None,
                                     entry_of[j.name].index if j.name in entry_of else None))
     counts = {s: sum(1 for m in mats if m.status == s) for s in mfst.STATUSES}
     feature_total = sum(_features_bytes(staging / MATERIALS_DIR / j.name) for j in built)
@@ -145,8 +149,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
                             for j, e in zip(built, entries)),
         totals=mfst.Totals(
             materials=len(mats), **counts, jobs=len(bplan.jobs), trained=len(built),
-            train_seconds=round(sum((results[j.name].result.get("train_seconds") or 0.0) for j in built), 3),
-            wall_seconds=round(wall_seconds, 3), features_bytes=feature_total, weights_bytes=weights_size,
+            features_bytes=feature_total, weights_bytes=weights_size,
             total_bytes=feature_total + weights_size, source_bytes=sum(s.size_bytes for s in sources.values())),
         diagnostics=tuple(bplan.diagnostics),
         exit_code=EXIT_FAILED if counts["failed"] else EXIT_OK)

@@ -15,7 +15,6 @@ from typing import Any, Mapping, Sequence
 
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.build.plan import MaterialJob, ProgressCallback
-from bcfpipe.formats.material import BuildJob
 from bcfpipe.scan.texture_sets import local_file
 
 
@@ -53,6 +52,7 @@ class JobResult:
     device: str
     threads: int
     result: dict = field(default_factory=dict)  # MaterialResult.to_dict() when built
+    cache: str | None = None  # "hit" / "miss" with a cache, None without
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -85,12 +85,38 @@ class _Throttle:
                         "psnr": None, "eta": None, "elapsed": None})
 
 
-def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue=None) -> dict:
+def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue=None,
+            cache_root: str | None = None) -> dict:
     """Train and export one job into ``out_dir`` (runs in a worker process; never raises).
 
-    Returns a `JobResult` as a dict. Only this process's own thread settings are changed.
+    With ``cache_root`` the job holds its key's lock while it works: an entry that another build
+    stored meanwhile is copied instead of trained (a hit), and a trained result is stored. Returns
+    a `JobResult` as a dict. Only this process's own thread settings are changed.
     """
     t0 = time.perf_counter()
+    name = job.get("name", "?")
+    if cache_root is None:
+        return _train_job(job, out_dir, threads, device, queue, t0)
+    from bcfpipe.cache import Cache
+
+    try:
+        cache = Cache(cache_root)
+        key = job["content_hash"]
+        with cache.lock(key):
+            found = cache.lookup(key)
+            if found.entry is not None:
+                found.entry.copy_to(out_dir)
+                return JobResult(name, "built", None, time.perf_counter() - t0, device, threads,
+                                 dict(found.entry.result), "hit").to_dict()
+            r = _train_job(job, out_dir, threads, device, queue, t0)
+            if r["status"] == "built":
+                cache.put(key, out_dir, r["result"])
+            return dict(r, cache="miss")
+    except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
+        return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
+
+
+def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, t0: float) -> dict:
     name = job.get("name", "?")
     try:
         if mp.parent_process() is not None:  # a worker process: keep the build's stdout clean (--json)
@@ -125,9 +151,7 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
         o = mj.options
         prof, cfg = make_config(ts, profile=o.profile, preset=o.preset, device=device, seed=o.seed, hidden=o.hidden,
                                 signed=o.signed, wrap=mj.wrap, threads=max(1, threads), init=o.init)
-        build_job = BuildJob(mj.name, tuple(mj.materials), mj.content_hash)
-        res, _ = fit_material(ts, out_dir, cfg, prof, progress, build_job,
-                              sources={v: k for k, v in local.items() if v != k})
+        res, _ = fit_material(ts, out_dir, cfg, prof, progress)
         d = res.to_dict()
         d.pop("out", None)
         return JobResult(mj.name, "built", None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
@@ -156,7 +180,8 @@ def _emit(progress: ProgressCallback | None, **event) -> None:
 
 def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, threads: int,
               devices: Sequence[str], executor: cf.Executor | None, queue,
-              progress: ProgressCallback | None) -> tuple[dict[str, JobResult], list[MaterialJob]]:
+              progress: ProgressCallback | None,
+              cache_root: str | None) -> tuple[dict[str, JobResult], list[MaterialJob]]:
     """Run ``jobs``; returns results and the jobs whose worker process died (to retry alone)."""
     results: dict[str, JobResult] = {}
     broken: list[MaterialJob] = []
@@ -166,7 +191,7 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
         futures = {}
         for i, job in enumerate(jobs):
             dev = devices[i % len(devices)]
-            fut = pool.submit(run_job, job.to_dict(), str(materials_dir / job.name), threads, dev, queue)
+            fut = pool.submit(run_job, job.to_dict(), str(materials_dir / job.name), threads, dev, queue, cache_root)
             futures[fut] = (job, dev)
             _emit(progress, event="queued", job=job.name, materials=list(job.materials))
         pending = set(futures)
@@ -184,7 +209,7 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
                     r = JobResult(job.name, "failed", one_line(exc), 0.0, dev, threads)
                 results[job.name] = r
                 _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
-                      psnr=r.result.get("psnr"), seconds=r.seconds)
+                      psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
     except BaseException:
         if own:
             pool.shutdown(wait=False, cancel_futures=True)
@@ -197,7 +222,7 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
 
 def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, workers: int | None = None,
             executor: cf.Executor | None = None, progress: ProgressCallback | None = None,
-            threads: int | None = None) -> dict[str, JobResult]:
+            threads: int | None = None, cache_root: str | os.PathLike | None = None) -> dict[str, JobResult]:
     """Train every job into ``materials_dir/<job.name>/``; returns {job name: JobResult}.
 
     Each job runs in a worker process of a spawn-context ``ProcessPoolExecutor`` (or of
@@ -206,7 +231,8 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
     dies is retried once in a fresh single-worker pool (so one crash cannot take others with it),
     then marked failed.
     ``progress`` receives event dicts: ``queued``, ``progress`` (phase, step, steps, psnr, eta) and
-    ``done`` (status, reason, psnr, seconds).
+    ``done`` (status, reason, psnr, seconds, cache). With ``cache_root`` each worker looks the job
+    up in the cache under its key's lock and stores what it trains (`run_job`).
     """
     materials_dir = Path(materials_dir)
     materials_dir.mkdir(parents=True, exist_ok=True)
@@ -220,9 +246,10 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
     manager = mp.get_context("spawn").Manager() if progress else None
     try:
         queue = manager.Queue() if manager else None
-        results, broken = _run_pool(jobs, materials_dir, workers, threads, devices, executor, queue, progress)
+        root = str(cache_root) if cache_root is not None else None
+        results, broken = _run_pool(jobs, materials_dir, workers, threads, devices, executor, queue, progress, root)
         for job in broken:
-            retry, again = _run_pool([job], materials_dir, 1, threads, devices, None, queue, progress)
+            retry, again = _run_pool([job], materials_dir, 1, threads, devices, None, queue, progress, root)
             results.update(retry)
             if again:
                 results[job.name] = JobResult(job.name, "failed", "worker process died (out of memory?)",

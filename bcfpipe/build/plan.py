@@ -8,9 +8,8 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe import __version__
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED, FEATURE_INITS, PRESETS, PROFILE_NAMES)
+                            DEFAULT_SEED, FEATURE_INITS, MODEL_FORMAT, PRESETS, PROFILE_NAMES)
 from bcfpipe.scan.texture_sets import ModelChannel, SourceFile, decoder_index
 from bcfpipe.errors import InputError
 from bcfpipe.formats.manifest import Options
@@ -115,6 +114,7 @@ class BuildPlan:
     jobs: tuple[MaterialJob, ...]
     options: Options
     diagnostics: tuple[str, ...] = ()
+    layers: tuple[str, ...] = ()  # every layer file the stage composed (for --depfile)
 
     def job(self, name: str) -> MaterialJob:
         for j in self.jobs:
@@ -132,9 +132,17 @@ class BuildPlan:
         return d
 
 
-def _content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options) -> str:
+def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options) -> str:
+    """The job's cache key: everything that changes the trained files and nothing else.
+
+    In it: the bytes of each source file (its XXH3-128) with the semantic and channels read from
+    it, the addressing, profile, preset (and its schedule), seed, hidden size, signedness, feature
+    start, the device class (cpu / cuda train differently) and config.MODEL_FORMAT. Not in it:
+    paths, times, meshes and transforms, and the UsdUVTexture scale, bias and colour space, which
+    the USD layer applies to the decoded values (the model learns the stored texels).
+    """
     payload = {
-        "bcfpipe": __version__,
+        "model_format": MODEL_FORMAT,
         "specs": [[sem, sources[path].xxh3_128, ch] for sem, path, ch in specs],
         "wrap": wrap,
         "profile": options.profile,
@@ -165,10 +173,10 @@ def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[s
 
 
 def _resolve_device_name(device: str) -> str:
-    from bcfpipe.train.trainer import resolve_device
+    from bcfpipe.train.devices import device_class
 
     try:
-        return resolve_device(device).type
+        return device_class(device)
     except (ValueError, RuntimeError) as exc:
         raise BuildError(str(exc)) from None
 
@@ -205,7 +213,7 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         jobs.append(MaterialJob(
             name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
             sources=tuple(rep_sources.values()), wrap=rep.wrap, options=options,
-            content_hash=_content_hash(rep.specs, rep_sources, rep.wrap, options),
+            content_hash=content_hash(rep.specs, rep_sources, rep.wrap, options),
         ))
     job_by_name = {j.name: j for j in jobs}
 
@@ -244,4 +252,5 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         all_materials=all_materials, up_axis=scan.up_axis, meters_per_unit=scan.meters_per_unit,
         default_prim=scan.default_prim, materials=tuple(plans), jobs=tuple(jobs), options=options,
         diagnostics=tuple(scan.composition_errors) + tuple(scan.diagnostics),
+        layers=scan.layers,
     )

@@ -1,7 +1,9 @@
-"""`build`: plan, execute and assemble into a staging folder, then swap it in as OUT."""
+"""`build`: plan; take what the cache holds; train the rest; assemble into a staging folder; then
+install it as OUT, writing only the files that changed."""
 from __future__ import annotations
 
 import concurrent.futures as cf
+import logging
 import os
 import shutil
 import time
@@ -14,10 +16,18 @@ from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAUL
                             DEFAULT_SEED)
 from bcfpipe.errors import EXIT_OK
 from bcfpipe.build.assemble import assemble, default_out
-from bcfpipe.build.executor import execute
+from bcfpipe.build.depfile import dependencies, write as write_depfile
+from bcfpipe.build.executor import JobResult, execute
+from bcfpipe.build.report import make_report
+from bcfpipe.build.sync import install, is_incomplete
+from bcfpipe.cache import Cache, default_root
+from bcfpipe.formats.report import BuildReport
 from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
 from bcfpipe.build.plan import BuildError, BuildPlan, MATERIALS_DIR, ProgressCallback, plan
 from bcfpipe.scan.texture_sets import package_split
+
+
+log = logging.getLogger("bcfpipe.build")
 
 
 @dataclass(frozen=True)
@@ -28,6 +38,7 @@ class BuildResult:
     root_layer: Path
     manifest: Manifest
     plan: BuildPlan
+    report: BuildReport
 
     @property
     def exit_code(self) -> int:
@@ -60,24 +71,53 @@ def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike]) -> No
         return
     if not out.is_dir():
         raise BuildError(f"output {out} exists and is not a folder")
-    if force or is_manifest(out) or not any(out.iterdir()):
+    if force or is_manifest(out) or is_incomplete(out) or not any(out.iterdir()):
         return
     raise BuildError(f"output folder {out} exists and was not written by bcfpipe (no {MANIFEST}); "
                      "use --force to replace it")
 
 
-def _install(staging: Path, out: Path) -> None:
-    """Move the finished staging folder to ``out`` (replacing an old build)."""
-    old = None
-    if out.exists() or out.is_symlink():
-        old = out.parent / f".{out.name}.old-{uuid.uuid4().hex[:8]}"
-        os.replace(out, old)
-    os.replace(staging, out)
-    if old is not None:
-        if old.is_dir() and not old.is_symlink():
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            old.unlink(missing_ok=True)
+def _stale_staging(out: Path) -> None:
+    """Remove staging folders of killed builds of ``out`` (their writer's pid is gone)."""
+    for d in out.parent.glob(f".{out.name}.tmp-*"):
+        try:
+            pid = int((d / _PID).read_text())
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            shutil.rmtree(d, ignore_errors=True)
+        except (OSError, ValueError):
+            pass  # alive, not ours, or being created: leave it
+
+
+_PID = ".bcfpipe-pid"
+
+
+def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
+            progress: ProgressCallback | None) -> tuple[dict[str, JobResult], list[str]]:
+    """Jobs found in the cache, copied into ``materials_dir``; and the damaged entries met."""
+    hits: dict[str, JobResult] = {}
+    damaged: list[str] = []
+    if cache is None:
+        return hits, damaged
+    for job in bplan.jobs:
+        found = cache.lookup(job.content_hash)
+        if found.problem:
+            damaged.append(f"{job.name}: cache entry {job.content_hash} was damaged ({found.problem}); retraining")
+            log.warning(damaged[-1])
+        if found.entry is None:
+            continue
+        try:
+            found.entry.copy_to(materials_dir / job.name)
+        except OSError:  # pruned meanwhile: the worker trains it
+            shutil.rmtree(materials_dir / job.name, ignore_errors=True)
+            continue
+        hits[job.name] = JobResult(job.name, "built", None, 0.0, job.options.device, 0, dict(found.entry.result),
+                                   "hit")
+        if progress:
+            progress({"event": "done", "job": job.name, "status": "built", "reason": None,
+                      "psnr": found.entry.result.get("psnr"), "seconds": 0.0, "cache": "hit",
+                      "materials": list(job.materials)})
+    return hits, damaged
 
 
 def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
@@ -85,15 +125,20 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
           profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET, jobs: int | None = None,
           device: str = DEFAULT_DEVICE, seed: int = DEFAULT_SEED, hidden: int = DEFAULT_HIDDEN, signed: bool = False,
           init: str = DEFAULT_INIT, force: bool = False, progress: ProgressCallback | None = None,
-          executor: cf.Executor | None = None, threads: int | None = None) -> BuildResult:
+          executor: cf.Executor | None = None, threads: int | None = None,
+          cache: str | os.PathLike | bool | None = None, depfile: str | os.PathLike | None = None,
+          depfile_target: str | None = None) -> BuildResult:
     """Build neural materials for ``scene`` into ``out`` (default ``<scene>.bcf/`` next to it); the
     Python twin of ``bcfpipe build``.
 
     ``variants``: {set: value} or ["set=value", ...]. ``jobs``: worker processes (default: one per
     core, or per GPU, at most one per job). ``threads``: torch threads per worker (default
-    ``config.DEFAULT_THREADS``, 1). ``progress``: a callable receiving event dicts (see
-    `execute`). Raises `BuildError` (exit code 2) before any training for bad input or a refused
-    ``out``; per-material failures are reported in the result (``exit_code`` 1), never raised.
+    ``config.DEFAULT_THREADS``, 1). ``cache``: a cache folder, True/None for the default one
+    (``BCFPIPE_CACHE`` or the user cache), False for none. ``depfile``: write the files the result
+    depends on there, for target ``depfile_target`` (default: the root layer under ``out`` as
+    given). ``progress``: a callable receiving event dicts (see `execute`). Raises `BuildError`
+    (exit code 2) before any training for bad input or a refused ``out``; per-material failures
+    are reported in the result (``exit_code`` 1), never raised.
     """
     t0 = time.perf_counter()
     if jobs is not None and int(jobs) < 1:
@@ -101,20 +146,36 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     if threads is not None and int(threads) < 1:
         raise BuildError("--threads must be at least 1")
     scene_path = Path(scene)
-    out_path = Path(out).resolve() if out is not None else default_out(scene_path)
+    out_given = Path(out) if out is not None else default_out(scene_path, resolve=False)
+    out_path = out_given.resolve()
     # Refuse early: before the scan reads every texture, and again once the sources are known.
     check_out(out_path, force, [scene_path])
+    store = None
+    if cache is not False:
+        store = Cache(default_root() if cache in (None, True) else cache)
     bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init)
     check_out(out_path, force, [bplan.scene, *bplan.sources])
     out_path.parent.mkdir(parents=True, exist_ok=True)
+    _stale_staging(out_path)
     staging = out_path.parent / f".{out_path.name}.tmp-{uuid.uuid4().hex[:8]}"
     staging.mkdir()
+    (staging / _PID).write_text(str(os.getpid()))
     try:
-        results = execute(bplan.jobs, staging / MATERIALS_DIR, workers=jobs, executor=executor, progress=progress,
-                          threads=threads)
-        manifest = assemble(bplan, results, staging, out_path, time.perf_counter() - t0)
-        _install(staging, out_path)
+        results, damaged = _cached(bplan, store, staging / MATERIALS_DIR, progress)
+        todo = [j for j in bplan.jobs if j.name not in results]
+        results.update(execute(todo, staging / MATERIALS_DIR, workers=jobs, executor=executor, progress=progress,
+                               threads=threads, cache_root=store.root if store else None))
+        (staging / _PID).unlink()
+        manifest = assemble(bplan, results, staging, out_path)
+        files = sorted(p.relative_to(staging).as_posix() for p in staging.rglob("*") if p.is_file())
+        written = install(staging, out_path, manifest.root_layer)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return BuildResult(out_path, out_path / manifest.root_layer, manifest, bplan)
+    dep = None
+    if depfile is not None:
+        target = depfile_target or (out_given / manifest.root_layer).as_posix()
+        dep = str(write_depfile(depfile, target, dependencies(bplan.layers, bplan.sources)))
+    report = make_report(str(out_given), manifest, results, files, written, str(store.root) if store else None,
+                         damaged, time.perf_counter() - t0, dep)
+    return BuildResult(out_path, out_path / manifest.root_layer, manifest, bplan, report)

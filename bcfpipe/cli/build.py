@@ -21,6 +21,7 @@ from rich.text import Text
 
 from bcfpipe.cli.errors import Command
 from bcfpipe.formats.manifest import Manifest
+from bcfpipe.formats.report import BuildReport
 from bcfpipe.cli.options import all_materials_option, training_options, variant_option
 
 __all__ = ["build", "BuildDisplay", "summary_table"]
@@ -85,9 +86,15 @@ class BuildDisplay:
                 line = f"{name}: {st['phase']}"
         elif kind == "done":
             st.update(status=ev.get("status", "?"), phase="", eta=None)
+            if ev.get("materials"):
+                st["materials"] = ev["materials"]
             if ev.get("psnr") is not None:
                 st["psnr"] = ev["psnr"]
-            if st["status"] == "built":
+            if st["status"] == "built" and ev.get("cache") == "hit":
+                st["phase"] = "cached"
+                psnr = f", PSNR {st['psnr']:.2f} dB" if st["psnr"] is not None else ""
+                line = f"{name}: from the cache{psnr}"
+            elif st["status"] == "built":
                 psnr = f", PSNR {st['psnr']:.2f} dB" if st["psnr"] is not None else ""
                 line = f"{name}: built in {ev.get('seconds') or 0:.1f}s{psnr}"
             else:
@@ -111,24 +118,26 @@ class BuildDisplay:
         return t
 
 
-def summary_table(manifest: Manifest) -> Table:
+def summary_table(manifest: Manifest, report: BuildReport) -> Table:
     """The end-of-run table: one row per material, then totals."""
-    tot = manifest.totals
+    tot, rt = manifest.totals, report.totals
+    cached = f", {rt.cached} from the cache" if rt.cached else ""
+    wrote = f"; {rt.written_files} file(s) written" if rt.written_files else "; OUT unchanged"
     t = Table(title=f"bcfpipe build: {manifest.root_layer}", title_justify="left",
               caption=(f"{tot.built} built, {tot.failed} failed, {tot.skipped} skipped; "
-                       f"{tot.trained} texture set(s) trained in {tot.wall_seconds:.1f}s wall; "
-                       f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)})"),
+                       f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall; "
+                       f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}"),
               caption_justify="left")
     for col in ("material", "status", "targets", "profile", "PSNR", "size", "train", "note"):
         t.add_column(col, overflow="fold", justify="right" if col in ("PSNR", "size", "train") else "left")
     style = {"built": "green", "failed": "red", "skipped": "yellow"}
-    for m in manifest.materials:
+    for m, r in zip(manifest.materials, report.materials):
         note = m.reason or ""
         if m.status == "built" and m.shared_with:
             note = f"shared: {m.job} x{len(m.shared_with) + 1}"
         psnr = f"{m.metrics.psnr:.2f}" if m.metrics and m.metrics.psnr is not None else ""
         size = _fmt_size(m.sizes.total_bytes) if m.sizes else ""
-        train = f"{m.train_seconds:.1f}s" if m.status == "built" and m.train_seconds else ""
+        train = "cached" if r.cache == "hit" else f"{r.train_seconds:.1f}s" if r.train_seconds else ""
         t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(len(m.targets) or ""),
                   m.profile or "", psnr, size, train, note)
     return t
@@ -143,26 +152,42 @@ def summary_table(manifest: Manifest) -> Table:
 @training_options
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
               help="Materials trained in parallel [default: one per core, or per GPU].")
-@click.option("--json", "as_json", is_flag=True, help="Print the manifest as JSON on stdout instead of a table.")
+@click.option("--cache", "cache_dir", type=click.Path(path_type=Path, file_okay=False),
+              help="Cache of trained materials [default: $BCFPIPE_CACHE, else the user cache folder].")
+@click.option("--no-cache", is_flag=True, help="Neither read nor write the cache: train every texture set.")
+@click.option("--depfile", type=click.Path(path_type=Path, dir_okay=False),
+              help="Write the files the result depends on (every composed layer, every texture) as a "
+                   "Makefile-syntax depfile, for make or ninja (deps = gcc).")
+@click.option("--depfile-target", metavar="NAME",
+              help="The depfile's target, like gcc -MT [default: OUT/<scene>.bcf.usda as given].")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the build report as one JSON object on stdout (schemas/report.schema.json).")
 @click.option("--force", is_flag=True, help="Replace an existing OUT even if bcfpipe did not write it.")
 @click.option("--verify", "run_verify_after", is_flag=True,
               help="Run `bcfpipe verify` on OUT at the end (GLSL on OpenGL vs ONNX); a failure exits 1.")
 @click.pass_context
 def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str, str], all_materials: bool,
           profile: str, preset: str, hidden: int, signed: bool, init: str, seed: int, device: str, threads: int,
-          jobs: int | None, as_json: bool, force: bool, run_verify_after: bool) -> None:
+          jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
+          depfile_target: str | None, as_json: bool, force: bool, run_verify_after: bool) -> None:
     """Build neural materials for SCENE's textured UsdPreviewSurface materials.
 
     Writes OUT/<scene>.bcf.usda (open this), overrides.usda, weights.bin, manifest.json and
-    materials/<name>/ (DDS features, ONNX, JSON). Exit codes: 0 all built, 1 a material failed,
-    2 bad input or OUT refused.
+    materials/<name>/ (DDS features, ONNX, JSON). Trained materials are kept in a content-addressed
+    cache: a rebuild trains only texture sets whose bytes or training options changed, and writes
+    only files whose bytes changed (a no-op rebuild leaves OUT untouched). Same inputs and options
+    on the same device class give byte-identical outputs. See docs/build.md for make, ninja and
+    CMake. Exit codes: 0 all built, 1 a material failed, 2 bad input or OUT refused.
     """
     from bcfpipe.build import build as run_build
 
     quiet = bool((ctx.obj or {}).get("quiet"))
     display = None if quiet else BuildDisplay(Console(stderr=True))
+    if no_cache and cache_dir is not None:
+        raise click.UsageError("--cache and --no-cache contradict each other")
     options = dict(variants=variants, all_materials=all_materials, profile=profile, preset=preset, hidden=hidden,
-                   signed=signed, init=init, jobs=jobs, threads=threads, device=device, seed=seed, force=force)
+                   signed=signed, init=init, jobs=jobs, threads=threads, device=device, seed=seed, force=force,
+                   cache=False if no_cache else cache_dir, depfile=depfile, depfile_target=depfile_target)
     if display is None:
         result = run_build(scene, out, **options)
     else:
@@ -179,10 +204,10 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
                                  to_stderr=as_json)
         code = max(code, 0 if verify_code == 0 else 1)
     if as_json:
-        click.echo(replace(result.manifest, verify_exit_code=verify_code).dumps(), nl=False)
+        click.echo(replace(result.report, verify_exit_code=verify_code).dumps(), nl=False)
     elif not quiet:
         probe = Console()
         out = probe if probe.is_terminal else Console(width=160)  # pipes/logs: do not wrap at 80 columns
-        out.print(summary_table(result.manifest))
+        out.print(summary_table(result.manifest, result.report))
         out.print(f"open {result.root_layer}", highlight=False, soft_wrap=True)
     ctx.exit(code)

@@ -23,7 +23,6 @@ if TYPE_CHECKING:
 
 __all__ = ["decode", "decode_material", "select_target", "write_images"]
 
-_EIGHT_BIT_EXT = {".jpg", ".jpeg", ".bmp", ".tga", ".gif"}
 
 
 def _parse_size(text: str | None) -> tuple[int, int] | None:
@@ -100,24 +99,6 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
     return out, "onnx"
 
 
-def _is_8bit(source: str | None, cache: dict) -> bool:
-    if not source:
-        return True  # reconstructed channels (normal z) follow their group
-    if source not in cache:
-        bits8 = Path(source).suffix.lower() in _EIGHT_BIT_EXT
-        if Path(source).is_file():
-            import OpenImageIO as oiio
-
-            inp = oiio.ImageInput.open(source)
-            if inp is not None:
-                bits8 = str(inp.spec().format) == "uint8"
-                inp.close()
-            else:
-                oiio.geterror()  # unreadable: keep the extension's guess, clear the message
-        cache[source] = bits8
-    return cache[source]
-
-
 def write_images(img: np.ndarray, outputs: Sequence[Output], out_dir: Path) -> list[Path]:
     """One file per semantic group of ``outputs`` (material.json order, normal z included)."""
     import OpenImageIO as oiio
@@ -126,7 +107,6 @@ def write_images(img: np.ndarray, outputs: Sequence[Output], out_dir: Path) -> l
     groups: dict[str, list[int]] = {}
     for i, o in enumerate(outputs):
         groups.setdefault(o.semantic, []).append(i)
-    cache: dict = {}
     written = []
     for sem, idx in groups.items():
         data = img[..., idx].astype(np.float32)
@@ -135,8 +115,8 @@ def write_images(img: np.ndarray, outputs: Sequence[Output], out_dir: Path) -> l
             data = data * 0.5 + 0.5
         if data.shape[-1] == 2:  # e.g. a two-channel generic: pad to RGB
             data = np.concatenate([data, np.zeros_like(data[..., :1])], -1)
-        sources = [outputs[i].source for i in idx]
-        eight = any(sources) and all(_is_8bit(src, cache) for src in sources)
+        formats = [outputs[i].source_format for i in idx if not outputs[i].reconstructed]
+        eight = bool(formats) and all(f == "uint8" for f in formats)
         path = out_dir / f"{sem}.{'png' if eight else 'exr'}"
         h, w, c = data.shape
         if eight:

@@ -6,13 +6,16 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
-from bcfpipe.train.trainer import Progress
 from bcfpipe.cli.options import training_options
+
+if TYPE_CHECKING:
+    from bcfpipe.train.trainer import Progress
 
 
 def _fmt_eta(sec: float) -> str:

@@ -12,7 +12,6 @@ import hashlib
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import torch
@@ -27,28 +26,26 @@ from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_byte
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.texset.texture_set import Channel, semantic_info
 
-def output_channels(channels: tuple[Channel, ...], sources: Mapping[str, str] | None = None) -> tuple[mf.Output, ...]:
-    """Decoder outputs in order, with their UsdPreviewSurface targets; normal z follows normal y.
-    ``sources`` renames source files (a packaged texture's temporary copy -> its package path)."""
-    sources = sources or {}
+def output_channels(channels: tuple[Channel, ...]) -> tuple[mf.Output, ...]:
+    """Decoder outputs in order, with their UsdPreviewSurface targets; normal z follows normal y."""
     out = []
     for ch in channels:
         usd = semantic_info(ch.semantic).usd_input
         comp = ch.component
         target = None if usd is None else (usd if semantic_info(ch.semantic).channels == 1 else f"{usd}.{comp}")
         lo, hi = ch.value_range
-        out.append(mf.Output(ch.name, ch.semantic, comp, ch.kind, target, (lo, hi), sources.get(ch.source, ch.source),
-                             ch.source_channel, reconstructed=False))
+        out.append(mf.Output(ch.name, ch.semantic, comp, ch.kind, target, (lo, hi), ch.source_channel,
+                             ch.source_format or None, reconstructed=False))
         if ch.kind == "normal" and comp == "y":
             out.append(mf.Output(f"{ch.semantic}.z", ch.semantic, "z", "normal", "normal.z", (0.0, 1.0), None, None,
                                  reconstructed=True))
     return tuple(out)
 
 
-def export(tm, out_dir: str | os.PathLike, build_job: mf.BuildJob | None = None,
-           sources: Mapping[str, str] | None = None) -> Path:
+def export(tm, out_dir: str | os.PathLike) -> Path:
     """Write a trained material (``bcfpipe.train.TrainedMaterial``) into ``out_dir``; material.json
-    last, so a folder with one is complete. ``build_job`` is recorded when a build trained it."""
+    last, so a folder with one is complete. Nothing in it depends on paths or times: the same
+    training gives the same bytes (the build's cache relies on it)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     mc: ModelConfig = tm.config.model
@@ -72,11 +69,10 @@ def export(tm, out_dir: str | os.PathLike, build_job: mf.BuildJob | None = None,
         mlp=mf.Mlp(mf.WEIGHTS, 0, len(record), n_in, hidden, n_out, "relu", "fp16", "BCFW v1",
                    tuple(f"T{i}.{c}" for i in range(N_LAYERS) for c in "rgb"),
                    tuple(tm.mlp.out_scale.tolist()), tuple(tm.mlp.out_bias.tolist())),
-        outputs=output_channels(ts.channels, sources),
+        outputs=output_channels(ts.channels),
         onnx=mf.Onnx(mf.ONNX, ONNX_INPUT, ONNX_OUTPUT, 17),
-        training=mf.Training(tuple(mc.resolutions), tm.config.preset_name, tm.config.seed, tm.config.device,
-                             {k: round(v, 3) for k, v in tm.phase_seconds.items()}),
-        bcfpipe_build=build_job)
+        training=mf.Training(tuple(mc.resolutions), tm.config.preset_name, tm.config.seed,
+                             str(tm.config.device).split(":")[0]))
     # digests let `bcfpipe verify` detect any changed byte, which a decode comparison cannot
     # (a flipped index bit still decodes identically on every correct decoder)
     desc = replace(desc, sha256={f: hashlib.sha256((out / f).read_bytes()).hexdigest() for f in desc.files})

@@ -14,7 +14,7 @@ from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.record import Record, optional, read as read_record
 
 FORMAT = "bcfpipe-build"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 FILE = "manifest.json"
 WEIGHTS = "weights.bin"
 
@@ -116,7 +116,6 @@ class Material(Record):
     outputs: Outputs | None = None
     profile: str | None = optional()
     resolutions: tuple[int, ...] | None = optional()
-    train_seconds: float | None = None
     device: str | None = None
     warnings: tuple[str, ...] = ()
 
@@ -132,9 +131,7 @@ class Job(Record):
     content_hash: str
     status: str
     reason: str | None
-    seconds: float | None
     device: str | None
-    threads: int | None
     weights_index: int | None
 
 
@@ -183,7 +180,7 @@ class Stage(Record):
 
 @dataclass(frozen=True)
 class Totals(Record):
-    """Counts, sizes and times over the whole build."""
+    """Counts and sizes over the whole build."""
 
     materials: int
     built: int
@@ -191,8 +188,6 @@ class Totals(Record):
     skipped: int
     jobs: int
     trained: int
-    train_seconds: float
-    wall_seconds: float
     features_bytes: int
     weights_bytes: int
     total_bytes: int
@@ -201,7 +196,8 @@ class Totals(Record):
 
 @dataclass(frozen=True)
 class Manifest(Record):
-    """The manifest.json at the top of a build folder."""
+    """The manifest.json at the top of a build folder. It holds no times and no absolute paths:
+    the same inputs and options give the same bytes (a build's timings are in its report)."""
 
     scene: str
     root_layer: str
@@ -218,7 +214,6 @@ class Manifest(Record):
     totals: Totals | None = None
     diagnostics: tuple[str, ...] = ()
     exit_code: int = 0
-    verify_exit_code: int | None = optional()
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
     bcfpipe_version: str = field(default_factory=lambda: _version())

@@ -7,15 +7,14 @@ only writer is :func:`bcfpipe.export.writer.export`; every reader goes through :
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.record import Record, optional, read as read_record
 
 FORMAT = "bcfpipe-material"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 FILE = "material.json"
 WEIGHTS = "weights.bin"
 ONNX = "decoder.onnx"
@@ -95,8 +94,8 @@ class Output(Record):
     kind: str
     usd_target: str | None
     range: tuple[float, float]
-    source: str | None
     source_channel: int | None
+    source_format: str | None
     reconstructed: bool
 
 
@@ -118,16 +117,6 @@ class Training(Record):
     preset: str
     seed: int
     device: str
-    phase_seconds: dict[str, float]
-
-
-@dataclass(frozen=True)
-class BuildJob(Record):
-    """Present when ``bcfpipe build`` trained the material: its job and the materials it serves."""
-
-    job: str
-    materials: tuple[str, ...]
-    content_hash: str
 
 
 @dataclass(frozen=True)
@@ -142,7 +131,6 @@ class MaterialFile(Record):
     outputs: tuple[Output, ...]
     onnx: Onnx
     training: Training
-    bcfpipe_build: BuildJob | None = optional()
     sha256: dict[str, str] | None = optional()
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
@@ -180,10 +168,6 @@ class MaterialFile(Record):
     def files(self) -> list[str]:
         """Every file of the material besides material.json, in digest order."""
         return [layer.file for layer in self.layers] + [self.mlp.weights, self.onnx.file]
-
-    def with_sources(self, names: Mapping[str, str]) -> MaterialFile:
-        """The same description with each output's ``source`` renamed through ``names``."""
-        return replace(self, outputs=tuple(replace(o, source=names.get(o.source, o.source)) for o in self.outputs))
 
 
 def _version() -> str:

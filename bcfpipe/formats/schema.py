@@ -15,7 +15,7 @@ import typing
 from pathlib import Path
 from typing import Any
 
-from bcfpipe.formats import manifest, material
+from bcfpipe.formats import manifest, material, report
 from bcfpipe.formats.record import _hints, key_order
 
 SCHEMA_DIR = Path(__file__).resolve().parents[2] / "schemas"
@@ -35,7 +35,6 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("MaterialFile", "outputs"): "Decoded channels in output order, normal z included after normal y.",
     ("MaterialFile", "onnx"): "The decoder as an ONNX model (features in, post-processed channels out).",
     ("MaterialFile", "training"): "How the material was trained (informative; times vary between runs).",
-    ("MaterialFile", "bcfpipe_build"): "Present when `bcfpipe build` trained the material.",
     ("MaterialFile", "sha256"): "SHA-256 (hex) of every other file of the material, by file name.",
     ("Layer", "file"): "DDS file name, relative to the material folder.",
     ("Layer", "resolution"): "Width and height of mip 0 in texels (square, a power of two).",
@@ -71,8 +70,9 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Output", "kind"): "color, normal or scalar: how the output is post-processed and measured.",
     ("Output", "usd_target"): "The UsdPreviewSurface input (and component) it feeds; null if none.",
     ("Output", "range"): "Output range [lo, hi]; decoded values are clamped to it.",
-    ("Output", "source"): "Source image of the channel, as the trainer read it; null when reconstructed.",
     ("Output", "source_channel"): "Channel index in the source image; null when reconstructed.",
+    ("Output", "source_format"): "Stored texel type of the source image (OpenImageIO base type, e.g. uint8); "
+                                 "null when reconstructed.",
     ("Output", "reconstructed"): "True for normal z = sqrt(1 - x^2 - y^2), computed, not learned.",
     ("Onnx", "file"): "ONNX file name, relative to the material folder.",
     ("Onnx", "input"): "Input tensor name: float32 (N, n_in) features.",
@@ -81,11 +81,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Training", "profile_resolutions"): "Resolutions of T_0..T_3 (the profile).",
     ("Training", "preset"): "Quality preset (bcfpipe.config.PRESETS).",
     ("Training", "seed"): "Random seed.",
-    ("Training", "device"): "torch device that trained it (cpu, cuda, ...).",
-    ("Training", "phase_seconds"): "Seconds spent in each training phase.",
-    ("BuildJob", "job"): "The build job (texture set) name: the folder under materials/.",
-    ("BuildJob", "materials"): "USD Material prims that use this trained material.",
-    ("BuildJob", "content_hash"): "Hash of the job's source bytes and settings.",
+    ("Training", "device"): "Device class that trained it (cpu or cuda): results differ between them.",
     # ---------------------------------------------------------------- manifest.json
     ("Manifest", "format"): "Always \"bcfpipe-build\".",
     ("Manifest", "format_version"): "Version of this contract; a reader refuses versions it does not know.",
@@ -105,7 +101,6 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Manifest", "totals"): "Counts, sizes and times over the whole build.",
     ("Manifest", "diagnostics"): "USD composition errors and warnings met while scanning.",
     ("Manifest", "exit_code"): "0 every material built or skipped, 1 a material failed.",
-    ("Manifest", "verify_exit_code"): "Exit code of `bcfpipe verify` (only in `build --verify --json` output).",
     ("Options", "profile"): "Feature-texture profile (auto, tiny, 0.5k, 1k, ...).",
     ("Options", "preset"): "Quality preset.",
     ("Options", "seed"): "Random seed.",
@@ -133,7 +128,6 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Material", "outputs"): "Where its files are; null unless built.",
     ("Material", "profile"): "Resolved profile (only when built).",
     ("Material", "resolutions"): "Resolutions of T_0..T_3 (only when built).",
-    ("Material", "train_seconds"): "Seconds its job trained.",
     ("Material", "device"): "torch device its job ran on.",
     ("Material", "warnings"): "Scan warnings about this material.",
     ("Source", "file"): "The file, relative to the build folder, or package.usdz[inner/path].",
@@ -180,9 +174,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Job", "content_hash"): "Hash of its source bytes and settings.",
     ("Job", "status"): "built, failed or \"not run\".",
     ("Job", "reason"): "Why it failed (one line); null when built.",
-    ("Job", "seconds"): "Wall seconds of its worker.",
     ("Job", "device"): "torch device it ran on.",
-    ("Job", "threads"): "torch threads of its worker.",
     ("Job", "weights_index"): "Index of its record in the combined weights.bin; null unless built.",
     ("WeightsRecord", "index"): "Record index (the material id of the paper's section 5.3).",
     ("WeightsRecord", "offset"): "Byte offset of the record.",
@@ -195,13 +187,52 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Totals", "failed"): "Materials that failed.",
     ("Totals", "skipped"): "Materials skipped (not modelled).",
     ("Totals", "jobs"): "Jobs planned.",
-    ("Totals", "trained"): "Jobs trained.",
-    ("Totals", "train_seconds"): "Sum of the jobs' training seconds.",
-    ("Totals", "wall_seconds"): "Wall seconds of the whole build.",
+    ("Totals", "trained"): "Jobs with a trained material (trained by this run or taken from the cache).",
     ("Totals", "features_bytes"): "Bytes of every DDS file.",
     ("Totals", "weights_bytes"): "Bytes of the combined weights.bin.",
     ("Totals", "total_bytes"): "features_bytes + weights_bytes.",
     ("Totals", "source_bytes"): "Bytes of every source file of the scene's modelled materials.",
+    # ---------------------------------------------------------------- build --json report
+    ("BuildReport", "format"): "Always \"bcfpipe-build-report\".",
+    ("BuildReport", "format_version"): "Version of this interface; keys are only ever added.",
+    ("BuildReport", "out"): "The output folder, as given (or its default).",
+    ("BuildReport", "root_layer"): "The USD layer to open.",
+    ("BuildReport", "manifest"): "The build's manifest.json.",
+    ("BuildReport", "exit_code"): "0 every material built or skipped, 1 a material failed.",
+    ("BuildReport", "verify_exit_code"): "Exit code of `bcfpipe verify` (with --verify only).",
+    ("BuildReport", "cache"): "The cache this run used.",
+    ("BuildReport", "totals"): "Counts, sizes and times of this run.",
+    ("BuildReport", "materials"): "Every Material prim of the scene, in stage order.",
+    ("BuildReport", "written"): "Files this run created or replaced in OUT, relative to it (empty for a no-op).",
+    ("BuildReport", "depfile"): "The depfile written (--depfile), or null.",
+    ("CacheReport", "enabled"): "False with --no-cache.",
+    ("CacheReport", "root"): "The cache folder; null when disabled.",
+    ("CacheReport", "hits"): "Jobs whose trained material came from the cache.",
+    ("CacheReport", "misses"): "Jobs trained by this run.",
+    ("CacheReport", "damaged"): "Entries that failed their digest check: discarded and retrained (one line each).",
+    ("ReportTotals", "materials"): "Material prims in the scene.",
+    ("ReportTotals", "built"): "Materials built.",
+    ("ReportTotals", "failed"): "Materials that failed.",
+    ("ReportTotals", "skipped"): "Materials skipped (not modelled).",
+    ("ReportTotals", "jobs"): "Jobs planned.",
+    ("ReportTotals", "trained"): "Jobs trained by this run (cache misses that built).",
+    ("ReportTotals", "cached"): "Jobs taken from the cache.",
+    ("ReportTotals", "train_seconds"): "Seconds spent training in this run (sum over jobs).",
+    ("ReportTotals", "wall_seconds"): "Wall seconds of this run.",
+    ("ReportTotals", "total_bytes"): "Bytes of the feature textures and the combined weights.",
+    ("ReportTotals", "written_files"): "Files created or replaced in OUT.",
+    ("MaterialReport", "path"): "The Material prim path.",
+    ("MaterialReport", "status"): "built, failed or skipped.",
+    ("MaterialReport", "reason"): "Why it was skipped or failed; null when built.",
+    ("MaterialReport", "job"): "Its job (folder under materials/); null when skipped.",
+    ("MaterialReport", "cache"): "hit: its trained material came from the cache; miss: this run trained it; "
+                                 "null: skipped, failed before training, or the cache is off.",
+    ("MaterialReport", "psnr"): "PSNR in dB of the exported files over the mips counted in the mean.",
+    ("MaterialReport", "psnr_per_mip"): "PSNR in dB of each mip, mip 0 first.",
+    ("MaterialReport", "train_seconds"): "Seconds its material trained (when it was trained, for a hit).",
+    ("MaterialReport", "seconds"): "Wall seconds its job took in this run (0 for a hit found before any worker).",
+    ("MaterialReport", "total_bytes"): "Bytes of its feature textures and weight record.",
+    ("MaterialReport", "files"): "Its output files, relative to OUT.",
 }
 
 ENUMS: dict[tuple[str, str], list] = {
@@ -213,6 +244,10 @@ ENUMS: dict[tuple[str, str], list] = {
     ("Output", "kind"): ["color", "normal", "scalar"],
     ("Material", "status"): list(manifest.STATUSES),
     ("Job", "status"): ["built", "failed", "not run"],
+    ("BuildReport", "format"): [report.FORMAT],
+    ("BuildReport", "format_version"): [report.FORMAT_VERSION],
+    ("MaterialReport", "status"): list(manifest.STATUSES),
+    ("MaterialReport", "cache"): [*report.CACHE_STATES, None],
     ("BC6H", "dxgi_format"): [95, 96],
 }
 
@@ -275,6 +310,7 @@ def json_schema(cls, file_name: str, title: str) -> dict[str, Any]:
 SCHEMAS = {
     "material.schema.json": (material.MaterialFile, "bcfpipe material.json"),
     "manifest.schema.json": (manifest.Manifest, "bcfpipe build manifest.json"),
+    "report.schema.json": (report.BuildReport, "bcfpipe build --json report"),
 }
 
 

@@ -235,6 +235,7 @@ class StageScan:
     dangling_bindings: tuple[str, ...] = ()
     composition_errors: tuple[str, ...] = ()
     diagnostics: tuple[str, ...] = ()
+    layers: tuple[str, ...] = ()  # files of every composed layer (a packaged layer: its .usdz)
 
     @property
     def to_model(self) -> tuple[MaterialScan, ...]:
@@ -270,6 +271,7 @@ class StageScan:
             "dangling_bindings": list(self.dangling_bindings),
             "composition_errors": list(self.composition_errors),
             "diagnostics": list(self.diagnostics),
+            "layers": list(self.layers),
             "summary": {
                 "materials": len(self.materials),
                 "model": len(self.to_model),

@@ -53,7 +53,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
-from pxr import Usd, UsdGeom, UsdShade, UsdUtils
+from pxr import Ar, Usd, UsdGeom, UsdShade, UsdUtils
 
 from bcfpipe.scan.composition import (apply_variants, bound_materials, definition_path, first_line, open_stage,
                                       rendered_gprims)
@@ -247,6 +247,20 @@ def _new_diagnostics(found: Iterable[str], known: tuple[str, ...]) -> tuple[str,
     return tuple(unique)
 
 
+def used_files(stage: Usd.Stage) -> tuple[str, ...]:
+    """The files of every layer the stage composed (sublayers, references, payloads, clips, the
+    session layer excluded); a layer inside a package is its package file (the .usdz)."""
+    files = set()
+    for layer in stage.GetUsedLayers():
+        if layer.anonymous or not layer.realPath:
+            continue
+        real = layer.realPath
+        if Ar.IsPackageRelativePath(real):
+            real = Ar.SplitPackageRelativePathOuter(real)[0]
+        files.add(os.path.normpath(real))
+    return tuple(sorted(files))
+
+
 def scan_stage(
     path: str | os.PathLike[str],
     variants: Mapping[str, str] | None = None,
@@ -280,5 +294,6 @@ def scan_stage(
         dangling_bindings=tuple(sorted(dangling)),
         composition_errors=composition_errors,
         diagnostics=_new_diagnostics(found, composition_errors),
+        layers=used_files(stage),
         **_stage_facts(stage),
     )

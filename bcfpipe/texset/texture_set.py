@@ -168,6 +168,7 @@ class Channel:
     kind: str
     source: str
     source_channel: int
+    source_format: str = ""  # stored texel type of the source file (OpenImageIO base type, e.g. uint8)
 
     @property
     def name(self) -> str:
@@ -259,6 +260,7 @@ class _Source:
     names: tuple[str, ...]
     buf: object  # OpenImageIO.ImageBuf (float)
     is_float: bool  # stored as half/float/double (else integer UNORM, so [0, 1] by construction)
+    format: str  # the stored base type, e.g. uint8, uint16, half
     pixels: np.ndarray | None = field(default=None)  # (H, W, n) float32 at the common size
 
     @property
@@ -285,7 +287,7 @@ def _open(path: str) -> _Source:
         raise TextureError(f"{path}: not a 2D image ({spec.width}x{spec.height}x{spec.depth}, {spec.nchannels} ch)")
     native = buf.nativespec().format.basetype
     is_float = native in (oiio.BASETYPE.HALF, oiio.BASETYPE.FLOAT, oiio.BASETYPE.DOUBLE)
-    return _Source(path, tuple(n.upper() for n in spec.channelnames), buf, is_float)
+    return _Source(path, tuple(n.upper() for n in spec.channelnames), buf, is_float, str(buf.nativespec().format))
 
 
 def _source_index(src: _Source, letter: str) -> int:
@@ -357,7 +359,7 @@ def load_texture_set(
         for i, letter in enumerate(s.channels):
             idx = _source_index(src, letter)
             comp = "rgb"[i] if sem.kind == "color" else "xy"[i] if sem.kind == "normal" else letter
-            picks.append((src, idx, Channel(sem.name, comp, sem.kind, s.path, idx)))
+            picks.append((src, idx, Channel(sem.name, comp, sem.kind, s.path, idx, src.format)))
 
     if resolution is None:
         width, height = common_resolution((src.width, src.height) for src in sources.values())

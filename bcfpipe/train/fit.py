@@ -5,7 +5,6 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
 
 from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
@@ -68,12 +67,10 @@ def exported_size(out_dir: Path) -> int:
 
 
 def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
-                 progress: ProgressFn | None = None, build_job: mf.BuildJob | None = None,
-                 sources: Mapping[str, str] | None = None) -> tuple[MaterialResult, TrainedMaterial]:
-    """Train on ``ts``, export to ``out_dir``, then evaluate the exported files. ``build_job`` and
-    ``sources`` (loaded path -> recorded name) go into material.json (:func:`bcfpipe.export.writer.export`)."""
+                 progress: ProgressFn | None = None) -> tuple[MaterialResult, TrainedMaterial]:
+    """Train on ``ts``, export to ``out_dir``, then evaluate the exported files."""
     tm = train(ts, cfg, progress)
-    out = E.export(tm, out_dir, build_job, sources)
+    out = E.export(tm, out_dir)
     t0 = time.perf_counter()
     ref = build_mip_chain(ts.data)
     em = E.load(out)

@@ -1,0 +1,51 @@
+"""The build report (``bcfpipe build --json``): what this run did, from the manifest it wrote and
+what each job's worker or the cache reported."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from bcfpipe.build.executor import JobResult
+from bcfpipe.formats import manifest as mfst
+from bcfpipe.formats import report as rep
+
+
+def material_files(m: mfst.Material, manifest: mfst.Manifest, files: Sequence[str]) -> tuple[str, ...]:
+    """A built material's files in OUT: its folder's files, then the shared ones it needs."""
+    if m.outputs is None:
+        return ()
+    own = sorted(f for f in files if f.startswith(m.outputs.folder + "/"))
+    return (*own, manifest.weights, manifest.overrides_layer, manifest.root_layer)
+
+
+def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResult], files: Sequence[str],
+                written: Sequence[str], cache_root: str | None, damaged: Sequence[str], wall_seconds: float,
+                depfile: str | None) -> rep.BuildReport:
+    mats = []
+    for m in manifest.materials:
+        r = results.get(m.job) if m.job else None
+        q = m.metrics.detail if m.metrics else None
+        train = r.result.get("train_seconds") if r is not None and r.status == "built" else None
+        mats.append(rep.MaterialReport(
+            path=m.path, status=m.status, reason=m.reason, job=m.job,
+            cache=r.cache if r is not None and m.status == "built" else None,
+            psnr=m.metrics.psnr if m.metrics else None, psnr_per_mip=q.psnr_per_mip if q else None,
+            train_seconds=round(train, 3) if train is not None else None,
+            seconds=round(r.seconds, 3) if r is not None else None,
+            total_bytes=m.sizes.total_bytes if m.sizes else None,
+            files=material_files(m, manifest, files)))
+    built = [r for r in results.values() if r.status == "built"]
+    hits = sum(1 for r in built if r.cache == "hit")
+    trained = [r for r in built if r.cache != "hit"]
+    t = manifest.totals
+    return rep.BuildReport(
+        out=out, root_layer=str(Path(out) / manifest.root_layer), manifest=str(Path(out) / mfst.FILE),
+        exit_code=manifest.exit_code,
+        cache=rep.CacheReport(cache_root is not None, cache_root, hits,
+                              sum(1 for r in results.values() if r.cache == "miss"), tuple(damaged)),
+        totals=rep.ReportTotals(
+            materials=t.materials, built=t.built, failed=t.failed, skipped=t.skipped, jobs=t.jobs,
+            trained=len(trained), cached=hits,
+            train_seconds=round(sum(r.result.get("train_seconds") or 0.0 for r in trained), 3),
+            wall_seconds=round(wall_seconds, 3), total_bytes=t.total_bytes, written_files=len(written)),
+        materials=tuple(mats), written=tuple(written), depfile=depfile)
