@@ -1,0 +1,297 @@
+"""Incremental builds (issue 10): the cache, byte-identical outputs, faults, and real ninja.
+
+Every build here uses the tiny profile and the draft preset, and a cache folder of its own."""
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pxr import Sdf, Usd, UsdShade
+
+from bcfpipe.build import build
+from bcfpipe.cache import Cache
+from test_build import add_material, new_stage, pattern, write_png
+
+REPO = Path(__file__).resolve().parents[1]
+FAST = {"profile": "tiny", "preset": "draft", "seed": 0}
+CLI_FAST = ["--profile", "tiny", "--quality", "draft", "--seed", "0"]
+
+
+def small_scene(root: Path) -> Path:
+    """Two materials with their own 64² textures, and a third sharing the first's."""
+    write_png(root / "tex" / "a.png", pattern())
+    write_png(root / "tex" / "b.png", pattern(seed=2))
+    write_png(root / "tex" / "r.png", pattern(c=1, seed=3)[..., 0])
+    stage = new_stage(root / "scene.usda")
+    add_material(stage, "/World/Looks/A", {"diffuseColor": ("./tex/a.png", "rgb", {}),
+                                           "roughness": ("./tex/r.png", "r", {})}, mesh="/World/MA")
+    add_material(stage, "/World/Looks/B", {"diffuseColor": ("./tex/b.png", "rgb", {})}, mesh="/World/MB")
+    stage.Save()
+    return root / "scene.usda"
+
+
+def tree(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def mtimes(folder: Path) -> dict[str, int]:
+    return {p.relative_to(folder).as_posix(): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
+
+
+def cli(*args: str, env: dict | None = None, timeout: float = 900) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True,
+                          env=env, timeout=timeout)
+
+
+def by_path(report) -> dict:
+    return {m.path.rsplit("/", 1)[-1]: m for m in report.materials}
+
+
+# ------------------------------------------------------------------------------------------- cache
+
+
+def test_rebuild_hits_the_cache_and_writes_nothing(tmp_path):
+    scene = small_scene(tmp_path)
+    cache = tmp_path / "cache"
+    first = build(scene, tmp_path / "out", cache=cache, **FAST)
+    assert first.exit_code == 0 and first.report.totals.trained == 2 and first.report.cache.misses == 2
+    assert {m.cache for m in first.report.materials} == {"miss"}
+    before = mtimes(tmp_path / "out")
+    again = build(scene, tmp_path / "out", cache=cache, **FAST)
+    assert again.report.totals.trained == 0 and again.report.cache.hits == 2 and again.report.written == ()
+    assert {m.cache for m in again.report.materials} == {"hit"}
+    assert mtimes(tmp_path / "out") == before, "a no-op rebuild must not touch OUT"
+    assert again.manifest == first.manifest
+    # the UsdUVTexture scale is applied by the USD layer, not learned: no training, two files rewritten
+    stage = Usd.Stage.Open(str(scene))
+    tex = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/B/Tex_diffuseColor"))
+    tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((0.5, 0.5, 0.5, 1.0))
+    stage.Save()
+    third = build(scene, tmp_path / "out", cache=cache, **FAST)
+    assert third.report.totals.trained == 0
+    assert set(third.report.written) == {"overrides.usda", "manifest.json"}
+
+
+def test_only_the_changed_texture_set_retrains(tmp_path):
+    scene = small_scene(tmp_path)
+    cache = tmp_path / "cache"
+    build(scene, tmp_path / "out", cache=cache, **FAST)
+    before = mtimes(tmp_path / "out")
+    write_png(tmp_path / "tex" / "b.png", pattern(seed=5))
+    r = build(scene, tmp_path / "out", cache=cache, **FAST)
+    m = by_path(r.report)
+    assert (m["A"].cache, m["B"].cache) == ("hit", "miss") and r.report.totals.trained == 1
+    after = mtimes(tmp_path / "out")
+    changed = {f for f in after if before.get(f) != after[f]}
+    assert {f.split("/")[1] for f in changed if f.startswith("materials/")} == {"B"}
+    assert {f for f in changed if "/" not in f} <= {"weights.bin", "manifest.json", "overrides.usda"}
+
+
+def test_with_and_without_cache_outputs_are_byte_identical(tmp_path):
+    """The same inputs and options give the same bytes: trained, cached, or without a cache."""
+    from test_build import copy_samples
+
+    scene = copy_samples(tmp_path / "s")
+    cache = tmp_path / "cache"
+    a = build(scene, tmp_path / "a", cache=cache, jobs=2, **FAST)
+    b = build(scene, tmp_path / "b", cache=cache, jobs=2, **FAST)  # every job a cache hit
+    c = build(scene, tmp_path / "c", cache=False, jobs=2, **FAST)  # trained again
+    assert a.exit_code == 0 and b.report.totals.cached == 3 and c.report.cache.enabled is False
+    ta, tb, tc = tree(tmp_path / "a"), tree(tmp_path / "b"), tree(tmp_path / "c")
+    assert len(ta) > 20 and ta == tb == tc
+    for text in (tmp_path / "a" / "manifest.json").read_text(), (tmp_path / "a" / "sample_scene.bcf.usda").read_text():
+        assert str(tmp_path) not in text and "/tmp" not in text  # no absolute paths
+
+
+def test_damaged_entry_is_detected_and_retrained(tmp_path):
+    scene = small_scene(tmp_path)
+    cache = tmp_path / "cache"
+    first = build(scene, tmp_path / "out", cache=cache, **FAST)
+    good = tree(tmp_path / "out")
+    job = by_path(first.report)["B"].job
+    key = next(j.content_hash for j in first.plan.jobs if j.name == job)
+    entry = Cache(cache).folder(key)
+    data = bytearray((entry / "T0.dds").read_bytes())
+    data[200] ^= 0x01
+    (entry / "T0.dds").write_bytes(bytes(data))
+    r = build(scene, tmp_path / "out", cache=cache, **FAST)
+    assert len(r.report.cache.damaged) == 1 and job in r.report.cache.damaged[0]
+    m = by_path(r.report)
+    assert (m["A"].cache, m["B"].cache) == ("hit", "miss")
+    assert tree(tmp_path / "out") == good  # retrained to the same bytes; the damaged file never used
+    assert Cache(cache).lookup(key).entry is not None  # and the entry is whole again
+
+
+def test_cache_hit_needs_no_training(tmp_path):
+    """A rebuild from the cache succeeds where training cannot run at all: torch is made
+    unimportable. The same environment without the cache fails, so the hit is real."""
+    scene = small_scene(tmp_path)
+    cache = tmp_path / "cache"
+    build(scene, tmp_path / "out", cache=cache, **FAST)
+    broken = tmp_path / "no-torch"
+    (broken / "torch").mkdir(parents=True)
+    (broken / "torch" / "__init__.py").write_text("raise ImportError('torch is disabled for this test')\n")
+    env = dict(os.environ, PYTHONPATH=str(broken))
+    ok = cli("build", str(scene), "-o", str(tmp_path / "out2"), "--cache", str(cache), "--device", "cpu",
+             "--json", *CLI_FAST, env=env)
+    assert ok.returncode == 0, ok.stderr
+    assert {m["cache"] for m in json.loads(ok.stdout)["materials"] if m["status"] == "built"} == {"hit"}
+    assert tree(tmp_path / "out2") == tree(tmp_path / "out")
+    bad = cli("build", str(scene), "-o", str(tmp_path / "out3"), "--no-cache", "--device", "cpu", *CLI_FAST,
+              env=env)
+    assert bad.returncode == 1 and "torch is disabled" in bad.stdout + bad.stderr
+
+
+def test_concurrent_builds_share_one_cache(tmp_path):
+    """Two builds on one cache at once: both succeed, outputs identical, nothing trained twice."""
+    scene = small_scene(tmp_path)
+    cache = tmp_path / "cache"
+    procs = [subprocess.Popen([sys.executable, "-m", "bcfpipe", "-q", "build", str(scene), "-o", str(tmp_path / o),
+                               "--cache", str(cache), "--jobs", "1", "--json", *CLI_FAST],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for o in ("o1", "o2")]
+    outs = [p.communicate(timeout=900) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], [e for _, e in outs]
+    reports = [json.loads(o) for o, _ in outs]
+    trained = sum(r["totals"]["trained"] for r in reports)
+    assert trained == reports[0]["totals"]["jobs"] == 2, [r["totals"] for r in reports]
+    assert tree(tmp_path / "o1") == tree(tmp_path / "o2")
+    assert len(list(Cache(cache).entries())) == 2
+
+
+def test_sigkill_at_random_moments_never_leaves_anything_used_corrupt(tmp_path):
+    """Kill a build at 10 random moments (training, writing the cache, installing OUT), then
+    rebuild: every rebuild succeeds and gives exactly the bytes of an undisturbed build."""
+    scene = small_scene(tmp_path)
+    t0 = time.monotonic()
+    ref = build(scene, tmp_path / "ref", cache=False, **FAST)
+    span = time.monotonic() - t0
+    expected = tree(tmp_path / "ref")
+    cache = tmp_path / "cache"
+    out = tmp_path / "out"
+    rng = random.Random(7)
+    moments = sorted(rng.uniform(0.2, span * 1.2) for _ in range(10))
+    for i, t in enumerate(moments):
+        shutil.rmtree(cache / "v1" / "entries", ignore_errors=True)  # make it train (and write) again
+        if i % 3 == 2:
+            shutil.rmtree(out, ignore_errors=True)
+        p = subprocess.Popen([sys.executable, "-m", "bcfpipe", "-q", "build", str(scene), "-o", str(out),
+                              "--cache", str(cache), *CLI_FAST], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL, start_new_session=True)
+        time.sleep(t)
+        os.killpg(p.pid, signal.SIGKILL)  # the build and its workers, as a crash or an OOM kill would
+        p.wait()
+        again = cli("build", str(scene), "-o", str(out), "--cache", str(cache), "--json", *CLI_FAST)
+        assert again.returncode == 0, (t, again.stderr)
+        assert tree(out) == expected, f"killed at {t:.2f}s: the rebuild differs from an undisturbed build"
+        for e in Cache(cache).entries():
+            assert Cache(cache).lookup(e.key).entry is not None
+    assert ref.exit_code == 0
+    assert not list(tmp_path.glob(".out.tmp-*")), "staging folders of killed builds are cleaned up"
+
+
+def test_cache_cli(tmp_path):
+    scene = small_scene(tmp_path)
+    cache = tmp_path / "cache"
+    build(scene, tmp_path / "out", cache=cache, **FAST)
+    info = json.loads(cli("cache", "info", "--cache", str(cache), "--json").stdout)
+    assert info["entries"] == 2 and info["size_bytes"] > 0
+    rows = json.loads(cli("cache", "list", "--cache", str(cache), "--json").stdout)
+    assert len(rows) == 2
+    old = Cache(cache).folder(rows[0]["key"]) / "entry.json"
+    os.utime(old, (time.time() - 40 * 86400,) * 2)  # last used 40 days ago
+    r = json.loads(cli("cache", "prune", "--cache", str(cache), "--older-than", "30d", "--json").stdout)
+    assert r["removed"] == [rows[0]["key"]]
+    r = json.loads(cli("cache", "prune", "--cache", str(cache), "--max-size", "1K", "--json").stdout)
+    assert len(r["removed"]) == 1 and json.loads(cli("cache", "info", "--cache", str(cache), "--json").stdout)[
+        "entries"] == 0
+    bad = cli("cache", "prune", "--cache", str(cache), "--max-size", "lots")
+    assert bad.returncode == 2 and "500M" in bad.stderr and "Traceback" not in bad.stderr
+    build(scene, tmp_path / "out", cache=cache, **FAST)
+    assert "removed 2 entries" in cli("cache", "clear", "--cache", str(cache), "--yes").stdout
+
+
+# ------------------------------------------------------------------------------------------- ninja
+
+
+NINJA = """\
+rule bcf
+  command = {python} -m bcfpipe -q build $in --variant modelVariant=Fancy -o out --cache cache $
+            --profile tiny --quality $preset --seed 0 --depfile $out.d --depfile-target $out --json > report.json
+  depfile = $out.d
+  deps = gcc
+  restat = 1
+  description = bcfpipe build $in
+
+build out/Teapot.bcf.usda: bcf Teapot.usd
+  preset = {preset}
+"""
+
+
+@pytest.mark.shared
+def test_ninja_rebuilds_only_what_changed(tmp_path, shared_scenes):
+    """Real ninja over `bcfpipe build --depfile` on the teapot with the Fancy variant."""
+    ninja = shutil.which("ninja")
+    if ninja is None:
+        pytest.skip("needs ninja (Debian ninja-build; scripts/setup.sh installs it)")
+    src = shared_scenes / "usdwg_teapot"
+    work = tmp_path / "teapot"
+    shutil.copytree(src, work)
+    for p in work.rglob("*"):
+        p.chmod(p.stat().st_mode | 0o200)
+
+    def run(preset: str = "draft") -> tuple[str, dict | None]:
+        (work / "build.ninja").write_text(NINJA.format(python=sys.executable, preset=preset))
+        (work / "report.json").unlink(missing_ok=True)
+        p = subprocess.run([ninja], cwd=work, capture_output=True, text=True, timeout=1800)
+        assert p.returncode == 0, p.stdout + p.stderr
+        rep = work / "report.json"
+        return p.stdout, json.loads(rep.read_text()) if rep.exists() else None
+
+    def trained(report) -> list[str]:
+        return [m["path"] for m in report["materials"] if m["cache"] == "miss"]
+
+    out, report = run()
+    assert report is not None and trained(report) == ["/Teapot/Materials/PorcelainFlowers"]
+    deps = subprocess.run([ninja, "-t", "deps"], cwd=work, capture_output=True, text=True).stdout
+    for f in ("Teapot.usd", "geo/FancyTeapot.usd", "textures/tea_set_01_diff_2k.jpg", "textures/tea_set_01_arm_2k.jpg"):
+        assert f in deps, deps
+    assert "UtahTeapot" not in deps  # the other variant's geometry is not composed
+    out, report = run()
+    assert "no work to do" in out and report is None
+    # touch a texture: bcfpipe runs, finds the unchanged bytes in the cache, writes nothing
+    tex = work / "textures" / "tea_set_01_arm_2k.jpg"
+    os.utime(tex)
+    out, report = run()
+    assert report is not None and trained(report) == [] and report["cache"]["hits"] == 1 and report["written"] == []
+    assert "no work to do" in run()[0]
+    # change the texture's bytes: its material retrains
+    import OpenImageIO as oiio
+
+    img = oiio.ImageBuf(str(tex)).get_pixels(oiio.UINT8)
+    img[:16, :16] = 255 - img[:16, :16]
+    o = oiio.ImageOutput.create(str(tex))
+    o.open(str(tex), oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], "uint8"))
+    o.write_image(img)
+    o.close()
+    out, report = run()
+    assert trained(report) == ["/Teapot/Materials/PorcelainFlowers"]
+    # move the mesh: bcfpipe runs (the layer changed), nothing trains
+    from pxr import Gf, Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(work / "Teapot.usd"))
+    UsdGeom.Xformable(stage.GetDefaultPrim()).AddTranslateOp(opSuffix="moved").Set(Gf.Vec3d(1, 2, 3))
+    stage.GetRootLayer().Save()
+    out, report = run()
+    assert report is not None and trained(report) == [] and report["totals"]["trained"] == 0
+    # another preset: every material retrains
+    out, report = run("fast")
+    assert trained(report) == ["/Teapot/Materials/PorcelainFlowers"] and report["totals"]["trained"] == 1
+    assert "no work to do" in run("fast")[0]
