@@ -135,7 +135,7 @@ DEFAULT_INIT = "random"
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.build.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 2
+MODEL_FORMAT = 3
 
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/feature_init.py: sharper fine mips, weaker

@@ -149,8 +149,11 @@ def test_16bit_and_float_files(tmp_path, rng):
     ts16 = load_texture_set([f"albedo={f16}"])
     np.testing.assert_allclose(ts16.data, np.rint(v * 65535) / 65535, atol=1e-6)
     tsx = load_texture_set([f"generic={fexr}:rgb"])
-    np.testing.assert_allclose(tsx.data, v * 3.0, rtol=2e-3)  # float data passes through unclamped
-    assert tsx.data.max() > 1.0
+    # float data passes through unclamped: stored normalised to its range, value = t * scale + bias
+    scale = np.array([c.value_scale for c in tsx.channels])
+    bias = np.array([c.value_bias for c in tsx.channels])
+    np.testing.assert_allclose(tsx.data * scale + bias, v * 3.0, rtol=2e-3, atol=1e-6)
+    assert tsx.data.max() == pytest.approx(1.0) and (scale > 1.0).all() and (bias == 0).all()
 
 
 def test_missing_channel_and_file_errors(tmp_path, rng):

@@ -76,7 +76,9 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
             mlp=desc.mlp,
             decoder=f"{folder}/{desc.onnx.file}",
             targets=tuple(t.target for t in mp_.targets), channels=tuple(t.channel for t in mp_.targets),
-            scale=tuple(t.scale for t in mp_.targets), bias=tuple(t.bias for t in mp_.targets),
+            # an HDR output's value map (material.json value_scale/value_bias) folds into the target's
+            scale=tuple(t.scale * desc.outputs[t.channel].value_scale for t in mp_.targets),
+            bias=tuple(t.bias + t.scale * desc.outputs[t.channel].value_bias for t in mp_.targets),
             color_spaces=tuple(t.color_space for t in mp_.targets),
             fallback_surface=mp_.fallback_surface, version=__version__,
         ))

@@ -147,7 +147,8 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
             progress.phase("load")
         with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
             local = {path: local_file(path, tmp) for _, path, _ in mj.specs}
-            ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs])
+            ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
+                                  fix_nonfinite=mj.options.fix_nonfinite)
         o = mj.options
         prof, cfg = make_config(ts, profile=o.profile, preset=o.preset, device=device, seed=o.seed, hidden=o.hidden,
                                 signed=o.signed, wrap=mj.wrap, threads=max(1, threads), init=o.init)

@@ -137,7 +137,7 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
 
     In it: the bytes of each source file (its XXH3-128) with the semantic and channels read from
     it, the addressing, profile, preset (and its schedule), seed, hidden size, signedness, feature
-    start, the device class (cpu / cuda train differently) and config.MODEL_FORMAT. Not in it:
+    start, --fix-nonfinite, the device class (cpu / cuda train differently) and config.MODEL_FORMAT. Not in it:
     paths, times, meshes and transforms, and the UsdUVTexture scale, bias and colour space, which
     the USD layer applies to the decoded values (the model learns the stored texels).
     """
@@ -155,6 +155,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
     }
     if options.init != DEFAULT_INIT:  # absent for the default, so existing builds keep their names
         payload["init"] = options.init
+    if options.fix_nonfinite:
+        payload["fix_nonfinite"] = True
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
 
 
@@ -184,7 +186,7 @@ def _resolve_device_name(device: str) -> str:
 def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] | None = None,
          all_materials: bool = False, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
          seed: int = DEFAULT_SEED, device: str = DEFAULT_DEVICE, hidden: int = DEFAULT_HIDDEN,
-         signed: bool = False, init: str = DEFAULT_INIT) -> BuildPlan:
+         signed: bool = False, init: str = DEFAULT_INIT, fix_nonfinite: bool = False) -> BuildPlan:
     """Scan ``scene`` and list what to train. Reads the source textures (to hash them) but writes
     nothing. Raises `BuildError` for an unreadable stage or bad options."""
     if profile not in PROFILE_NAMES:
@@ -194,7 +196,7 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
     if init not in FEATURE_INITS:
         raise BuildError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
     options = Options(profile=profile, preset=preset, seed=int(seed), device=_resolve_device_name(device),
-                      hidden=int(hidden), signed=bool(signed), init=init)
+                      hidden=int(hidden), signed=bool(signed), init=init, fix_nonfinite=bool(fix_nonfinite))
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 

@@ -124,7 +124,7 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
           variants: Mapping[str, str] | Iterable[str] | None = None, all_materials: bool = False,
           profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET, jobs: int | None = None,
           device: str = DEFAULT_DEVICE, seed: int = DEFAULT_SEED, hidden: int = DEFAULT_HIDDEN, signed: bool = False,
-          init: str = DEFAULT_INIT, force: bool = False, progress: ProgressCallback | None = None,
+          init: str = DEFAULT_INIT, fix_nonfinite: bool = False, force: bool = False, progress: ProgressCallback | None = None,
           executor: cf.Executor | None = None, threads: int | None = None,
           cache: str | os.PathLike | bool | None = None, depfile: str | os.PathLike | None = None,
           depfile_target: str | None = None) -> BuildResult:
@@ -153,7 +153,8 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     store = None
     if cache is not False:
         store = Cache(default_root() if cache in (None, True) else cache)
-    bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init)
+    bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init,
+                 fix_nonfinite)
     check_out(out_path, force, [bplan.scene, *bplan.sources])
     out_path.parent.mkdir(parents=True, exist_ok=True)
     _stale_staging(out_path)

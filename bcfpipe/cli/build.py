@@ -167,7 +167,8 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
               help="Run `bcfpipe verify` on OUT at the end (GLSL on OpenGL vs ONNX); a failure exits 1.")
 @click.pass_context
 def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str, str], all_materials: bool,
-          profile: str, preset: str, hidden: int, signed: bool, init: str, seed: int, device: str, threads: int,
+          profile: str, preset: str, hidden: int, signed: bool, init: str, fix_nonfinite: bool, seed: int,
+          device: str, threads: int,
           jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
           depfile_target: str | None, as_json: bool, force: bool, run_verify_after: bool) -> None:
     """Build neural materials for SCENE's textured UsdPreviewSurface materials.
@@ -186,7 +187,8 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     if no_cache and cache_dir is not None:
         raise click.UsageError("--cache and --no-cache contradict each other")
     options = dict(variants=variants, all_materials=all_materials, profile=profile, preset=preset, hidden=hidden,
-                   signed=signed, init=init, jobs=jobs, threads=threads, device=device, seed=seed, force=force,
+                   signed=signed, init=init, fix_nonfinite=fix_nonfinite, jobs=jobs, threads=threads, device=device,
+                   seed=seed, force=force,
                    cache=False if no_cache else cache_dir, depfile=depfile, depfile_target=depfile_target)
     if display is None:
         result = run_build(scene, out, **options)

@@ -110,6 +110,8 @@ def write_images(img: np.ndarray, outputs: Sequence[Output], out_dir: Path) -> l
     written = []
     for sem, idx in groups.items():
         data = img[..., idx].astype(np.float32)
+        scale = np.array([outputs[i].value_scale for i in idx], np.float32)
+        data = data * scale + np.array([outputs[i].value_bias for i in idx], np.float32)  # source values
         kind = outputs[idx[0]].kind
         if kind == "normal":
             data = data * 0.5 + 0.5

@@ -21,6 +21,9 @@ TRAINING_OPTIONS = (
     click.option("--init", "init", type=click.Choice(list(FEATURE_INITS)), default=DEFAULT_INIT, show_default=True,
                  help="How training starts: 'random' as in the paper, or 'pca' from the texture set's principal "
                       "components and their linear decoder (sharper fine mips, weaker coarse ones)."),
+    click.option("--fix-nonfinite", is_flag=True,
+                 help="Replace NaN/Inf texels of float sources (NaN by 0, +-Inf by the channel's largest / "
+                      "smallest finite value) instead of refusing them (exit 2)."),
     click.option("--seed", type=int, default=DEFAULT_SEED, show_default=True,
                  help="Random seed (CPU runs are deterministic)."),
     click.option("--device", default=DEFAULT_DEVICE, show_default=True, help="auto, cpu or cuda[:N]."),
@@ -28,7 +31,8 @@ TRAINING_OPTIONS = (
                  help="Torch CPU threads per training; 1 trained fastest on a 2-core machine "
                       "(docs/benchmarks.md). Parallelism comes from training materials side by side."),
 )
-TRAINING_OPTION_NAMES = ("profile", "preset", "hidden", "signed", "init", "seed", "device", "threads")
+TRAINING_OPTION_NAMES = ("profile", "preset", "hidden", "signed", "init", "fix_nonfinite", "seed", "device",
+                         "threads")
 
 
 def training_options(f):

@@ -86,7 +86,8 @@ def _table(res) -> "object":
 @click.option("-f", "--force", is_flag=True, help="Overwrite a non-empty output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object to stdout (progress stays on stderr).")
 @click.pass_context
-def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, seed, device, threads, resolution, wrap,
+def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, fix_nonfinite, seed, device, threads,
+              resolution, wrap,
               force, as_json) -> None:
     """Train one neural material from a texture set and export it to OUTPUT.
 
@@ -110,7 +111,7 @@ def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, seed
         raise InputError(f"{out} is not empty; pass --force to overwrite")
     try:
         specs = [TextureSpec.parse(t) for t in textures]
-        ts = load_texture_set(specs, resolution=resolution)
+        ts = load_texture_set(specs, resolution=resolution, fix_nonfinite=fix_nonfinite)
         name, cfg = make_config(ts, profile=profile, preset=preset, device=device, seed=seed, hidden=hidden,
                                 signed=signed, wrap=wrap, threads=threads, init=init)
     except ValueError as e:

@@ -35,7 +35,8 @@ def output_channels(channels: tuple[Channel, ...]) -> tuple[mf.Output, ...]:
         target = None if usd is None else (usd if semantic_info(ch.semantic).channels == 1 else f"{usd}.{comp}")
         lo, hi = ch.value_range
         out.append(mf.Output(ch.name, ch.semantic, comp, ch.kind, target, (lo, hi), ch.source_channel,
-                             ch.source_format or None, reconstructed=False))
+                             ch.source_format or None, reconstructed=False, value_scale=float(ch.value_scale),
+                             value_bias=float(ch.value_bias)))
         if ch.kind == "normal" and comp == "y":
             out.append(mf.Output(f"{ch.semantic}.z", ch.semantic, "z", "normal", "normal.z", (0.0, 1.0), None, None,
                                  reconstructed=True))

@@ -167,6 +167,7 @@ class Options(Record):
     hidden: int
     signed: bool
     init: str
+    fix_nonfinite: bool = False
 
 
 @dataclass(frozen=True)

@@ -97,6 +97,8 @@ class Output(Record):
     source_channel: int | None
     source_format: str | None
     reconstructed: bool
+    value_scale: float = 1.0
+    value_bias: float = 0.0
 
 
 @dataclass(frozen=True)

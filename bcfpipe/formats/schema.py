@@ -74,6 +74,10 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Output", "source_format"): "Stored texel type of the source image (OpenImageIO base type, e.g. uint8); "
                                  "null when reconstructed.",
     ("Output", "reconstructed"): "True for normal z = sqrt(1 - x^2 - y^2), computed, not learned.",
+    ("Output", "value_scale"): "The source value is decoded * value_scale + value_bias: 1 and 0 for data in "
+                               "[0, 1]; hi - lo and lo for a float channel whose values leave it (HDR, "
+                               "negative). Quality figures use hi - lo as the channel's peak.",
+    ("Output", "value_bias"): "See value_scale.",
     ("Onnx", "file"): "ONNX file name, relative to the material folder.",
     ("Onnx", "input"): "Input tensor name: float32 (N, n_in) features.",
     ("Onnx", "output"): "Output tensor name: float32 (N, outputs) channels.",
@@ -108,6 +112,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Options", "hidden"): "Hidden units of each decoder.",
     ("Options", "signed"): "Signed BC6H features.",
     ("Options", "init"): "How the features start (random or pca).",
+    ("Options", "fix_nonfinite"): "Whether NaN/Inf texels were replaced (--fix-nonfinite) rather than refused.",
     ("Stage", "up_axis"): "The scene's upAxis.",
     ("Stage", "meters_per_unit"): "The scene's metersPerUnit.",
     ("Stage", "default_prim"): "The scene's defaultPrim path, null if unset.",

@@ -11,6 +11,17 @@ Conventions (documented here once, relied on by the sampler, trainer and metrics
   linearisation and no colour management (a tag such as PQ / BT.2020 on a PNG is ignored), so the
   model reproduces exactly what the original texture would have fed the shader. Float files (EXR,
   half) are passed through unclamped.
+* Value ranges (HDR, negative values): a channel from a float file whose values leave the
+  nominal [0, 1] is stored normalised, ``t = (v - lo) / (hi - lo)`` with ``lo = min(0, min v)``
+  and ``hi = max(1, max v)``, and its `Channel` keeps ``value_scale = hi - lo`` and
+  ``value_bias = lo``: the decoder reproduces t, and ``v = t * value_scale + value_bias``
+  (material.json ``outputs[].value_scale/value_bias``; the USD layer folds them into each
+  target's scale and bias). Quality figures are therefore relative to the channel's own range:
+  an HDR channel's PSNR uses the peak ``hi - lo``. Values beyond fp16's +-65504 cannot be stored by
+  any consumer of half-float data and are clamped to it, with a warning.
+* Non-finite texels (NaN, +-Inf) are refused (`NonFiniteError`, naming the file, channel and
+  count, as maketx --checknan does) unless ``fix_nonfinite``: then NaN becomes 0 and +-Inf the
+  channel's largest / smallest finite value, with a warning.
 * Alpha is read unassociated (straight), as stored: OpenImageIO premultiplies colour by alpha by
   default, which would corrupt e.g. a PNG whose alpha channel carries opacity or roughness.
 * Normals (semantic ``normal``) keep x, y only, mapped ``v * 2 - 1`` to [-1, 1]; z is
@@ -27,10 +38,11 @@ Conventions (documented here once, relied on by the sampler, trainer and metrics
 from __future__ import annotations
 
 
+import logging
 import math
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
@@ -47,6 +59,14 @@ RESAMPLE_FILTER = "blackman-harris"
 
 class TextureError(InputError):
     """A texture file is missing, unreadable, or lacks a requested channel."""
+
+
+class NonFiniteError(TextureError):
+    """A texture holds NaN or Inf texels (exit code 2; ``--fix-nonfinite`` replaces them)."""
+
+
+FP16_MAX = 65504.0
+log = logging.getLogger("bcfpipe.texset")
 
 
 # --------------------------------------------------------------------------------------------
@@ -169,6 +189,8 @@ class Channel:
     source: str
     source_channel: int
     source_format: str = ""  # stored texel type of the source file (OpenImageIO base type, e.g. uint8)
+    value_scale: float = 1.0  # source value = stored (decoded) value * value_scale + value_bias
+    value_bias: float = 0.0
 
     @property
     def name(self) -> str:
@@ -272,16 +294,64 @@ class _Source:
         return self.buf.spec().height
 
 
+def _check_finite(src: _Source, fix: bool) -> None:
+    """Refuse (or, with ``fix``, repair) NaN / Inf texels of a float file, per channel."""
+    import OpenImageIO as oiio
+
+    if not src.is_float:
+        return
+    spec = src.buf.spec()
+    px = np.asarray(src.buf.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(spec.height, spec.width, -1)
+    bad = ~np.isfinite(px)
+    counts = bad.reshape(-1, px.shape[-1]).sum(0)
+    if not counts.any():
+        return
+    where = ", ".join(f"channel {src.names[c] if c < len(src.names) else c}: {int(n)}"
+                      for c, n in enumerate(counts) if n)
+    if not fix:
+        raise NonFiniteError(f"{src.path}: {int(counts.sum())} NaN/Inf texel(s) ({where}); "
+                             "use --fix-nonfinite to replace them")
+    for c in np.nonzero(counts)[0]:
+        ch = px[..., c]
+        finite = ch[np.isfinite(ch)]
+        hi, lo = (float(finite.max()), float(finite.min())) if finite.size else (0.0, 0.0)
+        ch[np.isnan(ch)] = 0.0
+        ch[np.isposinf(ch)] = hi
+        ch[np.isneginf(ch)] = lo
+    src.buf.set_pixels(oiio.ROI(0, spec.width, 0, spec.height, 0, 1, 0, spec.nchannels), px)
+    log.warning("%s: replaced %d NaN/Inf texel(s) (%s): NaN by 0, +-Inf by the channel's largest / "
+                "smallest finite value", src.path, int(counts.sum()), where)
+
+
+def _value_range(col: np.ndarray, ch: Channel, src: _Source) -> tuple[np.ndarray, Channel]:
+    """Clamp to fp16's range, and normalise a float channel that leaves [0, 1] (module doc)."""
+    big = np.abs(col) > FP16_MAX
+    if big.any():
+        log.warning("%s: %d texel(s) of channel %s beyond fp16's +-65504 clamped to it", src.path,
+                    int(big.sum()), ch.name)
+        np.clip(col, -FP16_MAX, FP16_MAX, out=col)
+    if not src.is_float or ch.kind == "normal":
+        return col, ch
+    lo, hi = float(col.min()), float(col.max())
+    if lo >= 0.0 and hi <= 1.0:
+        return col, ch
+    lo, hi = min(0.0, lo), max(1.0, hi)
+    return (col - lo) / (hi - lo), replace(ch, value_scale=hi - lo, value_bias=lo)
+
+
 def _open(path: str) -> _Source:
     import OpenImageIO as oiio
 
     if not os.path.isfile(path):
         raise TextureError(f"{path}: texture file not found")
+    if os.path.getsize(path) == 0:
+        raise TextureError(f"{path}: the file is empty (0 bytes)")
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)  # keep stored (straight) colour where alpha < 1
     buf = oiio.ImageBuf(path, 0, 0, config)
     if not buf.read(0, 0, True, oiio.FLOAT) or buf.has_error:
-        raise TextureError(f"{path}: cannot read image ({buf.geterror().strip() or 'unknown error'})")
+        why = next((ln.strip() for ln in buf.geterror().splitlines() if ln.strip()), "unknown error")
+        raise TextureError(f"{path}: cannot read image ({why})")
     spec = buf.spec()
     if spec.width < 1 or spec.height < 1 or spec.nchannels < 1 or spec.depth > 1:
         raise TextureError(f"{path}: not a 2D image ({spec.width}x{spec.height}x{spec.depth}, {spec.nchannels} ch)")
@@ -329,13 +399,15 @@ def _resampled(src: _Source, width: int, height: int) -> np.ndarray:
 def load_texture_set(
     specs: Sequence[TextureSpec | str],
     resolution: int | tuple[int, int] | None = None,
+    fix_nonfinite: bool = False,
 ) -> TextureSet:
     """Load and resample a material's textures into one `TextureSet`.
 
     `specs` are `TextureSpec`s or ``semantic=path[:channels]`` strings; channels appear in spec
     order. `resolution` is a power-of-two side or (width, height); default `common_resolution` of
     all sources. Each file is read and resampled once however many channels it feeds. Raises
-    `TextureError` (a ValueError) for missing/unreadable files or channels a file lacks.
+    `TextureError` (a ValueError) for missing/unreadable files or channels a file lacks, and
+    `NonFiniteError` for NaN/Inf texels unless ``fix_nonfinite`` (module doc).
     """
     specs = [TextureSpec.parse(s) if isinstance(s, str) else s for s in specs]
     if not specs:
@@ -351,6 +423,7 @@ def load_texture_set(
         key = os.path.realpath(s.path)
         if key not in sources:
             sources[key] = _open(s.path)
+            _check_finite(sources[key], fix_nonfinite)
     # Resolve every channel before any resampling so bad selections fail fast.
     picks: list[tuple[_Source, int, Channel]] = []
     for s in specs:
@@ -367,12 +440,15 @@ def load_texture_set(
         width, height = _check_resolution(resolution)
 
     data = np.empty((height, width, len(picks)), dtype=np.float32)
+    channels = []
     for col, (src, idx, ch) in enumerate(picks):
         v = _resampled(src, width, height)[..., idx]
-        data[..., col] = v * 2.0 - 1.0 if ch.kind == "normal" else v
+        v = v * 2.0 - 1.0 if ch.kind == "normal" else v.copy()
+        data[..., col], ch = _value_range(v, ch, src)
+        channels.append(ch)
     for src in sources.values():  # free decoded files now, not when the caller drops the set
         src.pixels = None
-    return TextureSet(data, tuple(ch for _, _, ch in picks), width, height)
+    return TextureSet(data, tuple(channels), width, height)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,136 @@
+"""Issue 11, value ranges and non-finite input: HDR, values beyond fp16, negative values, NaN/Inf,
+empty files. Each case runs `bcfpipe train` as a user would (tiny profile, draft preset)."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bcfpipe.texset.texture_set import FP16_MAX, NonFiniteError, load_texture_set
+
+N = 128
+
+
+def write_exr(path: Path, a: np.ndarray, fmt: str = "half") -> Path:
+    import OpenImageIO as oiio
+
+    a = np.ascontiguousarray(a, np.float32)
+    h, w, c = a.shape
+    o = oiio.ImageOutput.create(str(path))
+    o.open(str(path), oiio.ImageSpec(w, h, c, fmt))
+    o.write_image(a)
+    o.close()
+    return path
+
+
+def ramp(scale: float) -> np.ndarray:
+    y, x = np.mgrid[0:N, 0:N] / N
+    return np.stack([x * scale, y * scale, (x + y) * scale / 2], -1)
+
+
+def train(tmp_path: Path, *specs: str, extra: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bcfpipe", "train", *specs, "-o", str(tmp_path / "out"),
+                           "--profile", "tiny", "--quality", "draft", "--json", *extra],
+                          capture_output=True, text=True, timeout=900)
+
+
+def test_hdr_emissive_ramp_trains_against_its_own_peak(tmp_path):
+    """A smooth 0..3000 emissive ramp: stored normalised, PSNR against the peak 3000, decoded back
+    to source values by value_scale/value_bias."""
+    src = write_exr(tmp_path / "hdr.exr", ramp(3000.0))
+    p = train(tmp_path, f"emissiveColor={src}:rgb")
+    assert p.returncode == 0, p.stderr
+    res = json.loads(p.stdout)
+    assert res["psnr"] > 30, res["psnr"]  # was -52 dB before value ranges were handled
+    desc = json.loads((tmp_path / "out" / "material.json").read_text())
+    out = desc["outputs"][0]
+    assert out["value_bias"] == 0.0 and out["value_scale"] == pytest.approx(3000 * (N - 1) / N, rel=1e-3)
+    from bcfpipe.export import writer as E
+
+    em = E.load(tmp_path / "out")
+    dec = E.decode_mips(em, [(N, N)])[0]
+    scale = np.array([o["value_scale"] for o in desc["outputs"]], np.float32)
+    err = np.abs(dec * scale - ramp(3000.0)).mean()
+    assert err < 0.02 * 3000, err
+
+
+def test_values_beyond_fp16_are_clamped_with_a_warning(tmp_path):
+    src = write_exr(tmp_path / "huge.exr", ramp(70000.0), fmt="float")
+    p = train(tmp_path, f"albedo={src}:rgb")
+    assert p.returncode == 0, p.stderr
+    assert "beyond fp16's +-65504 clamped" in p.stderr
+    ts = load_texture_set([f"albedo={src}:rgb"])
+    assert max(c.value_scale + c.value_bias for c in ts.channels) <= FP16_MAX
+    assert json.loads(p.stdout)["psnr"] > 25
+
+
+def test_negative_values_keep_their_range(tmp_path):
+    rng = np.random.default_rng(0)
+    src = write_exr(tmp_path / "neg.exr", rng.normal(0, 0.5, (N, N, 3)))
+    ts = load_texture_set([f"generic={src}:rgb"])
+    for c in ts.channels:
+        assert c.value_bias < -1.0 and c.value_scale > 2.0
+    assert 0.0 <= ts.data.min() and ts.data.max() <= 1.0
+    p = train(tmp_path, f"generic={src}:rgb")
+    assert p.returncode == 0, p.stderr
+    assert math.isfinite(json.loads(p.stdout)["psnr"])
+
+
+def test_nonfinite_texels_are_refused_naming_file_channel_and_count(tmp_path):
+    a = ramp(1.0)
+    a[3, 4, 0] = np.nan
+    a[10, 10, 1] = np.inf
+    a[11, 10, 1] = -np.inf
+    src = write_exr(tmp_path / "nan.exr", a)
+    p = train(tmp_path, f"albedo={src}:rgb")
+    assert p.returncode == 2
+    line = p.stderr.strip().splitlines()[-1]
+    assert "nan.exr" in line and "3 NaN/Inf" in line and "channel R: 1" in line and "channel G: 2" in line
+    assert "--fix-nonfinite" in line and "Traceback" not in p.stderr
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(NonFiniteError):
+        load_texture_set([f"albedo={src}:rgb"])
+    p = train(tmp_path, f"albedo={src}:rgb", extra=("--fix-nonfinite",))
+    assert p.returncode == 0, p.stderr
+    assert "replaced 3 NaN/Inf" in p.stderr
+    ts = load_texture_set([f"albedo={src}:rgb"], fix_nonfinite=True)
+    assert np.isfinite(ts.data).all()
+
+
+def test_empty_file_is_one_clear_line(tmp_path):
+    (tmp_path / "empty.png").write_bytes(b"")
+    p = train(tmp_path, f"albedo={tmp_path / 'empty.png'}:rgb")
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    line = p.stderr.strip()
+    assert len(line.splitlines()) == 1 and "empty.png" in line and line.count("(") == line.count(")")
+
+
+def test_hdr_value_map_folds_into_the_usd_targets(tmp_path):
+    """In a build, an HDR output's value_scale/value_bias multiply into the target's scale/bias,
+    so an engine applying bcf:outputs:scale/bias gets source values back."""
+    from pxr import Usd
+
+    from bcfpipe.build import build
+    from bcfpipe.formats import material as mf
+    from test_build import add_material, new_stage
+
+    (tmp_path / "tex").mkdir()
+    write_exr(tmp_path / "tex" / "hdr.exr", ramp(3000.0))
+    stage = new_stage(tmp_path / "scene.usda")
+    add_material(stage, "/World/Looks/Lamp", {"emissiveColor": ("./tex/hdr.exr", "rgb", {"scale": (2.0, 2.0, 2.0, 1.0)})},
+                 mesh="/World/Lamp")
+    stage.Save()
+    r = build(tmp_path / "scene.usda", tmp_path / "out", profile="tiny", preset="draft", cache=False)
+    assert r.exit_code == 0
+    desc = mf.read(tmp_path / "out" / "materials" / "Lamp")
+    s = desc.outputs[0].value_scale
+    assert s > 2900
+    built = Usd.Stage.Open(str(r.root_layer))
+    scale = list(built.GetPrimAtPath("/World/Looks/Lamp").GetAttribute("bcf:outputs:scale").Get())
+    assert scale == pytest.approx([2.0 * s] * 3)
+    assert r.manifest.materials[0].metrics.psnr > 30
