@@ -432,7 +432,7 @@ def test_failure_isolation_dedup_and_json(tmp_path: Path) -> None:
     assert "Broken" not in overrides and '"Good"' in overrides
     n, text = validate(out / "scene.bcf.usda")
     assert n == 0, text
-    assert not list(tmp_path.glob(".out.*")), "no staging folders left behind"
+    assert not list(out.glob(".bcfpipe-*")) and not list(tmp_path.glob(".out*")), "no staging folders left behind"
 
 
 def test_refuses_foreign_out(tmp_path: Path) -> None:

@@ -134,3 +134,39 @@ def test_hdr_value_map_folds_into_the_usd_targets(tmp_path):
     scale = list(built.GetPrimAtPath("/World/Looks/Lamp").GetAttribute("bcf:outputs:scale").Get())
     assert scale == pytest.approx([2.0 * s] * 3)
     assert r.manifest.materials[0].metrics.psnr > 30
+
+
+def write_png(path: Path, a: np.ndarray) -> Path:
+    import OpenImageIO as oiio
+
+    h, w, c = a.shape
+    o = oiio.ImageOutput.create(str(path))
+    o.open(str(path), oiio.ImageSpec(w, h, c, "uint8"))
+    o.write_image(np.ascontiguousarray(a, np.float32))
+    o.close()
+    return path
+
+
+@pytest.mark.parametrize("w, h", [(1, 1), (2, 2), (3, 5), (4096, 8)])
+def test_edge_sizes_train_and_export(tmp_path, w, h):
+    """Sizes at the edges train, export and decode (item 3; 8192² and memory are measured apart)."""
+    y, x = np.mgrid[0:h, 0:w]
+    a = np.stack([(x + 0.5) / w, (y + 0.5) / h, np.full((h, w), 0.25)], -1)
+    src = write_png(tmp_path / f"s{w}x{h}.png", a)
+    p = train(tmp_path, f"albedo={src}:rgb")
+    assert p.returncode == 0, p.stderr
+    res = json.loads(p.stdout)
+    assert res["psnr"] > 20, res["psnr"]  # may be inf for a constant texture
+    desc = json.loads((tmp_path / "out" / "material.json").read_text())
+    ts = load_texture_set([f"albedo={src}:rgb"])
+    assert (desc["reference"]["width"], desc["reference"]["height"]) == (ts.width, ts.height)
+
+
+def test_a_set_mixing_sizes(tmp_path):
+    """Sources of different sizes and aspect ratios are resampled to one common size."""
+    a = write_png(tmp_path / "a.png", np.full((64, 128, 3), 0.5))
+    r = write_png(tmp_path / "r.png", np.full((3, 5, 3), 0.25))
+    ts = load_texture_set([f"albedo={a}:rgb", f"roughness={r}:r"])
+    assert (ts.width, ts.height) == (128, 64) and np.allclose(ts.data[..., 3], 0.25, atol=1 / 255)
+    p = train(tmp_path, f"albedo={a}:rgb", f"roughness={r}:r")
+    assert p.returncode == 0, p.stderr

@@ -194,7 +194,7 @@ def test_sigkill_at_random_moments_never_leaves_anything_used_corrupt(tmp_path):
         for e in Cache(cache).entries():
             assert Cache(cache).lookup(e.key).entry is not None
     assert ref.exit_code == 0
-    assert not list(tmp_path.glob(".out.tmp-*")), "staging folders of killed builds are cleaned up"
+    assert not list(out.glob(".bcfpipe-staging-*")), "staging folders of killed builds are cleaned up"
 
 
 def test_cache_cli(tmp_path):

@@ -110,7 +110,13 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
                                  dict(found.entry.result), "hit").to_dict()
             r = _train_job(job, out_dir, threads, device, queue, t0)
             if r["status"] == "built":
-                cache.put(key, out_dir, r["result"])
+                try:
+                    cache.put(key, out_dir, r["result"])
+                except OSError as exc:  # a full or read-only cache costs a retrain later, not this build
+                    import logging
+
+                    logging.getLogger("bcfpipe.cache").warning("could not store %s in the cache %s: %s",
+                                                               name, cache.root, exc.strerror or exc)
             return dict(r, cache="miss")
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()

@@ -14,12 +14,12 @@ from typing import Iterable, Mapping
 
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
                             DEFAULT_SEED)
-from bcfpipe.errors import EXIT_OK
+from bcfpipe.errors import EXIT_OK, WorkFailed
 from bcfpipe.build.assemble import assemble, default_out
 from bcfpipe.build.depfile import dependencies, write as write_depfile
 from bcfpipe.build.executor import JobResult, execute
 from bcfpipe.build.report import make_report
-from bcfpipe.build.sync import install, is_incomplete
+from bcfpipe.build.sync import STAGING_PREFIX, install, is_incomplete
 from bcfpipe.cache import Cache, default_root
 from bcfpipe.formats.report import BuildReport
 from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
@@ -77,9 +77,24 @@ def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike]) -> No
                      "use --force to replace it")
 
 
+class OutputError(WorkFailed):
+    """OUT (or its staging folder) could not be written: disk full, read-only, ... (exit code 1)."""
+
+
+def _why(exc: BaseException) -> str:
+    """The OS's reason (strerror) of a failed write, from an OSError or a pxr error text."""
+    if isinstance(exc, OSError):
+        return exc.strerror or str(exc)
+    text = str(exc)
+    for reason in ("No space left on device", "Read-only file system", "Permission denied", "Disk quota exceeded"):
+        if reason in text:
+            return reason
+    return " ".join(text.split())[:200]
+
+
 def _stale_staging(out: Path) -> None:
     """Remove staging folders of killed builds of ``out`` (their writer's pid is gone)."""
-    for d in out.parent.glob(f".{out.name}.tmp-*"):
+    for d in out.glob(f"{STAGING_PREFIX}*"):
         try:
             pid = int((d / _PID).read_text())
             os.kill(pid, 0)
@@ -90,6 +105,16 @@ def _stale_staging(out: Path) -> None:
 
 
 _PID = ".bcfpipe-pid"
+
+
+def _abandon(staging: Path, out: Path, created: bool) -> None:
+    """Remove a failed build's staging folder, and OUT itself if this build created it."""
+    shutil.rmtree(staging, ignore_errors=True)
+    if created:
+        try:
+            out.rmdir()
+        except OSError:
+            pass
 
 
 def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
@@ -156,11 +181,18 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init,
                  fix_nonfinite)
     check_out(out_path, force, [bplan.scene, *bplan.sources])
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    _stale_staging(out_path)
-    staging = out_path.parent / f".{out_path.name}.tmp-{uuid.uuid4().hex[:8]}"
-    staging.mkdir()
-    (staging / _PID).write_text(str(os.getpid()))
+    # staging lives inside OUT (nothing is written outside OUT and the cache) and on its filesystem,
+    # so that installing a file is one rename
+    staging = out_path / f"{STAGING_PREFIX}{uuid.uuid4().hex[:8]}"
+    created = not out_path.exists()
+    try:
+        out_path.mkdir(parents=True, exist_ok=True)
+        _stale_staging(out_path)
+        staging.mkdir()
+        (staging / _PID).write_text(str(os.getpid()))
+    except OSError as exc:
+        _abandon(staging, out_path, created)
+        raise OutputError(f"cannot write {out_path}: {_why(exc)}") from None
     try:
         results, damaged = _cached(bplan, store, staging / MATERIALS_DIR, progress)
         todo = [j for j in bplan.jobs if j.name not in results]
@@ -170,8 +202,12 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
         manifest = assemble(bplan, results, staging, out_path)
         files = sorted(p.relative_to(staging).as_posix() for p in staging.rglob("*") if p.is_file())
         written = install(staging, out_path, manifest.root_layer)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+    except BaseException as exc:
+        _abandon(staging, out_path, created)
+        if isinstance(exc, OSError) or type(exc).__name__ == "ErrorException":  # pxr's Tf errors too
+            raise OutputError(f"cannot write {out_path}: {_why(exc)}; OUT was left as it was "
+                              "(or, if this happened while files were replaced, is marked incomplete and is "
+                              "repaired by the next build)") from None
         raise
     dep = None
     if depfile is not None:

@@ -1,6 +1,7 @@
 """Step 4 of a build: install the staging folder as OUT, writing only what changed.
 
-A file whose bytes are unchanged is not touched, so its mtime stays and build systems downstream
+The staging folder is inside OUT (``.bcfpipe-staging-*``), on the same filesystem. A file whose
+bytes are unchanged is not touched, so its mtime stays and build systems downstream
 see nothing new; a no-op rebuild leaves OUT exactly as it was. Changed files are moved in one by
 one with an atomic rename each (a reader sees the old file or the new one), manifest.json and the
 root layer last. While files are being replaced OUT holds a ``.bcfpipe-incomplete`` marker: a
@@ -17,11 +18,17 @@ from pathlib import Path
 from bcfpipe.formats.manifest import FILE as MANIFEST
 
 INCOMPLETE = ".bcfpipe-incomplete"
+STAGING_PREFIX = ".bcfpipe-staging-"
+
+
+def _ours(rel: Path) -> bool:
+    """bcfpipe's own bookkeeping in OUT: the marker and staging folders."""
+    return rel.name == INCOMPLETE or rel.parts[0].startswith(STAGING_PREFIX)
 
 
 def _files(folder: Path) -> set[str]:
     return {p.relative_to(folder).as_posix() for p in folder.rglob("*")
-            if (p.is_file() or p.is_symlink()) and p.name != INCOMPLETE}
+            if (p.is_file() or p.is_symlink()) and not _ours(p.relative_to(folder))}
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -36,16 +43,14 @@ def _last(root_layer: str):
 
 
 def is_incomplete(out: Path) -> bool:
-    return (out / INCOMPLETE).exists()
+    """OUT is being (or was, by a killed build) written by bcfpipe: it holds the marker, or
+    nothing but staging folders (a first build that was interrupted)."""
+    return (out / INCOMPLETE).exists() or (any(out.iterdir()) and all(_ours(Path(p.name)) for p in out.iterdir()))
 
 
 def install(staging: Path, out: Path, root_layer: str) -> list[str]:
-    """Make ``out`` hold exactly the files of ``staging`` and remove ``staging``; returns the files
-    created or replaced (relative to ``out``), in the order they were written."""
-    if not out.exists() and not out.is_symlink():
-        written = sorted(_files(staging), key=_last(root_layer))
-        os.replace(staging, out)
-        return written
+    """Make ``out`` hold exactly the files of ``staging`` (a folder inside it) and remove
+    ``staging``; returns the files created or replaced (relative to ``out``), in write order."""
     if out.is_symlink() or not out.is_dir():
         raise FileExistsError(f"{out} is not a folder")
     new, old = _files(staging), _files(out)
@@ -61,7 +66,8 @@ def install(staging: Path, out: Path, root_layer: str) -> list[str]:
             os.replace(staging / rel, dst)
         for rel in removed:
             (out / rel).unlink(missing_ok=True)
-        for d in sorted((p for p in out.rglob("*") if p.is_dir() and not p.is_symlink()), reverse=True):
+        for d in sorted((p for p in out.rglob("*") if p.is_dir() and not p.is_symlink()
+                         and not _ours(p.relative_to(out))), reverse=True):
             if not any(d.iterdir()):
                 d.rmdir()
         (out / INCOMPLETE).unlink(missing_ok=True)
