@@ -15,10 +15,12 @@ between them):
 3. `assemble` (assemble.py) writes the combined ``weights.bin`` (`bcfpipe.formats.weights`), the USD layers
    (`bcfpipe.build.usd_layer`) and ``manifest.json``.
 
-`build` (run.py) runs the three into a temporary sibling folder and renames it to OUT at the end, so an
-interrupted build never leaves a half-written OUT. An existing OUT is only replaced when it holds a
-bcfpipe ``manifest.json`` (or with ``force``); an OUT that contains the scene or one of its
-textures is always refused (inputs are never modified).
+`build` (run.py) takes what the content-addressed cache (`bcfpipe.cache`) holds, runs the rest in a
+staging folder inside OUT, and then installs only the files whose bytes changed (sync.py: each file
+replaced atomically, manifest.json last; an interrupted install is marked and repaired by the next
+build). An existing OUT is only updated when it holds a bcfpipe ``manifest.json`` (or with
+``force``); an OUT that contains the scene or one of its textures is always refused (inputs are
+never modified), and nothing is written outside OUT and the cache.
 
 Output folder (OUT, default ``<scene>.bcf/`` next to the scene)::
 

@@ -9,6 +9,7 @@ table, or with ``--json`` the manifest as one JSON object, goes to stdout.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -211,5 +212,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
         probe = Console()
         out = probe if probe.is_terminal else Console(width=160)  # pipes/logs: do not wrap at 80 columns
         out.print(summary_table(result.manifest, result.report))
-        out.print(f"open {result.root_layer}", highlight=False, soft_wrap=True)
+        shown = os.path.relpath(result.root_layer)
+        out.print(f"open {shown if not shown.startswith('..') else result.root_layer}", highlight=False,
+                  soft_wrap=True)
     ctx.exit(code)
