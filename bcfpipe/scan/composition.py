@@ -25,7 +25,11 @@ def parse_variant(text: str) -> tuple[str, str]:
 
 def first_line(exc: BaseException) -> str:
     """The first non-empty line of an exception message (pxr errors are verbose)."""
-    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    try:
+        message = str(exc)
+    except UnicodeDecodeError:  # a pxr error quoting bytes of a corrupt file that are not UTF-8
+        message = "the file is not valid UTF-8 text (a corrupt or binary file?)"
+    lines = [ln.strip() for ln in message.splitlines() if ln.strip()]
     text = lines[0] if lines else type(exc).__name__
     # Tf errors read "Error in '...' at line N in file F : 'the message'"
     if " : " in text and text.startswith("Error in"):
@@ -162,6 +166,21 @@ def _binding_target(rel: Usd.Relationship) -> str | None:
     return str(targets[-1]) if targets else None
 
 
+def _bound(prims: list[Usd.Prim], purpose) -> list[tuple]:
+    """(material, binding relationship) per prim; a prim whose binding is malformed (e.g.
+    ``material:binding`` authored as an attribute, which USD raises on) binds nothing."""
+    try:
+        return list(zip(*UsdShade.MaterialBindingAPI.ComputeBoundMaterials(prims, purpose)))
+    except Tf.ErrorException:
+        out = []
+        for prim in prims:
+            try:
+                out.append(UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial(purpose))
+            except Tf.ErrorException:
+                continue
+        return out
+
+
 def bound_materials(stage: Usd.Stage, gprims: list[Usd.Prim]) -> tuple[dict[str, set[str]], set[str]]:
     """Map definition path of each bound material to the purposes binding it; and dangling targets."""
     prims = _binding_prims(gprims)
@@ -170,8 +189,7 @@ def bound_materials(stage: Usd.Stage, gprims: list[Usd.Prim]) -> tuple[dict[str,
     if not prims:
         return bound, dangling
     for purpose in (UsdShade.Tokens.preview, UsdShade.Tokens.full):
-        materials, rels = UsdShade.MaterialBindingAPI.ComputeBoundMaterials(prims, purpose)
-        for mat, rel in zip(materials, rels):
+        for mat, rel in _bound(prims, purpose):
             if mat:
                 bound.setdefault(definition_path(mat.GetPrim()), set()).add(str(purpose))
             elif rel:
