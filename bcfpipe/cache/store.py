@@ -16,7 +16,6 @@ trained files and nothing else.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -27,6 +26,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from bcfpipe.errors import InputError
+from bcfpipe.formats.digest import sha256_file
 
 LAYOUT = "v1"
 ENTRY_META = "entry.json"
@@ -48,13 +48,6 @@ def default_root() -> Path:
 
     return Path(platformdirs.user_cache_dir("bcfpipe", appauthor=False))
 
-
-def sha256_file(path: str | os.PathLike) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _fsync(path: Path) -> None:

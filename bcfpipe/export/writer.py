@@ -8,7 +8,6 @@ Folder layout (``material.json`` describes it completely for consumers that do n
 """
 from __future__ import annotations
 
-import hashlib
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -17,6 +16,7 @@ import numpy as np
 import torch
 
 from bcfpipe.formats import dds
+from bcfpipe.formats.digest import sha256_file
 from bcfpipe.formats import material as mf
 from bcfpipe.model import neural as M
 from bcfpipe.bc6h import decode as bc6h_decode
@@ -76,7 +76,7 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
                              str(tm.config.device).split(":")[0]))
     # digests let `bcfpipe verify` detect any changed byte, which a decode comparison cannot
     # (a flipped index bit still decodes identically on every correct decoder)
-    desc = replace(desc, sha256={f: hashlib.sha256((out / f).read_bytes()).hexdigest() for f in desc.files})
+    desc = replace(desc, sha256={f: sha256_file(out / f) for f in desc.files})
     mf.write(out, desc)
     return out
 

@@ -29,11 +29,12 @@ import numpy as np
 
 from bcfpipe.bc6h import mode10
 from bcfpipe.formats import dds
+from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes
 from bcfpipe.verify.glsl import GLRuntime, GLUnavailable, MaterialDesc
 from bcfpipe.verify.points import CATEGORIES, verification_points
-from bcfpipe.verify.targets import Target, VerifyInputError, find_targets, sha256_file
+from bcfpipe.verify.targets import Target, VerifyInputError, find_targets
 from bcfpipe.verify.tolerance import FILTER_BITS, TARGET, filter_error, output_tolerance
 
 

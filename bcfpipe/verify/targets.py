@@ -2,7 +2,6 @@
 material folders; every reader goes through bcfpipe.formats."""
 from __future__ import annotations
 
-import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,13 +25,6 @@ class Target:
     desc: MaterialDesc
     aliases: list[str] = field(default_factory=list)  # every name (prim path) that uses it
 
-
-def sha256_file(path: str | os.PathLike) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _manifest_targets(root: Path, manifest: mfst.Manifest) -> list[Target]:
