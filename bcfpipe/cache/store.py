@@ -126,9 +126,8 @@ class Cache:
         folder = self.folder(key)
         if not folder.is_dir():
             return Lookup(None)
-        problem = self._check(folder, key)
+        meta, problem = self._check(folder, key)
         if problem is None:
-            meta = json.loads((folder / ENTRY_META).read_text())
             try:
                 os.utime(folder / ENTRY_META)  # last use, for prune --older-than / --max-size
             except OSError:
@@ -137,25 +136,30 @@ class Cache:
         self._discard(folder)
         return Lookup(None, problem)
 
-    def _check(self, folder: Path, key: str) -> str | None:
+    def _check(self, folder: Path, key: str) -> tuple[dict, str | None]:
+        """entry.json (read once: a concurrent prune may remove the folder) and the problem, if any."""
         try:
             meta = json.loads((folder / ENTRY_META).read_text())
         except FileNotFoundError:
-            return "no entry.json"
+            return {}, "no entry.json"
         except (OSError, ValueError) as e:
-            return f"unreadable entry.json ({e})"
+            return {}, f"unreadable entry.json ({e})"
         if not isinstance(meta, dict) or meta.get("format") != ENTRY_FORMAT or meta.get("key") != key \
                 or not isinstance(meta.get("files"), dict):
-            return "entry.json does not describe this entry"
+            return {}, "entry.json does not describe this entry"
         if meta.get("format_version") != ENTRY_VERSION:
-            return f"entry format version {meta.get('format_version')}"
+            return {}, f"entry format version {meta.get('format_version')}"
         for name, digest in meta["files"].items():
             path = folder / name
             if "/" in name or not path.is_file():
-                return f"{name} is missing"
-            if sha256_file(path) != digest:
-                return f"{name} differs from its recorded SHA-256"
-        return None
+                return {}, f"{name} is missing"
+            try:
+                same = sha256_file(path) == digest
+            except OSError as e:
+                return {}, f"{name} is unreadable ({e.strerror or e})"
+            if not same:
+                return {}, f"{name} differs from its recorded SHA-256"
+        return meta, None
 
     # ------------------------------------------------------------------------------- write
 
