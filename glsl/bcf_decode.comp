@@ -3,11 +3,15 @@
 // The host inserts bcf_decode.glsl right after the #version line (glsl/README.md).
 //
 // Bindings: texture units 0..3 = T0..T3 (as in bcf_fullscreen.frag);
-//   shader storage block 0 = weight buffer (uint words), 1 = queries vec4(u, v, s, unused),
+//   shader storage block 0 = weight buffer (uint words), 1 = queries (below),
 //   2 = output float[count * uOutStride], sample i's channel c at i * uOutStride + c.
 // Uniforms:
-//   uint  uWeightOffset, vec4 uLodBias, int uNormalIndex   as in bcf_fullscreen.frag
+//   uint  uWeightOffset, vec4 uLodBias, vec2 uRefSize, int uNormalIndex, bool uRepeat
+//                      as in bcf_fullscreen.frag
 //   uint  uCount       number of samples
+//   bool  uGradQueries false: query i is vec4(u, v, s, unused) (bcfDecodeLod);
+//                      true: queries 2i, 2i+1 are vec4(u, v, du/dx, dv/dx), vec4(du/dy, dv/dy, -, -)
+//                      and s comes from the derivatives (bcfDecodeGrad)
 //   uint  uOutStride   floats per sample in the output (>= channel count; extra slots untouched)
 //   uvec2 uGrid        (0, 0): read the queries; (W, H): sample i is the texel centre
 //                      ((i % W + 0.5) / W, (i / W + 0.5) / H) of a W x H grid at s = uGridLod
@@ -28,8 +32,11 @@ uint bcfWeightWord(uint wordIndex) { return bcfWeights[wordIndex]; }
 
 uniform uint uWeightOffset;
 uniform vec4 uLodBias;
+uniform vec2 uRefSize;
 uniform int uNormalIndex;
+uniform bool uRepeat;
 uniform uint uCount;
+uniform bool uGradQueries;
 uniform uint uOutStride;
 uniform uvec2 uGrid;
 uniform float uGridLod;
@@ -37,19 +44,19 @@ uniform float uGridLod;
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= uCount) return;
-    vec2 uv;
-    float s;
+    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uRepeat);
+    float ch[BCF_MAX_OUT];
+    int n;
     if (uGrid.x > 0u) {
-        uv = (vec2(float(i % uGrid.x), float(i / uGrid.x)) + 0.5) / vec2(uGrid);
-        s = uGridLod;
+        vec2 uv = (vec2(float(i % uGrid.x), float(i / uGrid.x)) + 0.5) / vec2(uGrid);
+        n = bcfDecodeLod(bcfT0, bcfT1, bcfT2, bcfT3, m, uv, uGridLod, ch);
+    } else if (uGradQueries) {
+        vec4 a = bcfQueries[2u * i], b = bcfQueries[2u * i + 1u];
+        n = bcfDecodeGrad(bcfT0, bcfT1, bcfT2, bcfT3, m, a.xy, a.zw, b.xy, ch);
     } else {
         vec4 q = bcfQueries[i];
-        uv = q.xy;
-        s = q.z;
+        n = bcfDecodeLod(bcfT0, bcfT1, bcfT2, bcfT3, m, q.xy, q.z, ch);
     }
-    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, vec2(0.0), uNormalIndex);
-    float ch[BCF_MAX_OUT];
-    int n = bcfDecodeLod(bcfT0, bcfT1, bcfT2, bcfT3, m, uv, s, ch);
     uint o = i * uOutStride;
     if (n == 0) {
         for (uint c = 0u; c < uOutStride; ++c) bcfOut[o + c] = uintBitsToFloat(0x7FC00000u);

@@ -16,6 +16,10 @@
 //   s : lod in the reference material's mip units (0 = full-resolution reference texels).
 //   Each layer is sampled with the hardware trilinear filter (LINEAR_MIPMAP_LINEAR, mag LINEAR,
 //   GL_TEXTURE_MAX_LEVEL = mip_count - 1, so s_i is clamped to [0, mip_count - 1] by the sampler).
+//   Range reduction happens here, in exact fp32, not in the texture unit: uv - floor(uv) for repeat,
+//   clamp(uv, -1, 2) for clamp-to-edge, and s_i clamped to [0, BCF_MAX_LOD]; hardware guarantees
+//   full sub-texel precision only for |uv| <= 10 (D3D11_COMMONSHADER_TEXCOORD_RANGE_REDUCTION_MAX).
+//   Precision limits (glsl/README.md): the fp32 uv itself resolves ulp(|uv|) * width texels.
 //   f : relu MLP 12 -> n_hidden -> n_out in fp32 with fp16 weights, then per channel
 //       y = clamp(raw * out_scale + out_bias, lo, hi), lo = -1 for the normal x/y pair, else 0,
 //       and normal z = sqrt(max(0, 1 - x^2 - y^2)) inserted right after normal y.
@@ -25,6 +29,9 @@
 #endif
 #ifndef BCF_MAX_OUT
 #define BCF_MAX_OUT 16
+#endif
+#ifndef BCF_MAX_LOD
+#define BCF_MAX_LOD 32.0
 #endif
 #ifdef BCF_N_HIDDEN
 #undef BCF_MAX_HIDDEN
@@ -45,6 +52,7 @@ struct BcfMaterial {
     vec4 lodBias;       // b_0..b_3 (material.json layers[i].lod_bias)
     vec2 refSize;       // reference width, height (material.json reference; derivative path only)
     int normalIndex;    // index of normal x among the n_out model channels (y follows); -1: none
+    bool repeat;        // sampling.addressing: true for repeat, false for clamp (the samplers' wrap mode)
 };
 
 // fp16 value e of the record whose first fp16 word is 'base'.
@@ -119,10 +127,17 @@ int bcfDecodeFeatures(BcfMaterial m, vec3 t0, vec3 t1, vec3 t2, vec3 t3, out flo
     return count;
 }
 
-// Hardware trilinear samples of the four layers at s_i = s + b_i.
-void bcfSampleFeatures(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, vec4 lodBias, vec2 uv, float s,
+// uv moved into the range where every texture unit filters at full precision, with the same
+// texels and weights: the fractional part for repeat (exact in fp32), [-1, 2] for clamp-to-edge.
+vec2 bcfReduceUv(vec2 uv, bool repeat) {
+    return repeat ? uv - floor(uv) : clamp(uv, -1.0, 2.0);
+}
+
+// Hardware trilinear samples of the four layers at s_i = s + b_i (s = +-inf is fine; NaN is not).
+void bcfSampleFeatures(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, float s,
                        out vec3 t0, out vec3 t1, out vec3 t2, out vec3 t3) {
-    vec4 l = vec4(s) + lodBias;
+    uv = bcfReduceUv(uv, m.repeat);
+    vec4 l = clamp(vec4(s) + m.lodBias, 0.0, BCF_MAX_LOD);
     t0 = textureLod(T0, uv, l.x).rgb;
     t1 = textureLod(T1, uv, l.y).rgb;
     t2 = textureLod(T2, uv, l.z).rgb;
@@ -132,6 +147,7 @@ void bcfSampleFeatures(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, v
 // s from uv derivatives (paper sec. 5.2): log2 of the larger pixel footprint in reference texels.
 // This is GL's isotropic scale factor rho (OpenGL 4.5 eq. 8.5), so with square layers whose
 // b_i = log2(w_i / W) it equals the lod textureGrad(T_i, uv, dx, dy) would pick for each layer.
+// Zero derivatives give -66 (magnification); huge or infinite ones overflow to +inf (last mip).
 float bcfLodFromGrad(vec2 duvdx, vec2 duvdy, vec2 refSize) {
     float rho = max(length(duvdx * refSize), length(duvdy * refSize));
     return log2(max(rho, 1e-20));
@@ -141,7 +157,7 @@ float bcfLodFromGrad(vec2 duvdx, vec2 duvdy, vec2 refSize) {
 int bcfDecodeLod(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, float s,
                  out float ch[BCF_MAX_OUT]) {
     vec3 t0, t1, t2, t3;
-    bcfSampleFeatures(T0, T1, T2, T3, m.lodBias, uv, s, t0, t1, t2, t3);
+    bcfSampleFeatures(T0, T1, T2, T3, m, uv, s, t0, t1, t2, t3);
     return bcfDecodeFeatures(m, t0, t1, t2, t3, ch);
 }
 

@@ -9,6 +9,7 @@
 //   vec4  uLodBias       b_0..b_3
 //   vec2  uRefSize       reference width, height (for the lod from derivatives)
 //   int   uNormalIndex   normal x among the model outputs, -1 if none
+//   bool  uRepeat        true if the material repeats (sampling.addressing), false for clamp
 //   int   uLodMode       0: s from dFdx/dFdy of uv (paper sec. 5.2); 1: s = uLod
 //   float uLod           explicit lod (reference mip units) for uLodMode 1
 //   int   uView          first of the three channels written to rgb (normals stay in [-1, 1])
@@ -26,6 +27,7 @@ uniform uint uWeightOffset;
 uniform vec4 uLodBias;
 uniform vec2 uRefSize;
 uniform int uNormalIndex;
+uniform bool uRepeat;
 uniform int uLodMode;
 uniform float uLod;
 uniform int uView;
@@ -34,7 +36,7 @@ layout(location = 0) in vec2 vUv;
 layout(location = 0) out vec4 fragColor;
 
 void main() {
-    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex);
+    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uRepeat);
     float ch[BCF_MAX_OUT];
     int n;
     if (uLodMode == 1)

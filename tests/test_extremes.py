@@ -170,3 +170,18 @@ def test_a_set_mixing_sizes(tmp_path):
     assert (ts.width, ts.height) == (128, 64) and np.allclose(ts.data[..., 3], 0.25, atol=1 / 255)
     p = train(tmp_path, f"albedo={a}:rgb", f"roughness={r}:r")
     assert p.returncode == 0, p.stderr
+
+
+@pytest.mark.slow
+def test_8k_set_trains_within_memory():
+    """An 8192² set of 8 channels trains, exports and is evaluated per mip within 14 GiB peak RSS
+    (measured: 10.6 GiB; docs/benchmarks.md), through the committed benchmark."""
+    import re
+
+    bench = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_8k_memory.py"
+    p = subprocess.run([sys.executable, str(bench), "--size", "8192"], capture_output=True, text=True, timeout=3000)
+    assert p.returncode == 0, p.stdout + p.stderr
+    peak = float(re.search(r"peak RSS ([0-9.]+) GiB", p.stdout).group(1))
+    psnr = float(re.search(r"PSNR ([0-9.]+) dB", p.stdout).group(1))
+    print(p.stdout)
+    assert peak < 14.0 and psnr > 15.0, (peak, psnr)

@@ -24,8 +24,9 @@ REF = 64
 
 
 def make_material(folder: Path, signed: bool = False, wrap: str = "repeat", normal: bool = False,
-                  resolutions=SIZES, ref: int = REF, hidden: int = 16, seed: int = 0) -> Path:
-    """Export a synthetic material: random smooth-ish BC6H features, a random fp16 decoder."""
+                  resolutions=SIZES, ref: int = REF, hidden: int = 16, seed: int = 0, mlp_transform=None) -> Path:
+    """Export a synthetic material: random smooth-ish BC6H features, a random fp16 decoder
+    (``mlp_transform`` maps its MlpWeights to the ones exported)."""
     from bcfpipe.config import ModelConfig, TrainConfig, mip_count
     from bcfpipe.model.neural import lod_biases
     from bcfpipe.texset.texture_set import Channel, TextureSet
@@ -55,6 +56,8 @@ def make_material(folder: Path, signed: bool = False, wrap: str = "repeat", norm
         (rng.uniform(-1, 1, (n_out, hidden)) * 0.15).astype(np.float32),
         np.zeros(n_out, np.float32), np.ones(n_out, np.float32),
         np.array([0.0 if c.kind == "normal" else 0.5 for c in chans], np.float32)).to_fp16()
+    if mlp_transform is not None:
+        w = mlp_transform(w)
     cfg = TrainConfig(model=ModelConfig(resolutions=tuple(resolutions), hidden=hidden, signed=signed, wrap=wrap),
                       preset_name="synthetic")
     tm = SimpleNamespace(config=cfg, texture_set=ts, layers=layers, mlp=w,
@@ -128,8 +131,11 @@ def test_grid_covers_the_extremes(materials):
     uv, s, cat = V.verification_points(m, sizes)
     s_last = max(n - 1 - b for n, b in zip(m.mip_counts, m.lod_biases))
     assert (s < 0).sum() > 1000 and (s > s_last).sum() > 500
-    assert ((s % 1) != 0).sum() > 1000
+    assert ((s[np.isfinite(s)] % 1) != 0).sum() > 1000
     assert (uv < 0).any() and (uv > 1).any() and (uv == 0).any() and (uv == 1).any()
+    # the runtime extremes (issue #11): uv +-1e4 in both axes, s at +-inf and +-1e30
+    assert (uv <= -1e4 + 1).any() and (uv >= 1e4).any()
+    assert np.isinf(s).sum() >= 128 and (np.abs(s) == np.float32(1e30)).sum() >= 128
     # every level of every layer is hit at exact texel centres with that layer exactly at the level
     centres = cat == V.CATEGORIES.index("texel centres")
     for i, b in enumerate(m.lod_biases):

@@ -143,14 +143,15 @@ def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: 
     nz = normal_xy_index(kinds)
     out = []
     for k, (h, w) in enumerate(ref_shapes):
-        ys, xs = np.meshgrid((np.arange(h) + 0.5) / h, (np.arange(w) + 0.5) / w, indexing="ij")
-        uv = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
-        parts = []
-        for a in range(0, uv.shape[0], chunk):
-            feats = sample_exported_features(em, uv[a:a + chunk], float(k))
-            y = sess.run([ONNX_OUTPUT], {ONNX_INPUT: feats})[0]
+        level = None
+        for a in range(0, h * w, chunk):  # texel-centre uvs made per chunk: O(chunk) scratch at 8K
+            ids = np.arange(a, min(a + chunk, h * w))
+            uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1).astype(np.float32)
+            y = sess.run([ONNX_OUTPUT], {ONNX_INPUT: sample_exported_features(em, uv, float(k))})[0]
             if drop_normal_z and nz is not None:
                 y = np.delete(y, nz + 2, axis=1)
-            parts.append(y)
-        out.append(np.concatenate(parts).reshape(h, w, -1))
+            if level is None:
+                level = np.empty((h * w, y.shape[1]), np.float32)
+            level[a:a + len(ids)] = y
+        out.append(level.reshape(h, w, -1))
     return out

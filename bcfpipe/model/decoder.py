@@ -56,14 +56,52 @@ class MlpWeights:
         return self.w1.shape[1], self.w1.shape[0], self.w2.shape[0]
 
     def to_fp16(self) -> "MlpWeights":
-        """Round every array to fp16 (kept as float32 so every consumer computes in fp32)."""
-        return MlpWeights(*(np.asarray(a, np.float32).astype(np.float16).astype(np.float32) for a in self.arrays()))
+        """Round every array to fp16 (kept as float32 so every consumer computes in fp32), after
+        :func:`balance_for_fp16`; FloatingPointError (training failed) if a value still cannot be held."""
+        w = balance_for_fp16(self)
+        peak = max(float(np.abs(a).max(initial=0.0)) for a in w.arrays())
+        if not np.isfinite(peak) or peak > FP16_MAX:
+            raise FloatingPointError(f"decoder weights reach {peak:.4g}, beyond fp16's {FP16_MAX:g} even after rescaling")
+        return MlpWeights(*(np.asarray(a, np.float32).astype(np.float16).astype(np.float32) for a in w.arrays()))
 
     def arrays(self) -> tuple[np.ndarray, ...]:
         return (self.w1, self.b1, self.w2, self.b2, self.out_scale, self.out_bias)
 
     def halves(self) -> np.ndarray:
         return np.concatenate([np.asarray(a, np.float32).reshape(-1) for a in self.arrays()]).astype(np.float16)
+
+
+FP16_MAX = 65504.0
+
+
+def _pow2_split(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per entry, the power of two 2^k that brings max(a / 2^k, b * 2^k) lowest: k = round(log2(sqrt(a / b)))."""
+    with np.errstate(divide="ignore"):
+        k = np.round(0.5 * (np.log2(np.maximum(a, 1e-30)) - np.log2(np.maximum(b, 1e-30))))
+    return np.exp2(k).astype(np.float32)
+
+
+def balance_for_fp16(w: MlpWeights) -> MlpWeights:
+    """The same function, rescaled by powers of two so that every value fits fp16 where that is possible.
+
+    ReLU is positively homogeneous: hidden unit j's row of W1 and b1 may be divided by 2^k and its
+    column of W2 multiplied by 2^k; output c's row of W2 and b2 may be divided by 2^k and out_scale[c]
+    multiplied by it. Powers of two keep every mantissa, and only units or outputs with a value beyond
+    fp16's range are touched, so records that already fit are returned unchanged (byte-identical).
+    """
+    w1, b1, w2, b2, sc, bi = (np.array(a, np.float32) for a in w.arrays())
+    first = np.maximum(np.abs(w1).max(1, initial=0.0), np.abs(b1))  # per hidden unit
+    second = np.abs(w2).max(0, initial=0.0)
+    bad = (first > FP16_MAX) | (second > FP16_MAX)
+    if bad.any():
+        f = np.where(bad, _pow2_split(first, second), np.float32(1))
+        w1, b1, w2 = w1 / f[:, None], b1 / f, w2 * f[None, :]
+    rows = np.maximum(np.abs(w2).max(1, initial=0.0), np.abs(b2))  # per output
+    bad = (rows > FP16_MAX) | (np.abs(sc) > FP16_MAX)
+    if bad.any():
+        f = np.where(bad, _pow2_split(rows, np.abs(sc)), np.float32(1))
+        w2, b2, sc = w2 / f[:, None], b2 / f, sc * f
+    return MlpWeights(w1, b1, w2, b2, sc, bi)
 
 
 def to_bytes(w: MlpWeights) -> bytes:
@@ -89,6 +127,9 @@ def from_bytes(data: bytes, offset: int = 0) -> tuple[MlpWeights, int]:
     if len(data) < offset + size:
         raise ValueError(f"weight record at byte {offset} is truncated")
     h = np.frombuffer(data, dtype="<f2", count=n_halves, offset=offset + HEADER_BYTES).astype(np.float32)
+    bad = int((~np.isfinite(h)).sum())
+    if bad:
+        raise ValueError(f"weight record at byte {offset}: {bad} of its fp16 values are NaN or infinite")
     parts, i = [], 0
     for shape in ((hidden, n_in), (hidden,), (n_out, hidden), (n_out,), (n_out,), (n_out,)):
         n = int(np.prod(shape))

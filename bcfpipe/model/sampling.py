@@ -5,7 +5,9 @@ Conventions shared by training, ONNX cross-checks and the GLSL runtime:
   v = 0 is the first row in memory (the top row of the source image file, the DDS's first row).
 - Bilinear within a level, linear between the two nearest levels (LINEAR_MIPMAP_LINEAR).
 - ``lod`` is clamped to [0, last level]; lod <= 0 samples level 0 bilinearly (magnification).
-- Addressing is ``repeat`` (GL_REPEAT) or ``clamp`` (GL_CLAMP_TO_EDGE).
+- Addressing is ``repeat`` (GL_REPEAT) or ``clamp`` (GL_CLAMP_TO_EDGE). uv is range-reduced first,
+  exactly as glsl/bcf_decode.glsl does (:func:`reduce_uv`), so far-away uvs address the same texels
+  with the same weights as uvs in [0, 1).
 Tensors are (C, H, W) per level; sample points are (N, 2).
 """
 from __future__ import annotations
@@ -19,6 +21,12 @@ WRAP_MODES = ("repeat", "clamp")
 
 def _address(i: torch.Tensor, n: int, wrap: str) -> torch.Tensor:
     return torch.remainder(i, n) if wrap == "repeat" else i.clamp(0, n - 1)
+
+
+def reduce_uv(uv: torch.Tensor, wrap: str) -> torch.Tensor:
+    """uv - floor(uv) for repeat (exact in fp32), uv clamped to [-1, 2] for clamp-to-edge: the same
+    texels and weights, with coordinates small enough that ``uv * w`` keeps its sub-texel bits."""
+    return uv - torch.floor(uv) if wrap == "repeat" else uv.clamp(-1.0, 2.0)
 
 
 TexelFn = Callable[[torch.Tensor], torch.Tensor]  # flat texel ids (M,) -> values (M, C)
@@ -35,6 +43,7 @@ def sample_bilinear_fn(texels: TexelFn, h: int, w: int, uv: torch.Tensor, wrap: 
     """Bilinear sample of an h x w level whose texels are produced on demand by ``texels``
     (row-major flat ids -> values). Training uses this to decode only the 4 taps of each sample
     instead of a whole level, so a step costs O(batch) rather than O(level size)."""
+    uv = reduce_uv(uv, wrap)
     x = uv[:, 0] * w - 0.5
     y = uv[:, 1] * h - 0.5
     x0f, y0f = torch.floor(x), torch.floor(y)

@@ -186,11 +186,12 @@ class CentreTargets:
             if h * w < min_texels or k + 1 >= pyr.num_levels:
                 self.up.append(None)
                 continue
-            ids = torch.arange(h * w, device=m.device)
             nxt = pyr.mips[k + 1]
-            parts = [_bicubic(nxt, texel_centres(h, w, ids[a:a + chunk]).to(nxt.dtype), wrap)
-                     for a in range(0, h * w, chunk)]
-            self.up.append(torch.cat(parts).t().contiguous())
+            up = torch.empty((c, h * w), dtype=nxt.dtype, device=m.device)  # filled in chunks: no 2x peak at 8K
+            for a in range(0, h * w, chunk):
+                ids = torch.arange(a, min(a + chunk, h * w), device=m.device)
+                up[:, a:a + len(ids)] = _bicubic(nxt, texel_centres(h, w, ids).to(nxt.dtype), wrap).t()
+            self.up.append(up)
 
     def covers(self, s: float) -> bool:
         """Whether a batch at scale ``s`` can be drawn at precomputed texel centres."""

@@ -469,10 +469,10 @@ def build_mip_chain(data: np.ndarray) -> list[np.ndarray]:
     if not (_is_pow2(h) and _is_pow2(w)):
         raise ValueError(f"mip chain needs power-of-two sides, got {w}x{h}")
     levels = [a.astype(np.float32, copy=False)]
-    cur = a.astype(np.float64)
+    cur = levels[0]  # the float64 accumulation starts at level 1: no float64 copy of level 0
     while cur.shape[0] > 1 or cur.shape[1] > 1:
         h, w = cur.shape[:2]
         fy, fx = (2 if h > 1 else 1), (2 if w > 1 else 1)
-        cur = cur.reshape(h // fy, fy, w // fx, fx, *cur.shape[2:]).mean(axis=(1, 3))
+        cur = cur.reshape(h // fy, fy, w // fx, fx, *cur.shape[2:]).mean(axis=(1, 3), dtype=np.float64)
         levels.append(cur.astype(np.float32))
     return levels

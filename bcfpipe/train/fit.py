@@ -73,10 +73,12 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
     out = E.export(tm, out_dir)
     t0 = time.perf_counter()
     ref = build_mip_chain(ts.data)
+    float_metrics = compute_metrics(ref, tm.float_mips, ts.channels, ssim=False, flip=False) if tm.float_mips else None
+    tm.float_mips = []  # measured: free them before the exported mips are decoded (an 8K set's are 2.7 GiB)
     em = E.load(out)
     dec = E.decode_mips(em, [m.shape[:2] for m in ref])
     metrics = compute_metrics(ref, dec, ts.channels)
-    float_metrics = compute_metrics(ref, tm.float_mips, ts.channels, ssim=False, flip=False) if tm.float_mips else None
+    del dec
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)
     res = MaterialResult(out, profile, cfg.model.resolutions, cfg.preset_name, cfg.device, metrics, float_metrics,
                          exported_size(out), tm.train_seconds, {k: round(v, 3) for k, v in phases.items()},

@@ -158,20 +158,17 @@ def evaluate_levels(level_fn: M.LevelFn, mlp: dict[str, torch.Tensor], mc, kinds
         levels = [[level_fn(i, k).detach() for k in range(n)] for i, n in enumerate(mc.mip_counts)]
     cached = M.cached_level_fn(levels)
     out = []
+    dev = levels[0][0].device
+    lo = torch.tensor([-1.0 if t == "normal" else 0.0 for t in kinds], device=dev)
     with torch.no_grad():
         for k, (h, w) in enumerate(ref_shapes):
-            dev = levels[0][0].device
-            ys, xs = torch.meshgrid((torch.arange(h, device=dev) + 0.5) / h, (torch.arange(w, device=dev) + 0.5) / w,
-                                    indexing="ij")
-            uv = torch.stack([xs.reshape(-1), ys.reshape(-1)], 1)
-            parts = []
-            for a in range(0, uv.shape[0], chunk):
-                raw = M.forward(cached, mlp, mc, biases, uv[a:a + chunk], float(k))
-                parts.append(raw)
-            y = torch.cat(parts)
-            lo = torch.tensor([-1.0 if t == "normal" else 0.0 for t in kinds], device=dev)
-            y = torch.maximum(torch.minimum(y, torch.ones_like(lo)), lo)
-            out.append(y.reshape(h, w, -1).cpu().numpy())
+            level = np.empty((h * w, len(kinds)), np.float32)
+            for a in range(0, h * w, chunk):  # texel-centre uvs made per chunk: O(chunk) scratch at 8K
+                ids = torch.arange(a, min(a + chunk, h * w), device=dev)
+                uv = torch.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1)
+                y = M.forward(cached, mlp, mc, biases, uv, float(k))
+                level[a:a + len(ids)] = torch.maximum(torch.minimum(y, torch.ones_like(lo)), lo).cpu().numpy()
+            out.append(level.reshape(h, w, -1))
     return out
 
 

@@ -14,7 +14,9 @@ For every material (one exported folder, or every material of a build) the check
                decoded by bcfpipe.bc6h.decode (bcfpipe.sampling conventions) fed to decoder.onnx
                through onnxruntime. Sampled at a grid of (u, v, s) with texel centres and edges of
                every level of every layer, uv across and far beyond the borders (repeat / clamp),
-               s < 0 (magnification), integer and fractional s, and s past every layer's last mip.
+               s < 0 (magnification), integer and fractional s, s past every layer's last mip, and
+               the runtime extremes: uv +-1e4, s up to +-1e30 and +-inf, and the derivative path
+               (bcfDecodeGrad) with zero, tiny, huge and infinite derivatives.
 
 Exit codes (verify_cli): 0 all checks passed, 1 a check failed, 2 bad input or no OpenGL.
 """
@@ -33,7 +35,7 @@ from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes
 from bcfpipe.verify.glsl import GLRuntime, GLUnavailable, MaterialDesc
-from bcfpipe.verify.points import CATEGORIES, verification_points
+from bcfpipe.verify.points import CATEGORIES, gradient_points, lod_from_grad, verification_points
 from bcfpipe.verify.targets import Target, VerifyInputError, find_targets
 from bcfpipe.verify.tolerance import FILTER_BITS, TARGET, filter_error, output_tolerance
 
@@ -185,22 +187,33 @@ def check_openimageio(texs: Sequence[dds.DdsTexture], files: Sequence[Path]) -> 
     return Check("openimageio", not bad, "; ".join(bad) or f"{n_levels} mip levels bit-identical")
 
 
+def _finite(x) -> float | str:
+    """A float for JSON, or 'inf' / '-inf' (strict JSON has no infinities)."""
+    x = float(x)
+    return x if np.isfinite(x) else str(x)
+
+
 def check_glsl(rt: GLRuntime, m: MaterialDesc, em: E.ExportedMaterial, tolerance: float | None,
                seed: int = 0, filter_bits: int = FILTER_BITS) -> tuple[Check, list[dict], list[dict], int]:
     level_sizes = [[(lv.shape[1], lv.shape[0]) for lv in layer] for layer in em.levels]
     uv, s, cat = verification_points(m, level_sizes, seed)
+    guv, gdx, gdy = gradient_points(m.ref_size, seed)
     gm = rt.load(m)
     try:
-        gl = rt.decode(gm, uv, s)
+        gl = np.concatenate([rt.decode(gm, uv, s), rt.decode_grad(gm, guv, gdx, gdy)])
     finally:
         rt.unload(gm)
+    # the derivative path: the reference takes the shader's fp32 lod, which may sit anywhere
+    exact_lods = np.concatenate([np.ones(len(uv)), np.zeros(len(guv))])
+    uv, s = np.concatenate([uv, guv]), np.concatenate([s, lod_from_grad(gdx, gdy, m.ref_size)])
+    cat = np.concatenate([cat, np.full(len(guv), CATEGORIES.index("derivatives"))])
     feats = E.sample_exported_features(em, uv, s)
     sess = E.onnx_session(em)
     ref = sess.run([ONNX_OUTPUT], {ONNX_INPUT: feats})[0]
     if gl.shape != ref.shape:
         return Check("glsl", False, f"GLSL gives {gl.shape[1]} channels, ONNX {ref.shape[1]}"), [], [], len(uv)
     if tolerance is None:
-        fe = filter_error(em.levels, em.lod_biases, uv, s, em.wrap, filter_bits)
+        fe = filter_error(em.levels, em.lod_biases, uv, s, em.wrap, filter_bits, exact_lods)
         tol = output_tolerance(em.weights, em.kinds, feats, fe, ref)
     else:
         tol = np.full(ref.shape, float(tolerance))
@@ -214,7 +227,7 @@ def check_glsl(rt: GLRuntime, m: MaterialDesc, em: E.ExportedMaterial, tolerance
         channels.append({"name": names[c] if c < len(names) else f"ch{c}", "max_abs": float(err[:, c].max()),
                          "mean_abs": float(err[:, c].mean()), "max_tolerance": float(tol[:, c].max()),
                          "mean_tolerance": float(tol[:, c].mean()), "over_tolerance": over,
-                         "worst": {"u": float(uv[worst, 0]), "v": float(uv[worst, 1]), "s": float(s[worst]),
+                         "worst": {"u": float(uv[worst, 0]), "v": float(uv[worst, 1]), "s": _finite(s[worst]),
                                    "category": CATEGORIES[cat[worst]]},
                          "passed": over == 0})
     categories = []

@@ -147,7 +147,8 @@ class GLMaterial:
     def uniforms(self) -> dict[str, object]:
         b = self.desc.lod_biases
         return {"uWeightOffset": self.desc.weight_offset, "uLodBias": tuple(float(x) for x in b),
-                "uNormalIndex": self.desc.normal_index, "uRefSize": tuple(float(x) for x in self.desc.ref_size)}
+                "uNormalIndex": self.desc.normal_index, "uRefSize": tuple(float(x) for x in self.desc.ref_size),
+                "uRepeat": self.desc.wrap == "repeat"}
 
 
 def _current(method):
@@ -302,7 +303,7 @@ class GLRuntime:
 
     @_current
     def _run(self, gm: GLMaterial, count: int, queries, grid: tuple[int, int], grid_lod: float,
-             stride: int, defines: dict | None) -> np.ndarray:
+             stride: int, defines: dict | None, grad: bool = False) -> np.ndarray:
         prog = self.compute_program(defines)
         out = self.ctx.buffer(reserve=max(4, count * stride * 4))
         try:
@@ -310,7 +311,8 @@ class GLRuntime:
             gm.weights.bind_to_storage_buffer(0)
             (queries or self._dummy).bind_to_storage_buffer(1)
             out.bind_to_storage_buffer(2)
-            values = dict(gm.uniforms(), uCount=count, uOutStride=stride, uGrid=grid, uGridLod=float(grid_lod))
+            values = dict(gm.uniforms(), uCount=count, uOutStride=stride, uGrid=grid, uGridLod=float(grid_lod),
+                          uGradQueries=grad)
             set_uniforms(prog, values)
             groups = -(-count // LOCAL_SIZE)
             if groups > MAX_GROUPS:
@@ -338,6 +340,26 @@ class GLRuntime:
             b = self.ctx.buffer(np.ascontiguousarray(q[a:a + chunk]).tobytes())
             try:
                 parts.append(self._run(gm, min(chunk, n - a), b, (0, 0), 0.0, c, defines))
+            finally:
+                b.release()
+        return np.concatenate(parts) if parts else np.zeros((0, c), np.float32)
+
+    @_current
+    def decode_grad(self, gm: GLMaterial, uv: np.ndarray, duvdx: np.ndarray, duvdy: np.ndarray,
+                    chunk: int = 1 << 20, defines: dict | None = None) -> np.ndarray:
+        """Decode at points ``uv`` (N, 2) with s from the uv derivatives (N, 2) each, through
+        ``bcfDecodeGrad`` (the fragment-shader path) -> (N, c_out) float32."""
+        uv = np.asarray(uv, np.float32).reshape(-1, 2)
+        n = uv.shape[0]
+        q = np.zeros((n, 2, 4), np.float32)
+        q[:, 0, :2], q[:, 0, 2:] = uv, np.asarray(duvdx, np.float32).reshape(-1, 2)
+        q[:, 1, :2] = np.asarray(duvdy, np.float32).reshape(-1, 2)
+        c = gm.desc.c_out
+        parts = []
+        for a in range(0, n, chunk):
+            b = self.ctx.buffer(np.ascontiguousarray(q[a:a + chunk]).tobytes())
+            try:
+                parts.append(self._run(gm, min(chunk, n - a), b, (0, 0), 0.0, c, defines, grad=True))
             finally:
                 b.release()
         return np.concatenate(parts) if parts else np.zeros((0, c), np.float32)

@@ -36,6 +36,8 @@ from bcfpipe.texset.texture_set import Channel
 __all__ = ["Metrics", "compute_metrics", "psnr_from_mse", "mse_per_mip", "ssim_group", "flip_group"]
 
 COLOR_KIND = "color"
+BAND_VALUES = 1 << 22  # values per band when a metric walks a large mip in bands of rows
+FLIP_HALO = 32
 
 
 def psnr_from_mse(mse: float, peak: float = 1.0) -> float:
@@ -66,8 +68,13 @@ def mse_per_mip(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
     inv_peak2 = np.array([1.0 / channels[i].peak ** 2 for i in sel])
     out = []
     for r, d in zip(ref_mips, dec_mips):
-        diff = np.asarray(d, np.float64)[..., sel] - np.asarray(r, np.float64)[..., sel]
-        out.append(float(np.mean(diff * diff * inv_peak2)))
+        r, d = np.asarray(r), np.asarray(d)
+        rows = max(1, BAND_VALUES // max(1, r.shape[1] * len(sel)))  # float64 temporaries stay small at 8K
+        total = 0.0
+        for y in range(0, r.shape[0], rows):
+            diff = d[y:y + rows, :, sel].astype(np.float64) - r[y:y + rows, :, sel]
+            total += float(np.sum(diff * diff * inv_peak2))
+        out.append(total / (r.shape[0] * r.shape[1] * len(sel)))
     return out
 
 
@@ -87,20 +94,58 @@ def ssim_group(ref: np.ndarray, dec: np.ndarray, peak: float) -> float | None:
         kw.update(win_size=min(h, w) - (1 - min(h, w) % 2))
     else:
         return None
+    if h * w * ref.shape[2] > BAND_VALUES and min(h, w) >= 11:
+        return _ssim_banded(ref, dec, kw)
     r, d = np.asarray(ref, np.float64), np.asarray(dec, np.float64)
     if r.shape[2] == 1:
         return float(structural_similarity(r[..., 0], d[..., 0], **kw))
     return float(structural_similarity(r, d, channel_axis=-1, **kw))
 
 
+def _ssim_banded(ref: np.ndarray, dec: np.ndarray, kw: dict) -> float:
+    """skimage's Gaussian SSIM of a large image, computed on bands of rows in float64: each band
+    carries a halo of the filter's radius (5 rows), so every local SSIM value is the one the whole
+    image gives, and the mean is taken over the same cropped area as skimage's."""
+    from skimage.metrics import structural_similarity
+
+    h, w, g = ref.shape
+    pad = 5  # int(3.5 * 1.5 + 0.5): the 11-tap window's radius, and skimage's crop
+    rows = max(4 * pad, BAND_VALUES // w)
+    means = []
+    for c in range(g):
+        total = 0.0
+        for y0 in range(pad, h - pad, rows):
+            y1 = min(h - pad, y0 + rows)
+            a, b = max(0, y0 - pad), min(h, y1 + pad)
+            _, s_map = structural_similarity(np.asarray(ref[a:b, :, c], np.float64), np.asarray(dec[a:b, :, c], np.float64),
+                                             full=True, **kw)
+            total += float(s_map[y0 - a:y1 - a, pad:w - pad].sum(dtype=np.float64))
+        means.append(total / ((h - 2 * pad) * (w - 2 * pad)))
+    return float(np.mean(means))
+
+
 def flip_group(ref: np.ndarray, dec: np.ndarray) -> float:
     """Mean LDR FLIP of one (H, W, 3) sRGB-encoded colour group, values clipped to [0, 1]."""
     import flip_evaluator as flip
 
-    r = np.ascontiguousarray(np.clip(ref, 0.0, 1.0), dtype=np.float32)
-    d = np.ascontiguousarray(np.clip(dec, 0.0, 1.0), dtype=np.float32)
-    _, mean, _ = flip.evaluate(r, d, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=True)
-    return float(mean)
+    h, w = ref.shape[:2]
+    if h * w * 3 <= BAND_VALUES:
+        r = np.ascontiguousarray(np.clip(ref, 0.0, 1.0), dtype=np.float32)
+        d = np.ascontiguousarray(np.clip(dec, 0.0, 1.0), dtype=np.float32)
+        _, mean, _ = flip.evaluate(r, d, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=True)
+        return float(mean)
+    # large images in bands of rows: each band carries a halo wider than FLIP's filters at 67 pixels
+    # per degree (radius 10 for the colour CSF, 9 for the feature filters, chained: 19 < FLIP_HALO)
+    rows = max(4 * FLIP_HALO, BAND_VALUES // (3 * w))
+    total = 0.0
+    for y0 in range(0, h, rows):
+        y1 = min(h, y0 + rows)
+        a, b = max(0, y0 - FLIP_HALO), min(h, y1 + FLIP_HALO)
+        r = np.ascontiguousarray(np.clip(ref[a:b], 0.0, 1.0), dtype=np.float32)
+        d = np.ascontiguousarray(np.clip(dec[a:b], 0.0, 1.0), dtype=np.float32)
+        err, _, _ = flip.evaluate(r, d, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=False)
+        total += float(np.asarray(err)[y0 - a:y1 - a].sum(dtype=np.float64))
+    return total / (h * w)
 
 
 def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],

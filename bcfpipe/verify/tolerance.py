@@ -60,8 +60,10 @@ def _bilinear_terms(tex: np.ndarray, uv: np.ndarray, wrap: str, delta: float):
     (2 candidates each, zero where the coordinate is exact on the fixed-point grid), the second-order
     bound and the abs error bound of B for fraction errors up to ``delta``."""
     h, w, _ = tex.shape
-    x = uv[:, 0].astype(np.float64) * w - 0.5
-    y = uv[:, 1].astype(np.float64) * h - 0.5
+    uv = uv.astype(np.float64)
+    uv = uv - np.floor(uv) if wrap == "repeat" else np.clip(uv, -1.0, 2.0)  # as bcfReduceUv, in float64
+    x = uv[:, 0] * w - 0.5
+    y = uv[:, 1] * h - 0.5
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     ax, ay = _off_grid(x, delta)[:, None], _off_grid(y, delta)[:, None]
@@ -102,9 +104,12 @@ class FilterError:
 
 
 def filter_error(levels: Sequence[Sequence[np.ndarray]], biases: Sequence[float], uv: np.ndarray,
-                 s: np.ndarray, wrap: str, filter_bits: int = FILTER_BITS) -> FilterError:
+                 s: np.ndarray, wrap: str, filter_bits: int = FILTER_BITS,
+                 exact_lods: np.ndarray | bool = True) -> FilterError:
     """Feature-error terms of trilinear filtering with 2^-filter_bits precision on the bilinear
-    fractions and on the mip blend fraction (see the module docstring)."""
+    fractions and on the mip blend fraction (see the module docstring). ``exact_lods`` False (per
+    point or for all) marks lods the runtime computes itself (from derivatives, in fp32): those may
+    sit off the fixed-point grid even where ``s`` is on it."""
     delta = 2.0 ** -filter_bits
     n_pts = uv.shape[0]
     n_feat = 3 * len(levels)
@@ -112,7 +117,8 @@ def filter_error(levels: Sequence[Sequence[np.ndarray]], biases: Sequence[float]
     for i, (layer, b) in enumerate(zip(levels, biases)):
         sl = slice(3 * i, 3 * i + 3)
         n = len(layer)
-        lam = (s.astype(np.float32) + np.float32(b)).astype(np.float64)
+        # clipped a little beyond [0, n - 1] so that +-inf and 1e30 stay integers below
+        lam = np.clip((s.astype(np.float32) + np.float32(b)).astype(np.float64), -2.0, n + 1.0)
         lc = np.clip(lam, 0, n - 1)
         lo = np.floor(lc).astype(np.int64)
         t = (lc - lo)[:, None]
@@ -129,7 +135,7 @@ def filter_error(levels: Sequence[Sequence[np.ndarray]], biases: Sequence[float]
                 total[:, sl] += delta * np.abs(cand).max(0)
             second[:, sl] += weight * pick(np.stack([tr[3] for tr in terms]), k)
         # mip blend: slopes B_k+1 - B_k of the segments within delta of the lod (0 outside [0, n-1])
-        al = _off_grid(lam, delta)  # an exact lod blends exactly
+        al = np.maximum(_off_grid(lam, delta), 1.0 - np.asarray(exact_lods, np.float64))  # exact: blends exactly
         k1 = np.floor(lam - delta * al).astype(np.int64)
         k2 = np.floor(lam + delta * al).astype(np.int64)
         seg = np.zeros((2, n_pts, n_feat))
