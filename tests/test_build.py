@@ -350,7 +350,7 @@ def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
 def test_plan_channel_mapping(tmp_path: Path) -> None:
     write_png(tmp_path / "tex" / "color.png", pattern())
     write_png(tmp_path / "tex" / "normal.png", pattern(seed=1))
-    write_png(tmp_path / "tex" / "grey.png", pattern(c=1, seed=2)[..., 0])
+    write_png(tmp_path / "tex" / "grey.png", pattern(c=1, seed=5)[..., 0])  # not a copy of a colour channel
     stage = new_stage(tmp_path / "scene.usda")
     clamp = {"wrapS": "clamp", "wrapT": "clamp"}
     add_material(stage, "/World/Looks/M", {

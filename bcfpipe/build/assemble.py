@@ -76,15 +76,19 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
             mlp=desc.mlp,
             decoder=f"{folder}/{desc.onnx.file}",
             targets=tuple(t.target for t in mp_.targets), channels=tuple(t.channel for t in mp_.targets),
-            # an HDR output's value map (material.json value_scale/value_bias) folds into the target's
-            scale=tuple(t.scale * desc.outputs[t.channel].value_scale for t in mp_.targets),
-            bias=tuple(t.bias + t.scale * desc.outputs[t.channel].value_bias for t in mp_.targets),
+            # an HDR output's value map (material.json value_scale/value_bias) folds into the target's;
+            # channel -1 is a constant component (its value is the bias)
+            scale=tuple(t.scale * desc.outputs[t.channel].value_scale if t.channel >= 0 else 0.0
+                        for t in mp_.targets),
+            bias=tuple(t.bias + t.scale * desc.outputs[t.channel].value_bias if t.channel >= 0 else t.bias
+                       for t in mp_.targets),
             color_spaces=tuple(t.color_space for t in mp_.targets),
             fallback_surface=mp_.fallback_surface, version=__version__,
         ))
     scene_rel = usdout.relative_asset(bplan.scene, final_out)
     stamp = f"Written by bcfpipe {__version__} build from {scene_rel}"
-    usdout.write_overrides_layer(staging / OVERRIDES, overrides, bplan.variant_selections, comment=stamp)
+    usdout.write_overrides_layer(staging / OVERRIDES, overrides, bplan.variant_selections, comment=stamp,
+                                 constants=_constant_inputs(bplan))
     root_name = root_layer_name(bplan.scene)
     usdout.write_root_layer(staging / root_name, [f"./{OVERRIDES}", scene_rel], bplan.up_axis,
                             bplan.meters_per_unit, bplan.default_prim, bplan.root_layer, comment=stamp)
@@ -99,6 +103,8 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
         r = results.get(mp_.job) if mp_.job else None
         if mp_.decision == "skip":
             status, reason = "skipped", mp_.reason
+        elif mp_.decision == "constant":
+            status, reason = "constant", None
         elif mp_.reason == "failed" and mp_.job is None:
             status, reason = "failed", mp_.message
         elif r is None or r.status != "built":
@@ -114,6 +120,11 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
                           for s in (sources[p] for p in mp_.sources if p in sources)),
             targets=tuple(mfst.Target(t.target, t.input, t.channel, t.scale, t.bias, t.color_space, rel(t.file),
                                       t.file_channel) for t in mp_.targets),
+            constants=tuple(mfst.Constant(c.target, c.input, c.value, rel(c.file), c.file_channel)
+                            for c in mp_.constants),
+            folded=tuple(mfst.Folded(rel(f.file), f.channel, f.reason, f.value,
+                                     rel(f.same_as.file) if f.same_as else None,
+                                     f.same_as.channel if f.same_as else None) for f in mp_.folded),
             warnings=tuple(mp_.warnings))
         if status == "built":
             e = entry_of[mp_.job]
@@ -158,6 +169,21 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
     mfst.write(staging, manifest)
     _normalise_modes(staging)
     return manifest
+
+
+def _constant_inputs(bplan: BuildPlan) -> list:
+    """One ConstantInput per surface input whose texture channels are all constant."""
+    from bcfpipe.build.usd_layer import ConstantInput
+
+    out = []
+    for mp_ in bplan.materials:
+        if not mp_.constants or not mp_.fallback_surface:
+            continue
+        by_input: dict[str, list[tuple[str, float]]] = {}
+        for c in mp_.constants:
+            by_input.setdefault(c.input, []).append((c.target, c.value))
+        out += [ConstantInput(mp_.fallback_surface, name, tuple(values)) for name, values in by_input.items()]
+    return out
 
 
 def _umask() -> int:

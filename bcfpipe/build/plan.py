@@ -10,7 +10,7 @@ import xxhash
 
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
                             DEFAULT_SEED, FEATURE_INITS, MODEL_FORMAT, PRESETS, PROFILE_NAMES)
-from bcfpipe.scan.texture_sets import ModelChannel, SourceFile, decoder_index
+from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, SourceFile, decoder_index
 from bcfpipe.errors import InputError
 from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, group_materials
@@ -35,7 +35,7 @@ class TargetMap:
 
     target: str  # diffuseColor.r, normal.x, roughness, ...
     input: str
-    channel: int  # decoder output index (normal z included)
+    channel: int  # decoder output index (normal z included); -1: a constant, the value is ``bias``
     scale: float
     bias: float
     color_space: str  # "sRGB" or "raw"
@@ -81,7 +81,7 @@ class MaterialPlan:
 
     path: str
     aliases: tuple[str, ...]
-    decision: str  # model | skip
+    decision: str  # model | constant | skip
     reason: str | None
     message: str
     job: str | None = None
@@ -93,6 +93,8 @@ class MaterialPlan:
     st_translation: tuple[float, float] = (0.0, 0.0)
     sources: tuple[str, ...] = ()  # files (SourceFile.path) this material reads
     warnings: tuple[str, ...] = ()
+    constants: tuple[ConstantTarget, ...] = ()  # inputs whose every channel is constant: authored as values
+    folded: tuple[FoldedChannel, ...] = ()  # source channels that are not decoder outputs, and why
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -115,6 +117,7 @@ class BuildPlan:
     options: Options
     diagnostics: tuple[str, ...] = ()
     layers: tuple[str, ...] = ()  # every layer file the stage composed (for --depfile)
+    folded_sources: tuple[SourceFile, ...] = ()  # files no job trains on: read for constants and duplicates
 
     def job(self, name: str) -> MaterialJob:
         for j in self.jobs:
@@ -124,7 +127,7 @@ class BuildPlan:
 
     @property
     def sources(self) -> dict[str, SourceFile]:
-        return {s.path: s for j in self.jobs for s in j.sources}
+        return {s.path: s for s in (*(s for j in self.jobs for s in j.sources), *self.folded_sources)}
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -233,6 +236,14 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
             plans.append(MaterialPlan(ms.path, ms.aliases, "model", "failed", grouping.failed[ms.path],
                                       warnings=tuple(ms.warnings)))
             continue
+        if ms.path in grouping.constant:
+            mm = grouping.constant[ms.path]
+            plans.append(MaterialPlan(
+                ms.path, ms.aliases, "constant", None,
+                f"every textured input is constant: {len(mm.constants)} value(s) authored, nothing trained",
+                fallback_surface=ms.surface_shader, sources=tuple(mm.sources), warnings=tuple(mm.warnings),
+                constants=tuple(mm.constants), folded=tuple(mm.folded)))
+            continue
         group, mm = grouping.group_of(ms.path)
         job = job_by_name[group.name]
         index, z = decoder_index(job.channels)
@@ -241,11 +252,16 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
             targets.append(TargetMap(target, inp, index[key], s, b, cs, key.file, key.channel))
             if target == "normal.y" and z is not None:
                 targets.append(TargetMap("normal.z", inp, z, 1.0, 0.0, "raw", None, None))
+        modelled_inputs = {t.input for t in targets}
+        # a constant component of an input that is otherwise modelled stays a target: channel -1
+        targets += [TargetMap(c.target, c.input, -1, 0.0, c.value, "raw", c.file, c.file_channel)
+                    for c in mm.constants if c.input in modelled_inputs]
         prim, scale, rot, trans = mm.st
         plans.append(MaterialPlan(
             ms.path, ms.aliases, "model", None, ms.message, job=job.name, targets=tuple(targets),
             fallback_surface=ms.surface_shader, st_primvar=prim, st_scale=tuple(scale), st_rotation=float(rot),
-            st_translation=tuple(trans), sources=tuple(mm.sources), warnings=tuple(mm.warnings)))
+            st_translation=tuple(trans), sources=tuple(mm.sources), warnings=tuple(mm.warnings),
+            constants=tuple(c for c in mm.constants if c.input not in modelled_inputs), folded=tuple(mm.folded)))
 
     return BuildPlan(
         scene=scan.path, root_layer=scan.root_layer,
@@ -255,4 +271,14 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         default_prim=scan.default_prim, materials=tuple(plans), jobs=tuple(jobs), options=options,
         diagnostics=tuple(scan.composition_errors) + tuple(scan.diagnostics),
         layers=scan.layers,
+        folded_sources=_folded_sources(grouping, jobs),
     )
+
+
+def _folded_sources(grouping, jobs: Iterable[MaterialJob]) -> tuple[SourceFile, ...]:
+    """Files the materials read that no job trains on (constant or duplicate channels): the build
+    depends on them all the same."""
+    trained = {s.path for j in jobs for s in j.sources}
+    models = [*(mm for g in grouping.groups for mm in g.models), *grouping.constant.values()]
+    found = {p: s for mm in models for p, s in mm.sources.items() if p not in trained}
+    return tuple(found[p] for p in sorted(found))

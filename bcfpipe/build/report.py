@@ -12,6 +12,8 @@ from bcfpipe.formats import report as rep
 
 def material_files(m: mfst.Material, manifest: mfst.Manifest, files: Sequence[str]) -> tuple[str, ...]:
     """A built material's files in OUT: its folder's files, then the shared ones it needs."""
+    if m.status == "constant":
+        return (manifest.overrides_layer, manifest.root_layer)
     if m.outputs is None:
         return ()
     own = sorted(f for f in files if f.startswith(m.outputs.folder + "/"))
@@ -33,7 +35,7 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
             train_seconds=round(train, 3) if train is not None else None,
             seconds=round(r.seconds, 3) if r is not None else None,
             total_bytes=m.sizes.total_bytes if m.sizes else None,
-            files=material_files(m, manifest, files)))
+            files=material_files(m, manifest, files), folded=m.folded))
     built = [r for r in results.values() if r.status == "built"]
     hits = sum(1 for r in built if r.cache == "hit")
     trained = [r for r in built if r.cache != "hit"]
@@ -44,7 +46,7 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
         cache=rep.CacheReport(cache_root is not None, cache_root, hits,
                               sum(1 for r in results.values() if r.cache == "miss"), tuple(damaged)),
         totals=rep.ReportTotals(
-            materials=t.materials, built=t.built, failed=t.failed, skipped=t.skipped, jobs=t.jobs,
+            materials=t.materials, built=t.built, constant=t.constant, failed=t.failed, skipped=t.skipped, jobs=t.jobs,
             trained=len(trained), cached=hits,
             train_seconds=round(sum(r.result.get("train_seconds") or 0.0 for r in trained), 3),
             wall_seconds=round(wall_seconds, 3), total_bytes=t.total_bytes, written_files=len(written)),

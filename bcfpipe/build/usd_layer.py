@@ -20,6 +20,14 @@ with (so the output composes the variant that was modelled), and per modelled Ma
 
 Every attribute is authored with its schema type and variability, so the layers read back
 identically with or without the schema plugin registered. The input stage is never written.
+
+A UsdPreviewSurface input whose texture is constant (issue #18) gets its value instead, and its
+connection is blocked, in the same layer::
+
+    over "PreviewSurface" {
+        color3f inputs:diffuseColor = (0.497, 0.036, 0.044)
+        color3f inputs:diffuseColor.connect = None
+    }
 """
 from __future__ import annotations
 
@@ -32,8 +40,8 @@ from pxr import Gf, Sdf, Usd, Vt
 
 from bcfpipe.formats.material import Mlp
 
-__all__ = ["SCHEMA", "NeuralMaterialOverride", "relative_asset", "write_overrides_layer", "write_root_layer",
-           "read_override"]
+__all__ = ["SCHEMA", "ConstantInput", "NeuralMaterialOverride", "relative_asset", "write_overrides_layer",
+           "write_root_layer", "read_override"]
 
 SCHEMA = "BcfNeuralMaterialAPI"
 _T = Sdf.ValueTypeNames
@@ -119,6 +127,42 @@ class NeuralMaterialOverride:
         ]
 
 
+_INPUT_TYPES = {"diffuseColor": _T.Color3f, "emissiveColor": _T.Color3f, "specularColor": _T.Color3f,
+                "normal": _T.Normal3f}
+_COMPONENTS = {"r": 0, "g": 1, "b": 2, "x": 0, "y": 1, "z": 2}
+
+
+@dataclass(frozen=True)
+class ConstantInput:
+    """A UsdPreviewSurface input set to the constant its texture gives: ``values`` by target
+    (``diffuseColor.r`` ..., or the input's own name for a scalar)."""
+
+    shader: str
+    input: str
+    values: tuple[tuple[str, float], ...]
+
+    def typed_value(self) -> tuple[Sdf.ValueTypeName, object]:
+        type_name = _INPUT_TYPES.get(self.input, _T.Float)
+        if type_name == _T.Float:
+            return type_name, float(self.values[0][1])
+        vec = [0.0, 0.0, 0.0]
+        for target, v in self.values:
+            comp = target.rpartition(".")[2] if "." in target else None
+            if comp in _COMPONENTS:
+                vec[_COMPONENTS[comp]] = float(v)
+            else:  # a vector input fed from one texture channel: the value in every component
+                vec = [float(v)] * 3
+        return type_name, Gf.Vec3f(*vec)
+
+
+def _author_constant(layer: Sdf.Layer, c: ConstantInput) -> None:
+    spec = _over(layer, c.shader)
+    type_name, value = c.typed_value()
+    attr = Sdf.AttributeSpec(spec, f"inputs:{c.input}", type_name)
+    attr.default = value
+    attr.connectionPathList.ClearEditsAndMakeExplicit()
+
+
 def _over(layer: Sdf.Layer, path: str) -> Sdf.PrimSpec:
     """The prim spec at `path` (``over``s created for it and its ancestors)."""
     return Sdf.CreatePrimInLayer(layer, Sdf.Path(path))
@@ -136,9 +180,10 @@ def _author(layer: Sdf.Layer, ov: NeuralMaterialOverride) -> None:
 
 
 def write_overrides_layer(path: str | os.PathLike, overrides: Iterable[NeuralMaterialOverride],
-                          variant_selections: Sequence[tuple[str, str, str]] = (), comment: str = "") -> Path:
+                          variant_selections: Sequence[tuple[str, str, str]] = (), comment: str = "",
+                          constants: Iterable[ConstantInput] = ()) -> Path:
     """Write the overrides layer: variant selections (prim, set, value), then one API-schema
-    ``over`` per material (in the order given)."""
+    ``over`` per material (in the order given), then the constant inputs."""
     path = Path(path)
     layer = Sdf.Layer.CreateAnonymous(".usda")
     if comment:
@@ -147,6 +192,8 @@ def write_overrides_layer(path: str | os.PathLike, overrides: Iterable[NeuralMat
         _over(layer, prim).variantSelections[vset] = value
     for ov in overrides:
         _author(layer, ov)
+    for c in constants:
+        _author_constant(layer, c)
     layer.Export(str(path))
     return path
 

@@ -125,21 +125,25 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
     cached = f", {rt.cached} from the cache" if rt.cached else ""
     wrote = f"; {rt.written_files} file(s) written" if rt.written_files else "; OUT unchanged"
     t = Table(title=f"bcfpipe build: {manifest.root_layer}", title_justify="left",
-              caption=(f"{tot.built} built, {tot.failed} failed, {tot.skipped} skipped; "
+              caption=(f"{tot.built} built, {tot.constant} constant, {tot.failed} failed, {tot.skipped} skipped; "
                        f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall; "
                        f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}"),
               caption_justify="left")
     for col in ("material", "status", "targets", "profile", "PSNR", "size", "train", "note"):
         t.add_column(col, overflow="fold", justify="right" if col in ("PSNR", "size", "train") else "left")
-    style = {"built": "green", "failed": "red", "skipped": "yellow"}
+    style = {"built": "green", "constant": "cyan", "failed": "red", "skipped": "yellow"}
     for m, r in zip(manifest.materials, report.materials):
         note = m.reason or ""
         if m.status == "built" and m.shared_with:
             note = f"shared: {m.job} x{len(m.shared_with) + 1}"
+        if m.folded:
+            kinds = [f.reason for f in m.folded]
+            folded = ", ".join(f"{kinds.count(k)} {k}" for k in ("constant", "duplicate") if k in kinds)
+            note = f"{note}; folded: {folded}" if note else f"folded: {folded}"
         psnr = f"{m.metrics.psnr:.2f}" if m.metrics and m.metrics.psnr is not None else ""
         size = _fmt_size(m.sizes.total_bytes) if m.sizes else ""
         train = "cached" if r.cache == "hit" else f"{r.train_seconds:.1f}s" if r.train_seconds else ""
-        t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(len(m.targets) or ""),
+        t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(len(m.targets or m.constants) or ""),
                   m.profile or "", psnr, size, train, note)
     return t
 

@@ -22,8 +22,9 @@ from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, Grouping, group_materia
 __all__ = ["scan"]
 
 
-def _texture_lines(material: MaterialScan) -> Text:
-    """One line per textured input: ``input ← file:channel`` (problems in red)."""
+def _texture_lines(material: MaterialScan, grouping: Grouping) -> Text:
+    """One line per textured input: ``input ← file:channel`` (problems in red), then the
+    channels folded away (constant or duplicate)."""
     text = Text()
     for i, inp in enumerate(material.texture_inputs):
         tex = inp.texture
@@ -32,11 +33,22 @@ def _texture_lines(material: MaterialScan) -> Text:
         if i:
             text.append("\n")
         text.append(f"{inp.name} ← {name}:{tex.channel}", style=None if tex.ok else "red")
+    mm = grouping.model_of(material.path)
+    for f in mm.folded if mm else ():
+        what = f"= {f.value:.4g}" if f.reason == "constant" else f"= {Path(f.same_as.file).name}:{f.same_as.channel}"
+        text.append(f"\nfolded {Path(f.file).name}:{f.channel} {f.reason} {what}", style="cyan")
     return text
 
 
-def _decision_text(material: MaterialScan) -> Text:
-    """``model`` in green, or ``skip: reason`` with the message below."""
+def decision(material: MaterialScan, grouping: Grouping) -> str:
+    """model, constant (every textured input folded to a value) or skip."""
+    return "constant" if material.path in grouping.constant else material.decision
+
+
+def _decision_text(material: MaterialScan, grouping: Grouping) -> Text:
+    """``model`` in green, ``constant`` in cyan, or ``skip: reason`` with the message below."""
+    if decision(material, grouping) == "constant":
+        return Text("constant", style="cyan").append("\nnothing to train: values authored", style="dim")
     if material.decision == "model":
         return Text("model", style="green")
     text = Text(f"skip: {material.reason}", style="yellow")
@@ -44,7 +56,7 @@ def _decision_text(material: MaterialScan) -> Text:
     return text
 
 
-def _table(result: StageScan) -> Table:
+def _table(result: StageScan, grouping: Grouping) -> Table:
     """The per-material table."""
     table = Table(show_lines=False, expand=False)
     table.add_column("material", overflow="fold")
@@ -54,7 +66,7 @@ def _table(result: StageScan) -> Table:
     for m in result.materials:
         bound = "yes" if m.bound else "no"
         path = m.path + (f" (+{len(m.aliases)} instances)" if m.aliases else "")
-        table.add_row(path, bound, _decision_text(m), _texture_lines(m))
+        table.add_row(path, bound, _decision_text(m, grouping), _texture_lines(m, grouping))
     return table
 
 
@@ -75,16 +87,18 @@ def _print_human(result: StageScan, grouping: Grouping, console: Console) -> Non
     for note in result.diagnostics:
         console.print(f"[yellow]usd:[/yellow] {note}", highlight=False)
     if result.materials:
-        console.print(_table(result))
+        console.print(_table(result, grouping))
     for path in sorted(grouping.instanced):
         console.print(f"[yellow]skip:[/yellow] {path}: {INSTANCED_MESSAGE}", highlight=False)
     for path, message in grouping.failed.items():
         console.print(f"[red]unreadable:[/red] {path}: {message}", highlight=False)
     n_model = sum(len(g.materials) for g in grouping.groups)
+    n_const = len(grouping.constant)
     console.print(
         f"{len(result.materials)} material(s): {n_model} to model "
         f"({len(grouping.groups)} distinct texture set(s), one training each), "
-        f"{len(result.materials) - n_model} not modelled",
+        f"{n_const} constant (values authored, nothing trained), "
+        f"{len(result.materials) - n_model - n_const} not modelled",
         highlight=False,
     )
 
@@ -100,6 +114,12 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, as_json: bo
     grouping = group_materials(scene, variants, result.materials, digest=False)
     if as_json:
         d = result.to_dict()
+        for m, md in zip(result.materials, d["materials"]):
+            md["decision"] = decision(m, grouping)
+            mm = grouping.model_of(m.path)
+            md["folded"] = [f.to_dict() for f in mm.folded] if mm else []
+            md["constants"] = [{"target": c.target, "input": c.input, "value": c.value} for c in mm.constants] \
+                if mm else []
         d["texture_sets"] = [g.to_dict() for g in grouping.groups]
         d["instanced"] = sorted(grouping.instanced)
         d["unreadable"] = dict(grouping.failed)

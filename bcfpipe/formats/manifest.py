@@ -14,11 +14,11 @@ from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.record import Record, optional, read as read_record
 
 FORMAT = "bcfpipe-build"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 FILE = "manifest.json"
 WEIGHTS = "weights.bin"
 
-STATUSES = ("built", "failed", "skipped")
+STATUSES = ("built", "constant", "failed", "skipped")
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,30 @@ class Target(Record):
     color_space: str
     source: str | None
     source_channel: str | None
+
+
+@dataclass(frozen=True)
+class Constant(Record):
+    """A UsdPreviewSurface input channel whose texture channel is constant: the value authored for it."""
+
+    target: str
+    input: str
+    value: float
+    source: str
+    source_channel: str
+
+
+@dataclass(frozen=True)
+class Folded(Record):
+    """A source channel that is not a decoder output: ``constant`` (its stored ``value``) or
+    ``duplicate`` (its texels equal ``same_as_source``'s ``same_as_channel``)."""
+
+    source: str
+    channel: str
+    reason: str
+    value: float | None = optional()
+    same_as_source: str | None = optional()
+    same_as_channel: str | None = optional()
 
 
 @dataclass(frozen=True)
@@ -100,7 +124,7 @@ class Outputs(Record):
 
 @dataclass(frozen=True)
 class Material(Record):
-    """One material of the scene and what became of it (status built, failed or skipped)."""
+    """One material of the scene and what became of it (status built, constant, failed or skipped)."""
 
     path: str
     status: str
@@ -111,6 +135,8 @@ class Material(Record):
     shared_with: tuple[str, ...] = ()
     sources: tuple[Source, ...] = ()
     targets: tuple[Target, ...] = ()
+    constants: tuple[Constant, ...] = ()
+    folded: tuple[Folded, ...] = ()
     metrics: Metrics | None = None
     sizes: Sizes | None = None
     outputs: Outputs | None = None
@@ -185,6 +211,7 @@ class Totals(Record):
 
     materials: int
     built: int
+    constant: int
     failed: int
     skipped: int
     jobs: int

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bcfpipe.formats.manifest import Folded
 from bcfpipe.formats.record import Record, optional
 
 FORMAT = "bcfpipe-build-report"
@@ -31,6 +32,7 @@ class MaterialReport(Record):
     seconds: float | None
     total_bytes: int | None
     files: tuple[str, ...]
+    folded: tuple[Folded, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,7 @@ class ReportTotals(Record):
 
     materials: int
     built: int
+    constant: int
     failed: int
     skipped: int
     jobs: int

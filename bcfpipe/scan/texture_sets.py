@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import re
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping, Sequence
 
@@ -125,6 +125,38 @@ def source_file(path: str, asset_path: str, color_space: str, cache: dict, diges
                       _resolved_color_space(color_space, c, fmt))
 
 
+@dataclass(frozen=True)
+class FoldedChannel:
+    """A source channel that is not a decoder output (issue #18): ``constant`` (``value`` in stored
+    units) or ``duplicate`` (its texels are ``same_as``'s, which the decoder outputs instead)."""
+
+    file: str
+    channel: str
+    reason: str  # constant | duplicate
+    value: float | None = None
+    same_as: ModelChannel | None = None
+
+    def to_dict(self) -> dict:
+        d = {"file": self.file, "channel": self.channel, "reason": self.reason}
+        if self.reason == "constant":
+            d["value"] = self.value
+        else:
+            d["same_as"] = {"file": self.same_as.file, "channel": self.same_as.channel}
+        return d
+
+
+@dataclass(frozen=True)
+class ConstantTarget:
+    """A UsdPreviewSurface target whose texture channel is constant: the value the UsdUVTexture
+    gives there (colour space decoded as Hydra does, then scale and bias)."""
+
+    target: str
+    input: str
+    value: float
+    file: str
+    file_channel: str
+
+
 @dataclass
 class MaterialModel:
     """A scanned material's channels, specs and targets (before grouping into jobs)."""
@@ -136,13 +168,55 @@ class MaterialModel:
     wrap: str
     st: tuple[str, tuple[float, float], float, tuple[float, float]]
     warnings: list[str]
+    constants: list[ConstantTarget] = field(default_factory=list)
+    folded: list[FoldedChannel] = field(default_factory=list)
 
 
-def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True) -> MaterialModel:
-    """Map a scanned material's texture inputs to model channels, texset specs and targets."""
+class Canonical:
+    """The first modelled channel (or normal x, y pair) seen with each texel content, across every
+    material of one grouping: later channels with the same content become duplicates of it."""
+
+    def __init__(self) -> None:
+        self.keys: dict[tuple, tuple[ModelChannel, ...]] = {}
+        self.sources: dict[str, SourceFile] = {}
+
+    def of(self, content_key: tuple, keys: tuple[ModelChannel, ...], sources: Mapping[str, SourceFile]):
+        first = self.keys.setdefault(content_key, keys)
+        for k in first:
+            if k.file not in self.sources:
+                self.sources[k.file] = sources[k.file]
+        return first
+
+
+def _content(path: str, letter: str, cache: dict, warnings: list[str]):
+    """The channel's content, or, for a file whose texels cannot be read, a content that is neither
+    constant nor a duplicate of anything (training will report the file)."""
+    from bcfpipe.scan.content import ChannelContent, content_of
+
+    try:
+        return content_of(path, letter, cache)
+    except (OSError, ValueError) as exc:
+        warnings.append(f"{Path(path).name}: texels not checked for constants or duplicates ({one_line(exc)})")
+        return ChannelContent(0.0, 0.0, 0.0, f"unread:{path}:{letter}", False)
+
+
+def _decode(value: float, color_space: str) -> float:
+    from bcfpipe.scan.content import srgb_to_linear
+
+    return srgb_to_linear(value) if color_space == "sRGB" else value
+
+
+def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, canonical: Canonical | None = None,
+                   fold: bool = True) -> MaterialModel:
+    """Map a scanned material's texture inputs to model channels, texset specs and targets.
+    With ``fold``, constant channels become ``constants`` and channels whose texels repeat a channel
+    already modelled (in ``canonical``, shared across the materials of a scan) map onto it."""
+    canonical = canonical if canonical is not None else Canonical()
     channels: list[ModelChannel] = []
     specs: list[tuple[str, str, str]] = []
     targets: list[tuple[str, str, ModelChannel, float, float, str]] = []
+    constants: list[ConstantTarget] = []
+    folded: list[FoldedChannel] = []
     sources: dict[str, SourceFile] = {}
     warnings = list(ms.warnings)
     wraps: set[str] = set()
@@ -157,22 +231,44 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True) -> M
             continue
         is_normal = inp.name == "normal" and tex.channel == "rgb"
         kind = "normal" if is_normal else "value"
-        keys = [ModelChannel(u.file, u.channel, kind) for u in uses]
-        new = [k for k in keys if k not in channels]
+        raw = [ModelChannel(u.file, u.channel, kind) for u in uses]
+        contents = [_content(k.file, k.channel, file_cache, warnings) for k in raw] if fold else []
+        # per raw key: None (constant) or the key the decoder outputs (itself or its canonical twin)
+        if not fold:
+            keys: list[ModelChannel | None] = list(raw)
+        elif is_normal:
+            z = _content(src.path, "b", file_cache, warnings) if len(raw) == 2 else None
+            if z is not None and all(c.constant for c in contents) and z.constant:
+                keys = [None, None]
+                constants.append(ConstantTarget("normal.z", inp.name,
+                                                float(tex.scale[2]) * z.mean + float(tex.bias[2]), src.path, "b"))
+            else:
+                keys = list(canonical.of(("normal",) + tuple(c.digest for c in contents), tuple(raw), sources))
+        else:
+            keys = [None if c.constant else canonical.of((c.digest, kind), (k,), sources)[0]
+                    for k, c in zip(raw, contents)]
+        for k, key, c in zip(raw, keys, contents):
+            if key is None:
+                folded.append(FoldedChannel(k.file, k.channel, "constant", value=c.mean))
+            elif key != k:
+                folded.append(FoldedChannel(k.file, k.channel, "duplicate", same_as=key))
+                sources.setdefault(key.file, canonical.sources[key.file])
+        new = [k for k in dict.fromkeys(k for k in keys if k is not None) if k not in channels]
         if new:
             letters = "".join(k.channel for k in new)
-            if is_normal and len(new) == 2:
-                specs.append(("normal", src.path, "xy"))
-            elif inp.name in _COLOR_SEMANTIC and tex.channel == "rgb" and len(new) == 3:
-                specs.append((_COLOR_SEMANTIC[inp.name], src.path, letters))
-            elif inp.name in _SCALAR_SEMANTICS and len(new) == 1 and len(keys) == 1:
-                specs.append((inp.name, src.path, letters))
+            files = {k.file for k in new}
+            if is_normal and len(new) == 2 and len(files) == 1:
+                specs.append(("normal", new[0].file, "xy"))
+            elif inp.name in _COLOR_SEMANTIC and tex.channel == "rgb" and len(new) == 3 and len(files) == 1:
+                specs.append((_COLOR_SEMANTIC[inp.name], new[0].file, letters))
+            elif inp.name in _SCALAR_SEMANTICS and len(new) == 1 and len(raw) == 1:
+                specs.append((inp.name, new[0].file, letters))
             else:
-                specs.extend(("generic", src.path, k.channel) for k in new)
+                specs.extend(("generic", k.file, k.channel) for k in new)
             channels.extend(new)
         if tex.source_color_space not in ("auto", "raw", "sRGB"):
             warnings.append(f"{inp.name}: unknown sourceColorSpace {tex.source_color_space!r}, read as raw")
-        for u, key in zip(uses, keys):
+        for i, (u, key) in enumerate(zip(uses, keys)):
             comp = "rgba".index(u.channel)
             s, b = float(tex.scale[comp]), float(tex.bias[comp])
             cs = src.resolved_color_space if u.channel != "a" else "raw"
@@ -180,11 +276,16 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True) -> M
                 if cs == "sRGB":
                     warnings.append(f"{inp.name}: normal map colour space resolves to sRGB; modelled as raw")
                 cs = "raw"
-                s, b = s / 2.0, s / 2.0 + b  # the model stores 2 v - 1
             elif cs == "sRGB" and inp.name not in ("diffuseColor", "emissiveColor", "specularColor") \
                     and tex.source_color_space == "auto":
                 warnings.append(f"{inp.name}: sourceColorSpace auto resolves to sRGB for this 8-bit file "
                                 "(as in Hydra); the renderer decodes it as sRGB")
+            if key is None:
+                constants.append(ConstantTarget(u.target, inp.name, s * _decode(contents[i].mean, cs) + b,
+                                                u.file, u.channel))
+                continue
+            if is_normal:
+                s, b = s / 2.0, s / 2.0 + b  # the model stores 2 v - 1
             targets.append((u.target, inp.name, key, s, b, cs))
         for w in tex.effective_wrap:
             if w not in ("repeat", "clamp"):
@@ -198,7 +299,8 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True) -> M
     if len(set(sts)) > 1:
         warnings.append("textures use different st primvars or transforms; the model uses the first texture's")
     st = sts[0] if sts else ("st", (1.0, 1.0), 0.0, (0.0, 0.0))
-    return MaterialModel(channels, specs, targets, sources, wrap, st, list(dict.fromkeys(warnings)))
+    return MaterialModel(channels, specs, targets, sources, wrap, st, list(dict.fromkeys(warnings)), constants,
+                         folded)
 
 
 def decoder_index(channels: Sequence[ModelChannel]) -> tuple[dict[ModelChannel, int], int | None]:
@@ -256,17 +358,29 @@ class TextureSetGroup:
     def to_dict(self) -> dict:
         m = self.model
         return {"name": self.name, "materials": list(self.materials), "wrap": m.wrap,
-                "channels": [{"file": c.file, "channel": c.channel, "kind": c.kind} for c in m.channels]}
+                "channels": [{"file": c.file, "channel": c.channel, "kind": c.kind} for c in m.channels],
+                "folded": [f.to_dict() for f in m.folded]}
 
 
 @dataclass(frozen=True)
 class Grouping:
     """The modelled materials of a scan, as texture-set groups; ``instanced`` ones cannot be
-    overridden and ``failed`` ones ({path: message}) had unreadable textures."""
+    overridden, ``failed`` ones ({path: message}) had unreadable textures, and ``constant`` ones
+    ({path: model}) have only constant channels, so their values replace them and nothing trains."""
 
     groups: tuple[TextureSetGroup, ...]
     instanced: frozenset[str]
     failed: Mapping[str, str]
+    constant: Mapping[str, MaterialModel] = field(default_factory=dict)  # every channel folded: nothing to train
+
+    def model_of(self, material: str) -> MaterialModel | None:
+        """The material's model (grouped or constant), None when it is not modelled."""
+        if material in self.constant:
+            return self.constant[material]
+        try:
+            return self.group_of(material)[1]
+        except KeyError:
+            return None
 
     def group_of(self, material: str) -> tuple[TextureSetGroup, MaterialModel]:
         for g in self.groups:
@@ -276,24 +390,30 @@ class Grouping:
 
 
 def group_materials(scene, variants: Mapping[str, str], materials: Sequence["MaterialScan"],
-                    file_cache: dict | None = None, digest: bool = True) -> Grouping:
+                    file_cache: dict | None = None, digest: bool = True, fold: bool = True) -> Grouping:
     """Group the materials decided ``model`` by texture set (channels and addressing); opens each
-    texture once (its header, and with ``digest`` its bytes for the hash; cached in ``file_cache``)."""
+    texture once (its header, and with ``digest`` its bytes for the hash; with ``fold`` its texels,
+    to fold constant channels and merge duplicates; all cached in ``file_cache``)."""
     modelled = [ms for ms in materials if ms.decision == "model"]
     instanced = frozenset(instance_proxies(scene, variants, [m.path for m in modelled]))
     cache = {} if file_cache is None else file_cache
+    canonical = Canonical()
     by_key: dict[tuple, list[tuple[str, MaterialModel]]] = {}
     failed: dict[str, str] = {}
+    constant: dict[str, MaterialModel] = {}
     for ms in modelled:
         if ms.path in instanced:
             continue
         try:
-            mm = material_model(ms, cache, digest)
+            mm = material_model(ms, cache, digest, canonical, fold)
         except Exception as exc:  # noqa: BLE001 - an unreadable file fails this material only
             failed[ms.path] = f"cannot read textures: {one_line(exc)}"
+            continue
+        if not mm.channels:
+            constant[ms.path] = mm
             continue
         by_key.setdefault((frozenset(mm.channels), mm.wrap), []).append((ms.path, mm))
     taken: set[str] = set()
     groups = tuple(TextureSetGroup(job_name(members[0][0], taken), tuple(p for p, _ in members),
                                    tuple(m for _, m in members)) for members in by_key.values())
-    return Grouping(groups, instanced, failed)
+    return Grouping(groups, instanced, failed, constant)

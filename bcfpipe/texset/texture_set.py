@@ -361,8 +361,13 @@ def _open(path: str) -> _Source:
 
 
 def _source_index(src: _Source, letter: str) -> int:
-    """The file channel that feeds a requested letter (grey replicates into r, g, b)."""
-    names, n = src.names, len(src.names)
+    return source_channel_index(src.names, letter, src.path)
+
+
+def source_channel_index(names: tuple[str, ...], letter: str, path: str) -> int:
+    """The file channel (of a file whose channels are ``names``) that feeds a requested letter
+    (grey replicates into r, g, b; a is the alpha channel)."""
+    n = len(names)
     alpha = names.index("A") if "A" in names else None
     slot = _SLOT[letter]
     if slot == 3:
@@ -376,7 +381,7 @@ def _source_index(src: _Source, letter: str) -> int:
             return colour[0]
         if slot < len(colour):
             return colour[slot]
-    raise TextureError(f"{src.path}: has {n} channel(s) ({','.join(names)}); cannot read channel {letter!r}")
+    raise TextureError(f"{path}: has {n} channel(s) ({','.join(names)}); cannot read channel {letter!r}")
 
 
 def _resampled(src: _Source, width: int, height: int) -> np.ndarray:

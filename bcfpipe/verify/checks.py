@@ -299,6 +299,19 @@ def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = Non
     return rep
 
 
+def constant_reports(root: Path) -> list[MaterialReport]:
+    """For a build folder, one report per material with folded constants (bcfpipe.verify.constants)."""
+    from bcfpipe.formats import manifest as mfst
+    from bcfpipe.verify.constants import check_constants
+
+    if not (root / mfst.FILE).is_file():
+        return []
+    out = []
+    for name, passed, detail in check_constants(root, mfst.read(root)):
+        out.append(MaterialReport(name, str(root), [Check("constants", passed, detail)]))
+    return out
+
+
 def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool = True, seed: int = 0,
            filter_bits: int = FILTER_BITS, runtime: GLRuntime | None = None, progress=None) -> Report:
     """Verify every material under ``path``; raises VerifyInputError when there is nothing to verify."""
@@ -320,6 +333,7 @@ def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool =
             if progress:
                 progress(t.desc.name)
             reports.append(verify_target(t, rt if glsl else None, tolerance, seed, filter_bits))
+        reports += constant_reports(Path(path))
         return Report(str(path), reports, renderer, tol_info)
     finally:
         if own:

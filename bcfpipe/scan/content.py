@@ -1,0 +1,95 @@
+"""The texel content of source files, per channel: what is constant and what repeats (issue #18).
+
+A neural decoder output is worth training only for a channel whose texels vary and that no other
+modelled channel already holds:
+
+- **constant**: every texel of the channel equals every other within the source's quantisation
+  (one 8-bit step, 1/255, for integer files; one fp16 ulp at the channel's magnitude for float
+  files). Its value is the channel's mean, in stored units ([0, 1] for integer files).
+- **duplicate**: the channel's stored texels are identical, bit for bit and at the same size, to
+  another channel's (the same image under two names, or an ORM file whose R equals its G).
+  ``digest`` is the XXH3-128 of the stored samples with their size and type.
+
+Files are read once at their stored type (OpenImageIO), packaged files through Ar.
+"""
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+
+import numpy as np
+import xxhash
+
+INTEGER_STEP = 1.0 / 255.0
+
+
+@dataclass(frozen=True)
+class ChannelContent:
+    """One channel of one file, as stored."""
+
+    lo: float
+    hi: float
+    mean: float
+    digest: str
+    constant: bool
+
+
+def srgb_to_linear(v: float) -> float:
+    """The sRGB EOTF (IEC 61966-2-1), as Hydra decodes an sRGB texture before scale and bias."""
+    return v / 12.92 if v <= 0.04045 else ((v + 0.055) / 1.055) ** 2.4
+
+
+def _step(arr: np.ndarray, lo: float, hi: float) -> float:
+    if np.issubdtype(arr.dtype, np.integer):
+        return INTEGER_STEP
+    return float(np.spacing(np.float16(max(abs(lo), abs(hi)))))
+
+
+def read_stored(path: str) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The texels of a resolved path at their stored type, (H, W, C), and its channel names."""
+    import OpenImageIO as oiio
+
+    from bcfpipe.scan.texture_sets import local_file
+
+    with tempfile.TemporaryDirectory() as tmp:
+        inp = oiio.ImageInput.open(local_file(path, tmp))
+        if inp is None:
+            raise OSError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown error'})")
+        try:
+            spec = inp.spec()
+            data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UNKNOWN)
+        finally:
+            inp.close()
+    if data is None:
+        raise OSError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown error'})")
+    return np.asarray(data).reshape(spec.height, spec.width, spec.nchannels), tuple(n.upper() for n in spec.channelnames)
+
+
+def channel_contents(arr: np.ndarray) -> tuple[ChannelContent, ...]:
+    """Range, mean, digest and constancy of every channel of an (H, W, C) stored image."""
+    out = []
+    scale = float(np.iinfo(arr.dtype).max) if np.issubdtype(arr.dtype, np.integer) else 1.0
+    for c in range(arr.shape[2]):
+        ch = np.ascontiguousarray(arr[..., c])
+        with np.errstate(invalid="ignore"):
+            lo, hi = float(ch.min()) / scale, float(ch.max()) / scale
+            mean = float(ch.mean(dtype=np.float64)) / scale
+        h = xxhash.xxh3_128()
+        h.update(f"{ch.shape[0]}x{ch.shape[1]}:{ch.dtype.str}:".encode())
+        h.update(ch.tobytes())
+        finite = np.isfinite(lo) and np.isfinite(hi)
+        out.append(ChannelContent(lo, hi, mean, h.hexdigest(), bool(finite and hi - lo <= _step(ch, lo, hi))))
+    return tuple(out)
+
+
+def content_of(path: str, letter: str, cache: dict) -> ChannelContent:
+    """The content of the file channel that a UsdUVTexture output letter (r, g, b, a) reads,
+    with the texture-set loader's channel mapping; each file is read once per ``cache``."""
+    from bcfpipe.texset.texture_set import source_channel_index
+
+    key = (path, "content")
+    if key not in cache:
+        arr, names = read_stored(path)
+        cache[key] = (channel_contents(arr), names)
+    contents, names = cache[key]
+    return contents[source_channel_index(names, letter, path)]

@@ -1,0 +1,92 @@
+"""`bcfpipe verify` on the constants a build folded (issue #18): through USD, the composed output
+stage gives each folded UsdPreviewSurface input the value manifest.json records, with no texture
+connected; through OpenImageIO, every texel of each folded source channel is within one 8-bit
+step (or one fp16 ulp) of the stored value the build used."""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from bcfpipe.formats import manifest as mfst
+
+_COMPONENTS = {"r": 0, "g": 1, "b": 2, "x": 0, "y": 1, "z": 2}
+VALUE_TOLERANCE = 1e-6  # the value is authored as a float: rounding only
+
+
+def _component(target: str) -> int | None:
+    comp = target.rpartition(".")[2] if "." in target else None
+    return _COMPONENTS.get(comp) if comp else None
+
+
+def check_usd_values(root: Path, manifest: mfst.Manifest, material: mfst.Material, stage) -> list[str]:
+    """Problems with the composed values of ``material``'s constants (empty: all as recorded)."""
+    from pxr import UsdShade
+
+    prim = stage.GetPrimAtPath(material.path)
+    if not prim:
+        return [f"{material.path} is not on the composed stage {manifest.root_layer}"]
+    surface, _, _ = UsdShade.Material(prim).ComputeSurfaceSource("")
+    if not surface:
+        return [f"{material.path} has no surface shader on the composed stage"]
+    problems = []
+    for c in material.constants:
+        inp = surface.GetInput(c.input)
+        if not inp or inp.HasConnectedSource():
+            problems.append(f"{c.input} is still connected to a texture")
+            continue
+        v = inp.Get()
+        k = _component(c.target)
+        got = float(v[k]) if k is not None and hasattr(v, "__len__") else float(v[0] if hasattr(v, "__len__") else v)
+        if not abs(got - c.value) <= VALUE_TOLERANCE * max(1.0, abs(c.value)):
+            problems.append(f"{c.target} is {got:.6g} on the stage, manifest.json says {c.value:.6g}")
+    return problems
+
+
+def check_source_constancy(root: Path, material: mfst.Material) -> list[str]:
+    """Every texel of each channel folded as constant lies within one step of its stored value."""
+    import OpenImageIO as oiio
+
+    from bcfpipe.scan.texture_sets import local_file, package_split
+    from bcfpipe.texset.texture_set import source_channel_index
+
+    problems = []
+    for f in material.folded:
+        if f.reason != "constant":
+            continue
+        path = f.source if Path(f.source).is_absolute() or package_split(f.source) else str(root / f.source)
+        with tempfile.TemporaryDirectory() as tmp:
+            buf = oiio.ImageBuf(local_file(path, tmp))
+            if not buf.read(0, 0, True, oiio.FLOAT):
+                problems.append(f"{f.source}: cannot read ({buf.geterror().strip()})")
+                continue
+        spec = buf.spec()
+        px = np.asarray(buf.get_pixels(oiio.FLOAT)).reshape(spec.height, spec.width, spec.nchannels)
+        idx = source_channel_index(tuple(n.upper() for n in spec.channelnames), f.channel, path)
+        native = buf.nativespec().format.basetype
+        is_float = native in (oiio.BASETYPE.HALF, oiio.BASETYPE.FLOAT, oiio.BASETYPE.DOUBLE)
+        step = float(np.spacing(np.float16(abs(f.value or 0.0)))) if is_float else 1.0 / 255.0
+        worst = float(np.abs(px[..., idx].astype(np.float64) - float(f.value)).max())
+        if worst > step + 1e-9:
+            problems.append(f"{f.source}:{f.channel} is not constant: a texel differs by {worst:.4g} "
+                            f"from {f.value:.6g}")
+    return problems
+
+
+def check_constants(root: Path, manifest: mfst.Manifest) -> list[tuple[str, bool, str]]:
+    """(material, passed, detail) for every material of a build with folded constants."""
+    from pxr import Usd
+
+    with_constants = [m for m in manifest.materials if m.constants or any(f.reason == "constant" for f in m.folded)]
+    if not with_constants:
+        return []
+    stage = Usd.Stage.Open(str(root / manifest.root_layer))
+    out = []
+    for m in with_constants:
+        problems = check_usd_values(root, manifest, m, stage) + check_source_constancy(root, m)
+        n = len(m.constants)
+        out.append((m.path, not problems, "; ".join(problems) or
+                    f"{n} input value(s) on the composed stage as recorded, not connected; "
+                    f"{sum(f.reason == 'constant' for f in m.folded)} source channel(s) constant within one step"))
+    return out
