@@ -160,6 +160,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         payload["init"] = options.init
     if options.fix_nonfinite:
         payload["fix_nonfinite"] = True
+    if options.resolution is not None:  # a density cap; the density itself changes nothing else
+        payload["resolution"] = options.resolution
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
 
 
@@ -189,17 +191,23 @@ def _resolve_device_name(device: str) -> str:
 def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] | None = None,
          all_materials: bool = False, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
          seed: int = DEFAULT_SEED, device: str = DEFAULT_DEVICE, hidden: int = DEFAULT_HIDDEN,
-         signed: bool = False, init: str = DEFAULT_INIT, fix_nonfinite: bool = False) -> BuildPlan:
+         signed: bool = False, init: str = DEFAULT_INIT, fix_nonfinite: bool = False,
+         texel_density: float | None = None) -> BuildPlan:
     """Scan ``scene`` and list what to train. Reads the source textures (to hash them) but writes
-    nothing. Raises `BuildError` for an unreadable stage or bad options."""
+    nothing. ``texel_density`` (px/m) caps each job's resolution at the smallest power of two that
+    meets it on every member's most demanding mesh (never above the source). Raises `BuildError`
+    for an unreadable stage or bad options."""
     if profile not in PROFILE_NAMES:
         raise BuildError(f"unknown profile {profile!r}; choose from {', '.join(PROFILE_NAMES)}")
     if preset not in PRESETS:
         raise BuildError(f"unknown quality preset {preset!r}; choose from {', '.join(PRESETS)}")
     if init not in FEATURE_INITS:
         raise BuildError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
+    if texel_density is not None and not (texel_density > 0 and texel_density < float("inf")):
+        raise BuildError(f"--texel-density must be a positive number of px/m, got {texel_density}")
     options = Options(profile=profile, preset=preset, seed=int(seed), device=_resolve_device_name(device),
-                      hidden=int(hidden), signed=bool(signed), init=init, fix_nonfinite=bool(fix_nonfinite))
+                      hidden=int(hidden), signed=bool(signed), init=init, fix_nonfinite=bool(fix_nonfinite),
+                      texel_density=float(texel_density) if texel_density is not None else None)
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 
@@ -215,10 +223,11 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         rep = g.model
         sources = {p: s for mm in g.models for p, s in mm.sources.items()}
         rep_sources = {p: sources[p] for p in dict.fromkeys(path for _, path, _ in rep.specs)}
+        job_options = density_options(options, g.models)
         jobs.append(MaterialJob(
             name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
-            sources=tuple(rep_sources.values()), wrap=rep.wrap, options=options,
-            content_hash=content_hash(rep.specs, rep_sources, rep.wrap, options),
+            sources=tuple(rep_sources.values()), wrap=rep.wrap, options=job_options,
+            content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options),
         ))
     job_by_name = {j.name: j for j in jobs}
 
@@ -273,6 +282,27 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         layers=scan.layers,
         folded_sources=_folded_sources(grouping, jobs),
     )
+
+
+def density_options(options: Options, models) -> Options:
+    """The job's options under ``options.texel_density``: the largest resolution any member needs
+    (no cap when a member has no density figure, or needs the source itself); the profile drops to
+    what fits that resolution when it asked for more."""
+    from dataclasses import replace
+
+    from bcfpipe.config import PROFILES
+    from bcfpipe.scan.density import required_resolution
+
+    if options.texel_density is None:
+        return options
+    needs = [required_resolution(mm.density, options.texel_density) if mm.density else None for mm in models]
+    if not needs or any(n is None for n in needs):
+        return options
+    res = max(needs)
+    profile = options.profile
+    if profile != "auto" and PROFILES[profile][0] > res:
+        profile = "auto"
+    return replace(options, resolution=res, profile=profile)
 
 
 def _folded_sources(grouping, jobs: Iterable[MaterialJob]) -> tuple[SourceFile, ...]:

@@ -54,3 +54,10 @@ variant_option = click.option(
     help="Select VALUE in variant set SET on every prim offering it (repeatable).")
 all_materials_option = click.option(
     "--all-materials", is_flag=True, help="Also model materials not bound to rendered geometry.")
+
+texel_density_option = click.option(
+    "--texel-density", "texel_density", type=click.FloatRange(min=0, min_open=True), default=None,
+    metavar="PX_PER_M",
+    help="Texels per metre the scene needs (e.g. 512): each material's texture set is resampled to the "
+         "smallest power of two that meets it on its most demanding mesh, never above the source, and its "
+         "profile follows. Without it nothing is capped (the scan still reports each density).")

@@ -14,7 +14,7 @@ from rich.table import Table
 from rich.text import Text
 
 from bcfpipe.cli.errors import Command
-from bcfpipe.cli.options import all_materials_option, variant_option
+from bcfpipe.cli.options import all_materials_option, texel_density_option, variant_option
 from bcfpipe.scan.results import MaterialScan, StageScan
 from bcfpipe.scan.stage import scan_stage
 from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, Grouping, group_materials
@@ -56,7 +56,27 @@ def _decision_text(material: MaterialScan, grouping: Grouping) -> Text:
     return text
 
 
-def _table(result: StageScan, grouping: Grouping) -> Table:
+def _need_text(req: dict | None) -> Text:
+    """Texel density, the profile and size a build would choose."""
+    if not req:
+        return Text("")
+    text = Text()
+    d = req.get("density") or {}
+    if d.get("texel_density"):
+        text.append(f"{d['texel_density']:.0f} px/m", style="dim")
+        if d.get("lowest_mesh_density") and d["meshes"] > 1:
+            text.append(f" (lowest mesh {d['lowest_mesh_density']:.0f})")
+    for note in d.get("notes", [])[:2]:
+        text.append(f"\n{note}" if text.plain else note, style="yellow")
+    if req["decision"] == "model":
+        cap = f" capped: {req['texel_density_reached']:.0f} px/m" if req["capped"] else ""
+        line = (f"{req['resolution']}²{cap}, {req['profile']}, ~{req['estimated_bytes'] / 2**20:.2f} MiB"
+                if req["estimated_bytes"] else f"{req['resolution']}²{cap}, {req['profile']}, shared")
+        text.append(f"\n{line}" if text.plain else line, style="dim")
+    return text
+
+
+def _table(result: StageScan, grouping: Grouping, reqs: dict) -> Table:
     """The per-material table."""
     table = Table(show_lines=False, expand=False)
     table.add_column("material", overflow="fold")
@@ -66,11 +86,15 @@ def _table(result: StageScan, grouping: Grouping) -> Table:
     for m in result.materials:
         bound = "yes" if m.bound else "no"
         path = m.path + (f" (+{len(m.aliases)} instances)" if m.aliases else "")
-        table.add_row(path, bound, _decision_text(m, grouping), _texture_lines(m, grouping))
+        need = _need_text(reqs["materials"].get(m.path))
+        decision = _decision_text(m, grouping)
+        if need.plain:
+            decision.append("\n").append_text(need)
+        table.add_row(path, bound, decision, _texture_lines(m, grouping))
     return table
 
 
-def _print_human(result: StageScan, grouping: Grouping, console: Console) -> None:
+def _print_human(result: StageScan, grouping: Grouping, reqs: dict, console: Console) -> None:
     """Stage facts, the table and a summary line."""
     console.print(f"[bold]{result.path}[/bold]", highlight=False)
     console.print(
@@ -87,7 +111,7 @@ def _print_human(result: StageScan, grouping: Grouping, console: Console) -> Non
     for note in result.diagnostics:
         console.print(f"[yellow]usd:[/yellow] {note}", highlight=False)
     if result.materials:
-        console.print(_table(result, grouping))
+        console.print(_table(result, grouping, reqs))
     for path in sorted(grouping.instanced):
         console.print(f"[yellow]skip:[/yellow] {path}: {INSTANCED_MESSAGE}", highlight=False)
     for path, message in grouping.failed.items():
@@ -101,17 +125,34 @@ def _print_human(result: StageScan, grouping: Grouping, console: Console) -> Non
         f"{len(result.materials) - n_model - n_const} not modelled",
         highlight=False,
     )
+    tot = reqs["totals"]
+    console.print(
+        f"a build writes ~{tot['estimated_bytes'] / 2**20:.2f} MiB ({tot['texture_sets']} texture set(s)); "
+        f"modelling everything (no folding, no density cap): ~{tot['everything_estimated_bytes'] / 2**20:.2f} MiB "
+        f"({tot['everything_texture_sets']} texture set(s))", highlight=False)
 
 
 @click.command("scan", cls=Command)
 @click.argument("scene", type=click.Path(path_type=Path, dir_okay=False))
 @variant_option
 @all_materials_option
+@texel_density_option
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout instead of a table.")
-def scan(scene: Path, variants: dict[str, str], all_materials: bool, as_json: bool) -> None:
-    """Scan SCENE's UsdPreviewSurface materials: which ones `build` would model, and why not."""
+def scan(scene: Path, variants: dict[str, str], all_materials: bool, texel_density: float | None,
+         as_json: bool) -> None:
+    """Scan SCENE's UsdPreviewSurface materials: which ones `build` would model, and why not.
+
+    Also what the scene requires: channels folded (constant or duplicate), the source's texel
+    density on the bound meshes, the resolution, profile and size a build would choose, and the
+    total against modelling everything. JSON keys: docs/build.md.
+    """
+    from bcfpipe.scan.requirements import requirements
+
     result = scan_stage(scene, variants or None, all_materials=all_materials)
-    grouping = group_materials(scene, variants, result.materials, digest=False)
+    cache: dict = {}
+    grouping = group_materials(scene, variants, result.materials, cache, digest=False)
+    everything = group_materials(scene, variants, result.materials, cache, digest=False, fold=False)
+    reqs = requirements(grouping, everything, texel_density=texel_density)
     if as_json:
         d = result.to_dict()
         for m, md in zip(result.materials, d["materials"]):
@@ -120,9 +161,12 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, as_json: bo
             md["folded"] = [f.to_dict() for f in mm.folded] if mm else []
             md["constants"] = [{"target": c.target, "input": c.input, "value": c.value} for c in mm.constants] \
                 if mm else []
+            md["requirements"] = reqs["materials"].get(m.path)
         d["texture_sets"] = [g.to_dict() for g in grouping.groups]
+        d["texel_density_requested"] = texel_density
+        d["requirements"] = reqs["totals"]
         d["instanced"] = sorted(grouping.instanced)
         d["unreadable"] = dict(grouping.failed)
         click.echo(json.dumps(d, indent=2))
         return
-    _print_human(result, grouping, Console())
+    _print_human(result, grouping, reqs, Console())

@@ -194,6 +194,8 @@ class Options(Record):
     signed: bool
     init: str
     fix_nonfinite: bool = False
+    texel_density: float | None = optional()  # --texel-density, px/m
+    resolution: int | None = optional()  # the texture set resampled to this larger side (a density cap)
 
 
 @dataclass(frozen=True)

@@ -113,6 +113,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Options", "signed"): "Signed BC6H features.",
     ("Options", "init"): "How the features start (random or pca).",
     ("Options", "fix_nonfinite"): "Whether NaN/Inf texels were replaced (--fix-nonfinite) rather than refused.",
+    ("Options", "texel_density"): "--texel-density in px/m: the build caps each job's resolution to reach it on the most demanding mesh; absent without the option.",
+    ("Options", "resolution"): "For a job: the larger side its texture set was resampled to, to meet texel_density; absent when not capped.",
     ("Stage", "up_axis"): "The scene's upAxis.",
     ("Stage", "meters_per_unit"): "The scene's metersPerUnit.",
     ("Stage", "default_prim"): "The scene's defaultPrim path, null if unset.",

@@ -176,6 +176,7 @@ class MaterialScan:
     inputs: tuple[InputScan, ...] = ()
     channel_uses: tuple[ChannelUse, ...] = ()
     warnings: tuple[str, ...] = ()
+    density: Any = None  # bcfpipe.scan.density.MaterialDensity of a modelled material (source size unset)
 
     @property
     def texture_inputs(self) -> tuple[InputScan, ...]:

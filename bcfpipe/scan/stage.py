@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import os
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
@@ -57,6 +58,7 @@ from pxr import Ar, Usd, UsdGeom, UsdShade, UsdUtils
 
 from bcfpipe.scan.composition import (apply_variants, bound_materials, definition_path, first_line, open_stage,
                                       rendered_gprims)
+from bcfpipe.scan.density import MaterialDensity, material_bindings, material_density
 from bcfpipe.scan.network import COLOR_INPUTS, WRAP_MODES, scan_input, shader_id
 from bcfpipe.scan.results import (DECISION_MODEL, DECISION_SKIP, PREVIEW_SURFACE_INPUTS, ChannelUse, InputScan,
                                   MaterialScan, StageScan)
@@ -261,6 +263,17 @@ def used_files(stage: Usd.Stage) -> tuple[str, ...]:
     return tuple(sorted(files))
 
 
+def _density(ms: MaterialScan, bindings, meters_per_unit: float) -> MaterialDensity:
+    """World and uv areas of the meshes bound to ``ms``, through its first texture's st primvar
+    and UsdTransform2d scale (the ones the model uses)."""
+    tex = ms.texture_inputs[0].texture if ms.texture_inputs else None
+    st = tex.st if tex is not None else None
+    if st is None or st.kind not in ("primvar", "transform2d") or not st.varname:
+        return MaterialDensity(notes=("st is not read from a primvar: no texel density",))
+    scale = st.transform.scale if st.transform else (1.0, 1.0)
+    return material_density(bindings, st.varname, meters_per_unit, (0, 0), tuple(scale))
+
+
 def scan_stage(
     path: str | os.PathLike[str],
     variants: Mapping[str, str] | None = None,
@@ -277,11 +290,16 @@ def scan_stage(
         gprims = rendered_gprims(stage)
         bound, dangling = bound_materials(stage, gprims)
         scans: list[MaterialScan] = []
+        bindings = material_bindings(stage, gprims)
+        mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
         for key, prims in material_prims(stage).items():
             purposes = tuple(sorted(bound.get(key, ())))
             aliases = tuple(str(p.GetPath()) for p in prims[1:])
             try:
-                scans.append(scan_material(UsdShade.Material(prims[0]), purposes, all_materials, aliases))
+                ms = scan_material(UsdShade.Material(prims[0]), purposes, all_materials, aliases)
+                if ms.decision == DECISION_MODEL:
+                    ms = replace(ms, density=_density(ms, bindings.get(key, []), mpu))
+                scans.append(ms)
             except Exception as exc:  # noqa: BLE001 - one bad material must not stop the scan
                 scans.append(_error_scan(str(prims[0].GetPath()), exc, purposes, aliases))
     composition_errors = _composition_errors(stage)

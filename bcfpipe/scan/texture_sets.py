@@ -170,6 +170,15 @@ class MaterialModel:
     warnings: list[str]
     constants: list[ConstantTarget] = field(default_factory=list)
     folded: list[FoldedChannel] = field(default_factory=list)
+    density: object = None  # bcfpipe.scan.density.MaterialDensity, with the set's common source size
+
+    @property
+    def source_size(self) -> tuple[int, int]:
+        """The texture set's common (width, height), as the loader will resample it."""
+        from bcfpipe.texset.texture_set import common_resolution
+
+        sizes = [(s.width, s.height) for s in self.sources.values() if s.width and s.height]
+        return common_resolution(sizes) if sizes else (0, 0)
 
 
 class Canonical:
@@ -299,8 +308,13 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
     if len(set(sts)) > 1:
         warnings.append("textures use different st primvars or transforms; the model uses the first texture's")
     st = sts[0] if sts else ("st", (1.0, 1.0), 0.0, (0.0, 0.0))
-    return MaterialModel(channels, specs, targets, sources, wrap, st, list(dict.fromkeys(warnings)), constants,
-                         folded)
+    mm = MaterialModel(channels, specs, targets, sources, wrap, st, list(dict.fromkeys(warnings)), constants,
+                       folded)
+    if ms.density is not None:
+        from dataclasses import replace
+
+        mm.density = replace(ms.density, source_size=mm.source_size)
+    return mm
 
 
 def decoder_index(channels: Sequence[ModelChannel]) -> tuple[dict[ModelChannel, int], int | None]:

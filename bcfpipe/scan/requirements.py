@@ -1,0 +1,66 @@
+"""What a scene requires (issue #18, item 5): per material, the outputs kept and folded, the texel
+density, the profile a build would choose and the bytes it would write; and the total against
+modelling everything (no folding, no density cap). `bcfpipe scan` prints it; its JSON keys are
+listed in docs/build.md."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from bcfpipe.config import DEFAULT_HIDDEN, DEFAULT_PROFILE, mip_count, resolve_profile
+from bcfpipe.formats.manifest import Options
+from bcfpipe.scan.texture_sets import Grouping, MaterialModel, decoder_index
+
+DDS_HEADER_BYTES = 148  # magic + DDS_HEADER + DDS_HEADER_DXT10
+WEIGHT_HEADER_BYTES = 24
+
+
+def estimated_bytes(resolutions, n_out: int, hidden: int) -> int:
+    """Bytes of a built material as the manifest counts them: the four BC6H DDS files (one byte a
+    texel, every mip down to 4x4) and its fp16 weight record."""
+    features = sum(DDS_HEADER_BYTES + sum(max(4, r >> k) ** 2 for k in range(mip_count(r))) for r in resolutions)
+    halves = hidden * 12 + hidden + n_out * hidden + 3 * n_out
+    return features + WEIGHT_HEADER_BYTES + 2 * halves + (2 * halves) % 4
+
+
+def _job(mm: MaterialModel, members, options: Options) -> dict:
+    from bcfpipe.build.plan import density_options
+
+    o = density_options(options, members)
+    size = max(mm.source_size) if max(mm.source_size) else 0
+    side = o.resolution or size
+    profile, res = resolve_profile(o.profile, side) if side else (o.profile, ())
+    n_out = len(decoder_index(mm.channels)[0]) if mm.channels else 0
+    lows = [m.density.lowest_density for m in members if m.density and m.density.lowest_density]
+    reached = min(lows) * side / size if lows and size else None
+    return {"resolution": side, "profile": profile, "capped": o.resolution is not None,
+            "texel_density_reached": reached,
+            "estimated_bytes": estimated_bytes(res, n_out, o.hidden) if res and n_out else 0}
+
+
+def requirements(grouping: Grouping, everything: Grouping, profile: str = DEFAULT_PROFILE,
+                 hidden: int = DEFAULT_HIDDEN, texel_density: float | None = None) -> dict:
+    """{"materials": {path: ...}, "totals": ...} for ``grouping`` (folded) against ``everything``
+    (the same scan grouped without folding)."""
+    options = Options(profile=profile, preset="standard", seed=0, device="cpu", hidden=hidden, signed=False,
+                      init="random", texel_density=texel_density)
+    out: dict[str, dict] = {}
+    total = 0
+    for g in grouping.groups:
+        job = _job(g.model, g.models, options)
+        total += job["estimated_bytes"]
+        for path, mm in zip(g.materials, g.models):
+            out[path] = {"decision": "model", "texture_set": g.name, "outputs": len(mm.channels),
+                         "folded": [f.to_dict() for f in mm.folded],
+                         "density": mm.density.to_dict() if mm.density else None, **job,
+                         "estimated_bytes": job["estimated_bytes"] if path == g.materials[0] else 0}
+    for path, mm in grouping.constant.items():
+        out[path] = {"decision": "constant", "texture_set": None, "outputs": 0,
+                     "folded": [f.to_dict() for f in mm.folded],
+                     "density": mm.density.to_dict() if mm.density else None, "resolution": 0, "profile": None,
+                     "capped": False, "texel_density_reached": None, "estimated_bytes": 0}
+    plain = replace(options, texel_density=None)
+    every = sum(_job(g.model, g.models, plain)["estimated_bytes"] for g in everything.groups)
+    return {"materials": out, "totals": {
+        "texture_sets": len(grouping.groups), "constant_materials": len(grouping.constant),
+        "estimated_bytes": total, "everything_texture_sets": len(everything.groups),
+        "everything_estimated_bytes": every}}
