@@ -40,9 +40,9 @@ def test_train_and_build_take_the_same_training_options():
     only_train = set(train) - set(TRAINING_OPTION_NAMES)
     only_build = set(build) - set(TRAINING_OPTION_NAMES)
     assert only_train == {"output", "resolution", "wrap", "force", "as_json"}
-    # --texel-density resamples from the scene's meshes: train's --resolution is its counterpart
+    # --texel-density and --no-coverage read the scene's meshes (train's --resolution is the first's counterpart)
     assert only_build == {"out", "variants", "all_materials", "jobs", "as_json", "force", "run_verify_after",
-                          "cache_dir", "no_cache", "depfile", "depfile_target", "texel_density"}
+                          "cache_dir", "no_cache", "depfile", "depfile_target", "texel_density", "no_coverage"}
 
 
 def _scenes(root):

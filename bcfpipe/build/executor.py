@@ -154,29 +154,22 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
             local = {path: local_file(path, tmp) for _, path, _ in mj.specs}
             ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
-                                  resolution=capped_size(mj), fix_nonfinite=mj.options.fix_nonfinite)
+                                  resolution=mj.size if mj.options.resolution else None,
+                                  fix_nonfinite=mj.options.fix_nonfinite)
         o = mj.options
         prof, cfg = make_config(ts, profile=o.profile, preset=o.preset, device=device, seed=o.seed, hidden=o.hidden,
                                 signed=o.signed, wrap=mj.wrap, threads=max(1, threads), init=o.init)
-        res, _ = fit_material(ts, out_dir, cfg, prof, progress)
+        mask = None
+        if mj.coverage is not None:
+            from bcfpipe.scan.coverage import unpack
+
+            mask = unpack(mj.coverage, ts.width, ts.height)
+        res, _ = fit_material(ts, out_dir, cfg, prof, progress, coverage=mask)
         d = res.to_dict()
         d.pop("out", None)
         return JobResult(mj.name, "built", None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
-
-
-def capped_size(mj: MaterialJob) -> tuple[int, int] | None:
-    """(width, height) of a job whose texture set a texel density caps (its larger side becomes
-    ``options.resolution``, the aspect kept), None to keep the sources' common size."""
-    from bcfpipe.texset.texture_set import common_resolution
-
-    res = mj.options.resolution
-    if res is None:
-        return None
-    w, h = common_resolution((s.width, s.height) for s in mj.sources)
-    f = res / max(w, h)
-    return max(1, int(w * f)), max(1, int(h * f))
 
 
 def _drain(queue, progress: ProgressCallback | None) -> None:

@@ -60,9 +60,16 @@ class MaterialJob:
     wrap: str
     options: Options
     content_hash: str
+    coverage: str | None = None  # packed level-0 mask at the job's size (bcfpipe.scan.coverage); None: all read
+    covered_fraction: float | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) the texture set trains at: the sources' common size, or the density cap's."""
+        return job_size(self.sources, self.options.resolution)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "MaterialJob":
@@ -135,7 +142,45 @@ class BuildPlan:
         return d
 
 
-def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options) -> str:
+def job_size(sources: Iterable[SourceFile], resolution: int | None) -> tuple[int, int]:
+    """(width, height) of a texture set: its sources' common size, or, under a density cap, that
+    size scaled so that its larger side is ``resolution``."""
+    from bcfpipe.texset.texture_set import common_resolution
+
+    sizes = [(s.width, s.height) for s in sources]
+    if not sizes or any(w < 1 or h < 1 for w, h in sizes):  # an unreadable header: training will say why
+        return 0, 0
+    w, h = common_resolution(sizes)
+    if resolution is None:
+        return w, h
+    f = resolution / max(w, h)
+    return max(1, int(w * f)), max(1, int(h * f))
+
+
+def job_coverage(models, size: tuple[int, int], wrap: str) -> tuple[str | None, float | None, str | None]:
+    """(packed mask, covered fraction, digest) of the texels the members' meshes read, or Nones when
+    a member has no uv triangles to rasterise or every texel is read."""
+    import numpy as np
+
+    from bcfpipe.scan import coverage as cov
+
+    w, h = size
+    if w < 1 or h < 1:
+        return None, None, None
+    mask = np.zeros((h, w), bool)
+    for mm in models:
+        meshes = mm.density.meshes if mm.density is not None else ()
+        if not meshes or mm.density.notes:
+            return None, None, None
+        for m in meshes:
+            mask |= cov.rasterize(m.uv_triangles, w, h, wrap)
+    if mask.all():
+        return None, None, None
+    return cov.pack(mask), float(cov.mask_mips(mask, 1, wrap)[0].mean()), cov.digest(mask)
+
+
+def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options,
+                 coverage_digest: str | None = None) -> str:
     """The job's cache key: everything that changes the trained files and nothing else.
 
     In it: the bytes of each source file (its XXH3-128) with the semantic and channels read from
@@ -162,6 +207,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         payload["fix_nonfinite"] = True
     if options.resolution is not None:  # a density cap; the density itself changes nothing else
         payload["resolution"] = options.resolution
+    if coverage_digest is not None:  # texels no mesh reads weigh nothing in training
+        payload["coverage"] = coverage_digest
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
 
 
@@ -192,11 +239,12 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
          all_materials: bool = False, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
          seed: int = DEFAULT_SEED, device: str = DEFAULT_DEVICE, hidden: int = DEFAULT_HIDDEN,
          signed: bool = False, init: str = DEFAULT_INIT, fix_nonfinite: bool = False,
-         texel_density: float | None = None) -> BuildPlan:
+         texel_density: float | None = None, coverage: bool = True) -> BuildPlan:
     """Scan ``scene`` and list what to train. Reads the source textures (to hash them) but writes
     nothing. ``texel_density`` (px/m) caps each job's resolution at the smallest power of two that
-    meets it on every member's most demanding mesh (never above the source). Raises `BuildError`
-    for an unreadable stage or bad options."""
+    meets it on every member's most demanding mesh (never above the source). ``coverage``: train
+    on the texels the bound meshes read (bcfpipe.scan.coverage). Raises `BuildError` for an
+    unreadable stage or bad options."""
     if profile not in PROFILE_NAMES:
         raise BuildError(f"unknown profile {profile!r}; choose from {', '.join(PROFILE_NAMES)}")
     if preset not in PRESETS:
@@ -207,7 +255,8 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         raise BuildError(f"--texel-density must be a positive number of px/m, got {texel_density}")
     options = Options(profile=profile, preset=preset, seed=int(seed), device=_resolve_device_name(device),
                       hidden=int(hidden), signed=bool(signed), init=init, fix_nonfinite=bool(fix_nonfinite),
-                      texel_density=float(texel_density) if texel_density is not None else None)
+                      texel_density=float(texel_density) if texel_density is not None else None,
+                      coverage=bool(coverage))
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 
@@ -224,10 +273,15 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         sources = {p: s for mm in g.models for p, s in mm.sources.items()}
         rep_sources = {p: sources[p] for p in dict.fromkeys(path for _, path, _ in rep.specs)}
         job_options = density_options(options, g.models)
+        packed = fraction = cov_digest = None
+        if options.coverage:
+            packed, fraction, cov_digest = job_coverage(g.models, job_size(rep_sources.values(),
+                                                                          job_options.resolution), rep.wrap)
         jobs.append(MaterialJob(
             name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
             sources=tuple(rep_sources.values()), wrap=rep.wrap, options=job_options,
-            content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options),
+            content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options, cov_digest),
+            coverage=packed, covered_fraction=fraction,
         ))
     job_by_name = {j.name: j for j in jobs}
 

@@ -152,11 +152,12 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
           init: str = DEFAULT_INIT, fix_nonfinite: bool = False, force: bool = False, progress: ProgressCallback | None = None,
           executor: cf.Executor | None = None, threads: int | None = None,
           cache: str | os.PathLike | bool | None = None, depfile: str | os.PathLike | None = None,
-          depfile_target: str | None = None, texel_density: float | None = None) -> BuildResult:
+          depfile_target: str | None = None, texel_density: float | None = None,
+          coverage: bool = True) -> BuildResult:
     """Build neural materials for ``scene`` into ``out`` (default ``<scene>.bcf/`` next to it); the
     Python twin of ``bcfpipe build``.
 
-    ``variants``: {set: value} or ["set=value", ...]. ``texel_density``: px/m (see `plan`). ``jobs``: worker processes (default: one per
+    ``variants``: {set: value} or ["set=value", ...]. ``texel_density``: px/m, ``coverage`` (see `plan`). ``jobs``: worker processes (default: one per
     core, or per GPU, at most one per job). ``threads``: torch threads per worker (default
     ``config.DEFAULT_THREADS``, 1). ``cache``: a cache folder, True/None for the default one
     (``BCFPIPE_CACHE`` or the user cache), False for none. ``depfile``: write the files the result
@@ -179,7 +180,7 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     if cache is not False:
         store = Cache(default_root() if cache in (None, True) else cache)
     bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init,
-                 fix_nonfinite, texel_density)
+                 fix_nonfinite, texel_density, coverage)
     check_out(out_path, force, [bplan.scene, *bplan.sources])
     # staging lives inside OUT (nothing is written outside OUT and the cache) and on its filesystem,
     # so that installing a file is one rename

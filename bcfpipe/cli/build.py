@@ -158,6 +158,9 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
               help="Materials trained in parallel [default: one per core, or per GPU].")
 @texel_density_option
+@click.option("--no-coverage", is_flag=True,
+              help="Train on every texel, not only on those the bound meshes' uvs cover (the default; "
+                   "see docs/build.md).")
 @click.option("--cache", "cache_dir", type=click.Path(path_type=Path, file_okay=False),
               help="Cache of trained materials [default: $BCFPIPE_CACHE, else the user cache folder].")
 @click.option("--no-cache", is_flag=True, help="Neither read nor write the cache: train every texture set.")
@@ -174,7 +177,7 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
 @click.pass_context
 def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str, str], all_materials: bool,
           profile: str, preset: str, hidden: int, signed: bool, init: str, fix_nonfinite: bool, seed: int,
-          device: str, threads: int, texel_density: float | None,
+          device: str, threads: int, texel_density: float | None, no_coverage: bool,
           jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
           depfile_target: str | None, as_json: bool, force: bool, run_verify_after: bool) -> None:
     """Build neural materials for SCENE's textured UsdPreviewSurface materials.
@@ -194,7 +197,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
         raise click.UsageError("--cache and --no-cache contradict each other")
     options = dict(variants=variants, all_materials=all_materials, profile=profile, preset=preset, hidden=hidden,
                    signed=signed, init=init, fix_nonfinite=fix_nonfinite, jobs=jobs, threads=threads, device=device,
-                   seed=seed, force=force, texel_density=texel_density,
+                   seed=seed, force=force, texel_density=texel_density, coverage=not no_coverage,
                    cache=False if no_cache else cache_dir, depfile=depfile, depfile_target=depfile_target)
     if display is None:
         result = run_build(scene, out, **options)

@@ -70,6 +70,9 @@ def _need_text(req: dict | None) -> Text:
         text.append(f"\n{note}" if text.plain else note, style="yellow")
     if req["decision"] == "model":
         cap = f" capped: {req['texel_density_reached']:.0f} px/m" if req["capped"] else ""
+        if req.get("covered_fraction") is not None:
+            text.append(f"\n{100 * req['covered_fraction']:.0f}% of texels read" if text.plain else
+                        f"{100 * req['covered_fraction']:.0f}% of texels read", style="dim")
         line = (f"{req['resolution']}²{cap}, {req['profile']}, ~{req['estimated_bytes'] / 2**20:.2f} MiB"
                 if req["estimated_bytes"] else f"{req['resolution']}²{cap}, {req['profile']}, shared")
         text.append(f"\n{line}" if text.plain else line, style="dim")

@@ -89,6 +89,9 @@ class Quality(Record):
     flip: float | None
     flip_per_group: dict[str, float]
     mips_in_mean: int
+    covered_fraction: float | None = optional()
+    psnr_covered: float | None = optional()
+    psnr_per_mip_covered: tuple[float, ...] | None = optional()
 
 
 @dataclass(frozen=True)
@@ -196,6 +199,7 @@ class Options(Record):
     fix_nonfinite: bool = False
     texel_density: float | None = optional()  # --texel-density, px/m
     resolution: int | None = optional()  # the texture set resampled to this larger side (a density cap)
+    coverage: bool = True  # training draws from the texels the bound meshes read
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ For a material read through the ``st`` primvar ``varname``, over the rendered me
 (preview purpose, GeomSubsets included, instance proxies each with their own transform):
 
 - world area A: the faces' area after the local-to-world transform, in m² (``metersPerUnit``²);
-- uv area a: the same faces' area in st space, after the texture's UsdTransform2d (|s_x s_y|);
+- uv area a: the same faces' area in st space, after the texture's UsdTransform2d;
 - density of a W x H source: sqrt(W H a / A) px/m. A 1024² texture over a 2 m x 1 m quad with
   uvs over [0, 1]² shows 1024 / sqrt(2) = 724 px/m.
 
@@ -22,13 +22,15 @@ import numpy as np
 __all__ = ["MeshDensity", "MaterialDensity", "mesh_areas", "material_density", "required_resolution"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MeshDensity:
-    """One bound mesh (or GeomSubset): its world and uv areas."""
+    """One bound mesh (or GeomSubset): its world and uv areas, and its uv triangles (T, 3, 2) in
+    st space after the texture's UsdTransform2d (for the coverage mask)."""
 
     mesh: str
     world_area_m2: float
     uv_area: float
+    uv_triangles: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -85,8 +87,17 @@ def _area2(q: np.ndarray, a, b, c) -> np.ndarray:
     return 0.5 * np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
 
 
+def _transform2d(st: np.ndarray, xf) -> np.ndarray:
+    """UsdTransform2d: scale, then rotate (degrees, counter-clockwise), then translate."""
+    if xf is None:
+        return st
+    r = math.radians(xf.rotation)
+    rot = np.array([[math.cos(r), math.sin(r)], [-math.sin(r), math.cos(r)]])
+    return (st * np.asarray(xf.scale)) @ rot + np.asarray(xf.translation)
+
+
 def mesh_areas(prim, varname: str, faces: np.ndarray | None, meters_per_unit: float,
-               uv_scale: tuple[float, float] = (1.0, 1.0)) -> tuple[MeshDensity | None, str | None]:
+               transform=None) -> tuple[MeshDensity | None, str | None]:
     """(areas, None) of a mesh prim's faces (all, or the GeomSubset's ``faces``), or (None, note)."""
     from pxr import Usd, UsdGeom
 
@@ -121,18 +132,20 @@ def mesh_areas(prim, varname: str, faces: np.ndarray | None, meters_per_unit: fl
     world = np.c_[points, np.ones(len(points))] @ xf
     world = world[:, :3] / world[:, 3:4] * meters_per_unit
     area = float(_area3(world, fvi[a], fvi[b], fvi[c]).sum())
-    uv = float(_area2(st, uv_a, uv_b, uv_c).sum()) * abs(uv_scale[0] * uv_scale[1])
+    st = _transform2d(st, transform)
+    uv = float(_area2(st, uv_a, uv_b, uv_c).sum())
     if area <= 0 or uv <= 0:
         return None, f"{path}: zero {'world' if area <= 0 else 'uv'} area, no texel density"
-    return MeshDensity(path, area, uv), None
+    return MeshDensity(path, area, uv, np.stack([st[uv_a], st[uv_b], st[uv_c]], 1)), None
 
 
 def material_density(bindings: list[tuple[object, np.ndarray | None]], varname: str, meters_per_unit: float,
-                     source_size: tuple[int, int], uv_scale: tuple[float, float] = (1.0, 1.0)) -> MaterialDensity:
-    """Density of one material over its bound (prim, faces) pairs."""
+                     source_size: tuple[int, int], transform=None) -> MaterialDensity:
+    """Density of one material over its bound (prim, faces) pairs (``transform``: the texture's
+    UsdTransform2d, or None)."""
     meshes, notes = [], []
     for prim, faces in bindings:
-        m, note = mesh_areas(prim, varname, faces, meters_per_unit, uv_scale)
+        m, note = mesh_areas(prim, varname, faces, meters_per_unit, transform)
         if m is not None:
             meshes.append(m)
         if note:

@@ -32,8 +32,17 @@ def _job(mm: MaterialModel, members, options: Options) -> dict:
     n_out = len(decoder_index(mm.channels)[0]) if mm.channels else 0
     lows = [m.density.lowest_density for m in members if m.density and m.density.lowest_density]
     reached = min(lows) * side / size if lows and size else None
+    covered = None
+    if side:
+        from bcfpipe.build.plan import job_coverage
+
+        f = side / size
+        w, h = mm.source_size
+        _, covered, _ = job_coverage(members, (max(1, int(w * f)), max(1, int(h * f))), mm.wrap)
+        covered = 1.0 if covered is None and all(m.density and m.density.meshes and not m.density.notes
+                                                 for m in members) else covered
     return {"resolution": side, "profile": profile, "capped": o.resolution is not None,
-            "texel_density_reached": reached,
+            "texel_density_reached": reached, "covered_fraction": covered,
             "estimated_bytes": estimated_bytes(res, n_out, o.hidden) if res and n_out else 0}
 
 
@@ -57,7 +66,8 @@ def requirements(grouping: Grouping, everything: Grouping, profile: str = DEFAUL
         out[path] = {"decision": "constant", "texture_set": None, "outputs": 0,
                      "folded": [f.to_dict() for f in mm.folded],
                      "density": mm.density.to_dict() if mm.density else None, "resolution": 0, "profile": None,
-                     "capped": False, "texel_density_reached": None, "estimated_bytes": 0}
+                     "capped": False, "texel_density_reached": None, "covered_fraction": None,
+                     "estimated_bytes": 0}
     plain = replace(options, texel_density=None)
     every = sum(_job(g.model, g.models, plain)["estimated_bytes"] for g in everything.groups)
     return {"materials": out, "totals": {

@@ -270,8 +270,7 @@ def _density(ms: MaterialScan, bindings, meters_per_unit: float) -> MaterialDens
     st = tex.st if tex is not None else None
     if st is None or st.kind not in ("primvar", "transform2d") or not st.varname:
         return MaterialDensity(notes=("st is not read from a primvar: no texel density",))
-    scale = st.transform.scale if st.transform else (1.0, 1.0)
-    return material_density(bindings, st.varname, meters_per_unit, (0, 0), tuple(scale))
+    return material_density(bindings, st.varname, meters_per_unit, (0, 0), st.transform)
 
 
 def scan_stage(

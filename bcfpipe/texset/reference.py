@@ -178,8 +178,12 @@ class CentreTargets:
     precomputed: there a batch covers the level densely and continuous uv stay cheap.
     """
 
-    def __init__(self, pyr: ReferencePyramid, wrap: str, min_texels: int, chunk: int = 1 << 18):
+    def __init__(self, pyr: ReferencePyramid, wrap: str, min_texels: int, chunk: int = 1 << 18,
+                 covered: Sequence[np.ndarray] | None = None):
         self.pyr, self.wrap, self.min_texels = pyr, wrap, min_texels
+        # with a coverage mask chain (bcfpipe.scan.coverage), steps draw only texels the scene reads
+        self.allowed = ([torch.as_tensor(np.flatnonzero(m), device=pyr.mips[0].device) for m in covered]
+                        if covered is not None else None)
         self.up: list[torch.Tensor | None] = []
         for k, m in enumerate(pyr.mips):
             c, h, w = m.shape
@@ -205,7 +209,9 @@ class CentreTargets:
         m, up = self.pyr.mips[l0], self.up[l0]
         c, h, w = m.shape
         gdev = gen.device if gen is not None else torch.device("cpu")
-        ids = torch.randint(0, h * w, (n,), generator=gen, device=gdev).to(m.device)
+        allowed = self.allowed[l0] if self.allowed is not None and len(self.allowed[l0]) else None
+        ids = torch.randint(0, h * w if allowed is None else len(allowed), (n,), generator=gen, device=gdev)
+        ids = ids.to(m.device) if allowed is None else allowed[ids.to(m.device)]
         target = m.reshape(c, -1).index_select(1, ids)
         if t > 0.0:
             target = torch.lerp(target, up.reshape(c, -1).index_select(1, ids), t)

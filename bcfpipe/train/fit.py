@@ -6,6 +6,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE, DEFAULT_SEED, FEATURE_INITS, ModelConfig, PRESETS, TrainConfig, resolve_profile)
@@ -67,9 +69,11 @@ def exported_size(out_dir: Path) -> int:
 
 
 def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
-                 progress: ProgressFn | None = None) -> tuple[MaterialResult, TrainedMaterial]:
-    """Train on ``ts``, export to ``out_dir``, then evaluate the exported files."""
-    tm = train(ts, cfg, progress)
+                 progress: ProgressFn | None = None,
+                 coverage: np.ndarray | None = None) -> tuple[MaterialResult, TrainedMaterial]:
+    """Train on ``ts``, export to ``out_dir``, then evaluate the exported files (over every texel,
+    and with a ``coverage`` mask also over the covered ones)."""
+    tm = train(ts, cfg, progress, coverage=coverage)
     out = E.export(tm, out_dir)
     t0 = time.perf_counter()
     ref = build_mip_chain(ts.data)
@@ -77,7 +81,12 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
     tm.float_mips = []  # measured: free them before the exported mips are decoded (an 8K set's are 2.7 GiB)
     em = E.load(out)
     dec = E.decode_mips(em, [m.shape[:2] for m in ref])
-    metrics = compute_metrics(ref, dec, ts.channels)
+    masks = None
+    if coverage is not None:
+        from bcfpipe.scan.coverage import mask_mips
+
+        masks = mask_mips(coverage, len(ref), cfg.model.wrap)
+    metrics = compute_metrics(ref, dec, ts.channels, masks=masks)
     del dec
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)
     res = MaterialResult(out, profile, cfg.model.resolutions, cfg.preset_name, cfg.device, metrics, float_metrics,

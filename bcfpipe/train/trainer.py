@@ -173,8 +173,10 @@ def evaluate_levels(level_fn: M.LevelFn, mlp: dict[str, torch.Tensor], mc, kinds
 
 
 def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
-          report_every: int = 50, keep_float_mips: bool = True) -> TrainedMaterial:
-    """Train one neural material on ``ts`` (see module docstring)."""
+          report_every: int = 50, keep_float_mips: bool = True, coverage: np.ndarray | None = None) -> TrainedMaterial:
+    """Train one neural material on ``ts`` (see module docstring). ``coverage``: a (H, W) bool mask of
+    the texels the scene reads (bcfpipe.scan.coverage); steps then draw their samples there only,
+    which weights the loss by the mask."""
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)
@@ -197,18 +199,33 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     taps = cfg.tap_decode
     next_s = StratifiedScale(s_max, gen, power=preset.lod_power)
     t0 = time.perf_counter()
-    centres = CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch) if preset.centre_targets else None
+    masks = None
+    if coverage is not None:
+        from bcfpipe.scan.coverage import mask_mips
+
+        masks = mask_mips(coverage, ref.num_levels, mc.wrap)
+    centres = (CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch, covered=masks)
+               if preset.centre_targets else None)
+    mask_levels = [torch.as_tensor(m, device=device) for m in masks] if masks is not None else None
     if centres is not None:
         seconds["targets"] = time.perf_counter() - t0  # part of the training time, not hidden before it
 
-    def batch_at(s: float) -> tuple[torch.Tensor, torch.Tensor]:
-        """uv and targets of one step at scale s: at precomputed texel centres where the
-        reference mip is large, else continuous uv with the bicubic lookup."""
+    def batch_at(s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """uv, targets and per-sample loss weights (None: all 1) of one step at scale s: at
+        precomputed texel centres where the reference mip is large (covered ones only), else
+        continuous uv with the bicubic lookup, weighted by the coverage of mip floor(s)."""
         if centres is not None and centres.covers(s):
             uv, target = centres.batch(preset.batch, s, gen)
-            return uv.to(device), target
+            return uv.to(device), target, None
         uv, _ = random_batch(preset.batch, gen, device, s_max)
-        return uv, sample_reference(ref, uv, s, mc.wrap)
+        w = None
+        if mask_levels is not None:
+            m = mask_levels[min(int(s), len(mask_levels) - 1)]
+            h, wd = m.shape
+            x = torch.remainder(torch.floor(uv[:, 0] * wd), wd).long()
+            y = torch.remainder(torch.floor(uv[:, 1] * h), h).long()
+            w = m[y, x].to(uv.dtype)
+        return uv, sample_reference(ref, uv, s, mc.wrap), w
 
     def run_phase(name, level_fn, feature_params, sched, project=None, tap_fn=None, on_step=None):
         t0 = time.perf_counter()
@@ -218,10 +235,13 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
             if on_step is not None:
                 on_step(step)
             s = next_s()
-            uv, target = batch_at(s)
+            uv, target, weight = batch_at(s)
             samples[name] = samples.get(name, 0) + uv.shape[0]
             pred = M.forward(level_fn, mlp, mc, biases, uv, s, tap_fn if taps else None)
-            loss = torch.mean((pred - target) ** 2)
+            if weight is None:
+                loss = torch.mean((pred - target) ** 2)
+            else:
+                loss = torch.mean(weight[:, None] * (pred - target) ** 2) / weight.mean().clamp_min(1e-6)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

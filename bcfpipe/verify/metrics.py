@@ -15,6 +15,9 @@ PSNR (all values in dB, +inf for a perfect match):
   mean (all mips are used when none is that large).
 * ``psnr_per_mip[k]`` = 10 log10(1 / MSE_k) for every mip; ``psnr_per_group[semantic]`` is the
   headline formula restricted to that semantic's channels.
+* With a coverage mask (the texels the scene's meshes read, bcfpipe.scan.coverage),
+  ``psnr_covered`` and ``psnr_per_mip_covered`` are the same formulas over covered texels only, and
+  ``covered_fraction`` is mip 0's covered share.
 
 SSIM: skimage ``structural_similarity`` per channel group at mip 0 (Wang et al. settings: 11-tap
 Gaussian window, sigma 1.5, population covariance; data_range = the group's peak); ``ssim`` is the
@@ -62,19 +65,26 @@ def _check(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray], chann
 
 
 def mse_per_mip(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
-                channels: Sequence[Channel], select: Sequence[int] | None = None) -> list[float]:
-    """Peak-normalised MSE of each mip over the channels in `select` (default all)."""
+                channels: Sequence[Channel], select: Sequence[int] | None = None,
+                masks: Sequence[np.ndarray] | None = None) -> list[float]:
+    """Peak-normalised MSE of each mip over the channels in `select` (default all), and with
+    ``masks`` ((H_k, W_k) bool per mip) over the texels they cover only."""
     sel = list(range(len(channels))) if select is None else list(select)
     inv_peak2 = np.array([1.0 / channels[i].peak ** 2 for i in sel])
     out = []
-    for r, d in zip(ref_mips, dec_mips):
+    for k, (r, d) in enumerate(zip(ref_mips, dec_mips)):
         r, d = np.asarray(r), np.asarray(d)
         rows = max(1, BAND_VALUES // max(1, r.shape[1] * len(sel)))  # float64 temporaries stay small at 8K
-        total = 0.0
+        total, count = 0.0, 0
         for y in range(0, r.shape[0], rows):
             diff = d[y:y + rows, :, sel].astype(np.float64) - r[y:y + rows, :, sel]
-            total += float(np.sum(diff * diff * inv_peak2))
-        out.append(total / (r.shape[0] * r.shape[1] * len(sel)))
+            err = diff * diff * inv_peak2
+            if masks is not None:
+                keep = masks[k][y:y + rows]
+                err, count = err[keep], count + int(keep.sum())
+            total += float(np.sum(err))
+        n = (r.shape[0] * r.shape[1] if masks is None else count) * len(sel)
+        out.append(total / n if n else 0.0)
     return out
 
 
@@ -150,8 +160,9 @@ def flip_group(ref: np.ndarray, dec: np.ndarray) -> float:
 
 def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
                     channels: Sequence[Channel], *, min_size: int = 4,
-                    ssim: bool = True, flip: bool = True) -> Metrics:
-    """PSNR (headline, per mip, per group), SSIM and FLIP of decoded mips against the reference."""
+                    ssim: bool = True, flip: bool = True, masks: Sequence[np.ndarray] | None = None) -> Metrics:
+    """PSNR (headline, per mip, per group), SSIM and FLIP of decoded mips against the reference;
+    with coverage ``masks`` (one (H_k, W_k) bool per mip) also the PSNR over covered texels."""
     channels = tuple(channels)
     _check(ref_mips, dec_mips, channels)
     use = [k for k, m in enumerate(ref_mips) if min(m.shape[:2]) >= min_size] or list(range(len(ref_mips)))
@@ -184,4 +195,12 @@ def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
         flip=float(np.mean(list(flip_per_group.values()))) if flip_per_group else None,
         flip_per_group=flip_per_group,
         mips_in_mean=len(use),
+        **(_covered(ref_mips, dec_mips, channels, masks, use) if masks is not None else {}),
     )
+
+
+def _covered(ref_mips, dec_mips, channels, masks, use) -> dict:
+    """PSNR over the texels the scene reads: headline and per mip, and mip 0's covered fraction."""
+    mses = mse_per_mip(ref_mips, dec_mips, channels, masks=masks)
+    return {"covered_fraction": float(np.asarray(masks[0]).mean()), "psnr_covered": _mean_psnr(mses, use),
+            "psnr_per_mip_covered": tuple(psnr_from_mse(m) for m in mses)}

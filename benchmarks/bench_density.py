@@ -1,0 +1,68 @@
+"""Teapot (Fancy) built with and without --texel-density (issue #18): size, wall time, PSNR per mip.
+
+    .venv/bin/python benchmarks/bench_density.py [--density 512] [--preset draft] [--repeat 1]
+
+Each build is cold (a fresh cache) in a temporary copy of the scene; the runs alternate
+(default, capped, default, capped, ...). Prints the machine, every run, and Markdown rows.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import SHARED, machine  # noqa: E402
+
+
+def run(scene: Path, out: Path, cache: Path, preset: str, density: float | None) -> tuple[float, dict, dict]:
+    args = [sys.executable, "-m", "bcfpipe", "-q", "build", str(scene), "--variant", "modelVariant=Fancy",
+            "-o", str(out), "--cache", str(cache), "--quality", preset, "--json"]
+    if density:
+        args += ["--texel-density", str(density)]
+    t0 = time.perf_counter()
+    p = subprocess.run(args, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise SystemExit(f"build failed ({p.returncode}): {p.stderr.strip()[-2000:]}")
+    manifest = json.loads((out / "manifest.json").read_text())
+    return wall, json.loads(p.stdout), manifest
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--density", type=float, default=512.0)
+    ap.add_argument("--preset", default="draft")
+    ap.add_argument("--repeat", type=int, default=1)
+    a = ap.parse_args()
+    print(f"machine: {machine()}")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bcfdensity-") as tmp:
+        src = Path(tmp) / "teapot"
+        shutil.copytree(SHARED / "usdwg_teapot", src)
+        for r in range(a.repeat):
+            for density in (None, a.density):
+                tag = f"{r}-{density or 'default'}"
+                wall, report, manifest = run(src / "Teapot.usd", Path(tmp) / f"out-{tag}", Path(tmp) / f"cache-{tag}",
+                                             a.preset, density)
+                (m,) = [x for x in manifest["materials"] if x["status"] == "built"]
+                q = m["metrics"]["detail"]
+                row = (density, m["profile"], m["resolutions"], manifest["totals"]["total_bytes"], wall,
+                       report["totals"]["train_seconds"], q["psnr"], q["psnr_per_mip"])
+                rows.append(row)
+                print(f"run {tag}: profile {row[1]} {row[2]}, {row[3] / 2**20:.2f} MiB, wall {wall:.0f} s, "
+                      f"train {row[5]:.0f} s, PSNR {row[6]:.2f} dB, per mip "
+                      + ", ".join(f"{v:.1f}" for v in row[7]))
+    print("| --texel-density | profile | resolutions | size | wall | train | PSNR (all mips, its own reference) |")
+    print("|---|---|---|---:|---:|---:|---:|")
+    for d, prof, res, size, wall, train, psnr, _ in rows:
+        print(f"| {d or '—'} | {prof} | {res} | {size / 2**20:.2f} MiB | {wall:.0f} s | {train:.0f} s | {psnr:.2f} dB |")
+
+
+if __name__ == "__main__":
+    main()
