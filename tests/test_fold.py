@@ -159,3 +159,28 @@ def test_srgb_decode_is_the_standard_curve():
     assert srgb_to_linear(0.0) == 0.0 and srgb_to_linear(1.0) == pytest.approx(1.0)
     assert srgb_to_linear(0.04045) == pytest.approx(0.04045 / 12.92)
     assert srgb_to_linear(0.5) == pytest.approx(0.21404, abs=1e-5)
+
+
+def test_a_constant_component_of_a_modelled_input_is_a_channel_minus_one_target(tmp_path):
+    """diffuseColor from a texture whose red channel is flat: g and b are decoder outputs, r is a
+    target with channel -1 whose value is its bias, in the plan and in the USD layer."""
+    from bcfpipe.build.usd_layer import read_override
+
+    a = pattern(c=3, seed=0)
+    a[..., 0] = 0.4
+    write_png(tmp_path / "tex" / "a.png", a)
+    stage = new_stage(tmp_path / "scene.usda")
+    add_material(stage, "/World/Looks/A", {"diffuseColor": ("./tex/a.png", "rgb", {})}, mesh="/World/Mesh")
+    stage.Save()
+    p = plan(tmp_path / "scene.usda", **FAST)
+    (m,) = p.materials
+    t = {x.target: x for x in m.targets}
+    assert t["diffuseColor.r"].channel == -1 and t["diffuseColor.r"].scale == 0.0
+    assert t["diffuseColor.r"].bias == pytest.approx(srgb_to_linear(round(0.4 * 255) / 255))
+    assert (t["diffuseColor.g"].channel, t["diffuseColor.b"].channel) == (0, 1) and not m.constants
+    res = build(tmp_path / "scene.usda", out=tmp_path / "out", jobs=1, **FAST)
+    built = Usd.Stage.Open(str(res.root_layer))
+    ov = read_override(built.GetPrimAtPath("/World/Looks/A"))
+    i = list(ov["bcf:outputs:targets"]).index("diffuseColor.r")
+    assert ov["bcf:outputs:channels"][i] == -1 and ov["bcf:outputs:scale"][i] == 0.0
+    assert ov["bcf:outputs:bias"][i] == pytest.approx(t["diffuseColor.r"].bias)

@@ -20,6 +20,15 @@ def material_files(m: mfst.Material, manifest: mfst.Manifest, files: Sequence[st
     return (*own, manifest.weights, manifest.overrides_layer, manifest.root_layer)
 
 
+def headline_psnr(m: mfst.Material) -> float | None:
+    """The PSNR a user reads: over the texels the scene reads when a coverage mask applied, else
+    over every texel."""
+    q = m.metrics.detail if m.metrics else None
+    if q is not None and q.psnr_covered is not None:
+        return q.psnr_covered
+    return m.metrics.psnr if m.metrics else None
+
+
 def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResult], files: Sequence[str],
                 written: Sequence[str], cache_root: str | None, damaged: Sequence[str], wall_seconds: float,
                 depfile: str | None) -> rep.BuildReport:
@@ -31,7 +40,7 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
         mats.append(rep.MaterialReport(
             path=m.path, status=m.status, reason=m.reason, job=m.job,
             cache=r.cache if r is not None and m.status == "built" else None,
-            psnr=m.metrics.psnr if m.metrics else None, psnr_per_mip=q.psnr_per_mip if q else None,
+            psnr=headline_psnr(m), psnr_per_mip=(q.psnr_per_mip_covered or q.psnr_per_mip) if q else None,
             train_seconds=round(train, 3) if train is not None else None,
             seconds=round(r.seconds, 3) if r is not None else None,
             total_bytes=m.sizes.total_bytes if m.sizes else None,

@@ -121,6 +121,8 @@ class BuildDisplay:
 
 def summary_table(manifest: Manifest, report: BuildReport) -> Table:
     """The end-of-run table: one row per material, then totals."""
+    from bcfpipe.build.report import headline_psnr
+
     tot, rt = manifest.totals, report.totals
     cached = f", {rt.cached} from the cache" if rt.cached else ""
     wrote = f"; {rt.written_files} file(s) written" if rt.written_files else "; OUT unchanged"
@@ -140,7 +142,11 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
             kinds = [f.reason for f in m.folded]
             folded = ", ".join(f"{kinds.count(k)} {k}" for k in ("constant", "duplicate") if k in kinds)
             note = f"{note}; folded: {folded}" if note else f"folded: {folded}"
-        psnr = f"{m.metrics.psnr:.2f}" if m.metrics and m.metrics.psnr is not None else ""
+        head = headline_psnr(m)
+        psnr = f"{head:.2f}" if head is not None else ""
+        if m.metrics and m.metrics.detail and m.metrics.detail.covered_fraction is not None:
+            note = f"{note}; " if note else ""
+            note += f"PSNR over the {100 * m.metrics.detail.covered_fraction:.0f}% of texels read"
         size = _fmt_size(m.sizes.total_bytes) if m.sizes else ""
         train = "cached" if r.cache == "hit" else f"{r.train_seconds:.1f}s" if r.train_seconds else ""
         t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(len(m.targets or m.constants) or ""),

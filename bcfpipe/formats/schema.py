@@ -253,8 +253,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("MaterialReport", "job"): "Its job (folder under materials/); null when skipped.",
     ("MaterialReport", "cache"): "hit: its trained material came from the cache; miss: this run trained it; "
                                  "null: skipped, failed before training, or the cache is off.",
-    ("MaterialReport", "psnr"): "PSNR in dB of the exported files over the mips counted in the mean.",
-    ("MaterialReport", "psnr_per_mip"): "PSNR in dB of each mip, mip 0 first.",
+    ("MaterialReport", "psnr"): "PSNR in dB of the exported files over the mips counted in the mean; over the texels the scene reads when a coverage mask applied (manifest.json has both).",
+    ("MaterialReport", "psnr_per_mip"): "PSNR in dB of each mip, mip 0 first (over the texels read, as psnr).",
     ("MaterialReport", "train_seconds"): "Seconds its material trained (when it was trained, for a hit).",
     ("MaterialReport", "seconds"): "Wall seconds its job took in this run (0 for a hit found before any worker).",
     ("MaterialReport", "total_bytes"): "Bytes of its feature textures and weight record.",

@@ -246,7 +246,7 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
         if not fold:
             keys: list[ModelChannel | None] = list(raw)
         elif is_normal:
-            z = _content(src.path, "b", file_cache, warnings) if len(raw) == 2 else None
+            z = _content(src.path, "b", file_cache, warnings) if len(raw) == 2 and src.channels >= 3 else None
             if z is not None and all(c.constant for c in contents) and z.constant:
                 keys = [None, None]
                 constants.append(ConstantTarget("normal.z", inp.name,
