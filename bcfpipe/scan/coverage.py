@@ -22,41 +22,63 @@ import xxhash
 __all__ = ["rasterize", "mask_mips", "pack", "unpack", "digest"]
 
 
-def _edge(ax, ay, bx, by, px, py):
-    return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+def _spans(x: np.ndarray, y: np.ndarray, rows: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For texel-centre row ``rows[i]`` of triangle ``tri[i]``: the [lo, hi] x-range of the triangle
+    on that row (lo > hi where the row misses it). Horizontal edges count with both ends."""
+    lo = np.full(len(rows), np.inf)
+    hi = np.full(len(rows), -np.inf)
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        ax, ay, bx, by = x[tri, a], y[tri, a], x[tri, b], y[tri, b]
+        hit = (np.minimum(ay, by) <= rows) & (rows <= np.maximum(ay, by))
+        flat = ay == by
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xi = np.where(flat, ax, ax + (rows - ay) * (bx - ax) / (by - ay))
+        lo = np.where(hit, np.minimum(lo, np.where(flat, np.minimum(ax, bx), xi)), lo)
+        hi = np.where(hit, np.maximum(hi, np.where(flat, np.maximum(ax, bx), xi)), hi)
+    return lo, hi
 
 
 def rasterize(tris: np.ndarray, width: int, height: int, wrap: str = "repeat") -> np.ndarray:
-    """(height, width) bool mask of texels covered by ``tris`` (T, 3, 2) in USD st coordinates."""
+    """(height, width) bool mask of texels covered by ``tris`` (T, 3, 2) in USD st coordinates: a
+    texel whose centre lies in (or on the edge of) a triangle, or in which a triangle's vertex lies.
+    Scanline fill: every (triangle, texel row) pair gives one span, accumulated per row."""
     mask = np.zeros((height, width), bool)
     if len(tris) == 0:
         return mask
-    x = tris[..., 0] * width - 0.5  # texel-centre space: centre of texel i is at i
-    y = (1.0 - tris[..., 1]) * height - 0.5
-    for (ax, bx, cx), (ay, by, cy) in zip(x, y):
-        x0, x1 = int(np.floor(min(ax, bx, cx))), int(np.ceil(max(ax, bx, cx)))
-        y0, y1 = int(np.floor(min(ay, by, cy))), int(np.ceil(max(ay, by, cy)))
-        if wrap != "repeat":
-            x0, x1, y0, y1 = max(x0, 0), min(x1, width - 1), max(y0, 0), min(y1, height - 1)
-            if x0 > x1 or y0 > y1:
-                continue
-        if (x1 - x0 + 1) * (y1 - y0 + 1) > 4 * width * height:  # wraps many times: everything
-            mask[:] = True
-            return mask
-        px, py = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1))
-        area = _edge(ax, ay, bx, by, cx, cy)
-        if area == 0:
-            inside = np.zeros(px.shape, bool)
-        else:
-            s = np.sign(area)
-            inside = ((s * _edge(ax, ay, bx, by, px, py) >= 0) & (s * _edge(bx, by, cx, cy, px, py) >= 0)
-                      & (s * _edge(cx, cy, ax, ay, px, py) >= 0))
-        for vx, vy in ((ax, ay), (bx, by), (cx, cy)):  # the texels the vertices fall in
-            inside |= (px == int(np.floor(vx + 0.5))) & (py == int(np.floor(vy + 0.5)))
-        if wrap == "repeat":
-            mask[np.mod(py[inside], height), np.mod(px[inside], width)] = True
-        else:
-            mask[py[inside], px[inside]] = True
+    x = tris[..., 0].astype(np.float64) * width - 0.5  # texel-centre space: the centre of texel i is at i
+    y = (1.0 - tris[..., 1].astype(np.float64)) * height - 0.5
+    y0, y1 = np.ceil(y.min(1)).astype(np.int64), np.floor(y.max(1)).astype(np.int64)
+    n_rows = np.maximum(y1 - y0 + 1, 0)
+    if (n_rows > 4 * height).any() or ((x.max(1) - x.min(1)) > 4 * width).any():  # wraps many times
+        mask[:] = True
+        return mask
+    tri = np.repeat(np.arange(len(tris)), n_rows)
+    rows = (y0[tri] + np.arange(len(tri)) - np.repeat(np.cumsum(n_rows) - n_rows, n_rows)).astype(np.int64)
+    lo, hi = _spans(x, y, rows.astype(np.float64), tri)
+    lo, hi = np.ceil(lo).astype(np.int64), np.floor(hi).astype(np.int64)
+    keep = lo <= hi
+    rows, lo, hi = rows[keep], lo[keep], hi[keep]
+    # the texels the vertices lie in: one-texel spans
+    vx, vy = np.floor(x + 0.5).astype(np.int64).ravel(), np.floor(y + 0.5).astype(np.int64).ravel()
+    rows, lo, hi = np.concatenate([rows, vy]), np.concatenate([lo, vx]), np.concatenate([hi, vx])
+    if wrap == "repeat":
+        full = hi - lo + 1 >= width
+        rows = np.mod(rows, height)
+        mask[rows[full]] = True
+        rows, lo, hi = rows[~full], lo[~full], hi[~full]
+        shift = np.floor_divide(lo, width) * width
+        lo, hi = lo - shift, hi - shift  # lo in [0, width); hi may run past the edge once
+        over = hi >= width
+        rows = np.concatenate([rows, rows[over]])
+        lo, hi = np.concatenate([lo, np.zeros(int(over.sum()), np.int64)]), np.concatenate(
+            [np.minimum(hi, width - 1), hi[over] - width])
+    else:
+        ok = (rows >= 0) & (rows < height) & (hi >= 0) & (lo < width)
+        rows, lo, hi = rows[ok], np.clip(lo[ok], 0, width - 1), np.clip(hi[ok], 0, width - 1)
+    diff = np.zeros((height, width + 1), np.int32)
+    np.add.at(diff, (rows, lo), 1)
+    np.add.at(diff, (rows, hi + 1), -1)
+    mask |= np.cumsum(diff[:, :width], axis=1) > 0
     return mask
 
 
