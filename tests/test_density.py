@@ -98,3 +98,23 @@ def test_teapot_density_is_1360_px_per_m(shared_scenes):
     assert mm.density.source_size == (2048, 2048)
     assert mm.density.density() == pytest.approx(1360, rel=0.02)
     assert np.isclose(mm.density.world_area_m2, 0.60, rtol=0.02) and np.isclose(mm.density.uv_area, 0.26, rtol=0.02)
+
+
+def test_plan_cli_json_names_every_job_with_its_capped_options(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from bcfpipe.cli import main
+
+    scene = quad_scene(tmp_path)
+    res = CliRunner().invoke(main, ["plan", str(scene), "--texel-density", "300", "--profile", "tiny",
+                                    "--quality", "draft", "--json"])
+    assert res.exit_code == 0, res.output
+    d = json.loads(res.stdout)
+    (job,) = d["jobs"]
+    assert job["options"]["resolution"] == 512 and job["options"]["texel_density"] == 300.0
+    assert len(job["content_hash"]) == 32 and "coverage" not in job and job["covered_fraction"] is None
+    assert all(len(s["xxh3_128"]) == 32 for s in job["sources"])
+    res = CliRunner().invoke(main, ["plan", str(tmp_path / "missing.usda")])
+    assert res.exit_code == 2 and "\n" not in res.output.strip()
