@@ -184,3 +184,23 @@ def test_a_constant_component_of_a_modelled_input_is_a_channel_minus_one_target(
     i = list(ov["bcf:outputs:targets"]).index("diffuseColor.r")
     assert ov["bcf:outputs:channels"][i] == -1 and ov["bcf:outputs:scale"][i] == 0.0
     assert ov["bcf:outputs:bias"][i] == pytest.approx(t["diffuseColor.r"].bias)
+
+
+def test_a_texture_read_at_one_point_folds_to_its_value_there(tmp_path):
+    """st not connected: UsdUVTexture reads its st default (0, 0) and the whole texture gives one
+    value, the bilinear value at that point (texel centres at (i + 0.5) / w, v = 1 - t, repeat)."""
+    a = pattern(c=3, seed=0)
+    write_png(tmp_path / "tex" / "a.png", a)
+    stage = new_stage(tmp_path / "scene.usda")
+    add_material(stage, "/World/Looks/A", {"roughness": ("./tex/a.png", "g", {})}, mesh="/World/Mesh")
+    tex = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/A/Tex_roughness"))
+    tex.GetInput("st").GetAttr().SetConnections([])
+    tex.GetInput("st").Set((0.0, 0.0))
+    stage.Save()
+    p = plan(tmp_path / "scene.usda", **FAST)
+    (m,) = p.materials
+    assert m.decision == "constant" and [f.reason for f in m.folded] == ["unread"]
+    g = np.round(np.clip(a[..., 1], 0, 1) * 255) / 255
+    corners = [g[0, 0], g[0, -1], g[-1, 0], g[-1, -1]]  # st (0, 0) is the corner of 4 texels (repeat)
+    # auto resolves to sRGB for an 8-bit RGB file (as in Hydra): the value is decoded
+    assert m.constants[0].value == pytest.approx(srgb_to_linear(float(np.mean(corners))), abs=1e-6)

@@ -140,7 +140,7 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
             note = f"shared: {m.job} x{len(m.shared_with) + 1}"
         if m.folded:
             kinds = [f.reason for f in m.folded]
-            folded = ", ".join(f"{kinds.count(k)} {k}" for k in ("constant", "duplicate") if k in kinds)
+            folded = ", ".join(f"{kinds.count(k)} {k}" for k in ("constant", "unread", "duplicate") if k in kinds)
             note = f"{note}; folded: {folded}" if note else f"folded: {folded}"
         head = headline_psnr(m)
         psnr = f"{head:.2f}" if head is not None else ""

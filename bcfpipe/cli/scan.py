@@ -35,7 +35,7 @@ def _texture_lines(material: MaterialScan, grouping: Grouping) -> Text:
         text.append(f"{inp.name} ← {name}:{tex.channel}", style=None if tex.ok else "red")
     mm = grouping.model_of(material.path)
     for f in mm.folded if mm else ():
-        what = f"= {f.value:.4g}" if f.reason == "constant" else f"= {Path(f.same_as.file).name}:{f.same_as.channel}"
+        what = f"= {Path(f.same_as.file).name}:{f.same_as.channel}" if f.same_as else f"= {f.value:.4g}"
         text.append(f"\nfolded {Path(f.file).name}:{f.channel} {f.reason} {what}", style="cyan")
     return text
 

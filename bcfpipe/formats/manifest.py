@@ -64,8 +64,9 @@ class Constant(Record):
 
 @dataclass(frozen=True)
 class Folded(Record):
-    """A source channel that is not a decoder output: ``constant`` (its stored ``value``) or
-    ``duplicate`` (its texels equal ``same_as_source``'s ``same_as_channel``)."""
+    """A source channel that is not a decoder output: ``constant`` (its stored ``value``), ``unread``
+    (read at one point, whose ``value`` replaces it) or ``duplicate`` (its texels equal
+    ``same_as_source``'s ``same_as_channel``)."""
 
     source: str
     channel: str

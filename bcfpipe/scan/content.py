@@ -9,6 +9,8 @@ modelled channel already holds:
 - **duplicate**: the channel's stored texels are identical, bit for bit and at the same size, to
   another channel's (the same image under two names, or an ORM file whose R equals its G).
   ``digest`` is the XXH3-128 of the stored samples with their size and type.
+- **unread**: the texture's st is not connected, so the scene reads it at one point only: the
+  value there (:func:`sample_at`) replaces the texture.
 
 Files are read once at their stored type (OpenImageIO), packaged files through Ar.
 """
@@ -93,3 +95,29 @@ def content_of(path: str, letter: str, cache: dict) -> ChannelContent:
         cache[key] = (channel_contents(arr), names)
     contents, names = cache[key]
     return contents[source_channel_index(names, letter, path)]
+
+
+def sample_at(path: str, letter: str, st: tuple[float, float], wrap: str, cache: dict) -> float:
+    """The value (stored units) that a UsdUVTexture reading ``path`` gives at one ``st``: bilinear
+    between texel centres, v = 1 - t, repeat or clamp addressing (mip 0: a constant st has no
+    footprint)."""
+    from bcfpipe.texset.texture_set import source_channel_index
+
+    key = (path, "texels")
+    if key not in cache:
+        cache[key] = read_stored(path)
+    arr, names = cache[key]
+    ch = arr[..., source_channel_index(names, letter, path)]
+    scale = float(np.iinfo(ch.dtype).max) if np.issubdtype(ch.dtype, np.integer) else 1.0
+    h, w = ch.shape
+    x, y = st[0] * w - 0.5, (1.0 - st[1]) * h - 0.5
+    x0, y0 = int(np.floor(x)), int(np.floor(y))
+    fx, fy = x - x0, y - y0
+
+    def texel(i: int, j: int) -> float:
+        i, j = (i % w, j % h) if wrap == "repeat" else (min(max(i, 0), w - 1), min(max(j, 0), h - 1))
+        return float(ch[j, i]) / scale
+
+    top = texel(x0, y0) * (1 - fx) + texel(x0 + 1, y0) * fx
+    bottom = texel(x0, y0 + 1) * (1 - fx) + texel(x0 + 1, y0 + 1) * fx
+    return top * (1 - fy) + bottom * fy

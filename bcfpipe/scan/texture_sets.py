@@ -128,17 +128,18 @@ def source_file(path: str, asset_path: str, color_space: str, cache: dict, diges
 @dataclass(frozen=True)
 class FoldedChannel:
     """A source channel that is not a decoder output (issue #18): ``constant`` (``value`` in stored
-    units) or ``duplicate`` (its texels are ``same_as``'s, which the decoder outputs instead)."""
+    units), ``unread`` (st not connected: the texture is read at one point, whose ``value`` replaces
+    it) or ``duplicate`` (its texels are ``same_as``'s, which the decoder outputs instead)."""
 
     file: str
     channel: str
-    reason: str  # constant | duplicate
+    reason: str  # constant | unread | duplicate
     value: float | None = None
     same_as: ModelChannel | None = None
 
     def to_dict(self) -> dict:
         d = {"file": self.file, "channel": self.channel, "reason": self.reason}
-        if self.reason == "constant":
+        if self.reason in ("constant", "unread"):
             d["value"] = self.value
         else:
             d["same_as"] = {"file": self.same_as.file, "channel": self.same_as.channel}
@@ -209,6 +210,20 @@ def _content(path: str, letter: str, cache: dict, warnings: list[str]):
         return ChannelContent(0.0, 0.0, 0.0, f"unread:{path}:{letter}", False)
 
 
+def _at(path: str, letter: str, st, wraps, cache: dict, warnings: list[str], content):
+    """A constant content holding the texture's value at ``st`` (the ``unread`` fold), or
+    ``content`` unchanged when the texels cannot be read."""
+    from bcfpipe.scan.content import ChannelContent, sample_at
+
+    wrap = "clamp" if all(w == "clamp" for w in wraps) else "repeat"
+    try:
+        v = sample_at(path, letter, tuple(st), wrap, cache)
+    except (OSError, ValueError) as exc:
+        warnings.append(f"{Path(path).name}: texels not read ({one_line(exc)})")
+        return content
+    return ChannelContent(v, v, v, content.digest, True)
+
+
 def _decode(value: float, color_space: str) -> float:
     from bcfpipe.scan.content import srgb_to_linear
 
@@ -243,10 +258,16 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
         raw = [ModelChannel(u.file, u.channel, kind) for u in uses]
         contents = [_content(k.file, k.channel, file_cache, warnings) for k in raw] if fold else []
         # per raw key: None (constant) or the key the decoder outputs (itself or its canonical twin)
+        unread = fold and tex.st.kind == "constant" and tex.st.value is not None
+        if unread:  # st not connected: the texture is read at one point; that value replaces it
+            contents = [_at(k.file, k.channel, tex.st.value, tex.effective_wrap, file_cache, warnings, c)
+                        for k, c in zip(raw, contents)]
         if not fold:
             keys: list[ModelChannel | None] = list(raw)
         elif is_normal:
             z = _content(src.path, "b", file_cache, warnings) if len(raw) == 2 and src.channels >= 3 else None
+            if unread and z is not None:
+                z = _at(src.path, "b", tex.st.value, tex.effective_wrap, file_cache, warnings, z)
             if z is not None and all(c.constant for c in contents) and z.constant:
                 keys = [None, None]
                 constants.append(ConstantTarget("normal.z", inp.name,
@@ -258,7 +279,7 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
                     for k, c in zip(raw, contents)]
         for k, key, c in zip(raw, keys, contents):
             if key is None:
-                folded.append(FoldedChannel(k.file, k.channel, "constant", value=c.mean))
+                folded.append(FoldedChannel(k.file, k.channel, "unread" if unread else "constant", value=c.mean))
             elif key != k:
                 folded.append(FoldedChannel(k.file, k.channel, "duplicate", same_as=key))
                 sources.setdefault(key.file, canonical.sources[key.file])

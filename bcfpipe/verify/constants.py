@@ -79,6 +79,7 @@ def check_constants(root: Path, manifest: mfst.Manifest) -> list[tuple[str, bool
     from pxr import Usd
 
     with_constants = [m for m in manifest.materials if m.constants or any(f.reason == "constant" for f in m.folded)]
+    # unread channels (st not connected) are checked through their USD values only: the texture varies
     if not with_constants:
         return []
     stage = Usd.Stage.Open(str(root / manifest.root_layer))
