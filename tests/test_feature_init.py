@@ -12,7 +12,7 @@ from bcfpipe.texset.texture_set import build_mip_chain
 
 
 def _psnr(pred, target):
-    return float(-10 * torch.log10(torch.mean((pred - target) ** 2)))
+    return float(-10 * torch.log10(torch.mean((pred.detach() - target) ** 2)))
 
 
 def test_pca_start_reproduces_a_low_rank_texture_set():
