@@ -204,3 +204,33 @@ def test_a_texture_read_at_one_point_folds_to_its_value_there(tmp_path):
     corners = [g[0, 0], g[0, -1], g[-1, 0], g[-1, -1]]  # st (0, 0) is the corner of 4 texels (repeat)
     # auto resolves to sRGB for an 8-bit RGB file (as in Hydra): the value is decoded
     assert m.constants[0].value == pytest.approx(srgb_to_linear(float(np.mean(corners))), abs=1e-6)
+
+
+def test_texel_facts_are_kept_so_a_replan_decodes_only_changed_textures(tmp_path, monkeypatch):
+    from bcfpipe.cache.store import Cache
+    from bcfpipe.scan import content
+
+    scene = _duplicate_scene(tmp_path)
+    store = Cache(tmp_path / "cache")
+    reads = []
+    real = content.read_stored
+    monkeypatch.setattr(content, "read_stored", lambda path: reads.append(Path(path).name) or real(path))
+    first = plan(scene, facts=store.facts, **FAST)
+    # a_copy.png has a.png's bytes: one decode serves both
+    assert sorted(set(reads)) == ["a.png", "flat.png", "orm.png"] and store.facts.count() == 3
+    reads.clear()
+    again = plan(scene, facts=store.facts, **FAST)
+    assert reads == [] and [j.content_hash for j in again.jobs] == [j.content_hash for j in first.jobs]
+    write_png(tmp_path / "tex" / "flat.png", np.full((16, 16), 0.2))  # new bytes: decoded again
+    changed = plan(scene, facts=store.facts, **FAST)
+    assert reads == ["flat.png"]
+    (c,) = [m for m in changed.materials if m.path.endswith("/A")][0].constants
+    assert c.value == pytest.approx(0.5 * round(0.2 * 255) / 255 + 0.1)
+    (store.facts.dir / "zz").mkdir()
+    for f in store.facts.dir.glob("*/*.json"):
+        f.write_text("{ not json")  # damaged facts are recomputed, never trusted
+    reads.clear()
+    assert [j.content_hash for j in plan(scene, facts=store.facts, **FAST).jobs] == [j.content_hash for j in changed.jobs]
+    assert len(reads) == 3
+    store.clear()
+    assert store.facts.count() == 0

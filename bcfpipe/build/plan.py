@@ -239,12 +239,13 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
          all_materials: bool = False, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
          seed: int = DEFAULT_SEED, device: str = DEFAULT_DEVICE, hidden: int = DEFAULT_HIDDEN,
          signed: bool = False, init: str = DEFAULT_INIT, fix_nonfinite: bool = False,
-         texel_density: float | None = None, coverage: bool = True) -> BuildPlan:
+         texel_density: float | None = None, coverage: bool = True, facts=None) -> BuildPlan:
     """Scan ``scene`` and list what to train. Reads the source textures (to hash them) but writes
     nothing. ``texel_density`` (px/m) caps each job's resolution at the smallest power of two that
     meets it on every member's most demanding mesh (never above the source). ``coverage``: train
-    on the texels the bound meshes read (bcfpipe.scan.coverage). Raises `BuildError` for an
-    unreadable stage or bad options."""
+    on the texels the bound meshes read (bcfpipe.scan.coverage). ``facts``: a
+    bcfpipe.cache.facts.FactsStore, so that only textures whose bytes changed are decoded. Raises
+    `BuildError` for an unreadable stage or bad options."""
     if profile not in PROFILE_NAMES:
         raise BuildError(f"unknown profile {profile!r}; choose from {', '.join(PROFILE_NAMES)}")
     if preset not in PRESETS:
@@ -266,7 +267,9 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
     except ScanError as exc:
         raise BuildError(str(exc)) from None
 
-    grouping = group_materials(scene, vdict, scan.materials)
+    from bcfpipe.scan.content import FACTS
+
+    grouping = group_materials(scene, vdict, scan.materials, {FACTS: facts} if facts is not None else None)
     jobs: list[MaterialJob] = []
     for g in grouping.groups:
         rep = g.model

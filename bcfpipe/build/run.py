@@ -180,7 +180,7 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     if cache is not False:
         store = Cache(default_root() if cache in (None, True) else cache)
     bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init,
-                 fix_nonfinite, texel_density, coverage)
+                 fix_nonfinite, texel_density, coverage, facts=store.facts if store is not None else None)
     check_out(out_path, force, [bplan.scene, *bplan.sources])
     # staging lives inside OUT (nothing is written outside OUT and the cache) and on its filesystem,
     # so that installing a file is one rename

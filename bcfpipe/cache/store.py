@@ -7,6 +7,7 @@ Layout under the cache root (``--cache DIR``, ``BCFPIPE_CACHE``, or the platform
                               measurements of the training run); immutable once written
   v1/locks/<key>.lock         per-key lock (filelock): one process trains a key at a time
   v1/tmp/                     entries being written, and entries being deleted
+  v1/facts/<h[:2]>/<h>.json   texel facts of source files, by their XXH3-128 (bcfpipe.cache.facts)
 
 An entry is written into v1/tmp, every file and the folder are fsynced, and the folder is renamed
 into place; entry.json is written last, so a folder without a valid entry.json is never an entry.
@@ -107,6 +108,9 @@ class Cache:
                 (self.base / d).mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise CacheError(f"cache folder {self.root}: {e.strerror or e}") from None
+        from bcfpipe.cache.facts import FactsStore
+
+        self.facts = FactsStore(self.base)
 
     def folder(self, key: str) -> Path:
         if not key or not all(c in "0123456789abcdef" for c in key):
@@ -221,7 +225,7 @@ class Cache:
         entries = list(self.entries())
         return {"root": str(self.root), "layout": LAYOUT, "entries": len(entries),
                 "size_bytes": sum(e.size_bytes for e in entries),
-                "leftover_bytes": folder_bytes(self.base / "tmp")}
+                "leftover_bytes": folder_bytes(self.base / "tmp"), "texel_facts": self.facts.count()}
 
     def prune(self, max_size: int | None = None, older_than: float | None = None,
               now: float | None = None) -> list[EntryInfo]:
@@ -249,13 +253,14 @@ class Cache:
         return removed
 
     def clear(self) -> int:
-        """Delete every entry; returns how many."""
+        """Delete every entry (and the texel facts); returns how many entries."""
         n = 0
         for e in list(self.entries()):
             with self.lock(e.key):
                 self._discard(e.folder)
             n += 1
         self._clear_leftovers(min_age=0.0)
+        shutil.rmtree(self.facts.dir, ignore_errors=True)
         return n
 
     def _clear_leftovers(self, min_age: float, now: float | None = None) -> None:

@@ -69,7 +69,8 @@ def info(cache_dir: Path | None, as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps(d, indent=2))
         return
-    click.echo(f"cache: {d['root']}\nentries: {d['entries']}\nsize: {_fmt_size(d['size_bytes'])}")
+    click.echo(f"cache: {d['root']}\nentries: {d['entries']}\nsize: {_fmt_size(d['size_bytes'])}\n"
+               f"texel facts: {d['texel_facts']} source file(s) (a rebuild decodes only textures whose bytes changed)")
     if d["leftover_bytes"]:
         click.echo(f"leftovers of interrupted writes: {_fmt_size(d['leftover_bytes'])} (prune removes them)")
 

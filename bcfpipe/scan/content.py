@@ -84,15 +84,25 @@ def channel_contents(arr: np.ndarray) -> tuple[ChannelContent, ...]:
     return tuple(out)
 
 
-def content_of(path: str, letter: str, cache: dict) -> ChannelContent:
+FACTS = "__facts__"  # a file_cache key: a bcfpipe.cache.facts.FactsStore that outlives the run
+
+
+def content_of(path: str, letter: str, cache: dict, file_hash: str = "") -> ChannelContent:
     """The content of the file channel that a UsdUVTexture output letter (r, g, b, a) reads,
-    with the texture-set loader's channel mapping; each file is read once per ``cache``."""
+    with the texture-set loader's channel mapping; each file is read once per ``cache``, and not
+    at all when ``cache[FACTS]`` holds the facts of its ``file_hash`` (XXH3-128 of its bytes)."""
     from bcfpipe.texset.texture_set import source_channel_index
 
     key = (path, "content")
     if key not in cache:
-        arr, names = read_stored(path)
-        cache[key] = (channel_contents(arr), names)
+        facts = cache.get(FACTS) if file_hash else None
+        found = facts.get(file_hash) if facts is not None else None
+        if found is None:
+            arr, names = read_stored(path)
+            found = (channel_contents(arr), names)
+            if facts is not None:
+                facts.put(file_hash, *found)
+        cache[key] = found
     contents, names = cache[key]
     return contents[source_channel_index(names, letter, path)]
 

@@ -198,13 +198,13 @@ class Canonical:
         return first
 
 
-def _content(path: str, letter: str, cache: dict, warnings: list[str]):
+def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash: str = ""):
     """The channel's content, or, for a file whose texels cannot be read, a content that is neither
     constant nor a duplicate of anything (training will report the file)."""
     from bcfpipe.scan.content import ChannelContent, content_of
 
     try:
-        return content_of(path, letter, cache)
+        return content_of(path, letter, cache, file_hash)
     except (OSError, ValueError) as exc:
         warnings.append(f"{Path(path).name}: texels not checked for constants or duplicates ({one_line(exc)})")
         return ChannelContent(0.0, 0.0, 0.0, f"unread:{path}:{letter}", False)
@@ -256,7 +256,7 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
         is_normal = inp.name == "normal" and tex.channel == "rgb"
         kind = "normal" if is_normal else "value"
         raw = [ModelChannel(u.file, u.channel, kind) for u in uses]
-        contents = [_content(k.file, k.channel, file_cache, warnings) for k in raw] if fold else []
+        contents = [_content(k.file, k.channel, file_cache, warnings, src.xxh3_128) for k in raw] if fold else []
         # per raw key: None (constant) or the key the decoder outputs (itself or its canonical twin)
         unread = fold and tex.st.kind == "constant" and tex.st.value is not None
         if unread:  # st not connected: the texture is read at one point; that value replaces it
@@ -265,7 +265,8 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
         if not fold:
             keys: list[ModelChannel | None] = list(raw)
         elif is_normal:
-            z = _content(src.path, "b", file_cache, warnings) if len(raw) == 2 and src.channels >= 3 else None
+            z = (_content(src.path, "b", file_cache, warnings, src.xxh3_128)
+                 if len(raw) == 2 and src.channels >= 3 else None)
             if unread and z is not None:
                 z = _at(src.path, "b", tex.st.value, tex.effective_wrap, file_cache, warnings, z)
             if z is not None and all(c.constant for c in contents) and z.constant:
