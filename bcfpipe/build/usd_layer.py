@@ -132,6 +132,11 @@ _INPUT_TYPES = {"diffuseColor": _T.Color3f, "emissiveColor": _T.Color3f, "specul
 _COMPONENTS = {"r": 0, "g": 1, "b": 2, "x": 0, "y": 1, "z": 2}
 
 
+def component_index(target: str) -> int | None:
+    """The vector component a target names (diffuseColor.g -> 1, normal.z -> 2), None for a scalar."""
+    return _COMPONENTS.get(target.rpartition(".")[2]) if "." in target else None
+
+
 @dataclass(frozen=True)
 class ConstantInput:
     """A UsdPreviewSurface input set to the constant its texture gives: ``values`` by target
@@ -147,9 +152,9 @@ class ConstantInput:
             return type_name, float(self.values[0][1])
         vec = [0.0, 0.0, 0.0]
         for target, v in self.values:
-            comp = target.rpartition(".")[2] if "." in target else None
-            if comp in _COMPONENTS:
-                vec[_COMPONENTS[comp]] = float(v)
+            k = component_index(target)
+            if k is not None:
+                vec[k] = float(v)
             else:  # a vector input fed from one texture channel: the value in every component
                 vec = [float(v)] * 3
         return type_name, Gf.Vec3f(*vec)

@@ -23,22 +23,21 @@ def estimated_bytes(resolutions, n_out: int, hidden: int) -> int:
 
 
 def _job(mm: MaterialModel, members, options: Options) -> dict:
-    from bcfpipe.build.plan import density_options
+    """What `bcfpipe build` would do with this texture set, by the rules `plan` applies."""
+    from bcfpipe.build.plan import density_options, job_coverage, job_size
 
     o = density_options(options, members)
-    size = max(mm.source_size) if max(mm.source_size) else 0
-    side = o.resolution or size
+    spec_sources = [mm.sources[p] for p in dict.fromkeys(path for _, path, _ in mm.specs)]
+    size = max(job_size(spec_sources, None))
+    w, h = job_size(spec_sources, o.resolution)
+    side = max(w, h)
     profile, res = resolve_profile(o.profile, side) if side else (o.profile, ())
     n_out = len(decoder_index(mm.channels)[0]) if mm.channels else 0
     lows = [m.density.lowest_density for m in members if m.density and m.density.lowest_density]
     reached = min(lows) * side / size if lows and size else None
     covered = None
     if side:
-        from bcfpipe.build.plan import job_coverage
-
-        f = side / size
-        w, h = mm.source_size
-        _, covered, _ = job_coverage(members, (max(1, int(w * f)), max(1, int(h * f))), mm.wrap)
+        _, covered, _ = job_coverage(members, (w, h), mm.wrap)
         covered = 1.0 if covered is None and all(m.density and m.density.meshes and not m.density.notes
                                                  for m in members) else covered
     return {"resolution": side, "profile": profile, "capped": o.resolution is not None,

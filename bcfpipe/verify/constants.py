@@ -11,18 +11,14 @@ import numpy as np
 
 from bcfpipe.formats import manifest as mfst
 
-_COMPONENTS = {"r": 0, "g": 1, "b": 2, "x": 0, "y": 1, "z": 2}
 VALUE_TOLERANCE = 1e-6  # the value is authored as a float: rounding only
-
-
-def _component(target: str) -> int | None:
-    comp = target.rpartition(".")[2] if "." in target else None
-    return _COMPONENTS.get(comp) if comp else None
 
 
 def check_usd_values(root: Path, manifest: mfst.Manifest, material: mfst.Material, stage) -> list[str]:
     """Problems with the composed values of ``material``'s constants (empty: all as recorded)."""
     from pxr import UsdShade
+
+    from bcfpipe.build.usd_layer import component_index
 
     prim = stage.GetPrimAtPath(material.path)
     if not prim:
@@ -37,8 +33,9 @@ def check_usd_values(root: Path, manifest: mfst.Manifest, material: mfst.Materia
             problems.append(f"{c.input} is still connected to a texture")
             continue
         v = inp.Get()
-        k = _component(c.target)
-        got = float(v[k]) if k is not None and hasattr(v, "__len__") else float(v[0] if hasattr(v, "__len__") else v)
+        if hasattr(v, "__len__"):  # a vector input: the target's component (a scalar target fills all)
+            v = v[component_index(c.target) or 0]
+        got = float(v)
         if not abs(got - c.value) <= VALUE_TOLERANCE * max(1.0, abs(c.value)):
             problems.append(f"{c.target} is {got:.6g} on the stage, manifest.json says {c.value:.6g}")
     return problems
