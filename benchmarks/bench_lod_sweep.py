@@ -25,47 +25,29 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, teapot_specs  # noqa: E402
 
+from bcfpipe.bench.lod_sweep import LodGrid, exported_answer, mips_answer, sweep as sweep_answer  # noqa: E402
+from bcfpipe.bench.lod_sweep import dips as _dips  # noqa: E402
 from bcfpipe.export import writer as E  # noqa: E402
-from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, normal_xy_index  # noqa: E402
-from bcfpipe.texset.reference import ReferencePyramid, sample_reference  # noqa: E402
-from bcfpipe.model.sampling import sample_trilinear  # noqa: E402
+from bcfpipe.texset.reference import ReferencePyramid  # noqa: E402
 from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
 
 
 def sweep(folder: Path, ts, step: float = 0.25, points: int = 1 << 16, seed: int = 0):
-    em = E.load(folder)
+    """[(s, BCf PSNR, trilinear-of-the-reference PSNR)] over the sweep."""
     ref = ReferencePyramid.from_texture_set(ts)
-    s_max = ref.num_levels - 1
-    sess = E.onnx_session(em)
-    nz = normal_xy_index(em.kinds)
-    peaks = np.array([c.peak for c in ts.channels], np.float32)
-    rng = np.random.default_rng(seed)
-    uv = rng.random((points, 2), dtype=np.float32)
-    rows = []
-    for s in np.linspace(0, s_max, int(round(s_max / step)) + 1):
-        target = sample_reference(ref, torch.from_numpy(uv), float(s), em.wrap).numpy()
-        y = sess.run([ONNX_OUTPUT], {ONNX_INPUT: E.sample_exported_features(em, uv, float(s))})[0]
-        if nz is not None:
-            y = np.delete(y, nz + 2, axis=1)
-        mse = float(np.mean(((y - target) / peaks) ** 2))
-        tri = sample_trilinear(ref.mips, torch.from_numpy(uv), float(s), em.wrap).numpy()
-        mse_tri = float(np.mean(((tri - target) / peaks) ** 2))
-        rows.append((float(s), 10 * np.log10(1 / mse), 10 * np.log10(1 / mse_tri)))
-    return rows
+    wrap = E.load(folder).wrap
+    grid = LodGrid(ref, wrap, [c.peak for c in ts.channels], step, points, seed)
+    bcf = sweep_answer(grid, exported_answer(folder))
+    tri = sweep_answer(grid, mips_answer([np.moveaxis(m.cpu().numpy(), 0, -1) for m in ref.mips], wrap))
+    return list(zip(grid.s, bcf, tri))
 
 
 def dips(rows, col: int = 1, exact: float = 100.0):
-    """(s, dB below the mean of the two neighbouring values) for every inner value of s. Triples
-    touching a value above ``exact`` dB are left out (the trilinear reference is exact at the 1x1
-    mip, where its PSNR is only limited by float rounding)."""
-    p = [r[col] for r in rows]
-    return [(rows[i][0], (p[i - 1] + p[i + 1]) / 2 - p[i]) for i in range(1, len(p) - 1)
-            if max(p[i - 1], p[i], p[i + 1]) < exact]
+    return _dips([r[0] for r in rows], [r[col] for r in rows], exact)
 
 
 def main():

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# One-shot, idempotent set-up: Debian packages (Mesa EGL/GL, astcenc, glslang, ninja),
+# One-shot, idempotent set-up: Debian packages (Mesa EGL/GL, astcenc, glslang, ninja, chromium
+# for the bench report test),
 # a virtual environment in .venv, torch, and bcfpipe with its test extras.
 #
 #   BCF_TORCH   pip requirement for torch (default: torch==2.13.0, the CPU build).
@@ -9,7 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-APT_PKGS="libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri astcenc glslang-tools ninja-build"
+APT_PKGS="libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri astcenc glslang-tools ninja-build chromium"
 if [[ "${BCF_NO_APT:-0}" != 1 ]] && command -v apt-get >/dev/null; then
   missing=""
   for p in $APT_PKGS; do

@@ -29,7 +29,7 @@ import numpy as np
 
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
-__all__ = ["bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline", "astcenc_path",
+__all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline", "astcenc_path",
            "pack_texture_set", "CODECS", "BC1_LEVEL"]
 
 CODECS = ("bc", "astc")
@@ -60,7 +60,9 @@ def _check_mips(mips: Sequence[np.ndarray], channels: int, what: str) -> None:
 
 
 def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, channels: int,
-                        block_bytes: int) -> tuple[list[np.ndarray], int]:
+                        block_bytes: int, blocks: list | None = None) -> tuple[list[np.ndarray], int]:
+    """Encode and decode each mip; with ``blocks`` also append each level's (block bytes as an
+    (n, block_bytes) uint8 array, width, height), ready for a GPU upload."""
     import quicktex
 
     decoded, size = [], 0
@@ -70,33 +72,36 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, channels: 
         ph, pw = px.shape[:2]
         enc = encoder.encode(quicktex.RawTexture.frombytes(px.tobytes(), pw, ph))
         size += enc.width_blocks * enc.height_blocks * block_bytes
+        if blocks is not None:
+            blocks.append((np.frombuffer(enc.tobytes(), np.uint8).reshape(-1, block_bytes).copy(), w, h))
         out = np.frombuffer(decoder.decode(enc).tobytes(), np.uint8).reshape(ph, pw, 4)
         decoded.append(out[:h, :w, :channels].astype(np.float32) / 255.0)
     return decoded, size
 
 
-def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL) -> tuple[list[np.ndarray], int]:
+def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL,
+             blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC1-encode and decode every (H, W, 3) mip; returns (decoded mips, bytes)."""
     from quicktex.s3tc.bc1 import BC1Decoder, BC1Encoder
 
     _check_mips(mips_rgb, 3, "bc1")
-    return _quicktex_roundtrip(mips_rgb, BC1Encoder(level), BC1Decoder(), 3, 8)
+    return _quicktex_roundtrip(mips_rgb, BC1Encoder(level), BC1Decoder(), 3, 8, blocks)
 
 
-def bc5_mips(mips_xy: Sequence[np.ndarray]) -> tuple[list[np.ndarray], int]:
+def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC5-encode and decode every (H, W, 2) mip of [0, 1] data; returns (decoded mips, bytes)."""
     from quicktex.s3tc.bc5 import BC5Decoder, BC5Encoder
 
     _check_mips(mips_xy, 2, "bc5")
-    return _quicktex_roundtrip(mips_xy, BC5Encoder(0, 1), BC5Decoder(0, 1), 2, 16)
+    return _quicktex_roundtrip(mips_xy, BC5Encoder(0, 1), BC5Decoder(0, 1), 2, 16, blocks)
 
 
-def bc4_mips(mips_x: Sequence[np.ndarray]) -> tuple[list[np.ndarray], int]:
+def bc4_mips(mips_x: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC4-encode and decode every (H, W, 1) mip of [0, 1] data; returns (decoded mips, bytes)."""
     from quicktex.s3tc.bc4 import BC4Decoder, BC4Encoder
 
     _check_mips(mips_x, 1, "bc4")
-    return _quicktex_roundtrip(mips_x, BC4Encoder(0), BC4Decoder(0), 1, 8)
+    return _quicktex_roundtrip(mips_x, BC4Encoder(0), BC4Decoder(0), 1, 8, blocks)
 
 
 def astcenc_path() -> str | None:
@@ -111,7 +116,7 @@ def astcenc_path() -> str | None:
     return None
 
 
-def _parse_block(block: str) -> tuple[int, int]:
+def parse_block(block: str) -> tuple[int, int]:
     try:
         bw, bh = (int(v) for v in block.lower().split("x"))
     except ValueError:
@@ -122,18 +127,19 @@ def _parse_block(block: str) -> tuple[int, int]:
 
 
 def astc_mips(mips_rgb: Sequence[np.ndarray], block: str = "12x12", preset: str = "-thorough",
-              threads: int | None = None) -> tuple[list[np.ndarray], int]:
-    """ASTC (LDR linear) encode and decode every (H, W, 3) mip with astcenc; (decoded, bytes)."""
+              threads: int | None = None, tmp_dir: str | None = None) -> tuple[list[np.ndarray], int]:
+    """ASTC (LDR linear) encode and decode every (H, W, 3) mip with astcenc; (decoded, bytes).
+    The PNGs astcenc reads and writes live in a temporary folder under ``tmp_dir``."""
     import OpenImageIO as oiio
 
     _check_mips(mips_rgb, 3, "astc")
-    bw, bh = _parse_block(block)
+    bw, bh = parse_block(block)
     exe = astcenc_path()
     if exe is None:
         raise RuntimeError("astcenc not found: install it (e.g. apt-get install astcenc) or set $ASTCENC")
     threads = threads or min(os.cpu_count() or 1, 8)
     decoded, size = [], 0
-    with tempfile.TemporaryDirectory(prefix="bcf-astc-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="bcf-astc-", dir=tmp_dir) as tmp:
         for k, m in enumerate(mips_rgb):
             h, w = m.shape[:2]
             src, dst = os.path.join(tmp, f"in{k}.png"), os.path.join(tmp, f"out{k}.png")
@@ -214,7 +220,9 @@ def _bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
 
 def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | None = None, *,
                                 ref_mips: Sequence[np.ndarray] | None = None, astc_block: str = "12x12",
-                                astc_preset: str = "-thorough") -> tuple[list[np.ndarray], int]:
+                                astc_preset: str = "-thorough",
+                                textures: list | None = None,
+                                tmp_dir: str | None = None) -> tuple[list[np.ndarray], int]:
     """Compress `ts` with a classic codec; returns (decoded mips in the reference's shapes, bytes).
 
     `codec` 'bc': BC1 for colour and packed scalar textures, BC4 for a lone scalar, BC5 for
@@ -225,7 +233,9 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
     reference's (box-filtered) mip d and its mip k is compared against reference mip k + d; the d
     top reference mips it lacks are its decoded level 0 magnified bilinearly (what a GPU shows when
     it samples a lower-resolution texture there). No upsampling of the source ever happens.
-    `ref_mips` may pass a precomputed `build_mip_chain(ts.data)`.
+    `ref_mips` may pass a precomputed `build_mip_chain(ts.data)`. With ``textures`` (codec 'bc'),
+    each shipped texture is appended as (format, channel indices, [(blocks, w, h) per level]) so
+    that a renderer can sample the very blocks that were measured (bcfpipe.bench.decode_cost).
     """
     if codec not in CODECS:
         raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
@@ -243,16 +253,20 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
     total = 0
     for fmt, idx in pack_texture_set(ts, codec):
         stored = [_to_storage(m[..., idx], normal[idx]) for m in src]
+        levels: list | None = [] if textures is not None and fmt != "astc" else None
         if fmt == "bc5":
-            out, size = bc5_mips(stored)
+            out, size = bc5_mips(stored, levels)
         elif fmt == "bc4":
-            out, size = bc4_mips(stored)
+            out, size = bc4_mips(stored, levels)
         else:
             n = len(idx)
             padded = [np.repeat(s, 3, axis=-1) if n == 1 else
                       np.concatenate([s, np.zeros_like(s[..., :1])], axis=-1) if n == 2 else s for s in stored]
-            out, size = bc1_mips(padded) if fmt == "bc1" else astc_mips(padded, astc_block, astc_preset)
+            out, size = (bc1_mips(padded, blocks=levels) if fmt == "bc1"
+                         else astc_mips(padded, astc_block, astc_preset, tmp_dir=tmp_dir))
             out = [o[..., :n] for o in out]
+        if levels is not None:
+            textures.append((fmt, list(idx), levels))
         total += size
         for k, o in enumerate(out):
             dec_low[k][..., idx] = _from_storage(o, normal[idx])

@@ -137,7 +137,8 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
                 sizes=mfst.Sizes(feats, e.size, feats + e.size,
                                  sum(sources[p].size_bytes for p in mp_.sources if p in sources)),
                 outputs=mfst.Outputs(f"{MATERIALS_DIR}/{mp_.job}", e.index, e.offset, e.size),
-                profile=res.get("profile"), resolutions=tuple(res.get("resolutions")),
+                profile=res.get("profile"), resolutions=tuple(res.get("resolutions")), preset=res.get("preset"),
+                target=mfst.RateControl.from_json(res["target"], "target") if res.get("target") else None,
                 device=_device_class(res.get("device") or r.device)))
         else:
             mats.append(mfst.Material(**common, device=_device_class(r.device) if r else None))

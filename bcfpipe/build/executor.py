@@ -164,9 +164,25 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
             from bcfpipe.scan.coverage import unpack
 
             mask = unpack(mj.coverage, ts.width, ts.height)
-        res, _ = fit_material(ts, out_dir, cfg, prof, progress, coverage=mask)
+        if o.target_psnr is None:
+            res, _ = fit_material(ts, out_dir, cfg, prof, progress, coverage=mask)
+            outcome = None
+        else:
+            from bcfpipe.train import rate
+
+            def train_one(st, folder):
+                n, c = make_config(ts, profile=st.profile, preset=st.preset, device=device, seed=o.seed,
+                                   hidden=o.hidden, signed=o.signed, wrap=mj.wrap, threads=max(1, threads),
+                                   init=o.init)
+                return fit_material(ts, folder, c, n, progress, coverage=mask)[0]
+
+            res, outcome = rate.fit_to_target(o.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device),
+                                              train_one, out_dir, {(p, q): v for p, q, v in mj.anchors},
+                                              progress.phase if progress else None)
         d = res.to_dict()
         d.pop("out", None)
+        if outcome is not None:
+            d["target"] = outcome.to_json()
         return JobResult(mj.name, "built", None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()

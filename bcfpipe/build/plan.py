@@ -62,6 +62,7 @@ class MaterialJob:
     content_hash: str
     coverage: str | None = None  # packed level-0 mask at the job's size (bcfpipe.scan.coverage); None: all read
     covered_fraction: float | None = None
+    anchors: tuple[tuple[str, str, float], ...] = ()  # --bench-data cells of this set: (profile, preset, psnr)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -79,6 +80,7 @@ class MaterialJob:
         d["channels"] = tuple(ModelChannel(**c) for c in d["channels"])
         d["sources"] = tuple(SourceFile(**s) for s in d["sources"])
         d["options"] = Options.from_json(d["options"], "options")
+        d["anchors"] = tuple(tuple(a) for a in d.get("anchors", ()))
         return cls(**d)
 
 
@@ -180,7 +182,7 @@ def job_coverage(models, size: tuple[int, int], wrap: str) -> tuple[str | None, 
 
 
 def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options,
-                 coverage_digest: str | None = None) -> str:
+                 coverage_digest: str | None = None, anchors: tuple = ()) -> str:
     """The job's cache key: everything that changes the trained files and nothing else.
 
     In it: the bytes of each source file (its XXH3-128) with the semantic and channels read from
@@ -209,6 +211,10 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         payload["resolution"] = options.resolution
     if coverage_digest is not None:  # texels no mesh reads weigh nothing in training
         payload["coverage"] = coverage_digest
+    if options.target_psnr is not None:  # rate control picks among every preset, from these predictions
+        payload["target_psnr"] = options.target_psnr
+        payload["schedules"] = {name: asdict(p) for name, p in PRESETS.items()}
+        payload["anchors"] = [list(a) for a in anchors]
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
 
 
@@ -239,12 +245,15 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
          all_materials: bool = False, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
          seed: int = DEFAULT_SEED, device: str = DEFAULT_DEVICE, hidden: int = DEFAULT_HIDDEN,
          signed: bool = False, init: str = DEFAULT_INIT, fix_nonfinite: bool = False,
-         texel_density: float | None = None, coverage: bool = True, facts=None) -> BuildPlan:
+         texel_density: float | None = None, coverage: bool = True, facts=None,
+         target_psnr: float | None = None, bench: Mapping | None = None) -> BuildPlan:
     """Scan ``scene`` and list what to train. Reads the source textures (to hash them) but writes
     nothing. ``texel_density`` (px/m) caps each job's resolution at the smallest power of two that
     meets it on every member's most demanding mesh (never above the source). ``coverage``: train
     on the texels the bound meshes read (bcfpipe.scan.coverage). ``facts``: a
-    bcfpipe.cache.facts.FactsStore, so that only textures whose bytes changed are decoded. Raises
+    bcfpipe.cache.facts.FactsStore, so that only textures whose bytes changed are decoded.
+    ``target_psnr``: rate control chooses each job's profile and preset (bcfpipe.train.rate), from
+    the cells of ``bench`` (a `bcfpipe bench` report) for the jobs whose sources it measured. Raises
     `BuildError` for an unreadable stage or bad options."""
     if profile not in PROFILE_NAMES:
         raise BuildError(f"unknown profile {profile!r}; choose from {', '.join(PROFILE_NAMES)}")
@@ -254,10 +263,13 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         raise BuildError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
     if texel_density is not None and not (texel_density > 0 and texel_density < float("inf")):
         raise BuildError(f"--texel-density must be a positive number of px/m, got {texel_density}")
+    if target_psnr is not None and not (0 < target_psnr < float("inf")):
+        raise BuildError(f"--target-psnr must be a positive number of dB, got {target_psnr}")
     options = Options(profile=profile, preset=preset, seed=int(seed), device=_resolve_device_name(device),
                       hidden=int(hidden), signed=bool(signed), init=init, fix_nonfinite=bool(fix_nonfinite),
                       texel_density=float(texel_density) if texel_density is not None else None,
-                      coverage=bool(coverage))
+                      coverage=bool(coverage),
+                      target_psnr=float(target_psnr) if target_psnr is not None else None)
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 
@@ -280,11 +292,12 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         if options.coverage:
             packed, fraction, cov_digest = job_coverage(g.models, job_size(rep_sources.values(),
                                                                           job_options.resolution), rep.wrap)
+        anchors = _bench_anchors(bench, rep.specs) if target_psnr is not None and bench is not None else ()
         jobs.append(MaterialJob(
             name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
             sources=tuple(rep_sources.values()), wrap=rep.wrap, options=job_options,
-            content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options, cov_digest),
-            coverage=packed, covered_fraction=fraction,
+            content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options, cov_digest, anchors),
+            coverage=packed, covered_fraction=fraction, anchors=anchors,
         ))
     job_by_name = {j.name: j for j in jobs}
 
@@ -339,6 +352,14 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         layers=scan.layers,
         folded_sources=_folded_sources(grouping, jobs),
     )
+
+
+def _bench_anchors(bench: Mapping, specs) -> tuple[tuple[str, str, float], ...]:
+    """The bench report's measured cells for a job, matched by source file names and channels."""
+    from bcfpipe.train.rate import anchors_from_bench
+
+    names = [f"{sem}={os.path.basename(path)}:{ch}" for sem, path, ch in specs]
+    return tuple(sorted((p, q, v) for (p, q), v in anchors_from_bench(bench, names).items()))
 
 
 def density_options(options: Options, models) -> Options:

@@ -153,7 +153,7 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
           executor: cf.Executor | None = None, threads: int | None = None,
           cache: str | os.PathLike | bool | None = None, depfile: str | os.PathLike | None = None,
           depfile_target: str | None = None, texel_density: float | None = None,
-          coverage: bool = True) -> BuildResult:
+          coverage: bool = True, target_psnr: float | None = None, bench: Mapping | None = None) -> BuildResult:
     """Build neural materials for ``scene`` into ``out`` (default ``<scene>.bcf/`` next to it); the
     Python twin of ``bcfpipe build``.
 
@@ -180,7 +180,8 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     if cache is not False:
         store = Cache(default_root() if cache in (None, True) else cache)
     bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init,
-                 fix_nonfinite, texel_density, coverage, facts=store.facts if store is not None else None)
+                 fix_nonfinite, texel_density, coverage, facts=store.facts if store is not None else None,
+                 target_psnr=target_psnr, bench=bench)
     check_out(out_path, force, [bplan.scene, *bplan.sources])
     # staging lives inside OUT (nothing is written outside OUT and the cache) and on its filesystem,
     # so that installing a file is one rename

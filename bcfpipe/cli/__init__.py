@@ -36,6 +36,7 @@ def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
 
 
 # Sub-commands live next to the code they drive; each module exposes one click command/group.
+from bcfpipe.cli.bench import bench  # noqa: E402
 from bcfpipe.cli.build import build  # noqa: E402
 from bcfpipe.cli.cache import cache  # noqa: E402
 from bcfpipe.cli.dds import dds  # noqa: E402
@@ -45,5 +46,5 @@ from bcfpipe.cli.scan import scan  # noqa: E402
 from bcfpipe.cli.train import train_cmd  # noqa: E402
 from bcfpipe.cli.verify import verify  # noqa: E402
 
-for _cmd in (build, cache, decode, dds, plan_cmd, scan, train_cmd, verify):
+for _cmd in (bench, build, cache, decode, dds, plan_cmd, scan, train_cmd, verify):
     main.add_command(_cmd)

@@ -147,10 +147,14 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
         if m.metrics and m.metrics.detail and m.metrics.detail.covered_fraction is not None:
             note = f"{note}; " if note else ""
             note += f"PSNR over the {100 * m.metrics.detail.covered_fraction:.0f}% of texels read"
+        if m.target is not None:
+            goal = "met" if m.target.met else "unreachable"
+            note = f"{note}; " if note else ""
+            note += f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)"
         size = _fmt_size(m.sizes.total_bytes) if m.sizes else ""
         train = "cached" if r.cache == "hit" else f"{r.train_seconds:.1f}s" if r.train_seconds else ""
         t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(len(m.targets or m.constants) or ""),
-                  m.profile or "", psnr, size, train, note)
+                  f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "", psnr, size, train, note)
     return t
 
 
@@ -183,7 +187,8 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
 @click.pass_context
 def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str, str], all_materials: bool,
           profile: str, preset: str, hidden: int, signed: bool, init: str, fix_nonfinite: bool, seed: int,
-          device: str, threads: int, texel_density: float | None, no_coverage: bool,
+          device: str, threads: int, target_psnr: float | None, bench_data: str | None,
+          texel_density: float | None, no_coverage: bool,
           jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
           depfile_target: str | None, as_json: bool, force: bool, run_verify_after: bool) -> None:
     """Build neural materials for SCENE's textured UsdPreviewSurface materials.
@@ -196,7 +201,9 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     CMake. Exit codes: 0 all built, 1 a material failed, 2 bad input or OUT refused.
     """
     from bcfpipe.build import build as run_build
+    from bcfpipe.cli.options import check_target
 
+    bench = check_target(ctx, target_psnr, bench_data)
     quiet = bool((ctx.obj or {}).get("quiet"))
     display = None if quiet else BuildDisplay(Console(stderr=True))
     if no_cache and cache_dir is not None:
@@ -204,7 +211,8 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     options = dict(variants=variants, all_materials=all_materials, profile=profile, preset=preset, hidden=hidden,
                    signed=signed, init=init, fix_nonfinite=fix_nonfinite, jobs=jobs, threads=threads, device=device,
                    seed=seed, force=force, texel_density=texel_density, coverage=not no_coverage,
-                   cache=False if no_cache else cache_dir, depfile=depfile, depfile_target=depfile_target)
+                   cache=False if no_cache else cache_dir, depfile=depfile, depfile_target=depfile_target,
+                   target_psnr=target_psnr, bench=bench)
     if display is None:
         result = run_build(scene, out, **options)
     else:

@@ -30,9 +30,40 @@ TRAINING_OPTIONS = (
     click.option("--threads", type=click.IntRange(min=1), default=DEFAULT_THREADS, show_default=True,
                  help="Torch CPU threads per training; 1 trained fastest on a 2-core machine "
                       "(docs/benchmarks.md). Parallelism comes from training materials side by side."),
+    click.option("--target-psnr", "target_psnr", type=click.FloatRange(min=0, min_open=True), default=None,
+                 metavar="DB",
+                 help="Rate control: train the smallest, then quickest, profile and preset predicted to reach DB "
+                      "(PSNR over all mips of the exported files), instead of --profile and --quality. A probe "
+                      "training (or --bench-data) predicts; a miss climbs to the next setting. docs/rate_control.md."),
+    click.option("--bench-data", "bench_data", type=click.Path(dir_okay=False, exists=True), default=None,
+                 metavar="BENCH_JSON",
+                 help="With --target-psnr: predict from the measured cells of this `bcfpipe bench` report "
+                      "(its bench.json) for a texture set with the same source files, instead of a probe."),
 )
 TRAINING_OPTION_NAMES = ("profile", "preset", "hidden", "signed", "init", "fix_nonfinite", "seed", "device",
-                         "threads")
+                         "threads", "target_psnr", "bench_data")
+
+
+def check_target(ctx: click.Context, target_psnr: float | None, bench_data: str | None) -> dict | None:
+    """Refuse --target-psnr together with an explicit --profile or --quality (it chooses them), and
+    --bench-data without it; return the bench report to predict from, if any."""
+    from click.core import ParameterSource
+
+    from bcfpipe.errors import InputError
+
+    if target_psnr is None:
+        if bench_data is not None:
+            raise InputError("--bench-data is only used with --target-psnr")
+        return None
+    given = [f"--{'quality' if n == 'preset' else n}" for n in ("profile", "preset")
+             if ctx.get_parameter_source(n) not in (ParameterSource.DEFAULT, None)]
+    if given:
+        raise InputError(f"--target-psnr chooses the profile and preset itself; drop {' and '.join(given)}")
+    if bench_data is None:
+        return None
+    from bcfpipe.bench.report import read_report
+
+    return read_report(bench_data)
 
 
 def training_options(f):

@@ -87,8 +87,7 @@ def _table(res) -> "object":
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object to stdout (progress stays on stderr).")
 @click.pass_context
 def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, fix_nonfinite, seed, device, threads,
-              resolution, wrap,
-              force, as_json) -> None:
+              target_psnr, bench_data, resolution, wrap, force, as_json) -> None:
     """Train one neural material from a texture set and export it to OUTPUT.
 
     Each TEXTURE names a semantic, an image and the channels it contributes:
@@ -100,12 +99,18 @@ def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, fix_
       displacement=h.exr:r     opacity=a.png:a       emissiveColor=e.png:rgb
       generic=data.tif:rgba    (anything else)
 
+    With --target-psnr the JSON also has "target": the target, whether it was met, the chosen
+    profile and preset and every attempt (docs/rate_control.md).
+
     The JSON output's keys psnr, ssim, flip, size_bytes and train_seconds are a stable interface.
-    Exit codes: 0 ok, 1 training failed, 2 bad arguments or unreadable input.
+    Exit codes: 0 ok (a missed --target-psnr included: the JSON and stderr say so), 1 training
+    failed, 2 bad arguments or unreadable input.
     """
+    from bcfpipe.cli.options import check_target
     from bcfpipe.train.fit import fit_material, make_config
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
+    report = check_target(ctx, target_psnr, bench_data)
     out = Path(output)
     if out.exists() and any(out.iterdir()) and not force:
         raise InputError(f"{out} is not empty; pass --force to overwrite")
@@ -117,14 +122,43 @@ def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, fix_
     except ValueError as e:
         raise InputError(str(e)) from None
     quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False
+    outcome = None
     try:
         with _Reporter(quiet) as rep:
-            res, _ = fit_material(ts, out, cfg, name, progress=rep)
+            if target_psnr is None:
+                res, _ = fit_material(ts, out, cfg, name, progress=rep)
+            else:
+                from bcfpipe.train import rate
+
+                anchors = rate.anchors_from_bench(report, [str(TextureSpec(s.semantic, Path(s.path).name,
+                                                                               s.channels)) for s in specs]) \
+                    if report is not None else None
+                if report is not None and not anchors:
+                    raise InputError(f"{bench_data} has no texture set with these source files")
+
+                def train_one(st, folder):
+                    n, c = make_config(ts, profile=st.profile, preset=st.preset, device=device, seed=seed,
+                                       hidden=hidden, signed=signed, wrap=wrap, threads=threads, init=init)
+                    return fit_material(ts, folder, c, n, progress=rep)[0]
+
+                def said(text: str) -> None:
+                    if not quiet:
+                        rep.console.print(f"rate control: training {text}", highlight=False)
+
+                res, outcome = rate.fit_to_target(target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device),
+                                                  train_one, out, anchors, said)
+                if not quiet or not outcome.met:
+                    click.echo(f"bcfpipe train: {outcome.summary()}", err=True)
+    except ValueError as e:
+        raise InputError(str(e)) from None
     except (FloatingPointError, RuntimeError, MemoryError) as e:
         click.echo(f"bcfpipe train: training failed: {e}", err=True)
         ctx.exit(EXIT_FAILED)
     if as_json:
-        click.echo(json.dumps(res.to_dict(), default=float))
+        d = res.to_dict()
+        if outcome is not None:
+            d["target"] = outcome.to_json()
+        click.echo(json.dumps(d, default=float))
     else:
         from rich.console import Console
 

@@ -14,7 +14,8 @@ from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.record import Record, optional, read as read_record
 
 FORMAT = "bcfpipe-build"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
+COMPATIBLE_VERSIONS = (3,)  # version 4 added optional keys only (options.target_psnr, materials' preset, target)
 FILE = "manifest.json"
 WEIGHTS = "weights.bin"
 
@@ -127,6 +128,35 @@ class Outputs(Record):
 
 
 @dataclass(frozen=True)
+class RateAttempt(Record):
+    """One training that rate control ran (bcfpipe.train.rate)."""
+
+    profile: str
+    preset: str
+    why: str  # probe, predicted, climb or best effort
+    predicted_psnr: float | None
+    psnr: float
+    size_bytes: int
+    train_seconds: float
+
+
+@dataclass(frozen=True)
+class RateControl(Record):
+    """What --target-psnr chose for a material: the target, whether it was met, every attempt."""
+
+    target_psnr: float
+    met: bool
+    psnr: float
+    profile: str
+    preset: str
+    anchors: str  # probe or bench
+    predicted_max: float | None
+    seconds: float
+    attempts: tuple[RateAttempt, ...]
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class Material(Record):
     """One material of the scene and what became of it (status built, constant, failed or skipped)."""
 
@@ -148,6 +178,8 @@ class Material(Record):
     resolutions: tuple[int, ...] | None = optional()
     device: str | None = None
     warnings: tuple[str, ...] = ()
+    preset: str | None = optional()
+    target: RateControl | None = optional()
 
     _ORDER = ("path", "aliases", "job", "status")
 
@@ -201,6 +233,7 @@ class Options(Record):
     texel_density: float | None = optional()  # --texel-density, px/m
     resolution: int | None = optional()  # the texture set resampled to this larger side (a density cap)
     coverage: bool = True  # training draws from the texels the bound meshes read
+    target_psnr: float | None = optional()  # --target-psnr: rate control chose each job's profile and preset
 
 
 @dataclass(frozen=True)
@@ -271,7 +304,7 @@ def _version() -> str:
 
 def read(folder: str | os.PathLike) -> Manifest:
     """``folder/manifest.json``; a missing, foreign or malformed file raises FormatError."""
-    return read_record(Manifest, Path(folder) / FILE, FORMAT, FORMAT_VERSION)
+    return read_record(Manifest, Path(folder) / FILE, FORMAT, FORMAT_VERSION, COMPATIBLE_VERSIONS)
 
 
 def is_manifest(folder: str | os.PathLike) -> bool:

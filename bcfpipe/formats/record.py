@@ -140,8 +140,11 @@ def _load(tp: Any, v: Any, where: str) -> Any:
     raise TypeError(f"{where}: unsupported field type {tp!r}")
 
 
-def read(cls: type[R], path, fmt: str | None = None, version: int | None = None) -> R:
-    """Parse ``path`` as a ``cls`` record; a ``format``/``format_version`` mismatch is refused."""
+def read(cls: type[R], path, fmt: str | None = None, version: int | None = None,
+         compatible: tuple[int, ...] = ()) -> R:
+    """Parse ``path`` as a ``cls`` record; a ``format``/``format_version`` mismatch is refused.
+    ``compatible``: older versions whose files are also valid ``cls`` records (a later version
+    only added optional keys)."""
     from pathlib import Path
 
     path = Path(path)
@@ -154,7 +157,7 @@ def read(cls: type[R], path, fmt: str | None = None, version: int | None = None)
     if fmt is not None:
         if not isinstance(data, dict) or data.get("format") != fmt:
             raise FormatError(f"{path}: not a {fmt} file")
-        if data.get("format_version") != version:
+        if data.get("format_version") not in (version, *compatible):
             raise FormatError(f"{path}: {fmt} version {data.get('format_version')}; this bcfpipe reads "
                               f"version {version}")
     return cls.from_json(data, path.name)

@@ -1,0 +1,177 @@
+"""Decode cost of a neural material against classic BC textures: the paper's Table 3 protocol.
+
+Two full-screen passes draw into the same RGBA8 framebuffer: one decodes the neural material per
+pixel (glsl/bcf_fullscreen.frag: four BC6H layers, lod from the uv derivatives, the MLP from the
+weight SSBO), the other samples the material's classic BC textures (trilinear, full mip chains)
+and writes three of their channels. The uv transform tiles the material so that one reference
+texel covers about one pixel (s ~ 0). Frames of the two passes alternate, so that the load of a
+shared machine falls on both alike; each time is the median over the frames.
+
+On a GPU each draw is timed with a GL timer query (GL_TIME_ELAPSED). On a software renderer
+(Mesa llvmpipe) a timer query misses the rasterizer threads, so each draw is timed as draw +
+glFinish on the CPU clock, and only the ratio means anything.
+"""
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+
+from bcfpipe.verify import glsl as G
+
+__all__ = ["DecodeCost", "measure", "upload_classic", "random_classic", "classic_frag", "FORMATS", "SIZES"]
+
+GL_COMPRESSED_RGB_S3TC_DXT1_EXT = 0x83F0
+GL_COMPRESSED_RED_RGTC1 = 0x8DBB
+GL_COMPRESSED_RG_RGTC2 = 0x8DBD
+GL_COMPRESSED_RGBA_BPTC_UNORM = 0x8E8C
+# baseline format -> (GL internal format, bytes per block, name)
+FORMATS = {"bc1": (GL_COMPRESSED_RGB_S3TC_DXT1_EXT, 8, "BC1"), "bc4": (GL_COMPRESSED_RED_RGTC1, 8, "BC4"),
+           "bc5": (GL_COMPRESSED_RG_RGTC2, 16, "BC5"), "bc7": (GL_COMPRESSED_RGBA_BPTC_UNORM, 16, "BC7")}
+SIZES = {"1080p": (1920, 1080), "1440p": (2560, 1440), "2160p": (3840, 2160)}
+
+
+@dataclass(frozen=True)
+class DecodeCost:
+    """One side-by-side measurement; times in ms (absolute only when ``software`` is False)."""
+
+    width: int
+    height: int
+    frames: int
+    neural_ms: float
+    classic_ms: float
+    timer: str  # "GL_TIME_ELAPSED" or "draw+glFinish wall clock"
+    software: bool
+
+    @property
+    def ratio(self) -> float:
+        return self.neural_ms / self.classic_ms
+
+    def to_json(self) -> dict:
+        return dict(asdict(self), ratio=self.ratio)
+
+
+def classic_frag(n: int) -> str:
+    """The classic pass: sample each of ``n`` textures (trilinear, implicit derivatives) and write
+    three of their channels, as bcf_fullscreen.frag writes three of the decoded ones."""
+    decl = "\n".join(f"layout(binding = {k}) uniform sampler2D tex{k};" for k in range(n))
+    fetch = "\n".join(f"    t = texture(tex{k}, vUv); ch[{4 * k}] = t.r; ch[{4 * k + 1}] = t.g; "
+                      f"ch[{4 * k + 2}] = t.b; ch[{4 * k + 3}] = t.a;" for k in range(n))
+    return f"""#version 450 core
+layout(location = 0) in vec2 vUv;
+layout(location = 0) out vec4 fragColor;
+{decl}
+uniform int uView;
+void main() {{
+    float ch[{4 * n}];
+    vec4 t;
+{fetch}
+    int last = {4 * n - 1};
+    fragColor = vec4(ch[clamp(uView, 0, last)], ch[clamp(uView + 1, 0, last)], ch[clamp(uView + 2, 0, last)], 1.0);
+}}
+"""
+
+
+def upload_classic(rt: G.GLRuntime, textures: Sequence[tuple[str, list, list]], wrap: str) -> tuple[list[int], list[str]]:
+    """Upload a BC baseline's own blocks (bcfpipe.bench.baselines ``textures=``) -> (GL names, formats).
+
+    BC1 needs GL_EXT_texture_compression_s3tc (every desktop driver and Mesa have it); without it
+    a BC1 texture is replaced by random BC7 blocks of its size, which the format list says."""
+    has_s3tc = "GL_EXT_texture_compression_s3tc" in rt.ctx.extensions
+    names, fmts = [], []
+    rng = np.random.default_rng(0)
+    for fmt, _idx, levels in textures:
+        if fmt == "bc1" and not has_s3tc:
+            levels = [(rng.integers(0, 256, (len(b), 16), dtype=np.uint8), w, h) for b, w, h in levels]
+            fmt = "bc7"
+        gl_fmt, _, name = FORMATS[fmt]
+        names.append(rt.upload_compressed(levels, gl_fmt, wrap))
+        fmts.append(name)
+    return names, fmts
+
+
+def random_classic(m: G.MaterialDesc) -> list[tuple[str, list, list]]:
+    """Random blocks in the formats an engine would ship ``m``'s semantics in, at its reference
+    size with full mip chains (colour BC1, normal x/y BC5, scalar BC4): sampling cost does not
+    depend on block contents."""
+    groups: dict[str, list] = {}
+    for o in m.outputs:
+        if not o.reconstructed:
+            groups.setdefault(o.semantic, []).append(o)
+    w0, h0 = m.ref_size
+    rng = np.random.default_rng(0)
+    out = []
+    for outs in groups.values():
+        fmt = "bc5" if outs[0].kind == "normal" else "bc4" if len(outs) == 1 else "bc1"
+        block = FORMATS[fmt][1]
+        levels = []
+        for k in range(max(w0, h0).bit_length()):
+            w, h = max(1, w0 >> k), max(1, h0 >> k)
+            levels.append((rng.integers(0, 256, (((w + 3) // 4) * ((h + 3) // 4), block), dtype=np.uint8), w, h))
+        out.append((fmt, [], levels))
+    return out
+
+
+def _time_draw(rt: G.GLRuntime, vao, query, wall: bool) -> float:
+    if wall:
+        t0 = time.perf_counter()
+        vao.render(rt.moderngl.TRIANGLES, vertices=3)
+        rt.ctx.finish()
+        return (time.perf_counter() - t0) * 1e3
+    with query:
+        vao.render(rt.moderngl.TRIANGLES, vertices=3)
+    return query.elapsed / 1e6
+
+
+def measure(rt: G.GLRuntime, materials: Sequence[G.MaterialDesc], classic: Sequence[int], size: tuple[int, int],
+            frames: int = 200, warmup: int = 20) -> list[DecodeCost]:
+    """Median time of each material's neural pass and of the classic pass at ``size``, all frames
+    interleaved (classic, neural 1, neural 2, ... per frame) in one framebuffer."""
+    w, h = size
+    software = rt.is_software
+    plain = rt.ctx.program(vertex_shader=G.assemble("vert"), fragment_shader=classic_frag(len(classic)))
+    # never released: after a framebuffer is deleted, moderngl's next simple_framebuffer fails with
+    # GL_INVALID_OPERATION (it rebinds the deleted one); one per call is a few MB
+    fbo = rt.ctx.simple_framebuffer((w, h), components=4)
+    query = rt.ctx.query(time=True)
+    passes, loaded, vaos = [], [], []
+    try:
+        cvao = rt.ctx.vertex_array(plain, [])
+        vaos.append(cvao)
+        G.set_uniforms(plain, {"uView": 0, "uUvTransform": (w / materials[0].ref_size[0], h / materials[0].ref_size[1],
+                                                             0.0, 0.0)})
+        passes.append((cvao, list(classic), None))
+        for m in materials:
+            gm = rt.load(m)
+            loaded.append(gm)
+            prog = rt.render_program({"BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out,
+                                      "BCF_MAX_OUT": m.c_out})
+            vao = rt.ctx.vertex_array(prog, [])
+            vaos.append(vao)
+            uvt = (w / m.ref_size[0], h / m.ref_size[1], 0.0, 0.0)  # ~1 reference texel per pixel
+            passes.append((vao, gm.textures, (prog, dict(gm.uniforms(), uLodMode=0, uLod=0.0, uView=0,
+                                                         uUvTransform=uvt), gm)))
+        times: list[list[float]] = [[] for _ in passes]
+        fbo.use()
+        for i in range(warmup + frames):
+            for k, (vao, tex, neural) in enumerate(passes):
+                if neural is not None:  # the programs are shared between materials of one shape
+                    prog, uniforms, gm = neural
+                    G.set_uniforms(prog, uniforms)
+                    gm.weights.bind_to_storage_buffer(0)
+                rt.bind_textures(tex)
+                t = _time_draw(rt, vao, query, software)
+                if i >= warmup:
+                    times[k].append(t)
+    finally:
+        for vao in vaos:
+            vao.release()
+        for gm in loaded:
+            rt.unload(gm)
+        plain.release()
+    classic_ms = statistics.median(times[0])
+    timer = "draw+glFinish wall clock" if software else "GL_TIME_ELAPSED"
+    return [DecodeCost(w, h, frames, statistics.median(t), classic_ms, timer, software) for t in times[1:]]

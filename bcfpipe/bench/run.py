@@ -1,0 +1,247 @@
+"""`bcfpipe bench`: measure what each profile and preset buys against BC and ASTC, per texture set.
+
+For every set: the baseline grid, then every (profile, preset) BCf cell, then the decode cost of
+each BCf cell against the set's BC textures in one GL run, and the crops. The result is one
+JSON-ready dict (bcfpipe.bench.report writes it with its plots, HTML and markdown).
+"""
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from bcfpipe.bench import cells as C
+from bcfpipe.bench import crops as K
+from bcfpipe.bench import lod_sweep as L
+from bcfpipe.bench.progress import BenchProgress, baseline_estimate, cell_estimate
+from bcfpipe.bench.sets import BenchSet
+from bcfpipe.errors import InputError
+
+__all__ = ["BenchOptions", "run_bench", "machine", "FORMAT", "FORMAT_VERSION"]
+
+FORMAT = "bcfpipe-bench"
+FORMAT_VERSION = 1
+SIMILAR_SIZE = 2.0  # the crops' baseline: the best one within this factor of the BCf cell's size
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    profiles: tuple[str, ...] = ("0.5k", "1k")
+    presets: tuple[str, ...] = ("fast", "standard")
+    codecs: tuple[str, ...] = ("bc", "astc")
+    astc_blocks: tuple[str, ...] = ("4x4", "6x6", "8x8", "12x12")
+    shifts: tuple[int, ...] = (0, 1)  # baselines at full and half resolution
+    seed: int = 0
+    device: str = "auto"
+    threads: int = 1
+    hidden: int | None = None
+    decode_size: tuple[int, int] = (1920, 1080)
+    decode_frames: int | None = None  # None: 100 on a GPU, 3 on a software renderer
+    lod_step: float = 0.25
+    keep_materials: bool = False
+
+
+def machine() -> dict:
+    """CPU, cores, torch and the GPU torch sees: the record every bench figure carries."""
+    import torch
+
+    cpu = platform.processor() or "cpu"
+    try:
+        for line in subprocess.run(["lscpu"], capture_output=True, text=True).stdout.splitlines():
+            if line.startswith("Model name:"):
+                cpu = line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "torch": torch.__version__,
+            "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+
+
+def _check(bset: BenchSet, side: int, opts: BenchOptions) -> None:
+    from bcfpipe.config import PRESETS, resolve_profile
+
+    for p in opts.presets:
+        if p not in PRESETS:
+            raise InputError(f"unknown preset {p!r}; choose from {', '.join(PRESETS)}")
+    for prof in opts.profiles:
+        try:
+            _, res = resolve_profile(prof, side)
+        except ValueError as e:
+            raise InputError(str(e)) from None
+        if res[0] > side:
+            raise InputError(f"{bset.name}: profile {prof} (T_0 = {res[0]}) is larger than its {side}-texel "
+                             f"textures; pick smaller --profiles")
+
+
+def _gl():
+    from bcfpipe.verify import glsl as G
+
+    try:
+        return G.GLRuntime(), None
+    except G.GLUnavailable as e:
+        return None, str(e)
+
+
+def _decode_costs(rt, bc: C.Cell | None, bcf: Sequence[C.Cell], opts: BenchOptions, wrap: str) -> dict:
+    """Each BCf cell's full-screen decode against the set's own BC textures, in one GL context."""
+    from bcfpipe.bench import decode_cost as D
+    from bcfpipe.cli.decode import select_target
+
+    if bc is None or not bc.textures:
+        return {"skipped": "no BC baseline in this bench (--baselines without bc)"}
+    software = rt.is_software
+    frames = opts.decode_frames or (3 if software else 100)
+    warmup = 1 if software else 10
+    try:
+        names, fmts = D.upload_classic(rt, bc.textures, wrap)
+        try:
+            costs = D.measure(rt, [select_target(str(c.folder), None).desc for c in bcf], names, opts.decode_size,
+                              frames, warmup)
+        finally:
+            rt.delete_textures(names)
+    except Exception as exc:  # noqa: BLE001 - a GL failure costs this figure, not the bench
+        from bcfpipe.build.executor import one_line
+
+        return {"failed": one_line(exc)}
+    rows = [{"method": cell.method, **c.to_json()} for cell, c in zip(bcf, costs)]
+    return {"renderer": rt.info["renderer"], "gl_version": rt.info["version"], "software": software,
+            "classic": bc.method, "classic_formats": fmts, "width": opts.decode_size[0],
+            "height": opts.decode_size[1], "frames": frames, "timer": rows[0]["timer"] if rows else None,
+            "rows": rows,
+            "note": ("software renderer (llvmpipe): only the neural / classic ratio is meaningful"
+                     if software else "GPU times from GL timer queries")}
+
+
+def _similar_baseline(cell: C.Cell, baselines: Sequence[C.Cell]) -> C.Cell | None:
+    near = [b for b in baselines if cell.size_bytes / SIMILAR_SIZE <= b.size_bytes <= cell.size_bytes * SIMILAR_SIZE]
+    if near:
+        return max(near, key=lambda b: b.metrics.psnr)
+    return min(baselines, key=lambda b: abs(np.log(b.size_bytes / cell.size_bytes)), default=None)
+
+
+def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, progress: BenchProgress, rt) -> dict:
+    """Everything the report shows for one texture set (``ts``, loaded from ``bset``)."""
+    from bcfpipe.texset.reference import ReferencePyramid
+    from bcfpipe.texset.texture_set import build_mip_chain
+
+    ref = build_mip_chain(ts.data)
+    grid = L.LodGrid(ReferencePyramid.from_mips(ref), bset.wrap, [c.peak for c in ts.channels], opts.lod_step)
+    crop_at = K.crop_mips(len(ref))
+    windows = [K.choose_window(ref, crop_at[0], K.CROP_MIP0), K.choose_window(ref, crop_at[1], K.CROP_MID)]
+    trilinear = L.sweep(grid, L.mips_answer(ref, bset.wrap))
+    side = max(ts.width, ts.height)
+
+    baselines = []
+    for b in C.baseline_grid(opts.codecs, opts.astc_blocks, opts.shifts):
+        progress.start(f"{bset.name}: {b.label(side)}", _baseline_weight(ts, b))
+        baselines.append(C.measure_baseline(ts, ref, b, grid, windows, tmp_dir=str(work)))
+        progress.done()
+    bcf: list[C.Cell] = []
+    failed: list[dict] = []
+    for prof in opts.profiles:
+        for preset in opts.presets:
+            progress.start(f"{bset.name}: BCf {prof} {preset}", _cell_weight(preset))
+            folder = work / bset.slug / f"{prof}-{preset}"
+            try:
+                bcf.append(C.train_cell(ts, ref, prof, preset, folder, grid, windows, device=opts.device,
+                                        seed=opts.seed, hidden=opts.hidden, threads=opts.threads, wrap=bset.wrap,
+                                        progress=progress.fraction))
+            except (FloatingPointError, RuntimeError, MemoryError) as exc:  # the other cells still count
+                from bcfpipe.build.executor import one_line
+
+                failed.append({"method": f"BCf {prof} {preset}", "error": one_line(exc)})
+            progress.done()
+
+    bc_full = next((b for b in baselines if b.kind == "bc" and b.extra["resolution"] == side), None)
+    if rt is not None and bcf:
+        progress.start(f"{bset.name}: decode cost", 1.0)
+        decode = _decode_costs(rt, bc_full, bcf, opts, bset.wrap)
+        progress.done()
+    else:
+        decode = {"skipped": "no OpenGL 4.5 context" if bcf else "no BCf cell"}
+
+    crops = []
+    best = max(bcf, key=lambda c: c.metrics.psnr, default=None)
+    other = _similar_baseline(best, baselines) if best is not None else None
+    for w, (mip, x, y, n) in enumerate(windows):
+        methods = [(c.method, c.crops[w]) for c in (best, other) if c is not None]
+        if not methods:
+            break
+        png = f"{bset.slug}_crop_mip{mip}.png"
+        psnrs = K.crop_figure(out / png, f"{bset.name}, mip {mip} ({ref[mip].shape[1]}x{ref[mip].shape[0]}), "
+                              f"{n}x{n} at ({x}, {y})", ts.channels, ref[mip][y:y + n, x:x + n], methods)
+        crops.append({"mip": mip, "x": x, "y": y, "size": n, "png": png, "methods": [m for m, _ in methods],
+                      "psnr": psnrs})
+
+    if opts.keep_materials:
+        keep = out / "materials" / bset.slug
+        keep.parent.mkdir(parents=True, exist_ok=True)
+        for c in bcf:
+            dest = keep / c.folder.name
+            if dest.exists():
+                import shutil
+
+                shutil.rmtree(dest)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(c.folder, dest)
+            c.extra["folder"] = str(dest.relative_to(out))
+    return {"name": bset.name, "slug": bset.slug, "sources": [str(s) for s in bset.display_specs()],
+            "width": ts.width, "height": ts.height, "wrap": bset.wrap,
+            "channels": [{"semantic": c.semantic, "kind": c.kind} for c in ts.channels],
+            "mips": [list(m.shape[:2][::-1]) for m in ref],
+            "baselines": [c.to_json() for c in baselines], "cells": [c.to_json() for c in bcf],
+            "lod_sweep": {"s": grid.s, "trilinear_reference": trilinear, "points": int(grid.uv.shape[0])},
+            "decode_cost": decode, "crops": crops, "failed": failed}
+
+
+def _cell_weight(preset: str) -> float:
+    from bcfpipe.config import PRESETS
+
+    p = PRESETS[preset]
+    return cell_estimate(p.total_steps, p.batch)
+
+
+def _baseline_weight(ts, b: C.Baseline) -> float:
+    from bcfpipe.bench.baselines import pack_texture_set
+
+    texels = (ts.width >> b.shift) * (ts.height >> b.shift)
+    k = {"4x4": 4.0, "6x6": 2.0, "8x8": 1.5}.get(b.block or "", 1.0)  # astcenc -thorough slows with small blocks
+    return baseline_estimate(len(pack_texture_set(ts, b.codec)), texels) * k
+
+
+def run_bench(sets: Sequence[BenchSet], opts: BenchOptions, out: str | os.PathLike, quiet: bool = False) -> dict:
+    """Bench every set into ``out`` (crop PNGs now; the caller writes the report)."""
+    out = Path(out)
+    loaded = []
+    for s in sets:
+        ts = s.load()
+        _check(s, max(ts.width, ts.height), opts)
+        loaded.append((s, ts))
+    grid = C.baseline_grid(opts.codecs, opts.astc_blocks, opts.shifts)
+    total = sum(sum(_baseline_weight(ts, b) for b in grid) + 1.0 for _, ts in loaded)
+    total += len(loaded) * len(opts.profiles) * sum(_cell_weight(p) for p in opts.presets)
+    out.mkdir(parents=True, exist_ok=True)
+    rt, gl_error = _gl() if opts.profiles and opts.presets else (None, None)
+    results = []
+    try:
+        with tempfile.TemporaryDirectory(prefix=".bench-work-", dir=out) as work, \
+                BenchProgress(total, quiet) as progress:
+            for s, ts in loaded:
+                results.append(bench_set(s, ts, opts, out, Path(work), progress, rt))
+    finally:
+        if rt is not None:
+            rt.release()
+    from bcfpipe import __version__
+
+    return {"format": FORMAT, "format_version": FORMAT_VERSION, "bcfpipe_version": __version__,
+            "machine": machine(), "gl_error": gl_error,
+            "options": {"profiles": list(opts.profiles), "presets": list(opts.presets), "baselines": list(opts.codecs),
+                        "astc_blocks": list(opts.astc_blocks), "baseline_scales": [1 / (1 << s) for s in opts.shifts],
+                        "seed": opts.seed, "device": opts.device, "threads": opts.threads,
+                        "lod_step": opts.lod_step},
+            "sets": results}
