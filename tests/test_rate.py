@@ -18,8 +18,9 @@ from bcfpipe.train import rate  # noqa: E402
 
 def test_candidates_smallest_first_then_quickest() -> None:
     c = rate.candidates(2048, "cpu")
-    assert [(s.profile, s.preset) for s in c] == [(p, q) for p in ("0.5k", "1k", "2k")
-                                                  for q in ("draft", "fast", "standard")]
+    assert [(s.profile, s.preset) for s in c] == [(p, q) for p in ("0.5k", "1k") for q in ("draft", "fast", "standard")]
+    assert [(s.profile, s.preset) for s in rate.candidates(2048, "cuda")][-4:] == [
+        ("2k", q) for q in ("draft", "fast", "standard", "paper")]
     # the exact BC6H bytes of the 0.5k layers (512/256/128/64, every mip down to 4x4), as exported
     assert c[0].feature_bytes == sum(sum((r >> k) ** 2 // 16 * 16 for k in range(r.bit_length() - 2))
                                      for r in (512, 256, 128, 64))

@@ -90,7 +90,7 @@ def _gl():
 def _decode_costs(rt, bc: C.Cell | None, bcf: Sequence[C.Cell], opts: BenchOptions, wrap: str) -> dict:
     """Each BCf cell's full-screen decode against the set's own BC textures, in one GL context."""
     from bcfpipe.bench import decode_cost as D
-    from bcfpipe.cli.decode import select_target
+    from bcfpipe.verify.targets import find_targets
 
     if bc is None or not bc.textures:
         return {"skipped": "no BC baseline in this bench (--baselines without bc)"}
@@ -100,7 +100,7 @@ def _decode_costs(rt, bc: C.Cell | None, bcf: Sequence[C.Cell], opts: BenchOptio
     try:
         names, fmts = D.upload_classic(rt, bc.textures, wrap)
         try:
-            costs = D.measure(rt, [select_target(str(c.folder), None).desc for c in bcf], names, opts.decode_size,
+            costs = D.measure(rt, [find_targets(c.folder)[0].desc for c in bcf], names, opts.decode_size,
                               frames, warmup)
         finally:
             rt.delete_textures(names)

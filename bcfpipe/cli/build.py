@@ -179,6 +179,10 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
                    "Makefile-syntax depfile, for make or ninja (deps = gcc).")
 @click.option("--depfile-target", metavar="NAME",
               help="The depfile's target, like gcc -MT [default: OUT/<scene>.bcf.usda as given].")
+@click.option("--shard", metavar="I/N", default=None,
+              help="Train only shard I of N of the scene's jobs (a job's shard is its content hash mod N) into "
+                   "the cache and write nothing else; run every shard (any scheduler), then a plain build "
+                   "assembles from the cache without training.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the build report as one JSON object on stdout (schemas/report.schema.json).")
 @click.option("--force", is_flag=True, help="Replace an existing OUT even if bcfpipe did not write it.")
@@ -190,7 +194,8 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
           device: str, threads: int, target_psnr: float | None, bench_data: str | None,
           texel_density: float | None, no_coverage: bool,
           jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
-          depfile_target: str | None, as_json: bool, force: bool, run_verify_after: bool) -> None:
+          depfile_target: str | None, shard: str | None, as_json: bool, force: bool,
+          run_verify_after: bool) -> None:
     """Build neural materials for SCENE's textured UsdPreviewSurface materials.
 
     Writes OUT/<scene>.bcf.usda (open this), overrides.usda, weights.bin, manifest.json and
@@ -208,6 +213,13 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     display = None if quiet else BuildDisplay(Console(stderr=True))
     if no_cache and cache_dir is not None:
         raise click.UsageError("--cache and --no-cache contradict each other")
+    if shard is not None:
+        _shard(ctx, scene, shard, display, quiet, as_json, out=out, no_cache=no_cache, depfile=depfile,
+               verify=run_verify_after, cache=cache_dir, jobs=jobs, threads=threads, variants=variants,
+               all_materials=all_materials, profile=profile, preset=preset, seed=seed, device=device,
+               hidden=hidden, signed=signed, init=init, fix_nonfinite=fix_nonfinite, texel_density=texel_density,
+               coverage=not no_coverage, target_psnr=target_psnr, bench=bench)
+        return
     options = dict(variants=variants, all_materials=all_materials, profile=profile, preset=preset, hidden=hidden,
                    signed=signed, init=init, fix_nonfinite=fix_nonfinite, jobs=jobs, threads=threads, device=device,
                    seed=seed, force=force, texel_density=texel_density, coverage=not no_coverage,
@@ -238,3 +250,34 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
         out.print(f"open {shown if not shown.startswith('..') else result.root_layer}", highlight=False,
                   soft_wrap=True)
     ctx.exit(code)
+
+
+def _shard(ctx: click.Context, scene: Path, text: str, display, quiet: bool, as_json: bool, *, out, no_cache,
+           depfile, verify, cache, jobs, threads, **plan_options) -> None:
+    """`build --shard I/N`: train one shard into the cache (bcfpipe.build.shard)."""
+    import json
+
+    from bcfpipe.build.shard import parse_shard, train_shard
+    from bcfpipe.errors import InputError
+
+    shard = parse_shard(text)
+    for given, flag in ((out, "-o/--out"), (no_cache, "--no-cache"), (depfile, "--depfile"), (verify, "--verify")):
+        if given:
+            raise InputError(f"--shard trains into the cache and writes nothing else; drop {flag}")
+    if display is None:
+        res = train_shard(scene, shard, cache=cache, jobs=jobs, threads=threads, **plan_options)
+    else:
+        with display:
+            res = train_shard(scene, shard, cache=cache, jobs=jobs, threads=threads, progress=display,
+                              **plan_options)
+    if as_json:
+        click.echo(json.dumps(res.to_json(), indent=2))
+    elif not quiet:
+        counts = {k: sum(1 for j in res.jobs if (j.cache if j.status == "built" else "failed") == k)
+                  for k in ("miss", "hit", "failed")}
+        click.echo(f"shard {shard[0]}/{shard[1]}: {len(res.jobs)} of {res.total_jobs} job(s); {counts['miss']} "
+                   f"trained, {counts['hit']} already cached, {counts['failed']} failed; cache {res.cache}")
+        for j in res.jobs:
+            if j.status != "built":
+                click.echo(f"  {j.name}: failed: {j.reason}")
+    ctx.exit(res.exit_code)

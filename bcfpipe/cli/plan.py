@@ -55,7 +55,9 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, profile
         t.add_column(col, overflow="fold")
     for j in bplan.jobs:
         w, h = j.size
-        t.add_row(j.name, str(len(j.materials)), str(len(j.channels)), f"{w}x{h}", j.options.profile,
+        prof = j.options.profile if j.options.target_psnr is None else (
+            f"target {j.options.target_psnr:g} dB ({'bench' if j.anchors else 'probe'})")
+        t.add_row(j.name, str(len(j.materials)), str(len(j.channels)), f"{w}x{h}", prof,
                   f"{100 * j.covered_fraction:.0f}%" if j.covered_fraction is not None else "all",
                   j.content_hash[:16])
     con = Console()

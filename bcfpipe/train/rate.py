@@ -2,9 +2,9 @@
 
 Policy:
 
-1. Candidates are every paper profile whose T_0 fits the source (0.5k, 1k, 2k; a smaller source
-   gets its own `auto` profile) times every preset that suits the device (draft, fast, standard;
-   paper too on CUDA), ordered by size, then by training cost: smallest first.
+1. Candidates are the paper profiles whose T_0 fits the source (0.5k and 1k on a CPU, 2k too on
+   CUDA; a source under 512 gets its own `auto` profile) times the presets that suit the device
+   (draft, fast, standard; paper too on CUDA), ordered by size, then training cost: smallest first.
 2. Predictions come from measured anchors plus `GAINS_DB`, the mean PSNR of each (profile, preset)
    relative to (0.5k, draft) on the committed benches (docs/bench). The anchors are the cells of a
    `bcfpipe bench` report of the same set when one is given (no training), else one probe: the
@@ -34,6 +34,10 @@ __all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_
            "GAINS_DB", "MARGIN_DB"]
 
 MARGIN_DB = 0.5
+# On a CPU, 2k trains too few steps per texel to pay for its 4x bytes: on the teapot, 2k fast gave
+# 34.62 dB at 7.08 MiB in 844 s, 1k standard 35.51 dB at 1.77 MiB in 443 s (docs/benchmarks.md).
+CPU_PROFILES = ("0.5k", "1k")
+GPU_PROFILES = ("0.5k", "1k", "2k")
 # Mean PSNR over all mips relative to (0.5k, draft), CPU presets, means over the teapot and brick
 # benches (docs/bench, docs/benchmarks.md "Rate control"). 2k rows: the teapot's 2k fast against
 # its 1k fast, applied to each preset (2k standard was not run on a CPU).
@@ -75,8 +79,9 @@ def _feature_bytes(resolutions: Sequence[int]) -> int:
 
 def candidates(source_side: int, device: str = "cpu") -> list[Setting]:
     """Every setting rate control may choose for a set whose larger side is ``source_side``."""
-    profiles = [p for p in ("0.5k", "1k", "2k") if PROFILES[p][0] <= source_side] or ["auto"]  # auto: < 512
-    presets = ["draft", "fast", "standard"] + (["paper"] if device.startswith("cuda") else [])
+    cuda = device.startswith("cuda")
+    profiles = [p for p in (GPU_PROFILES if cuda else CPU_PROFILES) if PROFILES[p][0] <= source_side] or ["auto"]
+    presets = ["draft", "fast", "standard"] + (["paper"] if cuda else [])
     out = []
     for prof in profiles:
         res = resolve_profile(prof, source_side)[1]
