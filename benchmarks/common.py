@@ -1,9 +1,6 @@
 """Shared bits of the benchmark scripts: the teapot texture set and machine description."""
 from __future__ import annotations
 
-import os
-import platform
-import subprocess
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -23,14 +20,7 @@ def teapot_specs():
 
 def machine() -> str:
     """CPU model, cores, and the GPU torch sees, for the record in docs/benchmarks.md."""
-    cpu = platform.processor() or "cpu"
-    try:
-        for line in subprocess.run(["lscpu"], capture_output=True, text=True).stdout.splitlines():
-            if line.startswith("Model name:"):
-                cpu = line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    import torch
+    from bcfpipe.bench.run import machine as record
 
-    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
-    return f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__}, {gpu}"
+    m = record()
+    return f"{m['cpu']}, {m['cores']} cores, torch {m['torch']}, {m['gpu'] or 'no GPU'}"

@@ -11,6 +11,7 @@ from pathlib import Path
 __all__ = ["PLOTS", "draw_set"]
 
 PLOTS = ("rd", "time", "per_mip", "lod")
+SIDE_LEGEND = {"fontsize": 6, "ncol": 2, "loc": "upper left", "bbox_to_anchor": (1.01, 1.0)}
 TITLES = {"rd": "Rate-distortion", "time": "PSNR over training time", "per_mip": "PSNR per mip",
           "lod": "PSNR over lod"}
 
@@ -36,6 +37,18 @@ def _finite(v) -> float | None:
     return v if v is not None and v == v and abs(v) != float("inf") else None
 
 
+def _finish(plt, fig, ax, path: Path, xlabel: str, ylabel: str, title: str, legend: dict,
+            title_size: float | None = None, grid: str = "major") -> None:
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=title_size)
+    ax.grid(alpha=0.3, which=grid)
+    ax.legend(**legend)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def draw_rd(s: dict, path: Path) -> None:
     plt = _plt()
     full = max(s["width"], s["height"])
@@ -59,14 +72,8 @@ def draw_rd(s: dict, path: Path) -> None:
         for c in rows:
             ax.plot([c["size_mib"]], [c["psnr"]], "o", ms=7, label=f"BCf {prof} {c['preset']}")
     ax.set_xscale("log")
-    ax.set_xlabel("size (MiB, log scale; BCf: 4 BC6H feature textures + fp16 weights)")
-    ax.set_ylabel("PSNR over all mips (dB)")
-    ax.set_title(f"{s['name']}: rate-distortion")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _finish(plt, fig, ax, path, "size (MiB, log scale; BCf: 4 BC6H feature textures + fp16 weights)",
+            "PSNR over all mips (dB)", f"{s['name']}: rate-distortion", {"fontsize": 7, "loc": "best"}, grid="both")
 
 
 def draw_time(s: dict, path: Path) -> None:
@@ -77,15 +84,9 @@ def draw_time(s: dict, path: Path) -> None:
         line = ax.plot([t for t, _ in curve], [p for _, p in curve], lw=1, alpha=0.6)[0]
         ax.plot([c["train_seconds"]], [c["psnr"]], "o", ms=7, color=line.get_color(),
                 label=f"{c['method']}: {c['psnr']:.2f} dB exported")
-    ax.set_xlabel("training wall time (s)")
-    ax.set_ylabel("PSNR (dB)")
-    ax.set_title(f"{s['name']}: PSNR over training time\n(lines: training loss as PSNR, float model; "
-                 f"dots: exported files, all mips)", fontsize=9)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _finish(plt, fig, ax, path, "training wall time (s)", "PSNR (dB)",
+            f"{s['name']}: PSNR over training time\n(lines: training loss as PSNR, float model; "
+            f"dots: exported files, all mips)", {"fontsize": 7, "loc": "lower right"}, title_size=9)
 
 
 def draw_per_mip(s: dict, path: Path) -> None:
@@ -98,14 +99,8 @@ def draw_per_mip(s: dict, path: Path) -> None:
                 else 1, label=row["method"], **_style(row, full))
     ax.set_xticks(range(len(s["mips"])))
     ax.set_xticklabels([f"{k}\n{w}" for k, (w, _) in enumerate(s["mips"])], fontsize=7)
-    ax.set_xlabel("mip (its width)")
-    ax.set_ylabel("PSNR (dB)")
-    ax.set_title(f"{s['name']}: PSNR per mip (exported files; baselines decode every mip)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _finish(plt, fig, ax, path, "mip (its width)", "PSNR (dB)",
+            f"{s['name']}: PSNR per mip (exported files; baselines decode every mip)", SIDE_LEGEND)
 
 
 def draw_lod(s: dict, path: Path) -> None:
@@ -120,15 +115,9 @@ def draw_lod(s: dict, path: Path) -> None:
         st = _style(row, full)
         ax.plot(sweep["s"], ys, lw=1.2 if row["kind"] == "bcf" else 0.9, ls=st["ls"], alpha=st["alpha"],
                 label=row["method"])
-    ax.set_xlabel("lod s (reference mip units)")
-    ax.set_ylabel("PSNR (dB)")
-    ax.set_title(f"{s['name']}: PSNR over a continuous lod sweep\n({sweep['points']} random uv; target: "
-                 f"bicubic in mips floor(s), floor(s)+1, lerped)", fontsize=9)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _finish(plt, fig, ax, path, "lod s (reference mip units)", "PSNR (dB)",
+            f"{s['name']}: PSNR over a continuous lod sweep\n({sweep['points']} random uv; target: "
+            f"bicubic in mips floor(s), floor(s)+1, lerped)", SIDE_LEGEND, title_size=9)
 
 
 DRAW = {"rd": draw_rd, "time": draw_time, "per_mip": draw_per_mip, "lod": draw_lod}
