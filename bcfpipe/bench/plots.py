@@ -52,7 +52,7 @@ def _finish(plt, fig, ax, path: Path, xlabel: str, ylabel: str, title: str, lege
 def draw_rd(s: dict, path: Path) -> None:
     plt = _plt()
     full = max(s["width"], s["height"])
-    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=110)
+    fig, ax = plt.subplots(figsize=(8.5, 4.4), dpi=110)
     series: dict[tuple, list[dict]] = {}
     for b in s["baselines"]:
         series.setdefault((b["codec"] if b["codec"] == "bc" else "astc", b["resolution"]), []).append(b)
@@ -73,7 +73,8 @@ def draw_rd(s: dict, path: Path) -> None:
             ax.plot([c["size_mib"]], [c["psnr"]], "o", ms=7, label=f"BCf {prof} {c['preset']}")
     ax.set_xscale("log")
     _finish(plt, fig, ax, path, "size (MiB, log scale; BCf: 4 BC6H feature textures + fp16 weights)",
-            "PSNR over all mips (dB)", f"{s['name']}: rate-distortion", {"fontsize": 7, "loc": "best"}, grid="both")
+            "PSNR over all mips (dB)", f"{s['name']}: rate-distortion", {**SIDE_LEGEND, "ncol": 1, "fontsize": 7},
+            grid="both")
 
 
 def draw_time(s: dict, path: Path) -> None:

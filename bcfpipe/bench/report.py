@@ -122,7 +122,10 @@ def _html(data: dict, plots: dict[str, dict[str, str]]) -> str:
              f"{html.escape(m['torch'])}, {html.escape(m['gpu'] or 'no GPU')}. bcfpipe "
              f"{html.escape(data['bcfpipe_version'])}. Every PSNR is measured with the same metric code "
              "against the same reference mips: BCf from its exported files (BC6H DDS + fp16 decoder through "
-             "onnxruntime), baselines after encoding and decoding every mip. PSNR over all mips averages the "
+             "onnxruntime), baselines after encoding and decoding every mip (BC: quicktex, BC1 at its slowest "
+             "level for colour and packed maps, BC5 for normal xy, BC4 for a lone scalar; ASTC: astcenc "
+             "-thorough, LDR linear; a half-size baseline is magnified bilinearly for the mip it lacks). "
+             "PSNR over all mips averages the "
              "MSE of the mips of at least 4x4; SSIM and FLIP are at mip 0.</p>"]
     for s in data["sets"]:
         parts.append(f"<h2 id='{html.escape(s['slug'])}'>{html.escape(s['name'])}</h2><p class='note'>"
