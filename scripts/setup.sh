@@ -39,6 +39,6 @@ if [[ "$TORCH" != skip ]]; then
   echo "setup: installing $TORCH" >&2
   .venv/bin/pip install -q "$TORCH"
 fi
-echo "setup: installing bcfpipe[dev]" >&2
-.venv/bin/pip install -q -e ".[dev]" 2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
+echo "setup: installing bcfpipe[dev,ray]" >&2
+.venv/bin/pip install -q -e ".[dev,ray]" 2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
 echo "$want" > "$stamp"

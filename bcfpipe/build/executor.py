@@ -53,6 +53,7 @@ class JobResult:
     threads: int
     result: dict = field(default_factory=dict)  # MaterialResult.to_dict() when built
     cache: str | None = None  # "hit" / "miss" with a cache, None without
+    attempts: int = 1  # > 1: its worker died and it ran again
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -122,7 +123,11 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
         return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
 
 
-def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, t0: float) -> dict:
+def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, t0: float,
+               sources: Mapping[str, bytes] | None = None) -> dict:
+    """Train one job into ``out_dir``. Its source files are read where the plan found them, or,
+    given ``sources`` ({plan path: bytes}, a worker without the driver's filesystem), from those
+    bytes."""
     name = job.get("name", "?")
     try:
         if mp.parent_process() is not None:  # a worker process: keep the build's stdout clean (--json)
@@ -152,7 +157,8 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         if progress:
             progress.phase("load")
         with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
-            local = {path: local_file(path, tmp) for _, path, _ in mj.specs}
+            local = ({path: local_file(path, tmp) for _, path, _ in mj.specs} if sources is None
+                     else write_sources(sources, tmp))
             ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
                                   resolution=mj.size if mj.options.resolution else None,
                                   fix_nonfinite=mj.options.fix_nonfinite)
@@ -186,6 +192,25 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         return JobResult(mj.name, "built", None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
+
+
+def write_sources(sources: Mapping[str, bytes], folder: str | os.PathLike) -> dict[str, str]:
+    """Write each source's bytes into ``folder`` under a name that keeps its extension (image
+    readers go by it); {plan path: local path}."""
+    out = {}
+    for k, (path, data) in enumerate(sorted(sources.items())):
+        local = Path(folder) / f"{k}_{Path(path.split('[')[-1].rstrip(']')).name}"
+        local.write_bytes(data)
+        out[path] = str(local)
+    return out
+
+
+def read_sources(job: MaterialJob) -> dict[str, bytes]:
+    """The bytes of every source file a job reads (a packaged file's through USD's resolver)."""
+    from bcfpipe.scan.texture_sets import package_split, read_asset
+
+    return {path: (read_asset(path) if package_split(path) else Path(path).read_bytes())
+            for path in dict.fromkeys(p for _, p, _ in job.specs)}
 
 
 def _drain(queue, progress: ProgressCallback | None) -> None:

@@ -31,7 +31,7 @@ def headline_psnr(m: mfst.Material) -> float | None:
 
 def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResult], files: Sequence[str],
                 written: Sequence[str], cache_root: str | None, damaged: Sequence[str], wall_seconds: float,
-                depfile: str | None) -> rep.BuildReport:
+                depfile: str | None, executor: str = "local") -> rep.BuildReport:
     mats = []
     for m in manifest.materials:
         r = results.get(m.job) if m.job else None
@@ -44,7 +44,8 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
             train_seconds=round(train, 3) if train is not None else None,
             seconds=round(r.seconds, 3) if r is not None else None,
             total_bytes=m.sizes.total_bytes if m.sizes else None,
-            files=material_files(m, manifest, files), folded=m.folded))
+            files=material_files(m, manifest, files), folded=m.folded,
+            attempts=r.attempts if r is not None and r.attempts > 1 else None))
     built = [r for r in results.values() if r.status == "built"]
     hits = sum(1 for r in built if r.cache == "hit")
     trained = [r for r in built if r.cache != "hit"]
@@ -59,4 +60,5 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
             trained=len(trained), cached=hits,
             train_seconds=round(sum(r.result.get("train_seconds") or 0.0 for r in trained), 3),
             wall_seconds=round(wall_seconds, 3), total_bytes=t.total_bytes, written_files=len(written)),
-        materials=tuple(mats), written=tuple(written), depfile=depfile)
+        materials=tuple(mats), written=tuple(written), depfile=depfile,
+        executor=executor if executor != "local" else None)

@@ -8,7 +8,7 @@ import os
 import shutil
 import time
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Mapping
 
@@ -153,7 +153,8 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
           executor: cf.Executor | None = None, threads: int | None = None,
           cache: str | os.PathLike | bool | None = None, depfile: str | os.PathLike | None = None,
           depfile_target: str | None = None, texel_density: float | None = None,
-          coverage: bool = True, target_psnr: float | None = None, bench: Mapping | None = None) -> BuildResult:
+          coverage: bool = True, target_psnr: float | None = None, bench: Mapping | None = None,
+          executor_name: str = "local", ray_address: str | None = None) -> BuildResult:
     """Build neural materials for ``scene`` into ``out`` (default ``<scene>.bcf/`` next to it); the
     Python twin of ``bcfpipe build``.
 
@@ -198,8 +199,15 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     try:
         results, damaged = _cached(bplan, store, staging / MATERIALS_DIR, progress)
         todo = [j for j in bplan.jobs if j.name not in results]
-        results.update(execute(todo, staging / MATERIALS_DIR, workers=jobs, executor=executor, progress=progress,
-                               threads=threads, cache_root=store.root if store else None))
+        if executor_name == "ray":
+            from bcfpipe.build.ray_executor import execute_ray
+
+            done, attempts = execute_ray(todo, staging / MATERIALS_DIR, ray_address, threads=threads,
+                                         progress=progress, cache_root=store.root if store else None)
+            results.update({k: replace(r, attempts=attempts.get(k, 1)) for k, r in done.items()})
+        else:
+            results.update(execute(todo, staging / MATERIALS_DIR, workers=jobs, executor=executor,
+                                   progress=progress, threads=threads, cache_root=store.root if store else None))
         (staging / _PID).unlink()
         manifest = assemble(bplan, results, staging, out_path)
         files = sorted(p.relative_to(staging).as_posix() for p in staging.rglob("*") if p.is_file())
@@ -216,5 +224,5 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
         target = depfile_target or (out_given / manifest.root_layer).as_posix()
         dep = str(write_depfile(depfile, target, dependencies(bplan.layers, bplan.sources)))
     report = make_report(str(out_given), manifest, results, files, written, str(store.root) if store else None,
-                         damaged, time.perf_counter() - t0, dep)
+                         damaged, time.perf_counter() - t0, dep, executor_name)
     return BuildResult(out_path, out_path / manifest.root_layer, manifest, bplan, report)

@@ -147,6 +147,9 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
         if m.metrics and m.metrics.detail and m.metrics.detail.covered_fraction is not None:
             note = f"{note}; " if note else ""
             note += f"PSNR over the {100 * m.metrics.detail.covered_fraction:.0f}% of texels read"
+        if r.attempts:
+            note = f"{note}; " if note else ""
+            note += f"worker died, retried: {r.attempts} attempts"
         if m.target is not None:
             goal = "met" if m.target.met else "unreachable"
             note = f"{note}; " if note else ""
@@ -179,6 +182,12 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
                    "Makefile-syntax depfile, for make or ninja (deps = gcc).")
 @click.option("--depfile-target", metavar="NAME",
               help="The depfile's target, like gcc -MT [default: OUT/<scene>.bcf.usda as given].")
+@click.option("--executor", "executor_name", type=click.Choice(["auto", "local", "ray"]), default="auto",
+              show_default=True,
+              help="Where the jobs train: local worker processes, or one Ray task each on a Ray cluster "
+                   "(pip install 'bcfpipe[ray]'); auto = ray when --ray-address or RAY_ADDRESS is set.")
+@click.option("--ray-address", default=None, metavar="ADDR",
+              help="The Ray cluster to use (host:port); default RAY_ADDRESS, else a local Ray.")
 @click.option("--shard", metavar="I/N", default=None,
               help="Train only shard I of N of the scene's jobs (a job's shard is its content hash mod N) into "
                    "the cache and write nothing else; run every shard (any scheduler), then a plain build "
@@ -194,7 +203,8 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
           device: str, threads: int, target_psnr: float | None, bench_data: str | None,
           texel_density: float | None, no_coverage: bool,
           jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
-          depfile_target: str | None, shard: str | None, as_json: bool, force: bool,
+          depfile_target: str | None, executor_name: str, ray_address: str | None, shard: str | None,
+          as_json: bool, force: bool,
           run_verify_after: bool) -> None:
     """Build neural materials for SCENE's textured UsdPreviewSurface materials.
 
@@ -213,6 +223,13 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     display = None if quiet else BuildDisplay(Console(stderr=True))
     if no_cache and cache_dir is not None:
         raise click.UsageError("--cache and --no-cache contradict each other")
+    from bcfpipe.build.ray_executor import resolve_executor
+
+    executor_name = resolve_executor(executor_name, ray_address)
+    if executor_name == "ray":
+        from bcfpipe.build.ray_executor import require_ray
+
+        require_ray()  # without the package: one line, exit 2
     if shard is not None:
         _shard(ctx, scene, shard, display, quiet, as_json, out=out, no_cache=no_cache, depfile=depfile,
                verify=run_verify_after, cache=cache_dir, jobs=jobs, threads=threads, variants=variants,
@@ -224,7 +241,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
                    signed=signed, init=init, fix_nonfinite=fix_nonfinite, jobs=jobs, threads=threads, device=device,
                    seed=seed, force=force, texel_density=texel_density, coverage=not no_coverage,
                    cache=False if no_cache else cache_dir, depfile=depfile, depfile_target=depfile_target,
-                   target_psnr=target_psnr, bench=bench)
+                   target_psnr=target_psnr, bench=bench, executor_name=executor_name, ray_address=ray_address)
     if display is None:
         result = run_build(scene, out, **options)
     else:

@@ -33,6 +33,7 @@ class MaterialReport(Record):
     total_bytes: int | None
     files: tuple[str, ...]
     folded: tuple[Folded, ...] = ()
+    attempts: int | None = optional()  # only when its job ran more than once (a worker died)
 
 
 @dataclass(frozen=True)
@@ -78,6 +79,7 @@ class BuildReport(Record):
     written: tuple[str, ...]
     depfile: str | None = None
     verify_exit_code: int | None = optional()
+    executor: str | None = optional()  # "ray" when the jobs ran on Ray; absent for the local pool
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
 

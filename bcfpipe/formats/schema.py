@@ -141,6 +141,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Material", "resolutions"): "Resolutions of T_0..T_3 (only when built).",
     ("Material", "device"): "torch device its job ran on.",
     ("Material", "warnings"): "Scan warnings about this material.",
+    ("MaterialReport", "attempts"): "How many times its job ran, when more than once (its worker died and Ray retried it).",
+    ("BuildReport", "executor"): "Where the jobs ran when not in the local process pool: 'ray'.",
     ("Material", "preset"): "Training preset of its job (only when built).",
     ("Material", "target"): "What --target-psnr chose for this material (only with --target-psnr).",
     ("RateControl", "target_psnr"): "The requested PSNR over all mips, dB.",

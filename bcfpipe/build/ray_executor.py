@@ -1,0 +1,178 @@
+"""The Ray executor: one Ray task per training job, on a local or remote Ray cluster.
+
+Data flow: workers need not share the driver's filesystem. The driver puts each job's source
+bytes into the object store once (``ray.put``); the task writes them to its own temporary folder,
+trains there, and returns the exported files as bytes. The driver writes them into the build's
+staging folder and stores them in the cache (atomically, under the key's lock), exactly as a
+local worker would, so the outputs are byte-identical to a local build's.
+
+Faults: a task whose worker process dies is retried by Ray (``max_retries``); a Python
+exception inside training is not an infrastructure fault and is reported, not retried (the task
+returns a failed result). A job that fails for good fails only its materials. Every attempt is
+counted by a small actor, so a retry is reported. Ctrl-C cancels the tasks still queued or running.
+
+Threads and device come from what Ray grants: ``num_cpus`` = the build's ``--threads``, and
+``num_gpus`` = 1 when training on CUDA.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Sequence
+
+from bcfpipe.build.executor import JobResult, _emit, _drain, _train_job, one_line, read_sources
+from bcfpipe.build.plan import MaterialJob, ProgressCallback
+from bcfpipe.config import DEFAULT_THREADS
+from bcfpipe.errors import Unavailable
+
+__all__ = ["RayUnavailable", "require_ray", "execute_ray", "resolve_executor", "EXECUTORS", "MAX_RETRIES"]
+
+EXECUTORS = ("auto", "local", "ray")
+MAX_RETRIES = 2  # attempts after a worker process dies
+
+
+class RayUnavailable(Unavailable):
+    """--executor ray without the ray package, or no cluster to reach."""
+
+
+def resolve_executor(name: str, address: str | None) -> str:
+    """'auto' is ray when an address is given or RAY_ADDRESS is set, else local."""
+    if name not in EXECUTORS:
+        raise RayUnavailable(f"unknown executor {name!r}; choose from {', '.join(EXECUTORS)}")
+    if name == "auto":
+        return "ray" if (address or os.environ.get("RAY_ADDRESS")) else "local"
+    return name
+
+
+def require_ray():
+    try:
+        import ray
+    except ImportError:
+        raise RayUnavailable("--executor ray needs the ray package: pip install 'bcfpipe[ray]' "
+                             "(or pip install ray)") from None
+    return ray
+
+
+def _remote_parts(ray):
+    """The task and the attempt counter, defined once ray is imported."""
+
+    @ray.remote(num_cpus=0)
+    class Attempts:
+        def __init__(self):
+            self.n: dict[str, int] = {}
+
+        def start(self, name: str) -> int:
+            self.n[name] = self.n.get(name, 0) + 1
+            return self.n[name]
+
+        def counts(self) -> dict[str, int]:
+            return dict(self.n)
+
+    @ray.remote
+    def train_task(job: dict, device: str, counter, queue, paths: list[str], *blobs: bytes):
+        ray.get(counter.start.remote(job["name"]))
+        granted = ray.get_runtime_context().get_assigned_resources()
+        threads = max(1, int(granted.get("CPU", 1)))
+        with tempfile.TemporaryDirectory(prefix="bcfpipe-ray-") as tmp:
+            out = Path(tmp) / "out"
+            r = _train_job(job, str(out), threads, device, queue, time.perf_counter(),
+                           sources=dict(zip(paths, blobs)))
+            files = {p.name: p.read_bytes() for p in sorted(out.iterdir()) if p.is_file()} if out.is_dir() else {}
+        return r, files
+
+    return Attempts, train_task
+
+
+def _store(job: MaterialJob, r: JobResult, files: dict[str, bytes], materials_dir: Path,
+           cache_root: str | None) -> JobResult:
+    """Write a finished task's files into the staging folder and the cache."""
+    folder = materials_dir / job.name
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    for name, data in files.items():
+        (folder / name).write_bytes(data)
+    if cache_root is None or r.status != "built":
+        return r
+    from bcfpipe.cache import Cache
+
+    cache = Cache(cache_root)
+    try:
+        with cache.lock(job.content_hash):
+            cache.put(job.content_hash, folder, r.result)
+    except OSError as exc:  # a full cache costs a retrain later, not this build
+        import logging
+
+        logging.getLogger("bcfpipe.cache").warning("could not store %s in the cache: %s", job.name, exc)
+    return JobResult(r.name, r.status, r.reason, r.seconds, r.device, r.threads, r.result, "miss")
+
+
+def execute_ray(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, address: str | None = None,
+                threads: int | None = None, progress: ProgressCallback | None = None,
+                cache_root: str | os.PathLike | None = None,
+                max_retries: int = MAX_RETRIES) -> tuple[dict[str, JobResult], dict[str, int]]:
+    """Train ``jobs`` as Ray tasks into ``materials_dir/<job>/``; returns ({job: JobResult},
+    {job: attempts}). Connects to ``address`` (or RAY_ADDRESS), else starts a local Ray."""
+    ray = require_ray()
+    materials_dir = Path(materials_dir)
+    materials_dir.mkdir(parents=True, exist_ok=True)
+    if not jobs:
+        return {}, {}
+    threads = max(1, int(threads)) if threads else DEFAULT_THREADS
+    device = jobs[0].options.device
+    started_here = not ray.is_initialized()
+    if started_here:
+        try:
+            ray.init(address=address or os.environ.get("RAY_ADDRESS") or None, log_to_driver=False,
+                     include_dashboard=False, configure_logging=False)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            raise RayUnavailable(f"cannot reach a Ray cluster at {address or os.environ.get('RAY_ADDRESS')}: "
+                                 f"{one_line(exc)}") from None
+    from ray.util.queue import Queue
+
+    Attempts, train_task = _remote_parts(ray)
+    counter = Attempts.remote()
+    queue = Queue(actor_options={"num_cpus": 0}) if progress else None
+    root = str(cache_root) if cache_root is not None else None
+    gpus = 1 if device.startswith("cuda") else 0
+    refs = {}
+    results: dict[str, JobResult] = {}
+    try:
+        for job in jobs:
+            src = read_sources(job)
+            paths = list(src)
+            blobs = [ray.put(src[p]) for p in paths]
+            ref = train_task.options(num_cpus=threads, num_gpus=gpus, max_retries=max_retries,
+                                     retry_exceptions=False).remote(job.to_dict(), device, counter, queue, paths,
+                                                                    *blobs)
+            refs[ref] = job
+            _emit(progress, event="queued", job=job.name, materials=list(job.materials))
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1, timeout=0.2)
+            _drain(queue, progress)
+            for ref in ready:
+                job = refs[ref]
+                try:
+                    raw, files = ray.get(ref)
+                    r = _store(job, JobResult(**raw), files, materials_dir, root)
+                except Exception as exc:  # noqa: BLE001 - the task failed for good: its materials fail
+                    r = JobResult(job.name, "failed", one_line(exc), 0.0, device, threads)
+                results[job.name] = r
+                _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
+                      psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
+        _drain(queue, progress)
+        attempts = ray.get(counter.counts.remote())
+    except KeyboardInterrupt:  # cancel what is still queued or running; the build then stops cleanly
+        for ref, job in refs.items():
+            if job.name not in results:
+                ray.cancel(ref, force=True)
+        raise
+    finally:
+        if started_here:
+            ray.shutdown()
+    return {j.name: results[j.name] for j in jobs}, attempts
+
