@@ -85,6 +85,7 @@ def test_two_node_cluster_matches_a_local_build_and_survives_a_killed_worker(clu
     p = build(a, tmp_path / "cache-ray", "--executor", "ray", "--ray-address", cluster)
     out, err = p.communicate(timeout=900)
     assert p.returncode == 0, err
+    assert out.lstrip().startswith("{"), out[:2000]
     report = json.loads(out)
     assert report["executor"] == "ray" and report["totals"]["trained"] == 3
     b = scene(tmp_path / "b", n=3)
@@ -107,6 +108,6 @@ def test_two_node_cluster_matches_a_local_build_and_survives_a_killed_worker(clu
             time.sleep(0.2)
     out, err = p.communicate(timeout=900)
     assert victim is not None, "no Ray worker ran the job"
-    assert p.returncode == 0, err
+    assert p.returncode == 0 and out.lstrip().startswith("{"), (out[:500], err[-3000:])
     (m,) = [m for m in json.loads(out)["materials"] if m["status"] == "built"]
     assert m["attempts"] == 2

@@ -16,8 +16,10 @@ Threads and device come from what Ray grants: ``num_cpus`` = the build's ``--thr
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -115,7 +117,13 @@ def execute_ray(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, a
                 cache_root: str | os.PathLike | None = None,
                 max_retries: int = MAX_RETRIES) -> tuple[dict[str, JobResult], dict[str, int]]:
     """Train ``jobs`` as Ray tasks into ``materials_dir/<job>/``; returns ({job: JobResult},
-    {job: attempts}). Connects to ``address`` (or RAY_ADDRESS), else starts a local Ray."""
+    {job: attempts}). Connects to ``address`` (or RAY_ADDRESS), else starts a local Ray. Ray's
+    own messages (a raylet reporting a dead worker, ...) go to stderr: stdout stays the build's."""
+    with contextlib.redirect_stdout(sys.stderr):
+        return _execute(jobs, materials_dir, address, threads, progress, cache_root, max_retries)
+
+
+def _execute(jobs, materials_dir, address, threads, progress, cache_root, max_retries):
     ray = require_ray()
     materials_dir = Path(materials_dir)
     materials_dir.mkdir(parents=True, exist_ok=True)
