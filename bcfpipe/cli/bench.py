@@ -100,7 +100,7 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
         raise InputError("give a SCENE or texture specs (SEMANTIC=FILE[:CHANNELS]); see --help")
     if output.exists() and any(output.iterdir()) and not force:
         raise InputError(f"{output} is not empty; pass --force to write into it")
-    from bcfpipe.bench.baselines import CODECS, astcenc_path
+    from bcfpipe.bench.baselines import CODECS, astcenc_path, parse_block
     from bcfpipe.bench.run import BenchOptions, run_bench
     from bcfpipe.bench.sets import from_scene, from_specs
     from bcfpipe.config import PRESETS, PROFILE_NAMES
@@ -114,8 +114,6 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
                         astc_blocks=_list(astc_blocks, "--astc-blocks"), shifts=(0,) if no_half else (0, 1),
                         seed=seed, device=device, threads=threads, decode_size=_size(decode_size),
                         decode_frames=decode_frames, keep_materials=keep_materials)
-    from bcfpipe.bench.baselines import parse_block
-
     for b in opts.astc_blocks:
         try:
             parse_block(b)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
@@ -222,16 +222,7 @@ def fit_to_target(target: float, settings: Sequence[Setting], train_one: TrainFn
             shutil.rmtree(dest)
         f.replace(dest)
     shutil.rmtree(work, ignore_errors=True)
-    res = results[(chosen.setting.profile, chosen.setting.preset)]
-    res = _moved(res, out_dir)
+    res = replace(results[(chosen.setting.profile, chosen.setting.preset)], out_dir=out_dir)
     return res, TargetOutcome(target, bool(meeting), chosen, tuple(attempts), source, predicted_max,
                               round(time.perf_counter() - t0, 3), tuple(notes))
 
-
-def _moved(res, out_dir: Path):
-    from dataclasses import replace
-
-    try:
-        return replace(res, out_dir=out_dir)
-    except TypeError:
-        return res
