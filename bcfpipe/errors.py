@@ -7,10 +7,11 @@ Exit codes (every command):
   0  success
   1  the work ran but failed (a material did not build, verification failed, ...)
   2  usage error or unreadable input (bad arguments, missing or corrupt file, refused output)
+  130 interrupted (Ctrl-C): running work was cancelled; outputs were left as they were
 """
 from __future__ import annotations
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 class BcfError(Exception):

@@ -492,7 +492,23 @@ def test_plain_progress_lines() -> None:
         display({"event": "done", "job": "A", "status": "built", "psnr": 30.5, "seconds": 12.0})
     lines = buf.getvalue().splitlines()
     assert len(lines) == 2 and "A: warmup" in lines[0] and "PSNR 30.50" in lines[1]
-    assert "[1/1]" in lines[1]
+    assert "[1/1: 1 trained, 0 cached, 0 failed; 0 running, 0 queued]" in lines[1]
+
+
+def test_progress_counts_every_state() -> None:
+    """queued, running, trained, cached and failed are counted (the live title and the plain lines)."""
+    from rich.console import Console
+
+    display = BuildDisplay(Console(file=io.StringIO(), width=200), live=False)
+    display({"event": "done", "job": "C", "status": "built", "cache": "hit", "psnr": 31.0, "seconds": 0.0})
+    for name in "ABDE":
+        display({"event": "queued", "job": name, "materials": [f"/W/{name}"]})
+    display({"event": "progress", "job": "A", "phase": "warmup", "step": 1, "steps": 9})
+    display({"event": "progress", "job": "B", "phase": "warmup", "step": 1, "steps": 9})
+    display({"event": "done", "job": "B", "status": "built", "psnr": 30.0, "seconds": 3.0})
+    display({"event": "done", "job": "D", "status": "failed", "reason": "worker process died"})
+    assert display.counts() == {"queued": 1, "running": 1, "done": 1, "cached": 1, "failed": 1}
+    assert display.table().title.endswith("3/5: 1 trained, 1 cached, 1 failed; 1 running, 1 queued")
 
 
 def test_schema_helper() -> None:

@@ -197,6 +197,53 @@ def test_sigkill_at_random_moments_never_leaves_anything_used_corrupt(tmp_path):
     assert not list(out.glob(".bcfpipe-staging-*")), "staging folders of killed builds are cleaned up"
 
 
+def test_ctrl_c_stops_the_workers_and_leaves_out_as_it_was(tmp_path):
+    """SIGINT to the build (its process only, as `kill -INT` would) while a worker trains the paper
+    preset (hours on a CPU): exit 130 with one line, at once (the workers are stopped, not waited
+    for); nothing new in the cache; OUT keeps its previous build; no staging is left."""
+    scene = small_scene(tmp_path)
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    assert cli("build", str(scene), "-o", str(out), "--cache", str(cache), *CLI_FAST).returncode == 0
+    before = tree(out)
+    entries = {e.key for e in Cache(cache).entries()}
+    write_png(tmp_path / "tex" / "a.png", pattern(seed=9))  # one texture set to train again
+    p = subprocess.Popen([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), "--cache",
+                          str(cache), "--profile", "tiny", "--quality", "paper"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = []
+    for line in p.stderr:  # plain progress lines: wait until the worker reports a training phase
+        lines.append(line)
+        if ": warmup" in line or ": constrained" in line:
+            break
+    workers = [int(x) for x in subprocess.run(["pgrep", "-P", str(p.pid)], capture_output=True,
+                                              text=True).stdout.split()]
+    assert workers, "".join(lines)
+    t0 = time.monotonic()
+    p.send_signal(signal.SIGINT)
+    p.wait(timeout=300)
+    latency = time.monotonic() - t0
+    err = "".join(lines) + p.stderr.read()
+    assert p.returncode == 130, err[-3000:]
+    # the training has hours left; a build that waits for its workers, or lets them see a dead
+    # progress queue, takes 30 s or more here; one that stops them takes well under a second
+    assert latency < 15, f"the build took {latency:.1f}s to stop after Ctrl-C"
+    assert "Error: interrupted" in err and "Traceback" not in err, err[-3000:]
+    assert tree(out) == before and not list(out.glob(".bcfpipe-staging-*"))
+    assert {e.key for e in Cache(cache).entries()} == entries, "the interrupted job ran to its end"
+    deadline = time.monotonic() + 20
+    while any(map(_alive, workers)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(map(_alive, workers)), "worker processes outlived the build"
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie nobody has reaped yet counts as ended)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
 def test_cache_cli(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"

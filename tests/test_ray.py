@@ -1,5 +1,6 @@
 """The Ray executor on a real Ray cluster: two nodes on loopback (`ray start --head` plus a second
-`ray start --address`), byte-identical outputs to a local build, and a worker killed mid-job."""
+`ray start --address`), byte-identical outputs to a local build, a worker killed mid-job, and
+Ctrl-C cancelling the running tasks."""
 from __future__ import annotations
 
 import json
@@ -44,11 +45,17 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def cluster():
-    """A head node and a second node on 127.0.0.1, one CPU each; torn down whatever happens."""
+    """A head node and a second node on 127.0.0.1, one CPU each; torn down whatever happens. One
+    cluster at a time on the machine (a file lock across pytest-xdist workers): `ray stop --force`
+    stops every Ray process, so two clusters would tear each other down."""
     if not RAY.exists():
         pytest.skip("needs ray (pip install 'bcfpipe[ray]')")
+    from filelock import FileLock
+
+    lock = FileLock(os.path.join(tempfile.gettempdir(), "bcfpipe-test-ray-cluster.lock"))
+    lock.acquire(timeout=1800)
     port = _free_port()
     tmp = tempfile.mkdtemp(prefix="r", dir="/tmp")  # Ray's socket paths must stay short
     env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
@@ -63,6 +70,22 @@ def cluster():
     finally:
         subprocess.run([str(RAY), "stop", "--force"], capture_output=True, timeout=180, env=env)
         shutil.rmtree(tmp, ignore_errors=True)
+        lock.release()
+
+
+def _train_task_pids() -> list[int]:
+    return [int(x) for x in subprocess.run(["pgrep", "-f", "ray::train_task"], capture_output=True,
+                                           text=True).stdout.split()]
+
+
+def _free_cpus(address: str) -> tuple[float, float]:
+    """(available, total) CPUs of the cluster, asked by a fresh driver."""
+    code = ("import ray, json; ray.init(address=%r, log_to_driver=False); "
+            "print(json.dumps([ray.available_resources().get('CPU', 0), ray.cluster_resources().get('CPU', 0)]))"
+            % address)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180,
+                       env=dict(os.environ, RAY_USAGE_STATS_ENABLED="0"))
+    return tuple(json.loads(p.stdout.strip().splitlines()[-1]))
 
 
 def build(s: Path, cache: Path, *extra: str) -> subprocess.Popen:
@@ -111,3 +134,26 @@ def test_two_node_cluster_matches_a_local_build_and_survives_a_killed_worker(clu
     assert p.returncode == 0 and out.lstrip().startswith("{"), (out[:500], err[-3000:])
     (m,) = [m for m in json.loads(out)["materials"] if m["status"] == "built"]
     assert m["attempts"] == 2
+
+
+@pytest.mark.slow
+def test_ctrl_c_cancels_the_running_tasks(cluster, tmp_path: Path) -> None:
+    """SIGINT while both nodes train: exit 130 with one line, OUT not created, nothing half-stored in
+    the cache, and the cluster's CPUs free again (the tasks were cancelled, not left running)."""
+    s = scene(tmp_path / "i", n=2)
+    p = build(s, tmp_path / "cache-int", "--executor", "ray", "--ray-address", cluster)
+    deadline = time.monotonic() + 300
+    while len(_train_task_pids()) < 2 and time.monotonic() < deadline and p.poll() is None:
+        time.sleep(0.2)
+    assert len(_train_task_pids()) == 2, "the two jobs never ran at once"
+    time.sleep(2.0)
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=180)
+    assert p.returncode == 130, err[-3000:]
+    assert "Error: interrupted" in err and "Traceback" not in err, err[-3000:]
+    assert out == "" and not (tmp_path / "i" / "scene.bcf").exists()
+    assert not any((tmp_path / "cache-int").rglob("entry.json"))
+    deadline = time.monotonic() + 60
+    while (free := _free_cpus(cluster))[0] < free[1] and time.monotonic() < deadline:
+        time.sleep(1.0)
+    assert free == (2.0, 2.0) and not _train_task_pids()

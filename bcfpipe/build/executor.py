@@ -232,6 +232,17 @@ def _emit(progress: ProgressCallback | None, **event) -> None:
         progress(event)
 
 
+def _stop(pool: cf.ProcessPoolExecutor) -> None:
+    """Cancel what is queued and end the running workers now (Ctrl-C must not wait for them)."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # Python 3.14 has terminate_workers()
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(timeout=10)
+
+
 def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, threads: int,
               devices: Sequence[str], executor: cf.Executor | None, queue,
               progress: ProgressCallback | None,
@@ -266,7 +277,7 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
                       psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
     except BaseException:
         if own:
-            pool.shutdown(wait=False, cancel_futures=True)
+            _stop(pool)
         raise
     if own:
         pool.shutdown(wait=True)

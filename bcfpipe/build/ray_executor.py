@@ -4,7 +4,9 @@ Data flow: workers need not share the driver's filesystem. The driver puts each 
 bytes into the object store once (``ray.put``); the task writes them to its own temporary folder,
 trains there, and returns the exported files as bytes. The driver writes them into the build's
 staging folder and stores them in the cache (atomically, under the key's lock), exactly as a
-local worker would, so the outputs are byte-identical to a local build's.
+local worker would, so the outputs are byte-identical to a local build's. At most
+`in_flight_limit` tasks are submitted at once (twice the cluster's slots), so the driver and the
+object store hold the sources of that many jobs, not of the whole scene.
 
 Faults: a task whose worker process dies is retried by Ray (``max_retries``); a Python
 exception inside training is not an infrastructure fault and is reported, not retried (the task
@@ -16,6 +18,7 @@ Threads and device come from what Ray grants: ``num_cpus`` = the build's ``--thr
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import os
 import shutil
@@ -30,7 +33,7 @@ from bcfpipe.build.plan import MaterialJob, ProgressCallback
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import Unavailable
 
-__all__ = ["RayUnavailable", "require_ray", "execute_ray", "resolve_executor", "EXECUTORS", "MAX_RETRIES"]
+__all__ = ["RayUnavailable", "require_ray", "execute_ray", "in_flight_limit", "resolve_executor", "EXECUTORS", "MAX_RETRIES"]
 
 EXECUTORS = ("auto", "local", "ray")
 MAX_RETRIES = 2  # attempts after a worker process dies
@@ -86,6 +89,13 @@ def _remote_parts(ray):
         return r, files
 
     return Attempts, train_task
+
+
+def in_flight_limit(resources: dict, threads: int, gpus: int, n_jobs: int) -> int:
+    """Tasks submitted at once: twice what the cluster can run together, so a worker never waits
+    for the driver, while the driver and the object store hold the sources of only that many jobs."""
+    slots = int(resources.get("GPU", 0)) if gpus else int(resources.get("CPU", 1)) // max(1, threads)
+    return max(1, min(n_jobs, 2 * max(1, slots)))
 
 
 def _store(job: MaterialJob, r: JobResult, files: dict[str, bytes], materials_dir: Path,
@@ -146,19 +156,24 @@ def _execute(jobs, materials_dir, address, threads, progress, cache_root, max_re
     queue = Queue(actor_options={"num_cpus": 0}) if progress else None
     root = str(cache_root) if cache_root is not None else None
     gpus = 1 if device.startswith("cuda") else 0
-    refs = {}
+    window = in_flight_limit(ray.cluster_resources(), threads, gpus, len(jobs))
+    refs: dict = {}
     results: dict[str, JobResult] = {}
+
+    def submit(job: MaterialJob):
+        src = read_sources(job)  # this job's bytes only: the driver holds at most `window` jobs' sources
+        paths = list(src)
+        blobs = [ray.put(src[p]) for p in paths]
+        ref = train_task.options(num_cpus=threads, num_gpus=gpus, max_retries=max_retries,
+                                 retry_exceptions=False).remote(job.to_dict(), device, counter, queue, paths, *blobs)
+        refs[ref] = job
+        return ref
+
     try:
         for job in jobs:
-            src = read_sources(job)
-            paths = list(src)
-            blobs = [ray.put(src[p]) for p in paths]
-            ref = train_task.options(num_cpus=threads, num_gpus=gpus, max_retries=max_retries,
-                                     retry_exceptions=False).remote(job.to_dict(), device, counter, queue, paths,
-                                                                    *blobs)
-            refs[ref] = job
             _emit(progress, event="queued", job=job.name, materials=list(job.materials))
-        pending = list(refs)
+        waiting = collections.deque(jobs)
+        pending = [submit(waiting.popleft()) for _ in range(min(window, len(waiting)))]
         while pending:
             ready, pending = ray.wait(pending, num_returns=1, timeout=0.2)
             _drain(queue, progress)
@@ -172,6 +187,8 @@ def _execute(jobs, materials_dir, address, threads, progress, cache_root, max_re
                 results[job.name] = r
                 _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
                       psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
+                if waiting:
+                    pending.append(submit(waiting.popleft()))
         _drain(queue, progress)
         attempts = ray.get(counter.counts.remote())
     except KeyboardInterrupt:  # cancel what is still queued or running; the build then stops cleanly

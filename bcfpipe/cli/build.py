@@ -101,12 +101,25 @@ class BuildDisplay:
             else:
                 line = f"{name}: FAILED: {ev.get('reason')}"
         if line and not self.live_mode:
-            done = sum(1 for j in self.jobs.values() if j["status"] in ("built", "failed"))
-            self.console.print(f"[{time.monotonic() - self.t0:6.1f}s] [{done}/{len(self.jobs)}] {line}",
+            self.console.print(f"[{time.monotonic() - self.t0:6.1f}s] [{self.counts_line()}] {line}",
                                highlight=False, markup=False, soft_wrap=True)
 
+    def counts(self) -> dict[str, int]:
+        """Texture sets by state: queued, running, done (trained), cached, failed."""
+        n = dict.fromkeys(("queued", "running", "done", "cached", "failed"), 0)
+        for st in self.jobs.values():
+            key = {"built": "cached" if st["phase"] == "cached" else "done"}.get(st["status"], st["status"])
+            n[key] = n.get(key, 0) + 1
+        return n
+
+    def counts_line(self) -> str:
+        n = self.counts()
+        finished = n["done"] + n["cached"] + n["failed"]
+        return (f"{finished}/{len(self.jobs)}: {n['done']} trained, {n['cached']} cached, {n['failed']} failed; "
+                f"{n['running']} running, {n['queued']} queued")
+
     def table(self) -> Table:
-        t = Table(title="bcfpipe build", title_justify="left", expand=False)
+        t = Table(title=f"bcfpipe build  {self.counts_line()}", title_justify="left", expand=False)
         for col in ("texture set", "materials", "status", "phase", "step", "PSNR", "ETA"):
             t.add_column(col, overflow="fold", justify="right" if col in ("step", "PSNR", "ETA") else "left")
         for name, st in self.jobs.items():

@@ -1,0 +1,192 @@
+"""Ray's overhead against the local executor: the same build, the same cores, one run.
+
+    .venv/bin/python benchmarks/bench_ray.py [--scene samples/sample_scene.usda] [--quality draft]
+                                             [--repeat 3] [--cpus 2] [--tasks 200] [--json]
+
+1. Start-up: `ray start --head` on 127.0.0.1 (a cluster of --cpus CPUs), a driver connecting to it,
+   and a driver starting a Ray of its own (what `--executor ray` does with no address); each
+   timed in a fresh process, import included.
+2. Per task: the round trip of an empty task (submit, run, get; sequential, warm workers), the
+   throughput of --tasks empty tasks at once, the first task of a new driver (a worker process
+   starts), and ray.put + get of the largest source of the scene (the object-store traffic of a job).
+3. Builds: `bcfpipe build SCENE --no-cache --threads 1`, local (`--jobs` = --cpus) against Ray on the
+   running cluster, interleaved (local, ray, local, ray, ...), each timed as a process from start
+   to exit. Both train the same texture sets on the same cores.
+
+Prints one line per measurement and Markdown tables for docs/benchmarks.md (or one JSON object).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import REPO, machine  # noqa: E402
+
+RAY = Path(sys.executable).with_name("ray")
+ENV = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
+
+PROBE = r"""
+import json, statistics, sys, time
+t0 = time.perf_counter()
+import ray
+t_import = time.perf_counter() - t0
+address, n_tasks, blob_path = sys.argv[1] or None, int(sys.argv[2]), sys.argv[3]
+t0 = time.perf_counter()
+ray.init(address=address, log_to_driver=False, include_dashboard=False, configure_logging=False,
+         **({} if address else {"num_cpus": int(sys.argv[4])}))
+t_init = time.perf_counter() - t0
+
+@ray.remote(num_cpus=1)
+def empty(x=None):
+    return x
+
+t0 = time.perf_counter(); ray.get(empty.remote()); t_first = time.perf_counter() - t0
+for _ in range(5):
+    ray.get(empty.remote())
+rt = []
+for _ in range(50):
+    t0 = time.perf_counter(); ray.get(empty.remote()); rt.append(time.perf_counter() - t0)
+t0 = time.perf_counter(); ray.get([empty.remote() for _ in range(n_tasks)]); t_many = time.perf_counter() - t0
+data = open(blob_path, "rb").read()
+put = []
+for _ in range(5):
+    t0 = time.perf_counter(); ref = ray.put(data); ray.get(empty.remote(ref)); put.append(time.perf_counter() - t0)
+t0 = time.perf_counter(); ray.shutdown(); t_shutdown = time.perf_counter() - t0
+print(json.dumps({"import_s": t_import, "init_s": t_init, "first_task_s": t_first,
+                  "roundtrip_ms": 1e3 * statistics.median(rt), "tasks_per_s": n_tasks / t_many,
+                  "put_get_ms": 1e3 * statistics.median(put), "blob_bytes": len(data), "shutdown_s": t_shutdown}))
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def probe(address: str | None, tasks: int, blob: Path, cpus: int) -> dict:
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-c", PROBE, address or "", str(tasks), str(blob), str(cpus)],
+                       capture_output=True, text=True, env=ENV, timeout=600)
+    wall = time.perf_counter() - t0
+    if p.returncode:
+        sys.exit(f"probe failed: {p.stderr[-2000:]}")
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    out["process_s"] = wall
+    return out
+
+
+def build(scene: Path, out: Path, quality: str, extra: list[str]) -> dict:
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), "--no-cache",
+                        "--quality", quality, "--threads", "1", "--json", *extra],
+                       capture_output=True, text=True, env=ENV, timeout=3600)
+    wall = time.perf_counter() - t0
+    if p.returncode:
+        sys.exit(f"build failed ({' '.join(extra)}): {p.stderr[-2000:]}")
+    rep = json.loads(p.stdout)
+    train = [m["train_seconds"] for m in rep["materials"] if m.get("train_seconds")]
+    return {"wall_s": wall, "report_wall_s": rep["totals"]["wall_seconds"], "trained": rep["totals"]["trained"],
+            "train_s_sum": sum(train)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scene", type=Path, default=REPO / "samples" / "sample_scene.usda")
+    ap.add_argument("--quality", default="draft")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--cpus", type=int, default=2, help="CPUs of the Ray cluster, and local --jobs")
+    ap.add_argument("--tasks", type=int, default=200, help="empty tasks submitted at once (throughput)")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    if not RAY.exists():
+        sys.exit("needs ray: pip install 'bcfpipe[ray]'")
+    say = (lambda *a: None) if args.json else (lambda *a: print(*a, flush=True))
+    say(f"machine: {machine()}; load average {os.getloadavg()}")
+    from bcfpipe.build.plan import plan
+
+    sources = [Path(s) for s in plan(args.scene, preset=args.quality).sources]
+    blob = max(sources, key=lambda p: p.stat().st_size)
+    res: dict = {"machine": machine(), "scene": os.path.relpath(args.scene, REPO), "quality": args.quality,
+                 "cpus": args.cpus, "blob": blob.name}
+
+    # 1. a Ray of the driver's own (no cluster running yet)
+    res["own_ray"] = probe(None, args.tasks, blob, args.cpus)
+    say(f"driver starting its own Ray: {json.dumps(res['own_ray'])}")
+
+    tmp = Path(tempfile.mkdtemp(prefix="r", dir="/tmp"))
+    port = free_port()
+    try:
+        t0 = time.perf_counter()
+        subprocess.run([str(RAY), "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}",
+                        f"--num-cpus={args.cpus}", "--include-dashboard=false", f"--temp-dir={tmp}",
+                        "--disable-usage-stats"], check=True, capture_output=True, env=ENV, timeout=300)
+        res["cluster_start_s"] = time.perf_counter() - t0
+        address = f"127.0.0.1:{port}"
+        say(f"ray start --head ({args.cpus} CPUs): {res['cluster_start_s']:.2f} s")
+        res["connect"] = probe(address, args.tasks, blob, args.cpus)
+        say(f"driver connecting to the cluster: {json.dumps(res['connect'])}")
+
+        runs: dict[str, list[dict]] = {"local": [], "ray": []}
+        for r in range(args.repeat):
+            for name, extra in (("local", ["--executor", "local", "--jobs", str(args.cpus)]),
+                                ("ray", ["--executor", "ray", "--ray-address", address])):
+                out = tmp / f"out-{name}-{r}"
+                b = build(args.scene, out, args.quality, extra)
+                shutil.rmtree(out, ignore_errors=True)
+                runs[name].append(b)
+                say(f"run {r + 1} {name}: {b['wall_s']:.1f} s wall (report {b['report_wall_s']:.1f} s), "
+                    f"{b['trained']} texture sets, {b['train_s_sum']:.1f} s of training summed")
+        res["builds"] = runs
+    finally:
+        subprocess.run([str(RAY), "stop", "--force"], capture_output=True, env=ENV, timeout=300)
+        shutil.rmtree(tmp, ignore_errors=True)
+    res["loadavg_after"] = os.getloadavg()
+
+    med = {k: statistics.median(b["wall_s"] for b in v) for k, v in runs.items()}
+    n = runs["local"][0]["trained"]
+    res["median_wall_s"] = med
+    res["overhead_per_build_s"] = med["ray"] - med["local"]
+    res["overhead_per_task_s"] = (med["ray"] - med["local"]) / max(1, n)
+    if args.json:
+        print(json.dumps(res, indent=2))
+        return
+    o, c = res["own_ray"], res["connect"]
+    print(f"\nload average after: {res['loadavg_after']}\n")
+    print("| start-up | seconds |")
+    print("|---|---:|")
+    print(f"| `ray start --head` ({args.cpus} CPUs, 127.0.0.1) | {res['cluster_start_s']:.2f} |")
+    print(f"| driver: `import ray` | {c['import_s']:.2f} |")
+    print(f"| driver: `ray.init(address)` (connect to the cluster) | {c['init_s']:.2f} |")
+    print(f"| driver: `ray.init()` (start its own Ray) | {o['init_s']:.2f} |")
+    print(f"| first task of a new driver (a worker process starts) | {c['first_task_s']:.2f} |")
+    print(f"| `ray.shutdown()` of a driver that started its own Ray | {o['shutdown_s']:.2f} |")
+    print()
+    print("| per task | connected | own Ray |")
+    print("|---|---:|---:|")
+    print(f"| empty task round trip, warm worker (median of 50) | {c['roundtrip_ms']:.1f} ms | {o['roundtrip_ms']:.1f} ms |")
+    print(f"| empty tasks per second, {args.tasks} at once | {c['tasks_per_s']:.0f} | {o['tasks_per_s']:.0f} |")
+    print(f"| `ray.put` + a task reading {blob.name} ({c['blob_bytes'] / 2**20:.2f} MiB) | "
+          f"{c['put_get_ms']:.1f} ms | {o['put_get_ms']:.1f} ms |")
+    print()
+    print(f"| build ({n} texture sets, `--quality {args.quality} --threads 1 --no-cache`) | runs (s) | median (s) |")
+    print("|---|---|---:|")
+    for k, label in (("local", f"local, `--jobs {args.cpus}`"), ("ray", f"Ray, {args.cpus}-CPU cluster on loopback")):
+        walls = ", ".join(f"{b['wall_s']:.1f}" for b in runs[k])
+        print(f"| {label} | {walls} | {med[k]:.1f} |")
+    print(f"\nRay overhead: {res['overhead_per_build_s']:+.1f} s per build, "
+          f"{res['overhead_per_task_s']:+.2f} s per texture set")
+
+
+if __name__ == "__main__":
+    main()

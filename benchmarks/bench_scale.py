@@ -1,0 +1,169 @@
+"""The driver's side of a big build, measured on scenes of N materials: the inputs of docs/scale.md.
+
+    .venv/bin/python benchmarks/bench_scale.py [--plan 100,1000,10000] [--train 64]
+                                               [--assemble 8,16,32,64] [--size 16] [--json]
+
+Each generated scene has N materials, each bound to its own quad and reading its own N-distinct
+SIZE² PNG (so N texture sets: nothing is merged). Measured, each as a `bcfpipe` process from start
+to exit:
+
+- `plan`: `bcfpipe plan SCENE --json` with an empty cache, for each N in --plan: composing the stage, hashing
+  and reading every texture, the coverage of every mesh; the work the driver does before any job.
+- training: one cold `build` of the --train scene (`--profile tiny --quality draft --jobs 2
+  --threads 1`): the per-job time on this machine, from the report.
+- assembly: with every job in the cache, `build` of the first N materials into a fresh OUT, for
+  each N in --assemble (USD layer, weights.bin, manifest, every file installed), then a no-op rebuild.
+
+Prints per-N lines, a least-squares fixed + per-material cost of each step, and Markdown tables.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import machine  # noqa: E402
+
+
+def make_scene(root: Path, n: int, size: int) -> Path:
+    """N materials, each on its own quad, each reading its own SIZE² texture (seeded by index)."""
+    import OpenImageIO as oiio
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
+
+    T = Sdf.ValueTypeNames
+    (root / "tex").mkdir(parents=True, exist_ok=True)
+    stage = Usd.Stage.CreateNew(str(root / "scene.usda"))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    stage.SetDefaultPrim(stage.DefinePrim("/World", "Xform"))
+    y, x = np.mgrid[0:size, 0:size] / size
+    for k in range(n):
+        tex = root / "tex" / f"t{k:05d}.png"
+        if not tex.exists():
+            rng = np.random.default_rng(k)
+            f = rng.uniform(1, 4, 3)
+            img = 0.5 + 0.4 * np.sin((x[..., None] * f + y[..., None] * f[::-1]) * np.pi + rng.uniform(0, 6, 3))
+            oiio.ImageBuf(np.round(img * 255).astype(np.uint8)).write(str(tex))
+        path = f"/World/Looks/M{k:05d}"
+        mat = UsdShade.Material.Define(stage, path)
+        surf = UsdShade.Shader.Define(stage, f"{path}/Surface")
+        surf.CreateIdAttr("UsdPreviewSurface")
+        mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+        reader = UsdShade.Shader.Define(stage, f"{path}/St")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", T.String).Set("st")
+        t = UsdShade.Shader.Define(stage, f"{path}/Tex")
+        t.CreateIdAttr("UsdUVTexture")
+        t.CreateInput("file", T.Asset).Set(f"./tex/{tex.name}")
+        t.CreateInput("st", T.Float2).ConnectToSource(reader.CreateOutput("result", T.Float2))
+        surf.CreateInput("diffuseColor", T.Color3f).ConnectToSource(t.CreateOutput("rgb", T.Float3))
+        mesh = UsdGeom.Mesh.Define(stage, f"/World/Geo/Q{k:05d}")
+        ox = float(k % 100) * 1.2
+        oy = float(k // 100) * 1.2
+        mesh.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(ox, oy, 0), Gf.Vec3f(ox + 1, oy, 0),
+                                             Gf.Vec3f(ox + 1, oy + 1, 0), Gf.Vec3f(ox, oy + 1, 0)]))
+        mesh.CreateFaceVertexCountsAttr([4])
+        mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", T.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+        st.Set(Vt.Vec2fArray([(0, 0), (1, 0), (1, 1), (0, 1)]))
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+    stage.Save()
+    return root / "scene.usda"
+
+
+def run(*args: str) -> tuple[float, str]:
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True, timeout=7200)
+    wall = time.perf_counter() - t0
+    if p.returncode:
+        sys.exit(f"bcfpipe {' '.join(args[:2])} failed: {p.stderr[-2000:]}")
+    return wall, p.stdout
+
+
+def fit(ns: list[int], ts: list[float]) -> tuple[float, float]:
+    """Least squares t = a + b·n: (fixed seconds, seconds per material)."""
+    b, a = np.polyfit(np.asarray(ns, float), np.asarray(ts, float), 1)
+    return float(a), float(b)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--plan", default="100,1000,10000")
+    ap.add_argument("--train", type=int, default=64)
+    ap.add_argument("--assemble", default="8,16,32,64")
+    ap.add_argument("--size", type=int, default=16, help="texture size of every material")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    say = (lambda *a: None) if args.json else (lambda *a: print(*a, flush=True))
+    plan_ns = [int(x) for x in args.plan.split(",") if x]
+    asm_ns = [int(x) for x in args.assemble.split(",") if x]
+    if asm_ns and max(asm_ns) > args.train:
+        sys.exit("--assemble sizes must not exceed --train (they are assembled from its cache)")
+    res: dict = {"machine": machine(), "size": args.size, "plan": {}, "assemble": {}, "noop": {}}
+    say(f"machine: {res['machine']}; load average {os.getloadavg()}")
+    with tempfile.TemporaryDirectory(prefix="bcf-scale-") as tmp:
+        tmp = Path(tmp)
+        for n in plan_ns:
+            scene = make_scene(tmp / f"p{n}", n, args.size)
+            os.environ["BCFPIPE_CACHE"] = str(tmp / f"p{n}" / "cache")  # cold: no texel facts kept yet
+            wall, out = run("plan", str(scene), "--json", "--profile", "tiny", "--quality", "draft")
+            jobs = len(json.loads(out)["jobs"])
+            assert jobs == n, (jobs, n)
+            res["plan"][n] = wall
+            say(f"plan, {n} materials: {wall:.2f} s")
+        if args.train:
+            cache = tmp / "cache"
+            scene = make_scene(tmp / "t", args.train, args.size)
+            wall, out = run("build", str(scene), "-o", str(tmp / "t" / "cold"), "--cache", str(cache), "--json",
+                            "--profile", "tiny", "--quality", "draft", "--jobs", "2", "--threads", "1")
+            rep = json.loads(out)
+            per_job = [m["train_seconds"] for m in rep["materials"] if m.get("train_seconds")]
+            sizes = json.loads((tmp / "t" / "cold" / "manifest.json").read_text())
+            res["train"] = {"n": args.train, "wall_s": wall, "job_s_median": statistics.median(per_job),
+                            "job_s": per_job, "out_bytes": sizes["totals"]["total_bytes"]}
+            say(f"cold build of {args.train}: {wall:.1f} s, a job {statistics.median(per_job):.2f} s (median)")
+            for n in asm_ns:
+                s = make_scene(tmp / f"a{n}", n, args.size)  # the same textures: every job is in the cache
+                out_dir = tmp / f"a{n}" / "out"
+                wall, out = run("build", str(s), "-o", str(out_dir), "--cache", str(cache), "--json",
+                                "--profile", "tiny", "--quality", "draft")
+                assert json.loads(out)["totals"]["trained"] == 0
+                res["assemble"][n] = wall
+                wall2, _ = run("build", str(s), "-o", str(out_dir), "--cache", str(cache), "--json",
+                               "--profile", "tiny", "--quality", "draft")
+                res["noop"][n] = wall2
+                say(f"from the cache, {n} materials: fresh OUT {wall:.2f} s, no-op {wall2:.2f} s")
+    res["loadavg_after"] = os.getloadavg()
+    for key in ("plan", "assemble", "noop"):
+        if len(res[key]) >= 2:
+            a, b = fit(list(res[key]), list(res[key].values()))
+            res[f"{key}_fit"] = {"fixed_s": a, "per_material_ms": 1e3 * b}
+    if args.json:
+        print(json.dumps(res, indent=2))
+        return
+    print(f"\nload average after: {res['loadavg_after']}\n")
+    print("| step | " + " | ".join(f"N={n}" for n in sorted({*res['plan'], *res['assemble']})) + " | fixed + per material |")
+    cols = sorted({*res["plan"], *res["assemble"]})
+    print("|---|" + "---:|" * (len(cols) + 1))
+    for key, label in (("plan", "`plan` (scan, hash, read, coverage)"), ("assemble", "build from the cache, fresh OUT"),
+                       ("noop", "no-op rebuild")):
+        row = [f"{res[key][n]:.2f}" if n in res[key] else "" for n in cols]
+        f = res.get(f"{key}_fit")
+        print(f"| {label} | " + " | ".join(row) + (f" | {f['fixed_s']:.2f} s + {f['per_material_ms']:.1f} ms |"
+                                                  if f else " | |"))
+    if "train" in res:
+        t = res["train"]
+        print(f"\ncold build of {t['n']} texture sets ({args.size}², tiny, draft, 2 workers): {t['wall_s']:.1f} s; "
+              f"a job: {t['job_s_median']:.2f} s median; outputs {t['out_bytes'] / 2**20:.2f} MiB")
+
+
+if __name__ == "__main__":
+    main()
