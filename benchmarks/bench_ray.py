@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import secrets
 import shutil
 import socket
 import statistics
@@ -33,7 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import REPO, machine  # noqa: E402
 
 RAY = Path(sys.executable).with_name("ray")
-ENV = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
+# a token-authenticated cluster: Ray 2.60 listens on every interface even when told 127.0.0.1
+ENV = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32))
 
 PROBE = r"""
 import json, statistics, sys, time
@@ -42,8 +44,8 @@ import ray
 t_import = time.perf_counter() - t0
 address, n_tasks, blob_path = sys.argv[1] or None, int(sys.argv[2]), sys.argv[3]
 t0 = time.perf_counter()
-ray.init(address=address, log_to_driver=False, include_dashboard=False, configure_logging=False,
-         **({} if address else {"num_cpus": int(sys.argv[4])}))
+ray.init(address=address or "local", log_to_driver=False, include_dashboard=False, configure_logging=False,
+         **({} if address else {"num_cpus": int(sys.argv[4]), "_temp_dir": sys.argv[5]}))
 t_init = time.perf_counter() - t0
 
 @ray.remote(num_cpus=1)
@@ -75,10 +77,12 @@ def free_port() -> int:
 
 
 def probe(address: str | None, tasks: int, blob: Path, cpus: int) -> dict:
+    tmp = tempfile.mkdtemp(prefix="bcfray-")
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-c", PROBE, address or "", str(tasks), str(blob), str(cpus)],
+    p = subprocess.run([sys.executable, "-c", PROBE, address or "", str(tasks), str(blob), str(cpus), tmp],
                        capture_output=True, text=True, env=ENV, timeout=600)
     wall = time.perf_counter() - t0
+    shutil.rmtree(tmp, ignore_errors=True)
     if p.returncode:
         sys.exit(f"probe failed: {p.stderr[-2000:]}")
     out = json.loads(p.stdout.strip().splitlines()[-1])

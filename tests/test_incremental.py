@@ -244,6 +244,27 @@ def _alive(pid: int) -> bool:
         return False
 
 
+@pytest.mark.gl
+def test_a_build_writes_only_to_out_and_its_cache(tmp_path):
+    """HOME and the temporary folder are as empty after a build with --verify as before it
+    (onnxruntime, torch and Mesa would each leave something there unless told otherwise)."""
+    import tempfile
+
+    home, tmp = tmp_path / "home", Path(tempfile.mkdtemp(prefix="t", dir="/tmp"))
+    home.mkdir()
+    try:
+        scene = small_scene(tmp_path / "s")
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("XDG_", "BCFPIPE_CACHE"))}
+        env.update(HOME=str(home), TMPDIR=str(tmp))
+        p = cli("build", str(scene), "-o", str(tmp_path / "out"), "--cache", str(tmp_path / "cache"), "--verify",
+                *CLI_FAST, env=env)
+        assert p.returncode == 0, p.stderr[-3000:]
+        assert not any(home.rglob("*")), sorted(str(q.relative_to(home)) for q in home.rglob("*"))
+        assert not any(tmp.rglob("*")), sorted(str(q.relative_to(tmp)) for q in tmp.rglob("*"))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def test_cache_cli(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"

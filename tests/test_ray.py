@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import shutil
 import signal
 import socket
@@ -22,6 +23,9 @@ from test_shard import files, scene  # noqa: E402
 from bcfpipe.build.ray_executor import resolve_executor  # noqa: E402
 
 RAY = Path(sys.executable).with_name("ray")
+# Ray 2.60 listens on every interface even when told 127.0.0.1, so the test cluster takes a token
+# (and so does not depend on what ~/.ray/auth_token holds)
+AUTH = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}
 
 
 def test_executor_choice(monkeypatch) -> None:
@@ -58,6 +62,8 @@ def cluster():
     lock.acquire(timeout=1800)
     port = _free_port()
     tmp = tempfile.mkdtemp(prefix="r", dir="/tmp")  # Ray's socket paths must stay short
+    saved = {k: os.environ.get(k) for k in AUTH}
+    os.environ.update(AUTH)  # the cluster and every driver of this module (build subprocesses too)
     env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
     try:
         subprocess.run([str(RAY), "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=1",
@@ -70,6 +76,8 @@ def cluster():
     finally:
         subprocess.run([str(RAY), "stop", "--force"], capture_output=True, timeout=180, env=env)
         shutil.rmtree(tmp, ignore_errors=True)
+        for k, v in saved.items():
+            os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
         lock.release()
 
 
@@ -157,3 +165,27 @@ def test_ctrl_c_cancels_the_running_tasks(cluster, tmp_path: Path) -> None:
     while (free := _free_cpus(cluster))[0] < free[1] and time.monotonic() < deadline:
         time.sleep(1.0)
     assert free == (2.0, 2.0) and not _train_task_pids()
+
+
+@pytest.mark.slow
+def test_a_ray_of_its_own_leaves_nothing_behind(tmp_path: Path) -> None:
+    """`--executor ray` with no cluster starts a Ray for the build and ends it: the build succeeds,
+    and nothing is left in HOME (Ray alone would write ~/.ray/auth_token) or in the temporary folder
+    (Ray's session files)."""
+    if not RAY.exists():
+        pytest.skip("needs ray (pip install 'bcfpipe[ray]')")
+    home, tmp = tmp_path / "home", Path(tempfile.mkdtemp(prefix="t", dir="/tmp"))  # short: Ray's socket paths
+    home.mkdir()
+    try:
+        env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "RAY_AUTH_TOKEN", "RAY_AUTH_MODE")}
+        env.update(HOME=str(home), TMPDIR=str(tmp), RAY_USAGE_STATS_ENABLED="0")
+        s = scene(tmp_path / "s", n=1)
+        p = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(s), "--no-cache", "--quality", "draft",
+                            "--executor", "ray", "--json"], capture_output=True, text=True, env=env, timeout=900)
+        assert p.returncode == 0, p.stderr[-3000:]
+        assert json.loads(p.stdout)["executor"] == "ray"
+        time.sleep(2.0)  # Ray's processes end after the build
+        assert not any(home.iterdir()), sorted(p.name for p in home.iterdir())
+        assert not any(tmp.iterdir()), sorted(p.name for p in tmp.iterdir())
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

@@ -127,7 +127,7 @@ def execute_ray(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, a
                 cache_root: str | os.PathLike | None = None,
                 max_retries: int = MAX_RETRIES) -> tuple[dict[str, JobResult], dict[str, int]]:
     """Train ``jobs`` as Ray tasks into ``materials_dir/<job>/``; returns ({job: JobResult},
-    {job: attempts}). Connects to ``address`` (or RAY_ADDRESS), else starts a local Ray. Ray's
+    {job: attempts}). Connects to ``address`` (or RAY_ADDRESS), else starts a Ray of its own. Ray's
     own messages (a raylet reporting a dead worker, ...) go to stderr: stdout stays the build's."""
     with contextlib.redirect_stdout(sys.stderr):
         return _execute(jobs, materials_dir, address, threads, progress, cache_root, max_retries)
@@ -142,13 +142,60 @@ def _execute(jobs, materials_dir, address, threads, progress, cache_root, max_re
     threads = max(1, int(threads)) if threads else DEFAULT_THREADS
     device = jobs[0].options.device
     started_here = not ray.is_initialized()
-    if started_here:
-        try:
-            ray.init(address=address or os.environ.get("RAY_ADDRESS") or None, log_to_driver=False,
-                     include_dashboard=False, configure_logging=False)
-        except (ConnectionError, RuntimeError, ValueError) as exc:
-            raise RayUnavailable(f"cannot reach a Ray cluster at {address or os.environ.get('RAY_ADDRESS')}: "
-                                 f"{one_line(exc)}") from None
+    with contextlib.ExitStack() as stack:
+        if started_here:
+            stack.enter_context(_connect(ray, address or os.environ.get("RAY_ADDRESS")))
+        return _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries)
+
+
+@contextlib.contextmanager
+def _connect(ray, address: str | None):
+    """Connect to the cluster at ``address`` ("auto": the one `ray start` last started on this
+    machine), or with none start a Ray of this build's own and end it after. An own Ray keeps its
+    session files in a temporary folder it removes, and gets a random auth token through the
+    environment, so nothing is left behind (Ray would otherwise write ~/.ray/auth_token and
+    /tmp/ray/session_*)."""
+    saved = {"RAY_AUTH_TOKEN": os.environ.get("RAY_AUTH_TOKEN")}
+    tmp = None
+    try:
+        if address:
+            ray.init(address=address, log_to_driver=False, include_dashboard=False, configure_logging=False)
+        else:
+            import secrets
+
+            from bcfpipe.build.executor import cpu_count
+
+            tmp = tempfile.mkdtemp(prefix="bcfray-")  # short: Ray's socket paths have a length limit
+            if not saved["RAY_AUTH_TOKEN"]:  # (RAY_AUTH_MODE is read when ray is imported: not set here)
+                os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
+            ray.init(address="local", num_cpus=cpu_count(), log_to_driver=False, include_dashboard=False,
+                     configure_logging=False, _temp_dir=tmp)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        _restore(saved, tmp)
+        where = f"a Ray cluster at {address}" if address else "a local Ray"
+        raise RayUnavailable(f"cannot reach {where}: {one_line(exc)}") from None
+    try:
+        yield
+    finally:
+        ray.shutdown()
+        _restore(saved, tmp)
+
+
+def _restore(saved: dict, tmp: str | None) -> None:
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+    if tmp:  # Ray's processes may still be ending and writing there: try for a while
+        for _ in range(50):
+            shutil.rmtree(tmp, ignore_errors=True)
+            if not os.path.exists(tmp):
+                break
+            time.sleep(0.2)
+
+
+def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries):
     from ray.util.queue import Queue
 
     Attempts, train_task = _remote_parts(ray)
@@ -196,8 +243,5 @@ def _execute(jobs, materials_dir, address, threads, progress, cache_root, max_re
             if job.name not in results:
                 ray.cancel(ref, force=True)
         raise
-    finally:
-        if started_here:
-            ray.shutdown()
     return {j.name: results[j.name] for j in jobs}, attempts
 

@@ -127,6 +127,9 @@ def sample_exported_features(em: ExportedMaterial, uv: np.ndarray, s: float | np
 
 
 def onnx_session(em: ExportedMaterial):
+    # onnxruntime otherwise writes a device id and a telemetry database under ~/.cache/Microsoft:
+    # bcfpipe writes only to OUT and its cache
+    os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     import onnxruntime as ort
 
     so = ort.SessionOptions()

@@ -13,6 +13,9 @@ One call trains one material. It touches no global state except torch's thread c
 from __future__ import annotations
 
 import math
+import os
+import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -90,7 +93,22 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def _import_dynamo_quietly() -> None:
+    """torch.optim imports torch._dynamo, whose import creates an inductor cache folder in the
+    temporary folder and leaves it there. Nothing here compiles, so the import gets a throwaway
+    folder: bcfpipe writes only to OUT and its cache."""
+    if "torch._dynamo" in sys.modules or "TORCHINDUCTOR_CACHE_DIR" in os.environ:
+        return
+    with tempfile.TemporaryDirectory(prefix="bcfpipe-torch-") as tmp:
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = tmp
+        try:
+            import torch._dynamo  # noqa: F401
+        finally:
+            os.environ.pop("TORCHINDUCTOR_CACHE_DIR", None)
+
+
 def _optimizer(feature_params, mlp_params, sched, device):
+    _import_dynamo_quietly()
     groups = [{"params": mlp_params, "lr": sched.lr_mlp}]
     gammas = [sched.gamma_mlp]
     if feature_params:
