@@ -7,8 +7,8 @@
    and a driver starting a Ray of its own (what `--executor ray` does with no address); each
    timed in a fresh process, import included.
 2. Per task: the round trip of an empty task (submit, run, get; sequential, warm workers), the
-   throughput of --tasks empty tasks at once, the first task of a new driver (a worker process
-   starts), and ray.put + get of the largest source of the scene (the object-store traffic of a job).
+   throughput of --tasks empty tasks at once, the first task of a new driver, and ray.put of the
+   scene's largest source and of 1, 16 and 64 MiB with a task reading it (a job's object-store traffic).
 3. Builds: `bcfpipe build SCENE --no-cache --threads 1`, local (`--jobs` = --cpus) against Ray on the
    running cluster, interleaved (local, ray, local, ray, ...), each timed as a process from start
    to exit. Both train the same texture sets on the same cores.
@@ -59,14 +59,20 @@ rt = []
 for _ in range(50):
     t0 = time.perf_counter(); ray.get(empty.remote()); rt.append(time.perf_counter() - t0)
 t0 = time.perf_counter(); ray.get([empty.remote() for _ in range(n_tasks)]); t_many = time.perf_counter() - t0
-data = open(blob_path, "rb").read()
-put = []
-for _ in range(5):
-    t0 = time.perf_counter(); ref = ray.put(data); ray.get(empty.remote(ref)); put.append(time.perf_counter() - t0)
+import os
+put = {}
+for name, data in (("blob", open(blob_path, "rb").read()), ("1 MiB", os.urandom(1 << 20)),
+                   ("16 MiB", os.urandom(16 << 20)), ("64 MiB", os.urandom(64 << 20))):
+    ts = []
+    for _ in range(5):
+        t0 = time.perf_counter(); ref = ray.put(data); ray.get(empty.remote(ref)); ts.append(time.perf_counter() - t0)
+        del ref
+    put[name] = 1e3 * statistics.median(ts)
+blob_bytes = os.path.getsize(blob_path)
 t0 = time.perf_counter(); ray.shutdown(); t_shutdown = time.perf_counter() - t0
 print(json.dumps({"import_s": t_import, "init_s": t_init, "first_task_s": t_first,
                   "roundtrip_ms": 1e3 * statistics.median(rt), "tasks_per_s": n_tasks / t_many,
-                  "put_get_ms": 1e3 * statistics.median(put), "blob_bytes": len(data), "shutdown_s": t_shutdown}))
+                  "put_get_ms": put, "blob_bytes": blob_bytes, "shutdown_s": t_shutdown}))
 """
 
 
@@ -92,16 +98,21 @@ def probe(address: str | None, tasks: int, blob: Path, cpus: int) -> dict:
 
 def build(scene: Path, out: Path, quality: str, extra: list[str]) -> dict:
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), "--no-cache",
-                        "--quality", quality, "--threads", "1", "--json", *extra],
-                       capture_output=True, text=True, env=ENV, timeout=3600)
-    wall = time.perf_counter() - t0
+    with tempfile.TemporaryFile("w+") as so, tempfile.TemporaryFile("w+") as se:
+        p = subprocess.Popen([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), "--no-cache",
+                              "--quality", quality, "--threads", "1", "--json", *extra],
+                             stdout=so, stderr=se, text=True, env=ENV)
+        _, status, usage = os.wait4(p.pid, 0)  # the driver's own peak RSS (ru_maxrss, KiB)
+        p.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t0
+        so.seek(0), se.seek(0)
+        stdout, stderr = so.read(), se.read()
     if p.returncode:
-        sys.exit(f"build failed ({' '.join(extra)}): {p.stderr[-2000:]}")
-    rep = json.loads(p.stdout)
+        sys.exit(f"build failed ({' '.join(extra)}): {stderr[-2000:]}")
+    rep = json.loads(stdout)
     train = [m["train_seconds"] for m in rep["materials"] if m.get("train_seconds")]
     return {"wall_s": wall, "report_wall_s": rep["totals"]["wall_seconds"], "trained": rep["totals"]["trained"],
-            "train_s_sum": sum(train)}
+            "train_s_sum": sum(train), "driver_max_rss_mib": usage.ru_maxrss / 1024}
 
 
 def main() -> None:
@@ -150,7 +161,8 @@ def main() -> None:
                 shutil.rmtree(out, ignore_errors=True)
                 runs[name].append(b)
                 say(f"run {r + 1} {name}: {b['wall_s']:.1f} s wall (report {b['report_wall_s']:.1f} s), "
-                    f"{b['trained']} texture sets, {b['train_s_sum']:.1f} s of training summed")
+                    f"{b['trained']} texture sets, {b['train_s_sum']:.1f} s of training summed, "
+                    f"driver peak RSS {b['driver_max_rss_mib']:.0f} MiB")
         res["builds"] = runs
     finally:
         subprocess.run([str(RAY), "stop", "--force"], capture_output=True, env=ENV, timeout=300)
@@ -173,21 +185,25 @@ def main() -> None:
     print(f"| driver: `import ray` | {c['import_s']:.2f} |")
     print(f"| driver: `ray.init(address)` (connect to the cluster) | {c['init_s']:.2f} |")
     print(f"| driver: `ray.init()` (start its own Ray) | {o['init_s']:.2f} |")
-    print(f"| first task of a new driver (a worker process starts) | {c['first_task_s']:.2f} |")
+    print(f"| first empty task of a new driver (Ray keeps idle workers started) | {c['first_task_s']:.2f} |")
     print(f"| `ray.shutdown()` of a driver that started its own Ray | {o['shutdown_s']:.2f} |")
     print()
     print("| per task | connected | own Ray |")
     print("|---|---:|---:|")
     print(f"| empty task round trip, warm worker (median of 50) | {c['roundtrip_ms']:.1f} ms | {o['roundtrip_ms']:.1f} ms |")
     print(f"| empty tasks per second, {args.tasks} at once | {c['tasks_per_s']:.0f} | {o['tasks_per_s']:.0f} |")
-    print(f"| `ray.put` + a task reading {blob.name} ({c['blob_bytes'] / 2**20:.2f} MiB) | "
-          f"{c['put_get_ms']:.1f} ms | {o['put_get_ms']:.1f} ms |")
+    for k in c["put_get_ms"]:
+        what = f"{blob.name} ({c['blob_bytes'] / 2**20:.2f} MiB)" if k == "blob" else f"{k} of bytes"
+        print(f"| `ray.put` + a task reading {what} | {c['put_get_ms'][k]:.1f} ms | {o['put_get_ms'][k]:.1f} ms |")
     print()
-    print(f"| build ({n} texture sets, `--quality {args.quality} --threads 1 --no-cache`) | runs (s) | median (s) |")
-    print("|---|---|---:|")
+    print(f"| build ({n} texture sets, `--quality {args.quality} --threads 1 --no-cache`) | runs (s) | median (s) "
+          "| training summed (s) | driver peak RSS (MiB) |")
+    print("|---|---|---:|---:|---:|")
     for k, label in (("local", f"local, `--jobs {args.cpus}`"), ("ray", f"Ray, {args.cpus}-CPU cluster on loopback")):
         walls = ", ".join(f"{b['wall_s']:.1f}" for b in runs[k])
-        print(f"| {label} | {walls} | {med[k]:.1f} |")
+        tr = statistics.median(b["train_s_sum"] for b in runs[k])
+        rss = max(b["driver_max_rss_mib"] for b in runs[k])
+        print(f"| {label} | {walls} | {med[k]:.1f} | {tr:.1f} | {rss:.0f} |")
     print(f"\nRay overhead: {res['overhead_per_build_s']:+.1f} s per build, "
           f"{res['overhead_per_task_s']:+.2f} s per texture set")
 

@@ -507,6 +507,7 @@ def test_progress_counts_every_state() -> None:
     display({"event": "progress", "job": "B", "phase": "warmup", "step": 1, "steps": 9})
     display({"event": "done", "job": "B", "status": "built", "psnr": 30.0, "seconds": 3.0})
     display({"event": "done", "job": "D", "status": "failed", "reason": "worker process died"})
+    display({"event": "progress", "job": "B", "phase": "finetune", "step": 9, "steps": 9})  # late: ignored
     assert display.counts() == {"queued": 1, "running": 1, "done": 1, "cached": 1, "failed": 1}
     assert display.table().title.endswith("3/5: 1 trained, 1 cached, 1 failed; 1 running, 1 queued")
 

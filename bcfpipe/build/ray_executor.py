@@ -10,8 +10,8 @@ object store hold the sources of that many jobs, not of the whole scene.
 
 Faults: a task whose worker process dies is retried by Ray (``max_retries``); a Python
 exception inside training is not an infrastructure fault and is reported, not retried (the task
-returns a failed result). A job that fails for good fails only its materials. Every attempt is
-counted by a small actor, so a retry is reported. Ctrl-C cancels the tasks still queued or running.
+returns a failed result). A job that fails for good fails only its materials. Every run of a task
+says so on the progress queue, so a retry is counted and reported. Ctrl-C cancels the tasks still queued or running.
 
 Threads and device come from what Ray grants: ``num_cpus`` = the build's ``--threads``, and
 ``num_gpus`` = 1 when training on CUDA.
@@ -61,34 +61,35 @@ def require_ray():
     return ray
 
 
+class _Events:
+    """A worker's side of the driver's progress queue: puts without waiting for the queue actor."""
+
+    def __init__(self, queue):
+        self.actor = queue.actor
+
+    def put(self, event: dict) -> None:
+        self.actor.put_nowait.remote(event)
+
+
 def _remote_parts(ray):
-    """The task and the attempt counter, defined once ray is imported."""
-
-    @ray.remote(num_cpus=0)
-    class Attempts:
-        def __init__(self):
-            self.n: dict[str, int] = {}
-
-        def start(self, name: str) -> int:
-            self.n[name] = self.n.get(name, 0) + 1
-            return self.n[name]
-
-        def counts(self) -> dict[str, int]:
-            return dict(self.n)
+    """The task, defined once ray is imported."""
 
     @ray.remote
-    def train_task(job: dict, device: str, counter, queue, paths: list[str], *blobs: bytes):
-        ray.get(counter.start.remote(job["name"]))
+    def train_task(job: dict, device: str, queue, paths: list[str], *blobs: bytes):
+        # no ray.get in here: a task blocked in ray.get lends its CPUs back to Ray, which starts
+        # another task on them, and both then train on one CPU's share
+        events = _Events(queue)
+        events.put({"event": "attempt", "job": job["name"]})
         granted = ray.get_runtime_context().get_assigned_resources()
         threads = max(1, int(granted.get("CPU", 1)))
         with tempfile.TemporaryDirectory(prefix="bcfpipe-ray-") as tmp:
             out = Path(tmp) / "out"
-            r = _train_job(job, str(out), threads, device, queue, time.perf_counter(),
+            r = _train_job(job, str(out), threads, device, events, time.perf_counter(),
                            sources=dict(zip(paths, blobs)))
             files = {p.name: p.read_bytes() for p in sorted(out.iterdir()) if p.is_file()} if out.is_dir() else {}
         return r, files
 
-    return Attempts, train_task
+    return train_task
 
 
 def in_flight_limit(resources: dict, threads: int, gpus: int, n_jobs: int) -> int:
@@ -198,9 +199,15 @@ def _restore(saved: dict, tmp: str | None) -> None:
 def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries):
     from ray.util.queue import Queue
 
-    Attempts, train_task = _remote_parts(ray)
-    counter = Attempts.remote()
-    queue = Queue(actor_options={"num_cpus": 0}) if progress else None
+    train_task = _remote_parts(ray)
+    queue = Queue(actor_options={"num_cpus": 0})  # progress events, and one "attempt" per run of a task
+    attempts: dict[str, int] = {}
+
+    def forward(ev: dict) -> None:
+        if ev.get("event") == "attempt":
+            attempts[ev["job"]] = attempts.get(ev["job"], 0) + 1
+        elif progress:
+            progress(ev)
     root = str(cache_root) if cache_root is not None else None
     gpus = 1 if device.startswith("cuda") else 0
     window = in_flight_limit(ray.cluster_resources(), threads, gpus, len(jobs))
@@ -212,7 +219,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
         paths = list(src)
         blobs = [ray.put(src[p]) for p in paths]
         ref = train_task.options(num_cpus=threads, num_gpus=gpus, max_retries=max_retries,
-                                 retry_exceptions=False).remote(job.to_dict(), device, counter, queue, paths, *blobs)
+                                 retry_exceptions=False).remote(job.to_dict(), device, queue, paths, *blobs)
         refs[ref] = job
         return ref
 
@@ -223,7 +230,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
         pending = [submit(waiting.popleft()) for _ in range(min(window, len(waiting)))]
         while pending:
             ready, pending = ray.wait(pending, num_returns=1, timeout=0.2)
-            _drain(queue, progress)
+            _drain(queue, forward)
             for ref in ready:
                 job = refs[ref]
                 try:
@@ -236,8 +243,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
                       psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
                 if waiting:
                     pending.append(submit(waiting.popleft()))
-        _drain(queue, progress)
-        attempts = ray.get(counter.counts.remote())
+        _drain(queue, forward)
     except KeyboardInterrupt:  # cancel what is still queued or running; the build then stops cleanly
         for ref, job in refs.items():
             if job.name not in results:

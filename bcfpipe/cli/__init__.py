@@ -4,6 +4,7 @@ Exit codes (all commands):
   0  success
   1  the work ran but failed (a material did not build, verification failed, ...)
   2  usage error or unreadable input (bad arguments, missing or corrupt file)
+  130 interrupted (Ctrl-C)
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
     with BC6H block-compressed features (Weinreich et al., EG 2024).
 
     \b
-    Exit codes: 0 ok, 1 work failed, 2 usage error or bad input.
+    Exit codes: 0 ok, 1 work failed, 2 usage error or bad input, 130 interrupted.
     """
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     logging.basicConfig(level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")

@@ -2,7 +2,8 @@
 
 Exit codes: 0 every modelled material was built (materials the scan skipped are fine); 1 at least
 one material failed (the others are still written, and OUT is complete and consistent); 2 bad
-arguments, unreadable scene, or an OUT it refuses to replace (nothing is written).
+arguments, unreadable scene, or an OUT it refuses to replace (nothing is written); 130 interrupted
+(Ctrl-C: the workers are stopped, OUT is left as it was).
 
 Live progress goes to stderr (a rich table on a terminal, plain lines otherwise); the summary
 table, or with ``--json`` the manifest as one JSON object, goes to stdout.
@@ -78,6 +79,8 @@ class BuildDisplay:
         if kind == "queued":
             st["materials"] = ev.get("materials", [])
         elif kind == "progress":
+            if st["status"] in ("built", "failed"):  # a late event of a finished job (Ray's are not awaited)
+                return
             phase_changed = ev.get("phase") != st["phase"]
             st.update(status="running", phase=ev.get("phase", ""), step=ev.get("step", 0), steps=ev.get("steps", 0),
                       eta=ev.get("eta"))
@@ -200,7 +203,8 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
               help="Where the jobs train: local worker processes, or one Ray task each on a Ray cluster "
                    "(pip install 'bcfpipe[ray]'); auto = ray when --ray-address or RAY_ADDRESS is set.")
 @click.option("--ray-address", default=None, metavar="ADDR",
-              help="The Ray cluster to use (host:port); default RAY_ADDRESS, else a local Ray.")
+              help="The Ray cluster to use (host:port, or auto for the one `ray start` last started "
+                   "here); default RAY_ADDRESS, else a Ray of the build's own, ended after it.")
 @click.option("--shard", metavar="I/N", default=None,
               help="Train only shard I of N of the scene's jobs (a job's shard is its content hash mod N) into "
                    "the cache and write nothing else; run every shard (any scheduler), then a plain build "
@@ -226,7 +230,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     cache: a rebuild trains only texture sets whose bytes or training options changed, and writes
     only files whose bytes changed (a no-op rebuild leaves OUT untouched). Same inputs and options
     on the same device class give byte-identical outputs. See docs/build.md for make, ninja and
-    CMake. Exit codes: 0 all built, 1 a material failed, 2 bad input or OUT refused.
+    CMake. Exit codes: 0 all built, 1 a material failed, 2 bad input or OUT refused, 130 interrupted.
     """
     from bcfpipe.build import build as run_build
     from bcfpipe.cli.options import check_target
