@@ -13,6 +13,9 @@ to exit:
   --threads 1`): the per-job time on this machine, from the report.
 - assembly: with every job in the cache, `build` of the first N materials into a fresh OUT, for
   each N in --assemble (USD layer, weights.bin, manifest, every file installed), then a no-op rebuild.
+- shared: the same for N materials in --shared that share the --train texture sets (material k
+  reads texture k mod --train): the per-material cost (plan, USD layer, manifest) at large N,
+  where training 10,000 sets on this machine would take a day.
 
 Prints per-N lines, a least-squares fixed + per-material cost of each step, and Markdown tables.
 """
@@ -34,8 +37,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine  # noqa: E402
 
 
-def make_scene(root: Path, n: int, size: int) -> Path:
-    """N materials, each on its own quad, each reading its own SIZE² texture (seeded by index)."""
+def make_scene(root: Path, n: int, size: int, sets: int | None = None) -> Path:
+    """N materials, each on its own quad, each reading its own SIZE² texture (seeded by index), or
+    with ``sets`` the texture (k mod sets): then N materials share that many texture sets."""
     import OpenImageIO as oiio
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
@@ -46,7 +50,7 @@ def make_scene(root: Path, n: int, size: int) -> Path:
     stage.SetDefaultPrim(stage.DefinePrim("/World", "Xform"))
     y, x = np.mgrid[0:size, 0:size] / size
     for k in range(n):
-        tex = root / "tex" / f"t{k:05d}.png"
+        tex = root / "tex" / f"t{k % sets if sets else k:05d}.png"
         if not tex.exists():
             rng = np.random.default_rng(k)
             f = rng.uniform(1, 4, 3)
@@ -99,15 +103,18 @@ def main() -> None:
     ap.add_argument("--plan", default="100,1000,10000")
     ap.add_argument("--train", type=int, default=64)
     ap.add_argument("--assemble", default="8,16,32,64")
+    ap.add_argument("--shared", default="1000,10000")
     ap.add_argument("--size", type=int, default=16, help="texture size of every material")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     say = (lambda *a: None) if args.json else (lambda *a: print(*a, flush=True))
     plan_ns = [int(x) for x in args.plan.split(",") if x]
     asm_ns = [int(x) for x in args.assemble.split(",") if x]
+    shared_ns = [int(x) for x in args.shared.split(",") if x]
     if asm_ns and max(asm_ns) > args.train:
         sys.exit("--assemble sizes must not exceed --train (they are assembled from its cache)")
-    res: dict = {"machine": machine(), "size": args.size, "plan": {}, "assemble": {}, "noop": {}}
+    res: dict = {"machine": machine(), "size": args.size, "plan": {}, "assemble": {}, "noop": {},
+                 "shared_assemble": {}, "shared_noop": {}}
     say(f"machine: {res['machine']}; load average {os.getloadavg()}")
     with tempfile.TemporaryDirectory(prefix="bcf-scale-") as tmp:
         tmp = Path(tmp)
@@ -141,8 +148,23 @@ def main() -> None:
                                "--profile", "tiny", "--quality", "draft")
                 res["noop"][n] = wall2
                 say(f"from the cache, {n} materials: fresh OUT {wall:.2f} s, no-op {wall2:.2f} s")
+            for n in shared_ns:
+                s = make_scene(tmp / f"s{n}", n, args.size, sets=args.train)
+                out_dir = tmp / f"s{n}" / "out"
+                wall, out = run("build", str(s), "-o", str(out_dir), "--cache", str(cache), "--json", "--profile", "tiny",
+                                "--quality", "draft")
+                rep = json.loads(out)
+                assert rep["totals"]["trained"] == 0, rep["totals"]
+                res["shared_assemble"][n] = wall
+                wall2, _ = run("build", str(s), "-o", str(out_dir), "--cache", str(cache), "--json", "--profile",
+                               "tiny", "--quality", "draft")
+                res["shared_noop"][n] = wall2
+                sizes = {p.name: p.stat().st_size for p in out_dir.iterdir() if p.is_file()}
+                res.setdefault("shared_sizes", {})[n] = sizes
+                say(f"{n} materials sharing {args.train} sets, from the cache: fresh OUT {wall:.2f} s, "
+                    f"no-op {wall2:.2f} s; {sizes}")
     res["loadavg_after"] = os.getloadavg()
-    for key in ("plan", "assemble", "noop"):
+    for key in ("plan", "assemble", "noop", "shared_assemble", "shared_noop"):
         if len(res[key]) >= 2:
             a, b = fit(list(res[key]), list(res[key].values()))
             res[f"{key}_fit"] = {"fixed_s": a, "per_material_ms": 1e3 * b}
@@ -150,11 +172,14 @@ def main() -> None:
         print(json.dumps(res, indent=2))
         return
     print(f"\nload average after: {res['loadavg_after']}\n")
-    print("| step | " + " | ".join(f"N={n}" for n in sorted({*res['plan'], *res['assemble']})) + " | fixed + per material |")
-    cols = sorted({*res["plan"], *res["assemble"]})
+    print("| step | " + " | ".join(f"N={n}" for n in sorted({*res['plan'], *res['assemble'], *res['shared_assemble']}))
+          + " | fixed + per material |")
+    cols = sorted({*res["plan"], *res["assemble"], *res["shared_assemble"]})
     print("|---|" + "---:|" * (len(cols) + 1))
     for key, label in (("plan", "`plan` (scan, hash, read, coverage)"), ("assemble", "build from the cache, fresh OUT"),
-                       ("noop", "no-op rebuild")):
+                       ("noop", "no-op rebuild"),
+                       ("shared_assemble", f"build from the cache, fresh OUT, materials sharing {args.train} sets"),
+                       ("shared_noop", f"no-op rebuild, materials sharing {args.train} sets")):
         row = [f"{res[key][n]:.2f}" if n in res[key] else "" for n in cols]
         f = res.get(f"{key}_fit")
         print(f"| {label} | " + " | ".join(row) + (f" | {f['fixed_s']:.2f} s + {f['per_material_ms']:.1f} ms |"

@@ -20,7 +20,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_shard import files, scene  # noqa: E402
 
-from bcfpipe.build.ray_executor import resolve_executor  # noqa: E402
+from bcfpipe.build.ray_executor import in_flight_limit, resolve_executor  # noqa: E402
 
 RAY = Path(sys.executable).with_name("ray")
 # Ray 2.60 listens on every interface even when told 127.0.0.1, so the test cluster takes a token
@@ -34,6 +34,14 @@ def test_executor_choice(monkeypatch) -> None:
     assert resolve_executor("auto", "127.0.0.1:6379") == "ray"
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:6379")
     assert resolve_executor("auto", None) == "ray" and resolve_executor("local", None) == "local"
+
+
+def test_in_flight_limit_follows_the_cluster_not_the_scene() -> None:
+    assert in_flight_limit({"CPU": 2.0}, 1, 0, 10_000) == 4  # 2 slots + 2 queued
+    assert in_flight_limit({"CPU": 64.0}, 2, 0, 10_000) == 64  # 32 slots of 2 threads + 32 queued
+    assert in_flight_limit({"CPU": 4096.0}, 1, 0, 10_000) == 4096 + 32
+    assert in_flight_limit({"CPU": 64.0, "GPU": 8.0}, 1, 1, 10_000) == 16  # GPUs are the slots
+    assert in_flight_limit({"CPU": 64.0}, 1, 0, 3) == 3 and in_flight_limit({}, 1, 0, 5) == 2
 
 
 def test_without_the_ray_package_one_line(tmp_path: Path) -> None:

@@ -5,8 +5,8 @@ bytes into the object store once (``ray.put``); the task writes them to its own 
 trains there, and returns the exported files as bytes. The driver writes them into the build's
 staging folder and stores them in the cache (atomically, under the key's lock), exactly as a
 local worker would, so the outputs are byte-identical to a local build's. At most
-`in_flight_limit` tasks are submitted at once (twice the cluster's slots), so the driver and the
-object store hold the sources of that many jobs, not of the whole scene.
+`in_flight_limit` tasks are submitted at once (the cluster's slots plus up to 32), so the driver
+and the object store hold the sources of that many jobs, not of the whole scene.
 
 Faults: a task whose worker process dies is retried by Ray (``max_retries``); a Python
 exception inside training is not an infrastructure fault and is reported, not retried (the task
@@ -93,10 +93,12 @@ def _remote_parts(ray):
 
 
 def in_flight_limit(resources: dict, threads: int, gpus: int, n_jobs: int) -> int:
-    """Tasks submitted at once: twice what the cluster can run together, so a worker never waits
-    for the driver, while the driver and the object store hold the sources of only that many jobs."""
+    """Tasks submitted at once: one per slot the cluster has, plus up to 32 queued so that a slot
+    never waits for the driver. The driver's node holds the sources of that many jobs in its
+    object store (a running task's arguments stay there until it ends), not of the whole scene."""
     slots = int(resources.get("GPU", 0)) if gpus else int(resources.get("CPU", 1)) // max(1, threads)
-    return max(1, min(n_jobs, 2 * max(1, slots)))
+    slots = max(1, slots)
+    return max(1, min(n_jobs, slots + min(slots, 32)))
 
 
 def _store(job: MaterialJob, r: JobResult, files: dict[str, bytes], materials_dir: Path,
