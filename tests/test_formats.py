@@ -94,3 +94,20 @@ def test_minimal_manifest(tmp_path):
     assert mfst.is_manifest(tmp_path) and mfst.read(tmp_path) == m and m.failed() == []
     assert list(data["materials"][0])[:4] == ["path", "aliases", "job", "status"]
     assert "profile" not in data["materials"][0]
+
+
+def test_version_4_manifests_are_read(tmp_path):
+    """An OUT built by the previous version (each material listing the others of its job) reads."""
+    m = mfst.Manifest(scene="s.usda", root_layer="s.bcf.usda",
+                      materials=(mfst.Material("/World/A", "built", job="A"), mfst.Material("/World/B", "built", job="A")))
+    mfst.write(tmp_path, m)
+    data = json.loads((tmp_path / mfst.FILE).read_text())
+    data["format_version"] = 4
+    data["materials"][0]["shared_with"] = ["/World/B"]
+    data["materials"][1]["shared_with"] = ["/World/A"]
+    (tmp_path / mfst.FILE).write_text(json.dumps(data))
+    assert mfst.read(tmp_path).materials == m.materials
+    data["format_version"] = 5
+    (tmp_path / mfst.FILE).write_text(json.dumps(data))
+    with pytest.raises(FormatError, match="shared_with"):
+        mfst.read(tmp_path)

@@ -265,6 +265,26 @@ def test_a_build_writes_only_to_out_and_its_cache(tmp_path):
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def test_outputs_grow_linearly_with_materials_sharing_a_set(tmp_path):
+    """Ten times the materials on one texture set: about ten times the manifest and USD layer, not
+    a hundred (a per-material list of the job's other materials made manifest.json 415 MB at
+    10,000 materials, benchmarks/bench_scale.py)."""
+    write_png(tmp_path / "tex" / "a.png", pattern())
+    sizes = {}
+    for n in (10, 100):
+        stage = new_stage(tmp_path / f"s{n}.usda")
+        for k in range(n):
+            add_material(stage, f"/World/Looks/M{k}", {"diffuseColor": ("./tex/a.png", "rgb", {})},
+                         mesh=f"/World/G{k}")
+        stage.Save()
+        out = tmp_path / f"s{n}.bcf"
+        r = build(tmp_path / f"s{n}.usda", out, cache=tmp_path / "cache", **FAST)
+        assert r.exit_code == 0 and r.report.totals.trained == (1 if n == 10 else 0)
+        sizes[n] = {f: (out / f).stat().st_size for f in ("manifest.json", "overrides.usda")}
+    for f in ("manifest.json", "overrides.usda"):
+        assert sizes[100][f] < 12 * sizes[10][f], (f, sizes)
+
+
 def test_cache_cli(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"

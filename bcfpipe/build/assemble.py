@@ -114,7 +114,6 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
         job = bplan.job(mp_.job) if mp_.job else None
         common = dict(
             path=mp_.path, aliases=tuple(mp_.aliases), job=mp_.job, status=status, reason=reason, message=mp_.message,
-            shared_with=tuple(m for m in job.materials if m != mp_.path) if job else (),
             sources=tuple(mfst.Source(rel(s.path), s.asset_path, s.xxh3_128, s.size_bytes, s.width, s.height,
                                       s.channels, s.format, s.color_space, s.resolved_color_space)
                           for s in (sources[p] for p in mp_.sources if p in sources)),

@@ -150,10 +150,11 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
     for col in ("material", "status", "targets", "profile", "PSNR", "size", "train", "note"):
         t.add_column(col, overflow="fold", justify="right" if col in ("PSNR", "size", "train") else "left")
     style = {"built": "green", "constant": "cyan", "failed": "red", "skipped": "yellow"}
+    sharing = {j.name: len(j.materials) for j in manifest.jobs}
     for m, r in zip(manifest.materials, report.materials):
         note = m.reason or ""
-        if m.status == "built" and m.shared_with:
-            note = f"shared: {m.job} x{len(m.shared_with) + 1}"
+        if m.status == "built" and sharing.get(m.job, 1) > 1:
+            note = f"shared: {m.job} x{sharing[m.job]}"
         if m.folded:
             kinds = [f.reason for f in m.folded]
             folded = ", ".join(f"{kinds.count(k)} {k}" for k in ("constant", "unread", "duplicate") if k in kinds)

@@ -14,8 +14,10 @@ from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.record import Record, optional, read as read_record
 
 FORMAT = "bcfpipe-build"
-FORMAT_VERSION = 4
-COMPATIBLE_VERSIONS = (3,)  # version 4 added optional keys only (options.target_psnr, materials' preset, target)
+FORMAT_VERSION = 5
+# 4 added optional keys only (options.target_psnr, materials' preset, target); 5 dropped each
+# material's shared_with (jobs[].materials says it once: the list grew as materials² / jobs)
+COMPATIBLE_VERSIONS = (3, 4)
 FILE = "manifest.json"
 WEIGHTS = "weights.bin"
 
@@ -166,7 +168,6 @@ class Material(Record):
     job: str | None = None
     reason: str | None = None
     message: str = ""
-    shared_with: tuple[str, ...] = ()
     sources: tuple[Source, ...] = ()
     targets: tuple[Target, ...] = ()
     constants: tuple[Constant, ...] = ()
@@ -304,7 +305,15 @@ def _version() -> str:
 
 def read(folder: str | os.PathLike) -> Manifest:
     """``folder/manifest.json``; a missing, foreign or malformed file raises FormatError."""
-    return read_record(Manifest, Path(folder) / FILE, FORMAT, FORMAT_VERSION, COMPATIBLE_VERSIONS)
+    return read_record(Manifest, Path(folder) / FILE, FORMAT, FORMAT_VERSION, COMPATIBLE_VERSIONS, _upgrade)
+
+
+def _upgrade(data: dict) -> dict:
+    """A version 3 or 4 manifest in version 5's keys."""
+    for m in data.get("materials") or ():
+        if isinstance(m, dict):
+            m.pop("shared_with", None)
+    return data
 
 
 def is_manifest(folder: str | os.PathLike) -> bool:

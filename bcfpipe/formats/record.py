@@ -14,7 +14,7 @@ import json
 import types
 import typing
 from functools import lru_cache
-from typing import Any, TypeVar
+from typing import Any, Callable, TypeVar
 
 from bcfpipe.errors import InputError
 
@@ -141,10 +141,10 @@ def _load(tp: Any, v: Any, where: str) -> Any:
 
 
 def read(cls: type[R], path, fmt: str | None = None, version: int | None = None,
-         compatible: tuple[int, ...] = ()) -> R:
+         compatible: tuple[int, ...] = (), upgrade: Callable[[dict], dict] | None = None) -> R:
     """Parse ``path`` as a ``cls`` record; a ``format``/``format_version`` mismatch is refused.
-    ``compatible``: older versions whose files are also valid ``cls`` records (a later version
-    only added optional keys)."""
+    ``compatible``: older versions also read, after ``upgrade`` (which gets the parsed JSON of an
+    older version and returns it in this version's keys)."""
     from pathlib import Path
 
     path = Path(path)
@@ -160,4 +160,6 @@ def read(cls: type[R], path, fmt: str | None = None, version: int | None = None,
         if data.get("format_version") not in (version, *compatible):
             raise FormatError(f"{path}: {fmt} version {data.get('format_version')}; this bcfpipe reads "
                               f"version {version}")
+    if upgrade is not None and fmt is not None and data.get("format_version") != version:
+        data = upgrade(data)
     return cls.from_json(data, path.name)

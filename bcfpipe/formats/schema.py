@@ -129,7 +129,6 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Material", "status"): "built, constant (every textured input folded to a value; nothing trained), failed or skipped.",
     ("Material", "reason"): "Why it was skipped or failed (a short code or one line); null when built.",
     ("Material", "message"): "What the scan found (human-readable).",
-    ("Material", "shared_with"): "Other materials served by the same trained material.",
     ("Material", "sources"): "Texture files it reads.",
     ("Material", "targets"): "UsdPreviewSurface input channels the neural material drives.",
     ("Material", "constants"): "Inputs whose texture channels are all constant: the values authored on the surface (connection blocked).",
