@@ -17,6 +17,10 @@ to exit:
   reads texture k mod --train): the per-material cost (plan, USD layer, manifest) at large N,
   where training 10,000 sets on this machine would take a day.
 
+- store: the driver's write of one job's exported files into the staging folder and the cache
+  (`ray_executor._store`: two copies, fsynced, SHA-256 of each file), at the sizes of a 0.5k and a
+  1k job, median of 30.
+
 Prints per-N lines, a least-squares fixed + per-material cost of each step, and Markdown tables.
 """
 from __future__ import annotations
@@ -81,6 +85,33 @@ def make_scene(root: Path, n: int, size: int, sets: int | None = None) -> Path:
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
     stage.Save()
     return root / "scene.usda"
+
+
+# the exported files of one job (BC6H T0..T3 with mips), by profile
+JOB_FILES = {"0.5k": {"T0.dds": 349668, "T1.dds": 87524, "T2.dds": 21988, "T3.dds": 5604},
+             "1k": {"T0.dds": 1398228, "T1.dds": 349668, "T2.dds": 87524, "T3.dds": 21988}}
+
+
+def store_cost(folder: Path, reps: int = 30) -> dict[str, dict]:
+    """Median seconds of the Ray driver's store of one job's files (staging + cache), by profile."""
+    from types import SimpleNamespace
+
+    from bcfpipe.build.executor import JobResult
+    from bcfpipe.build.ray_executor import _store
+
+    out = {}
+    for prof, sizes in JOB_FILES.items():
+        files = {**{k: os.urandom(v) for k, v in sizes.items()}, "weights.bin": os.urandom(708),
+                 "decoder.onnx": os.urandom(2313), "material.json": os.urandom(5393)}
+        ts = []
+        for i in range(reps):
+            job = SimpleNamespace(name=f"{prof}-{i}", content_hash=f"{len(sizes)}{prof == '1k':d}{i:030x}")
+            r = JobResult(job.name, "built", None, 1.0, "cpu", 1, {"psnr": 30.0})
+            t0 = time.perf_counter()
+            _store(job, r, files, folder / "staging", str(folder / "cache"))
+            ts.append(time.perf_counter() - t0)
+        out[prof] = {"mib": sum(map(len, files.values())) / 2**20, "store_s": statistics.median(ts)}
+    return out
 
 
 def run(*args: str) -> tuple[float, str]:
@@ -163,6 +194,9 @@ def main() -> None:
                 res.setdefault("shared_sizes", {})[n] = sizes
                 say(f"{n} materials sharing {args.train} sets, from the cache: fresh OUT {wall:.2f} s, "
                     f"no-op {wall2:.2f} s; {sizes}")
+        res["store"] = store_cost(tmp / "store")
+        for prof, v in res["store"].items():
+            say(f"store of a {prof} job ({v['mib']:.2f} MiB) into staging + cache: {1e3 * v['store_s']:.1f} ms")
     res["loadavg_after"] = os.getloadavg()
     for key in ("plan", "assemble", "noop", "shared_assemble", "shared_noop"):
         if len(res[key]) >= 2:

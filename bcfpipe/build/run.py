@@ -122,6 +122,9 @@ def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
     """Jobs found in the cache, copied into ``materials_dir``; and the damaged entries met."""
     hits: dict[str, JobResult] = {}
     damaged: list[str] = []
+    if progress:  # every job is known from the start: progress counts "k of all"
+        for job in bplan.jobs:
+            progress({"event": "queued", "job": job.name, "materials": list(job.materials)})
     if cache is None:
         return hits, damaged
     for job in bplan.jobs:
