@@ -197,3 +197,26 @@ def test_a_ray_of_its_own_leaves_nothing_behind(tmp_path: Path) -> None:
         assert not any(tmp.iterdir()), sorted(p.name for p in tmp.iterdir())
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.mark.slow
+def test_a_job_that_fails_fails_alone(cluster, tmp_path: Path) -> None:
+    """Five jobs on two CPUs: four are submitted at once (slots + queue), the fifth when one ends.
+    Its texture is saved again once training has started, so the driver finds bytes its cache
+    key does not name: that job fails with one line, the other four build, exit 1."""
+    from test_build import pattern, write_png
+
+    s = scene(tmp_path / "f", n=5)
+    order = json.loads(subprocess.run([sys.executable, "-m", "bcfpipe", "plan", str(s), "--json", "--quality",
+                                       "draft"], capture_output=True, text=True, timeout=300).stdout)["jobs"]
+    last = order[-1]["materials"][0].rsplit("/", 1)[-1]  # M<k>: its texture is c<k>.png
+    p = build(s, tmp_path / "cache-f", "--executor", "ray", "--ray-address", cluster)
+    deadline = time.monotonic() + 300
+    while not _train_task_pids() and time.monotonic() < deadline and p.poll() is None:
+        time.sleep(0.2)
+    write_png(tmp_path / "f" / "tex" / f"c{last[1:]}.png", pattern(32, 3, seed=99))
+    out, err = p.communicate(timeout=900)
+    assert p.returncode == 1, err[-3000:]
+    status = {m["path"].rsplit("/", 1)[-1]: m for m in json.loads(out)["materials"]}
+    assert status[last]["status"] == "failed" and "changed during the build" in status[last]["reason"]
+    assert sorted(k for k, m in status.items() if m["status"] == "built") == sorted(set(status) - {last})

@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence
 
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.build.plan import MaterialJob, ProgressCallback
-from bcfpipe.scan.texture_sets import local_file
+from bcfpipe.errors import WorkFailed
 
 
 def cpu_count() -> int:
@@ -157,8 +157,7 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         if progress:
             progress.phase("load")
         with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
-            local = ({path: local_file(path, tmp) for _, path, _ in mj.specs} if sources is None
-                     else write_sources(sources, tmp))
+            local = copy_sources(mj, tmp) if sources is None else write_sources(sources, tmp)
             ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
                                   resolution=mj.size if mj.options.resolution else None,
                                   fix_nonfinite=mj.options.fix_nonfinite)
@@ -205,12 +204,57 @@ def write_sources(sources: Mapping[str, bytes], folder: str | os.PathLike) -> di
     return out
 
 
-def read_sources(job: MaterialJob) -> dict[str, bytes]:
-    """The bytes of every source file a job reads (a packaged file's through USD's resolver)."""
+class SourceChanged(WorkFailed):
+    """A source file's bytes are not those the plan hashed (saved again during the build)."""
+
+
+def _checked(path: str, data_hash: str, planned: str | None) -> None:
+    if planned and data_hash != planned:
+        raise SourceChanged(f"{Path(path).name} changed during the build; build again")
+
+
+def copy_sources(job: MaterialJob, folder: str | os.PathLike) -> dict[str, str]:
+    """Copy each source into ``folder`` (a packaged one through USD's resolver), hashing as it goes,
+    and check the plan's XXH3-128: training reads the copy, so the bytes it trains on are the
+    bytes the cache key names, in O(1 MiB) of memory whatever the size; {plan path: copy}."""
+    import xxhash
+
     from bcfpipe.scan.texture_sets import package_split, read_asset
 
-    return {path: (read_asset(path) if package_split(path) else Path(path).read_bytes())
-            for path in dict.fromkeys(p for _, p, _ in job.specs)}
+    planned = {s.path: s.xxh3_128 for s in job.sources}
+    out = {}
+    for k, path in enumerate(dict.fromkeys(p for _, p, _ in job.specs)):
+        dst = Path(folder) / f"{k}_{Path(path.split('[')[-1].rstrip(']')).name}"
+        h = xxhash.xxh3_128()
+        if package_split(path):
+            data = read_asset(path)
+            h.update(data)
+            dst.write_bytes(data)
+        else:
+            with open(path, "rb") as src, open(dst, "wb") as f:
+                while chunk := src.read(1 << 20):
+                    h.update(chunk)
+                    f.write(chunk)
+        _checked(path, h.hexdigest(), planned.get(path))
+        out[path] = str(dst)
+    return out
+
+
+def read_sources(job: MaterialJob) -> dict[str, bytes]:
+    """The bytes of every source file a job reads (a packaged file's through USD's resolver),
+    checked against the plan's XXH3-128: a file saved again since the plan would otherwise train
+    a result that the cache stores under the old bytes' key."""
+    import xxhash
+
+    from bcfpipe.scan.texture_sets import package_split, read_asset
+
+    planned = {s.path: s.xxh3_128 for s in job.sources}
+    out = {}
+    for path in dict.fromkeys(p for _, p, _ in job.specs):
+        data = read_asset(path) if package_split(path) else Path(path).read_bytes()
+        _checked(path, xxhash.xxh3_128_hexdigest(data), planned.get(path))
+        out[path] = data
+    return out
 
 
 def _drain(queue, progress: ProgressCallback | None) -> None:

@@ -31,7 +31,7 @@ from typing import Sequence
 from bcfpipe.build.executor import JobResult, _emit, _drain, _train_job, one_line, read_sources
 from bcfpipe.build.plan import MaterialJob, ProgressCallback
 from bcfpipe.config import DEFAULT_THREADS
-from bcfpipe.errors import Unavailable
+from bcfpipe.errors import Unavailable, WorkFailed
 
 __all__ = ["RayUnavailable", "require_ray", "execute_ray", "in_flight_limit", "resolve_executor", "EXECUTORS", "MAX_RETRIES"]
 
@@ -212,12 +212,25 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
             progress(ev)
     root = str(cache_root) if cache_root is not None else None
     gpus = 1 if device.startswith("cuda") else 0
-    window = in_flight_limit(ray.cluster_resources(), threads, gpus, len(jobs))
+    resources = ray.cluster_resources()
+    if gpus and not resources.get("GPU"):  # Ray would wait for one forever
+        raise RayUnavailable("training on CUDA needs GPUs, and the Ray cluster has none; "
+                             "use --device cpu or add GPU nodes")
+    window = in_flight_limit(resources, threads, gpus, len(jobs))
     refs: dict = {}
     results: dict[str, JobResult] = {}
 
+    def finish(job: MaterialJob, r: JobResult) -> None:
+        results[job.name] = r
+        _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
+              psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
+
     def submit(job: MaterialJob):
-        src = read_sources(job)  # this job's bytes only: the driver holds at most `window` jobs' sources
+        try:
+            src = read_sources(job)  # this job's bytes only: the driver holds at most `window` jobs' sources
+        except (OSError, WorkFailed) as exc:  # gone or saved again since the plan: this job fails
+            finish(job, JobResult(job.name, "failed", one_line(exc), 0.0, device, threads))
+            return None
         paths = list(src)
         blobs = [ray.put(src[p]) for p in paths]
         ref = train_task.options(num_cpus=threads, num_gpus=gpus, max_retries=max_retries,
@@ -229,7 +242,15 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
         for job in jobs:
             _emit(progress, event="queued", job=job.name, materials=list(job.materials))
         waiting = collections.deque(jobs)
-        pending = [submit(waiting.popleft()) for _ in range(min(window, len(waiting)))]
+        pending: list = []
+
+        def fill() -> None:
+            while waiting and len(pending) < window:
+                ref = submit(waiting.popleft())
+                if ref is not None:
+                    pending.append(ref)
+
+        fill()
         while pending:
             ready, pending = ray.wait(pending, num_returns=1, timeout=0.2)
             _drain(queue, forward)
@@ -240,11 +261,8 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
                     r = _store(job, JobResult(**raw), files, materials_dir, root)
                 except Exception as exc:  # noqa: BLE001 - the task failed for good: its materials fail
                     r = JobResult(job.name, "failed", one_line(exc), 0.0, device, threads)
-                results[job.name] = r
-                _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
-                      psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
-                if waiting:
-                    pending.append(submit(waiting.popleft()))
+                finish(job, r)
+            fill()
         _drain(queue, forward)
     except KeyboardInterrupt:  # cancel what is still queued or running; the build then stops cleanly
         for ref, job in refs.items():
