@@ -41,18 +41,52 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine  # noqa: E402
 
 
+MATERIAL = """
+        def Material "M{k:05d}"
+        {{
+            token outputs:surface.connect = </World/Looks/M{k:05d}/Surface.outputs:surface>
+            def Shader "Surface"
+            {{
+                uniform token info:id = "UsdPreviewSurface"
+                color3f inputs:diffuseColor.connect = </World/Looks/M{k:05d}/Tex.outputs:rgb>
+                token outputs:surface
+            }}
+            def Shader "St"
+            {{
+                uniform token info:id = "UsdPrimvarReader_float2"
+                string inputs:varname = "st"
+                float2 outputs:result
+            }}
+            def Shader "Tex"
+            {{
+                uniform token info:id = "UsdUVTexture"
+                asset inputs:file = @./tex/{tex}@
+                float2 inputs:st.connect = </World/Looks/M{k:05d}/St.outputs:result>
+                float3 outputs:rgb
+            }}
+        }}
+"""
+QUAD = """
+        def Mesh "Q{k:05d}" (prepend apiSchemas = ["MaterialBindingAPI"])
+        {{
+            int[] faceVertexCounts = [4]
+            int[] faceVertexIndices = [0, 1, 2, 3]
+            point3f[] points = [({x0}, {y0}, 0), ({x1}, {y0}, 0), ({x1}, {y1}, 0), ({x0}, {y1}, 0)]
+            texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (interpolation = "faceVarying")
+            rel material:binding = </World/Looks/M{k:05d}>
+        }}
+"""
+
+
 def make_scene(root: Path, n: int, size: int, sets: int | None = None) -> Path:
     """N materials, each on its own quad, each reading its own SIZE² texture (seeded by index), or
-    with ``sets`` the texture (k mod sets): then N materials share that many texture sets."""
+    with ``sets`` the texture (k mod sets): then N materials share that many texture sets. Written
+    as USDA text: authoring 10,000 networks through the USD API would take longer than the plan."""
     import OpenImageIO as oiio
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
-    T = Sdf.ValueTypeNames
     (root / "tex").mkdir(parents=True, exist_ok=True)
-    stage = Usd.Stage.CreateNew(str(root / "scene.usda"))
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-    stage.SetDefaultPrim(stage.DefinePrim("/World", "Xform"))
     y, x = np.mgrid[0:size, 0:size] / size
+    looks, geo = [], []
     for k in range(n):
         tex = root / "tex" / f"t{k % sets if sets else k:05d}.png"
         if not tex.exists():
@@ -60,30 +94,13 @@ def make_scene(root: Path, n: int, size: int, sets: int | None = None) -> Path:
             f = rng.uniform(1, 4, 3)
             img = 0.5 + 0.4 * np.sin((x[..., None] * f + y[..., None] * f[::-1]) * np.pi + rng.uniform(0, 6, 3))
             oiio.ImageBuf(np.round(img * 255).astype(np.uint8)).write(str(tex))
-        path = f"/World/Looks/M{k:05d}"
-        mat = UsdShade.Material.Define(stage, path)
-        surf = UsdShade.Shader.Define(stage, f"{path}/Surface")
-        surf.CreateIdAttr("UsdPreviewSurface")
-        mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
-        reader = UsdShade.Shader.Define(stage, f"{path}/St")
-        reader.CreateIdAttr("UsdPrimvarReader_float2")
-        reader.CreateInput("varname", T.String).Set("st")
-        t = UsdShade.Shader.Define(stage, f"{path}/Tex")
-        t.CreateIdAttr("UsdUVTexture")
-        t.CreateInput("file", T.Asset).Set(f"./tex/{tex.name}")
-        t.CreateInput("st", T.Float2).ConnectToSource(reader.CreateOutput("result", T.Float2))
-        surf.CreateInput("diffuseColor", T.Color3f).ConnectToSource(t.CreateOutput("rgb", T.Float3))
-        mesh = UsdGeom.Mesh.Define(stage, f"/World/Geo/Q{k:05d}")
-        ox = float(k % 100) * 1.2
-        oy = float(k // 100) * 1.2
-        mesh.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(ox, oy, 0), Gf.Vec3f(ox + 1, oy, 0),
-                                             Gf.Vec3f(ox + 1, oy + 1, 0), Gf.Vec3f(ox, oy + 1, 0)]))
-        mesh.CreateFaceVertexCountsAttr([4])
-        mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-        st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", T.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
-        st.Set(Vt.Vec2fArray([(0, 0), (1, 0), (1, 1), (0, 1)]))
-        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
-    stage.Save()
+        looks.append(MATERIAL.format(k=k, tex=tex.name))
+        x0, y0 = (k % 100) * 1.2, (k // 100) * 1.2
+        geo.append(QUAD.format(k=k, x0=x0, y0=y0, x1=x0 + 1, y1=y0 + 1))
+    text = ('#usda 1.0\n(\n    defaultPrim = "World"\n    upAxis = "Z"\n)\n\ndef Xform "World"\n{\n'
+            '    def Scope "Looks"\n    {' + "".join(looks) + '    }\n    def Scope "Geo"\n    {' + "".join(geo)
+            + "    }\n}\n")
+    (root / "scene.usda").write_text(text)
     return root / "scene.usda"
 
 
