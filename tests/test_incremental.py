@@ -166,6 +166,7 @@ def test_concurrent_builds_share_one_cache(tmp_path):
     assert len(list(Cache(cache).entries())) == 2
 
 
+@pytest.mark.slow  # 3 min: ten killed builds and their rebuilds
 def test_sigkill_at_random_moments_never_leaves_anything_used_corrupt(tmp_path):
     """Kill a build at 10 random moments (training, writing the cache, installing OUT), then
     rebuild: every rebuild succeeds and gives exactly the bytes of an undisturbed build."""
@@ -349,6 +350,7 @@ build out/Teapot.bcf.usda: bcf Teapot.usd
 """
 
 
+@pytest.mark.slow  # 2.5 min: the teapot trained, then rebuilt by ninja
 @pytest.mark.shared
 def test_ninja_rebuilds_only_what_changed(tmp_path, shared_scenes):
     """Real ninja over `bcfpipe build --depfile` on the teapot with the Fancy variant."""
