@@ -111,3 +111,55 @@ def test_version_4_manifests_are_read(tmp_path):
     (tmp_path / mfst.FILE).write_text(json.dumps(data))
     with pytest.raises(FormatError, match="shared_with"):
         mfst.read(tmp_path)
+
+
+SDR_CHECK = """
+import json, sys
+from pxr import Sdf, Sdr, Usd, UsdGeom, UsdShade, UsdValidation
+from bcfpipe.formats import usd_schema
+if sys.argv[1] != "none":
+    assert usd_schema.register_shader_defs() == ["BcfNeuralMaterial"]
+    assert usd_schema.register_shader_defs() == ["BcfNeuralMaterial"]  # idempotent
+stage = Usd.Stage.CreateInMemory()
+UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+mat = UsdShade.Material.Define(stage, "/M")
+stage.SetDefaultPrim(mat.GetPrim())
+bcf = UsdShade.Shader.Define(stage, "/M/BcfSurface")
+bcf.CreateIdAttr("BcfNeuralMaterial")
+bias_type = Sdf.ValueTypeNames.Int if sys.argv[1] == "wrong-type" else Sdf.ValueTypeNames.Float
+bcf.CreateInput("lodBias1", bias_type).Set(2)
+bcf.CreateInput("addressing", Sdf.ValueTypeNames.Token).Set("clamp")
+mat.CreateSurfaceOutput("bcf").ConnectToSource(bcf.ConnectableAPI(), "surface")
+node = Sdr.Registry().GetShaderNodeByIdentifierAndType("BcfNeuralMaterial", "glsl")
+validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+errors = [e for e in UsdValidation.ValidationContext(validators).Validate(stage)
+          if e.GetType() == UsdValidation.ValidationErrorType.Error]
+print(json.dumps({"node": bool(node and node.IsValid()),
+                  "impl": node.GetResolvedImplementationURI() if node else None,
+                  "outputs": list(node.GetShaderOutputNames()) if node else [],
+                  "errors": [e.GetName() + ": " + e.GetMessage() for e in errors]}))
+"""
+
+
+@pytest.mark.parametrize("case", ["register", "none", "wrong-type"])
+def test_shader_definition_in_sdr(case):
+    """The BcfNeuralMaterial node of schemas/shaders/shaderDefs.usda: registered, it is a valid
+    Sdr node whose GLSL implementation is glsl/bcf_decode.glsl, and a material's bcf render-context
+    output connected to it passes UsdValidation, which checks input types against it (an int lod
+    bias is an error); unregistered, UsdValidation reports the unknown shader."""
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-c", SDR_CHECK, case], capture_output=True, text=True, timeout=300)
+    register = case == "register"
+    assert p.returncode == 0, p.stderr[-3000:]
+    r = json.loads(p.stdout.strip().splitlines()[-1])
+    if register:
+        assert r["node"] and r["impl"].endswith("glsl/bcf_decode.glsl") and Path(r["impl"]).is_file()
+        assert {"surface", "diffuseColor", "normal", "roughness", "metallic", "occlusion"} <= set(r["outputs"])
+        assert r["errors"] == [], r["errors"]
+    elif case == "none":
+        assert not r["node"] and any("BcfNeuralMaterial" in e for e in r["errors"]), r["errors"]
+    else:
+        assert r["node"] and any("lodBias1" in e for e in r["errors"]), r["errors"]

@@ -18,9 +18,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["SCHEMA", "schema_dir", "plugin_path_env", "register", "is_registered"]
+__all__ = ["SCHEMA", "SHADER_ID", "schema_dir", "plugin_path_env", "register", "is_registered",
+           "shader_defs", "register_shader_defs"]
 
 SCHEMA = "BcfNeuralMaterialAPI"
+SHADER_ID = "BcfNeuralMaterial"  # the Sdr node of schemas/shaders/shaderDefs.usda
 
 
 def schema_dir() -> Path:
@@ -56,3 +58,32 @@ def register() -> bool:
 
     Plug.Registry().RegisterPlugins(str(schema_dir()))
     return is_registered()
+
+
+def shader_defs() -> Path:
+    """schemas/shaders/shaderDefs.usda: the Sdr definition of the BcfNeuralMaterial shader node."""
+    return schema_dir() / "shaders" / "shaderDefs.usda"
+
+
+def register_shader_defs() -> list[str]:
+    """Add every shader of shaderDefs.usda to this process's Sdr registry (idempotent); returns
+    their identifiers. usdShaders ships its shaderDefs.usda through a C++ discovery plug-in; a
+    plug-in folder without a library cannot, so a Python host registers the nodes with this (what
+    UsdValidation and `bcfpipe render` see), and a C++ host adds the same discovery results
+    (UsdShadeShaderDefUtils::GetDiscoveryResults, SdrRegistry::AddDiscoveryResult)."""
+    from pxr import Sdr, Usd, UsdShade
+
+    path = shader_defs()
+    stage = Usd.Stage.Open(str(path))
+    registry = Sdr.Registry()
+    ids = []
+    for prim in stage.GetPseudoRoot().GetChildren():
+        shader = UsdShade.Shader(prim)
+        if not shader:
+            continue
+        ident = shader.GetIdAttr().Get() or prim.GetName()
+        if not registry.GetShaderNodeByIdentifier(ident):
+            for result in UsdShade.ShaderDefUtils.GetDiscoveryResults(shader, stage.GetRootLayer().realPath):
+                registry.AddDiscoveryResult(result)
+        ids.append(ident)
+    return ids
