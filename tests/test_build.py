@@ -259,6 +259,9 @@ def test_attributes_readable(sample, plugin: bool) -> None:
 VALIDATE = """
     import sys
     from pxr import Usd, UsdValidation
+    if sys.argv[2] == "plugin":
+        from bcfpipe.formats.usd_schema import register_shader_defs
+        register_shader_defs()
     registry = UsdValidation.ValidationRegistry()
     context = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
     errors = context.Validate(Usd.Stage.Open(sys.argv[1]))
@@ -270,16 +273,55 @@ VALIDATE = """
 
 def validate(root: Path, plugin: bool = True) -> tuple[int, str]:
     env = dict(os.environ, PXR_PLUGINPATH_NAME=str(SCHEMAS)) if plugin else dict(os.environ)
-    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(VALIDATE), str(root)], capture_output=True,
-                          text=True, env=env, timeout=600)
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(VALIDATE), str(root), "plugin" if plugin else "none"],
+                          capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr
     return int(proc.stdout.rsplit("ERRORS", 1)[1]), proc.stdout
 
 
 def test_validation(sample) -> None:
+    """0 UsdValidation errors with the schema and the Sdr node registered (every built material
+    has a bcf render-context surface on a BcfNeuralMaterial shader)."""
     scene, result = sample
     n, text = validate(result.root_layer)
     assert n == 0, text
+
+
+BINDINGS = """
+    import json, sys
+    from pxr import Usd, UsdGeom, UsdShade
+    out = {}
+    for path in sys.argv[1:]:
+        stage = Usd.Stage.Open(path)
+        meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+        bound = {str(p.GetPath()): str(UsdShade.MaterialBindingAPI(p).ComputeBoundMaterial()[0].GetPath())
+                 for p in meshes}
+        surfaces = {}
+        for m in {v for v in bound.values() if v != "."}:
+            mat = UsdShade.Material(stage.GetPrimAtPath(m))
+            default, bcf = mat.ComputeSurfaceSource(), mat.ComputeSurfaceSource("bcf")
+            surfaces[m] = [str(default[0].GetPath()) if default[0] else None,
+                           str(bcf[0].GetPath()) if bcf[0] else None]
+        out[path] = {"bound": bound, "surfaces": surfaces}
+    print(json.dumps(out))
+"""
+
+
+def test_without_the_plugins_bindings_and_surfaces_are_the_inputs(sample) -> None:
+    """With neither the schema nor the Sdr node registered the built stage opens, every mesh is
+    bound to the same material as in the input, and every renderer's default surface is the
+    original UsdPreviewSurface; only the bcf render context sees the BcfNeuralMaterial shader."""
+    scene, result = sample
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(BINDINGS), str(scene), str(result.root_layer)],
+                          capture_output=True, text=True, env=dict(os.environ), timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(proc.stdout)
+    src, built = r[str(scene)], r[str(result.root_layer)]
+    assert built["bound"] == src["bound"] and len(src["bound"]) >= 4
+    built_paths = {m.path for m in result.manifest.materials if m.status == "built"}
+    for mat, (default, bcf) in built["surfaces"].items():
+        assert default == src["surfaces"][mat][0]  # the original network, untouched
+        assert bcf == (f"{mat}/BcfSurface" if mat in built_paths else default)
 
 
 def dependencies(root: Path) -> tuple[list[str], list[str], list[str]]:

@@ -16,6 +16,10 @@ with (so the output composes the variant that was modelled), and per modelled Ma
         uniform asset[] bcf:featureTextures = [@./materials/Mat/T0.dds@, ...]
         ... every schema attribute authored explicitly (see schemas/schema.usda) ...
         rel bcf:fallbackSurface = </.../PreviewSurface>
+        token outputs:bcf:surface.connect = </.../Mat/BcfSurface.outputs:surface>
+        def Shader "BcfSurface" { uniform token info:id = "BcfNeuralMaterial" ... }  # the Sdr node
+        def Shader "BcfStReader" { ... UsdPrimvarReader_float2 of bcf:st:primvar }
+        (def Shader "BcfStTransform", a UsdTransform2d, when the st transform is not identity)
     }
 
 Every attribute is authored with its schema type and variability, so the layers read back
@@ -182,6 +186,61 @@ def _author(layer: Sdf.Layer, ov: NeuralMaterialOverride) -> None:
     if ov.fallback_surface:
         rel = Sdf.RelationshipSpec(spec, "bcf:fallbackSurface", False, _U)
         rel.targetPathList.explicitItems = [Sdf.Path(ov.fallback_surface)]
+    _author_surface(layer, spec, ov)
+
+
+SURFACE_SHADER, ST_READER, ST_TRANSFORM = "BcfSurface", "BcfStReader", "BcfStTransform"
+
+
+def _shader(layer: Sdf.Layer, path: str, shader_id: str) -> Sdf.PrimSpec:
+    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(path))
+    spec.specifier = Sdf.SpecifierDef
+    spec.typeName = "Shader"
+    Sdf.AttributeSpec(spec, "info:id", _T.Token, _U).default = shader_id
+    return spec
+
+
+def _input(spec: Sdf.PrimSpec, name: str, type_name: Sdf.ValueTypeName, value=None,
+           source: str | None = None) -> None:
+    attr = Sdf.AttributeSpec(spec, f"inputs:{name}", type_name)
+    if value is not None:
+        attr.default = value
+    if source is not None:
+        attr.connectionPathList.explicitItems = [Sdf.Path(source)]
+
+
+def _author_surface(layer: Sdf.Layer, material: Sdf.PrimSpec, ov: NeuralMaterialOverride) -> None:
+    """The ``bcf`` render context: ``outputs:bcf:surface`` of the material connected to a
+    BcfNeuralMaterial shader (schemas/shaders/shaderDefs.usda) fed with the schema's values, its
+    st read from the material's primvar through its UsdTransform2d. Every other render context
+    keeps the untouched UsdPreviewSurface network."""
+    base = ov.material
+    reader = _shader(layer, f"{base}/{ST_READER}", "UsdPrimvarReader_float2")
+    _input(reader, "varname", _T.String, ov.st_primvar)
+    Sdf.AttributeSpec(reader, "outputs:result", _T.Float2)
+    st = f"{base}/{ST_READER}.outputs:result"
+    if tuple(ov.st_scale) != (1.0, 1.0) or ov.st_rotation != 0.0 or tuple(ov.st_translation) != (0.0, 0.0):
+        xf = _shader(layer, f"{base}/{ST_TRANSFORM}", "UsdTransform2d")
+        _input(xf, "in", _T.Float2, source=st)
+        _input(xf, "scale", _T.Float2, Gf.Vec2f(*(float(v) for v in ov.st_scale)))
+        _input(xf, "rotation", _T.Float, float(ov.st_rotation))
+        _input(xf, "translation", _T.Float2, Gf.Vec2f(*(float(v) for v in ov.st_translation)))
+        Sdf.AttributeSpec(xf, "outputs:result", _T.Float2)
+        st = f"{base}/{ST_TRANSFORM}.outputs:result"
+    sh = _shader(layer, f"{base}/{SURFACE_SHADER}", "BcfNeuralMaterial")
+    _input(sh, "st", _T.Float2, source=st)
+    for i, path in enumerate(ov.feature_textures):
+        _input(sh, f"T{i}", _T.Asset, Sdf.AssetPath(path))
+    for i, b in enumerate(ov.feature_lod_biases):
+        _input(sh, f"lodBias{i}", _T.Float, float(b))
+    _input(sh, "referenceResolution", _T.Int2, Gf.Vec2i(*(int(v) for v in ov.reference_resolution)))
+    _input(sh, "featureSigned", _T.Int, int(bool(ov.feature_signed)))
+    _input(sh, "addressing", _T.Token, ov.addressing)
+    _input(sh, "weights", _T.Asset, Sdf.AssetPath(ov.weights))
+    _input(sh, "weightsOffset", _T.Int, int(ov.weights_offset))
+    Sdf.AttributeSpec(sh, "outputs:surface", _T.Token)
+    out = Sdf.AttributeSpec(material, "outputs:bcf:surface", _T.Token)
+    out.connectionPathList.explicitItems = [Sdf.Path(f"{base}/{SURFACE_SHADER}.outputs:surface")]
 
 
 def write_overrides_layer(path: str | os.PathLike, overrides: Iterable[NeuralMaterialOverride],

@@ -10,6 +10,9 @@ fallback values and the type checks of UsdValidation. Two ways:
   queried. USD's schema registry is built once per process, so a later registration is not seen
   (``register`` then returns False).
 
+The ``BcfNeuralMaterial`` shader node (schemas/shaders/shaderDefs.usda) that each built
+material's ``bcf`` render context uses is registered with Sdr by `register_shader_defs`.
+
 ``schemas/`` is found next to the ``bcfpipe`` package (a source checkout or an editable install),
 or wherever ``BCFPIPE_SCHEMAS`` points.
 """
