@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import math
 import multiprocessing as mp
 import os
@@ -111,16 +112,23 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
                                  dict(found.entry.result), "hit").to_dict()
             r = _train_job(job, out_dir, threads, device, queue, t0)
             if r["status"] == "built":
-                try:
-                    cache.put(key, out_dir, r["result"])
-                except OSError as exc:  # a full or read-only cache costs a retrain later, not this build
-                    import logging
-
-                    logging.getLogger("bcfpipe.cache").warning("could not store %s in the cache %s: %s",
-                                                               name, cache.root, exc.strerror or exc)
+                store_entry(cache, key, out_dir, r["result"], name)
             return dict(r, cache="miss")
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
+
+
+def store_entry(cache, key: str, folder: str | os.PathLike, result: dict, name: str, take_lock: bool = False) -> None:
+    """Put a trained job into the cache, with the key's lock held (by the caller, or taken here).
+    A full or read-only cache costs a retrain later, not this build: a warning, not an error."""
+    try:
+        with cache.lock(key) if take_lock else contextlib.nullcontext():
+            cache.put(key, folder, result)
+    except OSError as exc:
+        import logging
+
+        logging.getLogger("bcfpipe.cache").warning("could not store %s in the cache %s: %s",
+                                                   name, cache.root, exc.strerror or exc)
 
 
 def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, t0: float,
@@ -193,12 +201,23 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
 
 
+def _local_name(k: int, path: str) -> str:
+    """The k-th source's file name in a worker's folder: it keeps the extension (image readers go
+    by it), a packaged file's (``pkg.usdz[inner.png]``) too."""
+    return f"{k}_{Path(path.split('[')[-1].rstrip(']')).name}"
+
+
+def _planned(job: MaterialJob) -> list[tuple[str, str]]:
+    """(path, the plan's XXH3-128) of every source file a job reads, once each, in spec order."""
+    hashes = {s.path: s.xxh3_128 for s in job.sources}
+    return [(p, hashes.get(p, "")) for p in dict.fromkeys(p for _, p, _ in job.specs)]
+
+
 def write_sources(sources: Mapping[str, bytes], folder: str | os.PathLike) -> dict[str, str]:
-    """Write each source's bytes into ``folder`` under a name that keeps its extension (image
-    readers go by it); {plan path: local path}."""
+    """Write each source's bytes into ``folder``; {plan path: local path}."""
     out = {}
     for k, (path, data) in enumerate(sorted(sources.items())):
-        local = Path(folder) / f"{k}_{Path(path.split('[')[-1].rstrip(']')).name}"
+        local = Path(folder) / _local_name(k, path)
         local.write_bytes(data)
         out[path] = str(local)
     return out
@@ -208,7 +227,7 @@ class SourceChanged(WorkFailed):
     """A source file's bytes are not those the plan hashed (saved again during the build)."""
 
 
-def _checked(path: str, data_hash: str, planned: str | None) -> None:
+def _checked(path: str, data_hash: str, planned: str) -> None:
     if planned and data_hash != planned:
         raise SourceChanged(f"{Path(path).name} changed during the build; build again")
 
@@ -221,10 +240,9 @@ def copy_sources(job: MaterialJob, folder: str | os.PathLike) -> dict[str, str]:
 
     from bcfpipe.scan.texture_sets import package_split, read_asset
 
-    planned = {s.path: s.xxh3_128 for s in job.sources}
     out = {}
-    for k, path in enumerate(dict.fromkeys(p for _, p, _ in job.specs)):
-        dst = Path(folder) / f"{k}_{Path(path.split('[')[-1].rstrip(']')).name}"
+    for k, (path, planned) in enumerate(_planned(job)):
+        dst = Path(folder) / _local_name(k, path)
         h = xxhash.xxh3_128()
         if package_split(path):
             data = read_asset(path)
@@ -235,7 +253,7 @@ def copy_sources(job: MaterialJob, folder: str | os.PathLike) -> dict[str, str]:
                 while chunk := src.read(1 << 20):
                     h.update(chunk)
                     f.write(chunk)
-        _checked(path, h.hexdigest(), planned.get(path))
+        _checked(path, h.hexdigest(), planned)
         out[path] = str(dst)
     return out
 
@@ -248,11 +266,10 @@ def read_sources(job: MaterialJob) -> dict[str, bytes]:
 
     from bcfpipe.scan.texture_sets import package_split, read_asset
 
-    planned = {s.path: s.xxh3_128 for s in job.sources}
     out = {}
-    for path in dict.fromkeys(p for _, p, _ in job.specs):
+    for path, planned in _planned(job):
         data = read_asset(path) if package_split(path) else Path(path).read_bytes()
-        _checked(path, xxhash.xxh3_128_hexdigest(data), planned.get(path))
+        _checked(path, xxhash.xxh3_128_hexdigest(data), planned)
         out[path] = data
     return out
 

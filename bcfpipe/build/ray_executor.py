@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from bcfpipe.build.executor import JobResult, _emit, _drain, _train_job, one_line, read_sources
+from bcfpipe.build.executor import JobResult, _emit, _drain, _train_job, one_line, read_sources, store_entry
 from bcfpipe.build.plan import MaterialJob, ProgressCallback
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import Unavailable, WorkFailed
@@ -114,14 +114,7 @@ def _store(job: MaterialJob, r: JobResult, files: dict[str, bytes], materials_di
         return r
     from bcfpipe.cache import Cache
 
-    cache = Cache(cache_root)
-    try:
-        with cache.lock(job.content_hash):
-            cache.put(job.content_hash, folder, r.result)
-    except OSError as exc:  # a full cache costs a retrain later, not this build
-        import logging
-
-        logging.getLogger("bcfpipe.cache").warning("could not store %s in the cache: %s", job.name, exc)
+    store_entry(Cache(cache_root), job.content_hash, folder, r.result, job.name, take_lock=True)
     return JobResult(r.name, r.status, r.reason, r.seconds, r.device, r.threads, r.result, "miss")
 
 

@@ -122,9 +122,6 @@ def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
     """Jobs found in the cache, copied into ``materials_dir``; and the damaged entries met."""
     hits: dict[str, JobResult] = {}
     damaged: list[str] = []
-    if progress:  # every job is known from the start: progress counts "k of all"
-        for job in bplan.jobs:
-            progress({"event": "queued", "job": job.name, "materials": list(job.materials)})
     if cache is None:
         return hits, damaged
     for job in bplan.jobs:
@@ -199,6 +196,9 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     except OSError as exc:
         _abandon(staging, out_path, created)
         raise OutputError(f"cannot write {out_path}: {_why(exc)}") from None
+    if progress:  # every job is known from the start: progress counts "k of all"
+        for job in bplan.jobs:
+            progress({"event": "queued", "job": job.name, "materials": list(job.materials)})
     try:
         results, damaged = _cached(bplan, store, staging / MATERIALS_DIR, progress)
         todo = [j for j in bplan.jobs if j.name not in results]
