@@ -21,11 +21,11 @@ from bcfpipe.errors import InputError
 if TYPE_CHECKING:
     from bcfpipe.formats.material import Output
 
-__all__ = ["decode", "decode_material", "select_target", "write_images"]
+__all__ = ["decode", "decode_material", "parse_size", "select_target", "write_images"]
 
 
 
-def _parse_size(text: str | None) -> tuple[int, int] | None:
+def parse_size(text: str | None) -> tuple[int, int] | None:
     if text is None:
         return None
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
@@ -159,7 +159,7 @@ def decode(out: str, prim: str | None, lod: float, size: str | None, backend: st
     (rgb = 0.5 * xyz + 0.5). Exit codes: 0 ok, 2 bad input or no OpenGL with --backend glsl.
     """
     target = select_target(out, prim)
-    wh = _parse_size(size)
+    wh = parse_size(size)
     if wh is None:
         k = int(np.floor(max(lod, 0.0)))
         rw, rh = target.desc.ref_size

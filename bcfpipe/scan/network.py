@@ -126,7 +126,7 @@ def _primvar_varname(shader: UsdShade.Shader) -> str | None:
     return str(value) if value else None
 
 
-def _st_source(texture: UsdShade.Shader) -> StSource:
+def st_source(texture: UsdShade.Shader) -> StSource:
     """Describe where a UsdUVTexture's st comes from."""
     attr = _source_attr(texture, "st")
     if attr is None or not UsdShade.Output.IsOutput(attr):
@@ -195,7 +195,7 @@ def _texture_ref(texture: UsdShade.Shader, channel: str) -> TextureRef:
         source_color_space=str(color_space),
         wrap_s=str(wrap_s),
         wrap_t=str(wrap_t),
-        st=_st_source(texture),
+        st=st_source(texture),
         problem=problem,
         problem_code=code,
         animated_file=time_sampled,

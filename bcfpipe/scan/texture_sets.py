@@ -93,7 +93,7 @@ def _probe(path: str) -> tuple[int, int, int, str]:
             inp.close()
 
 
-def _resolved_color_space(authored: str, channels: int, fmt: str) -> str:
+def resolved_color_space(authored: str, channels: int, fmt: str) -> str:
     """Hydra's reading of sourceColorSpace: auto is sRGB for 8-bit files with 3 or 4 channels."""
     if authored == "sRGB":
         return "sRGB"
@@ -122,7 +122,7 @@ def source_file(path: str, asset_path: str, color_space: str, cache: dict, diges
             cache[key] = ("", _readable_size(path), _probe(path))
     digest_hex, size, (w, h, c, fmt) = cache[key]
     return SourceFile(path, asset_path, digest_hex, size, w, h, c, fmt, color_space,
-                      _resolved_color_space(color_space, c, fmt))
+                      resolved_color_space(color_space, c, fmt))
 
 
 @dataclass(frozen=True)

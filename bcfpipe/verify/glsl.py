@@ -53,7 +53,7 @@ def assemble(stage: str, defines: dict[str, object] | None = None, version: str 
              library: bool | None = None) -> str:
     """Full source of ``stage`` ('vert', 'frag', 'comp' or a file name in glsl/).
 
-    The library is inserted right after the stage's ``#version`` line (not for the vertex shader
+    The library is inserted right after the stage's ``#version`` line (not for vertex shaders
     unless asked), preceded by ``#define NAME VALUE`` lines. ``version`` replaces the version line
     (e.g. ``"320 es\\nprecision highp float;..."`` for an ES build check).
     """
@@ -64,7 +64,7 @@ def assemble(stage: str, defines: dict[str, object] | None = None, version: str 
     if version is not None:
         first = f"#version {version}"
     if library is None:
-        library = stage not in ("vert", STAGES["vert"])
+        library = not STAGES.get(stage, stage).endswith(".vert")
     parts = [first]
     parts += [f"#define {k} {v}" for k, v in (defines or {}).items()]
     if library:

@@ -1,0 +1,82 @@
+"""`bcfpipe render`: draw a (built) USD stage with the reference renderer (docs/render.md)."""
+from __future__ import annotations
+
+import json
+import os
+
+import click
+
+from bcfpipe.cli.decode import parse_size
+from bcfpipe.cli.errors import Command
+from bcfpipe.errors import InputError
+
+HEAT_LEGEND = "heat map of |difference| in 8-bit sRGB levels: black 0, blue 4, red 12, yellow 32, white 64+"
+
+
+@click.command("render", cls=Command)
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), metavar="PNG",
+              help="The image to write (8-bit sRGB PNG).")
+@click.option("--camera", default=None, metavar="PATH", help="A UsdGeom.Camera prim; default: a camera that frames "
+              "every visible mesh from the front-right, above.")
+@click.option("--size", default="960x540", show_default=True, metavar="WxH", help="Frame size in pixels.")
+@click.option("--zoom", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+              help="Without --camera: narrow the default camera's field of view by this factor "
+                   "(4 = a 4x close-up of the scene's centre, 0.25 = far away).")
+@click.option("--compare", is_flag=True, help="Also draw the original UsdPreviewSurface textures and write "
+              "[original | neural | difference heat map] side by side, with the numbers.")
+@click.option("--original", is_flag=True, help="Draw the original materials only (ignore the bcf render context).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON report (stable keys) instead of text.")
+@click.option("--force", is_flag=True, help="Overwrite an existing output image.")
+def render(scene: str, output: str, camera: str | None, size: str, zoom: float, compare: bool, original: bool,
+           as_json: bool, force: bool) -> None:
+    """Render SCENE (e.g. OUT/<scene>.bcf.usda) headless with OpenGL, one sample per pixel.
+
+    A reference and a test tool: it reads only the USD stage and the files it names. Materials
+    with a bcf render context are decoded by glsl/bcf_decode.glsl at the lod from the uv
+    derivatives; the others use their UsdPreviewSurface textures. Shading: Lambert + GGX under
+    one directional light and an ambient term (docs/render.md).
+
+    \b
+    Exit codes: 0 written; 2 bad input, no OpenGL, or the output exists (use --force).
+    """
+    from bcfpipe.render import compare as C
+    from bcfpipe.render.frames import NEURAL, ORIGINAL, load_scene, render_frames
+
+    width, height = parse_size(size)
+    if compare and original:
+        raise InputError("--compare and --original exclude each other")
+    if os.path.exists(output) and not force:
+        raise InputError(f"{output} exists; pass --force to overwrite it")
+    if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
+        raise InputError(f"{output}: its folder does not exist")
+    kinds = (ORIGINAL,) if original else ((NEURAL, ORIGINAL) if compare else (NEURAL,))
+    sc = load_scene(scene, width, height, camera=camera, zoom=zoom, kinds=kinds)
+    neural = sc.neural_materials() if NEURAL in kinds else []
+    if compare and not neural:
+        raise InputError(f"{scene}: no material has a bcf render context (not a bcfpipe build?); nothing to compare")
+    frames = render_frames(sc, width, height)
+    report = {"output": output, "width": width, "height": height, "camera": sc.view.source,
+              "triangles": sc.triangles, "neural_materials": neural,
+              "original_materials": sorted(m for m in sc.surfaces[kinds[0]] if m and m not in neural),
+              "notes": sc.notes(kinds[0])}
+    if compare:
+        diff, per_pixel = C.difference(frames[NEURAL].image, frames[ORIGINAL].image)
+        C.write_png(output, C.side_by_side(C.to_srgb8(frames[ORIGINAL].image), C.to_srgb8(frames[NEURAL].image),
+                                           C.heat_map(per_pixel)))
+        report["difference"] = diff.to_dict()
+    else:
+        C.write_png(output, C.to_srgb8(frames[kinds[0]].image))
+    if as_json:
+        click.echo(json.dumps(report, indent=2))
+        return
+    for n in report["notes"]:
+        click.echo(f"note: {n}", err=True)
+    click.echo(f"{output}: {width}x{height}, camera {sc.view.source}, {sc.triangles:,} triangles; "
+               f"{len(neural)} neural, {len(report['original_materials'])} original material(s)")
+    if compare:
+        d = report["difference"]
+        psnr = "identical" if d["psnr_db"] is None else f"PSNR {d['psnr_db']:.2f} dB"
+        click.echo(f"  [original | neural | difference]; neural vs original over {d['pixels']:,} pixels: {psnr}, "
+                   f"mean |diff| {d['mean_abs_8bit']:.2f}, p99 {d['p99_abs_8bit']:.1f}, max {d['max_abs_8bit']:.0f}")
+        click.echo(f"  {HEAT_LEGEND}")

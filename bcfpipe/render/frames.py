@@ -1,0 +1,112 @@
+"""One call from a USD file to rendered frames: open the stage, read its meshes and the view,
+read each bound material's surface, draw (neural and/or original), read back."""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bcfpipe.errors import InputError
+from bcfpipe.render.raster import Lighting, Renderer
+from bcfpipe.render.scene import Batch, View, framing_view, read_batches, usd_camera_view
+from bcfpipe.render.surfaces import Surface, read_surface
+
+__all__ = ["Frame", "Scene", "load_scene", "render_frames", "NEURAL", "ORIGINAL"]
+
+NEURAL, ORIGINAL = "neural", "original"
+
+
+@dataclass
+class Scene:
+    """What a frame needs from the stage: batches, the view, and per kind each material's surface."""
+
+    path: str
+    batches: list[Batch]
+    view: View
+    surfaces: dict[str, dict[str | None, Surface]] = field(default_factory=dict)
+    skipped: list[str] = field(default_factory=list)  # gprims not drawn
+
+    def surface(self, kind: str, batch: Batch) -> Surface:
+        return self.surfaces[kind][batch.material]
+
+    @property
+    def triangles(self) -> int:
+        return sum(b.triangles for b in self.batches)
+
+    def neural_materials(self) -> list[str]:
+        return sorted(m for m, s in self.surfaces.get(NEURAL, {}).items() if s.kind == NEURAL and m)
+
+    def notes(self, kind: str) -> list[str]:
+        return self.skipped + [f"{m}: {n}" for m, s in sorted(self.surfaces[kind].items(), key=lambda x: x[0] or "")
+                               for n in s.notes]
+
+
+@dataclass
+class Frame:
+    kind: str
+    image: np.ndarray  # (height, width, 4) float32: linear rgb, coverage; row 0 at the top
+
+
+def open_stage(path: str | os.PathLike):
+    from pxr import Tf, Usd
+
+    if not os.path.isfile(path):
+        raise InputError(f"{path}: no such file")
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except Tf.ErrorException as e:
+        raise InputError(f"{path}: cannot open the stage ({' '.join(str(e).split())[:200]})") from None
+    if stage is None:
+        raise InputError(f"{path}: cannot open the stage")
+    return stage
+
+
+def load_scene(path: str | os.PathLike, width: int, height: int, camera: str | None = None,
+               zoom: float = 1.0, kinds: tuple[str, ...] = (NEURAL,)) -> Scene:
+    stage = open_stage(path)
+    batches, skipped = read_batches(stage)
+    if not batches:
+        raise InputError(f"{path}: no visible mesh to render")
+    aspect = width / height
+    if camera:
+        view = usd_camera_view(stage, camera, aspect)
+    else:
+        view = framing_view(stage, batches, aspect, zoom)
+    scene = Scene(str(path), batches, view, skipped=skipped)
+    colours = {b.material: b.display_color for b in batches}
+    for kind in kinds:
+        scene.surfaces[kind] = {m: read_surface(stage, m, kind == NEURAL, c) for m, c in colours.items()}
+    return scene
+
+
+def renderer_for(runtime, scene: Scene, kind: str, width: int, height: int,
+                 lighting: Lighting = Lighting()) -> Renderer:
+    r = Renderer(runtime, width, height, lighting)
+    try:
+        for b in scene.batches:
+            r.add(b, scene.surface(kind, b))
+    except BaseException:
+        r.release()
+        raise
+    return r
+
+
+def render_frames(scene: Scene, width: int, height: int, runtime=None,
+                  lighting: Lighting = Lighting()) -> dict[str, Frame]:
+    """Render ``scene`` once per kind it holds surfaces for."""
+    from bcfpipe.verify.glsl import open_runtime
+
+    rt = runtime or open_runtime()
+    try:
+        frames = {}
+        for kind in scene.surfaces:
+            r = renderer_for(rt, scene, kind, width, height, lighting)
+            try:
+                frames[kind] = Frame(kind, r.render(scene.view))
+            finally:
+                r.release()
+        return frames
+    finally:
+        if runtime is None:
+            rt.release()

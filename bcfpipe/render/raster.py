@@ -1,0 +1,266 @@
+"""Draw batches with their surfaces through OpenGL 4.5 (glsl/bcf_render.vert/.frag) into a float
+framebuffer, one sample per pixel, with a depth buffer and no culling.
+
+Resources are uploaded once per renderer: BC6H feature mip chains as stored in the DDS files,
+weight buffers as shader storage, original texture files at their own resolution with GL's
+mip generation (8-bit files as RGBA8, others as RGBA16F), trilinear, no anisotropy, so both
+paths filter alike. Colour decoding (sRGB) happens after filtering in both, as in the decoder.
+"""
+from __future__ import annotations
+
+import math
+import tempfile
+from dataclasses import dataclass
+
+import numpy as np
+
+from bcfpipe.errors import InputError
+from bcfpipe.formats import dds
+from bcfpipe.render.scene import Batch, View
+from bcfpipe.render.surfaces import COMPONENTS, MAX_TEXTURES, Surface
+from bcfpipe.scan.results import Transform2d
+from bcfpipe.scan.texture_sets import local_file, read_asset, resolved_color_space
+from bcfpipe.verify import glsl
+
+__all__ = ["Lighting", "Renderer"]
+
+_NEURAL_ST = MAX_TEXTURES
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """One directional light fixed to the camera (from above-left, behind the viewer) and an
+    ambient term; radiance is linear."""
+
+    radiance: float = 2.6
+    ambient: float = 0.25
+    direction: tuple[float, float, float] = (-0.45, 0.75, 0.5)  # in camera space: right, up, back
+
+
+@dataclass
+class _Draw:
+    surface: Surface
+    vao: object
+    vbo: object
+    textures: list[int]
+    srgb_units: tuple[bool, ...]
+    weights: object | None
+
+
+def _st_uniform(t: Transform2d) -> tuple[tuple[float, float, float, float], tuple[float, float]]:
+    """UsdTransform2d as st' = (dot(m.xy, st), dot(m.zw, st)) + offset: scale, then rotate."""
+    r = math.radians(t.rotation)
+    c, s = math.cos(r), math.sin(r)
+    sx, sy = t.scale
+    return (c * sx, -s * sy, s * sx, c * sy), tuple(t.translation)
+
+
+class Renderer:
+    """Renders a list of (batch, surface) pairs; one instance per frame size."""
+
+    def __init__(self, runtime: glsl.GLRuntime, width: int, height: int, lighting: Lighting = Lighting()):
+        self.rt, self.ctx, self.GL = runtime, runtime.ctx, runtime.GL
+        self.width, self.height, self.lighting = width, height, lighting
+        self.rt.ctx.__enter__()
+        self.programs = {}
+        for neural in (0, 1):
+            try:
+                self.programs[neural] = self.ctx.program(
+                    vertex_shader=glsl.assemble("bcf_render.vert"),
+                    fragment_shader=glsl.assemble("bcf_render.frag", {"BCF_NEURAL": neural}))
+            except Exception as e:  # noqa: BLE001
+                raise RuntimeError(f"bcf_render shaders failed to compile: {e}") from None
+        self.fbo = runtime.framebuffer(width, height)
+        self._features: dict[tuple, list[int]] = {}
+        self._weights: dict[str, object] = {}
+        self._originals: dict[tuple, tuple[int, bool]] = {}
+        self._tmp = tempfile.TemporaryDirectory(prefix="bcfpipe-render-")
+        self.draws: list[_Draw] = []
+
+    # ------------------------------------------------------------------ resources
+    def _feature_textures(self, surface: Surface) -> list[int]:
+        f = surface.neural
+        key = (f.textures, f.repeat)
+        if key not in self._features:
+            fmt = glsl.GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT if f.signed else glsl.GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT
+            texs = []
+            for path in f.textures:
+                tex = dds.parse(read_asset(path), path)
+                if tex.signed != f.signed:
+                    raise InputError(f"{path}: {tex.format_name} but {surface.material} says featureSigned={int(f.signed)}")
+                texs.append(self.rt.upload_compressed(tex.levels, fmt, "repeat" if f.repeat else "clamp"))
+            self._features[key] = texs
+        return self._features[key]
+
+    def _weight_buffer(self, path: str):
+        if path not in self._weights:
+            data = read_asset(path)
+            self._weights[path] = self.ctx.buffer(data + b"\0" * (-len(data) % 4) if data else b"\0" * 4)
+        return self._weights[path]
+
+    def _original_texture(self, path: str, wrap: tuple[str, str], color_space: str) -> tuple[int, bool]:
+        """(GL texture, decoded as sRGB) for a UsdUVTexture file; rgba slots as its r, g, b, a."""
+        key = (path, wrap, color_space)
+        if key in self._originals:
+            return self._originals[key]
+        import OpenImageIO as oiio
+
+        from bcfpipe.texset.texture_set import source_channel_index
+        local = local_file(path, self._tmp.name)
+        buf = oiio.ImageBuf(local)
+        if not buf.read(0, 0, True, oiio.FLOAT) or buf.has_error:
+            raise InputError(f"{path}: cannot read image ({buf.geterror().strip() or 'unknown error'})")
+        spec = buf.spec()
+        px = np.asarray(buf.get_pixels(oiio.FLOAT), np.float32).reshape(spec.height, spec.width, -1)
+        names = tuple(n.upper() for n in spec.channelnames)
+        rgba = np.zeros((spec.height, spec.width, 4), np.float32)
+        for slot, letter in enumerate("rgba"):
+            try:
+                rgba[..., slot] = px[..., source_channel_index(names, letter, path)]
+            except InputError:
+                rgba[..., slot] = 1.0 if letter == "a" else 0.0
+        fmt = str(buf.nativespec().format)
+        srgb = resolved_color_space(color_space, spec.nchannels, fmt) == "sRGB"
+        GL = self.GL
+        tex = int(GL.glGenTextures(1))
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
+        if fmt == "uint8":
+            data = np.ascontiguousarray(np.clip(np.rint(rgba * 255), 0, 255).astype(np.uint8))
+            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA8, spec.width, spec.height, 0, GL.GL_RGBA,
+                            GL.GL_UNSIGNED_BYTE, data)
+        else:
+            data = np.ascontiguousarray(np.clip(rgba, -65504, 65504).astype(np.float16))
+            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA16F, spec.width, spec.height, 0, GL.GL_RGBA,
+                            GL.GL_HALF_FLOAT, data)
+        GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
+        modes = {"repeat": GL.GL_REPEAT, "clamp": GL.GL_CLAMP_TO_EDGE, "mirror": GL.GL_MIRRORED_REPEAT,
+                 "black": GL.GL_CLAMP_TO_BORDER}
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, modes.get(wrap[0], GL.GL_REPEAT))
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_T, modes.get(wrap[1], GL.GL_REPEAT))
+        GL.glTexParameterfv(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_BORDER_COLOR, [0.0, 0.0, 0.0, 0.0])
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR_MIPMAP_LINEAR)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+        self._originals[key] = (tex, srgb)
+        return tex, srgb
+
+    # ------------------------------------------------------------------ scene
+    def add(self, batch: Batch, surface: Surface) -> None:
+        """Upload one batch's vertices and its surface's textures."""
+        self.rt.ctx.__enter__()
+        st = batch.primvars.get(surface.st_primvar)
+        if st is None:
+            st = np.zeros((len(batch.positions), 2), np.float32)
+        verts = np.ascontiguousarray(np.concatenate([batch.positions, batch.normals, st], axis=1), np.float32)
+        prog = self.programs[int(surface.kind == "neural")]
+        vbo = self.ctx.buffer(verts.tobytes())
+        vao = self.ctx.vertex_array(prog, [(vbo, "3f 3f 2f", "inPosition", "inNormal", "inSt")])
+        if surface.kind == "neural":
+            draw = _Draw(surface, vao, vbo, self._feature_textures(surface), (),
+                         self._weight_buffer(surface.neural.weights))
+        else:
+            units = [self._original_texture(t.path, t.wrap, t.color_space) for t in surface.textures]
+            draw = _Draw(surface, vao, vbo, [u[0] for u in units], tuple(u[1] for u in units), None)
+        self.draws.append(draw)
+
+    def _uniforms(self, d: _Draw, view: View) -> dict[str, object]:
+        s = d.surface
+        srgb = []
+        for c in s.components:
+            if s.kind == "neural" or c.source < 0:
+                srgb.append(int(c.srgb))
+            else:
+                srgb.append(int(c.srgb and d.srgb_units[c.source >> 2]))
+        mats = [_st_uniform(Transform2d())] * (MAX_TEXTURES + 1)
+        if s.kind == "neural":
+            mats[_NEURAL_ST] = _st_uniform(s.st_transform)
+            normal_st = _NEURAL_ST
+        else:
+            for i, t in enumerate(s.textures):
+                mats[i] = _st_uniform(t.transform)
+            src = s.components[COMPONENTS.index("normal.x")].source
+            normal_st = src >> 2 if src >= 0 else _NEURAL_ST
+        inv_view = np.linalg.inv(view.view)  # rows: camera right, up, back (row-vector convention)
+        light = np.asarray(self.lighting.direction, np.float64) @ inv_view[:3, :3]
+        light /= np.linalg.norm(light)
+        u = {
+            "uSource": tuple(c.source for c in s.components), "uScale": tuple(c.scale for c in s.components),
+            "uBias": tuple(c.bias for c in s.components), "uSrgb": tuple(srgb),
+            "uStMatrix": tuple(m for m, _ in mats), "uStOffset": tuple(o for _, o in mats), "uNormalSt": normal_st,
+            "uEye": tuple(view.eye), "uLightDirection": tuple(float(x) for x in light),
+            "uLightRadiance": (self.lighting.radiance,) * 3, "uAmbient": (self.lighting.ambient,) * 3,
+            "uUseSpecularWorkflow": int(s.use_specular_workflow), "uOpacityThreshold": s.opacity_threshold,
+        }
+        if s.kind == "neural":
+            f = s.neural
+            u.update(uWeightOffset=f.weights_offset, uLodBias=f.lod_biases, uRefSize=tuple(float(x) for x in f.reference_size),
+                     uNormalIndex=f.normal_index, uRepeat=f.repeat)
+        else:
+            u["uTextureCount"] = len(d.textures)
+        return u
+
+    # ------------------------------------------------------------------ drawing
+    def draw(self, view: View) -> None:
+        """Draw every batch into the framebuffer (no read-back)."""
+        self.rt.ctx.__enter__()
+        ctx = self.ctx
+        self.fbo.use()
+        self.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.disable(ctx.CULL_FACE)
+        vp = (view.view @ view.projection).astype(np.float32)
+        for d in self.draws:
+            prog = self.programs[int(d.surface.kind == "neural")]
+            prog["uViewProj"].write(vp.tobytes())
+            glsl.set_uniforms(prog, self._uniforms(d, view))
+            self.rt.bind_textures(d.textures)
+            (d.weights or self.rt._dummy).bind_to_storage_buffer(0)
+            d.vao.render(self.rt.moderngl.TRIANGLES)
+        ctx.disable(ctx.DEPTH_TEST)
+
+    def read(self) -> np.ndarray:
+        """The framebuffer as (height, width, 4) float32, row 0 at the top, linear rgb + coverage."""
+        self.rt.ctx.__enter__()
+        data = self.fbo.read(components=4, dtype="f4")
+        return np.frombuffer(data, np.float32).reshape(self.height, self.width, 4)[::-1].copy()
+
+    def render(self, view: View) -> np.ndarray:
+        self.draw(view)
+        return self.read()
+
+    def frame_time(self, view: View) -> tuple[float, float | None]:
+        """(wall seconds of one frame up to glFinish, GPU seconds from a GL timer query or None)."""
+        import time
+
+        self.rt.ctx.__enter__()
+        self.ctx.finish()
+        query = None
+        try:
+            query = self.ctx.query(time=True)
+        except Exception:  # noqa: BLE001 - no ARB_timer_query
+            query = None
+        t0 = time.perf_counter()
+        if query is not None:
+            with query:
+                self.draw(view)
+        else:
+            self.draw(view)
+        self.ctx.finish()
+        wall = time.perf_counter() - t0
+        gpu = query.elapsed * 1e-9 if query is not None else None
+        return wall, gpu
+
+    def release(self) -> None:
+        self.rt.ctx.__enter__()
+        for d in self.draws:
+            d.vao.release()
+            d.vbo.release()
+        for texs in self._features.values():
+            self.rt.delete_textures(texs)
+        self.rt.delete_textures([t for t, _ in self._originals.values()])
+        for b in self._weights.values():
+            b.release()
+        self.draws, self._features, self._originals, self._weights = [], {}, {}, {}
+        self._tmp.cleanup()

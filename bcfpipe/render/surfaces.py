@@ -1,0 +1,234 @@
+"""What each material's shading inputs read, from the USD stage alone.
+
+A *neural* surface comes from the material's ``bcf`` render context (``outputs:bcf:surface`` ->
+a ``BcfNeuralMaterial`` shader, docs/build.md): its inputs name the feature textures, lod biases
+and the weight record; the material's ``bcf:outputs:*`` say which decoder channel feeds which
+UsdPreviewSurface component and how (colour space, scale, bias). An *original* surface is the
+universal UsdPreviewSurface network: UsdUVTexture files with their channels, scale, bias,
+colour space, wrap modes and UsdTransform2d. Inputs nobody textures keep the surface's constants.
+
+Both reduce to one table, :data:`COMPONENTS`, with a :class:`Component` per entry that the
+fragment shader (glsl/bcf_render.frag) evaluates as ``value = decode(texel) * scale + bias``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from pxr import Sdf, Usd, UsdShade
+
+from bcfpipe.scan.network import scan_input, shader_id, st_source
+from bcfpipe.scan.results import PREVIEW_SURFACE_INPUTS, StSource, TextureRef, Transform2d
+
+__all__ = ["COMPONENTS", "Component", "NeuralFeatures", "OriginalTexture", "Surface", "read_surface",
+           "NEURAL_SHADER_ID", "MAX_TEXTURES"]
+
+NEURAL_SHADER_ID = "BcfNeuralMaterial"
+MAX_TEXTURES = 8  # texture units of the original program
+
+#: The shading components, in the order of the shader's uniform arrays.
+COMPONENTS = (
+    "diffuseColor.r", "diffuseColor.g", "diffuseColor.b",
+    "emissiveColor.r", "emissiveColor.g", "emissiveColor.b",
+    "specularColor.r", "specularColor.g", "specularColor.b",
+    "metallic", "roughness", "opacity",
+    "normal.x", "normal.y", "normal.z",
+    "occlusion", "ior",
+)
+_INPUT_OF = {c: c.split(".")[0] for c in COMPONENTS}
+_SLOT = {"r": 0, "g": 1, "b": 2, "x": 0, "y": 1, "z": 2}
+
+
+@dataclass(frozen=True)
+class Component:
+    """``source`` -1: the constant ``bias``. Else a decoder channel (neural) or texture unit * 4 +
+    rgba slot (original), colour-decoded when ``srgb``, then ``* scale + bias``."""
+
+    source: int = -1
+    scale: float = 0.0
+    bias: float = 0.0
+    srgb: bool = False
+
+
+@dataclass(frozen=True)
+class OriginalTexture:
+    """One UsdUVTexture file as a texture unit: rgba slots as UsdUVTexture outputs r, g, b, a."""
+
+    path: str  # resolved path (may be inside a package)
+    wrap: tuple[str, str]
+    transform: Transform2d
+    color_space: str  # as authored: auto / raw / sRGB (auto resolved when the file is read)
+
+
+@dataclass(frozen=True)
+class NeuralFeatures:
+    """The BcfNeuralMaterial shader's inputs (schemas/shaders/shaderDefs.usda)."""
+
+    textures: tuple[str, str, str, str]
+    lod_biases: tuple[float, float, float, float]
+    reference_size: tuple[int, int]
+    signed: bool
+    repeat: bool
+    weights: str
+    weights_offset: int
+    normal_index: int  # decoder channel of normal.x, -1 without a normal
+
+
+@dataclass(frozen=True)
+class Surface:
+    material: str | None
+    kind: str  # "neural" or "original"
+    components: tuple[Component, ...]
+    st_primvar: str = "st"
+    st_transform: Transform2d = Transform2d()  # neural: the material's; original: per texture
+    textures: tuple[OriginalTexture, ...] = ()
+    neural: NeuralFeatures | None = None
+    use_specular_workflow: bool = False
+    opacity_threshold: float = 0.0
+    notes: tuple[str, ...] = field(default=())
+
+
+def _constant_components(values: dict[str, object]) -> list[Component]:
+    out = []
+    for c in COMPONENTS:
+        name, _, part = c.partition(".")
+        v = values[name]
+        if isinstance(v, (tuple, list)):
+            v = v[_SLOT[part]] if part and len(v) > _SLOT[part] else v[0]
+        out.append(Component(-1, 0.0, float(v)))
+    return out
+
+
+def _constants(surface: UsdShade.Shader | None) -> tuple[dict[str, object], dict[str, TextureRef], list[str]]:
+    """(every input's constant value or default, texture inputs, notes) of a UsdPreviewSurface."""
+    values = dict(PREVIEW_SURFACE_INPUTS)
+    textures: dict[str, TextureRef] = {}
+    notes = []
+    if surface is None:
+        return values, textures, notes
+    for name in PREVIEW_SURFACE_INPUTS:
+        scan = scan_input(surface, name)
+        if scan.kind == "constant":
+            values[name] = scan.value
+        elif scan.kind == "texture" and scan.texture.ok:
+            textures[name] = scan.texture
+        elif name != "displacement":
+            notes.append(f"{name}: {scan.detail or (scan.texture and scan.texture.problem)}; default used")
+    return values, textures, notes
+
+
+def _preview_surface(material: UsdShade.Material) -> UsdShade.Shader | None:
+    shader, _, _ = material.ComputeSurfaceSource("")
+    return shader if shader and shader_id(shader.GetPrim()) == "UsdPreviewSurface" else None
+
+
+def _same_st(a: StSource, b: StSource) -> bool:
+    return (a.varname, a.transform or Transform2d()) == (b.varname, b.transform or Transform2d())
+
+
+def _original(path: str, material: UsdShade.Material | None, display_color) -> Surface:
+    surface = _preview_surface(material) if material else None
+    values, refs, notes = _constants(surface)
+    if surface is None:
+        values["diffuseColor"] = display_color
+        if material:
+            notes.append("no UsdPreviewSurface: displayColor used")
+    comps = _constant_components(values)
+    units: list[tuple] = []
+    textures: list[OriginalTexture] = []
+    st = None
+    for name, ref in refs.items():
+        if name == "displacement":
+            continue
+        if ref.st.kind not in ("primvar", "transform2d"):
+            notes.append(f"{name}: st {ref.st.kind} ({ref.st.detail}) is not drawn; default used")
+            continue
+        if st is None:
+            st = ref.st
+        elif not _same_st(st, ref.st) and ref.st.varname != st.varname:
+            notes.append(f"{name}: st primvar {ref.st.varname!r} differs from {st.varname!r}; drawn with the first")
+        key = (ref.resolved_path, ref.effective_wrap, ref.st.transform or Transform2d(), ref.source_color_space)
+        if key not in units:
+            if len(units) == MAX_TEXTURES:
+                notes.append(f"{name}: more than {MAX_TEXTURES} textures; default used")
+                continue
+            units.append(key)
+            textures.append(OriginalTexture(*key))
+        unit = units.index(key)
+        for i, c in enumerate(COMPONENTS):
+            if _INPUT_OF[c] != name:
+                continue
+            slot = "rgba".index(ref.channel) if ref.channel != "rgb" else _SLOT[c.split(".")[1]]
+            comps[i] = Component(unit * 4 + slot, ref.scale[slot], ref.bias[slot], srgb=slot < 3)
+    return Surface(path, "original", tuple(comps), st_primvar=(st.varname if st else "st") or "st",
+                   textures=tuple(textures), use_specular_workflow=bool(values["useSpecularWorkflow"]),
+                   opacity_threshold=float(values["opacityThreshold"]), notes=tuple(notes))
+
+
+def _input(shader: UsdShade.Shader, name: str, default=None):
+    inp = shader.GetInput(name)
+    v = inp.Get() if inp else None
+    return default if v is None else v
+
+
+def _asset(shader: UsdShade.Shader, name: str, material: str) -> str:
+    v = _input(shader, name)
+    resolved = v.resolvedPath if isinstance(v, Sdf.AssetPath) else ""
+    if not resolved:
+        from bcfpipe.errors import InputError
+        raise InputError(f"{material}: {shader.GetPath()}.inputs:{name} "
+                         f"{(v.path if isinstance(v, Sdf.AssetPath) else 'is not authored')!r} does not resolve")
+    return resolved
+
+
+def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, display_color) -> Surface:
+    base = _original(path, material, display_color)
+    prim = material.GetPrim()
+
+    def attr(name, default):
+        v = prim.GetAttribute(name).Get() if prim.HasAttribute(name) else None
+        return default if v is None else list(v)
+
+    targets = [str(t) for t in attr("bcf:outputs:targets", [])]
+    channels = attr("bcf:outputs:channels", [])
+    scale, bias = attr("bcf:outputs:scale", []), attr("bcf:outputs:bias", [])
+    spaces = [str(t) for t in attr("bcf:outputs:colorSpaces", [])]
+    if not targets or not all(len(x) == len(targets) for x in (channels, scale, bias, spaces)):
+        from bcfpipe.errors import InputError
+        raise InputError(f"{path}: bcf:outputs:* are missing or of different lengths; not a bcfpipe build?")
+    comps = list(base.components)
+    for t, c, s, b, cs in zip(targets, channels, scale, bias, spaces):
+        if t in COMPONENTS:  # bare "diffuseColor": one channel drives the colour
+            names = [t]
+        else:
+            names = [x for x in COMPONENTS if _INPUT_OF[x] == t]
+        for n in names:
+            comps[COMPONENTS.index(n)] = Component(int(c), float(s), float(b), cs == "sRGB")
+    st = st_source(shader)
+    res = _input(shader, "referenceResolution", (0, 0))
+    feats = NeuralFeatures(
+        textures=tuple(_asset(shader, f"T{i}", path) for i in range(4)),
+        lod_biases=tuple(float(_input(shader, f"lodBias{i}", 0.0)) for i in range(4)),
+        reference_size=(int(res[0]), int(res[1])),
+        signed=bool(_input(shader, "featureSigned", 0)),
+        repeat=str(_input(shader, "addressing", "repeat")) == "repeat",
+        weights=_asset(shader, "weights", path),
+        weights_offset=int(_input(shader, "weightsOffset", 0)),
+        normal_index=int(channels[targets.index("normal.x")]) if "normal.x" in targets else -1)
+    modelled = {t.split(".")[0] for t in targets}
+    notes = [n for n in base.notes if n.split(":")[0] not in modelled]
+    if st.kind not in ("primvar", "transform2d"):
+        notes.append(f"st {st.kind} ({st.detail}); primvar 'st' used")
+    return replace(base, kind="neural", components=tuple(comps), st_primvar=st.varname or "st",
+                   st_transform=st.transform or Transform2d(), textures=(), neural=feats, notes=tuple(notes))
+
+
+def read_surface(stage: Usd.Stage, path: str | None, neural: bool,
+                 display_color=(0.18, 0.18, 0.18)) -> Surface:
+    """The surface drawn for material ``path``: its ``bcf`` context when ``neural`` and present,
+    else its UsdPreviewSurface (``path`` None: an unbound mesh, drawn with its displayColor)."""
+    material = UsdShade.Material(stage.GetPrimAtPath(path)) if path else None
+    if material and neural:
+        shader, _, _ = material.ComputeSurfaceSource("bcf")
+        if shader and shader_id(shader.GetPrim()) == NEURAL_SHADER_ID:
+            return _neural(path, material, shader, display_color)
+    return _original(path, material, display_color)
