@@ -240,6 +240,23 @@ def test_original_only_ignores_the_bcf_context(sample, rt, tmp_path) -> None:
     assert np.array_equal(a, b)
 
 
+@pytest.mark.parametrize("neural", [0, 1])
+def test_render_shaders_compile_glsl450(neural, tmp_path) -> None:
+    """glslangValidator (an independent compiler) accepts both variants and the vertex stage."""
+    import shutil as sh
+    import subprocess
+
+    exe = sh.which("glslangValidator")
+    if exe is None:
+        pytest.skip("glslangValidator is not installed (Debian: glslang-tools)")
+    for stage, src in (("frag", G.assemble("bcf_render.frag", {"BCF_NEURAL": neural})),
+                       ("vert", G.assemble("bcf_render.vert"))):
+        path = tmp_path / f"shader.{stage}"
+        path.write_text(src)
+        r = subprocess.run([exe, str(path)], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0, r.stdout + r.stderr
+
+
 # ---------------------------------------------------------------------------------------- scene
 
 
