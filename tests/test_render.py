@@ -17,7 +17,6 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 from bcfpipe.build import build
 from bcfpipe.cli import main
-from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.render import compare as C
 from bcfpipe.render.frames import NEURAL, ORIGINAL, load_scene, render_frames
 from bcfpipe.render.scene import _fan, read_batches
@@ -179,7 +178,9 @@ def test_sample_compare_cli(sample, tmp_path) -> None:
     """`bcfpipe render --compare --json` on the sample build: the report's stable keys, the
     three-panel image, and neural within the stated tolerance of the original."""
     png = tmp_path / "cmp.png"
-    r = CliRunner().invoke(main, ["render", str(sample), "-o", str(png), "--compare", "--json", "--size", "320x180"])
+    # a build folder stands for its root layer
+    r = CliRunner().invoke(main, ["render", str(sample.parent), "-o", str(png), "--compare", "--json",
+                                  "--size", "320x180"])
     assert r.exit_code == 0, r.output
     rep = json.loads(r.output)
     assert set(rep) >= {"output", "width", "height", "camera", "triangles", "neural_materials",
@@ -224,6 +225,8 @@ def test_cli_errors(sample, smooth, tmp_path) -> None:
     assert r.exit_code == 2 and "bcf render context" in r.output
     r = run(main, ["render", str(tmp_path / "missing.usda"), "-o", str(tmp_path / "z.png")])
     assert r.exit_code == 2 and "no such file" in r.output
+    r = run(main, ["render", str(tmp_path), "-o", str(tmp_path / "z.png")])
+    assert r.exit_code == 2 and "0 *.bcf.usda" in r.output
     r = run(main, ["render", str(sample), "-o", str(tmp_path / "z.png"), "--size", "0x10"])
     assert r.exit_code == 2
     assert not (tmp_path / "y.png").exists() and not (tmp_path / "z.png").exists()

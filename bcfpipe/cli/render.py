@@ -13,8 +13,18 @@ from bcfpipe.errors import InputError
 HEAT_LEGEND = "heat map of |difference| in 8-bit sRGB levels: black 0, blue 4, red 12, yellow 32, white 64+"
 
 
+def _stage_file(path: str) -> str:
+    """A build folder stands for its root layer (the one *.bcf.usda in it)."""
+    if not os.path.isdir(path):
+        return path
+    roots = sorted(f for f in os.listdir(path) if f.endswith(".bcf.usda"))
+    if len(roots) != 1:
+        raise InputError(f"{path}: a folder with {len(roots)} *.bcf.usda files, not one build; pass the stage file")
+    return os.path.join(path, roots[0])
+
+
 @click.command("render", cls=Command)
-@click.argument("scene", type=click.Path(dir_okay=False))
+@click.argument("scene", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), metavar="PNG",
               help="The image to write (8-bit sRGB PNG).")
 @click.option("--camera", default=None, metavar="PATH", help="A UsdGeom.Camera prim; default: a camera that frames "
@@ -30,7 +40,8 @@ HEAT_LEGEND = "heat map of |difference| in 8-bit sRGB levels: black 0, blue 4, r
 @click.option("--force", is_flag=True, help="Overwrite an existing output image.")
 def render(scene: str, output: str, camera: str | None, size: str, zoom: float, compare: bool, original: bool,
            as_json: bool, force: bool) -> None:
-    """Render SCENE (e.g. OUT/<scene>.bcf.usda) headless with OpenGL, one sample per pixel.
+    """Render SCENE (OUT/<scene>.bcf.usda, or a build folder OUT) headless with OpenGL, one
+    sample per pixel.
 
     A reference and a test tool: it reads only the USD stage and the files it names. Materials
     with a bcf render context are decoded by glsl/bcf_decode.glsl at the lod from the uv
@@ -44,6 +55,7 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
     from bcfpipe.render.frames import NEURAL, ORIGINAL, load_scene, render_frames
 
     width, height = parse_size(size)
+    scene = _stage_file(scene)
     if compare and original:
         raise InputError("--compare and --original exclude each other")
     if os.path.exists(output) and not force:

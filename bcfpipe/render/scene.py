@@ -283,7 +283,8 @@ def usd_camera_view(stage: Usd.Stage, path: str, aspect: float) -> View:
 def framing_view(stage: Usd.Stage, batches: list[Batch], aspect: float, zoom: float = 1.0,
                  fov: float = 30.0) -> View:
     """A camera that frames every batch: seen from the front-right, above, looking at the centre
-    of their bounds; ``zoom`` narrows the field of view (4 = a 4x close-up of the centre)."""
+    of their bounds from the nearest distance that keeps every point in view; ``zoom`` narrows
+    the field of view (4 = a 4x close-up of the centre)."""
     if not batches:
         raise InputError("the stage has no visible mesh to frame")
     pts = np.concatenate([b.positions for b in batches]).astype(np.float64)
@@ -296,13 +297,12 @@ def framing_view(stage: Usd.Stage, batches: list[Batch], aspect: float, zoom: fl
     half_v = math.radians(fov) / 2
     tan_v = math.tan(half_v)
     tan_h = tan_v * aspect
-    # the nearest distance along `direction` at which every corner of the bounds is in view
+    # the nearest distance along `direction` at which every drawn point is in view
     right = np.cross(up, direction)
     right /= np.linalg.norm(right)
     cam_up = np.cross(direction, right)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) - centre
-    depth = corners @ direction
-    dist = float(np.max(depth + np.maximum(np.abs(corners @ right) / tan_h, np.abs(corners @ cam_up) / tan_v)))
+    rel = pts - centre
+    dist = float(np.max(rel @ direction + np.maximum(np.abs(rel @ right) / tan_h, np.abs(rel @ cam_up) / tan_v)))
     dist = max(dist * 1.05, radius * 1e-3)
     eye = centre + direction * dist
     look = Gf.Matrix4d().SetLookAt(Gf.Vec3d(*eye), Gf.Vec3d(*centre), Gf.Vec3d(*up))

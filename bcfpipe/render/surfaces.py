@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 from pxr import Sdf, Usd, UsdShade
 
 from bcfpipe.scan.network import scan_input, shader_id, st_source
-from bcfpipe.scan.results import PREVIEW_SURFACE_INPUTS, StSource, TextureRef, Transform2d
+from bcfpipe.scan.results import PREVIEW_SURFACE_INPUTS, TextureRef, Transform2d
 
 __all__ = ["COMPONENTS", "Component", "NeuralFeatures", "OriginalTexture", "Surface", "read_surface",
            "NEURAL_SHADER_ID", "MAX_TEXTURES"]
@@ -121,10 +121,6 @@ def _preview_surface(material: UsdShade.Material) -> UsdShade.Shader | None:
     return shader if shader and shader_id(shader.GetPrim()) == "UsdPreviewSurface" else None
 
 
-def _same_st(a: StSource, b: StSource) -> bool:
-    return (a.varname, a.transform or Transform2d()) == (b.varname, b.transform or Transform2d())
-
-
 def _original(path: str, material: UsdShade.Material | None, display_color) -> Surface:
     surface = _preview_surface(material) if material else None
     values, refs, notes = _constants(surface)
@@ -144,7 +140,7 @@ def _original(path: str, material: UsdShade.Material | None, display_color) -> S
             continue
         if st is None:
             st = ref.st
-        elif not _same_st(st, ref.st) and ref.st.varname != st.varname:
+        elif ref.st.varname != st.varname:
             notes.append(f"{name}: st primvar {ref.st.varname!r} differs from {st.varname!r}; drawn with the first")
         key = (ref.resolved_path, ref.effective_wrap, ref.st.transform or Transform2d(), ref.source_color_space)
         if key not in units:
