@@ -19,13 +19,23 @@
 #define MAX_TEXTURES 8
 #define NEURAL_ST 8      // uStMatrix/uStOffset entry of the neural material's st transform
 
-// component k: uSource[k] < 0 -> uBias[k]; else decode(source) * uScale[k] + uBias[k], where the
-// source is a decoder channel (neural) or texture unit * 4 + rgba slot (original), sRGB-decoded
-// when uSrgb[k] != 0.
-uniform int uSource[N_COMPONENTS];
-uniform float uScale[N_COMPONENTS];
-uniform float uBias[N_COMPONENTS];
-uniform int uSrgb[N_COMPONENTS];
+// The component routing is compiled in (one program per material, as an engine would specialise
+// it): component k is BCF_BIAS[k] when BCF_SOURCE[k] < 0, else decode(source) * BCF_SCALE[k] +
+// BCF_BIAS[k], where the source is a decoder channel (neural) or texture unit * 4 + rgba slot
+// (original), sRGB-decoded when BCF_SRGB[k] != 0. BCF_TEXTURES: the original's texture count.
+// The defaults (every component 0) only let the file compile on its own. For neural materials
+// the host also defines BCF_N_HIDDEN and BCF_N_OUT from the weight record's header.
+#ifndef BCF_SOURCE
+#define BCF_SOURCE int[](-1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1)
+#define BCF_SCALE float[](0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0.)
+#define BCF_BIAS float[](0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0.)
+#define BCF_SRGB int[](0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+#define BCF_TEXTURES 0
+#endif
+const int kSource[N_COMPONENTS] = BCF_SOURCE;
+const float kScale[N_COMPONENTS] = BCF_SCALE;
+const float kBias[N_COMPONENTS] = BCF_BIAS;
+const int kSrgb[N_COMPONENTS] = BCF_SRGB;
 // st transforms (UsdTransform2d): st' = (dot(m.xy, st), dot(m.zw, st)) + offset
 uniform vec4 uStMatrix[MAX_TEXTURES + 1];
 uniform vec2 uStOffset[MAX_TEXTURES + 1];
@@ -50,7 +60,6 @@ uniform int uNormalIndex;
 uniform bool uRepeat;
 #else
 layout(binding = 0) uniform sampler2D uTexture[MAX_TEXTURES];
-uniform int uTextureCount;
 #endif
 layout(std430, binding = 0) readonly buffer BcfWeights { uint bcfWeights[]; };
 uint bcfWeightWord(uint wordIndex) { return bcfWeights[wordIndex]; }
@@ -72,8 +81,8 @@ vec2 stTransform(int i, vec2 st) {
 }
 
 float component(int k, float texel) {
-    if (uSource[k] < 0) return uBias[k];
-    return (uSrgb[k] != 0 ? srgbToLinear(texel) : texel) * uScale[k] + uBias[k];
+    if (kSource[k] < 0) return kBias[k];
+    return (kSrgb[k] != 0 ? srgbToLinear(texel) : texel) * kScale[k] + kBias[k];
 }
 
 // Tangent frame from screen-space derivatives (Schueler, "Normal Mapping Without Precomputed
@@ -120,15 +129,19 @@ void main() {
         return;
     }
     for (int k = 0; k < N_COMPONENTS; ++k)
-        c[k] = component(k, uSource[k] < 0 ? 0.0 : ch[min(uSource[k], n - 1)]);
+#ifdef BCF_N_OUT  // the host checked every source against the compiled-in network shape
+        c[k] = component(k, kSource[k] < 0 ? 0.0 : ch[kSource[k]]);
+#else
+        c[k] = component(k, kSource[k] < 0 ? 0.0 : ch[min(kSource[k], n - 1)]);
+#endif
 #else
     vec4 texel[MAX_TEXTURES];
-    for (int t = 0; t < MAX_TEXTURES; ++t) {
+    for (int t = 0; t < BCF_TEXTURES; ++t) {
         vec2 st = stTransform(t, vSt);
-        texel[t] = t < uTextureCount ? texture(uTexture[t], vec2(st.x, 1.0 - st.y)) : vec4(0.0);
+        texel[t] = texture(uTexture[t], vec2(st.x, 1.0 - st.y));
     }
     for (int k = 0; k < N_COMPONENTS; ++k)
-        c[k] = component(k, uSource[k] < 0 ? 0.0 : texel[uSource[k] >> 2][uSource[k] & 3]);
+        c[k] = component(k, kSource[k] < 0 ? 0.0 : texel[kSource[k] >> 2][kSource[k] & 3]);
 #endif
     if (uOpacityThreshold > 0.0 && c[11] < uOpacityThreshold) discard;
     vec3 v = normalize(uEye - vPosition);

@@ -40,11 +40,34 @@ class Lighting:
 @dataclass
 class _Draw:
     surface: Surface
+    program: object
     vao: object
     vbo: object
     textures: list[int]
     srgb_units: tuple[bool, ...]
     weights: object | None
+
+
+def _glsl_array(kind: str, values) -> str:
+    if kind == "float":
+        return "float[](" + ", ".join(repr(float(np.float32(v))) for v in values) + ")"
+    return "int[](" + ", ".join(str(int(v)) for v in values) + ")"
+
+
+def _routing_defines(surface: Surface, srgb_units: tuple[bool, ...],
+                     shape: tuple[int, int] | None = None) -> dict[str, object]:
+    """The #defines that compile one material's component routing (and, for a neural material
+    with a valid record, its network shape (n_hidden, n_out)) into bcf_render.frag."""
+    comps = surface.components
+    net = {"BCF_N_HIDDEN": shape[0], "BCF_N_OUT": shape[1]} if shape else {}
+    srgb = [int(c.srgb and (surface.kind == "neural" or c.source < 0 or srgb_units[c.source >> 2]))
+            for c in comps]
+    return {"BCF_NEURAL": int(surface.kind == "neural"),
+            "BCF_SOURCE": _glsl_array("int", [c.source for c in comps]),
+            "BCF_SCALE": _glsl_array("float", [np.nan_to_num(c.scale) for c in comps]),
+            "BCF_BIAS": _glsl_array("float", [np.nan_to_num(c.bias) for c in comps]),
+            "BCF_SRGB": _glsl_array("int", srgb),
+            "BCF_TEXTURES": len(surface.textures) if surface.kind != "neural" else 0, **net}
 
 
 def _st_uniform(t: Transform2d) -> tuple[tuple[float, float, float, float], tuple[float, float]]:
@@ -62,20 +85,27 @@ class Renderer:
         self.rt, self.ctx, self.GL = runtime, runtime.ctx, runtime.GL
         self.width, self.height, self.lighting = width, height, lighting
         self.rt.ctx.__enter__()
-        self.programs = {}
-        for neural in (0, 1):
-            try:
-                self.programs[neural] = self.ctx.program(
-                    vertex_shader=glsl.assemble("bcf_render.vert"),
-                    fragment_shader=glsl.assemble("bcf_render.frag", {"BCF_NEURAL": neural}))
-            except Exception as e:  # noqa: BLE001
-                raise RuntimeError(f"bcf_render shaders failed to compile: {e}") from None
+        self.programs: dict[tuple, object] = {}
         self.fbo = runtime.framebuffer(width, height)
         self._features: dict[tuple, list[int]] = {}
         self._weights: dict[str, object] = {}
         self._originals: dict[tuple, tuple[int, bool]] = {}
         self._tmp = tempfile.TemporaryDirectory(prefix="bcfpipe-render-")
         self.draws: list[_Draw] = []
+
+    # ------------------------------------------------------------------ programs
+    def program(self, surface: Surface, srgb_units: tuple[bool, ...], shape: tuple[int, int] | None = None):
+        """The surface shader specialised for one material's component routing."""
+        defines = _routing_defines(surface, srgb_units, shape)
+        key = tuple(defines.items())
+        if key not in self.programs:
+            try:
+                self.programs[key] = self.ctx.program(
+                    vertex_shader=glsl.assemble("bcf_render.vert"),
+                    fragment_shader=glsl.assemble("bcf_render.frag", defines))
+            except Exception as e:  # noqa: BLE001
+                raise RuntimeError(f"bcf_render shaders failed to compile: {e}") from None
+        return self.programs[key]
 
     # ------------------------------------------------------------------ resources
     def _feature_textures(self, surface: Surface) -> list[int]:
@@ -92,11 +122,28 @@ class Renderer:
             self._features[key] = texs
         return self._features[key]
 
-    def _weight_buffer(self, path: str):
+    def _weight_buffer(self, path: str) -> tuple[object, bytes]:
         if path not in self._weights:
             data = read_asset(path)
-            self._weights[path] = self.ctx.buffer(data + b"\0" * (-len(data) % 4) if data else b"\0" * 4)
+            self._weights[path] = (self.ctx.buffer(data + b"\0" * (-len(data) % 4) if data else b"\0" * 4), data)
         return self._weights[path]
+
+    def _network_shape(self, surface: Surface) -> tuple[int, int] | None:
+        """(n_hidden, n_out) from the header of the material's BCFW record, None if it is not one
+        (the generic decoder then rejects it and the material draws magenta)."""
+        f = surface.neural
+        data = self._weight_buffer(f.weights)[1]
+        if f.weights_offset % 4 or f.weights_offset + 24 > len(data):
+            return None
+        magic, version, n_in, n_hidden, n_out, _ = np.frombuffer(data, "<u4", 6, f.weights_offset)
+        if (magic, version, n_in) != (0x57464342, 1, 12) or not (0 < n_hidden <= 64 and 0 < n_out < 16):
+            return None
+        c_out = int(n_out) + (1 if f.normal_index >= 0 else 0)
+        bad = [c.source for c in surface.components if c.source >= c_out]
+        if bad:
+            raise InputError(f"{surface.material}: bcf:outputs:channels name channel {max(bad)}, "
+                             f"but its decoder has {c_out}")
+        return int(n_hidden), int(n_out)
 
     def _original_texture(self, path: str, wrap: tuple[str, str], color_space: str) -> tuple[int, bool]:
         """(GL texture, decoded as sRGB) for a UsdUVTexture file; rgba slots as its r, g, b, a."""
@@ -154,25 +201,21 @@ class Renderer:
         if st is None:
             st = np.zeros((len(batch.positions), 2), np.float32)
         verts = np.ascontiguousarray(np.concatenate([batch.positions, batch.normals, st], axis=1), np.float32)
-        prog = self.programs[int(surface.kind == "neural")]
-        vbo = self.ctx.buffer(verts.tobytes())
-        vao = self.ctx.vertex_array(prog, [(vbo, "3f 3f 2f", "inPosition", "inNormal", "inSt")])
+        shape = None
         if surface.kind == "neural":
-            draw = _Draw(surface, vao, vbo, self._feature_textures(surface), (),
-                         self._weight_buffer(surface.neural.weights))
+            textures, srgb_units = self._feature_textures(surface), ()
+            weights = self._weight_buffer(surface.neural.weights)[0]
+            shape = self._network_shape(surface)
         else:
             units = [self._original_texture(t.path, t.wrap, t.color_space) for t in surface.textures]
-            draw = _Draw(surface, vao, vbo, [u[0] for u in units], tuple(u[1] for u in units), None)
-        self.draws.append(draw)
+            textures, srgb_units, weights = [u[0] for u in units], tuple(u[1] for u in units), None
+        prog = self.program(surface, srgb_units, shape)
+        vbo = self.ctx.buffer(verts.tobytes())
+        vao = self.ctx.vertex_array(prog, [(vbo, "3f 3f 2f", "inPosition", "inNormal", "inSt")])
+        self.draws.append(_Draw(surface, prog, vao, vbo, textures, srgb_units, weights))
 
     def _uniforms(self, d: _Draw, view: View) -> dict[str, object]:
         s = d.surface
-        srgb = []
-        for c in s.components:
-            if s.kind == "neural" or c.source < 0:
-                srgb.append(int(c.srgb))
-            else:
-                srgb.append(int(c.srgb and d.srgb_units[c.source >> 2]))
         mats = [_st_uniform(Transform2d())] * (MAX_TEXTURES + 1)
         if s.kind == "neural":
             mats[_NEURAL_ST] = _st_uniform(s.st_transform)
@@ -186,8 +229,6 @@ class Renderer:
         light = np.asarray(self.lighting.direction, np.float64) @ inv_view[:3, :3]
         light /= np.linalg.norm(light)
         u = {
-            "uSource": tuple(c.source for c in s.components), "uScale": tuple(c.scale for c in s.components),
-            "uBias": tuple(c.bias for c in s.components), "uSrgb": tuple(srgb),
             "uStMatrix": tuple(m for m, _ in mats), "uStOffset": tuple(o for _, o in mats), "uNormalSt": normal_st,
             "uEye": tuple(view.eye), "uLightDirection": tuple(float(x) for x in light),
             "uLightRadiance": (self.lighting.radiance,) * 3, "uAmbient": (self.lighting.ambient,) * 3,
@@ -197,8 +238,6 @@ class Renderer:
             f = s.neural
             u.update(uWeightOffset=f.weights_offset, uLodBias=f.lod_biases, uRefSize=tuple(float(x) for x in f.reference_size),
                      uNormalIndex=f.normal_index, uRepeat=f.repeat)
-        else:
-            u["uTextureCount"] = len(d.textures)
         return u
 
     # ------------------------------------------------------------------ drawing
@@ -212,7 +251,7 @@ class Renderer:
         ctx.disable(ctx.CULL_FACE)
         vp = (view.view @ view.projection).astype(np.float32)
         for d in self.draws:
-            prog = self.programs[int(d.surface.kind == "neural")]
+            prog = d.program
             prog["uViewProj"].write(vp.tobytes())
             glsl.set_uniforms(prog, self._uniforms(d, view))
             self.rt.bind_textures(d.textures)
@@ -257,10 +296,12 @@ class Renderer:
         for d in self.draws:
             d.vao.release()
             d.vbo.release()
+        for p in self.programs.values():
+            p.release()
         for texs in self._features.values():
             self.rt.delete_textures(texs)
         self.rt.delete_textures([t for t, _ in self._originals.values()])
-        for b in self._weights.values():
+        for b, _ in self._weights.values():
             b.release()
-        self.draws, self._features, self._originals, self._weights = [], {}, {}, {}
+        self.draws, self._features, self._originals, self._weights, self.programs = [], {}, {}, {}, {}
         self._tmp.cleanup()
