@@ -29,3 +29,16 @@ def private_cache(tmp_path_factory):
         os.environ.pop("BCFPIPE_CACHE", None)
     else:
         os.environ["BCFPIPE_CACHE"] = old
+
+
+@pytest.fixture(scope="module")
+def rt():
+    """A headless OpenGL 4.5 runtime (bcfpipe.verify.glsl) per test module; skips without EGL."""
+    from bcfpipe.verify import glsl
+
+    try:
+        r = glsl.GLRuntime()
+    except glsl.GLUnavailable as e:
+        pytest.skip(str(e))
+    yield r
+    r.release()

@@ -77,16 +77,6 @@ def test_readme_documents_bindings_and_uniforms():
 # ---------------------------------------------------------------------------------------- through GL
 
 @pytest.fixture(scope="module")
-def rt():
-    try:
-        r = G.GLRuntime()
-    except G.GLUnavailable as e:
-        pytest.skip(str(e))
-    yield r
-    r.release()
-
-
-@pytest.fixture(scope="module")
 def mat(tmp_path_factory):
     d = tmp_path_factory.mktemp("glmat")
     return make_material(d, normal=True, seed=7)

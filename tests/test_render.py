@@ -34,16 +34,6 @@ SMOOTH_MAX_MEAN_ABS = 3.0
 SAMPLE_MIN_PSNR_DB = 29.0
 
 
-@pytest.fixture(scope="module")
-def rt():
-    try:
-        r = G.GLRuntime()
-    except G.GLUnavailable as e:
-        pytest.skip(str(e))
-    yield r
-    r.release()
-
-
 def write_png(path: Path, rgb: np.ndarray) -> None:
     import OpenImageIO as oiio
 
