@@ -259,7 +259,7 @@ def test_attributes_readable(sample, plugin: bool) -> None:
 VALIDATE = """
     import sys
     from pxr import Usd, UsdValidation
-    if sys.argv[2] == "plugin":
+    if sys.argv[2] == "register":
         from bcfpipe.formats.usd_schema import register_shader_defs
         register_shader_defs()
     registry = UsdValidation.ValidationRegistry()
@@ -271,19 +271,29 @@ VALIDATE = """
 """
 
 
-def validate(root: Path, plugin: bool = True) -> tuple[int, str]:
-    env = dict(os.environ, PXR_PLUGINPATH_NAME=str(SCHEMAS)) if plugin else dict(os.environ)
-    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(VALIDATE), str(root), "plugin" if plugin else "none"],
+def validate(root: Path, plugin: bool = True, route: str = "register") -> tuple[int, str]:
+    """UsdValidation errors of a stage in a fresh process: with the schema plug-in and the Sdr node
+    registered in-process (route "register") or by the environment alone ("env"), or with neither."""
+    from bcfpipe.formats.usd_schema import shader_discovery_env
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PXR_SDR_FS_")}
+    if plugin:
+        env["PXR_PLUGINPATH_NAME"] = str(SCHEMAS)
+        if route == "env":
+            env.update(shader_discovery_env())
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(VALIDATE), str(root), route if plugin else "none"],
                           capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr
     return int(proc.stdout.rsplit("ERRORS", 1)[1]), proc.stdout
 
 
-def test_validation(sample) -> None:
-    """0 UsdValidation errors with the schema and the Sdr node registered (every built material
-    has a bcf render-context surface on a BcfNeuralMaterial shader)."""
+@pytest.mark.parametrize("route", ["register", "env"])
+def test_validation(sample, route) -> None:
+    """0 UsdValidation errors with the schema and the Sdr node registered, in-process or by the
+    environment alone (every built material has a bcf render-context surface on a
+    BcfNeuralMaterial shader)."""
     scene, result = sample
-    n, text = validate(result.root_layer)
+    n, text = validate(result.root_layer, route=route)
     assert n == 0, text
 
 
@@ -361,11 +371,11 @@ def test_relocation(sample, tmp_path: Path) -> None:
 def test_deterministic(sample, tmp_path: Path) -> None:
     """The same job and seed (and thread count) give byte-identical exported files."""
     from bcfpipe.build import run_job
+    from bcfpipe.config import DEFAULT_THREADS
 
     scene, result = sample
     job = result.plan.job("Leaves")
-    threads = next(j["threads"] for j in result.manifest.to_json()["jobs"] if j["name"] == "Leaves")
-    r = run_job(job.to_dict(), str(tmp_path / "Leaves"), threads, "cpu")
+    r = run_job(job.to_dict(), str(tmp_path / "Leaves"), DEFAULT_THREADS, "cpu")  # the build's default
     assert r["status"] == "built", r
     for f in ("T0.dds", "T1.dds", "T2.dds", "T3.dds", "weights.bin", "decoder.onnx"):
         assert (tmp_path / "Leaves" / f).read_bytes() == (result.out / "materials" / "Leaves" / f).read_bytes(), f

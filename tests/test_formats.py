@@ -117,7 +117,7 @@ SDR_CHECK = """
 import json, sys
 from pxr import Sdf, Sdr, Usd, UsdGeom, UsdShade, UsdValidation
 from bcfpipe.formats import usd_schema
-if sys.argv[1] != "none":
+if sys.argv[1] in ("register", "wrong-type", "both"):
     assert usd_schema.register_shader_defs() == ["BcfNeuralMaterial"]
     assert usd_schema.register_shader_defs() == ["BcfNeuralMaterial"]  # idempotent
 stage = Usd.Stage.CreateInMemory()
@@ -131,7 +131,7 @@ bias_type = Sdf.ValueTypeNames.Int if sys.argv[1] == "wrong-type" else Sdf.Value
 bcf.CreateInput("lodBias1", bias_type).Set(2)
 bcf.CreateInput("addressing", Sdf.ValueTypeNames.Token).Set("clamp")
 mat.CreateSurfaceOutput("bcf").ConnectToSource(bcf.ConnectableAPI(), "surface")
-node = Sdr.Registry().GetShaderNodeByIdentifierAndType("BcfNeuralMaterial", "glsl")
+node = Sdr.Registry().GetShaderNodeByIdentifierAndType("BcfNeuralMaterial", "" if sys.argv[1] == "env" else "glsl")
 validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
 errors = [e for e in UsdValidation.ValidationContext(validators).Validate(stage)
           if e.GetType() == UsdValidation.ValidationErrorType.Error]
@@ -142,17 +142,25 @@ print(json.dumps({"node": bool(node and node.IsValid()),
 """
 
 
-@pytest.mark.parametrize("case", ["register", "none", "wrong-type"])
+@pytest.mark.parametrize("case", ["register", "env", "both", "none", "wrong-type"])
 def test_shader_definition_in_sdr(case):
-    """The BcfNeuralMaterial node of schemas/shaders/shaderDefs.usda: registered, it is a valid
-    Sdr node whose GLSL implementation is glsl/bcf_decode.glsl, and a material's bcf render-context
-    output connected to it passes UsdValidation, which checks input types against it (an int lod
-    bias is an error); unregistered, UsdValidation reports the unknown shader."""
+    """The BcfNeuralMaterial node of schemas/shaders/BcfNeuralMaterial.usda: registered in-process
+    (register), through the environment alone by Sdr's filesystem discovery (env), or both, it is a
+    valid Sdr node whose implementation is glsl/bcf_decode.glsl, and a material's bcf
+    render-context output connected to it passes UsdValidation, which checks input types against it
+    (an int lod bias is an error); unregistered, UsdValidation reports the unknown shader."""
+    import os
     import subprocess
     import sys
 
-    p = subprocess.run([sys.executable, "-c", SDR_CHECK, case], capture_output=True, text=True, timeout=300)
-    register = case == "register"
+    from bcfpipe.formats.usd_schema import shader_discovery_env
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PXR_SDR_FS_")}
+    if case in ("env", "both"):
+        env.update(shader_discovery_env())
+    p = subprocess.run([sys.executable, "-c", SDR_CHECK, case], capture_output=True, text=True, timeout=300,
+                       env=env, cwd="/")
+    register = case in ("register", "env", "both")
     assert p.returncode == 0, p.stderr[-3000:]
     r = json.loads(p.stdout.strip().splitlines()[-1])
     if register:

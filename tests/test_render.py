@@ -215,6 +215,10 @@ def test_cli_errors(sample, smooth, tmp_path) -> None:
     assert r.exit_code == 2 and "bcf render context" in r.output
     r = run(main, ["render", str(tmp_path / "missing.usda"), "-o", str(tmp_path / "z.png")])
     assert r.exit_code == 2 and "no such file" in r.output
+    r = run(main, ["render", str(smooth), "-o", str(tmp_path / "z.png"), "--camera", "/World/Cam", "--zoom", "2"])
+    assert r.exit_code == 2 and "--zoom" in r.output
+    r = run(main, ["render", str(smooth), "-o", str(tmp_path / "z.jpg")])
+    assert r.exit_code == 2 and "PNG" in r.output
     r = run(main, ["render", str(tmp_path), "-o", str(tmp_path / "z.png")])
     assert r.exit_code == 2 and "0 *.bcf.usda" in r.output
     r = run(main, ["render", str(sample), "-o", str(tmp_path / "z.png"), "--size", "0x10"])

@@ -211,7 +211,7 @@ def _input(spec: Sdf.PrimSpec, name: str, type_name: Sdf.ValueTypeName, value=No
 
 def _author_surface(layer: Sdf.Layer, material: Sdf.PrimSpec, ov: NeuralMaterialOverride) -> None:
     """The ``bcf`` render context: ``outputs:bcf:surface`` of the material connected to a
-    BcfNeuralMaterial shader (schemas/shaders/shaderDefs.usda) fed with the schema's values, its
+    BcfNeuralMaterial shader (schemas/shaders/BcfNeuralMaterial.usda) fed with the schema's values, its
     st read from the material's primvar through its UsdTransform2d. Every other render context
     keeps the untouched UsdPreviewSurface network."""
     base = ov.material

@@ -58,6 +58,10 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
     scene = _stage_file(scene)
     if compare and original:
         raise InputError("--compare and --original exclude each other")
+    if camera and zoom != 1.0:
+        raise InputError("--zoom narrows the framing camera; it does not apply with --camera")
+    if not output.lower().endswith(".png"):
+        raise InputError(f"{output}: the output is a PNG; name it *.png")
     if os.path.exists(output) and not force:
         raise InputError(f"{output} exists; pass --force to overwrite it")
     if not os.path.isdir(os.path.dirname(os.path.abspath(output))):

@@ -10,8 +10,10 @@ fallback values and the type checks of UsdValidation. Two ways:
   queried. USD's schema registry is built once per process, so a later registration is not seen
   (``register`` then returns False).
 
-The ``BcfNeuralMaterial`` shader node (schemas/shaders/shaderDefs.usda) that each built
-material's ``bcf`` render context uses is registered with Sdr by `register_shader_defs`.
+The ``BcfNeuralMaterial`` shader node (schemas/shaders/BcfNeuralMaterial.usda) that each built
+material's ``bcf`` render context uses is registered with Sdr either through the environment,
+by Sdr's own filesystem discovery (`shader_discovery_env`: any USD tool, no code), or
+in-process by `register_shader_defs`.
 
 ``schemas/`` is found next to the ``bcfpipe`` package (a source checkout or an editable install),
 or wherever ``BCFPIPE_SCHEMAS`` points.
@@ -22,10 +24,10 @@ import os
 from pathlib import Path
 
 __all__ = ["SCHEMA", "SHADER_ID", "schema_dir", "plugin_path_env", "register", "is_registered",
-           "shader_defs", "register_shader_defs"]
+           "shader_defs", "shader_discovery_env", "register_shader_defs"]
 
 SCHEMA = "BcfNeuralMaterialAPI"
-SHADER_ID = "BcfNeuralMaterial"  # the Sdr node of schemas/shaders/shaderDefs.usda
+SHADER_ID = "BcfNeuralMaterial"  # the Sdr node of schemas/shaders/BcfNeuralMaterial.usda
 
 
 def schema_dir() -> Path:
@@ -64,15 +66,23 @@ def register() -> bool:
 
 
 def shader_defs() -> Path:
-    """schemas/shaders/shaderDefs.usda: the Sdr definition of the BcfNeuralMaterial shader node."""
-    return schema_dir() / "shaders" / "shaderDefs.usda"
+    """schemas/shaders/BcfNeuralMaterial.usda: the Sdr definition of the BcfNeuralMaterial shader node."""
+    return schema_dir() / "shaders" / f"{SHADER_ID}.usda"
+
+
+def shader_discovery_env() -> dict[str, str]:
+    """The environment that makes Sdr's filesystem discovery plug-in find the node in any USD
+    process: it reads every ``.usda`` of the search path, takes the identifier from the file name
+    and parses it with UsdShade's shader-definition parser (source type ``""``: the file's
+    universal ``info:sourceAsset``). A plugInfo.json cannot add Sdr nodes without a compiled
+    discovery plug-in (usdShaders has one), so PXR_PLUGINPATH_NAME alone is not enough."""
+    return {"PXR_SDR_FS_PLUGIN_SEARCH_PATHS": str(shader_defs().parent), "PXR_SDR_FS_PLUGIN_ALLOWED_EXTS": "usda"}
 
 
 def register_shader_defs() -> list[str]:
-    """Add every shader of shaderDefs.usda to this process's Sdr registry (idempotent); returns
-    their identifiers. usdShaders ships its shaderDefs.usda through a C++ discovery plug-in; a
-    plug-in folder without a library cannot, so a Python host registers the nodes with this (what
-    UsdValidation and `bcfpipe render` see), and a C++ host adds the same discovery results
+    """Add every shader of BcfNeuralMaterial.usda to this process's Sdr registry (idempotent);
+    returns their identifiers: the in-process alternative to `shader_discovery_env` once the
+    registry exists (node source type ``glsl``). A C++ host makes the same two calls
     (UsdShadeShaderDefUtils::GetDiscoveryResults, SdrRegistry::AddDiscoveryResult)."""
     from pxr import Sdr, Usd, UsdShade
 
@@ -85,7 +95,7 @@ def register_shader_defs() -> list[str]:
         if not shader:
             continue
         ident = shader.GetIdAttr().Get() or prim.GetName()
-        if not registry.GetShaderNodeByIdentifier(ident):
+        if not registry.GetShaderNodeByIdentifierAndType(ident, "glsl"):
             for result in UsdShade.ShaderDefUtils.GetDiscoveryResults(shader, stage.GetRootLayer().realPath):
                 registry.AddDiscoveryResult(result)
         ids.append(ident)

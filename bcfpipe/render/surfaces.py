@@ -61,7 +61,7 @@ class OriginalTexture:
 
 @dataclass(frozen=True)
 class NeuralFeatures:
-    """The BcfNeuralMaterial shader's inputs (schemas/shaders/shaderDefs.usda)."""
+    """The BcfNeuralMaterial shader's inputs (schemas/shaders/BcfNeuralMaterial.usda)."""
 
     textures: tuple[str, str, str, str]
     lod_biases: tuple[float, float, float, float]
