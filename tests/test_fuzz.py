@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 import os
 import random
+import re
+import shutil
 import time
 from pathlib import Path
 
@@ -116,7 +118,7 @@ def real_files(tmp_path_factory):
     return {"dds": (mat / "T0.dds").read_bytes(), "dds2": (mat / "T3.dds").read_bytes(),
             "record": (mat / "weights.bin").read_bytes(), "buffer": (root / "out" / "weights.bin").read_bytes(),
             "material": (mat / "material.json").read_text(), "manifest": (root / "out" / "manifest.json").read_text(),
-            "usda": scene.read_text(), "root": root}
+            "usda": scene.read_text(), "root": root, "built": r.root_layer}
 
 
 def _dds(real_files, n):
@@ -186,6 +188,65 @@ def test_fuzz_readers_10000(real_files, tmp_path):
     for which in ("material", "manifest"):
         assert _json_reader(real_files, n, which, tmp_path)["cases"] == n
     assert _usd(real_files, n, tmp_path)["cases"] == n
+
+
+_DECLARATION = re.compile(r"^(\s*(?:custom\s+)?(?:uniform\s+)?)([A-Za-z]\w*(?:\[\])?)(\s+[\w:.]+\s*=)", re.M)
+
+
+def retyped(text: str):
+    """``text`` once per attribute declaration and way to get its type wrong: a type name USD does
+    not know (the layer opens; the value reads as Sdf.UnregisteredValue), and array-ness flipped."""
+    for m in _DECLARATION.finditer(text):
+        t = m.group(2)
+        array = t.endswith("[]")
+        for new in ("bogus[]" if array else "bogus", t[:-2] if array else t + "[]"):
+            yield f"{t} -> {new} {m.group(3).strip()}", text[:m.start(2)] + new + text[m.end(2):]
+
+
+def test_retyped_attributes_in_the_scene(real_files, tmp_path):
+    """Every attribute of the sample scene with a wrong type: the scan and the renderer's reading
+    of the stage return or raise InputError. An unknown type found by the 10,000-case fuzz used to
+    raise TypeError from the texel-density scan."""
+    from bcfpipe.render.frames import load_scene
+    from bcfpipe.scan.stage import scan_stage
+
+    shutil.copytree(REPO / "samples" / "textures", tmp_path / "textures")
+    path = tmp_path / "retyped.usda"
+    cases = list(retyped(real_files["usda"]))
+    assert len(cases) > 300
+    for label, text in cases:
+        path.write_text(text)
+        for what, read in (("scan", lambda: scan_stage(path)),
+                           ("render", lambda: load_scene(path, 32, 32, kinds=("original",)))):
+            try:
+                read()
+            except InputError:
+                pass
+            except Exception as e:  # noqa: BLE001 - that is the finding
+                raise AssertionError(f"{what}, {label}: {type(e).__name__}: {e}") from e
+
+
+def test_retyped_attributes_in_the_built_layer(real_files, tmp_path):
+    """The same for every attribute of a build's overrides.usda, read for a neural frame: a damaged
+    bcf value is refused with one line (InputError), never another exception."""
+    from bcfpipe.render.frames import load_scene
+
+    built = Path(real_files["built"])
+    root = tmp_path / "copy"
+    shutil.copytree(real_files["root"], root)
+    out = root / built.parent.relative_to(real_files["root"])
+    layer = out / "overrides.usda"
+    original = layer.read_text()
+    refused = 0
+    for label, text in retyped(original):
+        layer.write_text(text)
+        try:
+            load_scene(out / built.name, 32, 32, kinds=("neural",))
+        except InputError:
+            refused += 1
+        except Exception as e:  # noqa: BLE001 - that is the finding
+            raise AssertionError(f"{label}: {type(e).__name__}: {e}") from e
+    assert refused > 0  # damaged bcf values are refused, not drawn with defaults
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -291,7 +291,7 @@ def test_subsets_and_transforms(tmp_path) -> None:
 def test_framing_view_sees_every_mesh(sample) -> None:
     """The default camera puts every drawn point inside the frame, for several aspects and zooms
     no closer than 1."""
-    from bcfpipe.render.frames import open_stage
+    from bcfpipe.scan.composition import open_stage
     from bcfpipe.render.scene import framing_view
 
     stage = open_stage(sample)

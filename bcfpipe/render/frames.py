@@ -11,6 +11,7 @@ from bcfpipe.errors import InputError
 from bcfpipe.render.raster import Lighting, Renderer
 from bcfpipe.render.scene import Batch, View, framing_view, read_batches, usd_camera_view
 from bcfpipe.render.surfaces import Surface, read_surface
+from bcfpipe.scan.composition import captured_diagnostics, composition_errors, new_diagnostics, open_stage
 
 __all__ = ["Frame", "Scene", "load_scene", "render_frames", "NEURAL", "ORIGINAL"]
 
@@ -26,6 +27,7 @@ class Scene:
     view: View
     surfaces: dict[str, dict[str | None, Surface]] = field(default_factory=dict)
     skipped: list[str] = field(default_factory=list)  # gprims not drawn
+    diagnostics: list[str] = field(default_factory=list)  # USD's composition errors and warnings
 
     def surface(self, kind: str, batch: Batch) -> Surface:
         return self.surfaces[kind][batch.material]
@@ -38,7 +40,7 @@ class Scene:
         return sorted(m for m, s in self.surfaces.get(NEURAL, {}).items() if s.kind == NEURAL and m)
 
     def notes(self, kind: str) -> list[str]:
-        return self.skipped + [f"{m}: {n}" for m, s in sorted(self.surfaces[kind].items(), key=lambda x: x[0] or "")
+        return self.diagnostics + self.skipped + [f"{m}: {n}" for m, s in sorted(self.surfaces[kind].items(), key=lambda x: x[0] or "")
                                for n in s.notes]
 
 
@@ -48,36 +50,23 @@ class Frame:
     image: np.ndarray  # (height, width, 4) float32: linear rgb, coverage; row 0 at the top
 
 
-def open_stage(path: str | os.PathLike):
-    from pxr import Tf, Usd
-
-    if not os.path.isfile(path):
-        raise InputError(f"{path}: no such file")
-    try:
-        stage = Usd.Stage.Open(str(path))
-    except Tf.ErrorException as e:
-        raise InputError(f"{path}: cannot open the stage ({' '.join(str(e).split())[:200]})") from None
-    if stage is None:
-        raise InputError(f"{path}: cannot open the stage")
-    return stage
-
-
 def load_scene(path: str | os.PathLike, width: int, height: int, camera: str | None = None,
                zoom: float = 1.0, kinds: tuple[str, ...] = (NEURAL,)) -> Scene:
-    stage = open_stage(path)
-    batches, skipped = read_batches(stage)
-    if not batches:
-        raise InputError(f"{path}: no visible mesh to render")
-    aspect = width / height
-    if camera:
-        view = usd_camera_view(stage, camera, aspect)
-    else:
-        view = framing_view(stage, batches, aspect, zoom)
-    scene = Scene(str(path), batches, view, skipped=skipped)
-    colours = {b.material: b.display_color for b in batches}
-    for kind in kinds:
-        scene.surfaces[kind] = {m: read_surface(stage, m, kind == NEURAL, c) for m, c in colours.items()}
-    return scene
+    """The stage at ``path`` read for a ``width`` x ``height`` frame; USD's warnings become notes."""
+    with captured_diagnostics() as found:
+        stage = open_stage(path)
+        batches, skipped = read_batches(stage)
+        if not batches:
+            raise InputError(f"{path}: no visible mesh to render")
+        aspect = width / height
+        if camera:
+            view = usd_camera_view(stage, camera, aspect)
+        else:
+            view = framing_view(stage, batches, aspect, zoom)
+        colours = {b.material: b.display_color for b in batches}
+        surfaces = {kind: {m: read_surface(stage, m, kind == NEURAL, c) for m, c in colours.items()} for kind in kinds}
+    errors = composition_errors(stage)
+    return Scene(str(path), batches, view, surfaces, skipped, [*errors, *new_diagnostics(found, errors)])
 
 
 def renderer_for(runtime, scene: Scene, kind: str, width: int, height: int,

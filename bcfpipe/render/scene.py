@@ -15,9 +15,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdShade
 
 from bcfpipe.errors import InputError
+from bcfpipe.scan.values import number, numbers
 
 __all__ = ["Batch", "View", "read_batches", "usd_camera_view", "framing_view"]
 
@@ -84,8 +85,9 @@ def _normals(mesh: UsdGeom.Mesh, points: np.ndarray, fvi: np.ndarray, face: np.n
         values, interp = pv.ComputeFlattened(TIME), pv.GetInterpolation()
     else:
         values, interp = mesh.GetNormalsAttr().Get(TIME), mesh.GetNormalsInterpolation()
-    if values is not None and len(values):
-        n = _expand(np.asarray(values, np.float64), interp, face, corners, fvi)
+    values = numbers(values, np.float64, 3)
+    if len(values):
+        n = _expand(values, interp, face, corners, fvi)
         if n is not None:
             return n
     tri = points[fvi[corners]]  # (n, 3, 3)
@@ -106,16 +108,26 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _bound(prim: Usd.Prim) -> str | None:
-    mat, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial(UsdShade.Tokens.full)
+    try:
+        mat, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial(UsdShade.Tokens.full)
+    except Tf.ErrorException:  # a malformed binding binds nothing (as in the scan)
+        return None
     return str(mat.GetPath()) if mat else None
+
+
+def _display_color(prim: Usd.Prim) -> tuple[float, float, float]:
+    dc = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+    v = numbers(dc.ComputeFlattened(TIME), np.float64, 3) if dc and dc.HasValue() else ()
+    return tuple(float(x) for x in v[0]) if len(v) else (0.18, 0.18, 0.18)
 
 
 def _mesh_batches(prim: Usd.Prim, xf: Gf.Matrix4d) -> list[Batch]:
     mesh = UsdGeom.Mesh(prim)
-    points = np.asarray(mesh.GetPointsAttr().Get(TIME) or [], np.float64).reshape(-1, 3)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(TIME) or [], np.int64)
-    fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(TIME) or [], np.int64)
-    if not len(points) or not len(counts) or counts.sum() != len(fvi) or (len(fvi) and fvi.max() >= len(points)):
+    points = numbers(mesh.GetPointsAttr().Get(TIME), np.float64, 3)
+    counts = numbers(mesh.GetFaceVertexCountsAttr().Get(TIME), np.int64)
+    fvi = numbers(mesh.GetFaceVertexIndicesAttr().Get(TIME), np.int64)
+    if not len(points) or not len(counts) or (counts < 0).any() or counts.sum() != len(fvi) or \
+            (len(fvi) and (fvi.min() < 0 or fvi.max() >= len(points))):
         return []
     face, corners = _fan(counts)
     if not len(face):
@@ -128,23 +140,18 @@ def _mesh_batches(prim: Usd.Prim, xf: Gf.Matrix4d) -> list[Batch]:
         if pv.GetTypeName().scalarType not in (Sdf.ValueTypeNames.Float2, Sdf.ValueTypeNames.TexCoord2f,
                                                Sdf.ValueTypeNames.Double2, Sdf.ValueTypeNames.TexCoord2d):
             continue
-        values = pv.ComputeFlattened(TIME)
-        if values is None or not len(values) or pv.GetTypeName().isArray is False:
+        values = numbers(pv.ComputeFlattened(TIME), np.float64, 2)
+        if not len(values) or pv.GetTypeName().isArray is False:
             continue
-        st = _expand(np.asarray(values, np.float64), pv.GetInterpolation(), face, corners, fvi)
+        st = _expand(values, pv.GetInterpolation(), face, corners, fvi)
         if st is not None:
             primvars[pv.GetPrimvarName()] = st.astype(np.float32)
-    color = (0.18, 0.18, 0.18)
-    dc = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
-    if dc and dc.HasValue():
-        v = dc.ComputeFlattened(TIME)
-        if v is not None and len(v):
-            color = tuple(float(x) for x in v[0])
+    color = _display_color(prim)
     # faces -> material: the mesh's own binding, then each materialBind subset's
     face_material = np.zeros(len(counts), np.int64)
     materials = [_bound(prim)]
     for subset in UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets():
-        ids = np.asarray(subset.GetIndicesAttr().Get(TIME) or [], np.int64)
+        ids = numbers(subset.GetIndicesAttr().Get(TIME), np.int64)
         ids = ids[(ids >= 0) & (ids < len(counts))]
         materials.append(_bound(subset.GetPrim()))
         face_material[ids] = len(materials) - 1
@@ -212,17 +219,13 @@ def _cube(size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _implicit_batch(prim: Usd.Prim, xf: Gf.Matrix4d) -> Batch | None:
     if prim.IsA(UsdGeom.Sphere):
-        pos, nrm, st = _sphere(float(UsdGeom.Sphere(prim).GetRadiusAttr().Get(TIME)))
+        pos, nrm, st = _sphere(number(UsdGeom.Sphere(prim).GetRadiusAttr().Get(TIME), 1.0))
     elif prim.IsA(UsdGeom.Cube):
-        pos, nrm, st = _cube(float(UsdGeom.Cube(prim).GetSizeAttr().Get(TIME)))
+        pos, nrm, st = _cube(number(UsdGeom.Cube(prim).GetSizeAttr().Get(TIME), 2.0))
     else:
         return None
     m = np.array(xf, np.float64)
-    color = (0.18, 0.18, 0.18)
-    dc = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
-    v = dc.ComputeFlattened(TIME) if dc and dc.HasValue() else None
-    if v is not None and len(v):
-        color = tuple(float(x) for x in v[0])
+    color = _display_color(prim)
     return Batch(str(prim.GetPath()), _bound(prim), (pos @ m[:3, :3] + m[3, :3]).astype(np.float32),
                  _unit(nrm @ np.linalg.inv(m[:3, :3]).T).astype(np.float32), {"st": st.astype(np.float32)}, color)
 
@@ -245,10 +248,20 @@ def read_batches(stage: Usd.Stage) -> tuple[list[Batch], list[str]]:
                 img.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
             it.PruneChildren()
             continue
+        if not prim.IsA(UsdGeom.Gprim):
+            continue
+        try:
+            xf = xforms.GetLocalToWorldTransform(prim)
+        except Tf.ErrorException:
+            skipped.append(f"{prim.GetPath()}: its transform cannot be read; not drawn")
+            continue
         if prim.IsA(UsdGeom.Mesh):
-            out += _mesh_batches(prim, xforms.GetLocalToWorldTransform(prim))
-        elif prim.IsA(UsdGeom.Gprim):
-            b = _implicit_batch(prim, xforms.GetLocalToWorldTransform(prim))
+            batches = _mesh_batches(prim, xf)
+            if not batches:
+                skipped.append(f"{prim.GetPath()}: no valid faces; not drawn")
+            out += batches
+        else:
+            b = _implicit_batch(prim, xf)
             if b is None:
                 skipped.append(f"{prim.GetPath()}: {prim.GetTypeName()} not drawn")
             else:

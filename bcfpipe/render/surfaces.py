@@ -18,6 +18,7 @@ from pxr import Sdf, Usd, UsdShade
 
 from bcfpipe.scan.network import scan_input, shader_id, st_source
 from bcfpipe.scan.results import PREVIEW_SURFACE_INPUTS, TextureRef, Transform2d
+from bcfpipe.scan.values import is_unregistered
 
 __all__ = ["COMPONENTS", "Component", "NeuralFeatures", "OriginalTexture", "Surface", "read_surface",
            "NEURAL_SHADER_ID", "MAX_TEXTURES"]
@@ -160,9 +161,17 @@ def _original(path: str, material: UsdShade.Material | None, display_color) -> S
                    opacity_threshold=float(values["opacityThreshold"]), notes=tuple(notes))
 
 
+def _checked(value, where: str):
+    """A value of the build's own: one of a type USD does not know means a damaged layer."""
+    if is_unregistered(value):
+        from bcfpipe.errors import InputError
+        raise InputError(f"{where}: a value of a type USD does not know; a damaged build (build it again)")
+    return value
+
+
 def _input(shader: UsdShade.Shader, name: str, default=None):
     inp = shader.GetInput(name)
-    v = inp.Get() if inp else None
+    v = _checked(inp.Get(), f"{shader.GetPath()}.inputs:{name}") if inp else None
     return default if v is None else v
 
 
@@ -181,7 +190,7 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
     prim = material.GetPrim()
 
     def attr(name, default):
-        v = prim.GetAttribute(name).Get() if prim.HasAttribute(name) else None
+        v = _checked(prim.GetAttribute(name).Get(), f"{prim.GetPath()}.{name}") if prim.HasAttribute(name) else None
         return default if v is None else list(v)
 
     targets = [str(t) for t in attr("bcf:outputs:targets", [])]

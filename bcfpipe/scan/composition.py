@@ -1,12 +1,14 @@
-"""Opening a stage, applying variant selections, and finding the rendered geometry and the
-materials it binds (the rules are in bcfpipe.scan.stage's docstring)."""
+"""Opening a stage (USD's warnings captured as one-line notes), applying variant selections, and
+finding the rendered geometry and the materials it binds (the rules are in bcfpipe.scan.stage's
+docstring)."""
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Iterable, Mapping
+from contextlib import contextmanager
+from typing import Iterable, Iterator, Mapping
 
-from pxr import Tf, Usd, UsdGeom, UsdShade
+from pxr import Tf, Usd, UsdGeom, UsdShade, UsdUtils
 
 from bcfpipe.scan.results import ScanError
 
@@ -51,6 +53,33 @@ def open_stage(path: str | os.PathLike[str]) -> Usd.Stage:
     if stage is None:
         raise ScanError(f"cannot read stage {p}")
     return stage
+
+
+def composition_errors(stage: Usd.Stage) -> tuple[str, ...]:
+    """One line per composition error (missing layers, bad references, ...)."""
+    try:
+        errors = stage.GetCompositionErrors()
+    except Exception:  # noqa: BLE001 - older pxr without the API
+        return ()
+    return tuple(first_line(Exception(str(e))) for e in errors)
+
+
+@contextmanager
+def captured_diagnostics() -> Iterator[list[str]]:
+    """Collect USD warnings/statuses (one line each) instead of letting them print to stderr."""
+    delegate = UsdUtils.CoalescingDiagnosticDelegate()
+    found: list[str] = []
+    try:
+        yield found
+    finally:
+        found.extend(first_line(Exception(d.commentary)) for d in delegate.TakeUncoalescedDiagnostics())
+        del delegate
+
+
+def new_diagnostics(found: Iterable[str], known: tuple[str, ...]) -> tuple[str, ...]:
+    """Unique diagnostics that do not repeat a composition error."""
+    unique = dict.fromkeys(d for d in found if not any(k in d for k in known))
+    return tuple(unique)
 
 
 def _variant_requests(

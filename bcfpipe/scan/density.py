@@ -15,9 +15,11 @@ the primvar, with zero uv or world area, or with time-sampled points get a note 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+
+from bcfpipe.scan.values import numbers
 
 __all__ = ["MeshDensity", "MaterialDensity", "mesh_areas", "material_density", "required_resolution"]
 
@@ -108,15 +110,16 @@ def mesh_areas(prim, varname: str, faces: np.ndarray | None, meters_per_unit: fl
     points_attr = mesh.GetPointsAttr()
     if points_attr.GetNumTimeSamples() > 1:
         return None, f"{path}: time-sampled points, no texel density"
-    points = np.asarray(points_attr.Get(Usd.TimeCode.EarliestTime()) or [], np.float64).reshape(-1, 3)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], np.int64)
-    fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], np.int64)
-    if len(points) == 0 or len(counts) == 0 or counts.sum() != len(fvi) or (fvi >= len(points)).any():
+    points = numbers(points_attr.Get(Usd.TimeCode.EarliestTime()), np.float64, 3)
+    counts = numbers(mesh.GetFaceVertexCountsAttr().Get(), np.int64)
+    fvi = numbers(mesh.GetFaceVertexIndicesAttr().Get(), np.int64)
+    if len(points) == 0 or len(counts) == 0 or (counts < 0).any() or counts.sum() != len(fvi) or \
+            (fvi < 0).any() or (fvi >= len(points)).any():
         return None, f"{path}: no valid faces, no texel density"
     pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(varname)
     if not pv or not pv.HasValue():
         return None, f"{path}: no {varname!r} primvar, no texel density"
-    st = np.asarray(pv.ComputeFlattened(Usd.TimeCode.EarliestTime()) or [], np.float64).reshape(-1, 2)
+    st = numbers(pv.ComputeFlattened(Usd.TimeCode.EarliestTime()), np.float64, 2)
     interp = pv.GetInterpolation()
     tri_face, a, b, c = _fan(counts)
     if faces is not None:
@@ -178,7 +181,7 @@ def material_bindings(stage, gprims) -> dict[str, list[tuple[object, np.ndarray 
         covered: list[int] = []
         for subset in api.GetMaterialBindSubsets():
             mat, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial(UsdShade.Tokens.preview)
-            idx = np.asarray(subset.GetIndicesAttr().Get() or [], np.int64)
+            idx = numbers(subset.GetIndicesAttr().Get(), np.int64)
             covered += idx.tolist()
             if mat:
                 out.setdefault(definition_path(mat.GetPrim()), []).append((g, idx))
@@ -187,7 +190,7 @@ def material_bindings(stage, gprims) -> dict[str, list[tuple[object, np.ndarray 
         except Exception:  # noqa: BLE001 - a malformed binding binds nothing (as in the scan)
             continue
         if mat:
-            n = len(g.GetAttribute("faceVertexCounts").Get() or []) if g.GetAttribute("faceVertexCounts") else 0
+            n = len(numbers(g.GetAttribute("faceVertexCounts").Get(), np.int64)) if g.GetAttribute("faceVertexCounts") else 0
             rest = None if not covered else np.setdiff1d(np.arange(n), covered)
             if rest is None or len(rest):
                 out.setdefault(definition_path(mat.GetPrim()), []).append((g, rest))

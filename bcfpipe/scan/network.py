@@ -9,6 +9,7 @@ from typing import Any
 from pxr import Sdf, Usd, UsdShade
 
 from bcfpipe.scan.results import InputScan, PREVIEW_SURFACE_INPUTS, StSource, TextureRef, Transform2d
+from bcfpipe.scan.values import is_unregistered
 
 
 COLOR_INPUTS = frozenset({"diffuseColor", "emissiveColor", "specularColor"})
@@ -80,7 +81,7 @@ def _input_value(shader: UsdShade.Shader, name: str, default: Any) -> tuple[Any,
     if attr is None or UsdShade.Output.IsOutput(attr):
         return default, False
     value = attr.Get()
-    if value is None:
+    if value is None or is_unregistered(value):
         return default, False
     return _plain(value, _is_f32(attr)), True
 
@@ -208,7 +209,9 @@ def scan_input(surface: UsdShade.Shader, name: str) -> InputScan:
     attr = _source_attr(surface, name)
     if attr is None or not UsdShade.Output.IsOutput(attr):
         value, authored = _input_value(surface, name, default)
-        return InputScan(name, "constant", value=value, authored=authored)
+        unknown = attr is not None and is_unregistered(attr.Get())
+        return InputScan(name, "constant", value=value, authored=authored,
+                         detail="its value has a type USD does not know; the default is used" if unknown else "")
     node = UsdShade.Shader(attr.GetPrim())
     sid = shader_id(node.GetPrim())
     output = UsdShade.Output(attr).GetBaseName()

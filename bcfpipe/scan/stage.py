@@ -49,15 +49,14 @@ Choices worth knowing:
 from __future__ import annotations
 
 import os
-from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Iterable, Mapping
 
-from pxr import Ar, Usd, UsdGeom, UsdShade, UsdUtils
+from pxr import Ar, Usd, UsdGeom, UsdShade
 
-from bcfpipe.scan.composition import (apply_variants, bound_materials, definition_path, first_line, open_stage,
-                                      rendered_gprims)
+from bcfpipe.scan.composition import (apply_variants, bound_materials, captured_diagnostics, composition_errors,
+                                      definition_path, first_line, new_diagnostics, open_stage, rendered_gprims)
 from bcfpipe.scan.density import MaterialDensity, material_bindings, material_density
 from bcfpipe.scan.network import COLOR_INPUTS, WRAP_MODES, scan_input, shader_id
 from bcfpipe.scan.results import (DECISION_MODEL, DECISION_SKIP, PREVIEW_SURFACE_INPUTS, ChannelUse, InputScan,
@@ -94,6 +93,8 @@ def input_warnings(inputs: Iterable[InputScan]) -> tuple[str, ...]:
         tex = inp.texture
         if inp.kind in ("primvar", "unsupported"):
             notes.append(f"{inp.name}: {inp.detail} (not modelled)")
+        elif inp.kind == "constant" and inp.detail:
+            notes.append(f"{inp.name}: {inp.detail}")
         if tex is None:
             continue
         if tex.st.kind == "constant":
@@ -222,33 +223,6 @@ def _stage_facts(stage: Usd.Stage) -> dict[str, Any]:
     }
 
 
-def _composition_errors(stage: Usd.Stage) -> tuple[str, ...]:
-    """One line per composition error (missing layers, bad references, ...)."""
-    try:
-        errors = stage.GetCompositionErrors()
-    except Exception:  # noqa: BLE001 - older pxr without the API
-        return ()
-    return tuple(first_line(Exception(str(e))) for e in errors)
-
-
-@contextmanager
-def _captured_diagnostics() -> Iterator[list[str]]:
-    """Collect USD warnings/statuses (one line each) instead of letting them print to stderr."""
-    delegate = UsdUtils.CoalescingDiagnosticDelegate()
-    found: list[str] = []
-    try:
-        yield found
-    finally:
-        found.extend(first_line(Exception(d.commentary)) for d in delegate.TakeUncoalescedDiagnostics())
-        del delegate
-
-
-def _new_diagnostics(found: Iterable[str], known: tuple[str, ...]) -> tuple[str, ...]:
-    """Unique diagnostics that do not repeat a composition error."""
-    unique = dict.fromkeys(d for d in found if not any(k in d for k in known))
-    return tuple(unique)
-
-
 def used_files(stage: Usd.Stage) -> tuple[str, ...]:
     """The files of every layer the stage composed (sublayers, references, payloads, clips, the
     session layer excluded); a layer inside a package is its package file (the .usdz)."""
@@ -283,7 +257,7 @@ def scan_stage(
     Raises ScanError only for stage-level problems (missing or unparsable file,
     unknown variant); per-material problems become skips.
     """
-    with _captured_diagnostics() as found:
+    with captured_diagnostics() as found:
         stage = open_stage(path)
         selections = apply_variants(stage, variants) if variants else ()
         gprims = rendered_gprims(stage)
@@ -301,7 +275,7 @@ def scan_stage(
                 scans.append(ms)
             except Exception as exc:  # noqa: BLE001 - one bad material must not stop the scan
                 scans.append(_error_scan(str(prims[0].GetPath()), exc, purposes, aliases))
-    composition_errors = _composition_errors(stage)
+    errors = composition_errors(stage)
     return StageScan(
         path=str(Path(path).resolve()),
         variant_selections=selections,
@@ -309,8 +283,8 @@ def scan_stage(
         rendered_gprims=len(gprims),
         materials=tuple(scans),
         dangling_bindings=tuple(sorted(dangling)),
-        composition_errors=composition_errors,
-        diagnostics=_new_diagnostics(found, composition_errors),
+        composition_errors=errors,
+        diagnostics=new_diagnostics(found, errors),
         layers=used_files(stage),
         **_stage_facts(stage),
     )
