@@ -4,7 +4,7 @@ must return or raise its documented one-line error (an InputError or the reader'
 never anything else, and never take more than 10 s.
 
 The default suite runs a few hundred cases per reader; ``-m slow`` runs 10,000
-(``BCFPIPE_FUZZ_N`` overrides). Each run prints its counts."""
+(``BCFPIPE_FUZZ_N`` and ``BCFPIPE_FUZZ_SEED`` override). Each run prints its counts."""
 from __future__ import annotations
 
 import json
@@ -84,7 +84,7 @@ def count(default: int) -> int:
 
 def run_cases(name: str, n: int, make, check, allowed: tuple[type[BaseException], ...]) -> dict:
     """Feed ``n`` inputs from ``make(rng)`` to ``check``; anything but ``allowed`` fails the test."""
-    rng = random.Random(1234)
+    rng = random.Random(int(os.environ.get("BCFPIPE_FUZZ_SEED", 1234)))
     stats = {"cases": 0, "accepted": 0, "refused": 0, "slowest_s": 0.0}
     for _ in range(n):
         case = make(rng)
@@ -160,6 +160,8 @@ def _json_reader(real_files, n, which, tmp):
 
 
 def _usd(real_files, n, tmp):
+    """A mutated scene through the scan and through the renderer's reading of the stage."""
+    from bcfpipe.render.frames import load_scene
     from bcfpipe.scan.stage import scan_stage
 
     path = tmp / "fuzz.usda"
@@ -168,6 +170,7 @@ def _usd(real_files, n, tmp):
     def check(text):
         path.write_bytes(text)
         scan_stage(path)
+        load_scene(path, 32, 32, kinds=("original",))
     return run_cases("usd", n, lambda r: mutate(real_files["usda"].encode(), r), check, (InputError,))
 
 
