@@ -111,7 +111,6 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
             status, reason = "failed", r.reason if r else "not run"
         else:
             status, reason = "built", None
-        job = bplan.job(mp_.job) if mp_.job else None
         common = dict(
             path=mp_.path, aliases=tuple(mp_.aliases), job=mp_.job, status=status, reason=reason, message=mp_.message,
             sources=tuple(mfst.Source(rel(s.path), s.asset_path, s.xxh3_128, s.size_bytes, s.width, s.height,
