@@ -451,7 +451,9 @@ def test_plan_packaged_textures(tmp_path: Path) -> None:
 # failures, dedup, --json, OUT handling
 
 
-def test_failure_isolation_dedup_and_json(tmp_path: Path) -> None:
+def test_damaged_source_is_refused_before_training_then_dedup_and_json(tmp_path: Path) -> None:
+    """A damaged texture is the user's to fix: the build refuses it by name (exit 2, one line),
+    writes nothing, and trains nothing. Without it, materials sharing a set train once."""
     import jsonschema
 
     write_png(tmp_path / "tex" / "a.png", pattern())
@@ -464,27 +466,31 @@ def test_failure_isolation_dedup_and_json(tmp_path: Path) -> None:
     add_material(stage, "/World/Looks/Broken", {"diffuseColor": ("./tex/broken.png", "rgb", {})}, mesh="/World/C")
     stage.Save()
     out = tmp_path / "out"
-    proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(tmp_path / "scene.usda"), "-o", str(out),
-                           "--profile", "tiny", "--quality", "draft", "--jobs", "2", "--threads", "1", "--json"],
-                          capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 1, proc.stderr
+    args = [sys.executable, "-m", "bcfpipe", "build", str(tmp_path / "scene.usda"), "-o", str(out),
+            "--profile", "tiny", "--quality", "draft", "--jobs", "2", "--threads", "1", "--json"]
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stdout == "" and "Traceback" not in proc.stderr
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("Error: ") and str(tmp_path / "tex" / "broken.png") in line
+    assert not out.exists()
+
+    stage.RemovePrim("/World/Looks/Broken")
+    stage.RemovePrim("/World/C")
+    stage.Save()
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)  # stdout is the JSON report and nothing else
     jsonschema.validate(report, json.loads((SCHEMAS / "report.schema.json").read_text()))
     status = {m["path"].rsplit("/", 1)[-1]: m for m in report["materials"]}
     assert status["Good"]["status"] == status["Twin"]["status"] == "built"
     assert status["Good"]["cache"] == status["Twin"]["cache"] == "miss"
-    assert status["Good"]["job"] == status["Twin"]["job"] and report["totals"]["jobs"] == 2
-    assert status["Broken"]["status"] == "failed" and status["Broken"]["cache"] is None
-    reason = status["Broken"]["reason"]
-    assert "\n" not in reason and "broken.png" in reason
-    assert report["exit_code"] == 1 and report["totals"]["failed"] == 1
+    assert status["Good"]["job"] == status["Twin"]["job"] and report["totals"]["jobs"] == 1
+    assert report["exit_code"] == 0
     assert "materials/Good/T0.dds" in status["Good"]["files"] and status["Good"]["psnr"] > 10
-    # the failed material keeps its original shading: no API schema, and the output still validates
-    overrides = (out / "overrides.usda").read_text()
-    assert "Broken" not in overrides and '"Good"' in overrides
     n, text = validate(out / "scene.bcf.usda")
     assert n == 0, text
-    assert not list(out.glob(".bcfpipe-*")) and not list(tmp_path.glob(".out*")), "no staging folders left behind"
+    assert not list(out.glob(".bcfpipe-staging*")) and not list(tmp_path.glob(".out*")), "no staging folders left behind"
 
 
 def test_refuses_foreign_out(tmp_path: Path) -> None:
@@ -495,14 +501,36 @@ def test_refuses_foreign_out(tmp_path: Path) -> None:
     with pytest.raises(BuildError, match="--force"):
         build(scene, out, **FAST)
     assert (out / "notes.txt").read_text() == "mine"
-    proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out)],
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 2 and "--force" in proc.stderr and (out / "notes.txt").exists()
-    result = build(scene, out, force=True, **FAST)
-    assert result.exit_code == 0 and not (out / "notes.txt").exists() and (out / MANIFEST).exists()
-    # a bcfpipe output is replaced without --force
+    # not even with --force: only a folder holding bcfpipe's manifest is ever replaced
+    (out / "sub").mkdir()
+    (out / "sub" / "scene.usd").write_bytes(b"#usda 1.0\n")
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    for force in ([], ["--force"]):
+        proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), *force],
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 2 and "not written by bcfpipe" in proc.stderr, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1
+        assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    with pytest.raises(BuildError, match="even with --force"):
+        build(scene, out, force=True, **FAST)
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    out = tmp_path / "built"
+    result = build(scene, out, **FAST)
+    assert result.exit_code == 0 and (out / MANIFEST).exists()
+    # a bcfpipe output of the same scene is replaced without --force
     again = build(scene, out, **FAST)
     assert again.exit_code == 0 and again.manifest.to_json()["totals"]["skipped"] == 1
+    # another scene's build is replaced only with --force, and a line names the scene it replaces
+    (tmp_path / "other").mkdir()
+    other = constant_stage(tmp_path / "other" / "b.usda")
+    with pytest.raises(BuildError, match=r"another scene .*scene\.usda.*--force"):
+        build(other, out, **FAST)
+    assert json.loads((out / MANIFEST).read_text())["scene"].endswith("scene.usda")
+    proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(other), "-o", str(out), "--force"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert f"replacing the build of {scene}" in proc.stderr
+    assert json.loads((out / MANIFEST).read_text())["scene"].endswith("b.usda")
     # an OUT containing the input is refused even with --force
     with pytest.raises(BuildError, match="contains the input"):
         build(scene, tmp_path, force=True, **FAST)

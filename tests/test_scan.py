@@ -423,6 +423,12 @@ def test_to_dict_is_json(tmp_path: Path, textures: dict[str, str]) -> None:
 
 
 def test_cli_json_and_table(tmp_path: Path, textures: dict[str, str]) -> None:
+    import numpy as np
+    import OpenImageIO as oiio
+
+    # a real image: an empty file is refused by name (the build would not model it)
+    texels = np.random.default_rng(0).integers(0, 256, (8, 8, 3), dtype=np.uint8)
+    assert oiio.ImageBuf(texels).write(str(tmp_path / "tex" / "base.png"))
     stage = new_stage(tmp_path)
     add_mesh(stage, "/World/A", add_material(stage, "/World/Looks/A", {"diffuseColor": (textures["base"], "rgb")}))
     add_material(stage, "/World/Looks/Spare")

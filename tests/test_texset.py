@@ -178,7 +178,7 @@ def test_each_file_read_once(tmp_path, rng, monkeypatch):
     g = write_image(tmp_path / "d.png", rng.random((4, 4, 3)))
     opened, resized = [], []
     real_open, real_resize = texset._open, oiio.ImageBufAlgo.resize
-    monkeypatch.setattr(texset, "_open", lambda p: opened.append(p) or real_open(p))
+    monkeypatch.setattr(texset, "_open", lambda p, shown: opened.append(p) or real_open(p, shown))
     monkeypatch.setattr(oiio.ImageBufAlgo, "resize", lambda *a, **k: resized.append(1) or real_resize(*a, **k))
     ts = load_texture_set([f"occlusion={f}:r", f"roughness={f}:g", f"metallic={f}:b", f"albedo={g}"])
     assert sorted(opened) == sorted([str(f), str(g)])
@@ -307,7 +307,7 @@ def test_real_packed_arm_read_once(monkeypatch):
     arm = tex / "tea_set_01_arm_2k.jpg"
     opened = []
     real_open = texset._open
-    monkeypatch.setattr(texset, "_open", lambda p: opened.append(p) or real_open(p))
+    monkeypatch.setattr(texset, "_open", lambda p, shown: opened.append(p) or real_open(p, shown))
     ts = load_texture_set([f"albedo={tex / 'tea_set_01_diff_2k.jpg'}", f"occlusion={arm}:r",
                            f"roughness={arm}:g", f"metallic={arm}:b"], resolution=256)
     assert len(opened) == 2 and ts.data.shape == (256, 256, 6)

@@ -168,7 +168,8 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
             local = copy_sources(mj, tmp) if sources is None else write_sources(sources, tmp)
             ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
                                   resolution=mj.size if mj.options.resolution else None,
-                                  fix_nonfinite=mj.options.fix_nonfinite)
+                                  fix_nonfinite=mj.options.fix_nonfinite,
+                                  names={copy: path for path, copy in local.items()})
         o = mj.options
         prof, cfg = make_config(ts, profile=o.profile, preset=o.preset, device=device, seed=o.seed, hidden=o.hidden,
                                 signed=o.signed, wrap=mj.wrap, threads=max(1, threads), init=o.init)

@@ -281,7 +281,9 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
 
     from bcfpipe.scan.content import FACTS
 
-    grouping = group_materials(scene, vdict, scan.materials, {FACTS: facts} if facts is not None else None)
+    file_cache: dict = {FACTS: facts} if facts is not None else {}
+    grouping = group_materials(scene, vdict, scan.materials, file_cache)
+    _refuse_bad_sources(grouping, file_cache, fix_nonfinite)
     jobs: list[MaterialJob] = []
     for g in grouping.groups:
         rep = g.model
@@ -352,6 +354,24 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
         layers=scan.layers,
         folded_sources=_folded_sources(grouping, jobs),
     )
+
+
+def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None:
+    """A damaged file, or a float file with NaN/Inf texels (without --fix-nonfinite), is refused
+    before anything trains: one line naming the user's file, exit code 2 (maketx --checknan)."""
+    from bcfpipe.scan.content import nonfinite_channels
+
+    problems = list(dict.fromkeys(grouping.unreadable.values()))
+    if not fix_nonfinite:
+        models = [*(mm for g in grouping.groups for mm in g.models), *grouping.constant.values()]
+        for path in dict.fromkeys(p for mm in models for p in mm.sources):
+            bad = nonfinite_channels(path, file_cache)
+            if bad:
+                problems.append(f"{path}: NaN/Inf texels in channel(s) {', '.join(bad)}; "
+                                "use --fix-nonfinite to replace them")
+    if problems:
+        more = f" (and {len(problems) - 1} more problem(s) with other sources)" if len(problems) > 1 else ""
+        raise BuildError(problems[0] + more)
 
 
 def _bench_anchors(bench: Mapping, specs) -> tuple[tuple[str, str, float], ...]:

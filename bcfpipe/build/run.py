@@ -19,7 +19,7 @@ from bcfpipe.build.assemble import assemble, default_out
 from bcfpipe.build.depfile import dependencies, write as write_depfile
 from bcfpipe.build.executor import JobResult, execute
 from bcfpipe.build.report import make_report
-from bcfpipe.build.sync import STAGING_PREFIX, install, is_incomplete
+from bcfpipe.build.sync import OUT_LOCK, STAGING_PREFIX, install, is_incomplete
 from bcfpipe.cache import Cache, default_root
 from bcfpipe.formats.report import BuildReport
 from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
@@ -61,8 +61,24 @@ def _is_within(path: Path, folder: Path) -> bool:
         return False
 
 
-def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike]) -> None:
-    """Refuse an OUT that would overwrite inputs, or a folder not written by bcfpipe (without force)."""
+def _built_scene(out: Path) -> Path | None:
+    """The scene whose build ``out`` holds (manifest.json's scene, resolved), or None."""
+    import json
+
+    try:
+        scene = json.loads((out / MANIFEST).read_text()).get("scene")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(scene, str) or not scene:
+        return None
+    p = Path(scene.split("[", 1)[0]) if package_split(scene) else Path(scene)
+    return (out / p).resolve() if not p.is_absolute() else p.resolve()
+
+
+def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike], scene: Path | None = None) -> None:
+    """Refuse an OUT that would overwrite inputs, a folder bcfpipe did not write (even with
+    ``force``: only a folder holding our manifest, or our own leftovers, is ever replaced), or the
+    build of another scene than ``scene`` unless ``force`` (then one line says whose build goes)."""
     for p in inputs:
         p = Path(str(p).split("[", 1)[0]) if package_split(str(p)) else Path(p)
         if _is_within(p, out):
@@ -71,10 +87,18 @@ def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike]) -> No
         return
     if not out.is_dir():
         raise BuildError(f"output {out} exists and is not a folder")
-    if force or is_manifest(out) or is_incomplete(out) or not any(out.iterdir()):
+    if is_incomplete(out) or not any(out.iterdir()):
         return
-    raise BuildError(f"output folder {out} exists and was not written by bcfpipe (no {MANIFEST}); "
-                     "use --force to replace it")
+    if not is_manifest(out):
+        raise BuildError(f"output folder {out} exists and was not written by bcfpipe (no {MANIFEST}); "
+                         "bcfpipe replaces only its own builds, even with --force: choose another -o")
+    other = _built_scene(out)
+    if scene is None or other is None or other == Path(scene).resolve():
+        return
+    if not force:
+        raise BuildError(f"output folder {out} holds the build of another scene ({other}); "
+                         "use --force to replace it, or choose another -o")
+    log.warning("replacing the build of %s in %s (--force)", other, out)
 
 
 class OutputError(WorkFailed):
@@ -108,13 +132,22 @@ _PID = ".bcfpipe-pid"
 
 
 def _abandon(staging: Path, out: Path, created: bool) -> None:
-    """Remove a failed build's staging folder, and OUT itself if this build created it."""
+    """Remove a failed build's staging folder, and OUT itself (with its lock) if this build
+    created it and nothing else is in it."""
     shutil.rmtree(staging, ignore_errors=True)
-    if created:
+    if created and all(p.name == OUT_LOCK for p in _listing(out)):
         try:
+            (out / OUT_LOCK).unlink(missing_ok=True)
             out.rmdir()
         except OSError:
             pass
+
+
+def _listing(folder: Path) -> list[Path]:
+    try:
+        return list(folder.iterdir())
+    except OSError:
+        return []
 
 
 def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
@@ -176,20 +209,61 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     out_given = Path(out) if out is not None else default_out(scene_path, resolve=False)
     out_path = out_given.resolve()
     # Refuse early: before the scan reads every texture, and again once the sources are known.
-    check_out(out_path, force, [scene_path])
+    check_out(out_path, force, [scene_path], scene_path)
     store = None
     if cache is not False:
         store = Cache(default_root() if cache in (None, True) else cache)
     bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init,
                  fix_nonfinite, texel_density, coverage, facts=store.facts if store is not None else None,
                  target_psnr=target_psnr, bench=bench)
-    check_out(out_path, force, [bplan.scene, *bplan.sources])
+    check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
     # staging lives inside OUT (nothing is written outside OUT and the cache) and on its filesystem,
     # so that installing a file is one rename
     staging = out_path / f"{STAGING_PREFIX}{uuid.uuid4().hex[:8]}"
     created = not out_path.exists()
     try:
-        out_path.mkdir(parents=True, exist_ok=True)
+        out_lock = _lock_out(out_path)
+    except OSError as exc:
+        _abandon(staging, out_path, created)
+        raise OutputError(f"cannot write {out_path}: {_why(exc)}") from None
+    try:
+        # another build may have written OUT while this one waited: the rules again, under the lock
+        check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
+        return _build_locked(bplan, out_path, out_given, staging, created, store, progress, executor_name,
+                             ray_address, jobs, executor, threads, depfile, depfile_target, t0)
+    finally:
+        out_lock.release()
+
+
+def _lock_out(out: Path):
+    """OUT's lock (``OUT/.bcfpipe-lock``), acquired: concurrent builds into one OUT take turns, so
+    OUT is always one build's complete output. A build that has to wait says so once. The lock
+    file stays (removing a lock file others may wait on would let two builds in); a first build
+    that fails removes OUT with it, and a build that waited on it then starts over."""
+    from filelock import FileLock, Timeout
+
+    said = False
+    while True:
+        out.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(str(out / OUT_LOCK))
+        try:
+            lock.acquire(timeout=0)
+        except Timeout:
+            if not said:
+                log.warning("waiting for another bcfpipe build into %s to finish", out)
+                said = True
+            lock.acquire()
+        if (out / OUT_LOCK).exists():
+            return lock
+        lock.release()
+
+
+def _build_locked(bplan: BuildPlan, out_path: Path, out_given: Path, staging: Path, created: bool,
+                  store: Cache | None, progress: ProgressCallback | None, executor_name: str,
+                  ray_address: str | None, jobs: int | None, executor: cf.Executor | None,
+                  threads: int | None, depfile, depfile_target: str | None, t0: float) -> BuildResult:
+    """The build proper, with OUT's lock held: stage, train what the cache lacks, assemble, install."""
+    try:
         _stale_staging(out_path)
         staging.mkdir()
         (staging / _PID).write_text(str(os.getpid()))

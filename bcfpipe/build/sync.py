@@ -19,11 +19,12 @@ from bcfpipe.formats.manifest import FILE as MANIFEST
 
 INCOMPLETE = ".bcfpipe-incomplete"
 STAGING_PREFIX = ".bcfpipe-staging-"
+OUT_LOCK = ".bcfpipe-lock"  # held by the build writing OUT (bcfpipe.build.run)
 
 
 def _ours(rel: Path) -> bool:
-    """bcfpipe's own bookkeeping in OUT: the marker and staging folders."""
-    return rel.name == INCOMPLETE or rel.parts[0].startswith(STAGING_PREFIX)
+    """bcfpipe's own bookkeeping in OUT: the marker, the lock and staging folders."""
+    return rel.name in (INCOMPLETE, OUT_LOCK) or rel.parts[0].startswith(STAGING_PREFIX)
 
 
 def _files(folder: Path) -> set[str]:

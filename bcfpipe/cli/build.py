@@ -212,7 +212,7 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
                    "assembles from the cache without training.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the build report as one JSON object on stdout (schemas/report.schema.json).")
-@click.option("--force", is_flag=True, help="Replace an existing OUT even if bcfpipe did not write it.")
+@click.option("--force", is_flag=True, help="Replace the build of another scene in OUT. A folder that bcfpipe did not write (no manifest.json) is never replaced, even with --force.")
 @click.option("--verify", "run_verify_after", is_flag=True,
               help="Run `bcfpipe verify` on OUT at the end (GLSL on OpenGL vs ONNX); a failure exits 1.")
 @click.pass_context

@@ -150,24 +150,19 @@ class Renderer:
         key = (path, wrap, color_space)
         if key in self._originals:
             return self._originals[key]
-        import OpenImageIO as oiio
-
+        from bcfpipe.formats import images
         from bcfpipe.texset.texture_set import source_channel_index
-        local = local_file(path, self._tmp.name)
-        buf = oiio.ImageBuf(local)
-        if not buf.read(0, 0, True, oiio.FLOAT) or buf.has_error:
-            raise InputError(f"{path}: cannot read image ({buf.geterror().strip() or 'unknown error'})")
-        spec = buf.spec()
-        px = np.asarray(buf.get_pixels(oiio.FLOAT), np.float32).reshape(spec.height, spec.width, -1)
-        names = tuple(n.upper() for n in spec.channelnames)
-        rgba = np.zeros((spec.height, spec.width, 4), np.float32)
+
+        im = images.read(local_file(path, self._tmp.name), as_float=True, name=path)
+        px, names = im.pixels, im.names
+        rgba = np.zeros((*px.shape[:2], 4), np.float32)
         for slot, letter in enumerate("rgba"):
             try:
                 rgba[..., slot] = px[..., source_channel_index(names, letter, path)]
             except InputError:
                 rgba[..., slot] = 1.0 if letter == "a" else 0.0
-        fmt = str(buf.nativespec().format)
-        srgb = resolved_color_space(color_space, spec.nchannels, fmt) == "sRGB"
+        fmt = im.format
+        srgb = resolved_color_space(color_space, px.shape[2], fmt) == "sRGB"
         GL = self.GL
         tex = int(GL.glGenTextures(1))
         GL.glActiveTexture(GL.GL_TEXTURE0)
@@ -175,11 +170,11 @@ class Renderer:
         GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
         if fmt == "uint8":
             data = np.ascontiguousarray(np.clip(np.rint(rgba * 255), 0, 255).astype(np.uint8))
-            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA8, spec.width, spec.height, 0, GL.GL_RGBA,
+            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA8, px.shape[1], px.shape[0], 0, GL.GL_RGBA,
                             GL.GL_UNSIGNED_BYTE, data)
         else:
             data = np.ascontiguousarray(np.clip(rgba, -65504, 65504).astype(np.float16))
-            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA16F, spec.width, spec.height, 0, GL.GL_RGBA,
+            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA16F, px.shape[1], px.shape[0], 0, GL.GL_RGBA,
                             GL.GL_HALF_FLOAT, data)
         GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
         modes = {"repeat": GL.GL_REPEAT, "clamp": GL.GL_CLAMP_TO_EDGE, "mirror": GL.GL_MIRRORED_REPEAT,

@@ -49,22 +49,12 @@ def _step(arr: np.ndarray, lo: float, hi: float) -> float:
 
 def read_stored(path: str) -> tuple[np.ndarray, tuple[str, ...]]:
     """The texels of a resolved path at their stored type, (H, W, C), and its channel names."""
-    import OpenImageIO as oiio
-
+    from bcfpipe.formats import images
     from bcfpipe.scan.texture_sets import local_file
 
     with tempfile.TemporaryDirectory() as tmp:
-        inp = oiio.ImageInput.open(local_file(path, tmp))
-        if inp is None:
-            raise OSError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown error'})")
-        try:
-            spec = inp.spec()
-            data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UNKNOWN)
-        finally:
-            inp.close()
-    if data is None:
-        raise OSError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown error'})")
-    return np.asarray(data).reshape(spec.height, spec.width, spec.nchannels), tuple(n.upper() for n in spec.channelnames)
+        im = images.read(local_file(path, tmp), name=path)
+    return im.pixels, im.names
 
 
 def channel_contents(arr: np.ndarray) -> tuple[ChannelContent, ...]:
@@ -105,6 +95,17 @@ def content_of(path: str, letter: str, cache: dict, file_hash: str = "") -> Chan
         cache[key] = found
     contents, names = cache[key]
     return contents[source_channel_index(names, letter, path)]
+
+
+def nonfinite_channels(path: str, cache: dict) -> list[str]:
+    """Names of the channels of a file read by `content_of` (same ``cache``) that hold NaN or Inf
+    texels (their range is not finite); [] for a file not read there."""
+    found = cache.get((path, "content"))
+    if found is None:
+        return []
+    contents, names = found
+    return [names[i] if i < len(names) else str(i) for i, c in enumerate(contents)
+            if not (np.isfinite(c.lo) and np.isfinite(c.hi))]
 
 
 def sample_at(path: str, letter: str, st: tuple[float, float], wrap: str, cache: dict) -> float:

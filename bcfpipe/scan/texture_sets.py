@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping, Sequence
 
-from bcfpipe.errors import one_line
+from bcfpipe.errors import InputError, one_line
 
 import xxhash
 
@@ -78,19 +78,11 @@ def local_file(path: str, tmp_dir: str | os.PathLike) -> str:
 
 def _probe(path: str) -> tuple[int, int, int, str]:
     """(width, height, channels, base type) from the image header; zeros when unreadable."""
-    import OpenImageIO as oiio
+    from bcfpipe.formats.images import probe
 
     with tempfile.TemporaryDirectory() as tmp:
-        local = local_file(path, tmp)
-        inp = oiio.ImageInput.open(local)
-        if inp is None:
-            oiio.geterror()
-            return 0, 0, 0, "unreadable"
-        try:
-            spec = inp.spec()
-            return spec.width, spec.height, spec.nchannels, str(spec.format)
-        finally:
-            inp.close()
+        found = probe(local_file(path, tmp))
+    return found if found is not None else (0, 0, 0, "unreadable")
 
 
 def resolved_color_space(authored: str, channels: int, fmt: str) -> str:
@@ -201,10 +193,13 @@ class Canonical:
 def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash: str = ""):
     """The channel's content, or, for a file whose texels cannot be read, a content that is neither
     constant nor a duplicate of anything (training will report the file)."""
+    from bcfpipe.formats.images import ImageReadError
     from bcfpipe.scan.content import ChannelContent, content_of
 
     try:
         return content_of(path, letter, cache, file_hash)
+    except ImageReadError:
+        raise  # a damaged file is the user's to fix: the material cannot be modelled from it
     except (OSError, ValueError) as exc:
         warnings.append(f"{Path(path).name}: texels not checked for constants or duplicates ({one_line(exc)})")
         return ChannelContent(0.0, 0.0, 0.0, f"unread:{path}:{letter}", False)
@@ -213,11 +208,14 @@ def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash
 def _at(path: str, letter: str, st, wraps, cache: dict, warnings: list[str], content):
     """A constant content holding the texture's value at ``st`` (the ``unread`` fold), or
     ``content`` unchanged when the texels cannot be read."""
+    from bcfpipe.formats.images import ImageReadError
     from bcfpipe.scan.content import ChannelContent, sample_at
 
     wrap = "clamp" if all(w == "clamp" for w in wraps) else "repeat"
     try:
         v = sample_at(path, letter, tuple(st), wrap, cache)
+    except ImageReadError:
+        raise
     except (OSError, ValueError) as exc:
         warnings.append(f"{Path(path).name}: texels not read ({one_line(exc)})")
         return content
@@ -402,12 +400,15 @@ class TextureSetGroup:
 class Grouping:
     """The modelled materials of a scan, as texture-set groups; ``instanced`` ones cannot be
     overridden, ``failed`` ones ({path: message}) had unreadable textures, and ``constant`` ones
-    ({path: model}) have only constant channels, so their values replace them and nothing trains."""
+    ({path: model}) have only constant channels, so their values replace them and nothing trains.
+    ``unreadable`` ({path: message}, a subset of ``failed``) are those whose input is the user's to
+    fix (a damaged or missing file, a channel it lacks): a build refuses them (exit code 2)."""
 
     groups: tuple[TextureSetGroup, ...]
     instanced: frozenset[str]
     failed: Mapping[str, str]
     constant: Mapping[str, MaterialModel] = field(default_factory=dict)  # every channel folded: nothing to train
+    unreadable: Mapping[str, str] = field(default_factory=dict)
 
     def model_of(self, material: str) -> MaterialModel | None:
         """The material's model (grouped or constant), None when it is not modelled."""
@@ -436,13 +437,18 @@ def group_materials(scene, variants: Mapping[str, str], materials: Sequence["Mat
     canonical = Canonical()
     by_key: dict[tuple, list[tuple[str, MaterialModel]]] = {}
     failed: dict[str, str] = {}
+    unreadable: dict[str, str] = {}
     constant: dict[str, MaterialModel] = {}
     for ms in modelled:
         if ms.path in instanced:
             continue
         try:
             mm = material_model(ms, cache, digest, canonical, fold)
-        except Exception as exc:  # noqa: BLE001 - an unreadable file fails this material only
+        except InputError as exc:
+            failed[ms.path] = f"cannot read textures: {one_line(exc)}"
+            unreadable[ms.path] = str(exc)
+            continue
+        except Exception as exc:  # noqa: BLE001 - an unexpected failure fails this material only
             failed[ms.path] = f"cannot read textures: {one_line(exc)}"
             continue
         if not mm.channels:
@@ -452,4 +458,4 @@ def group_materials(scene, variants: Mapping[str, str], materials: Sequence["Mat
     taken: set[str] = set()
     groups = tuple(TextureSetGroup(job_name(members[0][0], taken), tuple(p for p, _ in members),
                                    tuple(m for _, m in members)) for members in by_key.values())
-    return Grouping(groups, instanced, failed, constant)
+    return Grouping(groups, instanced, failed, constant, unreadable)

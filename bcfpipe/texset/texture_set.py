@@ -278,30 +278,27 @@ def _check_resolution(resolution: int | tuple[int, int]) -> tuple[int, int]:
 class _Source:
     """A decoded file, kept for the duration of one `load_texture_set` call."""
 
-    path: str
+    path: str  # the user's name for it (a worker reads a copy; messages name the original)
     names: tuple[str, ...]
-    buf: object  # OpenImageIO.ImageBuf (float)
+    texels: np.ndarray  # (H, W, n) float32 as decoded (integer files as UNORM)
     is_float: bool  # stored as half/float/double (else integer UNORM, so [0, 1] by construction)
     format: str  # the stored base type, e.g. uint8, uint16, half
     pixels: np.ndarray | None = field(default=None)  # (H, W, n) float32 at the common size
 
     @property
     def width(self) -> int:
-        return self.buf.spec().width
+        return self.texels.shape[1]
 
     @property
     def height(self) -> int:
-        return self.buf.spec().height
+        return self.texels.shape[0]
 
 
 def _check_finite(src: _Source, fix: bool) -> None:
     """Refuse (or, with ``fix``, repair) NaN / Inf texels of a float file, per channel."""
-    import OpenImageIO as oiio
-
     if not src.is_float:
         return
-    spec = src.buf.spec()
-    px = np.asarray(src.buf.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(spec.height, spec.width, -1)
+    px = src.texels
     bad = ~np.isfinite(px)
     counts = bad.reshape(-1, px.shape[-1]).sum(0)
     if not counts.any():
@@ -318,7 +315,6 @@ def _check_finite(src: _Source, fix: bool) -> None:
         ch[np.isnan(ch)] = 0.0
         ch[np.isposinf(ch)] = hi
         ch[np.isneginf(ch)] = lo
-    src.buf.set_pixels(oiio.ROI(0, spec.width, 0, spec.height, 0, 1, 0, spec.nchannels), px)
     log.warning("%s: replaced %d NaN/Inf texel(s) (%s): NaN by 0, +-Inf by the channel's largest / "
                 "smallest finite value", src.path, int(counts.sum()), where)
 
@@ -339,25 +335,16 @@ def _value_range(col: np.ndarray, ch: Channel, src: _Source) -> tuple[np.ndarray
     return (col - lo) / (hi - lo), replace(ch, value_scale=hi - lo, value_bias=lo)
 
 
-def _open(path: str) -> _Source:
-    import OpenImageIO as oiio
+def _open(path: str, shown: str) -> _Source:
+    from bcfpipe.formats import images
 
-    if not os.path.isfile(path):
-        raise TextureError(f"{path}: texture file not found")
-    if os.path.getsize(path) == 0:
-        raise TextureError(f"{path}: the file is empty (0 bytes)")
-    config = oiio.ImageSpec()
-    config.attribute("oiio:UnassociatedAlpha", 1)  # keep stored (straight) colour where alpha < 1
-    buf = oiio.ImageBuf(path, 0, 0, config)
-    if not buf.read(0, 0, True, oiio.FLOAT) or buf.has_error:
-        why = next((ln.strip() for ln in buf.geterror().splitlines() if ln.strip()), "unknown error")
-        raise TextureError(f"{path}: cannot read image ({why})")
-    spec = buf.spec()
-    if spec.width < 1 or spec.height < 1 or spec.nchannels < 1 or spec.depth > 1:
-        raise TextureError(f"{path}: not a 2D image ({spec.width}x{spec.height}x{spec.depth}, {spec.nchannels} ch)")
-    native = buf.nativespec().format.basetype
-    is_float = native in (oiio.BASETYPE.HALF, oiio.BASETYPE.FLOAT, oiio.BASETYPE.DOUBLE)
-    return _Source(path, tuple(n.upper() for n in spec.channelnames), buf, is_float, str(buf.nativespec().format))
+    try:
+        im = images.read(path, as_float=True, unassociated_alpha=True, name=shown)
+    except images.ImageReadError as exc:
+        raise TextureError(str(exc)) from None
+    texels = np.ascontiguousarray(im.pixels, dtype=np.float32)
+    texels.setflags(write=True)
+    return _Source(shown, im.names, texels, im.is_float, im.format)
 
 
 def _source_index(src: _Source, letter: str) -> int:
@@ -388,15 +375,17 @@ def _resampled(src: _Source, width: int, height: int) -> np.ndarray:
     import OpenImageIO as oiio
 
     if src.pixels is None:
-        buf = src.buf
+        px = src.texels
         if (src.width, src.height) != (width, height):
-            roi = oiio.ROI(0, width, 0, height, 0, 1, 0, buf.nchannels)
-            buf = oiio.ImageBufAlgo.resize(buf, RESAMPLE_FILTER, 0.0, roi)
+            n = px.shape[2]
+            buf = oiio.ImageBuf(oiio.ImageSpec(src.width, src.height, n, oiio.FLOAT))
+            buf.set_pixels(oiio.ROI(0, src.width, 0, src.height, 0, 1, 0, n), px)
+            buf = oiio.ImageBufAlgo.resize(buf, RESAMPLE_FILTER, 0.0, oiio.ROI(0, width, 0, height, 0, 1, 0, n))
             if buf.has_error:
                 raise TextureError(f"{src.path}: resize to {width}x{height} failed ({buf.geterror().strip()})")
-        px = np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(height, width, -1)
+            px = np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(height, width, -1)
         if not src.is_float:  # integer texels are UNORM: drop the filter's rounding excursions
-            np.clip(px, 0.0, 1.0, out=px)
+            px = np.clip(px, 0.0, 1.0)
         src.pixels = px
     return src.pixels
 
@@ -405,6 +394,7 @@ def load_texture_set(
     specs: Sequence[TextureSpec | str],
     resolution: int | tuple[int, int] | None = None,
     fix_nonfinite: bool = False,
+    names: Mapping[str, str] | None = None,
 ) -> TextureSet:
     """Load and resample a material's textures into one `TextureSet`.
 
@@ -412,7 +402,8 @@ def load_texture_set(
     order. `resolution` is a power-of-two side or (width, height); default `common_resolution` of
     all sources. Each file is read and resampled once however many channels it feeds. Raises
     `TextureError` (a ValueError) for missing/unreadable files or channels a file lacks, and
-    `NonFiniteError` for NaN/Inf texels unless ``fix_nonfinite`` (module doc).
+    `NonFiniteError` for NaN/Inf texels unless ``fix_nonfinite`` (module doc). ``names``: {path
+    read: the user's name for it}, for a caller that reads copies; messages name the user's file.
     """
     specs = [TextureSpec.parse(s) if isinstance(s, str) else s for s in specs]
     if not specs:
@@ -427,7 +418,7 @@ def load_texture_set(
     for s in specs:
         key = os.path.realpath(s.path)
         if key not in sources:
-            sources[key] = _open(s.path)
+            sources[key] = _open(s.path, (names or {}).get(s.path, s.path))
             _check_finite(sources[key], fix_nonfinite)
     # Resolve every channel before any resampling so bad selections fail fast.
     picks: list[tuple[_Source, int, Channel]] = []

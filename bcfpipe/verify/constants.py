@@ -43,8 +43,7 @@ def check_usd_values(root: Path, manifest: mfst.Manifest, material: mfst.Materia
 
 def check_source_constancy(root: Path, material: mfst.Material) -> list[str]:
     """Every texel of each channel folded as constant lies within one step of its stored value."""
-    import OpenImageIO as oiio
-
+    from bcfpipe.formats import images
     from bcfpipe.scan.texture_sets import local_file, package_split
     from bcfpipe.texset.texture_set import source_channel_index
 
@@ -54,15 +53,14 @@ def check_source_constancy(root: Path, material: mfst.Material) -> list[str]:
             continue
         path = f.source if Path(f.source).is_absolute() or package_split(f.source) else str(root / f.source)
         with tempfile.TemporaryDirectory() as tmp:
-            buf = oiio.ImageBuf(local_file(path, tmp))
-            if not buf.read(0, 0, True, oiio.FLOAT):
-                problems.append(f"{f.source}: cannot read ({buf.geterror().strip()})")
+            try:
+                im = images.read(local_file(path, tmp), as_float=True, name=f.source)
+            except images.ImageReadError as exc:
+                problems.append(str(exc))
                 continue
-        spec = buf.spec()
-        px = np.asarray(buf.get_pixels(oiio.FLOAT)).reshape(spec.height, spec.width, spec.nchannels)
-        idx = source_channel_index(tuple(n.upper() for n in spec.channelnames), f.channel, path)
-        native = buf.nativespec().format.basetype
-        is_float = native in (oiio.BASETYPE.HALF, oiio.BASETYPE.FLOAT, oiio.BASETYPE.DOUBLE)
+        px = im.pixels
+        idx = source_channel_index(im.names, f.channel, path)
+        is_float = im.is_float
         step = float(np.spacing(np.float16(abs(f.value or 0.0)))) if is_float else 1.0 / 255.0
         worst = float(np.abs(px[..., idx].astype(np.float64) - float(f.value)).max())
         if worst > step + 1e-9:
