@@ -22,6 +22,7 @@
 //   Precision limits (glsl/README.md): the fp32 uv itself resolves ulp(|uv|) * width texels.
 //   f : relu MLP 12 -> n_hidden -> n_out in fp32 with fp16 weights, then per channel
 //       y = clamp(raw * out_scale + out_bias, lo, hi), lo = -1 for the normal x/y pair, else 0,
+//       then for an HDR channel (record v2, log_gain g > 0) y = (exp2(g y) - 1) * (1 / (exp2(g) - 1)),
 //       and normal z = sqrt(max(0, 1 - x^2 - y^2)) inserted right after normal y.
 
 #ifndef BCF_MAX_HIDDEN
@@ -38,10 +39,11 @@
 #define BCF_MAX_HIDDEN BCF_N_HIDDEN
 #endif
 
-// Weight record "BCFW" v1 (bcfpipe/decoder.py), at a 4-byte aligned byte offset in the buffer:
-//   word 0 magic 'BCFW' (0x57464342), 1 version (1), 2 n_in (12), 3 n_hidden, 4 n_out,
+// Weight record "BCFW" v1 or v2 (bcfpipe/model/decoder.py), at a 4-byte aligned byte offset:
+//   word 0 magic 'BCFW' (0x57464342), 1 version (1 or 2), 2 n_in (12), 3 n_hidden, 4 n_out,
 //   5 n_halves, then fp16 values from word 6: W1[n_hidden][12], b1[n_hidden], W2[n_out][n_hidden],
-//   b2[n_out], out_scale[n_out], out_bias[n_out]. Value e sits in word 6 + e/2, low half if e even.
+//   b2[n_out], out_scale[n_out], out_bias[n_out], and in v2 log_gain[n_out] (HDR channels).
+//   Value e sits in word 6 + e/2, low half if e even.
 const uint BCF_MAGIC = 0x57464342u;
 const uint BCF_HEADER_WORDS = 6u;
 
@@ -68,7 +70,8 @@ vec4 bcfHalf4(uint base, uint word) {  // four consecutive values starting at an
 // Number of channels bcfDecode* writes for this record: n_out (+1 with a normal), 0 if invalid.
 int bcfChannelCount(BcfMaterial m) {
     uint w0 = m.weightOffset >> 2u;
-    if (bcfWeightWord(w0) != BCF_MAGIC || bcfWeightWord(w0 + 1u) != 1u || bcfWeightWord(w0 + 2u) != 12u)
+    uint version = bcfWeightWord(w0 + 1u);
+    if (bcfWeightWord(w0) != BCF_MAGIC || (version != 1u && version != 2u) || bcfWeightWord(w0 + 2u) != 12u)
         return 0;
     uint nh = bcfWeightWord(w0 + 3u), no = bcfWeightWord(w0 + 4u);
     int extra = m.normalIndex >= 0 ? 1 : 0;
@@ -111,14 +114,18 @@ int bcfDecodeFeatures(BcfMaterial m, vec3 t0, vec3 t1, vec3 t2, vec3 t3, out flo
         a += dot(bcfHalf4(base, row), fa) + dot(bcfHalf4(base, row + 2u), fb) + dot(bcfHalf4(base, row + 4u), fc);
         hid[j] = max(a, 0.0);
     }
-    uint w2 = b1 + nh, b2 = w2 + no * nh, sc = b2 + no, bi = sc + no;
+    uint w2 = b1 + nh, b2 = w2 + no * nh, sc = b2 + no, bi = sc + no, lg = bi + no;
+    bool hdr = bcfWeightWord(w0 + 1u) == 2u;
     int o = 0;
     for (uint c = 0u; c < no; ++c) {
         float a = bcfHalf(base, b2 + c);
         for (uint j = 0u; j < nh; ++j) a += bcfHalf(base, w2 + c * nh + j) * hid[j];
         float y = a * bcfHalf(base, sc + c) + bcfHalf(base, bi + c);
         bool isNormal = m.normalIndex >= 0 && (int(c) == m.normalIndex || int(c) == m.normalIndex + 1);
-        ch[o++] = clamp(y, isNormal ? -1.0 : 0.0, 1.0);
+        y = clamp(y, isNormal ? -1.0 : 0.0, 1.0);
+        float g = hdr ? bcfHalf(base, lg + c) : 0.0;
+        if (g > 0.0) y = (exp2(g * y) - 1.0) * (1.0 / (exp2(g) - 1.0));
+        ch[o++] = y;
         if (isNormal && int(c) == m.normalIndex + 1) {
             float x = ch[o - 2], yy = ch[o - 1];
             ch[o++] = sqrt(max(0.0, 1.0 - x * x - yy * yy));

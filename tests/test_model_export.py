@@ -178,3 +178,32 @@ def test_lod_biases_span_the_reference_lod_range(profile, ref):
     last = [mip_count(r) - 1 - bi for r, bi in zip(res, b)]  # s at which layer i reaches its 4x4 mip
     assert max(last) == np.log2(ref)
     assert last == sorted(last)
+
+
+def test_hdr_record_version_2_and_its_expansion_in_torch_and_onnx():
+    """A record with log gains (HDR channels) is version 2; torch and onnxruntime expand the same
+    channels the same way, and leave the linear ones (g = 0) untouched."""
+    ort = pytest.importorskip("onnxruntime")
+    from dataclasses import replace
+
+    from bcfpipe.model.decoder import to_onnx
+    from bcfpipe.texset import encoding
+
+    base = _weights(7, c=3, hidden=16)
+    assert to_bytes(base)[4] == 1 and base.version == 1
+    w = replace(base, log_gain=np.array([11.546875, 0.0, 3.0], np.float32))
+    data = to_bytes(w)
+    n_halves = int(np.frombuffer(data, "<u4", 1, 20)[0])
+    assert data[4] == 2 and n_halves == int(np.frombuffer(to_bytes(base), "<u4", 1, 20)[0]) + 3
+    back, _ = from_bytes(data)
+    np.testing.assert_array_equal(back.log_gain, w.log_gain)
+    kinds = ("color",) * 3
+    feats = np.random.default_rng(1).uniform(0, 2, (4000, 12)).astype(np.float32)
+    sess = ort.InferenceSession(to_onnx(w, kinds).SerializeToString(), providers=["CPUExecutionProvider"])
+    onnx_out = sess.run(["channels"], {"features": feats})[0]
+    linear = decode_numpy(base, feats, kinds)
+    ours = decode_numpy(w, feats, kinds)
+    np.testing.assert_array_equal(ours[:, 1], linear[:, 1])
+    for c in (0, 2):
+        np.testing.assert_allclose(ours[:, c], encoding.decode(linear[:, c], float(w.log_gain[c])), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(onnx_out, ours, rtol=1e-5, atol=1e-6)

@@ -12,6 +12,7 @@ from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAUL
                             DEFAULT_SEED, FEATURE_INITS, MODEL_FORMAT, PRESETS, PROFILE_NAMES)
 from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, SourceFile, decoder_index
 from bcfpipe.errors import InputError
+from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, group_materials
 
@@ -23,6 +24,10 @@ OVERRIDES = "overrides.usda"
 MATERIALS_DIR = "materials"
 
 ProgressCallback = Callable[[dict], None]
+
+
+#: revision of the HDR output encoding (bcfpipe.texset.encoding), in the key of jobs with float sources
+HDR_ENCODING = 1
 
 
 class BuildError(InputError):
@@ -187,7 +192,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
 
     In it: the bytes of each source file (its XXH3-128) with the semantic and channels read from
     it, the addressing, profile, preset (and its schedule), seed, hidden size, signedness, feature
-    start, --fix-nonfinite, the device class (cpu / cuda train differently) and config.MODEL_FORMAT. Not in it:
+    start, --fix-nonfinite, the device class (cpu / cuda train differently), config.MODEL_FORMAT, and
+    for float sources the HDR encoding's revision (entries trained before it kept linear HDR). Not in it:
     paths, times, meshes and transforms, and the UsdUVTexture scale, bias and colour space, which
     the USD layer applies to the decoded values (the model learns the stored texels).
     """
@@ -203,6 +209,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         "hidden": options.hidden,
         "signed": options.signed,
     }
+    if any(sources[path].format in FLOAT_TYPES for _, path, _ in specs):
+        payload["hdr_encoding"] = HDR_ENCODING  # float sources may hold HDR channels (texset/encoding.py)
     if options.init != DEFAULT_INIT:  # absent for the default, so existing builds keep their names
         payload["init"] = options.init
     if options.fix_nonfinite:

@@ -2,7 +2,7 @@
 
 Folder layout (``material.json`` describes it completely for consumers that do not use bcfpipe):
   T0.dds .. T3.dds   mipmapped BC6H feature layers (mode 11110 blocks), DX10 header
-  weights.bin        the decoder as one BCFW v1 fp16 record (see bcfpipe.decoder)
+  weights.bin        the decoder as one BCFW fp16 record (v1; v2 with HDR channels; bcfpipe.model.decoder)
   decoder.onnx       the decoder with output post-processing: features (N, 12) -> channels (N, c_out)
   material.json      everything needed to decode (bcfpipe.formats.material, schemas/material.schema.json)
 """
@@ -36,7 +36,7 @@ def output_channels(channels: tuple[Channel, ...]) -> tuple[mf.Output, ...]:
         lo, hi = ch.value_range
         out.append(mf.Output(ch.name, ch.semantic, comp, ch.kind, target, (lo, hi), ch.source_channel,
                              ch.source_format or None, reconstructed=False, value_scale=float(ch.value_scale),
-                             value_bias=float(ch.value_bias)))
+                             value_bias=float(ch.value_bias), log_gain=float(ch.log_gain) if ch.log_gain else None))
         if ch.kind == "normal" and comp == "y":
             out.append(mf.Output(f"{ch.semantic}.z", ch.semantic, "z", "normal", "normal.z", (0.0, 1.0), None, None,
                                  reconstructed=True))
@@ -67,7 +67,7 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
                      mode10.DESCRIPTION),
         sampling=mf.Sampling(mc.wrap),
         reference=mf.Reference(ts.width, ts.height, max(ts.width, ts.height).bit_length()),
-        mlp=mf.Mlp(mf.WEIGHTS, 0, len(record), n_in, hidden, n_out, "relu", "fp16", "BCFW v1",
+        mlp=mf.Mlp(mf.WEIGHTS, 0, len(record), n_in, hidden, n_out, "relu", "fp16", f"BCFW v{tm.mlp.version}",
                    tuple(f"T{i}.{c}" for i in range(N_LAYERS) for c in "rgb"),
                    tuple(tm.mlp.out_scale.tolist()), tuple(tm.mlp.out_bias.tolist())),
         outputs=output_channels(ts.channels),

@@ -20,6 +20,8 @@ from bcfpipe.errors import InputError
 __all__ = ["ImageReadError", "Image", "read", "probe", "FLOAT_TYPES"]
 
 FLOAT_TYPES = ("half", "float", "double")
+MAX_TEXELS = 16384 * 16384
+MAX_CHANNELS = 64
 
 
 class ImageReadError(InputError):
@@ -105,6 +107,10 @@ def read(path: str | os.PathLike, *, as_float: bool = False, unassociated_alpha:
                 ok[0] = False
                 raise ImageReadError(f"{shown}: not a 2D image ({spec.width}x{spec.height}x{spec.depth}, "
                                      f"{spec.nchannels} ch)")
+            if spec.width * spec.height > MAX_TEXELS or spec.nchannels > MAX_CHANNELS:
+                ok[0] = False  # a damaged header can claim any size: refuse before allocating it
+                raise ImageReadError(f"{shown}: the header claims {spec.width}x{spec.height} texels of "
+                                     f"{spec.nchannels} channel(s), beyond 16384x16384x{MAX_CHANNELS}")
             data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT if as_float else oiio.UNKNOWN)
             error = inp.geterror() if inp.has_error else ""
             if data is None or error:

@@ -99,6 +99,7 @@ class Output(Record):
     reconstructed: bool
     value_scale: float = 1.0
     value_bias: float = 0.0
+    log_gain: float | None = optional()  # HDR channels only: the decoder's log-domain gain (BCFW v2)
 
 
 @dataclass(frozen=True)

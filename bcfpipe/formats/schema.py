@@ -78,6 +78,10 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                                "[0, 1]; hi - lo and lo for a float channel whose values leave it (HDR, "
                                "negative). Quality figures use hi - lo as the channel's peak.",
     ("Output", "value_bias"): "See value_scale.",
+    ("Output", "log_gain"): "Present for HDR channels only (non-negative float colour beyond 1): the MLP "
+                            "learns t = log2(1 + v (2^g - 1)) / g of the normalised value v, and the "
+                            "decoder returns v = (2^(g t) - 1) / (2^g - 1) after the clamp (weight record "
+                            "BCFW v2). Absent: linear.",
     ("Onnx", "file"): "ONNX file name, relative to the material folder.",
     ("Onnx", "input"): "Input tensor name: float32 (N, n_in) features.",
     ("Onnx", "output"): "Output tensor name: float32 (N, outputs) channels.",

@@ -3,6 +3,8 @@
 Output post-processing, identical in torch, ONNX and GLSL:
   y = clamp(mlp(features) * out_scale + out_bias, lo, hi)   per channel
   lo, hi = (-1, 1) for normal x/y, (0, 1) otherwise
+  y = (exp2(log_gain * y) - 1) * (1 / (exp2(log_gain) - 1))  where log_gain > 0 (HDR channels
+      learnt in a log domain, bcfpipe.texset.encoding; version 2 records only)
   normal z = sqrt(max(0, 1 - x^2 - y^2)) is appended right after normal y.
 
 Weight record (``BCFW`` version 1), little-endian, 4-byte aligned, used for one material's
@@ -19,7 +21,9 @@ Weight record (``BCFW`` version 1), little-endian, 4-byte aligned, used for one 
              fp16     b2[n_out]
              fp16     out_scale[n_out]
              fp16     out_bias[n_out]
+             fp16     log_gain[n_out]     version 2 only: a record with an HDR channel
              zero padding to a multiple of 4 bytes
+A decoder without HDR channels is written as version 1 (byte for byte what it always was).
 The fp16 values start at byte 24, so a shader indexing 32-bit words finds value e in word
 (24/4 + e/2), low half when e is even.
 """
@@ -32,7 +36,9 @@ import numpy as np
 import torch
 
 MAGIC = b"BCFW"
-VERSION = 1
+VERSION = 1  # no HDR channel
+VERSION_LOG = 2  # with log_gain[n_out]
+VERSIONS = (VERSION, VERSION_LOG)
 HEADER = struct.Struct("<4s5I")
 HEADER_BYTES = HEADER.size  # 24
 
@@ -50,10 +56,15 @@ class MlpWeights:
     b2: np.ndarray  # (n_out,)
     out_scale: np.ndarray  # (n_out,)
     out_bias: np.ndarray  # (n_out,)
+    log_gain: np.ndarray | None = None  # (n_out,): 0 linear, > 0 the HDR log domain; None: all linear
 
     @property
     def dims(self) -> tuple[int, int, int]:
         return self.w1.shape[1], self.w1.shape[0], self.w2.shape[0]
+
+    @property
+    def version(self) -> int:
+        return VERSION_LOG if self.log_gain is not None else VERSION
 
     def to_fp16(self) -> "MlpWeights":
         """Round every array to fp16 (kept as float32 so every consumer computes in fp32), after
@@ -65,7 +76,8 @@ class MlpWeights:
         return MlpWeights(*(np.asarray(a, np.float32).astype(np.float16).astype(np.float32) for a in w.arrays()))
 
     def arrays(self) -> tuple[np.ndarray, ...]:
-        return (self.w1, self.b1, self.w2, self.b2, self.out_scale, self.out_bias)
+        gain = () if self.log_gain is None else (self.log_gain,)
+        return (self.w1, self.b1, self.w2, self.b2, self.out_scale, self.out_bias, *gain)
 
     def halves(self) -> np.ndarray:
         return np.concatenate([np.asarray(a, np.float32).reshape(-1) for a in self.arrays()]).astype(np.float16)
@@ -89,7 +101,7 @@ def balance_for_fp16(w: MlpWeights) -> MlpWeights:
     multiplied by it. Powers of two keep every mantissa, and only units or outputs with a value beyond
     fp16's range are touched, so records that already fit are returned unchanged (byte-identical).
     """
-    w1, b1, w2, b2, sc, bi = (np.array(a, np.float32) for a in w.arrays())
+    w1, b1, w2, b2, sc, bi = (np.array(a, np.float32) for a in w.arrays()[:6])
     first = np.maximum(np.abs(w1).max(1, initial=0.0), np.abs(b1))  # per hidden unit
     second = np.abs(w2).max(0, initial=0.0)
     bad = (first > FP16_MAX) | (second > FP16_MAX)
@@ -101,7 +113,7 @@ def balance_for_fp16(w: MlpWeights) -> MlpWeights:
     if bad.any():
         f = np.where(bad, _pow2_split(rows, np.abs(sc)), np.float32(1))
         w2, b2, sc = w2 / f[:, None], b2 / f, sc * f
-    return MlpWeights(w1, b1, w2, b2, sc, bi)
+    return MlpWeights(w1, b1, w2, b2, sc, bi, w.log_gain)
 
 
 def to_bytes(w: MlpWeights) -> bytes:
@@ -110,7 +122,7 @@ def to_bytes(w: MlpWeights) -> bytes:
     h = w.halves()
     body = h.astype("<f2").tobytes()
     body += b"\0" * (-len(body) % 4)
-    return HEADER.pack(MAGIC, VERSION, n_in, hidden, n_out, h.size) + body
+    return HEADER.pack(MAGIC, w.version, n_in, hidden, n_out, h.size) + body
 
 
 def from_bytes(data: bytes, offset: int = 0) -> tuple[MlpWeights, int]:
@@ -118,9 +130,10 @@ def from_bytes(data: bytes, offset: int = 0) -> tuple[MlpWeights, int]:
     if len(data) < offset + HEADER_BYTES:
         raise ValueError(f"weight record at byte {offset} is truncated")
     magic, version, n_in, hidden, n_out, n_halves = HEADER.unpack_from(data, offset)
-    if magic != MAGIC or version != VERSION:
-        raise ValueError(f"no BCFW v{VERSION} weight record at byte {offset} (found {magic!r} v{version})")
-    expect = hidden * n_in + hidden + n_out * hidden + 3 * n_out
+    if magic != MAGIC or version not in VERSIONS:
+        raise ValueError(f"no BCFW v1/v2 weight record at byte {offset} (found {magic!r} v{version})")
+    per_output = 3 if version == VERSION else 4
+    expect = hidden * n_in + hidden + n_out * hidden + per_output * n_out
     if n_halves != expect:
         raise ValueError(f"weight record at byte {offset}: {n_halves} values, expected {expect} for {n_in}-{hidden}-{n_out}")
     size = HEADER_BYTES + 2 * n_halves + (-2 * n_halves % 4)
@@ -131,7 +144,7 @@ def from_bytes(data: bytes, offset: int = 0) -> tuple[MlpWeights, int]:
     if bad:
         raise ValueError(f"weight record at byte {offset}: {bad} of its fp16 values are NaN or infinite")
     parts, i = [], 0
-    for shape in ((hidden, n_in), (hidden,), (n_out, hidden), (n_out,), (n_out,), (n_out,)):
+    for shape in ((hidden, n_in), (hidden,), (n_out, hidden), *((n_out,),) * per_output):
         n = int(np.prod(shape))
         parts.append(h[i:i + n].reshape(shape))
         i += n
@@ -159,13 +172,23 @@ def mlp_raw(params: dict[str, torch.Tensor], feats: torch.Tensor) -> torch.Tenso
     return h @ params["w2"].t() + params["b2"]
 
 
+def expand_log(y: torch.Tensor, log_gain: torch.Tensor) -> torch.Tensor:
+    """HDR channels (gain > 0) from their clamped log-domain value back to linear [0, 1]."""
+    g = log_gain.to(y)
+    hdr = g > 0
+    inv = torch.where(hdr, 1.0 / (torch.exp2(g.double()) - 1.0).to(y), torch.zeros_like(g))
+    return torch.where(hdr, (torch.exp2(g * y) - 1.0) * inv, y)
+
+
 def postprocess(raw: torch.Tensor, out_scale: torch.Tensor, out_bias: torch.Tensor,
-                kinds: tuple[str, ...], clamp: bool = True) -> torch.Tensor:
-    """Scale/bias, clamp, and append normal z (see module docstring)."""
+                kinds: tuple[str, ...], clamp: bool = True, log_gain: torch.Tensor | None = None) -> torch.Tensor:
+    """Scale/bias, clamp, the HDR expansion, and append normal z (see module docstring)."""
     y = raw * out_scale + out_bias
     if clamp:
         lo, hi = (torch.as_tensor(a, device=y.device) for a in output_ranges(kinds))
         y = torch.maximum(torch.minimum(y, hi), lo)
+    if log_gain is not None:
+        y = expand_log(y, torch.as_tensor(log_gain))
     n = normal_xy_index(kinds)
     if n is None:
         return y
@@ -177,7 +200,8 @@ def decode_numpy(w: MlpWeights, feats: np.ndarray, kinds: tuple[str, ...]) -> np
     """Reference float32 evaluation of the whole decoder (used by tests and verify)."""
     t = {k: torch.from_numpy(np.asarray(v, np.float32)) for k, v in zip(("w1", "b1", "w2", "b2"), w.arrays())}
     raw = mlp_raw(t, torch.from_numpy(np.asarray(feats, np.float32)))
-    return postprocess(raw, torch.from_numpy(w.out_scale), torch.from_numpy(w.out_bias), kinds).numpy()
+    gain = torch.from_numpy(np.asarray(w.log_gain, np.float32)) if w.log_gain is not None else None
+    return postprocess(raw, torch.from_numpy(w.out_scale), torch.from_numpy(w.out_bias), kinds, log_gain=gain).numpy()
 
 
 def to_onnx(w: MlpWeights, kinds: tuple[str, ...], name: str = "bcf_decoder"):
@@ -197,8 +221,24 @@ def to_onnx(w: MlpWeights, kinds: tuple[str, ...], name: str = "bcf_decoder"):
         helper.make_node("Mul", ["raw", "out_scale"], ["scaled"]),
         helper.make_node("Add", ["scaled", "out_bias"], ["biased"]),
         helper.make_node("Max", ["biased", "lo"], ["above"]),
-        helper.make_node("Min", ["above", "hi"], ["clamped"]),
+        helper.make_node("Min", ["above", "hi"], ["clamped" if w.log_gain is None else "clamped_t"]),
     ]
+    if w.log_gain is not None:  # HDR: (2^(g y) - 1) * inv where g > 0, y itself where g = 0
+        g = np.asarray(w.log_gain, np.float32)
+        with np.errstate(divide="ignore"):
+            inv = np.where(g > 0, 1.0 / (np.exp2(g.astype(np.float64)) - 1.0), 0.0).astype(np.float32)
+        inits += [numpy_helper.from_array(g, "log_gain"), numpy_helper.from_array(inv, "log_inv"),
+                  numpy_helper.from_array((g <= 0).astype(np.float32), "log_linear"),
+                  numpy_helper.from_array(np.array(2.0, np.float32), "two"),
+                  numpy_helper.from_array(np.array(1.0, np.float32), "log_one")]
+        nodes += [
+            helper.make_node("Mul", ["clamped_t", "log_gain"], ["gy"]),
+            helper.make_node("Pow", ["two", "gy"], ["p2"]),
+            helper.make_node("Sub", ["p2", "log_one"], ["p2m1"]),
+            helper.make_node("Mul", ["p2m1", "log_inv"], ["expanded"]),
+            helper.make_node("Mul", ["clamped_t", "log_linear"], ["kept"]),
+            helper.make_node("Add", ["expanded", "kept"], ["clamped"]),
+        ]
     n = normal_xy_index(kinds)
     n_total = n_out
     if n is None:

@@ -136,7 +136,7 @@ class Renderer:
         if f.weights_offset % 4 or f.weights_offset + 24 > len(data):
             return None
         magic, version, n_in, n_hidden, n_out, _ = np.frombuffer(data, "<u4", 6, f.weights_offset)
-        if (magic, version, n_in) != (0x57464342, 1, 12) or not (0 < n_hidden <= 64 and 0 < n_out < 16):
+        if (magic, n_in) != (0x57464342, 12) or version not in (1, 2) or not (0 < n_hidden <= 64 and 0 < n_out < 16):
             return None
         c_out = int(n_out) + (1 if f.normal_index >= 0 else 0)
         bad = [c.source for c in surface.components if c.source >= c_out]

@@ -17,7 +17,9 @@ Conventions (documented here once, relied on by the sampler, trainer and metrics
   ``value_bias = lo``: the decoder reproduces t, and ``v = t * value_scale + value_bias``
   (material.json ``outputs[].value_scale/value_bias``; the USD layer folds them into each
   target's scale and bias). Quality figures are therefore relative to the channel's own range:
-  an HDR channel's PSNR uses the peak ``hi - lo``. Values beyond fp16's +-65504 cannot be stored by
+  an HDR channel's PSNR uses the peak ``hi - lo``. A non-negative float colour channel beyond 1
+  is, in addition, learnt in a log domain (``Channel.log_gain``, bcfpipe.texset.encoding) that the
+  decoders undo, so it keeps relative precision; ``data`` still holds the linear t. Values beyond fp16's +-65504 cannot be stored by
   any consumer of half-float data and are clamped to it, with a warning.
 * Non-finite texels (NaN, +-Inf) are refused (`NonFiniteError`, naming the file, channel and
   count, as maketx --checknan does) unless ``fix_nonfinite``: then NaN becomes 0 and +-Inf the
@@ -48,6 +50,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from bcfpipe.errors import InputError
+from bcfpipe.texset.encoding import log_gain_for
 
 __all__ = [
     "Semantic", "SEMANTICS", "ALIASES", "semantic_info", "TextureError", "TextureSpec", "Channel",
@@ -191,6 +194,7 @@ class Channel:
     source_format: str = ""  # stored texel type of the source file (OpenImageIO base type, e.g. uint8)
     value_scale: float = 1.0  # source value = stored (decoded) value * value_scale + value_bias
     value_bias: float = 0.0
+    log_gain: float = 0.0  # HDR: learnt in a log domain of this gain (bcfpipe.texset.encoding); 0 linear
 
     @property
     def name(self) -> str:
@@ -331,8 +335,9 @@ def _value_range(col: np.ndarray, ch: Channel, src: _Source) -> tuple[np.ndarray
     lo, hi = float(col.min()), float(col.max())
     if lo >= 0.0 and hi <= 1.0:
         return col, ch
+    gain = log_gain_for(ch.kind, src.is_float, lo, hi)
     lo, hi = min(0.0, lo), max(1.0, hi)
-    return (col - lo) / (hi - lo), replace(ch, value_scale=hi - lo, value_bias=lo)
+    return (col - lo) / (hi - lo), replace(ch, value_scale=hi - lo, value_bias=lo, log_gain=gain)
 
 
 def _open(path: str, shown: str) -> _Source:

@@ -30,7 +30,8 @@ from bcfpipe.config import TrainConfig
 from bcfpipe.model.decoder import MlpWeights
 from bcfpipe.train.feature_init import pca_init
 from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_batch, sample_reference
-from bcfpipe.texset.texture_set import TextureSet
+from bcfpipe.texset import encoding
+from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 PHASES = ("warmup", "constrained", "quantize", "finetune")
 
@@ -200,12 +201,13 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     device = resolve_device(cfg.device)
     mc, preset = cfg.model, cfg.preset
     gen = torch.Generator().manual_seed(cfg.seed)
-    ref = ReferencePyramid.from_texture_set(ts, device)
+    gains = encoding.gains(ts.channels)
+    ref = ReferencePyramid.from_mips(encoding.encode_levels(build_mip_chain(ts.data), gains), device)
     s_max = float(ref.num_levels - 1)
     c = ts.num_channels
     biases = M.lod_biases(mc.resolutions, ts.width, ts.height)
     kinds = tuple(ch.kind for ch in ts.channels)
-    mean = torch.as_tensor(ts.data.reshape(-1, c).mean(0))
+    mean = torch.as_tensor(encoding.encode_levels([ts.data], gains)[0].reshape(-1, c).mean(0))
     mlp = M.init_mlp(mc.n_inputs, mc.hidden, c, gen, device, mean)
     mlp_params = [mlp[k] for k in ("w1", "b1", "w2", "b2")]
     clock = _Clock({"warmup": preset.warmup.steps, "constrained": preset.constrained.steps,
@@ -329,7 +331,8 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     qat["on"] = False
 
     ref_shapes = [tuple(m.shape[1:]) for m in ref.mips]
-    float_mips = (evaluate_levels(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases, ref_shapes)
+    float_mips = (encoding.decode_levels(evaluate_levels(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases,
+                                                         ref_shapes), gains)
                   if keep_float_mips else [])
 
     # phase 3: quantize and freeze
@@ -350,5 +353,6 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     run_phase("finetune", M.cached_level_fn(exact), [], preset.finetune)
 
     w = MlpWeights(*(mlp[k].detach().cpu().numpy().astype(np.float32)
-                     for k in ("w1", "b1", "w2", "b2", "out_scale", "out_bias"))).to_fp16()
+                     for k in ("w1", "b1", "w2", "b2", "out_scale", "out_bias")),
+                   log_gain=gains if np.any(gains > 0) else None).to_fp16()
     return TrainedMaterial(cfg, ts, layers, w, biases, seconds, float_mips, history, samples)

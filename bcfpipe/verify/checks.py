@@ -133,7 +133,7 @@ def check_weights_onnx(m: MaterialDesc) -> Check:
         raise VerifyInputError(f"{m.folder / m.file.onnx.file}: {e}") from None
     inits = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
     bad = []
-    for name, arr in zip(("W1", "b1", "W2", "b2", "out_scale", "out_bias"), w.arrays()):
+    for name, arr in zip(("W1", "b1", "W2", "b2", "out_scale", "out_bias", "log_gain"), w.arrays()):
         o = inits.get(name)
         if o is None or o.shape != arr.shape:
             bad.append(f"{name}: missing or shaped {None if o is None else o.shape} in decoder.onnx")
@@ -141,11 +141,14 @@ def check_weights_onnx(m: MaterialDesc) -> Check:
         diff = int((o.astype(np.float32) != arr).sum())
         if diff:
             bad.append(f"{name}: {diff} value(s) differ")
+    if w.log_gain is None and "log_gain" in inits:
+        bad.append("log_gain: decoder.onnx expands HDR channels, the weight record (v1) does not")
     if m.weights_file != m.folder / m.file.mlp.weights:
         own = m.folder / m.file.mlp.weights
         if own.is_file():
             w_own, _ = from_bytes(own.read_bytes(), m.file.mlp.offset)
-            if any((a != b).any() for a, b in zip(w.arrays(), w_own.arrays())):
+            if len(w.arrays()) != len(w_own.arrays()) or any(
+                    (a != b).any() for a, b in zip(w.arrays(), w_own.arrays())):
                 bad.append(f"record at byte {m.weight_offset} of {m.weights_file.name} differs from {own}")
     where = f"{m.weights_file.name}@{m.weight_offset}"
     return Check("weights", not bad, "; ".join(bad) or f"{where}: all fp16 values equal decoder.onnx's")

@@ -35,6 +35,7 @@ import numpy as np
 
 from bcfpipe.formats.manifest import Quality as Metrics
 from bcfpipe.texset.texture_set import Channel
+from bcfpipe.texset import encoding
 
 __all__ = ["Metrics", "compute_metrics", "psnr_from_mse", "mse_per_mip", "ssim_group", "flip_group"]
 
@@ -162,9 +163,15 @@ def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
                     channels: Sequence[Channel], *, min_size: int = 4,
                     ssim: bool = True, flip: bool = True, masks: Sequence[np.ndarray] | None = None) -> Metrics:
     """PSNR (headline, per mip, per group), SSIM and FLIP of decoded mips against the reference;
-    with coverage ``masks`` (one (H_k, W_k) bool per mip) also the PSNR over covered texels."""
+    with coverage ``masks`` (one (H_k, W_k) bool per mip) also the PSNR over covered texels.
+    An HDR channel (``log_gain`` > 0) is measured in its log domain (bcfpipe.texset.encoding),
+    where equal errors are equal ratios: against the linear peak, every texel below a few
+    percent of it would count for nothing."""
     channels = tuple(channels)
     _check(ref_mips, dec_mips, channels)
+    gains = encoding.gains(channels)
+    if np.any(gains > 0):
+        ref_mips, dec_mips = encoding.encode_levels(ref_mips, gains), encoding.encode_levels(dec_mips, gains)
     use = [k for k, m in enumerate(ref_mips) if min(m.shape[:2]) >= min_size] or list(range(len(ref_mips)))
 
     groups: dict[str, list[int]] = {}

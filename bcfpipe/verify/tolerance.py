@@ -156,12 +156,31 @@ def filter_error(levels: Sequence[Sequence[np.ndarray]], biases: Sequence[float]
     return FilterError(delta, groups, second, total)
 
 
+def _through_log_expansion(g: np.ndarray, cy: np.ndarray, e: np.ndarray, lo: np.ndarray,
+                           hi: np.ndarray) -> np.ndarray:
+    """The bound ``e`` on the clamped log-domain value ``cy``, carried through the HDR expansion
+    v = (2^(g t) - 1) / (2^g - 1) of the channels with g > 0 (bcfpipe.texset.encoding): it is
+    increasing and convex, so the interval's ends bound it; plus exp2's own rounding, which
+    GLSL allows to be (3 + 2 |x|) ulp, on values up to 2^g before the subtraction."""
+    hdr = g > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(hdr, 1.0 / (np.exp2(g) - 1.0), 0.0)
+
+    def expand(t):
+        return np.where(hdr, (np.exp2(g * t) - 1.0) * inv, t)
+
+    up, down = np.minimum(cy + e, hi), np.maximum(cy - e, lo)
+    through = np.maximum(expand(up) - expand(cy), expand(cy) - expand(down))
+    rounding = (8.0 + 2.0 * g * up) * FP32_ULP * np.exp2(g * up) * inv
+    return np.where(hdr, through + rounding + FP32_ULP, e)
+
+
 def output_tolerance(weights, kinds: tuple[str, ...], feats: np.ndarray, fe: FilterError,
                      ref_out: np.ndarray) -> np.ndarray:
     """Per point, per output channel (incl. normal z): bound on |GL - ONNX| (see module docstring)."""
     from bcfpipe.model.decoder import normal_xy_index, output_ranges
 
-    w1, b1, w2, b2, sc, bi = (np.asarray(a, np.float64) for a in weights.arrays())
+    w1, b1, w2, b2, sc, bi = (np.asarray(a, np.float64) for a in weights.arrays()[:6])
     f = feats.astype(np.float64)
     h = f @ w1.T + b1
     r = fe.total @ np.abs(w1).T  # bound on each hidden pre-activation's change
@@ -181,6 +200,8 @@ def output_tolerance(weights, kinds: tuple[str, ...], feats: np.ndarray, fe: Fil
     lo, hi = (np.asarray(a, np.float64) for a in output_ranges(kinds))
     cy = np.clip(y, lo, hi)
     e = np.maximum(np.clip(y + dy, lo, hi) - cy, cy - np.clip(y - dy, lo, hi)) + FP32_ULP
+    if weights.log_gain is not None:
+        e = _through_log_expansion(np.asarray(weights.log_gain, np.float64), cy, e, lo, hi)
     n = normal_xy_index(kinds)
     if n is None:
         return e
