@@ -2,12 +2,14 @@
 measured from the exported files (BC6H DDS + fp16 weights through onnxruntime, in source units
 via material.json's value_scale/value_bias).
 
-    .venv/bin/python benchmarks/bench_hdr.py [--size 256] [--profile tiny] [--quality draft]
+    .venv/bin/python benchmarks/bench_hdr.py [--size 256] [--profile tiny] [--quality draft] [--wrap clamp]
 
 Prints, per mip: mean |log1p(decoded) - log1p(source)| over every texel and channel, the median
 relative error of texels whose source value lies in [1, 10], and the PSNR against the peak.
 The ramp: R rises linearly along x (0..3000), G exponentially along y (expm1(y ln 3001)), B
-exponentially along the diagonal, so every decade from 0.1 to 3,000 holds many texels.
+exponentially along the diagonal, so every decade from 0.1 to 3,000 holds many texels. A ramp
+does not tile: --wrap clamp is its addressing (with repeat, the 3,000 -> 0 seam costs the texels
+beside it).
 """
 from __future__ import annotations
 
@@ -67,6 +69,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--profile", default="tiny")
     ap.add_argument("--quality", default="draft")
+    ap.add_argument("--wrap", default="clamp", choices=("clamp", "repeat"))
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -74,7 +77,8 @@ def main() -> None:
         ramp = hdr_ramp(a.size)
         src = write_exr(tmp / "hdr.exr", ramp)
         p = subprocess.run([sys.executable, "-m", "bcfpipe", "train", f"emissiveColor={src}:rgb", "-o", str(tmp / "out"),
-                            "--profile", a.profile, "--quality", a.quality, "--json"], capture_output=True, text=True)
+                            "--profile", a.profile, "--quality", a.quality, "--wrap", a.wrap, "--json"],
+                           capture_output=True, text=True)
         if p.returncode:
             raise SystemExit(p.stderr)
         import OpenImageIO as oiio
@@ -83,9 +87,11 @@ def main() -> None:
         rows = measure(tmp / "out", stored)
         enc = [o.get("log_gain") for o in json.loads((tmp / "out" / "material.json").read_text())["outputs"]]
     if a.json:
-        print(json.dumps({"size": a.size, "profile": a.profile, "quality": a.quality, "log_gain": enc, "mips": rows}))
+        print(json.dumps({"size": a.size, "profile": a.profile, "quality": a.quality, "wrap": a.wrap, "log_gain": enc,
+                          "mips": rows}))
         return
-    print(f"HDR ramp 0..{PEAK:g}, {a.size}^2, --profile {a.profile} --quality {a.quality}; log gain per output: {enc}")
+    print(f"HDR ramp 0..{PEAK:g}, {a.size}^2, --profile {a.profile} --quality {a.quality} --wrap {a.wrap}; "
+          f"log gain per output: {enc}")
     print(f"{'mip':>3} {'mean |log1p err|':>17} {'median rel err [1,10]':>22} {'texels':>7} {'PSNR/peak':>10}")
     for r in rows:
         print(f"{r['mip']:>3} {r['log1p_error']:>17.4f} {r['median_rel_error_1_10']:>22.2%} {r['texels_1_10']:>7} "

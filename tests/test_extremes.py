@@ -208,3 +208,67 @@ def test_8k_set_trains_within_memory():
     psnr = float(re.search(r"PSNR ([0-9.]+) dB", p.stdout).group(1))
     print(p.stdout)
     assert peak < 14.0 and psnr > 15.0, (peak, psnr)
+
+
+def test_hdr_through_build_usd_verify_decode_and_render(tmp_path):
+    """The HDR encoding end to end in a scene: the build's USD layer, `verify` (GLSL against
+    ONNX), `decode` (source values back, both backends) and `render` (the Sdr node's GLSL decode
+    with the USD scale and bias, against the original EXR drawn as a half-float texture)."""
+    import OpenImageIO as oiio
+    from pxr import Usd
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_hdr import hdr_ramp
+    from test_render import smooth_stage
+
+    root = tmp_path / "scene"
+    root.mkdir()
+    quad = smooth_stage(root)
+    src = write_exr(root / "tex" / "hdr.exr", hdr_ramp(128))
+    stage = Usd.Stage.Open(str(quad))
+    looks = "/World/Looks/Smooth"
+    for name in ("diffuseColorTex", "roughnessTex"):
+        stage.RemovePrim(f"{looks}/{name}")
+    surf = stage.GetPrimAtPath(f"{looks}/Surface")
+    for name in ("diffuseColor", "roughness"):
+        surf.RemoveProperty(f"inputs:{name}")
+    from pxr import Sdf, UsdShade
+
+    tex = UsdShade.Shader.Define(stage, f"{looks}/EmissiveTex")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./tex/hdr.exr")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
+        UsdShade.Shader(stage.GetPrimAtPath(f"{looks}/St")).ConnectableAPI(), "result")
+    for wrap in ("wrapS", "wrapT"):
+        tex.CreateInput(wrap, Sdf.ValueTypeNames.Token).Set("clamp")
+    tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((1 / 3000, 1 / 3000, 1 / 3000, 1))
+    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    UsdShade.Shader(surf).CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
+        tex.ConnectableAPI(), "rgb")
+    UsdShade.Shader(surf).CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set((0.0, 0.0, 0.0))
+    stage.GetRootLayer().Save()
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True, timeout=900)
+
+    out = tmp_path / "out"
+    b = cli("build", str(quad), "-o", str(out), "--profile", "tiny", "--quality", "draft", "--no-cache")
+    assert b.returncode == 0, b.stderr
+    desc = json.loads((out / "materials" / "Smooth" / "material.json").read_text())
+    assert [o["log_gain"] > 11 for o in desc["outputs"]] == [True] * 3
+    built = Usd.Stage.Open(str(out / "quad.bcf.usda"))
+    scale = list(built.GetPrimAtPath(looks).GetAttribute("bcf:outputs:scale").Get())
+    assert scale == pytest.approx([o["value_scale"] / 3000 for o in desc["outputs"]], rel=1e-5)
+    v = cli("verify", str(out))
+    assert v.returncode == 0, v.stdout[-3000:] + v.stderr
+    stored = np.asarray(oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)).reshape(128, 128, 3)
+    for backend in ("glsl", "onnx"):
+        d = cli("decode", str(out), "--material", looks, "--backend", backend, "-o", str(tmp_path / backend))
+        assert d.returncode == 0, d.stderr
+        (exr,) = (tmp_path / backend).glob("emissiveColor*.exr")
+        dec = np.asarray(oiio.ImageBuf(str(exr)).get_pixels(oiio.FLOAT)).reshape(128, 128, 3)
+        assert np.abs(np.log1p(np.maximum(dec, 0)) - np.log1p(stored)).mean() <= 0.08  # relative precision
+    r = cli("render", str(out), "-o", str(tmp_path / "cmp.png"), "--camera", "/World/Cam", "--compare", "--json",
+            "--size", "320x240")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["difference"]["psnr_db"] >= 30.0, r.stdout
