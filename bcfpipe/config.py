@@ -133,12 +133,12 @@ DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
 
 # Version of what training and export produce from the same inputs and options. It is part of
-# every cache key (bcfpipe.build.plan.content_hash): bump it with any change to the trainer, the
+# every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
 MODEL_FORMAT = 3
 
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
-# components with the matching linear decoder (bcfpipe/feature_init.py: sharper fine mips, weaker
+# components with the matching linear decoder (bcfpipe/train/feature_init.py: sharper fine mips, weaker
 # coarse ones; issue #9).
 FEATURE_INITS = ("random", "pca")
 
@@ -178,4 +178,56 @@ class TrainConfig:
     feature_init: str = DEFAULT_INIT  # see FEATURE_INITS
 
     def with_(self, **kw) -> "TrainConfig":
+        return replace(self, **kw)
+
+
+@dataclass(frozen=True)
+class TrainingOptions:
+    """What the user chooses for training, validated once, here, when it is made.
+
+    One field per training option of `bcfpipe train`, `plan` and `build`: the command line adds one
+    click option per field, by name (bcfpipe.cli.options), and hands the record on whole, through
+    the plan (each job keeps its resolved form, bcfpipe.formats.manifest.Options), the executors
+    and the workers, to `bcfpipe.export.fit.make_config`, which makes the `TrainConfig`. A new
+    option is one field here and one click option.
+    """
+
+    profile: str = DEFAULT_PROFILE
+    preset: str = DEFAULT_PRESET
+    hidden: int = DEFAULT_HIDDEN
+    signed: bool = False
+    init: str = DEFAULT_INIT
+    fix_nonfinite: bool = False
+    seed: int = DEFAULT_SEED
+    device: str = DEFAULT_DEVICE
+    threads: int = DEFAULT_THREADS
+    target_psnr: float | None = None
+    bench_data: str | None = None  # a `bcfpipe bench` report to predict --target-psnr from
+
+    def __post_init__(self) -> None:
+        from bcfpipe.errors import InputError
+
+        for problem in self.problems():
+            raise InputError(problem)
+
+    def problems(self) -> list[str]:
+        """What is wrong with these choices, as one-line messages (empty when nothing is)."""
+        out = []
+        if self.profile not in PROFILE_NAMES:
+            out.append(f"unknown profile {self.profile!r}; choose from {', '.join(PROFILE_NAMES)}")
+        if self.preset not in PRESETS:
+            out.append(f"unknown quality preset {self.preset!r}; choose from {', '.join(PRESETS)}")
+        if self.init not in FEATURE_INITS:
+            out.append(f"unknown feature start {self.init!r}; choose from {', '.join(FEATURE_INITS)}")
+        if int(self.hidden) < 1:
+            out.append(f"--hidden must be at least 1, got {self.hidden}")
+        if self.threads is not None and int(self.threads) < 1:
+            out.append("--threads must be at least 1")
+        if self.target_psnr is not None and not (0 < self.target_psnr < float("inf")):
+            out.append(f"--target-psnr must be a positive number of dB, got {self.target_psnr}")
+        if self.bench_data is not None and self.target_psnr is None:
+            out.append("--bench-data is only used with --target-psnr")
+        return out
+
+    def with_(self, **kw) -> "TrainingOptions":
         return replace(self, **kw)

@@ -26,7 +26,7 @@ from common import teapot_specs  # noqa: E402
 from bcfpipe.model import neural as M  # noqa: E402
 from bcfpipe.train import trainer as T  # noqa: E402
 from bcfpipe.config import PRESETS, ModelConfig, TrainConfig  # noqa: E402
-from bcfpipe.train.fit import fit_material  # noqa: E402
+from bcfpipe.export.fit import fit_material  # noqa: E402
 from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
 
 

@@ -35,7 +35,7 @@ def machine() -> dict:
     import torch
 
     from bcfpipe import __version__
-    from bcfpipe.build import cpu_count
+    from bcfpipe.builder import cpu_count
 
     return {"cpu": cpu, "cores": cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
             "bcfpipe": __version__, "platform": platform.platform(),
@@ -53,7 +53,8 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     args = ap.parse_args()
 
-    from bcfpipe.build import build
+    from bcfpipe.builder import build
+    from bcfpipe.config import TrainingOptions
 
     info = machine()
     if not args.json:
@@ -69,8 +70,8 @@ def main() -> None:
         for spec, (j, t) in configs.items():
             with tempfile.TemporaryDirectory(prefix="bcf-bench-") as tmp:
                 t0 = time.perf_counter()
-                res = build(args.scene, Path(tmp) / "out.bcf", jobs=j, threads=t, profile=args.profile,
-                            preset=args.preset)
+                res = build(args.scene, Path(tmp) / "out.bcf", jobs=j,
+                            training=TrainingOptions(threads=t, profile=args.profile, preset=args.preset))
                 wall = time.perf_counter() - t0
             if res.exit_code != 0:
                 sys.exit(f"build failed: {res.failed}")

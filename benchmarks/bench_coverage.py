@@ -78,7 +78,7 @@ def covered_psnr(scene: Path, out: Path, masks_from) -> tuple[float, list[float]
     from bcfpipe.scan.coverage import mask_mips, unpack
     from bcfpipe.scan.texture_sets import local_file
     from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
-    from bcfpipe.verify.metrics import compute_metrics
+    from bcfpipe.texset.metrics import compute_metrics
 
     job = masks_from
     with tempfile.TemporaryDirectory() as tmp:
@@ -97,13 +97,14 @@ def main() -> None:
     ap.add_argument("--preset", default="draft")
     ap.add_argument("--profile", default="auto")
     a = ap.parse_args()
-    from bcfpipe.build import plan
+    from bcfpipe.builder import plan
+    from bcfpipe.config import TrainingOptions
 
     print(f"machine: {machine()}")
     with tempfile.TemporaryDirectory(prefix="bcfcov-") as tmp:
         root = Path(tmp)
         scene = write_scene(root, SETS[a.set])
-        job = plan(scene, profile=a.profile, preset=a.preset).jobs[0]
+        job = plan(scene, TrainingOptions(profile=a.profile, preset=a.preset)).jobs[0]
         print(f"{a.set}: covered fraction {job.covered_fraction:.3f}")
         rows = []
         for flag in ([], ["--no-coverage"]):

@@ -44,20 +44,20 @@ def specs(name: str):
 
 
 def variant_config(ts, variant: str, profile: str, seed: int):
-    from bcfpipe.config import PRESETS, _cpu_preset
-    from bcfpipe.train.fit import make_config
+    from bcfpipe.config import PRESETS, TrainingOptions, _cpu_preset
+    from bcfpipe.export.fit import make_config
 
     if variant == "before":
-        name, cfg = make_config(ts, profile=profile, preset="standard", device="cpu", seed=seed, threads=1)
+        name, cfg = make_config(ts, TrainingOptions(profile=profile, preset="standard", device="cpu", seed=seed))
         legacy = replace(_cpu_preset(800, 4000, 300, 128 * 128), lod_power=1.0, centre_targets=False)
         return name, cfg.with_(preset=legacy, preset_name="before", feature_init="random")
     if variant not in PRESETS:
         raise SystemExit(f"unknown variant {variant!r}: before or one of {', '.join(PRESETS)}")
-    return make_config(ts, profile=profile, preset=variant, device="cpu", seed=seed, threads=1)
+    return make_config(ts, TrainingOptions(profile=profile, preset=variant, device="cpu", seed=seed))
 
 
 def run_variant(set_name: str, variant: str, profile: str, seed: int, out: str) -> dict:
-    from bcfpipe.train.fit import fit_material
+    from bcfpipe.export.fit import fit_material
     from bcfpipe.texset.texture_set import load_texture_set
 
     ts = load_texture_set(specs(set_name))
@@ -75,7 +75,7 @@ def run_variant(set_name: str, variant: str, profile: str, seed: int, out: str) 
 
 def baseline(set_name: str) -> dict:
     from bcfpipe.bench.baselines import encode_texture_set_baseline
-    from bcfpipe.verify.metrics import compute_metrics
+    from bcfpipe.texset.metrics import compute_metrics
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 
     ts = load_texture_set(specs(set_name))

@@ -128,9 +128,10 @@ def main() -> None:
         sys.exit("needs ray: pip install 'bcfpipe[ray]'")
     say = (lambda *a: None) if args.json else (lambda *a: print(*a, flush=True))
     say(f"machine: {machine()}; load average {os.getloadavg()}")
-    from bcfpipe.build.plan import plan
+    from bcfpipe.builder.plan import plan
+    from bcfpipe.config import TrainingOptions
 
-    sources = [Path(s) for s in plan(args.scene, preset=args.quality).sources]
+    sources = [Path(s) for s in plan(args.scene, TrainingOptions(preset=args.quality)).sources]
     blob = max(sources, key=lambda p: p.stat().st_size)
     res: dict = {"machine": machine(), "scene": os.path.relpath(args.scene, REPO), "quality": args.quality,
                  "cpus": args.cpus, "blob": blob.name}

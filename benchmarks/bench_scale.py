@@ -113,8 +113,8 @@ def store_cost(folder: Path, reps: int = 30) -> dict[str, dict]:
     """Median seconds of the Ray driver's store of one job's files (staging + cache), by profile."""
     from types import SimpleNamespace
 
-    from bcfpipe.build.executor import JobResult
-    from bcfpipe.build.ray_executor import _store
+    from bcfpipe.builder.executor import JobResult
+    from bcfpipe.builder.ray_executor import _store
 
     out = {}
     for prof, sizes in JOB_FILES.items():

@@ -18,8 +18,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, teapot_specs  # noqa: E402
 
 from bcfpipe.bench.baselines import encode_texture_set_baseline  # noqa: E402
-from bcfpipe.train.fit import fit_material, make_config  # noqa: E402
-from bcfpipe.verify.metrics import compute_metrics  # noqa: E402
+from bcfpipe.config import TrainingOptions  # noqa: E402
+from bcfpipe.export.fit import fit_material, make_config  # noqa: E402
+from bcfpipe.texset.metrics import compute_metrics  # noqa: E402
 from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set  # noqa: E402
 
 
@@ -46,7 +47,8 @@ def main():
                              seconds=time.perf_counter() - t0, per_mip=m.psnr_per_mip))
             print(f"{name}: {m.psnr:.2f} dB", file=sys.stderr, flush=True)
     for preset in a.presets.split(","):
-        name, cfg = make_config(ts, profile=a.profile, preset=preset, device=a.device, threads=a.threads)
+        name, cfg = make_config(ts, TrainingOptions(profile=a.profile, preset=preset, device=a.device,
+                                                    threads=a.threads))
         t0 = time.perf_counter()
         res, _ = fit_material(ts, a.out / preset, cfg, name)
         m = res.metrics

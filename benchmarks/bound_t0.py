@@ -56,7 +56,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from bcfpipe.bench.baselines import _bilinear_up, encode_texture_set_baseline
-    from bcfpipe.verify.metrics import mse_per_mip, psnr_from_mse
+    from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 
     print(f"machine: {machine()}")

@@ -7,7 +7,7 @@ import pytest
 from bcfpipe.bench.baselines import (
     astc_mips, astcenc_path, bc1_mips, bc4_mips, bc5_mips, encode_texture_set_baseline, pack_texture_set,
 )
-from bcfpipe.verify.metrics import compute_metrics
+from bcfpipe.texset.metrics import compute_metrics
 from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
 
 pytest.importorskip("quicktex", reason="quicktex (the BC1/BC5 encoder) is not installed")

@@ -79,10 +79,10 @@ def test_report_files_and_keys(report: Path) -> None:
 
 
 def test_baselines_match_the_library(report: Path, tmp_path: Path) -> None:
-    """The report's BC row is what bcfpipe.bench.baselines + verify.metrics give on the same set."""
+    """The report's BC row is what bcfpipe.bench.baselines + texset.metrics give on the same set."""
     from bcfpipe.bench.baselines import encode_texture_set_baseline
     from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
-    from bcfpipe.verify.metrics import compute_metrics
+    from bcfpipe.texset.metrics import compute_metrics
 
     s = json.loads((report / R.JSON_FILE).read_text())["sets"][0]
     ts = load_texture_set([TextureSpec.parse(t) for t in textures(tmp_path)])

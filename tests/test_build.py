@@ -1,4 +1,4 @@
-"""Tests for `bcfpipe build` (bcfpipe.pipeline, build_cli, usdout, weightsbuf, schemas/, samples/).
+"""Tests for `bcfpipe build` (bcfpipe.builder, cli/build.py, usd_layer, formats/weights, schemas/, samples/).
 
 Training runs use the tiny profile and the draft preset. The sample scene is built once per module
 (two workers); a second small stage checks failure isolation, de-duplication and ``--json``.
@@ -20,15 +20,16 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
+from bcfpipe.config import TrainingOptions
 from bcfpipe.formats import weights as weightsbuf
-from bcfpipe.build import (MANIFEST, BuildError, MaterialJob, build, plan, root_layer_name)
+from bcfpipe.builder import (MANIFEST, BuildError, MaterialJob, build, plan, root_layer_name)
 from bcfpipe.cli.build import BuildDisplay
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "samples"
 SCHEMAS = REPO / "schemas"
 SCENES = REPO.parent / "shared" / "scenes"
-FAST = {"profile": "tiny", "preset": "draft", "seed": 0}
+FAST = {"training": TrainingOptions(profile="tiny", preset="draft", seed=0)}
 
 
 def run_py(code: str, plugin: bool, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -209,7 +210,7 @@ def test_weights_buffer(sample) -> None:
         e = entries[prim.GetAttribute("bcf:weightsIndex").Get()]
         assert prim.GetAttribute("bcf:weightsOffset").Get() == e.offset
         assert prim.GetAttribute("bcf:weightsSize").Get() == e.size
-        assert weightsbuf.record(data, e.index).dims[2] == prim.GetAttribute("bcf:mlp:outputs").Get()
+        assert weightsbuf.record(data, e.index).n_out == prim.GetAttribute("bcf:mlp:outputs").Get()
 
 
 def test_root_layer(sample) -> None:
@@ -370,7 +371,7 @@ def test_relocation(sample, tmp_path: Path) -> None:
 def test_deterministic(sample, tmp_path: Path) -> None:
     """The same job and seed (and thread count) give byte-identical exported files. In the default
     suite (about 20 s): as a slow test it went stale unseen."""
-    from bcfpipe.build import run_job
+    from bcfpipe.builder import run_job
     from bcfpipe.config import DEFAULT_THREADS
 
     scene, result = sample
@@ -393,7 +394,8 @@ def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
     for job in pa.jobs:
         assert MaterialJob.from_dict(json.loads(json.dumps(job.to_dict()))) == job
     json.dumps(pa.to_dict())
-    assert plan(a, profile="tiny", preset="draft", seed=1).jobs[0].content_hash != pa.jobs[0].content_hash
+    assert plan(a, TrainingOptions(profile="tiny", preset="draft", seed=1)).jobs[0].content_hash != \
+        pa.jobs[0].content_hash
     # --all-materials adds the unbound material
     names = [m.path for m in plan(a, all_materials=True, **FAST).materials if m.decision == "model"]
     assert "/World/Looks/Unused" in names
@@ -624,7 +626,7 @@ def test_teapot_fancy(tmp_path: Path) -> None:
     if not scene.exists():
         pytest.skip(f"needs {scene}")
     out = tmp_path / "Teapot.bcf"
-    result = build(scene, out, variants={"modelVariant": "Fancy"}, preset="draft")
+    result = build(scene, out, variants={"modelVariant": "Fancy"}, training=TrainingOptions(preset="draft"))
     assert result.exit_code == 0
     mats = {m["path"]: m for m in result.manifest.to_json()["materials"]}
     fancy = mats["/Teapot/Materials/PorcelainFlowers"]
@@ -651,3 +653,19 @@ def test_verify_passes_on_the_sample_build(sample) -> None:
         pytest.skip(f"no OpenGL: {e}")
     assert report.exit_code == 0, report.to_dict()
     assert len(report.materials) == 3 and all(m.passed for m in report.materials)
+
+
+def test_size_estimate_equals_a_real_build(sample) -> None:
+    """`bcfpipe scan`'s size estimate (scan/requirements.py, headers from formats/) is the bytes a
+    build writes per material: its four DDS files and its weight record."""
+    from bcfpipe.formats import material as mf
+    from bcfpipe.scan.requirements import estimated_bytes
+
+    _, result = sample
+    for job in result.manifest.to_json()["jobs"]:
+        folder = result.out / "materials" / job["name"]
+        desc = mf.read(folder)
+        written = sum((folder / layer.file).stat().st_size for layer in desc.layers)
+        written += (folder / desc.mlp.weights).stat().st_size
+        assert estimated_bytes(tuple(layer.resolution for layer in desc.layers), desc.mlp.n_out,
+                               desc.mlp.n_hidden) == written, job["name"]

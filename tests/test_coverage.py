@@ -11,7 +11,7 @@ from pxr import Sdf, UsdGeom, UsdShade
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_build import FAST, add_material, new_stage, pattern, write_png  # noqa: E402
 
-from bcfpipe.build import build, plan  # noqa: E402
+from bcfpipe.builder import build, plan  # noqa: E402
 from bcfpipe.scan import coverage as cov  # noqa: E402
 
 

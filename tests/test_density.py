@@ -13,7 +13,7 @@ from pxr import Gf, Sdf, UsdGeom
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_build import FAST, add_material, new_stage, pattern, write_png  # noqa: E402
 
-from bcfpipe.build import plan  # noqa: E402
+from bcfpipe.builder import plan  # noqa: E402
 from bcfpipe.scan.stage import scan_stage  # noqa: E402
 from bcfpipe.scan.texture_sets import group_materials  # noqa: E402
 

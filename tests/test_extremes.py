@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bcfpipe.config import TrainingOptions
 from bcfpipe.texset.texture_set import FP16_MAX, NonFiniteError, load_texture_set
 
 N = 128
@@ -138,7 +139,7 @@ def test_hdr_value_map_folds_into_the_usd_targets(tmp_path):
     so an engine applying bcf:outputs:scale/bias gets source values back."""
     from pxr import Usd
 
-    from bcfpipe.build import build
+    from bcfpipe.builder import build
     from bcfpipe.formats import material as mf
     from test_build import add_material, new_stage
 
@@ -148,7 +149,8 @@ def test_hdr_value_map_folds_into_the_usd_targets(tmp_path):
     add_material(stage, "/World/Looks/Lamp", {"emissiveColor": ("./tex/hdr.exr", "rgb", {"scale": (2.0, 2.0, 2.0, 1.0)})},
                  mesh="/World/Lamp")
     stage.Save()
-    r = build(tmp_path / "scene.usda", tmp_path / "out", profile="tiny", preset="draft", cache=False)
+    r = build(tmp_path / "scene.usda", tmp_path / "out", training=TrainingOptions(profile="tiny", preset="draft"),
+              cache=False)
     assert r.exit_code == 0
     desc = mf.read(tmp_path / "out" / "materials" / "Lamp")
     s = desc.outputs[0].value_scale

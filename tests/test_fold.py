@@ -14,7 +14,7 @@ from pxr import Usd, UsdShade
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_build import FAST, add_material, new_stage, pattern, write_png  # noqa: E402
 
-from bcfpipe.build import build, plan  # noqa: E402
+from bcfpipe.builder import build, plan  # noqa: E402
 from bcfpipe.scan.content import channel_contents, srgb_to_linear  # noqa: E402
 
 VEHICLES = "usdwg_vehicles/USD_Mini_Car_Kit/assets/vehicles/vehicleVariants.usda"
@@ -164,7 +164,7 @@ def test_srgb_decode_is_the_standard_curve():
 def test_a_constant_component_of_a_modelled_input_is_a_channel_minus_one_target(tmp_path):
     """diffuseColor from a texture whose red channel is flat: g and b are decoder outputs, r is a
     target with channel -1 whose value is its bias, in the plan and in the USD layer."""
-    from bcfpipe.build.usd_layer import read_override
+    from bcfpipe.builder.usd_layer import read_override
 
     a = pattern(c=3, seed=0)
     a[..., 0] = 0.4

@@ -19,6 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from bcfpipe.config import TrainingOptions
 from bcfpipe.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -108,12 +109,12 @@ def run_cases(name: str, n: int, make, check, allowed: tuple[type[BaseException]
 @pytest.fixture(scope="module")
 def real_files(tmp_path_factory):
     """Files bcfpipe wrote: a DDS, weight records, material.json and manifest.json of a build."""
-    from bcfpipe.build import build
+    from bcfpipe.builder import build
     from test_build import copy_samples
 
     root = tmp_path_factory.mktemp("fuzz")
     scene = copy_samples(root)
-    r = build(scene, root / "out", profile="tiny", preset="draft", seed=0, cache=False)
+    r = build(scene, root / "out", training=TrainingOptions(profile="tiny", preset="draft", seed=0), cache=False)
     mat = root / "out" / "materials" / r.plan.jobs[0].name
     return {"dds": (mat / "T0.dds").read_bytes(), "dds2": (mat / "T3.dds").read_bytes(),
             "record": (mat / "weights.bin").read_bytes(), "buffer": (root / "out" / "weights.bin").read_bytes(),

@@ -16,12 +16,13 @@ from pathlib import Path
 import pytest
 from pxr import Sdf, Usd, UsdShade
 
-from bcfpipe.build import build
+from bcfpipe.config import TrainingOptions
+from bcfpipe.builder import build
 from bcfpipe.cache import Cache
 from test_build import add_material, new_stage, pattern, write_png
 
 REPO = Path(__file__).resolve().parents[1]
-FAST = {"profile": "tiny", "preset": "draft", "seed": 0}
+FAST = {"training": TrainingOptions(profile="tiny", preset="draft", seed=0)}
 CLI_FAST = ["--profile", "tiny", "--quality", "draft", "--seed", "0"]
 
 

@@ -5,20 +5,21 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import click
 import pytest
 from click.testing import CliRunner
 
-from bcfpipe.build import BuildError, plan
+from bcfpipe.builder import BuildError, plan
 from bcfpipe.cli import main
 from bcfpipe.cli.build import build as build_cmd
-from bcfpipe.cli.options import TRAINING_OPTION_NAMES
+from bcfpipe.config import TrainingOptions
 from bcfpipe.cli.train import train_cmd
 
 
 def test_library_does_not_import_click():
-    code = ("import bcfpipe.build, bcfpipe.scan, bcfpipe.train, bcfpipe.verify, bcfpipe.formats, sys; "
+    code = ("import bcfpipe.builder, bcfpipe.scan, bcfpipe.train, bcfpipe.verify, bcfpipe.formats, sys; "
             "import bcfpipe.bench.run, bcfpipe.bench.report, bcfpipe.bench.decode_cost, bcfpipe.train.rate; "
             "import bcfpipe.render.frames, bcfpipe.render.compare; "
             "assert 'click' not in sys.modules, 'click imported'")
@@ -30,17 +31,29 @@ def _options(cmd: click.Command) -> dict[str, click.Option]:
 
 
 def test_train_and_build_take_the_same_training_options():
+    """The options record and --help agree: every field of config.TrainingOptions is one click
+    option of the same name on `train`, `plan` and `build`, with the record's default."""
+    from dataclasses import MISSING, fields
+
+    from bcfpipe.cli.plan import plan_cmd
+
+    names = [f.name for f in fields(TrainingOptions)]
     train, build = _options(train_cmd), _options(build_cmd)
-    for name in TRAINING_OPTION_NAMES:
+    ctx = click.Context(train_cmd)
+    for f in fields(TrainingOptions):
+        assert f.default is not MISSING and train[f.name].get_default(ctx) == f.default, f.name
+    for cmd in (train, build, _options(plan_cmd)):
+        assert set(names) <= set(cmd)
+    for name in names:
         a, b = train[name], build[name]
         assert (a.opts, a.default, a.is_flag, str(a.type), a.help) == (b.opts, b.default, b.is_flag, str(b.type), b.help)
     help_of = {c: CliRunner().invoke(main, [c, "--help"]).output for c in ("train", "build")}
-    for name in TRAINING_OPTION_NAMES:
+    for name in names:
         for opt in train[name].opts:
             assert opt in help_of["train"] and opt in help_of["build"], opt
     # no other option of either command sets something a training depends on
-    only_train = set(train) - set(TRAINING_OPTION_NAMES)
-    only_build = set(build) - set(TRAINING_OPTION_NAMES)
+    only_train = set(train) - set(names)
+    only_build = set(build) - set(names)
     assert only_train == {"output", "resolution", "wrap", "force", "as_json"}
     # --texel-density and --no-coverage read the scene's meshes (train's --resolution is the first's counterpart)
     # --shard, --executor and --ray-address choose which jobs run and where, not how they train
@@ -61,7 +74,7 @@ def test_scan_reports_the_texture_sets_that_build_trains(shared_scenes):
     for scene in _scenes(shared_scenes):
         r = runner.invoke(main, ["scan", "--json", str(scene)])
         try:
-            bp = plan(scene, device="cpu")
+            bp = plan(scene, TrainingOptions(device="cpu"))
         except BuildError:
             assert r.exit_code == 2, (scene, r.output)
             continue
@@ -72,3 +85,57 @@ def test_scan_reports_the_texture_sets_that_build_trains(shared_scenes):
         assert modelled == {p for s in sets for p in s["materials"]}, scene
         compared += 1
     assert compared >= 10
+
+
+REPO = Path(__file__).resolve().parents[1]
+BASE_IMPORTS = {"config": {"errors"}, "errors": set(), "bc6h": {"errors"}, "formats": {"bc6h", "errors"}}
+
+
+def _bcfpipe_imports(path: Path, module: str):
+    """(line, imported module) for every import of bcfpipe in a file, relative ones resolved."""
+    import ast
+
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                package = module.split(".")[: -1 if path.name != "__init__.py" else None]
+                base = package[: len(package) - node.level + 1]
+                names = [".".join(base + ([node.module] if node.module else []))]
+            else:
+                names = [node.module or ""]
+        else:
+            continue
+        yield from ((node.lineno, n) for n in names if n == "bcfpipe" or n.startswith("bcfpipe."))
+
+
+def test_imports_point_down_the_flow():
+    """docs/architecture.md's order, over every module: a package imports the base and the
+    packages before it in the flow, never one after it."""
+    doc = (REPO / "docs" / "architecture.md").read_text()
+    (line,) = [ln for ln in doc.splitlines() if ln.strip().startswith("flow: ")]
+    flow = line.split(":", 1)[1].split()
+    package = REPO / "bcfpipe"
+    assert {p.name for p in package.iterdir() if p.is_dir() and (p / "__init__.py").exists()} == \
+        set(flow) | {"bc6h", "formats"}, "every subpackage has its place in the documented flow"
+    wrong = []
+    for path in sorted(package.rglob("*.py")):
+        rel = path.relative_to(REPO).with_suffix("")
+        module = ".".join(rel.parts)
+        me = rel.parts[1]
+        if me in ("__init__", "__main__"):  # the package's entry points sit above the flow
+            continue
+        for lineno, name in _bcfpipe_imports(path, module):
+            other = name.split(".")[1] if "." in name else "__init__"
+            if other in (me, "__init__", "__main__"):
+                continue
+            if me in BASE_IMPORTS:
+                ok = other in BASE_IMPORTS[me]
+            elif other in BASE_IMPORTS:
+                ok = True
+            else:
+                ok = me in flow and other in flow and flow.index(other) < flow.index(me)
+            if not ok:
+                wrong.append(f"{path.relative_to(REPO)}:{lineno}: {me} imports {name}")
+    assert not wrong, "\n".join(wrong)

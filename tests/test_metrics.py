@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bcfpipe.verify.metrics import compute_metrics, mse_per_mip, psnr_from_mse
+from bcfpipe.texset.metrics import compute_metrics, mse_per_mip, psnr_from_mse
 from bcfpipe.texset.texture_set import Channel, build_mip_chain
 
 

@@ -13,6 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_build import add_material, new_stage, pattern, write_png  # noqa: E402
 
+from bcfpipe.config import TrainingOptions  # noqa: E402
 from bcfpipe.train import rate  # noqa: E402
 
 
@@ -129,16 +130,16 @@ def test_train_target_met_by_the_probe(tmp_path: Path) -> None:
 def test_build_target_psnr_records_the_choice(tmp_path: Path) -> None:
     import jsonschema
 
-    from bcfpipe.build import build, plan
+    from bcfpipe.builder import build, plan
 
     write_png(tmp_path / "tex" / "c.png", pattern(32, 3))
     stage = new_stage(tmp_path / "scene.usda")
     add_material(stage, "/World/Looks/M", {"diffuseColor": ("./tex/c.png", "rgb", {})}, mesh="/World/Mesh")
     stage.Save()
-    a = plan(tmp_path / "scene.usda", target_psnr=12.0).jobs[0].content_hash
-    assert a != plan(tmp_path / "scene.usda", target_psnr=13.0).jobs[0].content_hash
+    a = plan(tmp_path / "scene.usda", TrainingOptions(target_psnr=12.0)).jobs[0].content_hash
+    assert a != plan(tmp_path / "scene.usda", TrainingOptions(target_psnr=13.0)).jobs[0].content_hash
     assert a != plan(tmp_path / "scene.usda").jobs[0].content_hash
-    r = build(tmp_path / "scene.usda", tmp_path / "out", target_psnr=12.0, jobs=1)
+    r = build(tmp_path / "scene.usda", tmp_path / "out", training=TrainingOptions(target_psnr=12.0), jobs=1)
     assert r.exit_code == 0
     mf = json.loads((tmp_path / "out" / "manifest.json").read_text())
     jsonschema.validate(mf, json.loads((Path(__file__).resolve().parents[1] / "schemas" /

@@ -20,7 +20,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_shard import files, scene  # noqa: E402
 
-from bcfpipe.build.ray_executor import in_flight_limit, resolve_executor  # noqa: E402
+from bcfpipe.builder.ray_executor import in_flight_limit, resolve_executor  # noqa: E402
 
 RAY = Path(sys.executable).with_name("ray")
 # Ray 2.60 listens on every interface even when told 127.0.0.1, so the test cluster takes a token

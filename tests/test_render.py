@@ -15,7 +15,8 @@ import pytest
 from click.testing import CliRunner
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
-from bcfpipe.build import build
+from bcfpipe.config import TrainingOptions
+from bcfpipe.builder import build
 from bcfpipe.cli import main
 from bcfpipe.render import compare as C
 from bcfpipe.render.frames import NEURAL, ORIGINAL, load_scene, render_frames
@@ -23,7 +24,7 @@ from bcfpipe.render.scene import _fan, read_batches
 from bcfpipe.verify import glsl as G
 
 REPO = Path(__file__).resolve().parents[1]
-FAST = {"profile": "tiny", "preset": "draft", "seed": 0}
+FAST = {"training": TrainingOptions(profile="tiny", preset="draft", seed=0)}
 SIZE = (256, 192)
 
 #: Neural against original renders of the smooth material, whose decoder reproduces its textures

@@ -12,7 +12,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_build import add_material, new_stage, pattern, write_png  # noqa: E402
 
-from bcfpipe.build.shard import parse_shard, shard_of  # noqa: E402
+from bcfpipe.builder.shard import parse_shard, shard_of  # noqa: E402
 from bcfpipe.errors import InputError  # noqa: E402
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bcfpipe.config import ModelConfig, PhaseSchedule, Preset, TrainConfig
-from bcfpipe.train.fit import fit_material
+from bcfpipe.export.fit import fit_material
 from bcfpipe.texset.texture_set import Channel, TextureSet, TextureSpec, load_texture_set
 
 # a short schedule for tests: ~2 s of training per run on one core

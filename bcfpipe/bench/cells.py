@@ -17,7 +17,7 @@ import numpy as np
 from bcfpipe.bench import lod_sweep as L
 from bcfpipe.bench.baselines import encode_texture_set_baseline
 from bcfpipe.texset.texture_set import TextureSet
-from bcfpipe.verify.metrics import Metrics, compute_metrics
+from bcfpipe.texset.metrics import Metrics, compute_metrics
 
 __all__ = ["Baseline", "Cell", "baseline_grid", "measure_baseline", "train_cell", "Windows"]
 
@@ -98,12 +98,12 @@ def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], profile: str, preset: 
                threads: int = 1, wrap: str = "repeat",
                progress: Callable[[float], None] | None = None) -> Cell:
     """Train BCf at (profile, preset) into ``out_dir``; measure the exported files."""
-    from bcfpipe.config import DEFAULT_HIDDEN
+    from bcfpipe.config import DEFAULT_HIDDEN, TrainingOptions
     from bcfpipe.export import writer as E
-    from bcfpipe.train.fit import fit_material, make_config
+    from bcfpipe.export.fit import fit_material, make_config
 
-    name, cfg = make_config(ts, profile=profile, preset=preset, device=device, seed=seed,
-                            hidden=hidden or DEFAULT_HIDDEN, wrap=wrap, threads=threads)
+    name, cfg = make_config(ts, TrainingOptions(profile=profile, preset=preset, device=device, seed=seed,
+                                                hidden=hidden or DEFAULT_HIDDEN, threads=threads), wrap)
     curve: list[tuple[float, float]] = []
 
     def on_progress(p) -> None:

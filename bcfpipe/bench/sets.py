@@ -54,7 +54,7 @@ def from_scene(scene: str | os.PathLike, materials: Iterable[str] = (),
                variants: Mapping[str, str] | None = None) -> list[BenchSet]:
     """One set per training job the build would run (materials with the same textures share one);
     ``materials`` keeps the jobs that hold any of those prims (a path or its last component)."""
-    from bcfpipe.build import plan
+    from bcfpipe.builder import plan
 
     bplan = plan(scene, variants, coverage=False)
     want = list(materials)

@@ -12,7 +12,7 @@ Layout under the cache root (``--cache DIR``, ``BCFPIPE_CACHE``, or the platform
 An entry is written into v1/tmp, every file and the folder are fsynced, and the folder is renamed
 into place; entry.json is written last, so a folder without a valid entry.json is never an entry.
 Every lookup re-hashes the files against entry.json: a damaged entry is moved aside and reported,
-never used. The key is the job's content hash (bcfpipe.build.plan): it covers what changes the
+never used. The key is the job's content hash (bcfpipe.builder.plan): it covers what changes the
 trained files and nothing else.
 """
 from __future__ import annotations

@@ -45,7 +45,7 @@ def _fmt_size(n: int | None) -> str:
 class BuildDisplay:
     """Progress of a build: a live rich table on a terminal, plain lines otherwise.
 
-    Call it with the event dicts of `bcfpipe.pipeline.execute`; use as a context manager.
+    Call it with the event dicts of `bcfpipe.builder.executor.execute`; use as a context manager.
     """
 
     STYLE = {"queued": "dim", "running": "cyan", "built": "green", "failed": "red"}
@@ -137,7 +137,7 @@ class BuildDisplay:
 
 def summary_table(manifest: Manifest, report: BuildReport) -> Table:
     """The end-of-run table: one row per material, then totals."""
-    from bcfpipe.build.report import headline_psnr
+    from bcfpipe.builder.report import headline_psnr
 
     tot, rt = manifest.totals, report.totals
     cached = f", {rt.cached} from the cache" if rt.cached else ""
@@ -217,13 +217,10 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
               help="Run `bcfpipe verify` on OUT at the end (GLSL on OpenGL vs ONNX); a failure exits 1.")
 @click.pass_context
 def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str, str], all_materials: bool,
-          profile: str, preset: str, hidden: int, signed: bool, init: str, fix_nonfinite: bool, seed: int,
-          device: str, threads: int, target_psnr: float | None, bench_data: str | None,
           texel_density: float | None, no_coverage: bool,
           jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
           depfile_target: str | None, executor_name: str, ray_address: str | None, shard: str | None,
-          as_json: bool, force: bool,
-          run_verify_after: bool) -> None:
+          as_json: bool, force: bool, run_verify_after: bool, **_training) -> None:
     """Build neural materials for SCENE's textured UsdPreviewSurface materials.
 
     Writes OUT/<scene>.bcf.usda (open this), overrides.usda, weights.bin, manifest.json and
@@ -233,33 +230,30 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     on the same device class give byte-identical outputs. See docs/build.md for make, ninja and
     CMake. Exit codes: 0 all built, 1 a material failed, 2 bad input or OUT refused, 130 interrupted.
     """
-    from bcfpipe.build import build as run_build
-    from bcfpipe.cli.options import check_target
+    from bcfpipe.builder import build as run_build
+    from bcfpipe.cli.options import training_record
 
-    bench = check_target(ctx, target_psnr, bench_data)
+    training, bench = training_record(ctx)
     quiet = bool((ctx.obj or {}).get("quiet"))
     display = None if quiet else BuildDisplay(Console(stderr=True))
     if no_cache and cache_dir is not None:
         raise click.UsageError("--cache and --no-cache contradict each other")
-    from bcfpipe.build.ray_executor import resolve_executor
+    from bcfpipe.builder.ray_executor import resolve_executor
 
     executor_name = resolve_executor(executor_name, ray_address)
     if executor_name == "ray":
-        from bcfpipe.build.ray_executor import require_ray
+        from bcfpipe.builder.ray_executor import require_ray
 
         require_ray()  # without the package: one line, exit 2
     if shard is not None:
-        _shard(ctx, scene, shard, display, quiet, as_json, out=out, no_cache=no_cache, depfile=depfile,
-               verify=run_verify_after, cache=cache_dir, jobs=jobs, threads=threads, variants=variants,
-               all_materials=all_materials, profile=profile, preset=preset, seed=seed, device=device,
-               hidden=hidden, signed=signed, init=init, fix_nonfinite=fix_nonfinite, texel_density=texel_density,
-               coverage=not no_coverage, target_psnr=target_psnr, bench=bench)
+        _shard(ctx, scene, shard, display, quiet, as_json, training, out=out, no_cache=no_cache, depfile=depfile,
+               verify=run_verify_after, cache=cache_dir, jobs=jobs, variants=variants, all_materials=all_materials,
+               texel_density=texel_density, coverage=not no_coverage, bench=bench)
         return
-    options = dict(variants=variants, all_materials=all_materials, profile=profile, preset=preset, hidden=hidden,
-                   signed=signed, init=init, fix_nonfinite=fix_nonfinite, jobs=jobs, threads=threads, device=device,
-                   seed=seed, force=force, texel_density=texel_density, coverage=not no_coverage,
-                   cache=False if no_cache else cache_dir, depfile=depfile, depfile_target=depfile_target,
-                   target_psnr=target_psnr, bench=bench, executor_name=executor_name, ray_address=ray_address)
+    options = dict(training=training, variants=variants, all_materials=all_materials, jobs=jobs, force=force,
+                   texel_density=texel_density, coverage=not no_coverage, cache=False if no_cache else cache_dir,
+                   depfile=depfile, depfile_target=depfile_target, bench=bench, executor_name=executor_name,
+                   ray_address=ray_address)
     if display is None:
         result = run_build(scene, out, **options)
     else:
@@ -287,12 +281,12 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     ctx.exit(code)
 
 
-def _shard(ctx: click.Context, scene: Path, text: str, display, quiet: bool, as_json: bool, *, out, no_cache,
-           depfile, verify, cache, jobs, threads, **plan_options) -> None:
-    """`build --shard I/N`: train one shard into the cache (bcfpipe.build.shard)."""
+def _shard(ctx: click.Context, scene: Path, text: str, display, quiet: bool, as_json: bool, training, *, out,
+           no_cache, depfile, verify, cache, jobs, **plan_options) -> None:
+    """`build --shard I/N`: train one shard into the cache (bcfpipe.builder.shard)."""
     import json
 
-    from bcfpipe.build.shard import parse_shard, train_shard
+    from bcfpipe.builder.shard import parse_shard, train_shard
     from bcfpipe.errors import InputError
 
     shard = parse_shard(text)
@@ -300,11 +294,10 @@ def _shard(ctx: click.Context, scene: Path, text: str, display, quiet: bool, as_
         if given:
             raise InputError(f"--shard trains into the cache and writes nothing else; drop {flag}")
     if display is None:
-        res = train_shard(scene, shard, cache=cache, jobs=jobs, threads=threads, **plan_options)
+        res = train_shard(scene, shard, training, cache=cache, jobs=jobs, **plan_options)
     else:
         with display:
-            res = train_shard(scene, shard, cache=cache, jobs=jobs, threads=threads, progress=display,
-                              **plan_options)
+            res = train_shard(scene, shard, training, cache=cache, jobs=jobs, progress=display, **plan_options)
     if as_json:
         click.echo(json.dumps(res.to_json(), indent=2))
     elif not quiet:

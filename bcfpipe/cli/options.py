@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import click
 
-from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED, DEFAULT_THREADS, FEATURE_INITS, PRESETS, PROFILE_NAMES)
+from dataclasses import fields
 
-# The training options, in --help order; `train` and `build` both take exactly these (a test checks).
+from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
+                            DEFAULT_SEED, DEFAULT_THREADS, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
+
+# The training options, in --help order: one per field of config.TrainingOptions, named as it (a
+# test checks); `train`, `plan` and `build` take exactly these.
 TRAINING_OPTIONS = (
     click.option("--profile", type=click.Choice(PROFILE_NAMES), default=DEFAULT_PROFILE, show_default=True,
                  help="Feature resolutions (paper Table 1, plus 1k++); auto = the largest of 0.5k/1k/2k not "
@@ -40,30 +43,26 @@ TRAINING_OPTIONS = (
                  help="With --target-psnr: predict from the measured cells of this `bcfpipe bench` report "
                       "(its bench.json) for a texture set with the same source files, instead of a probe."),
 )
-TRAINING_OPTION_NAMES = ("profile", "preset", "hidden", "signed", "init", "fix_nonfinite", "seed", "device",
-                         "threads", "target_psnr", "bench_data")
-
-
-def check_target(ctx: click.Context, target_psnr: float | None, bench_data: str | None) -> dict | None:
-    """Refuse --target-psnr together with an explicit --profile or --quality (it chooses them), and
-    --bench-data without it; return the bench report to predict from, if any."""
+def training_record(ctx: click.Context) -> tuple[TrainingOptions, dict | None]:
+    """The command's `TrainingOptions`, made (and so validated) once from its parameters of the same
+    names, and the bench report to predict --target-psnr from, if any. --target-psnr together with
+    an explicit --profile or --quality is refused: it chooses them."""
     from click.core import ParameterSource
 
     from bcfpipe.errors import InputError
 
-    if target_psnr is None:
-        if bench_data is not None:
-            raise InputError("--bench-data is only used with --target-psnr")
-        return None
+    options = TrainingOptions(**{f.name: ctx.params[f.name] for f in fields(TrainingOptions)})
+    if options.target_psnr is None:
+        return options, None
     given = [f"--{'quality' if n == 'preset' else n}" for n in ("profile", "preset")
              if ctx.get_parameter_source(n) not in (ParameterSource.DEFAULT, None)]
     if given:
         raise InputError(f"--target-psnr chooses the profile and preset itself; drop {' and '.join(given)}")
-    if bench_data is None:
-        return None
+    if options.bench_data is None:
+        return options, None
     from bcfpipe.bench.report import read_report
 
-    return read_report(bench_data)
+    return options, read_report(options.bench_data)
 
 
 def training_options(f):

@@ -34,19 +34,17 @@ def plan_json(bplan) -> dict:
 @texel_density_option
 @click.option("--no-coverage", is_flag=True, help="As for build: train on every texel.")
 @click.option("--json", "as_json", is_flag=True, help="Print the plan as one JSON object on stdout.")
-def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, profile: str, preset: str, hidden: int,
-             signed: bool, init: str, fix_nonfinite: bool, seed: int, device: str, threads: int,
-             target_psnr: float | None, bench_data: str | None, texel_density: float | None, no_coverage: bool,
-             as_json: bool) -> None:
+def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, texel_density: float | None,
+             no_coverage: bool, as_json: bool, **_training) -> None:
     """List the training jobs `bcfpipe build SCENE` would run with these options: each job's
     content hash (its cache key), materials, channels, resolution, profile and covered fraction.
     Reads and hashes the textures; trains and writes nothing."""
-    from bcfpipe.build import plan
-    from bcfpipe.cli.options import check_target
+    from bcfpipe.builder import plan
+    from bcfpipe.cli.options import training_record
 
-    bench = check_target(click.get_current_context(), target_psnr, bench_data)
-    bplan = plan(scene, variants, all_materials, profile, preset, seed, device, hidden, signed, init, fix_nonfinite,
-                 texel_density, not no_coverage, target_psnr=target_psnr, bench=bench)
+    training, bench = training_record(click.get_current_context())
+    bplan = plan(scene, training, variants=variants, all_materials=all_materials, texel_density=texel_density,
+                 coverage=not no_coverage, bench=bench)
     if as_json:
         click.echo(json.dumps(plan_json(bplan), indent=2))
         return

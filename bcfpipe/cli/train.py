@@ -86,8 +86,7 @@ def _table(res) -> "object":
 @click.option("-f", "--force", is_flag=True, help="Overwrite a non-empty output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object to stdout (progress stays on stderr).")
 @click.pass_context
-def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, fix_nonfinite, seed, device, threads,
-              target_psnr, bench_data, resolution, wrap, force, as_json) -> None:
+def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_training) -> None:
     """Train one neural material from a texture set and export it to OUTPUT.
 
     Each TEXTURE names a semantic, an image and the channels it contributes:
@@ -106,26 +105,25 @@ def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, fix_
     Exit codes: 0 ok (a missed --target-psnr included: the JSON and stderr say so), 1 training
     failed, 2 bad arguments or unreadable input.
     """
-    from bcfpipe.cli.options import check_target
-    from bcfpipe.train.fit import fit_material, make_config
+    from bcfpipe.cli.options import training_record
+    from bcfpipe.export.fit import fit_material, make_config
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
-    report = check_target(ctx, target_psnr, bench_data)
+    options, report = training_record(ctx)
     out = Path(output)
     if out.exists() and any(out.iterdir()) and not force:
         raise InputError(f"{out} is not empty; pass --force to overwrite")
     try:
         specs = [TextureSpec.parse(t) for t in textures]
-        ts = load_texture_set(specs, resolution=resolution, fix_nonfinite=fix_nonfinite)
-        name, cfg = make_config(ts, profile=profile, preset=preset, device=device, seed=seed, hidden=hidden,
-                                signed=signed, wrap=wrap, threads=threads, init=init)
+        ts = load_texture_set(specs, resolution=resolution, fix_nonfinite=options.fix_nonfinite)
+        name, cfg = make_config(ts, options, wrap)
     except ValueError as e:
         raise InputError(str(e)) from None
     quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False
     outcome = None
     try:
         with _Reporter(quiet) as rep:
-            if target_psnr is None:
+            if options.target_psnr is None:
                 res, _ = fit_material(ts, out, cfg, name, progress=rep)
             else:
                 from bcfpipe.train import rate
@@ -134,18 +132,17 @@ def train_cmd(ctx, textures, output, profile, preset, hidden, signed, init, fix_
                                                                                s.channels)) for s in specs]) \
                     if report is not None else None
                 if report is not None and not anchors:
-                    raise InputError(f"{bench_data} has no texture set with these source files")
+                    raise InputError(f"{options.bench_data} has no texture set with these source files")
 
                 def train_one(st, folder):
-                    n, c = make_config(ts, profile=st.profile, preset=st.preset, device=device, seed=seed,
-                                       hidden=hidden, signed=signed, wrap=wrap, threads=threads, init=init)
+                    n, c = make_config(ts, options.with_(profile=st.profile, preset=st.preset), wrap)
                     return fit_material(ts, folder, c, n, progress=rep)[0]
 
                 def said(text: str) -> None:
                     if not quiet:
                         rep.console.print(f"rate control: training {text}", highlight=False)
 
-                res, outcome = rate.fit_to_target(target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device),
+                res, outcome = rate.fit_to_target(options.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device),
                                                   train_one, out, anchors, said)
                 if not quiet or not outcome.met:
                     click.echo(f"bcfpipe train: {outcome.summary()}", err=True)

@@ -17,7 +17,7 @@ import numpy as np
 
 from bcfpipe.errors import InputError
 
-__all__ = ["ImageReadError", "Image", "read", "probe", "FLOAT_TYPES"]
+__all__ = ["ImageReadError", "MissingChannel", "Image", "read", "probe", "channel_index", "FLOAT_TYPES"]
 
 FLOAT_TYPES = ("half", "float", "double")
 MAX_TEXELS = 16384 * 16384
@@ -26,6 +26,10 @@ MAX_CHANNELS = 64
 
 class ImageReadError(InputError):
     """An image is missing, empty, or damaged (OpenImageIO reported an error): exit code 2."""
+
+
+class MissingChannel(InputError):
+    """A file lacks the channel a texture reads (e.g. ``a`` of an RGB file)."""
 
 
 @dataclass(frozen=True)
@@ -141,3 +145,26 @@ def probe(path: str | os.PathLike) -> tuple[int, int, int, str] | None:
         finally:
             inp.close()
             oiio.geterror()
+
+
+_SLOT = {"r": 0, "g": 1, "b": 2, "a": 3, "x": 0, "y": 1, "z": 2, "w": 3}
+
+
+def channel_index(names: tuple[str, ...], letter: str, path: str) -> int:
+    """The file channel (of a file whose channels are ``names``) that feeds a requested letter
+    (grey replicates into r, g, b; a is the alpha channel)."""
+    n = len(names)
+    alpha = names.index("A") if "A" in names else None
+    slot = _SLOT[letter]
+    if slot == 3:
+        if alpha is not None:
+            return alpha
+        if n >= 4:
+            return 3
+    else:
+        colour = [i for i in range(n) if i != alpha]
+        if len(colour) == 1:
+            return colour[0]
+        if slot < len(colour):
+            return colour[slot]
+    raise MissingChannel(f"{path}: has {n} channel(s) ({','.join(names)}); cannot read channel {letter!r}")

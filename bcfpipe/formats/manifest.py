@@ -1,7 +1,7 @@
 """``manifest.json``: what a ``bcfpipe build`` wrote, material by material.
 
 The contract is this module's records and schemas/manifest.schema.json, which says what each key
-means. The only writer is :func:`bcfpipe.build.assemble.assemble`; readers (``bcfpipe verify``,
+means. The only writer is :func:`bcfpipe.builder.assemble.assemble`; readers (``bcfpipe verify``,
 re-runs of ``bcfpipe build``) go through :func:`read`. Paths are relative to the build folder.
 """
 from __future__ import annotations
@@ -81,7 +81,7 @@ class Folded(Record):
 
 @dataclass(frozen=True)
 class Quality(Record):
-    """Quality of a decoded texture set against its reference (bcfpipe.verify.metrics computes it):
+    """Quality of a decoded texture set against its reference (bcfpipe.texset.metrics computes it):
     PSNR in dB over the mips counted in the mean and per mip (mip 0 first), per channel group;
     SSIM and FLIP at mip 0."""
 

@@ -6,7 +6,7 @@ fallback values and the type checks of UsdValidation. Two ways:
 
 * Environment (any USD tool, usdview, DCCs): ``export PXR_PLUGINPATH_NAME=<bcfpipe>/schemas``
   (``os.pathsep``-separated list; append to an existing value).
-* In-process: ``bcfpipe.schema.register()`` *before* the first stage is opened or any schema is
+* In-process: ``bcfpipe.formats.usd_schema.register()`` *before* the first stage is opened or any schema is
   queried. USD's schema registry is built once per process, so a later registration is not seen
   (``register`` then returns False).
 
@@ -100,3 +100,12 @@ def register_shader_defs() -> list[str]:
                 registry.AddDiscoveryResult(result)
         ids.append(ident)
     return ids
+
+
+_COMPONENTS = {"r": 0, "g": 1, "b": 2, "x": 0, "y": 1, "z": 2}
+
+
+def component_index(target: str) -> int | None:
+    """The vector component a ``bcf:outputs:targets`` entry names (diffuseColor.g -> 1, normal.z -> 2),
+    None for a scalar input."""
+    return _COMPONENTS.get(target.rpartition(".")[2]) if "." in target else None

@@ -7,39 +7,21 @@ Output post-processing, identical in torch, ONNX and GLSL:
       learnt in a log domain, bcfpipe.texset.encoding; version 2 records only)
   normal z = sqrt(max(0, 1 - x^2 - y^2)) is appended right after normal y.
 
-Weight record (``BCFW`` version 1), little-endian, 4-byte aligned, used for one material's
-``weights.bin`` and as the per-material record inside the combined build buffer:
-  offset 0   char[4]  magic "BCFW"
-  offset 4   u32      version (1)
-  offset 8   u32      n_in   (12)
-  offset 12  u32      n_hidden
-  offset 16  u32      n_out  (model channels c, before normal z)
-  offset 20  u32      n_halves: count of fp16 values that follow
-  offset 24  fp16     W1[n_hidden][n_in]   row-major (hidden unit j's weights contiguous)
-             fp16     b1[n_hidden]
-             fp16     W2[n_out][n_hidden]
-             fp16     b2[n_out]
-             fp16     out_scale[n_out]
-             fp16     out_bias[n_out]
-             fp16     log_gain[n_out]     version 2 only: a record with an HDR channel
-             zero padding to a multiple of 4 bytes
-A decoder without HDR channels is written as version 1 (byte for byte what it always was).
-The fp16 values start at byte 24, so a shader indexing 32-bit words finds value e in word
-(24/4 + e/2), low half when e is even.
+The weight record (``BCFW``) that holds them, one per material and inside a build's combined
+buffer, is laid out in `bcfpipe.formats.weights`: version 1, or version 2 when a channel is HDR
+(its log_gain array); a decoder without HDR channels is written as version 1, byte for byte what
+it always was. fp16 value e sits in 32-bit word (24/4 + e/2), low half when e is even.
 """
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-MAGIC = b"BCFW"
-VERSION = 1  # no HDR channel
-VERSION_LOG = 2  # with log_gain[n_out]
-VERSIONS = (VERSION, VERSION_LOG)
-HEADER = struct.Struct("<4s5I")
+from bcfpipe.formats.weights import (RECORD_HEADER as HEADER, RECORD_MAGIC as MAGIC, RECORD_VERSION as VERSION,
+                                     RECORD_VERSION_LOG as VERSION_LOG, record_values)
+
 HEADER_BYTES = HEADER.size  # 24
 
 ONNX_INPUT = "features"
@@ -127,28 +109,14 @@ def to_bytes(w: MlpWeights) -> bytes:
 
 def from_bytes(data: bytes, offset: int = 0) -> tuple[MlpWeights, int]:
     """Parse one weight record at ``offset``; returns the weights and the record's byte size."""
-    if len(data) < offset + HEADER_BYTES:
-        raise ValueError(f"weight record at byte {offset} is truncated")
-    magic, version, n_in, hidden, n_out, n_halves = HEADER.unpack_from(data, offset)
-    if magic != MAGIC or version not in VERSIONS:
-        raise ValueError(f"no BCFW v1/v2 weight record at byte {offset} (found {magic!r} v{version})")
-    per_output = 3 if version == VERSION else 4
-    expect = hidden * n_in + hidden + n_out * hidden + per_output * n_out
-    if n_halves != expect:
-        raise ValueError(f"weight record at byte {offset}: {n_halves} values, expected {expect} for {n_in}-{hidden}-{n_out}")
-    size = HEADER_BYTES + 2 * n_halves + (-2 * n_halves % 4)
-    if len(data) < offset + size:
-        raise ValueError(f"weight record at byte {offset} is truncated")
-    h = np.frombuffer(data, dtype="<f2", count=n_halves, offset=offset + HEADER_BYTES).astype(np.float32)
-    bad = int((~np.isfinite(h)).sum())
-    if bad:
-        raise ValueError(f"weight record at byte {offset}: {bad} of its fp16 values are NaN or infinite")
+    head, h = record_values(data, offset)
+    n_in, hidden, n_out = head.dims
     parts, i = [], 0
-    for shape in ((hidden, n_in), (hidden,), (n_out, hidden), *((n_out,),) * per_output):
+    for shape in ((hidden, n_in), (hidden,), (n_out, hidden), *((n_out,),) * (3 if head.version == VERSION else 4)):
         n = int(np.prod(shape))
         parts.append(h[i:i + n].reshape(shape))
         i += n
-    return MlpWeights(*parts), size
+    return MlpWeights(*parts), head.size
 
 
 def output_ranges(kinds: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

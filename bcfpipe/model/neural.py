@@ -72,12 +72,6 @@ def blocks_to_image(texels: torch.Tensor, width: int, height: int) -> torch.Tens
     return texels.reshape(by, bx, 4, 4, LAYER_CHANNELS).permute(4, 0, 2, 1, 3).reshape(LAYER_CHANNELS, height, width)
 
 
-def image_to_blocks(img: torch.Tensor) -> torch.Tensor:
-    """(3, H, W) -> (n, 16, 3) in row-major block order (inverse of :func:`blocks_to_image`)."""
-    c, h, w = img.shape
-    return img.reshape(c, h // 4, 4, w // 4, 4).permute(1, 3, 2, 4, 0).reshape(-1, 16, c)
-
-
 def init_free(cfg: ModelConfig, gen: torch.Generator, device: torch.device) -> list[list[torch.Tensor]]:
     """Phase-1 parameters: uniform in the endpoint range that decodes to about [0.03, 1.7]
     (unsigned) or [-1, 1] (signed), where the MLP's inputs are well scaled."""

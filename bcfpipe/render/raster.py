@@ -151,7 +151,7 @@ class Renderer:
         if key in self._originals:
             return self._originals[key]
         from bcfpipe.formats import images
-        from bcfpipe.texset.texture_set import source_channel_index
+        from bcfpipe.formats.images import channel_index as source_channel_index
 
         im = images.read(local_file(path, self._tmp.name), as_float=True, name=path)
         px, names = im.pixels, im.names

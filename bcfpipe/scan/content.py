@@ -81,7 +81,7 @@ def content_of(path: str, letter: str, cache: dict, file_hash: str = "") -> Chan
     """The content of the file channel that a UsdUVTexture output letter (r, g, b, a) reads,
     with the texture-set loader's channel mapping; each file is read once per ``cache``, and not
     at all when ``cache[FACTS]`` holds the facts of its ``file_hash`` (XXH3-128 of its bytes)."""
-    from bcfpipe.texset.texture_set import source_channel_index
+    from bcfpipe.formats.images import channel_index as source_channel_index
 
     key = (path, "content")
     if key not in cache:
@@ -112,7 +112,7 @@ def sample_at(path: str, letter: str, st: tuple[float, float], wrap: str, cache:
     """The value (stored units) that a UsdUVTexture reading ``path`` gives at one ``st``: bilinear
     between texel centres, v = 1 - t, repeat or clamp addressing (mip 0: a constant st has no
     footprint)."""
-    from bcfpipe.texset.texture_set import source_channel_index
+    from bcfpipe.formats.images import channel_index as source_channel_index
 
     key = (path, "texels")
     if key not in cache:

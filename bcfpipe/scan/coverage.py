@@ -121,3 +121,21 @@ def unpack(text: str, width: int, height: int) -> np.ndarray:
 
 def digest(mask: np.ndarray) -> str:
     return xxhash.xxh3_128_hexdigest(np.packbits(mask, axis=None).tobytes() + f"{mask.shape}".encode())
+
+
+def job_coverage(models, size: tuple[int, int], wrap: str) -> tuple[str | None, float | None, str | None]:
+    """(packed mask, covered fraction, digest) of the texels the members' meshes read, or Nones when
+    a member has no uv triangles to rasterise or every texel is read."""
+    w, h = size
+    if w < 1 or h < 1:
+        return None, None, None
+    mask = np.zeros((h, w), bool)
+    for mm in models:
+        meshes = mm.density.meshes if mm.density is not None else ()
+        if not meshes or mm.density.notes:
+            return None, None, None
+        for m in meshes:
+            mask |= rasterize(m.uv_triangles, w, h, wrap)
+    if mask.all():
+        return None, None, None
+    return pack(mask), float(mask_mips(mask, 1, wrap)[0].mean()), digest(mask)

@@ -16,10 +16,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Iterable
 
 import numpy as np
 
 from bcfpipe.scan.values import numbers
+
+if TYPE_CHECKING:
+    from bcfpipe.formats.manifest import Options
+    from bcfpipe.scan.texture_sets import SourceFile
 
 __all__ = ["MeshDensity", "MaterialDensity", "mesh_areas", "material_density", "required_resolution"]
 
@@ -195,3 +200,38 @@ def material_bindings(stage, gprims) -> dict[str, list[tuple[object, np.ndarray 
             if rest is None or len(rest):
                 out.setdefault(definition_path(mat.GetPrim()), []).append((g, rest))
     return out
+
+
+def job_size(sources: Iterable[SourceFile], resolution: int | None) -> tuple[int, int]:
+    """(width, height) of a texture set: its sources' common size, or, under a density cap, that
+    size scaled so that its larger side is ``resolution``."""
+    from bcfpipe.scan.texture_sets import common_resolution
+
+    sizes = [(s.width, s.height) for s in sources]
+    if not sizes or any(w < 1 or h < 1 for w, h in sizes):  # an unreadable header: training will say why
+        return 0, 0
+    w, h = common_resolution(sizes)
+    if resolution is None:
+        return w, h
+    f = resolution / max(w, h)
+    return max(1, int(w * f)), max(1, int(h * f))
+
+
+def density_options(options: Options, models) -> Options:
+    """The job's options under ``options.texel_density``: the largest resolution any member needs
+    (no cap when a member has no density figure, or needs the source itself); the profile drops to
+    what fits that resolution when it asked for more."""
+    from dataclasses import replace
+
+    from bcfpipe.config import PROFILES
+
+    if options.texel_density is None:
+        return options
+    needs = [required_resolution(mm.density, options.texel_density) if mm.density else None for mm in models]
+    if not needs or any(n is None for n in needs):
+        return options
+    res = max(needs)
+    profile = options.profile
+    if profile != "auto" and PROFILES[profile][0] > res:
+        profile = "auto"
+    return replace(options, resolution=res, profile=profile)

@@ -7,25 +7,22 @@ from __future__ import annotations
 from dataclasses import replace
 
 from bcfpipe.config import DEFAULT_HIDDEN, DEFAULT_PROFILE, mip_count, resolve_profile
+from bcfpipe.formats import dds, weights
 from bcfpipe.formats.manifest import Options
+from bcfpipe.scan.coverage import job_coverage
+from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.texture_sets import Grouping, MaterialModel, decoder_index
-
-DDS_HEADER_BYTES = 148  # magic + DDS_HEADER + DDS_HEADER_DXT10
-WEIGHT_HEADER_BYTES = 24
-
 
 def estimated_bytes(resolutions, n_out: int, hidden: int) -> int:
     """Bytes of a built material as the manifest counts them: the four BC6H DDS files (one byte a
-    texel, every mip down to 4x4) and its fp16 weight record."""
-    features = sum(DDS_HEADER_BYTES + sum(max(4, r >> k) ** 2 for k in range(mip_count(r))) for r in resolutions)
-    halves = hidden * 12 + hidden + n_out * hidden + 3 * n_out
-    return features + WEIGHT_HEADER_BYTES + 2 * halves + (2 * halves) % 4
+    texel, every mip down to 4x4) and its fp16 weight record (version 1: an HDR channel adds
+    n_out values, which a scan cannot know before decoding)."""
+    features = sum(dds.HEADER_BYTES + sum(max(4, r >> k) ** 2 for k in range(mip_count(r))) for r in resolutions)
+    return features + weights.record_size(weights.record_halves(12, hidden, n_out))
 
 
 def _job(mm: MaterialModel, members, options: Options) -> dict:
     """What `bcfpipe build` would do with this texture set, by the rules `plan` applies."""
-    from bcfpipe.build.plan import density_options, job_coverage, job_size
-
     o = density_options(options, members)
     spec_sources = [mm.sources[p] for p in dict.fromkeys(path for _, path, _ in mm.specs)]
     size = max(job_size(spec_sources, None))

@@ -28,14 +28,6 @@ PREVIEW_SURFACE_INPUTS: dict[str, Any] = {
 }
 
 DECISION_MODEL, DECISION_SKIP = "model", "skip"
-REASONS = (
-    "materialx-only",
-    "not-preview-surface",
-    "unbound",
-    "no-textures",
-    "unresolvable-file",
-    "scan-error",
-)
 
 
 class ScanError(InputError):

@@ -3,14 +3,16 @@ grouping of materials with identical texture sets into one training job. `bcfpip
 `bcfpipe build` both read the scene through this module, so they agree on what is modelled."""
 from __future__ import annotations
 
+import math
 import os
 import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import TYPE_CHECKING, Iterable, Mapping, Sequence
 
-from bcfpipe.errors import InputError, one_line
+from bcfpipe.errors import one_line
+from bcfpipe.formats.images import ImageReadError
 
 import xxhash
 
@@ -63,6 +65,24 @@ def read_asset(path: str) -> bytes:
     if asset is None:
         raise OSError(f"cannot open {path}")
     return bytes(asset.GetBuffer())
+
+
+def _nearest_pow2(n: int) -> int:
+    """Nearest power of two in log scale (1280 -> 1024, 1536 -> 2048, 2832 -> 2048)."""
+    return 1 << max(0, round(math.log2(n)))
+
+
+def common_resolution(sizes: Iterable[tuple[int, int]]) -> tuple[int, int]:
+    """The default common (width, height) of a texture set.
+
+    Per axis independently: the largest source size, rounded to the nearest power of two in log
+    scale (1280x1024 -> 1024x1024, 2048 stays 2048, 4256x2832 -> 4096x2048). Non-square sets stay
+    non-square.
+    """
+    sizes = list(sizes)
+    if not sizes:
+        raise ValueError("no texture sizes given")
+    return _nearest_pow2(max(w for w, _ in sizes)), _nearest_pow2(max(h for _, h in sizes))
 
 
 def local_file(path: str, tmp_dir: str | os.PathLike) -> str:
@@ -168,8 +188,6 @@ class MaterialModel:
     @property
     def source_size(self) -> tuple[int, int]:
         """The texture set's common (width, height), as the loader will resample it."""
-        from bcfpipe.texset.texture_set import common_resolution
-
         sizes = [(s.width, s.height) for s in self.sources.values() if s.width and s.height]
         return common_resolution(sizes) if sizes else (0, 0)
 
@@ -193,7 +211,6 @@ class Canonical:
 def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash: str = ""):
     """The channel's content, or, for a file whose texels cannot be read, a content that is neither
     constant nor a duplicate of anything (training will report the file)."""
-    from bcfpipe.formats.images import ImageReadError
     from bcfpipe.scan.content import ChannelContent, content_of
 
     try:
@@ -208,7 +225,6 @@ def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash
 def _at(path: str, letter: str, st, wraps, cache: dict, warnings: list[str], content):
     """A constant content holding the texture's value at ``st`` (the ``unread`` fold), or
     ``content`` unchanged when the texels cannot be read."""
-    from bcfpipe.formats.images import ImageReadError
     from bcfpipe.scan.content import ChannelContent, sample_at
 
     wrap = "clamp" if all(w == "clamp" for w in wraps) else "repeat"
@@ -401,8 +417,8 @@ class Grouping:
     """The modelled materials of a scan, as texture-set groups; ``instanced`` ones cannot be
     overridden, ``failed`` ones ({path: message}) had unreadable textures, and ``constant`` ones
     ({path: model}) have only constant channels, so their values replace them and nothing trains.
-    ``unreadable`` ({path: message}, a subset of ``failed``) are those whose input is the user's to
-    fix (a damaged or missing file, a channel it lacks): a build refuses them (exit code 2)."""
+    ``unreadable`` ({path: message}, a subset of ``failed``) are those whose image is damaged or
+    missing: the user's to fix, and a build refuses them (exit code 2)."""
 
     groups: tuple[TextureSetGroup, ...]
     instanced: frozenset[str]
@@ -444,7 +460,7 @@ def group_materials(scene, variants: Mapping[str, str], materials: Sequence["Mat
             continue
         try:
             mm = material_model(ms, cache, digest, canonical, fold)
-        except InputError as exc:
+        except ImageReadError as exc:
             failed[ms.path] = f"cannot read textures: {one_line(exc)}"
             unreadable[ms.path] = str(exc)
             continue

@@ -53,28 +53,24 @@ def gains(channels) -> np.ndarray:
     return np.array([getattr(c, "log_gain", 0.0) for c in channels], np.float32)
 
 
-def encode_levels(levels, g: np.ndarray) -> list[np.ndarray]:
-    """Each (H, W, c) level with every channel in its learnt domain. Mips are filtered in the linear
-    domain first (as a GPU filters texels), then encoded."""
+def _map_levels(levels, g: np.ndarray, fn) -> list[np.ndarray]:
     if not np.any(g > 0):
         return list(levels)
     out = []
     for m in levels:
         m = np.array(m, np.float32)
         for c in np.nonzero(g > 0)[0]:
-            m[..., c] = encode(m[..., c], float(g[c]))
+            m[..., c] = fn(m[..., c], float(g[c]))
         out.append(m)
     return out
+
+
+def encode_levels(levels, g: np.ndarray) -> list[np.ndarray]:
+    """Each (H, W, c) level with every channel in its learnt domain. Mips are filtered in the linear
+    domain first (as a GPU filters texels), then encoded."""
+    return _map_levels(levels, g, encode)
 
 
 def decode_levels(levels, g: np.ndarray) -> list[np.ndarray]:
     """Inverse of `encode_levels`."""
-    if not np.any(g > 0):
-        return list(levels)
-    out = []
-    for m in levels:
-        m = np.array(m, np.float32)
-        for c in np.nonzero(g > 0)[0]:
-            m[..., c] = decode(m[..., c], float(g[c]))
-        out.append(m)
-    return out
+    return _map_levels(levels, g, decode)

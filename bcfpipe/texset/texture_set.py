@@ -41,15 +41,16 @@ from __future__ import annotations
 
 
 import logging
-import math
 import os
 import re
 from dataclasses import dataclass, field, replace
-from typing import Iterable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from bcfpipe.errors import InputError
+from bcfpipe.formats.images import channel_index as source_channel_index
+from bcfpipe.scan.texture_sets import common_resolution
 from bcfpipe.texset.encoding import log_gain_for
 
 __all__ = [
@@ -249,24 +250,6 @@ class TextureSet:
 # loading
 
 
-def _nearest_pow2(n: int) -> int:
-    """Nearest power of two in log scale (1280 -> 1024, 1536 -> 2048, 2832 -> 2048)."""
-    return 1 << max(0, round(math.log2(n)))
-
-
-def common_resolution(sizes: Iterable[tuple[int, int]]) -> tuple[int, int]:
-    """The default common (width, height) of a texture set.
-
-    Per axis independently: the largest source size, rounded to the nearest power of two in log
-    scale (1280x1024 -> 1024x1024, 2048 stays 2048, 4256x2832 -> 4096x2048). Non-square sets stay
-    non-square.
-    """
-    sizes = list(sizes)
-    if not sizes:
-        raise ValueError("no texture sizes given")
-    return _nearest_pow2(max(w for w, _ in sizes)), _nearest_pow2(max(h for _, h in sizes))
-
-
 def _is_pow2(n: int) -> bool:
     return n >= 1 and (n & (n - 1)) == 0
 
@@ -353,27 +336,12 @@ def _open(path: str, shown: str) -> _Source:
 
 
 def _source_index(src: _Source, letter: str) -> int:
-    return source_channel_index(src.names, letter, src.path)
+    from bcfpipe.formats.images import MissingChannel
 
-
-def source_channel_index(names: tuple[str, ...], letter: str, path: str) -> int:
-    """The file channel (of a file whose channels are ``names``) that feeds a requested letter
-    (grey replicates into r, g, b; a is the alpha channel)."""
-    n = len(names)
-    alpha = names.index("A") if "A" in names else None
-    slot = _SLOT[letter]
-    if slot == 3:
-        if alpha is not None:
-            return alpha
-        if n >= 4:
-            return 3
-    else:
-        colour = [i for i in range(n) if i != alpha]
-        if len(colour) == 1:
-            return colour[0]
-        if slot < len(colour):
-            return colour[slot]
-    raise TextureError(f"{path}: has {n} channel(s) ({','.join(names)}); cannot read channel {letter!r}")
+    try:
+        return source_channel_index(src.names, letter, src.path)
+    except MissingChannel as exc:
+        raise TextureError(str(exc)) from None
 
 
 def _resampled(src: _Source, width: int, height: int) -> np.ndarray:

@@ -33,7 +33,6 @@ from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_bat
 from bcfpipe.texset import encoding
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
-PHASES = ("warmup", "constrained", "quantize", "finetune")
 
 
 @dataclass(frozen=True)

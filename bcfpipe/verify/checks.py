@@ -11,7 +11,7 @@ For every material (one exported folder, or every material of a build) the check
 ``openimageio`` OpenImageIO reads every mip of every DDS to the same fp16 bits as bcfpipe.bc6h.decode.
 ``glsl``       glsl/bcf_decode.comp, run through OpenGL (moderngl on EGL: the GPU driver, or Mesa
                llvmpipe), against an independent path: features sampled in numpy/torch from the DDS
-               decoded by bcfpipe.bc6h.decode (bcfpipe.sampling conventions) fed to decoder.onnx
+               decoded by bcfpipe.bc6h.decode (bcfpipe.model.sampling conventions) fed to decoder.onnx
                through onnxruntime. Sampled at a grid of (u, v, s) with texel centres and edges of
                every level of every layer, uv across and far beyond the borders (repeat / clamp),
                s < 0 (magnification), integer and fractional s, s past every layer's last mip, and

@@ -18,7 +18,7 @@ def check_usd_values(root: Path, manifest: mfst.Manifest, material: mfst.Materia
     """Problems with the composed values of ``material``'s constants (empty: all as recorded)."""
     from pxr import UsdShade
 
-    from bcfpipe.build.usd_layer import component_index
+    from bcfpipe.formats.usd_schema import component_index
 
     prim = stage.GetPrimAtPath(material.path)
     if not prim:
@@ -45,7 +45,7 @@ def check_source_constancy(root: Path, material: mfst.Material) -> list[str]:
     """Every texel of each channel folded as constant lies within one step of its stored value."""
     from bcfpipe.formats import images
     from bcfpipe.scan.texture_sets import local_file, package_split
-    from bcfpipe.texset.texture_set import source_channel_index
+    from bcfpipe.formats.images import channel_index as source_channel_index
 
     problems = []
     for f in material.folded:

@@ -12,18 +12,17 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Mapping
 
-from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED)
+from bcfpipe.config import TrainingOptions
 from bcfpipe.errors import EXIT_OK, WorkFailed
-from bcfpipe.build.assemble import assemble, default_out
-from bcfpipe.build.depfile import dependencies, write as write_depfile
-from bcfpipe.build.executor import JobResult, execute
-from bcfpipe.build.report import make_report
-from bcfpipe.build.sync import OUT_LOCK, STAGING_PREFIX, install, is_incomplete
+from bcfpipe.builder.assemble import assemble, default_out
+from bcfpipe.builder.depfile import dependencies, write as write_depfile
+from bcfpipe.builder.executor import JobResult, execute
+from bcfpipe.builder.report import make_report
+from bcfpipe.builder.sync import OUT_LOCK, STAGING_PREFIX, install, is_incomplete
 from bcfpipe.cache import Cache, default_root
 from bcfpipe.formats.report import BuildReport
 from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
-from bcfpipe.build.plan import BuildError, BuildPlan, MATERIALS_DIR, ProgressCallback, plan
+from bcfpipe.builder.plan import BuildError, BuildPlan, MATERIALS_DIR, ProgressCallback, plan
 from bcfpipe.scan.texture_sets import package_split
 
 
@@ -179,21 +178,21 @@ def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
 
 
 def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
+          training: TrainingOptions = TrainingOptions(),
           variants: Mapping[str, str] | Iterable[str] | None = None, all_materials: bool = False,
-          profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET, jobs: int | None = None,
-          device: str = DEFAULT_DEVICE, seed: int = DEFAULT_SEED, hidden: int = DEFAULT_HIDDEN, signed: bool = False,
-          init: str = DEFAULT_INIT, fix_nonfinite: bool = False, force: bool = False, progress: ProgressCallback | None = None,
-          executor: cf.Executor | None = None, threads: int | None = None,
+          jobs: int | None = None, force: bool = False, progress: ProgressCallback | None = None,
+          executor: cf.Executor | None = None,
           cache: str | os.PathLike | bool | None = None, depfile: str | os.PathLike | None = None,
           depfile_target: str | None = None, texel_density: float | None = None,
-          coverage: bool = True, target_psnr: float | None = None, bench: Mapping | None = None,
+          coverage: bool = True, bench: Mapping | None = None,
           executor_name: str = "local", ray_address: str | None = None) -> BuildResult:
     """Build neural materials for ``scene`` into ``out`` (default ``<scene>.bcf/`` next to it); the
     Python twin of ``bcfpipe build``.
 
-    ``variants``: {set: value} or ["set=value", ...]. ``texel_density``: px/m, ``coverage`` (see `plan`). ``jobs``: worker processes (default: one per
-    core, or per GPU, at most one per job). ``threads``: torch threads per worker (default
-    ``config.DEFAULT_THREADS``, 1). ``cache``: a cache folder, True/None for the default one
+    ``training``: the training choices, whole (config.TrainingOptions; its ``threads`` are torch
+    threads per worker). ``variants``: {set: value} or ["set=value", ...]. ``texel_density``: px/m,
+    ``coverage`` (see `plan`). ``jobs``: worker processes (default: one per core, or per GPU, at
+    most one per job). ``cache``: a cache folder, True/None for the default one
     (``BCFPIPE_CACHE`` or the user cache), False for none. ``depfile``: write the files the result
     depends on there, for target ``depfile_target`` (default: the root layer under ``out`` as
     given). ``progress``: a callable receiving event dicts (see `execute`). Raises `BuildError`
@@ -203,8 +202,6 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     t0 = time.perf_counter()
     if jobs is not None and int(jobs) < 1:
         raise BuildError("--jobs must be at least 1")
-    if threads is not None and int(threads) < 1:
-        raise BuildError("--threads must be at least 1")
     scene_path = Path(scene)
     out_given = Path(out) if out is not None else default_out(scene_path, resolve=False)
     out_path = out_given.resolve()
@@ -213,9 +210,8 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     store = None
     if cache is not False:
         store = Cache(default_root() if cache in (None, True) else cache)
-    bplan = plan(scene_path, variants, all_materials, profile, preset, seed, device, hidden, signed, init,
-                 fix_nonfinite, texel_density, coverage, facts=store.facts if store is not None else None,
-                 target_psnr=target_psnr, bench=bench)
+    bplan = plan(scene_path, training, variants=variants, all_materials=all_materials, texel_density=texel_density,
+                 coverage=coverage, facts=store.facts if store is not None else None, bench=bench)
     check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
     # staging lives inside OUT (nothing is written outside OUT and the cache) and on its filesystem,
     # so that installing a file is one rename
@@ -230,7 +226,7 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
         # another build may have written OUT while this one waited: the rules again, under the lock
         check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
         return _build_locked(bplan, out_path, out_given, staging, created, store, progress, executor_name,
-                             ray_address, jobs, executor, threads, depfile, depfile_target, t0)
+                             ray_address, jobs, executor, training.threads, depfile, depfile_target, t0)
     finally:
         out_lock.release()
 
@@ -277,7 +273,7 @@ def _build_locked(bplan: BuildPlan, out_path: Path, out_given: Path, staging: Pa
         results, damaged = _cached(bplan, store, staging / MATERIALS_DIR, progress)
         todo = [j for j in bplan.jobs if j.name not in results]
         if executor_name == "ray":
-            from bcfpipe.build.ray_executor import execute_ray
+            from bcfpipe.builder.ray_executor import execute_ray
 
             done, attempts = execute_ray(todo, staging / MATERIALS_DIR, ray_address, threads=threads,
                                          progress=progress, cache_root=store.root if store else None)

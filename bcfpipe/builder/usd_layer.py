@@ -43,6 +43,7 @@ from typing import Iterable, Sequence
 from pxr import Gf, Sdf, Usd, Vt
 
 from bcfpipe.formats.material import Mlp
+from bcfpipe.formats.usd_schema import component_index
 
 __all__ = ["SCHEMA", "ConstantInput", "NeuralMaterialOverride", "relative_asset", "write_overrides_layer",
            "write_root_layer", "read_override"]
@@ -133,14 +134,6 @@ class NeuralMaterialOverride:
 
 _INPUT_TYPES = {"diffuseColor": _T.Color3f, "emissiveColor": _T.Color3f, "specularColor": _T.Color3f,
                 "normal": _T.Normal3f}
-_COMPONENTS = {"r": 0, "g": 1, "b": 2, "x": 0, "y": 1, "z": 2}
-
-
-def component_index(target: str) -> int | None:
-    """The vector component a target names (diffuseColor.g -> 1, normal.z -> 2), None for a scalar."""
-    return _COMPONENTS.get(target.rpartition(".")[2]) if "." in target else None
-
-
 @dataclass(frozen=True)
 class ConstantInput:
     """A UsdPreviewSurface input set to the constant its texture gives: ``values`` by target

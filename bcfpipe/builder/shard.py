@@ -15,8 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bcfpipe.build.executor import JobResult, execute
-from bcfpipe.build.plan import BuildError, ProgressCallback, plan
+from bcfpipe.config import TrainingOptions
+from bcfpipe.builder.executor import JobResult, execute
+from bcfpipe.builder.plan import BuildError, ProgressCallback, plan
 from bcfpipe.cache import Cache, default_root
 
 __all__ = ["parse_shard", "shard_of", "ShardResult", "train_shard"]
@@ -57,14 +58,14 @@ class ShardResult:
                           "seconds": round(j.seconds, 3)} for j in self.jobs]}
 
 
-def train_shard(scene: str | os.PathLike, shard: tuple[int, int], *, cache: str | os.PathLike | None = None,
-                jobs: int | None = None, threads: int | None = None, progress: ProgressCallback | None = None,
-                **plan_options) -> ShardResult:
+def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: TrainingOptions = TrainingOptions(), *,
+                cache: str | os.PathLike | None = None, jobs: int | None = None,
+                progress: ProgressCallback | None = None, **plan_options) -> ShardResult:
     """Train the jobs of ``shard`` that the cache lacks; store them there. Writes only the cache
     (its trainings run in a folder under the cache's tmp/)."""
     t0 = time.perf_counter()
     store = Cache(default_root() if cache in (None, True) else cache)
-    bplan = plan(scene, facts=store.facts, **plan_options)
+    bplan = plan(scene, training, facts=store.facts, **plan_options)
     i, n = shard
     mine = [j for j in bplan.jobs if shard_of(j.content_hash, n) == i]
     results: dict[str, JobResult] = {}
@@ -80,7 +81,7 @@ def train_shard(scene: str | os.PathLike, shard: tuple[int, int], *, cache: str 
     work = store.base / "tmp" / f"shard-{i}-of-{n}.{uuid.uuid4().hex[:8]}"
     try:
         work.mkdir(parents=True)
-        results.update(execute(todo, work, workers=jobs, progress=progress, threads=threads, cache_root=store.root))
+        results.update(execute(todo, work, workers=jobs, progress=progress, threads=training.threads, cache_root=store.root))
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return ShardResult(shard, store.root, tuple(results[j.name] for j in mine), len(bplan.jobs),

@@ -28,8 +28,8 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from bcfpipe.build.executor import JobResult, _emit, _drain, _train_job, one_line, read_sources, store_entry
-from bcfpipe.build.plan import MaterialJob, ProgressCallback
+from bcfpipe.builder.executor import JobResult, _emit, _drain, _train_job, one_line, read_sources, store_entry
+from bcfpipe.builder.plan import MaterialJob, ProgressCallback
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import Unavailable, WorkFailed
 
@@ -159,7 +159,7 @@ def _connect(ray, address: str | None):
         else:
             import secrets
 
-            from bcfpipe.build.executor import cpu_count
+            from bcfpipe.builder.executor import cpu_count
 
             tmp = tempfile.mkdtemp(prefix="bcfray-")  # short: Ray's socket paths have a length limit
             if not saved["RAY_AUTH_TOKEN"]:  # (RAY_AUTH_MODE is read when ray is imported: not set here)

@@ -19,7 +19,7 @@ from bcfpipe.formats.manifest import FILE as MANIFEST
 
 INCOMPLETE = ".bcfpipe-incomplete"
 STAGING_PREFIX = ".bcfpipe-staging-"
-OUT_LOCK = ".bcfpipe-lock"  # held by the build writing OUT (bcfpipe.build.run)
+OUT_LOCK = ".bcfpipe-lock"  # held by the build writing OUT (bcfpipe.builder.run)
 
 
 def _ours(rel: Path) -> bool:

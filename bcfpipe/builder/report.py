@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from bcfpipe.build.executor import JobResult
+from bcfpipe.builder.executor import JobResult
 from bcfpipe.formats import manifest as mfst
 from bcfpipe.formats import report as rep
 

@@ -10,8 +10,8 @@ import numpy as np
 
 from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
-from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE, DEFAULT_SEED, FEATURE_INITS, ModelConfig, PRESETS, TrainConfig, resolve_profile)
-from bcfpipe.verify.metrics import Metrics, compute_metrics
+from bcfpipe.config import ModelConfig, PRESETS, TrainConfig, TrainingOptions, resolve_profile
+from bcfpipe.texset.metrics import Metrics, compute_metrics
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn, TrainedMaterial, resolve_device, train
 
@@ -46,22 +46,16 @@ class MaterialResult:
         return d
 
 
-def make_config(ts: TextureSet, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
-                device: str = DEFAULT_DEVICE, seed: int = DEFAULT_SEED, hidden: int = DEFAULT_HIDDEN,
-                signed: bool = False, wrap: str = "repeat", threads: int | None = None,
-                init: str = DEFAULT_INIT) -> tuple[str, TrainConfig]:
-    """A TrainConfig from CLI-style choices; returns the resolved profile name too."""
-    if preset not in PRESETS:
-        raise ValueError(f"unknown quality preset {preset!r}; choose from {', '.join(PRESETS)}")
-    if init not in FEATURE_INITS:
-        raise ValueError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
+def make_config(ts: TextureSet, options: TrainingOptions, wrap: str = "repeat") -> tuple[str, TrainConfig]:
+    """The TrainConfig of ``options`` (validated when it was made) for ``ts``; returns the resolved
+    profile name too (``auto`` picks from the set's size)."""
     if wrap not in ("repeat", "clamp"):
         raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
-    name, res = resolve_profile(profile, max(ts.width, ts.height))
-    dev = str(resolve_device(device))
-    mc = ModelConfig(resolutions=res, hidden=hidden, signed=signed, wrap=wrap)
-    return name, TrainConfig(model=mc, preset=PRESETS[preset], preset_name=preset, seed=seed, device=dev,
-                             threads=threads, feature_init=init)
+    name, res = resolve_profile(options.profile, max(ts.width, ts.height))
+    dev = str(resolve_device(options.device))
+    mc = ModelConfig(resolutions=res, hidden=options.hidden, signed=options.signed, wrap=wrap)
+    return name, TrainConfig(model=mc, preset=PRESETS[options.preset], preset_name=options.preset, seed=options.seed,
+                             device=dev, threads=options.threads, feature_init=options.init)
 
 
 def exported_size(out_dir: Path) -> int:

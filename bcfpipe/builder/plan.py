@@ -8,10 +8,11 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED, FEATURE_INITS, MODEL_FORMAT, PRESETS, PROFILE_NAMES)
+from bcfpipe.config import DEFAULT_INIT, MODEL_FORMAT, PRESETS, TrainingOptions
 from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, SourceFile, decoder_index
 from bcfpipe.errors import InputError
+from bcfpipe.scan.coverage import job_coverage
+from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, group_materials
@@ -71,6 +72,12 @@ class MaterialJob:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def training(self, device: str, threads: int) -> TrainingOptions:
+        """The job's options as a worker trains them: on ``device`` with ``threads``."""
+        o = self.options
+        return TrainingOptions(profile=o.profile, preset=o.preset, hidden=o.hidden, signed=o.signed, init=o.init,
+                               fix_nonfinite=o.fix_nonfinite, seed=o.seed, device=device, threads=threads)
 
     @property
     def size(self) -> tuple[int, int]:
@@ -149,43 +156,6 @@ class BuildPlan:
         return d
 
 
-def job_size(sources: Iterable[SourceFile], resolution: int | None) -> tuple[int, int]:
-    """(width, height) of a texture set: its sources' common size, or, under a density cap, that
-    size scaled so that its larger side is ``resolution``."""
-    from bcfpipe.texset.texture_set import common_resolution
-
-    sizes = [(s.width, s.height) for s in sources]
-    if not sizes or any(w < 1 or h < 1 for w, h in sizes):  # an unreadable header: training will say why
-        return 0, 0
-    w, h = common_resolution(sizes)
-    if resolution is None:
-        return w, h
-    f = resolution / max(w, h)
-    return max(1, int(w * f)), max(1, int(h * f))
-
-
-def job_coverage(models, size: tuple[int, int], wrap: str) -> tuple[str | None, float | None, str | None]:
-    """(packed mask, covered fraction, digest) of the texels the members' meshes read, or Nones when
-    a member has no uv triangles to rasterise or every texel is read."""
-    import numpy as np
-
-    from bcfpipe.scan import coverage as cov
-
-    w, h = size
-    if w < 1 or h < 1:
-        return None, None, None
-    mask = np.zeros((h, w), bool)
-    for mm in models:
-        meshes = mm.density.meshes if mm.density is not None else ()
-        if not meshes or mm.density.notes:
-            return None, None, None
-        for m in meshes:
-            mask |= cov.rasterize(m.uv_triangles, w, h, wrap)
-    if mask.all():
-        return None, None, None
-    return cov.pack(mask), float(cov.mask_mips(mask, 1, wrap)[0].mean()), cov.digest(mask)
-
-
 def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options,
                  coverage_digest: str | None = None, anchors: tuple = ()) -> str:
     """The job's cache key: everything that changes the trained files and nothing else.
@@ -249,32 +219,25 @@ def _resolve_device_name(device: str) -> str:
         raise BuildError(str(exc)) from None
 
 
-def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] | None = None,
-         all_materials: bool = False, profile: str = DEFAULT_PROFILE, preset: str = DEFAULT_PRESET,
-         seed: int = DEFAULT_SEED, device: str = DEFAULT_DEVICE, hidden: int = DEFAULT_HIDDEN,
-         signed: bool = False, init: str = DEFAULT_INIT, fix_nonfinite: bool = False,
+def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions(), *,
+         variants: Mapping[str, str] | Iterable[str] | None = None, all_materials: bool = False,
          texel_density: float | None = None, coverage: bool = True, facts=None,
-         target_psnr: float | None = None, bench: Mapping | None = None) -> BuildPlan:
-    """Scan ``scene`` and list what to train. Reads the source textures (to hash them) but writes
-    nothing. ``texel_density`` (px/m) caps each job's resolution at the smallest power of two that
-    meets it on every member's most demanding mesh (never above the source). ``coverage``: train
-    on the texels the bound meshes read (bcfpipe.scan.coverage). ``facts``: a
-    bcfpipe.cache.facts.FactsStore, so that only textures whose bytes changed are decoded.
-    ``target_psnr``: rate control chooses each job's profile and preset (bcfpipe.train.rate), from
-    the cells of ``bench`` (a `bcfpipe bench` report) for the jobs whose sources it measured. Raises
-    `BuildError` for an unreadable stage or bad options."""
-    if profile not in PROFILE_NAMES:
-        raise BuildError(f"unknown profile {profile!r}; choose from {', '.join(PROFILE_NAMES)}")
-    if preset not in PRESETS:
-        raise BuildError(f"unknown quality preset {preset!r}; choose from {', '.join(PRESETS)}")
-    if init not in FEATURE_INITS:
-        raise BuildError(f"unknown feature start {init!r}; choose from {', '.join(FEATURE_INITS)}")
+         bench: Mapping | None = None) -> BuildPlan:
+    """Scan ``scene`` and list what to train with ``training``. Reads the source textures (to hash
+    them) but writes nothing. ``texel_density`` (px/m) caps each job's resolution at the smallest
+    power of two that meets it on every member's most demanding mesh (never above the source).
+    ``coverage``: train on the texels the bound meshes read (bcfpipe.scan.coverage). ``facts``: a
+    bcfpipe.cache.facts.FactsStore, so that only textures whose bytes changed are decoded. With
+    ``training.target_psnr`` rate control chooses each job's profile and preset
+    (bcfpipe.train.rate), from the cells of ``bench`` (a `bcfpipe bench` report) for the jobs whose
+    sources it measured. Raises `BuildError` for an unreadable stage, a damaged source or a bad
+    option."""
     if texel_density is not None and not (texel_density > 0 and texel_density < float("inf")):
         raise BuildError(f"--texel-density must be a positive number of px/m, got {texel_density}")
-    if target_psnr is not None and not (0 < target_psnr < float("inf")):
-        raise BuildError(f"--target-psnr must be a positive number of dB, got {target_psnr}")
-    options = Options(profile=profile, preset=preset, seed=int(seed), device=_resolve_device_name(device),
-                      hidden=int(hidden), signed=bool(signed), init=init, fix_nonfinite=bool(fix_nonfinite),
+    target_psnr = training.target_psnr
+    options = Options(profile=training.profile, preset=training.preset, seed=int(training.seed),
+                      device=_resolve_device_name(training.device), hidden=int(training.hidden),
+                      signed=bool(training.signed), init=training.init, fix_nonfinite=bool(training.fix_nonfinite),
                       texel_density=float(texel_density) if texel_density is not None else None,
                       coverage=bool(coverage),
                       target_psnr=float(target_psnr) if target_psnr is not None else None)
@@ -291,7 +254,7 @@ def plan(scene: str | os.PathLike, variants: Mapping[str, str] | Iterable[str] |
 
     file_cache: dict = {FACTS: facts} if facts is not None else {}
     grouping = group_materials(scene, vdict, scan.materials, file_cache)
-    _refuse_bad_sources(grouping, file_cache, fix_nonfinite)
+    _refuse_bad_sources(grouping, file_cache, training.fix_nonfinite)
     jobs: list[MaterialJob] = []
     for g in grouping.groups:
         rep = g.model
@@ -388,27 +351,6 @@ def _bench_anchors(bench: Mapping, specs) -> tuple[tuple[str, str, float], ...]:
 
     names = [f"{sem}={os.path.basename(path)}:{ch}" for sem, path, ch in specs]
     return tuple(sorted((p, q, v) for (p, q), v in anchors_from_bench(bench, names).items()))
-
-
-def density_options(options: Options, models) -> Options:
-    """The job's options under ``options.texel_density``: the largest resolution any member needs
-    (no cap when a member has no density figure, or needs the source itself); the profile drops to
-    what fits that resolution when it asked for more."""
-    from dataclasses import replace
-
-    from bcfpipe.config import PROFILES
-    from bcfpipe.scan.density import required_resolution
-
-    if options.texel_density is None:
-        return options
-    needs = [required_resolution(mm.density, options.texel_density) if mm.density else None for mm in models]
-    if not needs or any(n is None for n in needs):
-        return options
-    res = max(needs)
-    profile = options.profile
-    if profile != "auto" and PROFILES[profile][0] > res:
-        profile = "auto"
-    return replace(options, resolution=res, profile=profile)
 
 
 def _folded_sources(grouping, jobs: Iterable[MaterialJob]) -> tuple[SourceFile, ...]:

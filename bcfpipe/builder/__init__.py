@@ -13,7 +13,7 @@ between them):
    context), with ``config.DEFAULT_THREADS`` (1) torch threads each unless told otherwise. A job
    that raises, or whose worker dies, becomes ``failed`` with a one-line reason; the others go on.
 3. `assemble` (assemble.py) writes the combined ``weights.bin`` (`bcfpipe.formats.weights`), the USD layers
-   (`bcfpipe.build.usd_layer`) and ``manifest.json``.
+   (`bcfpipe.builder.usd_layer`) and ``manifest.json``.
 
 `build` (run.py) takes what the content-addressed cache (`bcfpipe.cache`) holds, runs the rest in a
 staging folder inside OUT, and then installs only the files whose bytes changed (sync.py: each file
@@ -68,12 +68,12 @@ the same machine (CPU training with the same number of worker threads). ``manife
 
 from __future__ import annotations
 
-from bcfpipe.build.assemble import assemble, default_out, root_layer_name
-from bcfpipe.build.executor import JobResult, cpu_count, default_jobs, execute, run_job
+from bcfpipe.builder.assemble import assemble, default_out, root_layer_name
+from bcfpipe.builder.executor import JobResult, cpu_count, default_jobs, execute, run_job
 from bcfpipe.formats.manifest import FILE as MANIFEST, FORMAT as BUILD_FORMAT, WEIGHTS
-from bcfpipe.build.plan import (MATERIALS_DIR, OVERRIDES, BuildError, BuildPlan,
+from bcfpipe.builder.plan import (MATERIALS_DIR, OVERRIDES, BuildError, BuildPlan,
                                 MaterialJob, MaterialPlan, TargetMap, plan)
-from bcfpipe.build.run import BuildResult, build, check_out
+from bcfpipe.builder.run import BuildResult, build, check_out
 
 __all__ = [
     "BuildError", "TargetMap", "MaterialJob", "MaterialPlan", "BuildPlan", "JobResult", "BuildResult",

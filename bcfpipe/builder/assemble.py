@@ -10,8 +10,8 @@ from bcfpipe.formats import manifest as mfst
 from bcfpipe.formats import material as mf
 from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK
-from bcfpipe.build.executor import JobResult
-from bcfpipe.build.plan import BuildPlan, MATERIALS_DIR, OVERRIDES
+from bcfpipe.builder.executor import JobResult
+from bcfpipe.builder.plan import BuildPlan, MATERIALS_DIR, OVERRIDES
 from bcfpipe.formats.manifest import WEIGHTS
 from bcfpipe.scan.texture_sets import package_split
 
@@ -43,7 +43,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
              final_out: str | os.PathLike | None = None) -> mfst.Manifest:
     """Write weights.bin, the USD layers and manifest.json into ``staging`` (whose contents will
     live at ``final_out``; relative paths are computed from there). Returns the manifest."""
-    from bcfpipe.build import usd_layer as usdout
+    from bcfpipe.builder import usd_layer as usdout
 
     staging = Path(staging)
     final_out = Path(final_out) if final_out is not None else staging
@@ -172,7 +172,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
 
 def _constant_inputs(bplan: BuildPlan) -> list:
     """One ConstantInput per surface input whose texture channels are all constant."""
-    from bcfpipe.build.usd_layer import ConstantInput
+    from bcfpipe.builder.usd_layer import ConstantInput
 
     out = []
     for mp_ in bplan.materials:

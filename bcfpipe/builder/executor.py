@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from bcfpipe.config import DEFAULT_THREADS
-from bcfpipe.build.plan import MaterialJob, ProgressCallback
+from bcfpipe.builder.plan import MaterialJob, ProgressCallback
 from bcfpipe.errors import WorkFailed
 
 
@@ -157,7 +157,7 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         import OpenImageIO as oiio
 
         oiio.attribute("threads", max(1, threads))
-        from bcfpipe.train.fit import fit_material, make_config
+        from bcfpipe.export.fit import fit_material, make_config
         from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
         mj = MaterialJob.from_dict(job)
@@ -171,8 +171,8 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
                                   fix_nonfinite=mj.options.fix_nonfinite,
                                   names={copy: path for path, copy in local.items()})
         o = mj.options
-        prof, cfg = make_config(ts, profile=o.profile, preset=o.preset, device=device, seed=o.seed, hidden=o.hidden,
-                                signed=o.signed, wrap=mj.wrap, threads=max(1, threads), init=o.init)
+        training = mj.training(device, max(1, threads))
+        prof, cfg = make_config(ts, training, mj.wrap)
         mask = None
         if mj.coverage is not None:
             from bcfpipe.scan.coverage import unpack
@@ -185,9 +185,7 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
             from bcfpipe.train import rate
 
             def train_one(st, folder):
-                n, c = make_config(ts, profile=st.profile, preset=st.preset, device=device, seed=o.seed,
-                                   hidden=o.hidden, signed=o.signed, wrap=mj.wrap, threads=max(1, threads),
-                                   init=o.init)
+                n, c = make_config(ts, training.with_(profile=st.profile, preset=st.preset), mj.wrap)
                 return fit_material(ts, folder, c, n, progress, coverage=mask)[0]
 
             res, outcome = rate.fit_to_target(o.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device),
