@@ -2,7 +2,9 @@
 complete output); builds that share a cache but not OUT train each key once and agree.
 
 Real processes, as a user's shell or a build farm would start them. The default suite runs 2
-pairs of each and verifies the last result; `-m slow` runs the issue's 12 and verifies every one.
+pairs of each and verifies the last result (verify's SHA-256 check catches files of two builds
+mixed); `-m slow` runs the issue's 12, verifies every one and compares each OUT with what either
+build writes alone.
 """
 from __future__ import annotations
 
@@ -56,12 +58,12 @@ def pairs_into_one_out(tmp_path: Path, pairs: int, verify_all: bool) -> None:
     s = scene(tmp_path)
     env = dict(os.environ, BCFPIPE_CACHE=str(tmp_path / "cache"))
     refs = {}
-    for seed in (0, 1):  # what each build alone writes
+    for seed in (0, 1) if verify_all else ():  # what each build alone writes
         ref = tmp_path / f"ref{seed}"
         assert subprocess.run([*BUILD, str(s), "-o", str(ref), "--seed", str(seed), *FAST, "--no-cache"],
                               capture_output=True, timeout=900).returncode == 0
         refs[seed] = tree(ref)
-    assert refs[0] != refs[1]
+    assert not refs or refs[0] != refs[1]
     out, waited = tmp_path / "r", 0
     for i in range(pairs):
         if i == pairs // 2:  # from here on both train again (a new cache) while they race for OUT
@@ -70,7 +72,8 @@ def pairs_into_one_out(tmp_path: Path, pairs: int, verify_all: bool) -> None:
         for rc, err in map(finish, procs):
             assert rc == 0 and no_crash(err), err
             waited += "waiting for another bcfpipe build" in err
-        assert tree(out) in (refs[0], refs[1]), f"pair {i}: OUT mixes the two builds"
+        if refs:
+            assert tree(out) in (refs[0], refs[1]), f"pair {i}: OUT mixes the two builds"
         if verify_all or i == pairs - 1:
             v = verify(out)
             assert v.returncode == 0, v.stdout[-2000:] + v.stderr

@@ -105,7 +105,7 @@ def _decode_costs(rt, bc: C.Cell | None, bcf: Sequence[C.Cell], opts: BenchOptio
         finally:
             rt.delete_textures(names)
     except Exception as exc:  # noqa: BLE001 - a GL failure costs this figure, not the bench
-        from bcfpipe.builder.executor import one_line
+        from bcfpipe.errors import one_line
 
         return {"failed": one_line(exc)}
     rows = [{"method": cell.method, **c.to_json()} for cell, c in zip(bcf, costs)]
@@ -152,7 +152,7 @@ def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, pro
                                         seed=opts.seed, hidden=opts.hidden, threads=opts.threads, wrap=bset.wrap,
                                         progress=progress.fraction))
             except (FloatingPointError, RuntimeError, MemoryError) as exc:  # the other cells still count
-                from bcfpipe.builder.executor import one_line
+                from bcfpipe.errors import one_line
 
                 failed.append({"method": f"BCf {prof} {preset}", "error": one_line(exc)})
             progress.done()

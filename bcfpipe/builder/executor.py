@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from bcfpipe.config import DEFAULT_THREADS
+from bcfpipe.errors import one_line
 from bcfpipe.builder.plan import MaterialJob, ProgressCallback
 from bcfpipe.errors import WorkFailed
 
@@ -58,13 +59,6 @@ class JobResult:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-def one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    name = type(exc).__name__
-    line = f"{name}: {text}" if text else name
-    return line if len(line) <= 300 else line[:297] + "..."
 
 
 class _Throttle:

@@ -250,10 +250,8 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
     except ScanError as exc:
         raise BuildError(str(exc)) from None
 
-    from bcfpipe.scan.content import FACTS
-
-    file_cache: dict = {FACTS: facts} if facts is not None else {}
-    grouping = group_materials(scene, vdict, scan.materials, file_cache)
+    file_cache: dict = {}
+    grouping = group_materials(scene, vdict, scan.materials, file_cache, facts=facts)
     _refuse_bad_sources(grouping, file_cache, training.fix_nonfinite)
     jobs: list[MaterialJob] = []
     for g in grouping.groups:

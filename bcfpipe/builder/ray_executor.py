@@ -28,10 +28,10 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from bcfpipe.builder.executor import JobResult, _emit, _drain, _train_job, one_line, read_sources, store_entry
+from bcfpipe.builder.executor import JobResult, _emit, _drain, _train_job, read_sources, store_entry
 from bcfpipe.builder.plan import MaterialJob, ProgressCallback
 from bcfpipe.config import DEFAULT_THREADS
-from bcfpipe.errors import Unavailable, WorkFailed
+from bcfpipe.errors import Unavailable, WorkFailed, one_line
 
 __all__ = ["RayUnavailable", "require_ray", "execute_ray", "in_flight_limit", "resolve_executor", "EXECUTORS", "MAX_RETRIES"]
 

@@ -74,18 +74,16 @@ def channel_contents(arr: np.ndarray) -> tuple[ChannelContent, ...]:
     return tuple(out)
 
 
-FACTS = "__facts__"  # a file_cache key: a bcfpipe.cache.facts.FactsStore that outlives the run
-
-
-def content_of(path: str, letter: str, cache: dict, file_hash: str = "") -> ChannelContent:
+def content_of(path: str, letter: str, cache: dict, file_hash: str = "", facts=None) -> ChannelContent:
     """The content of the file channel that a UsdUVTexture output letter (r, g, b, a) reads,
     with the texture-set loader's channel mapping; each file is read once per ``cache``, and not
-    at all when ``cache[FACTS]`` holds the facts of its ``file_hash`` (XXH3-128 of its bytes)."""
+    at all when ``facts`` (a bcfpipe.cache.facts.FactsStore that outlives the run) holds the facts
+    of its ``file_hash`` (XXH3-128 of its bytes)."""
     from bcfpipe.formats.images import channel_index as source_channel_index
 
     key = (path, "content")
     if key not in cache:
-        facts = cache.get(FACTS) if file_hash else None
+        facts = facts if file_hash else None
         found = facts.get(file_hash) if facts is not None else None
         if found is None:
             arr, names = read_stored(path)

@@ -208,13 +208,13 @@ class Canonical:
         return first
 
 
-def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash: str = ""):
+def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash: str = "", facts=None):
     """The channel's content, or, for a file whose texels cannot be read, a content that is neither
     constant nor a duplicate of anything (training will report the file)."""
     from bcfpipe.scan.content import ChannelContent, content_of
 
     try:
-        return content_of(path, letter, cache, file_hash)
+        return content_of(path, letter, cache, file_hash, facts)
     except ImageReadError:
         raise  # a damaged file is the user's to fix: the material cannot be modelled from it
     except (OSError, ValueError) as exc:
@@ -245,7 +245,7 @@ def _decode(value: float, color_space: str) -> float:
 
 
 def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, canonical: Canonical | None = None,
-                   fold: bool = True) -> MaterialModel:
+                   fold: bool = True, facts=None) -> MaterialModel:
     """Map a scanned material's texture inputs to model channels, texset specs and targets.
     With ``fold``, constant channels become ``constants`` and channels whose texels repeat a channel
     already modelled (in ``canonical``, shared across the materials of a scan) map onto it."""
@@ -270,7 +270,7 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
         is_normal = inp.name == "normal" and tex.channel == "rgb"
         kind = "normal" if is_normal else "value"
         raw = [ModelChannel(u.file, u.channel, kind) for u in uses]
-        contents = [_content(k.file, k.channel, file_cache, warnings, src.xxh3_128) for k in raw] if fold else []
+        contents = [_content(k.file, k.channel, file_cache, warnings, src.xxh3_128, facts) for k in raw] if fold else []
         # per raw key: None (constant) or the key the decoder outputs (itself or its canonical twin)
         unread = fold and tex.st.kind == "constant" and tex.st.value is not None
         if unread:  # st not connected: the texture is read at one point; that value replaces it
@@ -279,7 +279,7 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
         if not fold:
             keys: list[ModelChannel | None] = list(raw)
         elif is_normal:
-            z = (_content(src.path, "b", file_cache, warnings, src.xxh3_128)
+            z = (_content(src.path, "b", file_cache, warnings, src.xxh3_128, facts)
                  if len(raw) == 2 and src.channels >= 3 else None)
             if unread and z is not None:
                 z = _at(src.path, "b", tex.st.value, tex.effective_wrap, file_cache, warnings, z)
@@ -443,10 +443,11 @@ class Grouping:
 
 
 def group_materials(scene, variants: Mapping[str, str], materials: Sequence["MaterialScan"],
-                    file_cache: dict | None = None, digest: bool = True, fold: bool = True) -> Grouping:
+                    file_cache: dict | None = None, digest: bool = True, fold: bool = True, facts=None) -> Grouping:
     """Group the materials decided ``model`` by texture set (channels and addressing); opens each
     texture once (its header, and with ``digest`` its bytes for the hash; with ``fold`` its texels,
-    to fold constant channels and merge duplicates; all cached in ``file_cache``)."""
+    to fold constant channels and merge duplicates; all cached in ``file_cache``). ``facts``: a
+    bcfpipe.cache.facts.FactsStore; a file whose bytes it has seen is not decoded again."""
     modelled = [ms for ms in materials if ms.decision == "model"]
     instanced = frozenset(instance_proxies(scene, variants, [m.path for m in modelled]))
     cache = {} if file_cache is None else file_cache
@@ -459,7 +460,7 @@ def group_materials(scene, variants: Mapping[str, str], materials: Sequence["Mat
         if ms.path in instanced:
             continue
         try:
-            mm = material_model(ms, cache, digest, canonical, fold)
+            mm = material_model(ms, cache, digest, canonical, fold, facts)
         except ImageReadError as exc:
             failed[ms.path] = f"cannot read textures: {one_line(exc)}"
             unreadable[ms.path] = str(exc)
