@@ -231,3 +231,14 @@ class TrainingOptions:
 
     def with_(self, **kw) -> "TrainingOptions":
         return replace(self, **kw)
+
+    def train_config(self, source_size: int, wrap: str, device: str) -> tuple[str, TrainConfig]:
+        """The `TrainConfig` of these choices for a texture set whose larger side is
+        ``source_size``, addressed with ``wrap``, on the resolved ``device``; and the profile's
+        resolved name (``auto`` picks from the size)."""
+        if wrap not in ("repeat", "clamp"):
+            raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
+        name, res = resolve_profile(self.profile, source_size)
+        mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap)
+        return name, TrainConfig(model=mc, preset=PRESETS[self.preset], preset_name=self.preset, seed=self.seed,
+                                 device=device, threads=self.threads, feature_init=self.init)

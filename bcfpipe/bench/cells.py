@@ -14,6 +14,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.bench import lod_sweep as L
 from bcfpipe.bench.baselines import encode_texture_set_baseline
 from bcfpipe.texset.texture_set import TextureSet
@@ -95,7 +96,7 @@ def measure_baseline(ts: TextureSet, ref: Sequence[np.ndarray], b: Baseline, gri
 
 def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], profile: str, preset: str, out_dir: Path,
                grid: L.LodGrid, windows: Windows, *, device: str = "auto", seed: int = 0, hidden: int | None = None,
-               threads: int = 1, wrap: str = "repeat",
+               threads: int = 1, wrap: str = Wrap.REPEAT,
                progress: Callable[[float], None] | None = None) -> Cell:
     """Train BCf at (profile, preset) into ``out_dir``; measure the exported files."""
     from bcfpipe.config import DEFAULT_HIDDEN, TrainingOptions

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.errors import InputError
 from bcfpipe.texset.texture_set import TextureSet, TextureSpec
 
@@ -17,7 +18,7 @@ __all__ = ["BenchSet", "from_specs", "from_scene"]
 class BenchSet:
     name: str
     specs: tuple[TextureSpec, ...]
-    wrap: str = "repeat"
+    wrap: str = Wrap.REPEAT
     materials: tuple[str, ...] = ()
 
     @property
@@ -38,7 +39,7 @@ class BenchSet:
         return [str(TextureSpec(s.semantic, Path(s.path).name, s.channels)) for s in self.specs]
 
 
-def from_specs(texts: Sequence[str], name: str | None = None, wrap: str = "repeat") -> BenchSet:
+def from_specs(texts: Sequence[str], name: str | None = None, wrap: str = Wrap.REPEAT) -> BenchSet:
     """One set from `SEMANTIC=FILE[:CHANNELS]` texts; named after the first file unless ``name``."""
     try:
         specs = tuple(TextureSpec.parse(t) for t in texts)

@@ -5,6 +5,7 @@ import os
 from pathlib import Path
 from typing import Mapping
 
+from bcfpipe.formats.vocabulary import Decision, Status
 from bcfpipe import __version__
 from bcfpipe.formats import manifest as mfst
 from bcfpipe.formats import material as mf
@@ -47,7 +48,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
 
     staging = Path(staging)
     final_out = Path(final_out) if final_out is not None else staging
-    built = [j for j in bplan.jobs if results.get(j.name) and results[j.name].status == "built"]
+    built = [j for j in bplan.jobs if results.get(j.name) and results[j.name].status == Status.BUILT]
     records = [(staging / MATERIALS_DIR / j.name / WEIGHTS).read_bytes() for j in built]
     buffer, entries = weightsbuf.pack(records)
     (staging / WEIGHTS).write_bytes(buffer)
@@ -101,16 +102,16 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
     mats: list[mfst.Material] = []
     for mp_ in bplan.materials:
         r = results.get(mp_.job) if mp_.job else None
-        if mp_.decision == "skip":
-            status, reason = "skipped", mp_.reason
-        elif mp_.decision == "constant":
-            status, reason = "constant", None
+        if mp_.decision == Decision.SKIP:
+            status, reason = Status.SKIPPED, mp_.reason
+        elif mp_.decision == Decision.CONSTANT:
+            status, reason = Status.CONSTANT, None
         elif mp_.reason == "failed" and mp_.job is None:
-            status, reason = "failed", mp_.message
-        elif r is None or r.status != "built":
-            status, reason = "failed", r.reason if r else "not run"
+            status, reason = Status.FAILED, mp_.message
+        elif r is None or r.status != Status.BUILT:
+            status, reason = Status.FAILED, r.reason if r else "not run"
         else:
-            status, reason = "built", None
+            status, reason = Status.BUILT, None
         common = dict(
             path=mp_.path, aliases=tuple(mp_.aliases), job=mp_.job, status=status, reason=reason, message=mp_.message,
             sources=tuple(mfst.Source(rel(s.path), s.asset_path, s.xxh3_128, s.size_bytes, s.width, s.height,
@@ -124,7 +125,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
                                      rel(f.same_as.file) if f.same_as else None,
                                      f.same_as.channel if f.same_as else None) for f in mp_.folded),
             warnings=tuple(mp_.warnings))
-        if status == "built":
+        if status == Status.BUILT:
             e = entry_of[mp_.job]
             feats = _features_bytes(staging / MATERIALS_DIR / mp_.job)
             res = r.result
@@ -164,7 +165,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
             features_bytes=feature_total, weights_bytes=weights_size,
             total_bytes=feature_total + weights_size, source_bytes=sum(s.size_bytes for s in sources.values())),
         diagnostics=tuple(bplan.diagnostics),
-        exit_code=EXIT_FAILED if counts["failed"] else EXIT_OK)
+        exit_code=EXIT_FAILED if counts[Status.FAILED] else EXIT_OK)
     mfst.write(staging, manifest)
     _normalise_modes(staging)
     return manifest

@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import one_line
 from bcfpipe.builder.plan import MaterialJob, ProgressCallback
@@ -102,14 +103,14 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
             found = cache.lookup(key)
             if found.entry is not None:
                 found.entry.copy_to(out_dir)
-                return JobResult(name, "built", None, time.perf_counter() - t0, device, threads,
-                                 dict(found.entry.result), "hit").to_dict()
+                return JobResult(name, Status.BUILT, None, time.perf_counter() - t0, device, threads,
+                                 dict(found.entry.result), CacheUse.HIT).to_dict()
             r = _train_job(job, out_dir, threads, device, queue, t0)
-            if r["status"] == "built":
+            if r["status"] == Status.BUILT:
                 store_entry(cache, key, out_dir, r["result"], name)
-            return dict(r, cache="miss")
+            return dict(r, cache=CacheUse.MISS)
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
-        return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
+        return JobResult(name, Status.FAILED, one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
 
 
 def store_entry(cache, key: str, folder: str | os.PathLike, result: dict, name: str, take_lock: bool = False) -> None:
@@ -189,9 +190,9 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         d.pop("out", None)
         if outcome is not None:
             d["target"] = outcome.to_json()
-        return JobResult(mj.name, "built", None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
+        return JobResult(mj.name, Status.BUILT, None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
-        return JobResult(name, "failed", one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
+        return JobResult(name, Status.FAILED, one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
 
 
 def _local_name(k: int, path: str) -> str:
@@ -325,7 +326,7 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
                     broken.append(job)
                     continue
                 except BaseException as exc:  # noqa: BLE001
-                    r = JobResult(job.name, "failed", one_line(exc), 0.0, dev, threads)
+                    r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, dev, threads)
                 results[job.name] = r
                 _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
                       psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
@@ -371,9 +372,9 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
             retry, again = _run_pool([job], materials_dir, 1, threads, devices, None, queue, progress, root)
             results.update(retry)
             if again:
-                results[job.name] = JobResult(job.name, "failed", "worker process died (out of memory?)",
+                results[job.name] = JobResult(job.name, Status.FAILED, "worker process died (out of memory?)",
                                               0.0, device, threads)
-                _emit(progress, event="done", job=job.name, status="failed", reason=results[job.name].reason,
+                _emit(progress, event="done", job=job.name, status=Status.FAILED, reason=results[job.name].reason,
                       psnr=None, seconds=0.0)
     finally:
         if manager is not None:

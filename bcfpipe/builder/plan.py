@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 import xxhash
 
+from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.config import DEFAULT_INIT, MODEL_FORMAT, PRESETS, TrainingOptions
 from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, SourceFile, decoder_index
 from bcfpipe.errors import InputError
@@ -74,10 +75,11 @@ class MaterialJob:
         return asdict(self)
 
     def training(self, device: str, threads: int) -> TrainingOptions:
-        """The job's options as a worker trains them: on ``device`` with ``threads``."""
-        o = self.options
-        return TrainingOptions(profile=o.profile, preset=o.preset, hidden=o.hidden, signed=o.signed, init=o.init,
-                               fix_nonfinite=o.fix_nonfinite, seed=o.seed, device=device, threads=threads)
+        """The job's options as a worker trains them, on ``device`` with ``threads``: every field of
+        the job's record that `TrainingOptions` has, by name."""
+        shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
+                  if hasattr(self.options, f.name)}
+        return TrainingOptions(**{**shared, "device": device, "threads": threads})
 
     @property
     def size(self) -> tuple[int, int]:
@@ -193,7 +195,16 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         payload["target_psnr"] = options.target_psnr
         payload["schedules"] = {name: asdict(p) for name, p in PRESETS.items()}
         payload["anchors"] = [list(a) for a in anchors]
+    for f in fields(options):  # a newer option: in the key when it is not its default (old keys stand)
+        if f.name not in _KEYED_ABOVE and getattr(options, f.name) != f.default:
+            payload[f.name] = getattr(options, f.name)
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
+
+
+#: the Options fields content_hash states itself (texel_density and coverage act through the
+#: resolution and the coverage digest)
+_KEYED_ABOVE = frozenset({"profile", "preset", "seed", "device", "hidden", "signed", "init", "fix_nonfinite",
+                          "resolution", "target_psnr", "texel_density", "coverage"})
 
 
 def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[str, str]:
@@ -234,13 +245,10 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
     option."""
     if texel_density is not None and not (texel_density > 0 and texel_density < float("inf")):
         raise BuildError(f"--texel-density must be a positive number of px/m, got {texel_density}")
-    target_psnr = training.target_psnr
-    options = Options(profile=training.profile, preset=training.preset, seed=int(training.seed),
-                      device=_resolve_device_name(training.device), hidden=int(training.hidden),
-                      signed=bool(training.signed), init=training.init, fix_nonfinite=bool(training.fix_nonfinite),
-                      texel_density=float(texel_density) if texel_density is not None else None,
-                      coverage=bool(coverage),
-                      target_psnr=float(target_psnr) if target_psnr is not None else None)
+    shared = {f.name: getattr(training, f.name) for f in fields(Options) if hasattr(training, f.name)}
+    options = Options(**{**shared, "device": _resolve_device_name(training.device),
+                         "texel_density": float(texel_density) if texel_density is not None else None,
+                         "coverage": bool(coverage)})
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 
@@ -263,7 +271,7 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
         if options.coverage:
             packed, fraction, cov_digest = job_coverage(g.models, job_size(rep_sources.values(),
                                                                           job_options.resolution), rep.wrap)
-        anchors = _bench_anchors(bench, rep.specs) if target_psnr is not None and bench is not None else ()
+        anchors = _bench_anchors(bench, rep.specs) if options.target_psnr is not None and bench is not None else ()
         jobs.append(MaterialJob(
             name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
             sources=tuple(rep_sources.values()), wrap=rep.wrap, options=job_options,
@@ -274,22 +282,22 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
 
     plans: list[MaterialPlan] = []
     for ms in scan.materials:
-        if ms.decision != "model":
-            plans.append(MaterialPlan(ms.path, ms.aliases, "skip", ms.reason, ms.message,
+        if ms.decision != Decision.MODEL:
+            plans.append(MaterialPlan(ms.path, ms.aliases, Decision.SKIP, ms.reason, ms.message,
                                       warnings=tuple(ms.warnings)))
             continue
         if ms.path in grouping.instanced:
-            plans.append(MaterialPlan(ms.path, ms.aliases, "skip", "instanced", INSTANCED_MESSAGE,
+            plans.append(MaterialPlan(ms.path, ms.aliases, Decision.SKIP, "instanced", INSTANCED_MESSAGE,
                                       warnings=tuple(ms.warnings)))
             continue
         if ms.path in grouping.failed:
-            plans.append(MaterialPlan(ms.path, ms.aliases, "model", "failed", grouping.failed[ms.path],
+            plans.append(MaterialPlan(ms.path, ms.aliases, Decision.MODEL, "failed", grouping.failed[ms.path],
                                       warnings=tuple(ms.warnings)))
             continue
         if ms.path in grouping.constant:
             mm = grouping.constant[ms.path]
             plans.append(MaterialPlan(
-                ms.path, ms.aliases, "constant", None,
+                ms.path, ms.aliases, Decision.CONSTANT, None,
                 f"every textured input is constant: {len(mm.constants)} value(s) authored, nothing trained",
                 fallback_surface=ms.surface_shader, sources=tuple(mm.sources), warnings=tuple(mm.warnings),
                 constants=tuple(mm.constants), folded=tuple(mm.folded)))
@@ -308,7 +316,7 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
                     for c in mm.constants if c.input in modelled_inputs]
         prim, scale, rot, trans = mm.st
         plans.append(MaterialPlan(
-            ms.path, ms.aliases, "model", None, ms.message, job=job.name, targets=tuple(targets),
+            ms.path, ms.aliases, Decision.MODEL, None, ms.message, job=job.name, targets=tuple(targets),
             fallback_surface=ms.surface_shader, st_primvar=prim, st_scale=tuple(scale), st_rotation=float(rot),
             st_translation=tuple(trans), sources=tuple(mm.sources), warnings=tuple(mm.warnings),
             constants=tuple(c for c in mm.constants if c.input not in modelled_inputs), folded=tuple(mm.folded)))

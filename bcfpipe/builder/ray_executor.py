@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.builder.executor import JobResult, _emit, _drain, _train_job, read_sources, store_entry
 from bcfpipe.builder.plan import MaterialJob, ProgressCallback
 from bcfpipe.config import DEFAULT_THREADS
@@ -110,12 +111,12 @@ def _store(job: MaterialJob, r: JobResult, files: dict[str, bytes], materials_di
     folder.mkdir(parents=True)
     for name, data in files.items():
         (folder / name).write_bytes(data)
-    if cache_root is None or r.status != "built":
+    if cache_root is None or r.status != Status.BUILT:
         return r
     from bcfpipe.cache import Cache
 
     store_entry(Cache(cache_root), job.content_hash, folder, r.result, job.name, take_lock=True)
-    return JobResult(r.name, r.status, r.reason, r.seconds, r.device, r.threads, r.result, "miss")
+    return JobResult(r.name, r.status, r.reason, r.seconds, r.device, r.threads, r.result, CacheUse.MISS)
 
 
 def execute_ray(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, address: str | None = None,
@@ -222,7 +223,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
         try:
             src = read_sources(job)  # this job's bytes only: the driver holds at most `window` jobs' sources
         except (OSError, WorkFailed) as exc:  # gone or saved again since the plan: this job fails
-            finish(job, JobResult(job.name, "failed", one_line(exc), 0.0, device, threads))
+            finish(job, JobResult(job.name, Status.FAILED, one_line(exc), 0.0, device, threads))
             return None
         paths = list(src)
         blobs = [ray.put(src[p]) for p in paths]
@@ -253,7 +254,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
                     raw, files = ray.get(ref)
                     r = _store(job, JobResult(**raw), files, materials_dir, root)
                 except Exception as exc:  # noqa: BLE001 - the task failed for good: its materials fail
-                    r = JobResult(job.name, "failed", one_line(exc), 0.0, device, threads)
+                    r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, device, threads)
                 finish(job, r)
             fill()
         _drain(queue, forward)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping, Sequence
 
+from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.builder.executor import JobResult
 from bcfpipe.formats import manifest as mfst
 from bcfpipe.formats import report as rep
@@ -12,7 +13,7 @@ from bcfpipe.formats import report as rep
 
 def material_files(m: mfst.Material, manifest: mfst.Manifest, files: Sequence[str]) -> tuple[str, ...]:
     """A built material's files in OUT: its folder's files, then the shared ones it needs."""
-    if m.status == "constant":
+    if m.status == Status.CONSTANT:
         return (manifest.overrides_layer, manifest.root_layer)
     if m.outputs is None:
         return ()
@@ -36,25 +37,25 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
     for m in manifest.materials:
         r = results.get(m.job) if m.job else None
         q = m.metrics.detail if m.metrics else None
-        train = r.result.get("train_seconds") if r is not None and r.status == "built" else None
+        train = r.result.get("train_seconds") if r is not None and r.status == Status.BUILT else None
         mats.append(rep.MaterialReport(
             path=m.path, status=m.status, reason=m.reason, job=m.job,
-            cache=r.cache if r is not None and m.status == "built" else None,
+            cache=r.cache if r is not None and m.status == Status.BUILT else None,
             psnr=headline_psnr(m), psnr_per_mip=(q.psnr_per_mip_covered or q.psnr_per_mip) if q else None,
             train_seconds=round(train, 3) if train is not None else None,
             seconds=round(r.seconds, 3) if r is not None else None,
             total_bytes=m.sizes.total_bytes if m.sizes else None,
             files=material_files(m, manifest, files), folded=m.folded,
             attempts=r.attempts if r is not None and r.attempts > 1 else None))
-    built = [r for r in results.values() if r.status == "built"]
-    hits = sum(1 for r in built if r.cache == "hit")
-    trained = [r for r in built if r.cache != "hit"]
+    built = [r for r in results.values() if r.status == Status.BUILT]
+    hits = sum(1 for r in built if r.cache == CacheUse.HIT)
+    trained = [r for r in built if r.cache != CacheUse.HIT]
     t = manifest.totals
     return rep.BuildReport(
         out=out, root_layer=str(Path(out) / manifest.root_layer), manifest=str(Path(out) / mfst.FILE),
         exit_code=manifest.exit_code,
         cache=rep.CacheReport(cache_root is not None, cache_root, hits,
-                              sum(1 for r in results.values() if r.cache == "miss"), tuple(damaged)),
+                              sum(1 for r in results.values() if r.cache == CacheUse.MISS), tuple(damaged)),
         totals=rep.ReportTotals(
             materials=t.materials, built=t.built, constant=t.constant, failed=t.failed, skipped=t.skipped, jobs=t.jobs,
             trained=len(trained), cached=hits,

@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Mapping
 
+from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import TrainingOptions
 from bcfpipe.errors import EXIT_OK, WorkFailed
 from bcfpipe.builder.assemble import assemble, default_out
@@ -168,11 +169,11 @@ def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
         except OSError:  # pruned meanwhile: the worker trains it
             shutil.rmtree(materials_dir / job.name, ignore_errors=True)
             continue
-        hits[job.name] = JobResult(job.name, "built", None, 0.0, job.options.device, 0, dict(found.entry.result),
-                                   "hit")
+        hits[job.name] = JobResult(job.name, Status.BUILT, None, 0.0, job.options.device, 0, dict(found.entry.result),
+                                   CacheUse.HIT)
         if progress:
-            progress({"event": "done", "job": job.name, "status": "built", "reason": None,
-                      "psnr": found.entry.result.get("psnr"), "seconds": 0.0, "cache": "hit",
+            progress({"event": "done", "job": job.name, "status": Status.BUILT, "reason": None,
+                      "psnr": found.entry.result.get("psnr"), "seconds": 0.0, "cache": CacheUse.HIT,
                       "materials": list(job.materials)})
     return hits, damaged
 

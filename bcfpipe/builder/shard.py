@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import TrainingOptions
 from bcfpipe.builder.executor import JobResult, execute
 from bcfpipe.builder.plan import BuildError, ProgressCallback, plan
@@ -49,7 +50,7 @@ class ShardResult:
 
     @property
     def exit_code(self) -> int:
-        return 1 if any(j.status != "built" for j in self.jobs) else 0
+        return 1 if any(j.status != Status.BUILT for j in self.jobs) else 0
 
     def to_json(self) -> dict[str, Any]:
         return {"shard": list(self.shard), "cache": str(self.cache), "total_jobs": self.total_jobs,
@@ -72,10 +73,10 @@ def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: Trai
     todo = []
     for j in mine:
         if store.lookup(j.content_hash).entry is not None:
-            results[j.name] = JobResult(j.name, "built", None, 0.0, j.options.device, 0, {}, "hit")
+            results[j.name] = JobResult(j.name, Status.BUILT, None, 0.0, j.options.device, 0, {}, CacheUse.HIT)
             if progress:
-                progress({"event": "done", "job": j.name, "status": "built", "reason": None, "psnr": None,
-                          "seconds": 0.0, "cache": "hit", "materials": list(j.materials)})
+                progress({"event": "done", "job": j.name, "status": Status.BUILT, "reason": None, "psnr": None,
+                          "seconds": 0.0, "cache": CacheUse.HIT, "materials": list(j.materials)})
         else:
             todo.append(j)
     work = store.base / "tmp" / f"shard-{i}-of-{n}.{uuid.uuid4().hex[:8]}"

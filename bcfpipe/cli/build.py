@@ -21,6 +21,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.cli.errors import Command
 from bcfpipe.formats.manifest import Manifest
 from bcfpipe.formats.report import BuildReport
@@ -48,7 +49,7 @@ class BuildDisplay:
     Call it with the event dicts of `bcfpipe.builder.executor.execute`; use as a context manager.
     """
 
-    STYLE = {"queued": "dim", "running": "cyan", "built": "green", "failed": "red"}
+    STYLE = {"queued": "dim", "running": "cyan", Status.BUILT: "green", Status.FAILED: "red"}
 
     def __init__(self, console: Console | None = None, live: bool | None = None):
         self.console = console or Console(stderr=True)
@@ -79,7 +80,7 @@ class BuildDisplay:
         if kind == "queued":
             st["materials"] = ev.get("materials", [])
         elif kind == "progress":
-            if st["status"] in ("built", "failed"):  # a late event of a finished job (Ray's are not awaited)
+            if st["status"] in (Status.BUILT, Status.FAILED):  # a late event of a finished job (Ray's are not awaited)
                 return
             phase_changed = ev.get("phase") != st["phase"]
             st.update(status="running", phase=ev.get("phase", ""), step=ev.get("step", 0), steps=ev.get("steps", 0),
@@ -94,11 +95,11 @@ class BuildDisplay:
                 st["materials"] = ev["materials"]
             if ev.get("psnr") is not None:
                 st["psnr"] = ev["psnr"]
-            if st["status"] == "built" and ev.get("cache") == "hit":
+            if st["status"] == Status.BUILT and ev.get("cache") == CacheUse.HIT:
                 st["phase"] = "cached"
                 psnr = f", PSNR {st['psnr']:.2f} dB" if st["psnr"] is not None else ""
                 line = f"{name}: from the cache{psnr}"
-            elif st["status"] == "built":
+            elif st["status"] == Status.BUILT:
                 psnr = f", PSNR {st['psnr']:.2f} dB" if st["psnr"] is not None else ""
                 line = f"{name}: built in {ev.get('seconds') or 0:.1f}s{psnr}"
             else:
@@ -111,7 +112,7 @@ class BuildDisplay:
         """Texture sets by state: queued, running, done (trained), cached, failed."""
         n = dict.fromkeys(("queued", "running", "done", "cached", "failed"), 0)
         for st in self.jobs.values():
-            key = {"built": "cached" if st["phase"] == "cached" else "done"}.get(st["status"], st["status"])
+            key = {Status.BUILT: "cached" if st["phase"] == "cached" else "done"}.get(st["status"], st["status"])
             n[key] = n.get(key, 0) + 1
         return n
 
@@ -149,11 +150,11 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
               caption_justify="left")
     for col in ("material", "status", "targets", "profile", "PSNR", "size", "train", "note"):
         t.add_column(col, overflow="fold", justify="right" if col in ("PSNR", "size", "train") else "left")
-    style = {"built": "green", "constant": "cyan", "failed": "red", "skipped": "yellow"}
+    style = {Status.BUILT: "green", Status.CONSTANT: "cyan", Status.FAILED: "red", Status.SKIPPED: "yellow"}
     sharing = {j.name: len(j.materials) for j in manifest.jobs}
     for m, r in zip(manifest.materials, report.materials):
         note = m.reason or ""
-        if m.status == "built" and sharing.get(m.job, 1) > 1:
+        if m.status == Status.BUILT and sharing.get(m.job, 1) > 1:
             note = f"shared: {m.job} x{sharing[m.job]}"
         if m.folded:
             kinds = [f.reason for f in m.folded]
@@ -172,7 +173,7 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
             note = f"{note}; " if note else ""
             note += f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)"
         size = _fmt_size(m.sizes.total_bytes) if m.sizes else ""
-        train = "cached" if r.cache == "hit" else f"{r.train_seconds:.1f}s" if r.train_seconds else ""
+        train = "cached" if r.cache == CacheUse.HIT else f"{r.train_seconds:.1f}s" if r.train_seconds else ""
         t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(len(m.targets or m.constants) or ""),
                   f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "", psnr, size, train, note)
     return t
@@ -301,11 +302,11 @@ def _shard(ctx: click.Context, scene: Path, text: str, display, quiet: bool, as_
     if as_json:
         click.echo(json.dumps(res.to_json(), indent=2))
     elif not quiet:
-        counts = {k: sum(1 for j in res.jobs if (j.cache if j.status == "built" else "failed") == k)
-                  for k in ("miss", "hit", "failed")}
+        counts = {k: sum(1 for j in res.jobs if (j.cache if j.status == Status.BUILT else Status.FAILED) == k)
+                  for k in (CacheUse.MISS, CacheUse.HIT, Status.FAILED)}
         click.echo(f"shard {shard[0]}/{shard[1]}: {len(res.jobs)} of {res.total_jobs} job(s); {counts['miss']} "
                    f"trained, {counts['hit']} already cached, {counts['failed']} failed; cache {res.cache}")
         for j in res.jobs:
-            if j.status != "built":
+            if j.status != Status.BUILT:
                 click.echo(f"  {j.name}: failed: {j.reason}")
     ctx.exit(res.exit_code)

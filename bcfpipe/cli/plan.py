@@ -11,6 +11,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import all_materials_option, texel_density_option, training_options, variant_option
 
@@ -60,6 +61,6 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, texel_d
                   j.content_hash[:16])
     con = Console()
     con.print(t)
-    counts = {d: sum(1 for m in bplan.materials if m.decision == d) for d in ("model", "constant", "skip")}
+    counts = {d: sum(1 for m in bplan.materials if m.decision == d) for d in Decision}
     con.print(f"{len(bplan.jobs)} job(s) for {counts['model']} modelled material(s); {counts['constant']} "
               f"constant, {counts['skip']} skipped", highlight=False)

@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
+from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import all_materials_option, texel_density_option, variant_option
 from bcfpipe.scan.results import MaterialScan, StageScan
@@ -42,14 +43,14 @@ def _texture_lines(material: MaterialScan, grouping: Grouping) -> Text:
 
 def decision(material: MaterialScan, grouping: Grouping) -> str:
     """model, constant (every textured input folded to a value) or skip."""
-    return "constant" if material.path in grouping.constant else material.decision
+    return Decision.CONSTANT if material.path in grouping.constant else material.decision
 
 
 def _decision_text(material: MaterialScan, grouping: Grouping) -> Text:
     """``model`` in green, ``constant`` in cyan, or ``skip: reason`` with the message below."""
-    if decision(material, grouping) == "constant":
+    if decision(material, grouping) == Decision.CONSTANT:
         return Text("constant", style="cyan").append("\nnothing to train: values authored", style="dim")
-    if material.decision == "model":
+    if material.decision == Decision.MODEL:
         return Text("model", style="green")
     text = Text(f"skip: {material.reason}", style="yellow")
     text.append(f"\n{material.message}", style="dim")
@@ -68,7 +69,7 @@ def _need_text(req: dict | None) -> Text:
             text.append(f" (lowest mesh {d['lowest_mesh_density']:.0f})")
     for note in d.get("notes", [])[:2]:
         text.append(f"\n{note}" if text.plain else note, style="yellow")
-    if req["decision"] == "model":
+    if req["decision"] == Decision.MODEL:
         cap = f" capped: {req['texel_density_reached']:.0f} px/m" if req["capped"] else ""
         if req.get("covered_fraction") is not None:
             text.append(f"\n{100 * req['covered_fraction']:.0f}% of texels read" if text.plain else

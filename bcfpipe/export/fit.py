@@ -8,9 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
-from bcfpipe.config import ModelConfig, PRESETS, TrainConfig, TrainingOptions, resolve_profile
+from bcfpipe.config import TrainConfig, TrainingOptions
 from bcfpipe.texset.metrics import Metrics, compute_metrics
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn, TrainedMaterial, resolve_device, train
@@ -46,16 +47,10 @@ class MaterialResult:
         return d
 
 
-def make_config(ts: TextureSet, options: TrainingOptions, wrap: str = "repeat") -> tuple[str, TrainConfig]:
-    """The TrainConfig of ``options`` (validated when it was made) for ``ts``; returns the resolved
-    profile name too (``auto`` picks from the set's size)."""
-    if wrap not in ("repeat", "clamp"):
-        raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
-    name, res = resolve_profile(options.profile, max(ts.width, ts.height))
-    dev = str(resolve_device(options.device))
-    mc = ModelConfig(resolutions=res, hidden=options.hidden, signed=options.signed, wrap=wrap)
-    return name, TrainConfig(model=mc, preset=PRESETS[options.preset], preset_name=options.preset, seed=options.seed,
-                             device=dev, threads=options.threads, feature_init=options.init)
+def make_config(ts: TextureSet, options: TrainingOptions, wrap: str = Wrap.REPEAT) -> tuple[str, TrainConfig]:
+    """The TrainConfig of ``options`` (validated when it was made) for ``ts``, on the device it
+    names resolved here; returns the resolved profile name too (``auto`` picks from the set's size)."""
+    return options.train_config(max(ts.width, ts.height), wrap, str(resolve_device(options.device)))
 
 
 def exported_size(out_dir: Path) -> int:

@@ -10,6 +10,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bcfpipe.formats.vocabulary import Status
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.record import Record, optional, read as read_record
 
@@ -21,7 +22,7 @@ COMPATIBLE_VERSIONS = (3, 4)
 FILE = "manifest.json"
 WEIGHTS = "weights.bin"
 
-STATUSES = ("built", "constant", "failed", "skipped")
+STATUSES = tuple(Status)
 
 
 @dataclass(frozen=True)
@@ -291,10 +292,10 @@ class Manifest(Record):
               "variants", "variant_selections", "all_materials", "options", "stage", "materials")
 
     def built(self) -> list[Material]:
-        return [m for m in self.materials if m.status == "built"]
+        return [m for m in self.materials if m.status == Status.BUILT]
 
     def failed(self) -> list[str]:
-        return [m.path for m in self.materials if m.status == "failed"]
+        return [m.path for m in self.materials if m.status == Status.FAILED]
 
 
 def _version() -> str:

@@ -10,6 +10,7 @@ file that does not match the contract fails where it is read, naming the key.
 from __future__ import annotations
 
 import dataclasses
+from enum import Enum
 import json
 import types
 import typing
@@ -65,6 +66,8 @@ def _fields_json(v: Any) -> dict[str, Any]:
 
 
 def _dump(v: Any) -> Any:
+    if isinstance(v, Enum):  # a named value (formats.vocabulary): its string
+        return v.value
     if isinstance(v, Record):
         return v.to_json()
     if dataclasses.is_dataclass(v) and not isinstance(v, type):

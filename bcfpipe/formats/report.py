@@ -8,12 +8,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bcfpipe.formats.vocabulary import CacheUse
 from bcfpipe.formats.manifest import Folded
 from bcfpipe.formats.record import Record, optional
 
 FORMAT = "bcfpipe-build-report"
 FORMAT_VERSION = 1
-CACHE_STATES = ("hit", "miss")
+CACHE_STATES = (CacheUse.HIT, CacheUse.MISS)
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from typing import Any
 
 from bcfpipe.formats import manifest, material, report
 from bcfpipe.formats.record import _hints, key_order
+from bcfpipe.formats.vocabulary import Status
 
 SCHEMA_DIR = Path(__file__).resolve().parents[2] / "schemas"
 BASE_URI = "https://bcfpipe.dev/schemas/"
@@ -295,7 +296,7 @@ ENUMS: dict[tuple[str, str], list] = {
     ("Sampling", "addressing"): ["repeat", "clamp"],
     ("Output", "kind"): ["color", "normal", "scalar"],
     ("Material", "status"): list(manifest.STATUSES),
-    ("Job", "status"): ["built", "failed", "not run"],
+    ("Job", "status"): [Status.BUILT, Status.FAILED, "not run"],
     ("BuildReport", "format"): [report.FORMAT],
     ("BuildReport", "format_version"): [report.FORMAT_VERSION],
     ("MaterialReport", "status"): list(manifest.STATUSES),

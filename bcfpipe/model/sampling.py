@@ -16,30 +16,32 @@ from typing import Callable, Sequence
 
 import torch
 
-WRAP_MODES = ("repeat", "clamp")
+from bcfpipe.formats.vocabulary import Wrap
+
+WRAP_MODES = (Wrap.REPEAT, Wrap.CLAMP)
 
 
 def _address(i: torch.Tensor, n: int, wrap: str) -> torch.Tensor:
-    return torch.remainder(i, n) if wrap == "repeat" else i.clamp(0, n - 1)
+    return torch.remainder(i, n) if wrap == Wrap.REPEAT else i.clamp(0, n - 1)
 
 
 def reduce_uv(uv: torch.Tensor, wrap: str) -> torch.Tensor:
     """uv - floor(uv) for repeat (exact in fp32), uv clamped to [-1, 2] for clamp-to-edge: the same
     texels and weights, with coordinates small enough that ``uv * w`` keeps its sub-texel bits."""
-    return uv - torch.floor(uv) if wrap == "repeat" else uv.clamp(-1.0, 2.0)
+    return uv - torch.floor(uv) if wrap == Wrap.REPEAT else uv.clamp(-1.0, 2.0)
 
 
 TexelFn = Callable[[torch.Tensor], torch.Tensor]  # flat texel ids (M,) -> values (M, C)
 
 
-def sample_bilinear(tex: torch.Tensor, uv: torch.Tensor, wrap: str = "repeat") -> torch.Tensor:
+def sample_bilinear(tex: torch.Tensor, uv: torch.Tensor, wrap: str = Wrap.REPEAT) -> torch.Tensor:
     """Bilinear sample of one level ``tex`` (C, H, W) at ``uv`` (N, 2) -> (N, C)."""
     c, h, w = tex.shape
     flat = tex.reshape(c, h * w).t()  # (H*W, C)
     return sample_bilinear_fn(lambda ids: flat[ids], h, w, uv, wrap)
 
 
-def sample_bilinear_fn(texels: TexelFn, h: int, w: int, uv: torch.Tensor, wrap: str = "repeat") -> torch.Tensor:
+def sample_bilinear_fn(texels: TexelFn, h: int, w: int, uv: torch.Tensor, wrap: str = Wrap.REPEAT) -> torch.Tensor:
     """Bilinear sample of an h x w level whose texels are produced on demand by ``texels``
     (row-major flat ids -> values). Training uses this to decode only the 4 taps of each sample
     instead of a whole level, so a step costs O(batch) rather than O(level size)."""
@@ -71,7 +73,7 @@ def level_weights(lod: torch.Tensor | float, n_levels: int) -> tuple[torch.Tenso
 
 
 def sample_trilinear(levels: Sequence[torch.Tensor], uv: torch.Tensor, lod: torch.Tensor | float,
-                     wrap: str = "repeat") -> torch.Tensor:
+                     wrap: str = Wrap.REPEAT) -> torch.Tensor:
     """Trilinear sample of a mip pyramid ``levels`` [(C, H_k, W_k)] -> (N, C).
 
     ``lod`` is a float (one lod for the whole batch, as in training: only two levels are touched)

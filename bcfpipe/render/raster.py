@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bcfpipe.formats.vocabulary import ColorSpace, Wrap
 from bcfpipe.errors import InputError
 from bcfpipe.formats import dds
 from bcfpipe.render.scene import Batch, View
@@ -118,7 +119,7 @@ class Renderer:
                 tex = dds.parse(read_asset(path), path)
                 if tex.signed != f.signed:
                     raise InputError(f"{path}: {tex.format_name} but {surface.material} says featureSigned={int(f.signed)}")
-                texs.append(self.rt.upload_compressed(tex.levels, fmt, "repeat" if f.repeat else "clamp"))
+                texs.append(self.rt.upload_compressed(tex.levels, fmt, Wrap.REPEAT if f.repeat else Wrap.CLAMP))
             self._features[key] = texs
         return self._features[key]
 
@@ -162,7 +163,7 @@ class Renderer:
             except InputError:
                 rgba[..., slot] = 1.0 if letter == "a" else 0.0
         fmt = im.format
-        srgb = resolved_color_space(color_space, px.shape[2], fmt) == "sRGB"
+        srgb = resolved_color_space(color_space, px.shape[2], fmt) == ColorSpace.SRGB
         GL = self.GL
         tex = int(GL.glGenTextures(1))
         GL.glActiveTexture(GL.GL_TEXTURE0)
@@ -177,7 +178,7 @@ class Renderer:
             GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA16F, px.shape[1], px.shape[0], 0, GL.GL_RGBA,
                             GL.GL_HALF_FLOAT, data)
         GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
-        modes = {"repeat": GL.GL_REPEAT, "clamp": GL.GL_CLAMP_TO_EDGE, "mirror": GL.GL_MIRRORED_REPEAT,
+        modes = {Wrap.REPEAT: GL.GL_REPEAT, Wrap.CLAMP: GL.GL_CLAMP_TO_EDGE, "mirror": GL.GL_MIRRORED_REPEAT,
                  "black": GL.GL_CLAMP_TO_BORDER}
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, modes.get(wrap[0], GL.GL_REPEAT))
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_T, modes.get(wrap[1], GL.GL_REPEAT))

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 
 from pxr import Sdf, Usd, UsdShade
 
+from bcfpipe.formats.vocabulary import ColorSpace, Wrap
 from bcfpipe.scan.network import scan_input, shader_id, st_source
 from bcfpipe.scan.results import PREVIEW_SURFACE_INPUTS, TextureRef, Transform2d
 from bcfpipe.scan.values import is_unregistered
@@ -207,7 +208,7 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
         else:
             names = [x for x in COMPONENTS if _INPUT_OF[x] == t]
         for n in names:
-            comps[COMPONENTS.index(n)] = Component(int(c), float(s), float(b), cs == "sRGB")
+            comps[COMPONENTS.index(n)] = Component(int(c), float(s), float(b), cs == ColorSpace.SRGB)
     st = st_source(shader)
     res = _input(shader, "referenceResolution", (0, 0))
     feats = NeuralFeatures(
@@ -215,7 +216,7 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
         lod_biases=tuple(float(_input(shader, f"lodBias{i}", 0.0)) for i in range(4)),
         reference_size=(int(res[0]), int(res[1])),
         signed=bool(_input(shader, "featureSigned", 0)),
-        repeat=str(_input(shader, "addressing", "repeat")) == "repeat",
+        repeat=str(_input(shader, "addressing", Wrap.REPEAT)) == Wrap.REPEAT,
         weights=_asset(shader, "weights", path),
         weights_offset=int(_input(shader, "weightsOffset", 0)),
         normal_index=int(channels[targets.index("normal.x")]) if "normal.x" in targets else -1)

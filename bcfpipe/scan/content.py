@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 import xxhash
 
+from bcfpipe.formats.vocabulary import Wrap
+
 INTEGER_STEP = 1.0 / 255.0
 
 
@@ -124,7 +126,7 @@ def sample_at(path: str, letter: str, st: tuple[float, float], wrap: str, cache:
     fx, fy = x - x0, y - y0
 
     def texel(i: int, j: int) -> float:
-        i, j = (i % w, j % h) if wrap == "repeat" else (min(max(i, 0), w - 1), min(max(j, 0), h - 1))
+        i, j = (i % w, j % h) if wrap == Wrap.REPEAT else (min(max(i, 0), w - 1), min(max(j, 0), h - 1))
         return float(ch[j, i]) / scale
 
     top = texel(x0, y0) * (1 - fx) + texel(x0 + 1, y0) * fx

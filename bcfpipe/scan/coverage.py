@@ -19,6 +19,8 @@ import base64
 import numpy as np
 import xxhash
 
+from bcfpipe.formats.vocabulary import Wrap
+
 __all__ = ["rasterize", "mask_mips", "pack", "unpack", "digest"]
 
 
@@ -38,7 +40,7 @@ def _spans(x: np.ndarray, y: np.ndarray, rows: np.ndarray, tri: np.ndarray) -> t
     return lo, hi
 
 
-def rasterize(tris: np.ndarray, width: int, height: int, wrap: str = "repeat") -> np.ndarray:
+def rasterize(tris: np.ndarray, width: int, height: int, wrap: str = Wrap.REPEAT) -> np.ndarray:
     """(height, width) bool mask of texels covered by ``tris`` (T, 3, 2) in USD st coordinates: a
     texel whose centre lies in (or on the edge of) a triangle, or in which a triangle's vertex lies.
     Scanline fill: every (triangle, texel row) pair gives one span, accumulated per row."""
@@ -61,7 +63,7 @@ def rasterize(tris: np.ndarray, width: int, height: int, wrap: str = "repeat") -
     # the texels the vertices lie in: one-texel spans
     vx, vy = np.floor(x + 0.5).astype(np.int64).ravel(), np.floor(y + 0.5).astype(np.int64).ravel()
     rows, lo, hi = np.concatenate([rows, vy]), np.concatenate([lo, vx]), np.concatenate([hi, vx])
-    if wrap == "repeat":
+    if wrap == Wrap.REPEAT:
         full = hi - lo + 1 >= width
         rows = np.mod(rows, height)
         mask[rows[full]] = True
@@ -84,7 +86,7 @@ def rasterize(tris: np.ndarray, width: int, height: int, wrap: str = "repeat") -
 
 def _dilate(m: np.ndarray, wrap: str) -> np.ndarray:
     """3 x 3 dilation (wrapping for repeat)."""
-    if wrap == "repeat":
+    if wrap == Wrap.REPEAT:
         out = m.copy()
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):
@@ -98,7 +100,7 @@ def _dilate(m: np.ndarray, wrap: str) -> np.ndarray:
     return out
 
 
-def mask_mips(level0: np.ndarray, n_levels: int, wrap: str = "repeat") -> list[np.ndarray]:
+def mask_mips(level0: np.ndarray, n_levels: int, wrap: str = Wrap.REPEAT) -> list[np.ndarray]:
     """The mask's chain: level 0 dilated by one texel, then 2 x 2 'any' reductions, each dilated."""
     levels = [_dilate(level0, wrap)]
     while len(levels) < n_levels:

@@ -8,6 +8,7 @@ from typing import Any
 
 from pxr import Sdf, Usd, UsdShade
 
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.scan.results import InputScan, PREVIEW_SURFACE_INPUTS, StSource, TextureRef, Transform2d
 from bcfpipe.scan.values import is_unregistered
 
@@ -25,7 +26,7 @@ _TEXTURE_DEFAULTS = {
     "st": (0.0, 0.0),
 }
 _TEXTURE_CHANNELS = ("r", "g", "b", "a", "rgb")
-WRAP_MODES = frozenset({"black", "clamp", "repeat", "mirror", "useMetadata"})
+WRAP_MODES = frozenset({"black", Wrap.CLAMP, Wrap.REPEAT, "mirror", "useMetadata"})
 
 
 def _as_f32(x: float) -> float:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.config import DEFAULT_HIDDEN, DEFAULT_PROFILE, mip_count, resolve_profile
 from bcfpipe.formats import dds, weights
 from bcfpipe.formats.manifest import Options
@@ -54,12 +55,12 @@ def requirements(grouping: Grouping, everything: Grouping, profile: str = DEFAUL
         job = _job(g.model, g.models, options)
         total += job["estimated_bytes"]
         for path, mm in zip(g.materials, g.models):
-            out[path] = {"decision": "model", "texture_set": g.name, "outputs": len(mm.channels),
+            out[path] = {"decision": Decision.MODEL, "texture_set": g.name, "outputs": len(mm.channels),
                          "folded": [f.to_dict() for f in mm.folded],
                          "density": mm.density.to_dict() if mm.density else None, **job,
                          "estimated_bytes": job["estimated_bytes"] if path == g.materials[0] else 0}
     for path, mm in grouping.constant.items():
-        out[path] = {"decision": "constant", "texture_set": None, "outputs": 0,
+        out[path] = {"decision": Decision.CONSTANT, "texture_set": None, "outputs": 0,
                      "folded": [f.to_dict() for f in mm.folded],
                      "density": mm.density.to_dict() if mm.density else None, "resolution": 0, "profile": None,
                      "capped": False, "texel_density_reached": None, "covered_fraction": None,

@@ -6,6 +6,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 
+from bcfpipe.formats.vocabulary import Decision, Wrap
 from bcfpipe.errors import InputError
 
 
@@ -27,7 +28,6 @@ PREVIEW_SURFACE_INPUTS: dict[str, Any] = {
     "occlusion": 1.0,
 }
 
-DECISION_MODEL, DECISION_SKIP = "model", "skip"
 
 
 class ScanError(InputError):
@@ -95,7 +95,7 @@ class TextureRef:
     def effective_wrap(self) -> tuple[str, str]:
         """(wrapS, wrapT) with ``useMetadata`` read as ``repeat``."""
         def effective(wrap: str) -> str:
-            return "repeat" if wrap == "useMetadata" else wrap
+            return Wrap.REPEAT if wrap == "useMetadata" else wrap
 
         return effective(self.wrap_s), effective(self.wrap_t)
 
@@ -233,12 +233,12 @@ class StageScan:
     @property
     def to_model(self) -> tuple[MaterialScan, ...]:
         """Materials decided ``model``."""
-        return tuple(m for m in self.materials if m.decision == DECISION_MODEL)
+        return tuple(m for m in self.materials if m.decision == Decision.MODEL)
 
     @property
     def skipped(self) -> tuple[MaterialScan, ...]:
         """Materials decided ``skip``."""
-        return tuple(m for m in self.materials if m.decision == DECISION_SKIP)
+        return tuple(m for m in self.materials if m.decision == Decision.SKIP)
 
     def material(self, path: str) -> MaterialScan:
         """The scan of the material at `path` (or one of its aliases)."""

@@ -55,11 +55,12 @@ from typing import Any, Iterable, Mapping
 
 from pxr import Ar, Usd, UsdGeom, UsdShade
 
+from bcfpipe.formats.vocabulary import ColorSpace, Decision
 from bcfpipe.scan.composition import (apply_variants, bound_materials, captured_diagnostics, composition_errors,
                                       definition_path, first_line, new_diagnostics, open_stage, rendered_gprims)
 from bcfpipe.scan.density import MaterialDensity, material_bindings, material_density
 from bcfpipe.scan.network import COLOR_INPUTS, WRAP_MODES, scan_input, shader_id
-from bcfpipe.scan.results import (DECISION_MODEL, DECISION_SKIP, PREVIEW_SURFACE_INPUTS, ChannelUse, InputScan,
+from bcfpipe.scan.results import (PREVIEW_SURFACE_INPUTS, ChannelUse, InputScan,
                                   MaterialScan, StageScan)
 
 
@@ -105,7 +106,7 @@ def input_warnings(inputs: Iterable[InputScan]) -> tuple[str, ...]:
             notes.append(f"{inp.name}: file is time-sampled; using its default value")
         if inp.name not in COLOR_INPUTS and inp.name != "normal" and tex.channel == "rgb":
             notes.append(f"{inp.name}: scalar input fed from rgb; reading .r")
-        if inp.name not in COLOR_INPUTS and tex.channel != "a" and tex.source_color_space == "sRGB":
+        if inp.name not in COLOR_INPUTS and tex.channel != "a" and tex.source_color_space == ColorSpace.SRGB:
             notes.append(f"{inp.name}: non-colour data read from a texture tagged sRGB")
         for wrap in (tex.wrap_s, tex.wrap_t):
             if wrap not in WRAP_MODES:
@@ -121,20 +122,20 @@ def decide(
 ) -> tuple[str, str | None, str]:
     """(decision, reason, message) for a material from its facts (first rule that applies)."""
     if surface_problem is not None:
-        return DECISION_SKIP, surface_problem[0], surface_problem[1]
+        return Decision.SKIP, surface_problem[0], surface_problem[1]
     if not bound and not all_materials:
-        return DECISION_SKIP, "unbound", "not bound to any rendered geometry"
+        return Decision.SKIP, "unbound", "not bound to any rendered geometry"
     textured = [i for i in inputs if i.kind == "texture"]
     if not textured:
         others = [i.name for i in inputs if i.kind != "constant"]
         tail = f"; {', '.join(others)} from primvars/other nodes" if others else ""
-        return DECISION_SKIP, "no-textures", f"no texture inputs (constants{tail})"
+        return Decision.SKIP, "no-textures", f"no texture inputs (constants{tail})"
     bad = [i for i in textured if i.texture is not None and not i.texture.ok]
     if bad:
         detail = "; ".join(f"{i.name}: {i.texture.problem}" for i in bad)  # type: ignore[union-attr]
-        return DECISION_SKIP, "unresolvable-file", detail
+        return Decision.SKIP, "unresolvable-file", detail
     names = ", ".join(i.name for i in textured)
-    return DECISION_MODEL, None, f"{len(textured)} textured input(s): {names}"
+    return Decision.MODEL, None, f"{len(textured)} textured input(s): {names}"
 
 
 def _surface(material: UsdShade.Material) -> tuple[UsdShade.Shader | None, tuple[str, str] | None]:
@@ -182,7 +183,7 @@ def scan_material(
         surface_shader=str(shader.GetPath()) if shader else None,
         shader_id=sid,
         inputs=inputs,
-        channel_uses=channel_uses(inputs) if decision == DECISION_MODEL else (),
+        channel_uses=channel_uses(inputs) if decision == Decision.MODEL else (),
         warnings=input_warnings(inputs),
     )
 
@@ -193,7 +194,7 @@ def _error_scan(
     """A skip for a material whose scan raised."""
     return MaterialScan(
         path=path,
-        decision=DECISION_SKIP,
+        decision=Decision.SKIP,
         reason="scan-error",
         message=f"scan-error: {first_line(exc)}",
         bound=bool(bound_purposes),
@@ -270,7 +271,7 @@ def scan_stage(
             aliases = tuple(str(p.GetPath()) for p in prims[1:])
             try:
                 ms = scan_material(UsdShade.Material(prims[0]), purposes, all_materials, aliases)
-                if ms.decision == DECISION_MODEL:
+                if ms.decision == Decision.MODEL:
                     ms = replace(ms, density=_density(ms, bindings.get(key, []), mpu))
                 scans.append(ms)
             except Exception as exc:  # noqa: BLE001 - one bad material must not stop the scan

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Mapping, Sequence
 
+from bcfpipe.formats.vocabulary import ColorSpace, Decision, Wrap
 from bcfpipe.errors import one_line
 from bcfpipe.formats.images import ImageReadError
 
@@ -107,10 +108,10 @@ def _probe(path: str) -> tuple[int, int, int, str]:
 
 def resolved_color_space(authored: str, channels: int, fmt: str) -> str:
     """Hydra's reading of sourceColorSpace: auto is sRGB for 8-bit files with 3 or 4 channels."""
-    if authored == "sRGB":
-        return "sRGB"
+    if authored == ColorSpace.SRGB:
+        return ColorSpace.SRGB
     if authored == "auto":
-        return "sRGB" if fmt == "uint8" and channels in (3, 4) else "raw"
+        return ColorSpace.SRGB if fmt == "uint8" and channels in (3, 4) else "raw"
     return "raw"
 
 
@@ -227,7 +228,7 @@ def _at(path: str, letter: str, st, wraps, cache: dict, warnings: list[str], con
     ``content`` unchanged when the texels cannot be read."""
     from bcfpipe.scan.content import ChannelContent, sample_at
 
-    wrap = "clamp" if all(w == "clamp" for w in wraps) else "repeat"
+    wrap = Wrap.CLAMP if all(w == Wrap.CLAMP for w in wraps) else Wrap.REPEAT
     try:
         v = sample_at(path, letter, tuple(st), wrap, cache)
     except ImageReadError:
@@ -241,7 +242,7 @@ def _at(path: str, letter: str, st, wraps, cache: dict, warnings: list[str], con
 def _decode(value: float, color_space: str) -> float:
     from bcfpipe.scan.content import srgb_to_linear
 
-    return srgb_to_linear(value) if color_space == "sRGB" else value
+    return srgb_to_linear(value) if color_space == ColorSpace.SRGB else value
 
 
 def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, canonical: Canonical | None = None,
@@ -311,17 +312,17 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
             else:
                 specs.extend(("generic", k.file, k.channel) for k in new)
             channels.extend(new)
-        if tex.source_color_space not in ("auto", "raw", "sRGB"):
+        if tex.source_color_space not in ("auto", "raw", ColorSpace.SRGB):
             warnings.append(f"{inp.name}: unknown sourceColorSpace {tex.source_color_space!r}, read as raw")
         for i, (u, key) in enumerate(zip(uses, keys)):
             comp = "rgba".index(u.channel)
             s, b = float(tex.scale[comp]), float(tex.bias[comp])
             cs = src.resolved_color_space if u.channel != "a" else "raw"
             if is_normal:
-                if cs == "sRGB":
+                if cs == ColorSpace.SRGB:
                     warnings.append(f"{inp.name}: normal map colour space resolves to sRGB; modelled as raw")
                 cs = "raw"
-            elif cs == "sRGB" and inp.name not in ("diffuseColor", "emissiveColor", "specularColor") \
+            elif cs == ColorSpace.SRGB and inp.name not in ("diffuseColor", "emissiveColor", "specularColor") \
                     and tex.source_color_space == "auto":
                 warnings.append(f"{inp.name}: sourceColorSpace auto resolves to sRGB for this 8-bit file "
                                 "(as in Hydra); the renderer decodes it as sRGB")
@@ -333,14 +334,14 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
                 s, b = s / 2.0, s / 2.0 + b  # the model stores 2 v - 1
             targets.append((u.target, inp.name, key, s, b, cs))
         for w in tex.effective_wrap:
-            if w not in ("repeat", "clamp"):
+            if w not in (Wrap.REPEAT, Wrap.CLAMP):
                 warnings.append(f"{inp.name}: wrap mode {w!r} modelled as repeat")
         wraps.update(tex.effective_wrap)
         st = tex.st
         xf = st.transform
         sts.append((st.varname or "st", xf.scale if xf else (1.0, 1.0), xf.rotation if xf else 0.0,
                     xf.translation if xf else (0.0, 0.0)))
-    wrap = "clamp" if wraps == {"clamp"} else "repeat"
+    wrap = Wrap.CLAMP if wraps == {Wrap.CLAMP} else Wrap.REPEAT
     if len(set(sts)) > 1:
         warnings.append("textures use different st primvars or transforms; the model uses the first texture's")
     st = sts[0] if sts else ("st", (1.0, 1.0), 0.0, (0.0, 0.0))
@@ -448,7 +449,7 @@ def group_materials(scene, variants: Mapping[str, str], materials: Sequence["Mat
     texture once (its header, and with ``digest`` its bytes for the hash; with ``fold`` its texels,
     to fold constant channels and merge duplicates; all cached in ``file_cache``). ``facts``: a
     bcfpipe.cache.facts.FactsStore; a file whose bytes it has seen is not decoded again."""
-    modelled = [ms for ms in materials if ms.decision == "model"]
+    modelled = [ms for ms in materials if ms.decision == Decision.MODEL]
     instanced = frozenset(instance_proxies(scene, variants, [m.path for m in modelled]))
     cache = {} if file_cache is None else file_cache
     canonical = Canonical()

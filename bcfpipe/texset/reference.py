@@ -25,11 +25,12 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["ReferencePyramid", "CentreTargets", "keys_weights", "sample_reference", "random_batch", "WRAP_MODES"]
 
-WRAP_MODES = ("repeat", "clamp")
+WRAP_MODES = (Wrap.REPEAT, Wrap.CLAMP)
 KEYS_A = -0.5
 
 
@@ -93,7 +94,7 @@ def _bicubic(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
     wts = keys_weights(x - x0).to(tex.dtype)  # (N, 2, 4): taps at -1, 0, 1, 2 per axis
     idx = x0.long().unsqueeze(-1) + torch.arange(-1, 3, device=uv.device)  # (N, 2, 4)
     size = size.view(1, 2, 1)
-    idx = torch.remainder(idx, size) if wrap == "repeat" else torch.minimum(idx.clamp_min(0), size - 1)
+    idx = torch.remainder(idx, size) if wrap == Wrap.REPEAT else torch.minimum(idx.clamp_min(0), size - 1)
     flat = (idx[:, 1, :, None] * w + idx[:, 0, None, :]).reshape(-1)  # (N*16,) row-major taps
     weights = (wts[:, 1, :, None] * wts[:, 0, None, :]).reshape(-1, 16)  # (N, 16)
     taps = tex.reshape(c, h * w).index_select(1, flat).reshape(c, -1, 16)  # (c, N, 16)
@@ -108,7 +109,7 @@ def _level_split(s: float, levels: int) -> tuple[int, int, float]:
 
 
 def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float | torch.Tensor,
-                     wrap: str = "repeat") -> torch.Tensor:
+                     wrap: str = Wrap.REPEAT) -> torch.Tensor:
     """Trilinear-of-bicubic reference lookup at uv (N, 2) and scale s: returns (N, c).
 
     `s` is one scalar per batch (the paper's setting: a float or 0-d tensor) or a per-point

@@ -19,6 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds
 from bcfpipe.formats import material as mf
@@ -148,7 +149,7 @@ class GLMaterial:
         b = self.desc.lod_biases
         return {"uWeightOffset": self.desc.weight_offset, "uLodBias": tuple(float(x) for x in b),
                 "uNormalIndex": self.desc.normal_index, "uRefSize": tuple(float(x) for x in self.desc.ref_size),
-                "uRepeat": self.desc.wrap == "repeat"}
+                "uRepeat": self.desc.wrap == Wrap.REPEAT}
 
 
 def _current(method):
@@ -236,7 +237,7 @@ class GLRuntime:
     # ------------------------------------------------------------------ textures
     @_current
     def upload_compressed(self, levels: Sequence[tuple[np.ndarray, int, int]], internal_format: int,
-                          wrap: str = "repeat") -> int:
+                          wrap: str = Wrap.REPEAT) -> int:
         """A new GL_TEXTURE_2D with the given compressed mip chain, trilinear filtering,
         GL_TEXTURE_MAX_LEVEL = len(levels) - 1 and REPEAT / CLAMP_TO_EDGE addressing."""
         GL = self.GL
@@ -255,7 +256,7 @@ class GLRuntime:
                 GL.glDeleteTextures([tex])
                 raise RuntimeError(f"glCompressedTexImage2D(level {lvl}, {w}x{h}, 0x{internal_format:04X}) "
                                    f"failed: GL error 0x{err:04X}")
-        mode = GL.GL_REPEAT if wrap == "repeat" else GL.GL_CLAMP_TO_EDGE
+        mode = GL.GL_REPEAT if wrap == Wrap.REPEAT else GL.GL_CLAMP_TO_EDGE
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR_MIPMAP_LINEAR)
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, mode)

@@ -37,6 +37,8 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.formats.vocabulary import Wrap
+
 
 
 FILTER_BITS = 8
@@ -45,7 +47,7 @@ TARGET = 2e-3
 
 
 def _addr(i: np.ndarray, n: int, wrap: str) -> np.ndarray:
-    return np.mod(i, n) if wrap == "repeat" else np.clip(i, 0, n - 1)
+    return np.mod(i, n) if wrap == Wrap.REPEAT else np.clip(i, 0, n - 1)
 
 
 def _off_grid(x: np.ndarray, delta: float) -> np.ndarray:
@@ -61,7 +63,7 @@ def _bilinear_terms(tex: np.ndarray, uv: np.ndarray, wrap: str, delta: float):
     bound and the abs error bound of B for fraction errors up to ``delta``."""
     h, w, _ = tex.shape
     uv = uv.astype(np.float64)
-    uv = uv - np.floor(uv) if wrap == "repeat" else np.clip(uv, -1.0, 2.0)  # as bcfReduceUv, in float64
+    uv = uv - np.floor(uv) if wrap == Wrap.REPEAT else np.clip(uv, -1.0, 2.0)  # as bcfReduceUv, in float64
     x = uv[:, 0] * w - 0.5
     y = uv[:, 1] * h - 0.5
     x0, y0 = np.floor(x), np.floor(y)

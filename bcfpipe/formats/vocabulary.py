@@ -1,0 +1,57 @@
+"""The fixed words of the file contract, as named values: what a material became, what the scan
+decided, whether the cache had it, how a texture is addressed, how its texels are encoded.
+
+Each is a `StrEnum`, so its members are the strings the JSON files and the USD layer hold (they
+compare, hash and serialise as those strings) while the code names them.
+"""
+from __future__ import annotations
+
+from enum import Enum
+
+try:
+    from enum import StrEnum
+except ImportError:  # Python 3.10
+    class StrEnum(str, Enum):  # type: ignore[no-redef]
+        def __str__(self) -> str:
+            return str(self.value)
+
+__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace"]
+
+
+class Status(StrEnum):
+    """What became of a material in a build (manifest.json, the --json report)."""
+
+    BUILT = "built"
+    CONSTANT = "constant"
+    FAILED = "failed"
+    SKIPPED = "skipped"
+
+
+class Decision(StrEnum):
+    """What the scan and the plan decided for a material."""
+
+    MODEL = "model"
+    CONSTANT = "constant"
+    SKIP = "skip"
+
+
+class CacheUse(StrEnum):
+    """Whether a job's trained files came from the cache."""
+
+    HIT = "hit"
+    MISS = "miss"
+
+
+class Wrap(StrEnum):
+    """Texture addressing the model is trained for and the runtime samples with."""
+
+    REPEAT = "repeat"
+    CLAMP = "clamp"
+
+
+class ColorSpace(StrEnum):
+    """A UsdUVTexture's sourceColorSpace: as authored (auto, raw, sRGB), resolved to raw or sRGB."""
+
+    AUTO = "auto"
+    RAW = "raw"
+    SRGB = "sRGB"
