@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
+from bcfpipe.builder.events import ProgressEvent
 from bcfpipe.config import TrainingOptions
 from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.builder import (MANIFEST, BuildError, MaterialJob, build, plan, root_layer_name)
@@ -566,12 +567,12 @@ def test_plain_progress_lines() -> None:
     buf = io.StringIO()
     display = BuildDisplay(Console(file=buf, width=200), live=False)
     with display:
-        display({"event": "queued", "job": "A", "materials": ["/W/A"]})
-        display({"event": "progress", "job": "A", "phase": "warmup", "step": 50, "steps": 200, "psnr": 20.0,
-                 "eta": 10.0})
-        display({"event": "progress", "job": "A", "phase": "warmup", "step": 100, "steps": 200, "psnr": 21.0,
-                 "eta": 8.0})
-        display({"event": "done", "job": "A", "status": "built", "psnr": 30.5, "seconds": 12.0})
+        display(ProgressEvent(**{"event": "queued", "job": "A", "materials": ["/W/A"]}))
+        display(ProgressEvent(**{"event": "progress", "job": "A", "phase": "warmup", "step": 50, "steps": 200, "psnr": 20.0,
+                 "eta": 10.0}))
+        display(ProgressEvent(**{"event": "progress", "job": "A", "phase": "warmup", "step": 100, "steps": 200, "psnr": 21.0,
+                 "eta": 8.0}))
+        display(ProgressEvent(**{"event": "done", "job": "A", "status": "built", "psnr": 30.5, "seconds": 12.0}))
     lines = buf.getvalue().splitlines()
     assert len(lines) == 2 and "A: warmup" in lines[0] and "PSNR 30.50" in lines[1]
     assert "[1/1: 1 trained, 0 cached, 0 failed; 0 running, 0 queued]" in lines[1]
@@ -582,14 +583,14 @@ def test_progress_counts_every_state() -> None:
     from rich.console import Console
 
     display = BuildDisplay(Console(file=io.StringIO(), width=200), live=False)
-    display({"event": "done", "job": "C", "status": "built", "cache": "hit", "psnr": 31.0, "seconds": 0.0})
+    display(ProgressEvent(**{"event": "done", "job": "C", "status": "built", "cache": "hit", "psnr": 31.0, "seconds": 0.0}))
     for name in "ABDE":
-        display({"event": "queued", "job": name, "materials": [f"/W/{name}"]})
-    display({"event": "progress", "job": "A", "phase": "warmup", "step": 1, "steps": 9})
-    display({"event": "progress", "job": "B", "phase": "warmup", "step": 1, "steps": 9})
-    display({"event": "done", "job": "B", "status": "built", "psnr": 30.0, "seconds": 3.0})
-    display({"event": "done", "job": "D", "status": "failed", "reason": "worker process died"})
-    display({"event": "progress", "job": "B", "phase": "finetune", "step": 9, "steps": 9})  # late: ignored
+        display(ProgressEvent(**{"event": "queued", "job": name, "materials": [f"/W/{name}"]}))
+    display(ProgressEvent(**{"event": "progress", "job": "A", "phase": "warmup", "step": 1, "steps": 9}))
+    display(ProgressEvent(**{"event": "progress", "job": "B", "phase": "warmup", "step": 1, "steps": 9}))
+    display(ProgressEvent(**{"event": "done", "job": "B", "status": "built", "psnr": 30.0, "seconds": 3.0}))
+    display(ProgressEvent(**{"event": "done", "job": "D", "status": "failed", "reason": "worker process died"}))
+    display(ProgressEvent(**{"event": "progress", "job": "B", "phase": "finetune", "step": 9, "steps": 9}))  # late: ignored
     assert display.counts() == {"queued": 1, "running": 1, "done": 1, "cached": 1, "failed": 1}
     assert display.table().title.endswith("3/5: 1 trained, 1 cached, 1 failed; 1 running, 1 queued")
 

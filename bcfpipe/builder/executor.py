@@ -17,7 +17,8 @@ from typing import Any, Mapping, Sequence
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import one_line
-from bcfpipe.builder.plan import MaterialJob, ProgressCallback
+from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
+from bcfpipe.builder.plan import MaterialJob
 from bcfpipe.errors import WorkFailed
 
 
@@ -74,12 +75,11 @@ class _Throttle:
             return
         self.last_phase, self.last = p.phase, now
         psnr = p.psnr if p.psnr == p.psnr and math.isfinite(p.psnr) else None
-        self.queue.put({"event": "progress", "job": self.name, "phase": p.phase, "step": p.step,
-                        "steps": p.steps, "psnr": psnr, "eta": p.eta, "elapsed": p.elapsed})
+        self.queue.put(ProgressEvent(EventKind.PROGRESS, self.name, phase=p.phase, step=p.step, steps=p.steps,
+                                     psnr=psnr, eta=p.eta, elapsed=p.elapsed))
 
     def phase(self, phase: str) -> None:
-        self.queue.put({"event": "progress", "job": self.name, "phase": phase, "step": 0, "steps": 0,
-                        "psnr": None, "eta": None, "elapsed": None})
+        self.queue.put(ProgressEvent(EventKind.PROGRESS, self.name, phase=phase))
 
 
 def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue=None,
@@ -284,7 +284,7 @@ def _drain(queue, progress: ProgressCallback | None) -> None:
 
 def _emit(progress: ProgressCallback | None, **event) -> None:
     if progress:
-        progress(event)
+        progress(ProgressEvent(**event))
 
 
 def _stop(pool: cf.ProcessPoolExecutor) -> None:
@@ -313,7 +313,7 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
             dev = devices[i % len(devices)]
             fut = pool.submit(run_job, job.to_dict(), str(materials_dir / job.name), threads, dev, queue, cache_root)
             futures[fut] = (job, dev)
-            _emit(progress, event="queued", job=job.name, materials=list(job.materials))
+            _emit(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
         pending = set(futures)
         while pending:
             done, pending = cf.wait(pending, timeout=0.2, return_when=cf.FIRST_COMPLETED)
@@ -328,7 +328,7 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
                 except BaseException as exc:  # noqa: BLE001
                     r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, dev, threads)
                 results[job.name] = r
-                _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
+                _emit(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
                       psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
     except BaseException:
         if own:
@@ -374,7 +374,7 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
             if again:
                 results[job.name] = JobResult(job.name, Status.FAILED, "worker process died (out of memory?)",
                                               0.0, device, threads)
-                _emit(progress, event="done", job=job.name, status=Status.FAILED, reason=results[job.name].reason,
+                _emit(progress, event=EventKind.DONE, job=job.name, status=Status.FAILED, reason=results[job.name].reason,
                       psnr=None, seconds=0.0)
     finally:
         if manager is not None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import asdict, dataclass, fields
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
@@ -25,7 +25,6 @@ if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
 OVERRIDES = "overrides.usda"
 MATERIALS_DIR = "materials"
 
-ProgressCallback = Callable[[dict], None]
 
 
 #: revision of the HDR output encoding (bcfpipe.texset.encoding), in the key of jobs with float sources

@@ -30,7 +30,8 @@ from typing import Sequence
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.builder.executor import JobResult, _emit, _drain, _train_job, read_sources, store_entry
-from bcfpipe.builder.plan import MaterialJob, ProgressCallback
+from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
+from bcfpipe.builder.plan import MaterialJob
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import Unavailable, WorkFailed, one_line
 
@@ -80,7 +81,7 @@ def _remote_parts(ray):
         # no ray.get in here: a task blocked in ray.get lends its CPUs back to Ray, which starts
         # another task on them, and both then train on one CPU's share
         events = _Events(queue)
-        events.put({"event": "attempt", "job": job["name"]})
+        events.put(ProgressEvent(EventKind.ATTEMPT, job["name"]))
         granted = ray.get_runtime_context().get_assigned_resources()
         threads = max(1, int(granted.get("CPU", 1)))
         with tempfile.TemporaryDirectory(prefix="bcfpipe-ray-") as tmp:
@@ -199,9 +200,9 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
     queue = Queue(actor_options={"num_cpus": 0})  # progress events, and one "attempt" per run of a task
     attempts: dict[str, int] = {}
 
-    def forward(ev: dict) -> None:
-        if ev.get("event") == "attempt":
-            attempts[ev["job"]] = attempts.get(ev["job"], 0) + 1
+    def forward(ev: ProgressEvent) -> None:
+        if ev.event == EventKind.ATTEMPT:
+            attempts[ev.job] = attempts.get(ev.job, 0) + 1
         elif progress:
             progress(ev)
     root = str(cache_root) if cache_root is not None else None
@@ -216,7 +217,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
 
     def finish(job: MaterialJob, r: JobResult) -> None:
         results[job.name] = r
-        _emit(progress, event="done", job=job.name, status=r.status, reason=r.reason,
+        _emit(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
               psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
 
     def submit(job: MaterialJob):
@@ -234,7 +235,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
 
     try:
         for job in jobs:
-            _emit(progress, event="queued", job=job.name, materials=list(job.materials))
+            _emit(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
         waiting = collections.deque(jobs)
         pending: list = []
 

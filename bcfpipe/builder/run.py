@@ -17,13 +17,14 @@ from bcfpipe.config import TrainingOptions
 from bcfpipe.errors import EXIT_OK, WorkFailed
 from bcfpipe.builder.assemble import assemble, default_out
 from bcfpipe.builder.depfile import dependencies, write as write_depfile
+from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
 from bcfpipe.builder.executor import JobResult, execute
 from bcfpipe.builder.report import make_report
 from bcfpipe.builder.sync import OUT_LOCK, STAGING_PREFIX, install, is_incomplete
 from bcfpipe.cache import Cache, default_root
 from bcfpipe.formats.report import BuildReport
 from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
-from bcfpipe.builder.plan import BuildError, BuildPlan, MATERIALS_DIR, ProgressCallback, plan
+from bcfpipe.builder.plan import BuildError, BuildPlan, MATERIALS_DIR, plan
 from bcfpipe.scan.texture_sets import package_split
 
 
@@ -172,9 +173,8 @@ def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
         hits[job.name] = JobResult(job.name, Status.BUILT, None, 0.0, job.options.device, 0, dict(found.entry.result),
                                    CacheUse.HIT)
         if progress:
-            progress({"event": "done", "job": job.name, "status": Status.BUILT, "reason": None,
-                      "psnr": found.entry.result.get("psnr"), "seconds": 0.0, "cache": CacheUse.HIT,
-                      "materials": list(job.materials)})
+            progress(ProgressEvent(EventKind.DONE, job.name, job.materials, status=Status.BUILT,
+                                   psnr=found.entry.result.get("psnr"), seconds=0.0, cache=CacheUse.HIT))
     return hits, damaged
 
 
@@ -269,7 +269,7 @@ def _build_locked(bplan: BuildPlan, out_path: Path, out_given: Path, staging: Pa
         raise OutputError(f"cannot write {out_path}: {_why(exc)}") from None
     if progress:  # every job is known from the start: progress counts "k of all"
         for job in bplan.jobs:
-            progress({"event": "queued", "job": job.name, "materials": list(job.materials)})
+            progress(ProgressEvent(EventKind.QUEUED, job.name, job.materials))
     try:
         results, damaged = _cached(bplan, store, staging / MATERIALS_DIR, progress)
         todo = [j for j in bplan.jobs if j.name not in results]

@@ -17,8 +17,9 @@ from typing import Any
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import TrainingOptions
+from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
 from bcfpipe.builder.executor import JobResult, execute
-from bcfpipe.builder.plan import BuildError, ProgressCallback, plan
+from bcfpipe.builder.plan import BuildError, plan
 from bcfpipe.cache import Cache, default_root
 
 __all__ = ["parse_shard", "shard_of", "ShardResult", "train_shard"]
@@ -75,8 +76,8 @@ def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: Trai
         if store.lookup(j.content_hash).entry is not None:
             results[j.name] = JobResult(j.name, Status.BUILT, None, 0.0, j.options.device, 0, {}, CacheUse.HIT)
             if progress:
-                progress({"event": "done", "job": j.name, "status": Status.BUILT, "reason": None, "psnr": None,
-                          "seconds": 0.0, "cache": CacheUse.HIT, "materials": list(j.materials)})
+                progress(ProgressEvent(EventKind.DONE, j.name, j.materials, status=Status.BUILT, seconds=0.0,
+                                       cache=CacheUse.HIT))
         else:
             todo.append(j)
     work = store.base / "tmp" / f"shard-{i}-of-{n}.{uuid.uuid4().hex[:8]}"

@@ -22,6 +22,7 @@ from rich.table import Table
 from rich.text import Text
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
+from bcfpipe.builder.events import EventKind, ProgressEvent
 from bcfpipe.cli.errors import Command
 from bcfpipe.formats.manifest import Manifest
 from bcfpipe.formats.report import BuildReport
@@ -46,7 +47,7 @@ def _fmt_size(n: int | None) -> str:
 class BuildDisplay:
     """Progress of a build: a live rich table on a terminal, plain lines otherwise.
 
-    Call it with the event dicts of `bcfpipe.builder.executor.execute`; use as a context manager.
+    Call it with the `ProgressEvent`s of a build (bcfpipe.builder.events); use as a context manager.
     """
 
     STYLE = {"queued": "dim", "running": "cyan", Status.BUILT: "green", Status.FAILED: "red"}
@@ -71,39 +72,37 @@ class BuildDisplay:
             self._live.__exit__(*exc)
             self._live = None
 
-    def __call__(self, ev: dict) -> None:
-        name = ev.get("job", "?")
+    def __call__(self, ev: ProgressEvent) -> None:
+        name = ev.job
         st = self.jobs.setdefault(name, {"status": "queued", "phase": "", "step": 0, "steps": 0, "psnr": None,
                                          "eta": None, "materials": []})
-        kind = ev.get("event")
         line = None
-        if kind == "queued":
-            st["materials"] = ev.get("materials", [])
-        elif kind == "progress":
+        if ev.event == EventKind.QUEUED:
+            st["materials"] = list(ev.materials)
+        elif ev.event == EventKind.PROGRESS:
             if st["status"] in (Status.BUILT, Status.FAILED):  # a late event of a finished job (Ray's are not awaited)
                 return
-            phase_changed = ev.get("phase") != st["phase"]
-            st.update(status="running", phase=ev.get("phase", ""), step=ev.get("step", 0), steps=ev.get("steps", 0),
-                      eta=ev.get("eta"))
-            if ev.get("psnr") is not None:
-                st["psnr"] = ev["psnr"]
+            phase_changed = ev.phase != st["phase"]
+            st.update(status="running", phase=ev.phase, step=ev.step, steps=ev.steps, eta=ev.eta)
+            if ev.psnr is not None:
+                st["psnr"] = ev.psnr
             if phase_changed:
                 line = f"{name}: {st['phase']}"
-        elif kind == "done":
-            st.update(status=ev.get("status", "?"), phase="", eta=None)
-            if ev.get("materials"):
-                st["materials"] = ev["materials"]
-            if ev.get("psnr") is not None:
-                st["psnr"] = ev["psnr"]
-            if st["status"] == Status.BUILT and ev.get("cache") == CacheUse.HIT:
+        elif ev.event == EventKind.DONE:
+            st.update(status=ev.status or "?", phase="", eta=None)
+            if ev.materials:
+                st["materials"] = list(ev.materials)
+            if ev.psnr is not None:
+                st["psnr"] = ev.psnr
+            if st["status"] == Status.BUILT and ev.cache == CacheUse.HIT:
                 st["phase"] = "cached"
                 psnr = f", PSNR {st['psnr']:.2f} dB" if st["psnr"] is not None else ""
                 line = f"{name}: from the cache{psnr}"
             elif st["status"] == Status.BUILT:
                 psnr = f", PSNR {st['psnr']:.2f} dB" if st["psnr"] is not None else ""
-                line = f"{name}: built in {ev.get('seconds') or 0:.1f}s{psnr}"
+                line = f"{name}: built in {ev.seconds or 0:.1f}s{psnr}"
             else:
-                line = f"{name}: FAILED: {ev.get('reason')}"
+                line = f"{name}: FAILED: {ev.reason}"
         if line and not self.live_mode:
             self.console.print(f"[{time.monotonic() - self.t0:6.1f}s] [{self.counts_line()}] {line}",
                                highlight=False, markup=False, soft_wrap=True)
