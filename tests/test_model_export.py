@@ -61,8 +61,8 @@ def _torch_blocks(layers, requires_grad=False):
         mips = []
         for bl in layer:
             e, x, mask, _ = emulate.from_params(bl.endpoints, bl.indices, bl.partition)
-            mips.append({"endpoints": e.requires_grad_(requires_grad), "x": x.requires_grad_(requires_grad),
-                         "mask": mask, "partition": bl.partition})
+            mips.append(M.BlockParams(e.requires_grad_(requires_grad), x.requires_grad_(requires_grad), mask,
+                                      bl.partition))
         out.append(mips)
     return out
 
@@ -75,8 +75,8 @@ def test_tap_decode_equals_level_decode(signed):
     with torch.no_grad():  # continuous parameters too, not only quantized ones
         for layer in blocks:
             for b in layer:
-                b["endpoints"] += torch.rand(b["endpoints"].shape, generator=g) * 0.9
-                b["x"].copy_(torch.rand(b["x"].shape, generator=g))
+                b.endpoints += torch.rand(b.endpoints.shape, generator=g) * 0.9
+                b.x.copy_(torch.rand(b.x.shape, generator=g))
     uv = torch.rand((2000, 2), generator=g) * 1.4 - 0.2
     biases = M.lod_biases(mc.resolutions, 64, 64)
     for s in (0.0, 0.4, 1.0, 2.6, 5.0):

@@ -17,8 +17,10 @@ reference, the layer's texel density.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
+import numpy as np
 import torch
 
 from bcfpipe.bc6h import emulate
@@ -114,7 +116,19 @@ def free_tap_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: float
     return fn
 
 
-def block_tap_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
+@dataclass
+class BlockParams:
+    """One mip of one layer as trainable BC6H mode-11110 blocks (paper §4.2): ``endpoints``
+    (n, 4, 3) and ``x`` (n, 16) = indices / 7 are learnt; ``mask`` (n, 16) says which texels use
+    the second region; ``partition`` (n,) is the shape each block's encoding chose."""
+
+    endpoints: torch.Tensor
+    x: torch.Tensor
+    mask: torch.Tensor
+    partition: np.ndarray
+
+
+def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
                  quantized: Callable[[], bool] = lambda: False) -> TapFn:
     """Texel values straight from block parameters: texel (y, x) lives in block
     (y // 4) * (w // 4) + x // 4 at position (y % 4) * 4 + x % 4. ``quantized()`` is asked per
@@ -127,11 +141,11 @@ def block_tap_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
             y, xx = ids // r, ids % r
             blk = (y // 4) * (r // 4) + xx // 4
             pos = (y % 4) * 4 + xx % 4
-            e = b["endpoints"][blk]  # (M, 4, 3)
-            m = b["mask"][blk, pos].unsqueeze(1)
+            e = b.endpoints[blk]  # (M, 4, 3)
+            m = b.mask[blk, pos].unsqueeze(1)
             ea = torch.where(m, e[:, 2], e[:, 0])
             eb = torch.where(m, e[:, 3], e[:, 1])
-            return emulate.decode_texels(ea, eb, b["x"][blk, pos], cfg.signed, quantized())
+            return emulate.decode_texels(ea, eb, b.x[blk, pos], cfg.signed, quantized())
         return texels
     return fn
 
@@ -141,14 +155,14 @@ def free_level_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: flo
     return lambda i, k: endpoint_value(free[i][k].clamp(lo, hi), signed)
 
 
-def block_level_fn(blocks: list[list[dict[str, torch.Tensor]]], cfg: ModelConfig,
+def block_level_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
                    quantized: bool | Callable[[], bool] = False) -> LevelFn:
     q = quantized if callable(quantized) else (lambda: quantized)
 
     def fn(i: int, k: int) -> torch.Tensor:
         b = blocks[i][k]
         r = max(4, cfg.resolutions[i] >> k)
-        texels = emulate.decode_blocks(b["endpoints"], b["x"], b["mask"], signed=cfg.signed, quantized=q())
+        texels = emulate.decode_blocks(b.endpoints, b.x, b.mask, signed=cfg.signed, quantized=q())
         return blocks_to_image(texels, r, r)
     return fn
 

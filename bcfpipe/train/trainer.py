@@ -190,11 +190,182 @@ def evaluate_levels(level_fn: M.LevelFn, mlp: dict[str, torch.Tensor], mc, kinds
     return out
 
 
+@dataclass
+class _Run:
+    """What the phases of one training share: the model, its reference and how steps sample it."""
+
+    cfg: TrainConfig
+    device: torch.device
+    gen: torch.Generator
+    ref: ReferencePyramid
+    biases: tuple[float, ...]
+    mlp: dict[str, torch.Tensor]
+    clock: _Clock
+    next_s: StratifiedScale
+    centres: CentreTargets | None
+    mask_levels: list[torch.Tensor] | None
+    progress: ProgressFn | None
+    report_every: int
+    seconds: dict[str, float] = field(default_factory=dict)
+    samples: dict[str, int] = field(default_factory=dict)
+    history: list[tuple[str, int, float]] = field(default_factory=list)
+
+    @property
+    def mlp_params(self) -> list[torch.Tensor]:
+        return [self.mlp[k] for k in ("w1", "b1", "w2", "b2")]
+
+    @property
+    def s_max(self) -> float:
+        return float(self.ref.num_levels - 1)
+
+
+def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """uv, targets and per-sample loss weights (None: all 1) of one step at scale s: at precomputed
+    texel centres where the reference mip is large (covered ones only), else continuous uv with the
+    bicubic lookup, weighted by the coverage of mip floor(s)."""
+    batch = run.cfg.preset.batch
+    if run.centres is not None and run.centres.covers(s):
+        uv, target = run.centres.batch(batch, s, run.gen)
+        return uv.to(run.device), target, None
+    uv, _ = random_batch(batch, run.gen, run.device, run.s_max)
+    w = None
+    if run.mask_levels is not None:
+        m = run.mask_levels[min(int(s), len(run.mask_levels) - 1)]
+        h, wd = m.shape
+        x = torch.remainder(torch.floor(uv[:, 0] * wd), wd).long()
+        y = torch.remainder(torch.floor(uv[:, 1] * h), h).long()
+        w = m[y, x].to(uv.dtype)
+    return uv, sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
+
+
+def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, mlp_params, project=None, tap_fn=None,
+               on_step=None) -> None:
+    """``sched.steps`` Adam steps of the MSE against the reference (paper §5.1), features then MLP."""
+    t0 = time.perf_counter()
+    mc = run.cfg.model
+    opt, lr = _optimizer(feature_params, mlp_params, sched, run.device)
+    ema = None
+    for step in range(1, sched.steps + 1):
+        if on_step is not None:
+            on_step(step)
+        s = run.next_s()
+        uv, target, weight = _batch_at(run, s)
+        run.samples[name] = run.samples.get(name, 0) + uv.shape[0]
+        pred = M.forward(level_fn, run.mlp, mc, run.biases, uv, s, tap_fn if run.cfg.tap_decode else None)
+        if weight is None:
+            loss = torch.mean((pred - target) ** 2)
+        else:
+            loss = torch.mean(weight[:, None] * (pred - target) ** 2) / weight.mean().clamp_min(1e-6)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        lr.step()
+        if project is not None:
+            with torch.no_grad():
+                project()
+        val = float(loss.detach())
+        if not math.isfinite(val):
+            raise FloatingPointError(f"{name}: loss became {val} at step {step}")
+        ema = val if ema is None else 0.9 * ema + 0.1 * val
+        if step % run.report_every == 0 or step == sched.steps:
+            run.history.append((name, step, ema))
+            if run.progress:
+                run.progress(Progress(name, step, sched.steps, ema, -10 * math.log10(max(ema, 1e-12)),
+                                      time.perf_counter() - run.clock.t0, run.clock.eta(name, step, t0)))
+    run.seconds[name] = time.perf_counter() - t0
+
+
+def _warmup(run: _Run, mlp_params) -> list[list[torch.Tensor]]:
+    """Phase 1: unconstrained features (from noise, or the PCA start) and the MLP."""
+    mc = run.cfg.model
+    free = M.init_free(mc, run.gen, run.device)
+    if run.cfg.feature_init == "pca":
+        pca_init(mc, run.ref.mips, run.biases, free, run.mlp)
+    lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
+    _run_phase(run, "warmup", M.free_level_fn(free, mc.signed, mc.max_feature), _flat(free), run.cfg.preset.warmup,
+               mlp_params, project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],
+               tap_fn=M.free_tap_fn(free, mc.signed, mc.max_feature))
+    return free
+
+
+def _encode(run: _Run, free: list[list[torch.Tensor]]) -> list[list[M.BlockParams]]:
+    """Phase 2's start: BC6H-encode the warm features, which chooses each block's partition."""
+    mc = run.cfg.model
+    lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
+    t0 = time.perf_counter()
+    blocks = []
+    with torch.no_grad():
+        for mips in free:
+            layer = []
+            for p in mips:
+                texels = M.endpoint_value(p.clamp(lo, hi), mc.signed).permute(1, 2, 0).cpu().numpy()
+                e, idx, part = encode_params(texels, signed=mc.signed)
+                layer.append(M.BlockParams(
+                    torch.as_tensor(e, dtype=torch.float32, device=run.device).requires_grad_(True),
+                    (torch.as_tensor(idx, dtype=torch.float32, device=run.device) / 7.0).requires_grad_(True),
+                    emulate.partition_mask(part, device=run.device), np.asarray(part)))
+            blocks.append(layer)
+    run.seconds["encode"] = time.perf_counter() - t0
+    if run.progress:
+        run.progress(Progress("encode", 1, 1, float("nan"), float("nan"), time.perf_counter() - run.clock.t0,
+                              run.clock.eta("constrained", 0, time.perf_counter())))
+    return blocks
+
+
+class _QuantizationAware:
+    """Whether the constrained phase decodes with rounded parameters (straight-through): on for its
+    last ``qat_fraction`` of steps, so that phase 3's rounding costs little."""
+
+    def __init__(self, steps: int, fraction: float):
+        self.start, self.on = steps - int(round(fraction * steps)), False
+
+    def step(self, step: int) -> None:
+        self.on = step > self.start
+
+    def __call__(self) -> bool:
+        return self.on
+
+
+def _constrained(run: _Run, blocks: list[list[M.BlockParams]], mlp_params) -> None:
+    """Phase 2: the block parameters themselves, kept in the encodable range, with the QAT tail."""
+    mc, sched = run.cfg.model, run.cfg.preset.constrained
+    lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
+    feat = [t for layer in blocks for b in layer for t in (b.endpoints, b.x)]
+
+    def project() -> None:
+        for layer in blocks:
+            for b in layer:
+                b.endpoints.clamp_(lo, hi)
+                b.x.clamp_(0.0, 1.0)
+
+    qat = _QuantizationAware(sched.steps, run.cfg.preset.qat_fraction)
+    _run_phase(run, "constrained", M.block_level_fn(blocks, mc, qat), feat, sched, mlp_params, project=project,
+               tap_fn=M.block_tap_fn(blocks, mc, qat), on_step=qat.step)
+
+
+def _quantize(run: _Run, blocks: list[list[M.BlockParams]]) -> tuple[list[list[BlockLevel]], list]:
+    """Phase 3: round to mode-11110 blocks and freeze; returns them and their exact decoded levels."""
+    mc = run.cfg.model
+    t0 = time.perf_counter()
+    layers: list[list[BlockLevel]] = []
+    with torch.no_grad():
+        for i, layer in enumerate(blocks):
+            out = []
+            for k, b in enumerate(layer):
+                e, idx, part = emulate.to_params(b.endpoints, b.x, b.partition, signed=mc.signed)
+                out.append(BlockLevel(e, idx, part, max(4, mc.resolutions[i] >> k)))
+            layers.append(out)
+        exact = [[exact_level(bl, mc.signed, run.device) for bl in layer] for layer in layers]
+    run.seconds["quantize"] = time.perf_counter() - t0
+    return layers, exact
+
+
 def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
           report_every: int = 50, keep_float_mips: bool = True, coverage: np.ndarray | None = None) -> TrainedMaterial:
-    """Train one neural material on ``ts`` (see module docstring). ``coverage``: a (H, W) bool mask of
-    the texels the scene reads (bcfpipe.scan.coverage); steps then draw their samples there only,
-    which weights the loss by the mask."""
+    """Train one neural material on ``ts`` (see module docstring): warm-up, BC6H encode,
+    constrained, quantize, MLP fine-tune. ``coverage``: a (H, W) bool mask of the texels the
+    scene reads (bcfpipe.scan.coverage); steps then draw their samples there only, which weights
+    the loss by the mask."""
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)
@@ -202,21 +373,14 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     gen = torch.Generator().manual_seed(cfg.seed)
     gains = encoding.gains(ts.channels)
     ref = ReferencePyramid.from_mips(encoding.encode_levels(build_mip_chain(ts.data), gains), device)
-    s_max = float(ref.num_levels - 1)
     c = ts.num_channels
     biases = M.lod_biases(mc.resolutions, ts.width, ts.height)
     kinds = tuple(ch.kind for ch in ts.channels)
     mean = torch.as_tensor(encoding.encode_levels([ts.data], gains)[0].reshape(-1, c).mean(0))
     mlp = M.init_mlp(mc.n_inputs, mc.hidden, c, gen, device, mean)
-    mlp_params = [mlp[k] for k in ("w1", "b1", "w2", "b2")]
     clock = _Clock({"warmup": preset.warmup.steps, "constrained": preset.constrained.steps,
                     "finetune": preset.finetune.steps})
-    seconds: dict[str, float] = {}
-    samples: dict[str, int] = {}
-    history: list[tuple[str, int, float]] = []
-
-    taps = cfg.tap_decode
-    next_s = StratifiedScale(s_max, gen, power=preset.lod_power)
+    next_s = StratifiedScale(float(ref.num_levels - 1), gen, power=preset.lod_power)
     t0 = time.perf_counter()
     masks = None
     if coverage is not None:
@@ -226,132 +390,24 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     centres = (CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch, covered=masks)
                if preset.centre_targets else None)
     mask_levels = [torch.as_tensor(m, device=device) for m in masks] if masks is not None else None
+    run = _Run(cfg, device, gen, ref, biases, mlp, clock, next_s, centres, mask_levels, progress, report_every)
     if centres is not None:
-        seconds["targets"] = time.perf_counter() - t0  # part of the training time, not hidden before it
+        run.seconds["targets"] = time.perf_counter() - t0  # part of the training time, not hidden before it
+    mlp_params = run.mlp_params
 
-    def batch_at(s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """uv, targets and per-sample loss weights (None: all 1) of one step at scale s: at
-        precomputed texel centres where the reference mip is large (covered ones only), else
-        continuous uv with the bicubic lookup, weighted by the coverage of mip floor(s)."""
-        if centres is not None and centres.covers(s):
-            uv, target = centres.batch(preset.batch, s, gen)
-            return uv.to(device), target, None
-        uv, _ = random_batch(preset.batch, gen, device, s_max)
-        w = None
-        if mask_levels is not None:
-            m = mask_levels[min(int(s), len(mask_levels) - 1)]
-            h, wd = m.shape
-            x = torch.remainder(torch.floor(uv[:, 0] * wd), wd).long()
-            y = torch.remainder(torch.floor(uv[:, 1] * h), h).long()
-            w = m[y, x].to(uv.dtype)
-        return uv, sample_reference(ref, uv, s, mc.wrap), w
-
-    def run_phase(name, level_fn, feature_params, sched, project=None, tap_fn=None, on_step=None):
-        t0 = time.perf_counter()
-        opt, lr = _optimizer(feature_params, mlp_params, sched, device)
-        ema = None
-        for step in range(1, sched.steps + 1):
-            if on_step is not None:
-                on_step(step)
-            s = next_s()
-            uv, target, weight = batch_at(s)
-            samples[name] = samples.get(name, 0) + uv.shape[0]
-            pred = M.forward(level_fn, mlp, mc, biases, uv, s, tap_fn if taps else None)
-            if weight is None:
-                loss = torch.mean((pred - target) ** 2)
-            else:
-                loss = torch.mean(weight[:, None] * (pred - target) ** 2) / weight.mean().clamp_min(1e-6)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            lr.step()
-            if project is not None:
-                with torch.no_grad():
-                    project()
-            val = float(loss.detach())
-            if not math.isfinite(val):
-                raise FloatingPointError(f"{name}: loss became {val} at step {step}")
-            ema = val if ema is None else 0.9 * ema + 0.1 * val
-            if step % report_every == 0 or step == sched.steps:
-                history.append((name, step, ema))
-                if progress:
-                    progress(Progress(name, step, sched.steps, ema, -10 * math.log10(max(ema, 1e-12)),
-                                      time.perf_counter() - clock.t0, clock.eta(name, step, t0)))
-        seconds[name] = time.perf_counter() - t0
-
-    # phase 1: unconstrained warm-up
-    free = M.init_free(mc, gen, device)
-    if cfg.feature_init == "pca":
-        pca_init(mc, ref.mips, biases, free, mlp)
-    lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
-    run_phase("warmup", M.free_level_fn(free, mc.signed, mc.max_feature), _flat(free), preset.warmup,
-              project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],
-              tap_fn=M.free_tap_fn(free, mc.signed, mc.max_feature))
-
-    # phase 2: BC6H init by encoding the warm features (chooses each block's partition)
-    t0 = time.perf_counter()
-    blocks = []
-    with torch.no_grad():
-        for i, mips in enumerate(free):
-            layer = []
-            for k, p in enumerate(mips):
-                texels = M.endpoint_value(p.clamp(lo, hi), mc.signed).permute(1, 2, 0).cpu().numpy()
-                e, idx, part = encode_params(texels, signed=mc.signed)
-                layer.append({
-                    "endpoints": torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
-                    "x": (torch.as_tensor(idx, dtype=torch.float32, device=device) / 7.0).requires_grad_(True),
-                    "mask": emulate.partition_mask(part, device=device),
-                    "partition": np.asarray(part),
-                })
-            blocks.append(layer)
+    free = _warmup(run, mlp_params)
+    blocks = _encode(run, free)
     del free
-    seconds["encode"] = time.perf_counter() - t0
-    if progress:
-        progress(Progress("encode", 1, 1, float("nan"), float("nan"), time.perf_counter() - clock.t0,
-                          clock.eta("constrained", 0, time.perf_counter())))
-    feat = [t for layer in blocks for b in layer for t in (b["endpoints"], b["x"])]
-
-    def project_blocks():
-        for layer in blocks:
-            for b in layer:
-                b["endpoints"].clamp_(lo, hi)
-                b["x"].clamp_(0.0, 1.0)
-
-    # quantization-aware tail: the last qat_fraction of phase 2 decodes with rounded parameters
-    # (straight-through), so phase 3's rounding costs little
-    qat_from = preset.constrained.steps - int(round(preset.qat_fraction * preset.constrained.steps))
-    qat = {"on": False}
-
-    def switch(step):
-        qat["on"] = step > qat_from
-
-    run_phase("constrained", M.block_level_fn(blocks, mc, lambda: qat["on"]), feat, preset.constrained,
-              project=project_blocks, tap_fn=M.block_tap_fn(blocks, mc, lambda: qat["on"]), on_step=switch)
-    qat["on"] = False
-
+    _constrained(run, blocks, mlp_params)
     ref_shapes = [tuple(m.shape[1:]) for m in ref.mips]
     float_mips = (encoding.decode_levels(evaluate_levels(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases,
                                                          ref_shapes), gains)
                   if keep_float_mips else [])
-
-    # phase 3: quantize and freeze
-    t0 = time.perf_counter()
-    layers: list[list[BlockLevel]] = []
-    with torch.no_grad():
-        for i, layer in enumerate(blocks):
-            out = []
-            for k, b in enumerate(layer):
-                e, idx, part = emulate.to_params(b["endpoints"], b["x"], b["partition"], signed=mc.signed)
-                out.append(BlockLevel(e, idx, part, max(4, mc.resolutions[i] >> k)))
-            layers.append(out)
-        exact = [[exact_level(bl, mc.signed, device) for bl in layer] for layer in layers]
-    seconds["quantize"] = time.perf_counter() - t0
+    layers, exact = _quantize(run, blocks)
     del blocks
-
-    # phase 4: MLP fine-tune on the frozen exact features
-    run_phase("finetune", M.cached_level_fn(exact), [], preset.finetune)
+    _run_phase(run, "finetune", M.cached_level_fn(exact), [], preset.finetune, mlp_params)  # phase 4
 
     w = MlpWeights(*(mlp[k].detach().cpu().numpy().astype(np.float32)
                      for k in ("w1", "b1", "w2", "b2", "out_scale", "out_bias")),
                    log_gain=gains if np.any(gains > 0) else None).to_fp16()
-    return TrainedMaterial(cfg, ts, layers, w, biases, seconds, float_mips, history, samples)
+    return TrainedMaterial(cfg, ts, layers, w, biases, run.seconds, float_mips, run.history, run.samples)
