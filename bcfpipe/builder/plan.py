@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.formats.vocabulary import Decision
+from bcfpipe.formats.vocabulary import ColorSpace, Decision
 from bcfpipe.config import DEFAULT_INIT, MODEL_FORMAT, PRESETS, TrainingOptions
 from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, SourceFile, decoder_index
 from bcfpipe.errors import InputError
@@ -305,13 +305,14 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
         job = job_by_name[group.name]
         index, z = decoder_index(job.channels)
         targets: list[TargetMap] = []
-        for target, inp, key, s, b, cs in mm.targets:
-            targets.append(TargetMap(target, inp, index[key], s, b, cs, key.file, key.channel))
-            if target == "normal.y" and z is not None:
-                targets.append(TargetMap("normal.z", inp, z, 1.0, 0.0, "raw", None, None))
+        for t in mm.targets:
+            targets.append(TargetMap(t.target, t.input, index[t.channel], t.scale, t.bias, t.color_space,
+                                     t.channel.file, t.channel.channel))
+            if t.target == "normal.y" and z is not None:
+                targets.append(TargetMap("normal.z", t.input, z, 1.0, 0.0, ColorSpace.RAW, None, None))
         modelled_inputs = {t.input for t in targets}
         # a constant component of an input that is otherwise modelled stays a target: channel -1
-        targets += [TargetMap(c.target, c.input, -1, 0.0, c.value, "raw", c.file, c.file_channel)
+        targets += [TargetMap(c.target, c.input, -1, 0.0, c.value, ColorSpace.RAW, c.file, c.file_channel)
                     for c in mm.constants if c.input in modelled_inputs]
         prim, scale, rot, trans = mm.st
         plans.append(MaterialPlan(

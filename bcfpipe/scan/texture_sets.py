@@ -171,13 +171,26 @@ class ConstantTarget:
     file_channel: str
 
 
+@dataclass(frozen=True)
+class ChannelTarget:
+    """A UsdPreviewSurface target that a model channel feeds: target = scale * decoded + bias (the
+    UsdUVTexture's scale and bias, a normal map's 2 v - 1 folded in), read in ``color_space``."""
+
+    target: str  # e.g. diffuseColor.g, roughness
+    input: str
+    channel: ModelChannel
+    scale: float
+    bias: float
+    color_space: str  # formats.vocabulary.ColorSpace, resolved: raw or sRGB
+
+
 @dataclass
 class MaterialModel:
     """A scanned material's channels, specs and targets (before grouping into jobs)."""
 
     channels: list[ModelChannel]
     specs: list[tuple[str, str, str]]
-    targets: list[tuple[str, str, ModelChannel, float, float, str]]  # target, input, key, scale, bias, cs
+    targets: list[ChannelTarget]
     sources: dict[str, SourceFile]
     wrap: str
     st: tuple[str, tuple[float, float], float, tuple[float, float]]
@@ -245,97 +258,124 @@ def _decode(value: float, color_space: str) -> float:
     return srgb_to_linear(value) if color_space == ColorSpace.SRGB else value
 
 
+@dataclass
+class _Model:
+    """What `material_model` gathers over a material's texture inputs."""
+
+    channels: list[ModelChannel] = field(default_factory=list)
+    specs: list[tuple[str, str, str]] = field(default_factory=list)
+    targets: list[ChannelTarget] = field(default_factory=list)
+    constants: list[ConstantTarget] = field(default_factory=list)
+    folded: list[FoldedChannel] = field(default_factory=list)
+    sources: dict[str, SourceFile] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def _fold(inp, tex, src: SourceFile, raw: list[ModelChannel], m: _Model, file_cache: dict, canonical: Canonical,
+          facts) -> tuple[list[ModelChannel | None], list]:
+    """Per raw channel the key the decoder outputs (itself or its canonical twin), or None for a
+    constant one; and the channels' contents. Records what was folded, and why, in ``m``."""
+    is_normal = inp.name == "normal" and tex.channel == "rgb"
+    kind = "normal" if is_normal else "value"
+    contents = [_content(k.file, k.channel, file_cache, m.warnings, src.xxh3_128, facts) for k in raw]
+    unread = tex.st.kind == "constant" and tex.st.value is not None
+    if unread:  # st not connected: the texture is read at one point; that value replaces it
+        contents = [_at(k.file, k.channel, tex.st.value, tex.effective_wrap, file_cache, m.warnings, c)
+                    for k, c in zip(raw, contents)]
+    if is_normal:
+        z = (_content(src.path, "b", file_cache, m.warnings, src.xxh3_128, facts)
+             if len(raw) == 2 and src.channels >= 3 else None)
+        if unread and z is not None:
+            z = _at(src.path, "b", tex.st.value, tex.effective_wrap, file_cache, m.warnings, z)
+        if z is not None and all(c.constant for c in contents) and z.constant:
+            keys: list[ModelChannel | None] = [None, None]
+            m.constants.append(ConstantTarget("normal.z", inp.name, float(tex.scale[2]) * z.mean + float(tex.bias[2]),
+                                              src.path, "b"))
+        else:
+            keys = list(canonical.of(("normal",) + tuple(c.digest for c in contents), tuple(raw), m.sources))
+    else:
+        keys = [None if c.constant else canonical.of((c.digest, kind), (k,), m.sources)[0]
+                for k, c in zip(raw, contents)]
+    for k, key, c in zip(raw, keys, contents):
+        if key is None:
+            m.folded.append(FoldedChannel(k.file, k.channel, "unread" if unread else "constant", value=c.mean))
+        elif key != k:
+            m.folded.append(FoldedChannel(k.file, k.channel, "duplicate", same_as=key))
+            m.sources.setdefault(key.file, canonical.sources[key.file])
+    return keys, contents
+
+
+def _add_specs(inp, tex, raw: list[ModelChannel], keys: list[ModelChannel | None], m: _Model) -> None:
+    """The texset specs of the channels this input adds: a semantic when the file's channels map
+    onto one (normal xy, a colour's rgb, a scalar), else generic channels."""
+    is_normal = inp.name == "normal" and tex.channel == "rgb"
+    new = [k for k in dict.fromkeys(k for k in keys if k is not None) if k not in m.channels]
+    if not new:
+        return
+    letters = "".join(k.channel for k in new)
+    files = {k.file for k in new}
+    if is_normal and len(new) == 2 and len(files) == 1:
+        m.specs.append(("normal", new[0].file, "xy"))
+    elif inp.name in _COLOR_SEMANTIC and tex.channel == "rgb" and len(new) == 3 and len(files) == 1:
+        m.specs.append((_COLOR_SEMANTIC[inp.name], new[0].file, letters))
+    elif inp.name in _SCALAR_SEMANTICS and len(new) == 1 and len(raw) == 1:
+        m.specs.append((inp.name, new[0].file, letters))
+    else:
+        m.specs.extend(("generic", k.file, k.channel) for k in new)
+    m.channels.extend(new)
+
+
+def _add_targets(inp, tex, src: SourceFile, uses, keys: list[ModelChannel | None], contents, m: _Model) -> None:
+    """Each use of the input's channels: a target of its model channel, or, folded, a constant."""
+    is_normal = inp.name == "normal" and tex.channel == "rgb"
+    if tex.source_color_space not in (ColorSpace.AUTO, ColorSpace.RAW, ColorSpace.SRGB):
+        m.warnings.append(f"{inp.name}: unknown sourceColorSpace {tex.source_color_space!r}, read as raw")
+    for i, (u, key) in enumerate(zip(uses, keys)):
+        comp = "rgba".index(u.channel)
+        s, b = float(tex.scale[comp]), float(tex.bias[comp])
+        cs = src.resolved_color_space if u.channel != "a" else ColorSpace.RAW
+        if is_normal:
+            if cs == ColorSpace.SRGB:
+                m.warnings.append(f"{inp.name}: normal map colour space resolves to sRGB; modelled as raw")
+            cs = ColorSpace.RAW
+        elif cs == ColorSpace.SRGB and inp.name not in ("diffuseColor", "emissiveColor", "specularColor") \
+                and tex.source_color_space == ColorSpace.AUTO:
+            m.warnings.append(f"{inp.name}: sourceColorSpace auto resolves to sRGB for this 8-bit file "
+                              "(as in Hydra); the renderer decodes it as sRGB")
+        if key is None:
+            m.constants.append(ConstantTarget(u.target, inp.name, s * _decode(contents[i].mean, cs) + b,
+                                              u.file, u.channel))
+            continue
+        if is_normal:
+            s, b = s / 2.0, s / 2.0 + b  # the model stores 2 v - 1
+        m.targets.append(ChannelTarget(u.target, inp.name, key, s, b, cs))
+
+
 def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, canonical: Canonical | None = None,
                    fold: bool = True, facts=None) -> MaterialModel:
     """Map a scanned material's texture inputs to model channels, texset specs and targets.
     With ``fold``, constant channels become ``constants`` and channels whose texels repeat a channel
     already modelled (in ``canonical``, shared across the materials of a scan) map onto it."""
     canonical = canonical if canonical is not None else Canonical()
-    channels: list[ModelChannel] = []
-    specs: list[tuple[str, str, str]] = []
-    targets: list[tuple[str, str, ModelChannel, float, float, str]] = []
-    constants: list[ConstantTarget] = []
-    folded: list[FoldedChannel] = []
-    sources: dict[str, SourceFile] = {}
-    warnings = list(ms.warnings)
+    m = _Model(warnings=list(ms.warnings))
     wraps: set[str] = set()
     sts: list[tuple[str, tuple[float, float], float, tuple[float, float]]] = []
     for inp in ms.texture_inputs:
         tex = inp.texture
         assert tex is not None
         src = source_file(tex.resolved_path, tex.asset_path, tex.source_color_space, file_cache, digest)
-        sources[src.path] = src
+        m.sources[src.path] = src
         uses = [u for u in ms.channel_uses if u.input == inp.name]
         if not uses:
             continue
-        is_normal = inp.name == "normal" and tex.channel == "rgb"
-        kind = "normal" if is_normal else "value"
+        kind = "normal" if inp.name == "normal" and tex.channel == "rgb" else "value"
         raw = [ModelChannel(u.file, u.channel, kind) for u in uses]
-        contents = [_content(k.file, k.channel, file_cache, warnings, src.xxh3_128, facts) for k in raw] if fold else []
-        # per raw key: None (constant) or the key the decoder outputs (itself or its canonical twin)
-        unread = fold and tex.st.kind == "constant" and tex.st.value is not None
-        if unread:  # st not connected: the texture is read at one point; that value replaces it
-            contents = [_at(k.file, k.channel, tex.st.value, tex.effective_wrap, file_cache, warnings, c)
-                        for k, c in zip(raw, contents)]
-        if not fold:
-            keys: list[ModelChannel | None] = list(raw)
-        elif is_normal:
-            z = (_content(src.path, "b", file_cache, warnings, src.xxh3_128, facts)
-                 if len(raw) == 2 and src.channels >= 3 else None)
-            if unread and z is not None:
-                z = _at(src.path, "b", tex.st.value, tex.effective_wrap, file_cache, warnings, z)
-            if z is not None and all(c.constant for c in contents) and z.constant:
-                keys = [None, None]
-                constants.append(ConstantTarget("normal.z", inp.name,
-                                                float(tex.scale[2]) * z.mean + float(tex.bias[2]), src.path, "b"))
-            else:
-                keys = list(canonical.of(("normal",) + tuple(c.digest for c in contents), tuple(raw), sources))
-        else:
-            keys = [None if c.constant else canonical.of((c.digest, kind), (k,), sources)[0]
-                    for k, c in zip(raw, contents)]
-        for k, key, c in zip(raw, keys, contents):
-            if key is None:
-                folded.append(FoldedChannel(k.file, k.channel, "unread" if unread else "constant", value=c.mean))
-            elif key != k:
-                folded.append(FoldedChannel(k.file, k.channel, "duplicate", same_as=key))
-                sources.setdefault(key.file, canonical.sources[key.file])
-        new = [k for k in dict.fromkeys(k for k in keys if k is not None) if k not in channels]
-        if new:
-            letters = "".join(k.channel for k in new)
-            files = {k.file for k in new}
-            if is_normal and len(new) == 2 and len(files) == 1:
-                specs.append(("normal", new[0].file, "xy"))
-            elif inp.name in _COLOR_SEMANTIC and tex.channel == "rgb" and len(new) == 3 and len(files) == 1:
-                specs.append((_COLOR_SEMANTIC[inp.name], new[0].file, letters))
-            elif inp.name in _SCALAR_SEMANTICS and len(new) == 1 and len(raw) == 1:
-                specs.append((inp.name, new[0].file, letters))
-            else:
-                specs.extend(("generic", k.file, k.channel) for k in new)
-            channels.extend(new)
-        if tex.source_color_space not in ("auto", "raw", ColorSpace.SRGB):
-            warnings.append(f"{inp.name}: unknown sourceColorSpace {tex.source_color_space!r}, read as raw")
-        for i, (u, key) in enumerate(zip(uses, keys)):
-            comp = "rgba".index(u.channel)
-            s, b = float(tex.scale[comp]), float(tex.bias[comp])
-            cs = src.resolved_color_space if u.channel != "a" else "raw"
-            if is_normal:
-                if cs == ColorSpace.SRGB:
-                    warnings.append(f"{inp.name}: normal map colour space resolves to sRGB; modelled as raw")
-                cs = "raw"
-            elif cs == ColorSpace.SRGB and inp.name not in ("diffuseColor", "emissiveColor", "specularColor") \
-                    and tex.source_color_space == "auto":
-                warnings.append(f"{inp.name}: sourceColorSpace auto resolves to sRGB for this 8-bit file "
-                                "(as in Hydra); the renderer decodes it as sRGB")
-            if key is None:
-                constants.append(ConstantTarget(u.target, inp.name, s * _decode(contents[i].mean, cs) + b,
-                                                u.file, u.channel))
-                continue
-            if is_normal:
-                s, b = s / 2.0, s / 2.0 + b  # the model stores 2 v - 1
-            targets.append((u.target, inp.name, key, s, b, cs))
+        keys, contents = _fold(inp, tex, src, raw, m, file_cache, canonical, facts) if fold else (list(raw), [])
+        _add_specs(inp, tex, raw, keys, m)
+        _add_targets(inp, tex, src, uses, keys, contents, m)
         for w in tex.effective_wrap:
             if w not in (Wrap.REPEAT, Wrap.CLAMP):
-                warnings.append(f"{inp.name}: wrap mode {w!r} modelled as repeat")
+                m.warnings.append(f"{inp.name}: wrap mode {w!r} modelled as repeat")
         wraps.update(tex.effective_wrap)
         st = tex.st
         xf = st.transform
@@ -343,10 +383,10 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
                     xf.translation if xf else (0.0, 0.0)))
     wrap = Wrap.CLAMP if wraps == {Wrap.CLAMP} else Wrap.REPEAT
     if len(set(sts)) > 1:
-        warnings.append("textures use different st primvars or transforms; the model uses the first texture's")
+        m.warnings.append("textures use different st primvars or transforms; the model uses the first texture's")
     st = sts[0] if sts else ("st", (1.0, 1.0), 0.0, (0.0, 0.0))
-    mm = MaterialModel(channels, specs, targets, sources, wrap, st, list(dict.fromkeys(warnings)), constants,
-                       folded)
+    mm = MaterialModel(m.channels, m.specs, m.targets, m.sources, wrap, st, list(dict.fromkeys(m.warnings)),
+                       m.constants, m.folded)
     if ms.density is not None:
         from dataclasses import replace
 
