@@ -57,7 +57,7 @@ def from_scene(scene: str | os.PathLike, materials: Iterable[str] = (),
     ``materials`` keeps the jobs that hold any of those prims (a path or its last component)."""
     from bcfpipe.builder import plan
 
-    bplan = plan(scene, variants, coverage=False)
+    bplan = plan(scene, variants=variants, coverage=False)
     want = list(materials)
     out = []
     for job in bplan.jobs:

@@ -82,7 +82,7 @@ def _table(res) -> "object":
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @training_options
 @click.option("--resolution", type=int, default=None, help="Resample the texture set to this power of two first.")
-@click.option("--wrap", type=click.Choice([Wrap.REPEAT, Wrap.CLAMP]), default=Wrap.REPEAT, show_default=True,
+@click.option("--wrap", type=click.Choice([w.value for w in Wrap]), default=Wrap.REPEAT.value, show_default=True,
               help="Texture addressing used in training and recorded for the runtime (build takes it from USD).")
 @click.option("-f", "--force", is_flag=True, help="Overwrite a non-empty output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object to stdout (progress stays on stderr).")
