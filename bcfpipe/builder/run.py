@@ -62,6 +62,11 @@ def _is_within(path: Path, folder: Path) -> bool:
         return False
 
 
+def _file_of(path: str | os.PathLike) -> Path:
+    """The file on disk of an asset path (a packaged ``pkg.usdz[inner.png]`` is its package)."""
+    return Path(str(path).split("[", 1)[0]) if package_split(str(path)) else Path(path)
+
+
 def _built_scene(out: Path) -> Path | None:
     """The scene whose build ``out`` holds (manifest.json's scene, resolved), or None."""
     import json
@@ -72,34 +77,35 @@ def _built_scene(out: Path) -> Path | None:
         return None
     if not isinstance(scene, str) or not scene:
         return None
-    p = Path(scene.split("[", 1)[0]) if package_split(scene) else Path(scene)
+    p = _file_of(scene)
     return (out / p).resolve() if not p.is_absolute() else p.resolve()
 
 
-def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike], scene: Path | None = None) -> None:
+def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike],
+              scene: Path | None = None) -> Path | None:
     """Refuse an OUT that would overwrite inputs, a folder bcfpipe did not write (even with
     ``force``: only a folder holding our manifest, or our own leftovers, is ever replaced), or the
-    build of another scene than ``scene`` unless ``force`` (then one line says whose build goes)."""
-    for p in inputs:
-        p = Path(str(p).split("[", 1)[0]) if package_split(str(p)) else Path(p)
+    build of another scene than ``scene`` unless ``force``. Returns that other scene when ``force``
+    lets its build be replaced (the caller says so once), else None."""
+    for p in map(_file_of, inputs):
         if _is_within(p, out):
             raise BuildError(f"output folder {out} contains the input {p}; choose another -o")
     if not out.exists() and not out.is_symlink():
-        return
+        return None
     if not out.is_dir():
         raise BuildError(f"output {out} exists and is not a folder")
     if is_incomplete(out) or not any(out.iterdir()):
-        return
+        return None
     if not is_manifest(out):
         raise BuildError(f"output folder {out} exists and was not written by bcfpipe (no {MANIFEST}); "
                          "bcfpipe replaces only its own builds, even with --force: choose another -o")
     other = _built_scene(out)
     if scene is None or other is None or other == Path(scene).resolve():
-        return
+        return None
     if not force:
         raise BuildError(f"output folder {out} holds the build of another scene ({other}); "
                          "use --force to replace it, or choose another -o")
-    log.warning("replacing the build of %s in %s (--force)", other, out)
+    return other
 
 
 class OutputError(WorkFailed):
@@ -225,7 +231,9 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
         raise OutputError(f"cannot write {out_path}: {_why(exc)}") from None
     try:
         # another build may have written OUT while this one waited: the rules again, under the lock
-        check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
+        replaced = check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
+        if replaced is not None:
+            log.warning("replacing the build of %s in %s (--force)", replaced, out_path)
         return _build_locked(bplan, out_path, out_given, staging, created, store, progress, executor_name,
                              ray_address, jobs, executor, training.threads, depfile, depfile_target, t0)
     finally:
