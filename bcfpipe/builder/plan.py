@@ -8,15 +8,15 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.formats.vocabulary import ColorSpace, Decision
 from bcfpipe.config import DEFAULT_INIT, MODEL_FORMAT, PRESETS, TrainingOptions
-from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, SourceFile, decoder_index
 from bcfpipe.errors import InputError
-from bcfpipe.scan.coverage import job_coverage
-from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
-from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, group_materials
+from bcfpipe.formats.vocabulary import ColorSpace, Decision
+from bcfpipe.scan.coverage import job_coverage
+from bcfpipe.scan.density import density_options, job_size
+from bcfpipe.scan.texture_sets import (INSTANCED_MESSAGE, ConstantTarget, FoldedChannel, ModelChannel, SourceFile,
+                                       decoder_index, group_materials)
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
     from bcfpipe.scan.results import StageScan
@@ -24,8 +24,6 @@ if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
 
 OVERRIDES = "overrides.usda"
 MATERIALS_DIR = "materials"
-
-
 
 #: revision of the HDR output encoding (bcfpipe.texset.encoding), in the key of jobs with float sources
 HDR_ENCODING = 1

@@ -238,12 +238,12 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
     return uv, sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
 
 
-def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, mlp_params, project=None, tap_fn=None,
+def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=None, tap_fn=None,
                on_step=None) -> None:
     """``sched.steps`` Adam steps of the MSE against the reference (paper §5.1), features then MLP."""
     t0 = time.perf_counter()
     mc = run.cfg.model
-    opt, lr = _optimizer(feature_params, mlp_params, sched, run.device)
+    opt, lr = _optimizer(feature_params, run.mlp_params, sched, run.device)
     ema = None
     for step in range(1, sched.steps + 1):
         if on_step is not None:
@@ -275,7 +275,7 @@ def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, mlp_params
     run.seconds[name] = time.perf_counter() - t0
 
 
-def _warmup(run: _Run, mlp_params) -> list[list[torch.Tensor]]:
+def _warmup(run: _Run) -> list[list[torch.Tensor]]:
     """Phase 1: unconstrained features (from noise, or the PCA start) and the MLP."""
     mc = run.cfg.model
     free = M.init_free(mc, run.gen, run.device)
@@ -283,7 +283,7 @@ def _warmup(run: _Run, mlp_params) -> list[list[torch.Tensor]]:
         pca_init(mc, run.ref.mips, run.biases, free, run.mlp)
     lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
     _run_phase(run, "warmup", M.free_level_fn(free, mc.signed, mc.max_feature), _flat(free), run.cfg.preset.warmup,
-               mlp_params, project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],
+               project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],
                tap_fn=M.free_tap_fn(free, mc.signed, mc.max_feature))
     return free
 
@@ -326,7 +326,7 @@ class _QuantizationAware:
         return self.on
 
 
-def _constrained(run: _Run, blocks: list[list[M.BlockParams]], mlp_params) -> None:
+def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
     """Phase 2: the block parameters themselves, kept in the encodable range, with the QAT tail."""
     mc, sched = run.cfg.model, run.cfg.preset.constrained
     lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
@@ -339,7 +339,7 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]], mlp_params) -> No
                 b.x.clamp_(0.0, 1.0)
 
     qat = _QuantizationAware(sched.steps, run.cfg.preset.qat_fraction)
-    _run_phase(run, "constrained", M.block_level_fn(blocks, mc, qat), feat, sched, mlp_params, project=project,
+    _run_phase(run, "constrained", M.block_level_fn(blocks, mc, qat), feat, sched, project=project,
                tap_fn=M.block_tap_fn(blocks, mc, qat), on_step=qat.step)
 
 
@@ -393,19 +393,17 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     run = _Run(cfg, device, gen, ref, biases, mlp, clock, next_s, centres, mask_levels, progress, report_every)
     if centres is not None:
         run.seconds["targets"] = time.perf_counter() - t0  # part of the training time, not hidden before it
-    mlp_params = run.mlp_params
-
-    free = _warmup(run, mlp_params)
+    free = _warmup(run)
     blocks = _encode(run, free)
     del free
-    _constrained(run, blocks, mlp_params)
+    _constrained(run, blocks)
     ref_shapes = [tuple(m.shape[1:]) for m in ref.mips]
     float_mips = (encoding.decode_levels(evaluate_levels(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases,
                                                          ref_shapes), gains)
                   if keep_float_mips else [])
     layers, exact = _quantize(run, blocks)
     del blocks
-    _run_phase(run, "finetune", M.cached_level_fn(exact), [], preset.finetune, mlp_params)  # phase 4
+    _run_phase(run, "finetune", M.cached_level_fn(exact), [], preset.finetune)  # phase 4
 
     w = MlpWeights(*(mlp[k].detach().cpu().numpy().astype(np.float32)
                      for k in ("w1", "b1", "w2", "b2", "out_scale", "out_bias")),
