@@ -107,6 +107,7 @@ class Preset:
 # (teapot, fast: +2.5 dB at mips 0-1, +1 dB over all mips; docs/benchmarks.md, issue #9), and
 # take the steps at large mips at precomputed texel-centre targets (the same target, cheaper).
 PRESETS: dict[str, Preset] = {
+    "smoke": _cpu_preset(20, 60, 10, 32 * 32),
     "draft": _cpu_preset(200, 600, 100, 64 * 64),
     "fast": _cpu_preset(400, 2000, 200, 128 * 128),
     "standard": _cpu_preset(800, 4000, 300, 128 * 128),
@@ -118,6 +119,10 @@ PRESETS: dict[str, Preset] = {
     ),
 }
 DEFAULT_PRESET = "standard"
+# `smoke` checks that a scene and a pipeline (build system, cache, shards, Ray) work end to end, in
+# about a second of training per material; its quality is not meant to be looked at. Rate control
+# never chooses it, and it is not in the schedules that key a rate-controlled build.
+QUALITY_PRESETS = ("draft", "fast", "standard", "paper")
 
 # Torch threads per training, unless --threads says otherwise. A training step is many small
 # kernels: on the 2-core reference machine, quiet, the teapot at `fast` trained its constrained

@@ -138,7 +138,7 @@ def test_file_cut_in_half_is_one_line_naming_it_exit_2_and_nothing_written(tmp_p
     stage.Save()
     out = tmp_path / "out"
     p = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(tmp_path / "scene.usda"), "-o", str(out),
-                        "--profile", "tiny", "--quality", "draft", "--cache", str(tmp_path / "cache")],
+                        "--profile", "tiny", "--quality", "smoke", "--cache", str(tmp_path / "cache")],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 2, p.stderr
     (line,) = p.stderr.strip().splitlines()

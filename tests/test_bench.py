@@ -34,15 +34,15 @@ def textures(root: Path, n: int = 128) -> list[str]:
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory) -> Path:
-    """A bench of a 128² set: one BCf cell (tiny/draft), BC and ASTC 12x12 at full and half size."""
+    """A bench of a 128² set: one BCf cell (tiny/smoke), BC and ASTC 12x12 at full and half size."""
     if shutil.which("astcenc") is None:
         pytest.skip("needs astcenc (apt-get install astcenc)")
     root = tmp_path_factory.mktemp("bench")
     out = root / "report"
-    p = run_cli("bench", *textures(root), "--name", "small set", "--profiles", "tiny", "--presets", "draft",
+    p = run_cli("bench", *textures(root), "--name", "small set", "--profiles", "tiny", "--presets", "smoke",
                 "--astc-blocks", "12x12", "--decode-size", "64x36", "-o", str(out))
     assert p.returncode == 0, p.stderr
-    assert "| BCf tiny draft |" in p.stdout  # the markdown summary on stdout
+    assert "| BCf tiny smoke |" in p.stdout  # the markdown summary on stdout
     return out
 
 
@@ -55,7 +55,7 @@ def test_report_files_and_keys(report: Path) -> None:
     methods = [b["method"] for b in s["baselines"]]
     assert methods == ["BC @128", "ASTC 12x12 @128", "BC @64", "ASTC 12x12 @64"]
     (cell,) = s["cells"]
-    assert (cell["profile"], cell["preset"], cell["method"]) == ("tiny", "draft", "BCf tiny draft")
+    assert (cell["profile"], cell["preset"], cell["method"]) == ("tiny", "smoke", "BCf tiny smoke")
     n_mips = len(s["mips"])
     for row in [*s["baselines"], cell]:
         assert len(row["psnr_per_mip"]) == n_mips and len(row["lod_sweep"]) == len(s["lod_sweep"]["s"])
@@ -68,7 +68,7 @@ def test_report_files_and_keys(report: Path) -> None:
     d = s["decode_cost"]
     assert d["classic"] == "BC @128" and d["classic_formats"] == ["BC1", "BC5", "BC4"]
     (row,) = d["rows"]
-    assert row["method"] == "BCf tiny draft" and row["ratio"] > 0 and (row["width"], row["height"]) == (64, 36)
+    assert row["method"] == "BCf tiny smoke" and row["ratio"] > 0 and (row["width"], row["height"]) == (64, 36)
     if d["software"]:
         assert "only the neural / classic ratio" in d["note"]
     assert [c["mip"] for c in s["crops"]] == [0, 2] and all((report / c["png"]).is_file() for c in s["crops"])
@@ -147,10 +147,10 @@ def test_bench_a_scene_material(tmp_path: Path) -> None:
     assert p.returncode == 2 and "no modelled material Nope" in p.stderr and "Traceback" not in p.stderr
     out = tmp_path / "r"
     p = run_cli("bench", str(tmp_path / "scene.usda"), "--material", "M", "--profiles", "auto", "--presets",
-                "draft", "--baselines", "bc", "--no-half", "--decode-size", "32x18", "--json", "-o", str(out))
+                "smoke", "--baselines", "bc", "--no-half", "--decode-size", "32x18", "--json", "-o", str(out))
     assert p.returncode == 0, p.stderr
     data = json.loads(p.stdout)
     (s,) = data["sets"]
     assert s["name"] == "/World/Looks/M" and [b["method"] for b in s["baselines"]] == ["BC @32"]
-    assert [c["method"] for c in s["cells"]] == ["BCf auto-32 draft"]
+    assert [c["method"] for c in s["cells"]] == ["BCf auto-32 smoke"]
     assert data == json.loads((out / R.JSON_FILE).read_text())

@@ -1,6 +1,6 @@
 """Tests for `bcfpipe build` (bcfpipe.builder, cli/build.py, usd_layer, formats/weights, schemas/, samples/).
 
-Training runs use the tiny profile and the draft preset. The sample scene is built once per module
+Training runs use the tiny profile and the smoke preset. The sample scene is built once per module
 (two workers); a second small stage checks failure isolation, de-duplication and ``--json``.
 Checks that depend on process-wide USD plug-in state (schema registered or not) run in
 subprocesses, as a user's tool would.
@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "samples"
 SCHEMAS = REPO / "schemas"
 SCENES = REPO.parent / "shared" / "scenes"
-FAST = {"training": TrainingOptions(profile="tiny", preset="draft", seed=0)}
+FAST = {"training": TrainingOptions(profile="tiny", preset="smoke", seed=0)}
 
 
 def run_py(code: str, plugin: bool, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -470,7 +470,7 @@ def test_damaged_source_is_refused_before_training_then_dedup_and_json(tmp_path:
     stage.Save()
     out = tmp_path / "out"
     args = [sys.executable, "-m", "bcfpipe", "build", str(tmp_path / "scene.usda"), "-o", str(out),
-            "--profile", "tiny", "--quality", "draft", "--jobs", "2", "--threads", "1", "--json"]
+            "--profile", "tiny", "--quality", "smoke", "--jobs", "2", "--threads", "1", "--json"]
     proc = subprocess.run(args, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 2, proc.stderr
     assert proc.stdout == "" and "Traceback" not in proc.stderr

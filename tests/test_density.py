@@ -109,7 +109,7 @@ def test_plan_cli_json_names_every_job_with_its_capped_options(tmp_path):
 
     scene = quad_scene(tmp_path)
     res = CliRunner().invoke(main, ["plan", str(scene), "--texel-density", "300", "--profile", "tiny",
-                                    "--quality", "draft", "--json"])
+                                    "--quality", "smoke", "--json"])
     assert res.exit_code == 0, res.output
     d = json.loads(res.stdout)
     (job,) = d["jobs"]

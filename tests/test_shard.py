@@ -27,7 +27,7 @@ def scene(root: Path, n: int = 4) -> Path:
 
 
 def bcf(*args: str, cache: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bcfpipe", "build", *args, "--cache", str(cache), "--quality", "draft",
+    return subprocess.run([sys.executable, "-m", "bcfpipe", "build", *args, "--cache", str(cache), "--quality", "smoke",
                            "--jobs", "1", "--threads", "1"], capture_output=True, text=True, timeout=900)
 
 
@@ -50,7 +50,7 @@ def test_shard_arguments() -> None:
 def test_two_shards_then_assembly_match_one_build(tmp_path: Path) -> None:
     s = scene(tmp_path / "a")
     p1 = subprocess.Popen([sys.executable, "-m", "bcfpipe", "build", str(s), "--shard", "1/2", "--json", "--cache",
-                           str(tmp_path / "cache"), "--quality", "draft", "--jobs", "1", "--threads", "1"],
+                           str(tmp_path / "cache"), "--quality", "smoke", "--jobs", "1", "--threads", "1"],
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     r2 = bcf(str(s), "--shard", "2/2", "--json", cache=tmp_path / "cache")
     out1, err1 = p1.communicate(timeout=900)

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import DEFAULT_INIT, MODEL_FORMAT, PRESETS, TrainingOptions
+from bcfpipe.config import DEFAULT_INIT, MODEL_FORMAT, PRESETS, QUALITY_PRESETS, TrainingOptions
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
@@ -190,7 +190,7 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         payload["coverage"] = coverage_digest
     if options.target_psnr is not None:  # rate control picks among every preset, from these predictions
         payload["target_psnr"] = options.target_psnr
-        payload["schedules"] = {name: asdict(p) for name, p in PRESETS.items()}
+        payload["schedules"] = {name: asdict(PRESETS[name]) for name in QUALITY_PRESETS}
         payload["anchors"] = [list(a) for a in anchors]
     for f in fields(options):  # a newer option: in the key when it is not its default (old keys stand)
         if f.name not in _KEYED_ABOVE and getattr(options, f.name) != f.default:

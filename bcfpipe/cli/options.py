@@ -16,8 +16,9 @@ TRAINING_OPTIONS = (
                  help="Feature resolutions (paper Table 1, plus 1k++); auto = the largest of 0.5k/1k/2k not "
                       "above the source textures."),
     click.option("--quality", "--preset", "preset", type=click.Choice(list(PRESETS)), default=DEFAULT_PRESET,
-                 show_default=True, help="Training preset (steps, batch, learning rates): draft is fastest; "
-                                         "'paper' is the paper's 206k-step schedule (for a GPU)."),
+                 show_default=True, help="Training preset (steps, batch, learning rates): draft is the fastest worth "
+                                         "looking at; smoke only checks a pipeline end to end (about 1 s of "
+                                         "training a material); 'paper' is the paper's 206k-step schedule (for a GPU)."),
     click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
                  help="Hidden units of the decoder MLP."),
     click.option("--signed", is_flag=True, help="Store features as BC6H_SF16 instead of BC6H_UF16."),

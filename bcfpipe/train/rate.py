@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
-from bcfpipe.config import PRESETS, PROFILES, resolve_profile
+from bcfpipe.config import PRESETS, PROFILES, QUALITY_PRESETS, resolve_profile
 
 __all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_to_target", "anchors_from_bench",
            "GAINS_DB", "MARGIN_DB"]
@@ -84,7 +84,7 @@ def candidates(source_side: int, device: str = "cpu") -> list[Setting]:
     """Every setting rate control may choose for a set whose larger side is ``source_side``."""
     cuda = device.startswith("cuda")
     profiles = [p for p in (GPU_PROFILES if cuda else CPU_PROFILES) if PROFILES[p][0] <= source_side] or ["auto"]
-    presets = ["draft", "fast", "standard"] + (["paper"] if cuda else [])
+    presets = [p for p in QUALITY_PRESETS if cuda or p != "paper"]
     out = []
     for prof in profiles:
         res = resolve_profile(prof, source_side)[1]
