@@ -1,8 +1,9 @@
-"""Test utility: decode BC6H blocks with the OpenGL driver (Mesa llvmpipe through EGL).
+"""Test utility: decode BC6H and BC7 blocks with the OpenGL driver (Mesa llvmpipe through EGL).
 
-The blocks are uploaded with glCompressedTexImage2D as
+BC6H blocks are uploaded with glCompressedTexImage2D as
 GL_COMPRESSED_RGB_BPTC_{UNSIGNED,SIGNED}_FLOAT and read back with
-glGetTexImage(GL_RGB, GL_HALF_FLOAT), so the driver's own BPTC decoder is the
+glGetTexImage(GL_RGB, GL_HALF_FLOAT); BC7 blocks as GL_COMPRESSED_RGBA_BPTC_UNORM, read back
+with glGetTexImage(GL_RGBA, GL_UNSIGNED_BYTE). So the driver's own BPTC decoder is the
 oracle.  Any failure to get a context skips the calling test.
 """
 from __future__ import annotations
@@ -16,6 +17,7 @@ import pytest
 
 GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT = 0x8E8E
 GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT = 0x8E8F
+GL_COMPRESSED_RGBA_BPTC_UNORM = 0x8E8C
 
 _STATE: dict = {}
 
@@ -59,9 +61,12 @@ def renderer() -> str:
     return f"{info.get('GL_RENDERER')} | {info.get('GL_VERSION')}"
 
 
-def _upload_and_read(levels: Sequence[tuple[np.ndarray, int, int]], signed: bool) -> list[np.ndarray]:
+def _upload_and_read(levels: Sequence[tuple[np.ndarray, int, int]], signed: bool, bc7: bool = False) -> list[np.ndarray]:
     _, GL = _gl()
-    fmt = GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT if signed else GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT
+    fmt = GL_COMPRESSED_RGBA_BPTC_UNORM if bc7 else (
+        GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT if signed else GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT)
+    read_fmt, read_type, channels, dtype = ((GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8) if bc7 else
+                                            (GL.GL_RGB, GL.GL_HALF_FLOAT, 3, np.float16))
     tex = GL.glGenTextures(1)
     try:
         GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
@@ -81,8 +86,8 @@ def _upload_and_read(levels: Sequence[tuple[np.ndarray, int, int]], signed: bool
                 raise RuntimeError(f"glCompressedTexImage2D(level {lvl}, {w}x{h}) failed: GL error 0x{err:04X}")
         out = []
         for lvl, (_, w, h) in enumerate(levels):
-            buf = np.zeros((h, w, 3), dtype=np.float16)
-            _STATE["get"](GL.GL_TEXTURE_2D, lvl, GL.GL_RGB, GL.GL_HALF_FLOAT,
+            buf = np.zeros((h, w, channels), dtype=dtype)
+            _STATE["get"](GL.GL_TEXTURE_2D, lvl, read_fmt, read_type,
                              buf.ctypes.data_as(ctypes.c_void_p))
             err = GL.glGetError()
             if err != GL.GL_NO_ERROR:
@@ -116,3 +121,21 @@ def gl_decode_blocks(blocks: np.ndarray, signed: bool, blocks_per_row: int = 256
     img = gl_decode_bc6h(padded, bw * 4, bh * 4, signed).view(np.uint16)
     per_block = img.reshape(bh, 4, bw, 4, 3).transpose(0, 2, 1, 3, 4).reshape(bw * bh, 16, 3)
     return per_block[:n]
+
+
+def gl_decode_bc7_mips(levels: Sequence[tuple[np.ndarray, int, int]]) -> list[np.ndarray]:
+    """Upload ``[(blocks, w, h), ...]`` as one BC7 texture's mip chain and read every level back as
+    uint8 (h, w, 4)."""
+    return _upload_and_read(list(levels), False, bc7=True)
+
+
+def gl_decode_bc7_blocks(blocks: np.ndarray, blocks_per_row: int = 256) -> np.ndarray:
+    """Decode any number of BC7 blocks through GL as one tall texture -> uint8 (n, 16, 4)."""
+    n = blocks.shape[0]
+    bw = min(blocks_per_row, max(n, 1))
+    bh = -(-n // bw)
+    padded = np.zeros((bw * bh, 16), dtype=np.uint8)
+    padded[:n] = blocks
+    padded[n:, 0] = 0x40  # mode-6 padding
+    img = gl_decode_bc7_mips([(padded, bw * 4, bh * 4)])[0]
+    return img.reshape(bh, 4, bw, 4, 4).transpose(0, 2, 1, 3, 4).reshape(bw * bh, 16, 4)[:n]

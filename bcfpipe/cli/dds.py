@@ -1,4 +1,4 @@
-"""`bcfpipe dds`: look inside BC6H feature textures."""
+"""`bcfpipe dds`: look inside BC6H and BC7 feature textures."""
 from __future__ import annotations
 
 import json
@@ -20,15 +20,23 @@ def _load(path: str) -> ddsmod.DdsTexture:
 
 
 def _decode_level(tex: ddsmod.DdsTexture, k: int) -> np.ndarray:
+    """Mip ``k`` as (h, w, channels): 3 half-float channels for BC6H, 4 in [0, 1] for BC7."""
+    blocks, w, h = tex.levels[k]
+    if tex.is_bc7:
+        from bcfpipe.bc7 import decode as bc7_decode
+
+        try:
+            return bc7_decode(blocks, w, h)
+        except ValueError as e:
+            raise InputError(f"mip {k}: {e}") from None
     from bcfpipe.bc6h import decode
 
-    blocks, w, h = tex.levels[k]
     return decode(blocks, w, h, signed=tex.signed)
 
 
 @click.group(cls=Group)
 def dds() -> None:
-    """Inspect and decode BC6H DDS feature textures."""
+    """Inspect and decode BC6H and BC7 (mode 6) DDS feature textures."""
 
 
 @dds.command("info")
@@ -40,8 +48,9 @@ def info(file: str, as_json: bool) -> None:
     mips = []
     for k, (blocks, w, h) in enumerate(tex.levels):
         img = _decode_level(tex, k).astype(np.float32)
+        c = img.shape[-1]
         mips.append({"level": k, "width": w, "height": h, "blocks": int(blocks.shape[0]),
-                     "min": img.reshape(-1, 3).min(0).tolist(), "max": img.reshape(-1, 3).max(0).tolist()})
+                     "min": img.reshape(-1, c).min(0).tolist(), "max": img.reshape(-1, c).max(0).tolist()})
     size = Path(file).stat().st_size
     report = {"file": str(file), "format": tex.format_name, "dxgi_format": tex.dxgi_format,
               "width": tex.width, "height": tex.height, "mip_count": tex.mip_count,
@@ -53,7 +62,8 @@ def info(file: str, as_json: bool) -> None:
     from rich.table import Table
 
     table = Table(title=f"{file}: {tex.format_name} {tex.width}x{tex.height}, {tex.mip_count} mips, {size} bytes")
-    for col in ("mip", "size", "blocks", "min (r g b)", "max (r g b)"):
+    rgb = "r g b a" if tex.is_bc7 else "r g b"
+    for col in ("mip", "size", "blocks", f"min ({rgb})", f"max ({rgb})"):
         table.add_column(col, justify="right")
     fmt = lambda v: " ".join(f"{x:.4g}" for x in v)  # noqa: E731
     for m in mips:
@@ -68,7 +78,8 @@ def info(file: str, as_json: bool) -> None:
 @click.option("--mip", default=0, show_default=True, help="Mip level to decode.")
 @click.option("-f", "--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
 def decode_cmd(file: str, output: str, mip: int, force: bool) -> None:
-    """Decode one mip of FILE to a half-float image through OpenImageIO."""
+    """Decode one mip of FILE through OpenImageIO: half floats for BC6H, 32-bit floats (value / 255)
+    for BC7."""
     import OpenImageIO as oiio
 
     tex = _load(file)
@@ -78,7 +89,7 @@ def decode_cmd(file: str, output: str, mip: int, force: bool) -> None:
     if out.exists() and not force:
         raise InputError(f"{out} exists; pass --force to overwrite")
     img = _decode_level(tex, mip)
-    spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.HALF)
+    spec = oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], oiio.FLOAT if tex.is_bc7 else oiio.HALF)
     buf = oiio.ImageBuf(spec)
     buf.set_pixels(oiio.ROI(), img)
     tmp = out.with_name(out.name + ".tmp" + out.suffix)

@@ -1,4 +1,4 @@
-"""DDS container for BC6H textures, with the DX10 extended header.
+"""DDS container for BC6H and BC7 textures, with the DX10 extended header.
 
 Layout (Microsoft "DDS" programming guide): the magic ``DDS ``, a 124-byte
 DDS_HEADER, a 20-byte DDS_HEADER_DXT10, then every mip level's blocks from the
@@ -19,7 +19,9 @@ from bcfpipe.errors import InputError
 
 DXGI_FORMAT_BC6H_UF16 = 95
 DXGI_FORMAT_BC6H_SF16 = 96
-DXGI_NAMES = {DXGI_FORMAT_BC6H_UF16: "BC6H_UF16", DXGI_FORMAT_BC6H_SF16: "BC6H_SF16"}
+DXGI_FORMAT_BC7_UNORM = 98
+DXGI_NAMES = {DXGI_FORMAT_BC6H_UF16: "BC6H_UF16", DXGI_FORMAT_BC6H_SF16: "BC6H_SF16",
+              DXGI_FORMAT_BC7_UNORM: "BC7_UNORM"}
 
 _MAGIC = b"DDS "
 _HEADER = struct.Struct("<7I44x8I4I4x")  # DDS_HEADER without reserved fields' contents
@@ -39,12 +41,12 @@ Level = tuple[np.ndarray, int, int]
 
 
 class DdsError(InputError):
-    """A DDS file that is not a well-formed 2D BC6H texture."""
+    """A DDS file that is not a well-formed 2D BC6H or BC7 texture."""
 
 
 @dataclass(frozen=True)
 class DdsTexture:
-    """A BC6H texture as read from disk: ``levels`` is [(blocks (n,16) uint8, w, h), ...]."""
+    """A BC6H or BC7 texture as read from disk: ``levels`` is [(blocks (n,16) uint8, w, h), ...]."""
 
     dxgi_format: int
     width: int
@@ -54,6 +56,10 @@ class DdsTexture:
     @property
     def signed(self) -> bool:
         return self.dxgi_format == DXGI_FORMAT_BC6H_SF16
+
+    @property
+    def is_bc7(self) -> bool:
+        return self.dxgi_format == DXGI_FORMAT_BC7_UNORM
 
     @property
     def format_name(self) -> str:
@@ -98,28 +104,33 @@ def _check_levels(levels: Sequence[Level]) -> None:
                              f"got {b.dtype} {b.shape}")
 
 
-def encode_header(width: int, height: int, mip_count: int, signed: bool) -> bytes:
-    """The 148-byte magic + DDS_HEADER + DDS_HEADER_DXT10 for a 2D BC6H texture."""
+def encode_header(width: int, height: int, mip_count: int, signed: bool, dxgi_format: int | None = None) -> bytes:
+    """The 148-byte magic + DDS_HEADER + DDS_HEADER_DXT10 for a 2D BC6H texture (``signed`` picks
+    95 or 96), or of ``dxgi_format`` when given."""
     flags = DDSD_CAPS | DDSD_HEIGHT | DDSD_WIDTH | DDSD_PIXELFORMAT | DDSD_MIPMAPCOUNT | DDSD_LINEARSIZE
     caps = DDSCAPS_TEXTURE | ((DDSCAPS_COMPLEX | DDSCAPS_MIPMAP) if mip_count > 1 else 0)
     linear_size = block_count(width, height) * BLOCK_BYTES
     header = _HEADER.pack(124, flags, height, width, linear_size, 0, mip_count,
                           32, DDPF_FOURCC, _FOURCC_DX10, 0, 0, 0, 0, 0,
                           caps, 0, 0, 0)
-    dxgi = DXGI_FORMAT_BC6H_SF16 if signed else DXGI_FORMAT_BC6H_UF16
+    dxgi = dxgi_format if dxgi_format is not None else DXGI_FORMAT_BC6H_SF16 if signed else DXGI_FORMAT_BC6H_UF16
+    if dxgi not in DXGI_NAMES:
+        raise ValueError(f"DXGI format {dxgi} is not one bcfpipe writes ({', '.join(map(str, DXGI_NAMES))})")
     dx10 = _DX10.pack(dxgi, D3D10_RESOURCE_DIMENSION_TEXTURE2D, 0, 1, 0)
     return _MAGIC + header + dx10
 
 
-def write(path: str | os.PathLike, levels: Sequence[Level], signed: bool = False) -> None:
-    """Write a BC6H DDS (DXGI 95 unsigned / 96 signed) with the given mip levels, largest first.
+def write(path: str | os.PathLike, levels: Sequence[Level], signed: bool = False,
+          dxgi_format: int | None = None) -> None:
+    """Write a BC6H DDS (DXGI 95 unsigned / 96 signed), or one of ``dxgi_format`` (98: BC7_UNORM),
+    with the given mip levels, largest first.
 
     The file is written to a temporary name and renamed, so a failure never leaves a partial file.
     """
     _check_levels(levels)
     path = Path(path)
     _, w0, h0 = levels[0]
-    data = encode_header(w0, h0, len(levels), signed) + b"".join(
+    data = encode_header(w0, h0, len(levels), signed, dxgi_format) + b"".join(
         np.ascontiguousarray(b, dtype=np.uint8).tobytes() for b, _, _ in levels)
     from bcfpipe.formats.atomic import atomic_write
 
@@ -127,7 +138,7 @@ def write(path: str | os.PathLike, levels: Sequence[Level], signed: bool = False
 
 
 def read(path: str | os.PathLike) -> DdsTexture:
-    """Read a 2D BC6H DDS with a DX10 header; anything else raises a one-line DdsError."""
+    """Read a 2D BC6H or BC7 DDS with a DX10 header; anything else raises a one-line DdsError."""
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -148,12 +159,12 @@ def parse(data: bytes, name: str = "<bytes>") -> DdsTexture:
     if size != 124 or pf_size != 32:
         raise DdsError(f"{name}: inconsistent header sizes ({size}, {pf_size}); expected 124 and 32")
     if not (pf_flags & DDPF_FOURCC) or fourcc != _FOURCC_DX10:
-        raise DdsError(f"{name}: no DX10 header; only BC6H (DXGI 95/96) DDS files are supported")
+        raise DdsError(f"{name}: no DX10 header; only BC6H (DXGI 95/96) and BC7 (98) DDS files are supported")
     if len(data) < head + _DX10.size:
         raise DdsError(f"{name}: truncated DX10 header")
     dxgi, dim, misc, array_size, _misc2 = _DX10.unpack_from(data, head)
     if dxgi not in DXGI_NAMES:
-        raise DdsError(f"{name}: DXGI format {dxgi} is not BC6H (95 or 96)")
+        raise DdsError(f"{name}: DXGI format {dxgi} is not BC6H (95 or 96) or BC7_UNORM (98)")
     if dim != D3D10_RESOURCE_DIMENSION_TEXTURE2D or array_size != 1 or misc & 0x4 or caps2 & 0x200:
         raise DdsError(f"{name}: only single 2D textures are supported (dimension {dim}, "
                        f"array size {array_size}, cube {bool(misc & 0x4)})")

@@ -1,0 +1,3 @@
+"""BC7 (BPTC UNORM) feature textures in mode 6: block layout, spec decoder, encoder, trainable emulation."""
+from .decode import decode, decode_to_u8  # noqa: F401
+from .encode import encode  # noqa: F401
