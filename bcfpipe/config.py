@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
+from bcfpipe.formats.vocabulary import FeatureFormat
+
 N_LAYERS = 4
 LAYER_CHANNELS = 3
 MIN_LEVEL = 4  # the smallest mip is one 4x4 BC6H block
@@ -136,6 +138,9 @@ DEFAULT_HIDDEN = 16  # hidden units of the decoder MLP
 DEFAULT_SEED = 0
 DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
+DEFAULT_FEATURES = FeatureFormat.BC6H
+# Channels per feature layer T_i, per format: BC6H holds RGB, BC7 RGBA in the same bytes.
+LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
@@ -157,10 +162,15 @@ class ModelConfig:
     signed: bool = False  # BC6H_UF16 by default: finer endpoint steps over the positive range
     wrap: str = "repeat"
     max_feature: float = 2.0  # decoded features are kept within +-max_feature (model.endpoint_range)
+    features: FeatureFormat = DEFAULT_FEATURES
+
+    @property
+    def layer_channels(self) -> int:
+        return LAYER_CHANNELS_OF[self.features]
 
     @property
     def n_inputs(self) -> int:
-        return N_LAYERS * LAYER_CHANNELS
+        return N_LAYERS * self.layer_channels
 
     @property
     def mip_counts(self) -> tuple[int, ...]:
@@ -208,10 +218,13 @@ class TrainingOptions:
     threads: int = DEFAULT_THREADS
     target_psnr: float | None = None
     bench_data: str | None = None  # a `bcfpipe bench` report to predict --target-psnr from
+    features: FeatureFormat = DEFAULT_FEATURES
 
     def __post_init__(self) -> None:
         from bcfpipe.errors import InputError
 
+        if self.features in tuple(FeatureFormat) and not isinstance(self.features, FeatureFormat):
+            object.__setattr__(self, "features", FeatureFormat(self.features))  # "bc7" from a command line
         for problem in self.problems():
             raise InputError(problem)
 
@@ -232,6 +245,11 @@ class TrainingOptions:
             out.append(f"--target-psnr must be a positive number of dB, got {self.target_psnr}")
         if self.bench_data is not None and self.target_psnr is None:
             out.append("--bench-data is only used with --target-psnr")
+        if self.features not in tuple(FeatureFormat):
+            out.append(f"unknown feature format {self.features!r}; choose from "
+                       f"{', '.join(f.value for f in FeatureFormat)}")
+        elif self.signed and FeatureFormat(self.features) != FeatureFormat.BC6H:
+            out.append("--signed is a BC6H choice (BC6H_SF16); BC7 features are unsigned")
         return out
 
     def with_(self, **kw) -> "TrainingOptions":
@@ -244,6 +262,7 @@ class TrainingOptions:
         if wrap not in ("repeat", "clamp"):
             raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
         name, res = resolve_profile(self.profile, source_size)
-        mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap)
+        mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap,
+                         features=FeatureFormat(self.features))
         return name, TrainConfig(model=mc, preset=PRESETS[self.preset], preset_name=self.preset, seed=self.seed,
                                  device=device, threads=self.threads, feature_init=self.init)

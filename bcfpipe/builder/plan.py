@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import DEFAULT_INIT, MODEL_FORMAT, PRESETS, QUALITY_PRESETS, TrainingOptions
+from bcfpipe.config import DEFAULT_FEATURES, DEFAULT_INIT, MODEL_FORMAT, PRESETS, QUALITY_PRESETS, TrainingOptions
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
@@ -76,6 +76,8 @@ class MaterialJob:
         the job's record that `TrainingOptions` has, by name."""
         shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
                   if hasattr(self.options, f.name)}
+        if shared.get("features") is None:  # absent from the record: the default format
+            shared.pop("features", None)
         return TrainingOptions(**{**shared, "device": device, "threads": threads})
 
     @property
@@ -245,7 +247,8 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
     shared = {f.name: getattr(training, f.name) for f in fields(Options) if hasattr(training, f.name)}
     options = Options(**{**shared, "device": _resolve_device_name(training.device),
                          "texel_density": float(texel_density) if texel_density is not None else None,
-                         "coverage": bool(coverage)})
+                         "coverage": bool(coverage),
+                         "features": None if training.features == DEFAULT_FEATURES else training.features.value})
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 

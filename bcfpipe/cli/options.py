@@ -6,8 +6,9 @@ import click
 
 from dataclasses import fields
 
+from bcfpipe.formats.vocabulary import FeatureFormat
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED, DEFAULT_THREADS, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
+                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
 
 # The training options, in --help order: one per field of config.TrainingOptions, named as it (a
 # test checks); `train`, `plan` and `build` take exactly these.
@@ -21,7 +22,11 @@ TRAINING_OPTIONS = (
                                          "training a material); 'paper' is the paper's 206k-step schedule (for a GPU)."),
     click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
                  help="Hidden units of the decoder MLP."),
-    click.option("--signed", is_flag=True, help="Store features as BC6H_SF16 instead of BC6H_UF16."),
+    click.option("--features", type=click.Choice([f.value for f in FeatureFormat]), default=DEFAULT_FEATURES.value,
+                 show_default=True,
+                 help="Feature texture format: bc6h (the paper's: BC6H mode 11110, 3 channels per layer) or bc7 "
+                      "(BC7 mode 6, 4 channels per layer in the same bytes; the MLP takes 16 inputs)."),
+    click.option("--signed", is_flag=True, help="Store features as BC6H_SF16 instead of BC6H_UF16 (bc6h only)."),
     click.option("--init", "init", type=click.Choice(list(FEATURE_INITS)), default=DEFAULT_INIT, show_default=True,
                  help="How training starts: 'random' as in the paper, or 'pca' from the texture set's principal "
                       "components and their linear decoder (sharper fine mips, weaker coarse ones)."),

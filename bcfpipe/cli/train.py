@@ -50,7 +50,7 @@ class _Reporter:
         psnr = f"{p.psnr:5.2f} dB" if math.isfinite(p.psnr) else "  -  "
         line = (f"{p.phase:<11} {p.step:>6}/{p.steps:<6} loss {p.loss:.2e}  psnr {psnr}  "
                 f"elapsed {_fmt_eta(p.elapsed)}  eta {_fmt_eta(p.eta)}") if math.isfinite(p.loss) else \
-            f"{p.phase:<11} (initialising BC6H blocks)  elapsed {_fmt_eta(p.elapsed)}"
+            f"{p.phase:<11} (initialising blocks)  elapsed {_fmt_eta(p.elapsed)}"
         if self.status is not None:
             self.status.update(line)
         elif not self.quiet and (time.monotonic() - self.last > 5 or p.step == p.steps):

@@ -1,9 +1,10 @@
 """Export one trained material to a folder, and evaluate what was exported.
 
 Folder layout (``material.json`` describes it completely for consumers that do not use bcfpipe):
-  T0.dds .. T3.dds   mipmapped BC6H feature layers (mode 11110 blocks), DX10 header
+  T0.dds .. T3.dds   mipmapped feature layers, DX10 header: BC6H mode 11110 blocks (3 channels), or
+                     BC7 mode 6 blocks (4 channels) with --features bc7
   weights.bin        the decoder as one BCFW fp16 record (v1; v2 with HDR channels; bcfpipe.model.decoder)
-  decoder.onnx       the decoder with output post-processing: features (N, 12) -> channels (N, c_out)
+  decoder.onnx       the decoder with output post-processing: features (N, 12 or 16) -> channels (N, c_out)
   material.json      everything needed to decode (bcfpipe.formats.material, schemas/material.schema.json)
 """
 from __future__ import annotations
@@ -21,7 +22,11 @@ from bcfpipe.formats import material as mf
 from bcfpipe.model import neural as M
 from bcfpipe.bc6h import decode as bc6h_decode
 from bcfpipe.bc6h import mode10
+from bcfpipe.bc7 import decode as bc7_decode
+from bcfpipe.bc7.mode6 import DESCRIPTION as BC7_MODE
 from bcfpipe.config import N_LAYERS, ModelConfig
+from bcfpipe.formats.vocabulary import FeatureFormat
+from bcfpipe.model.features import codec_of
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_bytes, normal_xy_index, to_bytes, to_onnx
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.texset.texture_set import Channel, semantic_info
@@ -51,24 +56,25 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     mc: ModelConfig = tm.config.model
     ts = tm.texture_set
+    codec = codec_of(mc)
     layers = []
     for i, layer in enumerate(tm.layers):
-        levels = [(mode10.pack(bl.endpoints, bl.indices, bl.partition, signed=mc.signed), bl.size, bl.size)
-                  for bl in layer]
-        dds.write(out / mf.layer_file(i), levels, signed=mc.signed)
-        layers.append(mf.Layer(mf.layer_file(i), mc.resolutions[i], len(layer), tm.lod_biases[i]))
+        levels = [(codec.pack(bl, mc), bl.size, bl.size) for bl in layer]
+        dds.write(out / mf.layer_file(i), levels, signed=mc.signed, dxgi_format=codec.dxgi_format(mc))
+        layers.append(mf.Layer(mf.layer_file(i), mc.resolutions[i], len(layer), tm.lod_biases[i], codec.channels))
+    bc7 = FeatureFormat(mc.features) == FeatureFormat.BC7
     record = to_bytes(tm.mlp)
     atomic_write(out / mf.WEIGHTS, record)
     atomic_write(out / mf.ONNX, to_onnx(tm.mlp, tm.kinds).SerializeToString())
     n_in, hidden, n_out = tm.mlp.dims
     desc = mf.MaterialFile(
         layers=tuple(layers),
-        bc6h=mf.BC6H(dds.DXGI_FORMAT_BC6H_SF16 if mc.signed else dds.DXGI_FORMAT_BC6H_UF16, mc.signed,
-                     mode10.DESCRIPTION),
+        bc6h=None if bc7 else mf.BC6H(codec.dxgi_format(mc), mc.signed, mode10.DESCRIPTION),
+        bc7=mf.BC7(codec.dxgi_format(mc), BC7_MODE) if bc7 else None,
         sampling=mf.Sampling(mc.wrap),
         reference=mf.Reference(ts.width, ts.height, max(ts.width, ts.height).bit_length()),
         mlp=mf.Mlp(mf.WEIGHTS, 0, len(record), n_in, hidden, n_out, "relu", "fp16", f"BCFW v{tm.mlp.version}",
-                   tuple(f"T{i}.{c}" for i in range(N_LAYERS) for c in "rgb"),
+                   tuple(f"T{i}.{c}" for i in range(N_LAYERS) for c in "rgba"[:codec.channels]),
                    tuple(tm.mlp.out_scale.tolist()), tuple(tm.mlp.out_bias.tolist())),
         outputs=output_channels(ts.channels),
         onnx=mf.Onnx(mf.ONNX, ONNX_INPUT, ONNX_OUTPUT, 17),
@@ -86,7 +92,7 @@ class ExportedMaterial:
     """An exported material read back from disk: decoded feature levels and the fp16 decoder."""
 
     desc: mf.MaterialFile
-    levels: list[list[np.ndarray]]  # per layer, per mip: (H, W, 3) float32 decoded by bcfpipe.bc6h.decode
+    levels: list[list[np.ndarray]]  # per layer, per mip: (H, W, C) float32 from the spec decoder (bc6h / bc7)
     weights: MlpWeights
     onnx_path: Path
 
@@ -104,19 +110,23 @@ class ExportedMaterial:
 
 
 def load(folder: str | os.PathLike) -> ExportedMaterial:
-    """Read an exported material folder back (DDS through bcfpipe.bc6h.decode, fp16 weights)."""
+    """Read an exported material folder back (DDS through bcfpipe.bc6h or bcfpipe.bc7's decoder,
+    fp16 weights)."""
     folder = Path(folder)
     desc = mf.read(folder)
     levels = []
     for layer in desc.layers:
         tex = dds.read(folder / layer.file)
-        levels.append([bc6h_decode(b, w, h, signed=tex.signed).astype(np.float32) for b, w, h in tex.levels])
+        if tex.is_bc7:
+            levels.append([bc7_decode(b, w, h)[..., :layer.channels] for b, w, h in tex.levels])
+        else:
+            levels.append([bc6h_decode(b, w, h, signed=tex.signed).astype(np.float32) for b, w, h in tex.levels])
     weights, _ = from_bytes((folder / desc.mlp.weights).read_bytes(), desc.mlp.offset)
     return ExportedMaterial(desc, levels, weights, folder / desc.onnx.file)
 
 
 def sample_exported_features(em: ExportedMaterial, uv: np.ndarray, s: float | np.ndarray) -> np.ndarray:
-    """Feature vectors (N, 12) sampled from the decoded DDS levels with the hardware conventions."""
+    """Feature vectors (N, 12 or 16) sampled from the decoded DDS levels with the hardware conventions."""
     levels = [[torch.from_numpy(np.ascontiguousarray(np.moveaxis(l, -1, 0))) for l in layer] for layer in em.levels]
     lvl = M.cached_level_fn(levels)
     s_t = torch.as_tensor(s, dtype=torch.float32) if isinstance(s, np.ndarray) else float(s)

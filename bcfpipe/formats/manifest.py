@@ -236,6 +236,7 @@ class Options(Record):
     resolution: int | None = optional()  # the texture set resampled to this larger side (a density cap)
     coverage: bool = True  # training draws from the texels the bound meshes read
     target_psnr: float | None = optional()  # --target-psnr: rate control chose each job's profile and preset
+    features: str | None = optional()  # --features when not the default bc6h: "bc7" (issue 29)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bcfpipe.formats.atomic import atomic_write
-from bcfpipe.formats.record import Record, optional, read as read_record
+from bcfpipe.formats.record import FormatError, Record, optional, read as read_record
 
 FORMAT = "bcfpipe-material"
 FORMAT_VERSION = 2
@@ -27,7 +27,8 @@ def layer_file(i: int) -> str:
 
 @dataclass(frozen=True)
 class Layer(Record):
-    """Feature texture T_i: a mipmapped BC6H DDS of ``resolution``², sampled at s + ``lod_bias``."""
+    """Feature texture T_i: a mipmapped BC6H or BC7 DDS of ``resolution``², sampled at s +
+    ``lod_bias``; its first ``channels`` channels are features (3 for BC6H, 4 for BC7)."""
 
     file: str
     resolution: int
@@ -38,10 +39,19 @@ class Layer(Record):
 
 @dataclass(frozen=True)
 class BC6H(Record):
-    """How the feature textures are block-compressed."""
+    """How the feature textures are block-compressed, when they are BC6H."""
 
     dxgi_format: int
     signed: bool
+    block_mode: str
+
+
+@dataclass(frozen=True)
+class BC7(Record):
+    """How the feature textures are block-compressed, when they are BC7 (``--features bc7``):
+    UNORM, every block in ``block_mode``; a texel's value is its 8-bit value / 255."""
+
+    dxgi_format: int
     block_mode: str
 
 
@@ -127,23 +137,33 @@ class MaterialFile(Record):
     """The material.json of one exported material folder."""
 
     layers: tuple[Layer, ...]
-    bc6h: BC6H
     sampling: Sampling
     reference: Reference
     mlp: Mlp
     outputs: tuple[Output, ...]
     onnx: Onnx
     training: Training
+    bc6h: BC6H | None = optional()  # exactly one of bc6h and bc7
+    bc7: BC7 | None = optional()
     sha256: dict[str, str] | None = optional()
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
     bcfpipe_version: str = field(default_factory=lambda: _version())
 
-    _ORDER = ("format", "format_version", "bcfpipe_version")
+    _ORDER = ("format", "format_version", "bcfpipe_version", "layers", "bc6h", "bc7")
+
+    def __post_init__(self) -> None:
+        if (self.bc6h is None) == (self.bc7 is None):
+            raise FormatError("material.json needs exactly one of 'bc6h' and 'bc7' (the feature format)")
+
+    @property
+    def features(self) -> str:
+        """The feature format: "bc6h" or "bc7"."""
+        return "bc7" if self.bc7 is not None else "bc6h"
 
     @property
     def signed(self) -> bool:
-        return self.bc6h.signed
+        return self.bc6h is not None and self.bc6h.signed
 
     @property
     def wrap(self) -> str:

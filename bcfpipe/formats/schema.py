@@ -29,7 +29,9 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("MaterialFile", "format_version"): "Version of this contract; a reader refuses versions it does not know.",
     ("MaterialFile", "bcfpipe_version"): "The bcfpipe release that wrote the file.",
     ("MaterialFile", "layers"): "The feature textures T_0..T_3, in MLP input order.",
-    ("MaterialFile", "bc6h"): "How the feature textures are compressed.",
+    ("MaterialFile", "bc6h"): "How the feature textures are compressed, when they are BC6H (the default).",
+    ("MaterialFile", "bc7"): "How the feature textures are compressed, when they are BC7 (--features bc7); "
+                             "exactly one of bc6h and bc7 is present.",
     ("MaterialFile", "sampling"): "How a decoder samples the feature textures (the paper's section 5.2).",
     ("MaterialFile", "reference"): "The source texture set the material reproduces.",
     ("MaterialFile", "mlp"): "The decoder network and where its fp16 weights are.",
@@ -41,7 +43,9 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Layer", "resolution"): "Width and height of mip 0 in texels (square, a power of two).",
     ("Layer", "mip_count"): "Number of mips stored (down to 4x4, the BC6H block size).",
     ("Layer", "lod_bias"): "Added to the level of detail s before sampling this layer: s_i = s + lod_bias.",
-    ("Layer", "channels"): "Feature channels (BC6H stores RGB).",
+    ("Layer", "channels"): "Feature channels: 3 (BC6H, RGB) or 4 (BC7, RGBA); the MLP reads them in order.",
+    ("BC7", "dxgi_format"): "98 (BC7_UNORM).",
+    ("BC7", "block_mode"): "The one BC7 mode every block uses (bcfpipe.bc7.mode6); a texel is its 8-bit value / 255.",
     ("BC6H", "dxgi_format"): "95 (BC6H_UF16) or 96 (BC6H_SF16).",
     ("BC6H", "signed"): "Whether the features use the signed BC6H format.",
     ("BC6H", "block_mode"): "The one BC6H mode every block uses (bcfpipe.bc6h.mode10).",
@@ -55,7 +59,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Mlp", "weights"): "File holding the fp16 weight record, relative to the material folder.",
     ("Mlp", "offset"): "Byte offset of the record in that file.",
     ("Mlp", "size_bytes"): "Byte size of the record.",
-    ("Mlp", "n_in"): "Inputs: 3 features per layer.",
+    ("Mlp", "n_in"): "Inputs: the layers' channels in order (12 for BC6H, 16 for BC7).",
     ("Mlp", "n_hidden"): "Hidden units.",
     ("Mlp", "n_out"): "MLP outputs (normal z excluded).",
     ("Mlp", "activation"): "Hidden-layer activation.",
@@ -122,6 +126,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Options", "resolution"): "For a job: the larger side its texture set was resampled to, to meet texel_density; absent when not capped.",
     ("Options", "coverage"): "Whether training draws its samples from the texels the bound meshes read (false: --no-coverage).",
     ("Options", "target_psnr"): "--target-psnr in dB: rate control chose each job's profile and preset (absent: not used).",
+    ("Options", "features"): "Feature texture format when not the default bc6h: \"bc7\" (--features).",
     ("Stage", "up_axis"): "The scene's upAxis.",
     ("Stage", "meters_per_unit"): "The scene's metersPerUnit.",
     ("Stage", "default_prim"): "The scene's defaultPrim path, null if unset.",
@@ -302,6 +307,7 @@ ENUMS: dict[tuple[str, str], list] = {
     ("MaterialReport", "status"): list(manifest.STATUSES),
     ("MaterialReport", "cache"): [*report.CACHE_STATES, None],
     ("BC6H", "dxgi_format"): [95, 96],
+    ("BC7", "dxgi_format"): [98],
 }
 
 _SCALARS = {str: "string", int: "integer", float: "number", bool: "boolean", type(None): "null"}

@@ -15,7 +15,7 @@ except ImportError:  # Python 3.10
         def __str__(self) -> str:
             return str(self.value)
 
-__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace"]
+__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace", "FeatureFormat"]
 
 
 class Status(StrEnum):
@@ -55,3 +55,11 @@ class ColorSpace(StrEnum):
     AUTO = "auto"
     RAW = "raw"
     SRGB = "sRGB"
+
+
+class FeatureFormat(StrEnum):
+    """How the feature textures T_i are block-compressed: BC6H mode 11110, three channels each
+    (the paper's), or BC7 mode 6, four channels each in the same bytes (issue 29)."""
+
+    BC6H = "bc6h"
+    BC7 = "bc7"

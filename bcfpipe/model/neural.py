@@ -2,12 +2,12 @@
 
 Pure functions over tensors. A material's state is a dict of tensors:
 
-- ``free``     phase 1: per layer, per mip, a (3, H, W) tensor of free texel parameters in the
-               6-bit endpoint domain; texel value = BC6H's unquantize -> finish -> half cast of it,
-               so warm features live in exactly the value domain BC6H can represent.
-- ``blocks``   phases 2-4: per layer, per mip: ``endpoints`` (n, 4, 3) (6-bit domain, continuous
-               during phase 2), ``x`` (n, 16) continuous indices in [0, 1], and fixed ``mask``
-               (n, 16) (subset-1 membership from the block's partition id) and ``partition`` (n,).
+- ``free``     phase 1: per layer, per mip, a (C, H, W) tensor of free texel parameters in the
+               format's endpoint domain (C = 3 for BC6H, 4 for BC7); for BC6H texel value =
+               unquantize -> finish -> half cast of it, so warm features live in exactly the value
+               domain BC6H can represent; for BC7 value = p / 255.
+- ``blocks``   phases 2-4: per layer, per mip, a `bcfpipe.model.features.BlockParams`: continuous
+               ``endpoints`` and indices ``x`` in [0, 1] (and BC6H's fixed partition ``mask``).
 - ``mlp``      w1, b1, w2, b2 of the decoder, plus fixed out_scale / out_bias.
 
 Each layer i is sampled at lod s_i = s + b_i, where s is in the reference's mip units and
@@ -17,15 +17,14 @@ reference, the layer's texel density.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Callable, Sequence
 
-import numpy as np
 import torch
 
 from bcfpipe.bc6h import emulate
-from bcfpipe.config import LAYER_CHANNELS, ModelConfig, mip_count
+from bcfpipe.config import ModelConfig, mip_count
 from bcfpipe.model.decoder import mlp_raw
+from bcfpipe.model.features import BlockParams, codec_of
 from bcfpipe.model.sampling import level_weights, sample_bilinear, sample_bilinear_fn, sample_trilinear
 
 LevelFn = Callable[[int, int], torch.Tensor]  # (layer, mip) -> (3, H, W) texel values
@@ -69,21 +68,22 @@ def endpoint_range(signed: bool, max_feature: float | None = None) -> tuple[floa
 
 
 def blocks_to_image(texels: torch.Tensor, width: int, height: int) -> torch.Tensor:
-    """(n, 16, 3) block texels in row-major block order -> (3, H, W)."""
-    by, bx = height // 4, width // 4
-    return texels.reshape(by, bx, 4, 4, LAYER_CHANNELS).permute(4, 0, 2, 1, 3).reshape(LAYER_CHANNELS, height, width)
+    """(n, 16, C) block texels in row-major block order -> (C, H, W)."""
+    by, bx, c = height // 4, width // 4, texels.shape[-1]
+    return texels.reshape(by, bx, 4, 4, c).permute(4, 0, 2, 1, 3).reshape(c, height, width)
 
 
 def init_free(cfg: ModelConfig, gen: torch.Generator, device: torch.device) -> list[list[torch.Tensor]]:
-    """Phase-1 parameters: uniform in the endpoint range that decodes to about [0.03, 1.7]
-    (unsigned) or [-1, 1] (signed), where the MLP's inputs are well scaled."""
-    lo, hi = (-15.0, 15.0) if cfg.signed else (20.0, 32.0)
+    """Phase-1 parameters: uniform in the format's start range (BC6H: endpoints that decode to about
+    [0.03, 1.7] unsigned or [-1, 1] signed; BC7: [0.25, 0.75]), where the MLP's inputs are well scaled."""
+    codec = codec_of(cfg)
+    lo, hi = codec.init_range(cfg)
     layers = []
     for res, n in zip(cfg.resolutions, cfg.mip_counts):
         mips = []
         for k in range(n):
             r = res >> k
-            t = torch.rand((LAYER_CHANNELS, r, r), generator=gen) * (hi - lo) + lo
+            t = torch.rand((codec.channels, r, r), generator=gen) * (hi - lo) + lo
             mips.append(t.to(device).requires_grad_(True))
         layers.append(mips)
     return layers
@@ -106,26 +106,15 @@ def init_mlp(n_in: int, hidden: int, n_out: int, gen: torch.Generator, device: t
     return p
 
 
-def free_tap_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: float | None = None) -> TapFn:
-    lo, hi = endpoint_range(signed, max_feature)
+def free_tap_fn(free: list[list[torch.Tensor]], cfg: ModelConfig) -> TapFn:
+    codec = codec_of(cfg)
+    lo, hi = codec.param_range(cfg)
 
     def fn(i: int, k: int):
         p = free[i][k]
         flat = p.reshape(p.shape[0], -1)
-        return lambda ids: endpoint_value(flat[:, ids].t().clamp(lo, hi), signed)
+        return lambda ids: codec.value(flat[:, ids].t().clamp(lo, hi), cfg)
     return fn
-
-
-@dataclass
-class BlockParams:
-    """One mip of one layer as trainable BC6H mode-11110 blocks (paper §4.2): ``endpoints``
-    (n, 4, 3) and ``x`` (n, 16) = indices / 7 are learnt; ``mask`` (n, 16) says which texels use
-    the second region; ``partition`` (n,) is the shape each block's encoding chose."""
-
-    endpoints: torch.Tensor
-    x: torch.Tensor
-    mask: torch.Tensor
-    partition: np.ndarray
 
 
 def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
@@ -133,6 +122,8 @@ def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
     """Texel values straight from block parameters: texel (y, x) lives in block
     (y // 4) * (w // 4) + x // 4 at position (y % 4) * 4 + x % 4. ``quantized()`` is asked per
     call, so a schedule can switch quantization-aware decoding on mid-phase."""
+    codec = codec_of(cfg)
+
     def fn(i: int, k: int):
         b = blocks[i][k]
         r = max(4, cfg.resolutions[i] >> k)
@@ -141,29 +132,26 @@ def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
             y, xx = ids // r, ids % r
             blk = (y // 4) * (r // 4) + xx // 4
             pos = (y % 4) * 4 + xx % 4
-            e = b.endpoints[blk]  # (M, 4, 3)
-            m = b.mask[blk, pos].unsqueeze(1)
-            ea = torch.where(m, e[:, 2], e[:, 0])
-            eb = torch.where(m, e[:, 3], e[:, 1])
-            return emulate.decode_texels(ea, eb, b.x[blk, pos], cfg.signed, quantized())
+            return codec.texels(b, blk, pos, cfg, quantized())
         return texels
     return fn
 
 
-def free_level_fn(free: list[list[torch.Tensor]], signed: bool, max_feature: float | None = None) -> LevelFn:
-    lo, hi = endpoint_range(signed, max_feature)
-    return lambda i, k: endpoint_value(free[i][k].clamp(lo, hi), signed)
+def free_level_fn(free: list[list[torch.Tensor]], cfg: ModelConfig) -> LevelFn:
+    codec = codec_of(cfg)
+    lo, hi = codec.param_range(cfg)
+    return lambda i, k: codec.value(free[i][k].clamp(lo, hi), cfg)
 
 
 def block_level_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
                    quantized: bool | Callable[[], bool] = False) -> LevelFn:
     q = quantized if callable(quantized) else (lambda: quantized)
+    codec = codec_of(cfg)
 
     def fn(i: int, k: int) -> torch.Tensor:
         b = blocks[i][k]
         r = max(4, cfg.resolutions[i] >> k)
-        texels = emulate.decode_blocks(b.endpoints, b.x, b.mask, signed=cfg.signed, quantized=q())
-        return blocks_to_image(texels, r, r)
+        return blocks_to_image(codec.decode_blocks(b, cfg, q()), r, r)
     return fn
 
 
@@ -192,7 +180,7 @@ def level_sizes(cfg: ModelConfig) -> list[list[int]]:
 
 def sample_features(level_fn: LevelFn, mip_counts: Sequence[int], biases: Sequence[float],
                     uv: torch.Tensor, s: float | torch.Tensor, wrap: str) -> torch.Tensor:
-    """Concatenated trilinear samples of all layers -> (N, 3 * n_layers).
+    """Concatenated trilinear samples of all layers -> (N, C * n_layers).
 
     With a float ``s`` only the two levels each layer needs are decoded; with a per-point tensor
     every level is decoded once and sampled (evaluation).

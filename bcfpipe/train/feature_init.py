@@ -15,9 +15,10 @@ so the presets keep the paper's random start and ``--init pca`` is a choice for 
 A two-band variant (coarse layers holding the components, fine layers the residual) and a PCA
 start without warm-up measured worse on every mip and were dropped.
 
-Component values are mapped affinely onto a feature range [F_LO, F_HI] per (layer, component),
-then onto the free parameters' 6-bit endpoint domain through the inverse of
-:func:`bcfpipe.model.endpoint_value`.
+Component values are mapped affinely onto the format's feature range per (layer, component),
+then onto the free parameters' domain: for BC6H ([0.25, 1.7]) the 6-bit endpoint domain through the
+inverse of :func:`bcfpipe.model.endpoint_value`; for BC7 ([0.02, 0.98]) the 8-bit one. A BC7 layer
+holds four components, so T_0 starts as the oracle of benchmarks/bound_t0.py ("4 PCs, BC7").
 """
 from __future__ import annotations
 
@@ -28,9 +29,12 @@ import torch
 import torch.nn.functional as F
 
 from bcfpipe.model import neural as M
-from bcfpipe.config import LAYER_CHANNELS, ModelConfig
+from bcfpipe.config import ModelConfig
+from bcfpipe.formats.vocabulary import FeatureFormat
+from bcfpipe.model.features import codec_of
 
-F_LO, F_HI = 0.25, 1.7  # feature range of the initial components (decoded BC6H values)
+# feature range of the initial components, per format (decoded values)
+FEATURE_RANGE = {FeatureFormat.BC6H: (0.25, 1.7), FeatureFormat.BC7: (0.02, 0.98)}
 _SAMPLE_TEXELS = 1 << 16  # texels of the mip the PCA is computed on (about 256²)
 LAYERS = (0, 1)  # the layers holding components 0-2 and 3-5
 
@@ -78,16 +82,19 @@ def pca_init(cfg: ModelConfig, mips: Sequence[torch.Tensor], biases: Sequence[fl
     of components used (at most 6). Unsigned features only; signed models keep the random start."""
     if cfg.signed or len(free) < 4:
         return 0
+    per_layer = codec_of(cfg).channels
+    bc7 = FeatureFormat(cfg.features) == FeatureFormat.BC7
+    F_LO, F_HI = FEATURE_RANGE[FeatureFormat(cfg.features)]
     dev = free[0][0].device
     mips = [m.to(dev) for m in mips]
     c = mips[0].shape[0]
     mean, axes = principal_axes(mips)
     mean, axes = mean.to(dev), axes.to(dev)
-    n_comp = min(c, 2 * LAYER_CHANNELS)
+    n_comp = min(c, 2 * per_layer)
     content: dict[int, list[torch.Tensor]] = {}  # layer -> per-mip component images
     comps_of: dict[int, list[int]] = {}
     for g, i in enumerate(LAYERS):
-        comps = list(range(LAYER_CHANNELS * g, min(n_comp, LAYER_CHANNELS * (g + 1))))
+        comps = list(range(per_layer * g, min(n_comp, per_layer * (g + 1))))
         if comps:
             content[i] = [_components(mips, k - biases[i], p.shape[-1], mean, axes[comps]) for k, p in enumerate(free[i])]
             comps_of[i] = comps
@@ -105,11 +112,14 @@ def pca_init(cfg: ModelConfig, mips: Sequence[torch.Tensor], biases: Sequence[fl
             scale = (F_HI - F_LO) / torch.where(hi - lo > 1e-6, hi - lo, torch.ones_like(hi))
             for k, p in enumerate(free[i]):
                 f = F_LO + (content[i][k] - lo[:, None, None]) * scale[:, None, None]
-                p[: len(comps_of[i])] = _inverse_endpoint_value(f.clamp(F_LO * 0.5, F_HI * 1.1), False)
+                if bc7:
+                    p[: len(comps_of[i])] = f.clamp(0.0, 1.0) * 255.0
+                else:
+                    p[: len(comps_of[i])] = _inverse_endpoint_value(f.clamp(F_LO * 0.5, F_HI * 1.1), False)
             for j, comp in enumerate(comps_of[i]):
                 if unit >= w1.shape[0]:
                     break
-                col = LAYER_CHANNELS * i + j
+                col = per_layer * i + j
                 w1[unit].zero_()
                 w1[unit, col] = 1.0
                 b1[unit] = 0.0

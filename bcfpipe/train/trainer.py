@@ -1,11 +1,11 @@
 """Training schedule (paper §5.1, §6.1): warm-up, BC init + constrained, quantize, MLP fine-tune.
 
   phase 1  warmup       free features + MLP, Adam (lr_f, lr_m), exponential decay
-  phase 2  constrained  features re-initialised by bcfpipe.bc6h.encode of the warm features (this
-                        picks every block's partition), then endpoints/indices trained through
-                        the differentiable BC6H emulation
-  phase 3  quantize     endpoints rounded to 6 bits, indices to 3 bits, then frozen
-  phase 4  finetune     MLP only, on the frozen exact BC6H features
+  phase 2  constrained  features re-initialised by encoding the warm features (BC6H: this picks
+                        every block's partition), then endpoints/indices trained through the
+                        differentiable emulation of the feature format (bcfpipe.model.features)
+  phase 3  quantize     endpoints and indices rounded to the format's bits, then frozen
+  phase 4  finetune     MLP only, on the frozen exact features
 
 One call trains one material. It touches no global state except torch's thread count when
 ``TrainConfig.threads`` is set (workers of a parallel build each own a process).
@@ -24,9 +24,8 @@ import numpy as np
 import torch
 
 from bcfpipe.model import neural as M
-from bcfpipe.bc6h import emulate
-from bcfpipe.bc6h.encode import encode_params
-from bcfpipe.config import TrainConfig
+from bcfpipe.config import ModelConfig, TrainConfig
+from bcfpipe.model.features import QuantizedLevel, codec_of
 from bcfpipe.model.decoder import MlpWeights
 from bcfpipe.train.feature_init import pca_init
 from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_batch, sample_reference
@@ -51,14 +50,7 @@ class Progress:
 ProgressFn = Callable[[Progress], None]
 
 
-@dataclass(frozen=True)
-class BlockLevel:
-    """One mip of one feature layer as exact mode-11110 BC6H parameters."""
-
-    endpoints: np.ndarray  # int (n, 4, 3)
-    indices: np.ndarray  # int (n, 16)
-    partition: np.ndarray  # int (n,)
-    size: int
+BlockLevel = QuantizedLevel  # one mip of one layer as the exact block parameters that are written
 
 
 @dataclass
@@ -140,10 +132,9 @@ class _Clock:
         return left
 
 
-def exact_level(bl: BlockLevel, signed: bool, device) -> torch.Tensor:
-    """Bit-exact decoded texels (3, H, W) of quantized block parameters."""
-    e, x, mask, _ = emulate.from_params(bl.endpoints, bl.indices, bl.partition, device=device)
-    return M.blocks_to_image(emulate.decode_blocks(e, x, mask, signed=signed, quantized=True), bl.size, bl.size)
+def exact_level(bl: BlockLevel, mc: ModelConfig, device) -> torch.Tensor:
+    """Bit-exact decoded texels (C, H, W) of quantized block parameters."""
+    return M.blocks_to_image(codec_of(mc).exact(bl, mc, device), bl.size, bl.size)
 
 
 class StratifiedScale:
@@ -281,29 +272,36 @@ def _warmup(run: _Run) -> list[list[torch.Tensor]]:
     free = M.init_free(mc, run.gen, run.device)
     if run.cfg.feature_init == "pca":
         pca_init(mc, run.ref.mips, run.biases, free, run.mlp)
-    lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
-    _run_phase(run, "warmup", M.free_level_fn(free, mc.signed, mc.max_feature), _flat(free), run.cfg.preset.warmup,
+    codec = codec_of(mc)
+    lo, hi = codec.param_range(mc)
+    _run_phase(run, "warmup", M.free_level_fn(free, mc), _flat(free), _scaled(run.cfg.preset.warmup, codec),
                project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],
-               tap_fn=M.free_tap_fn(free, mc.signed, mc.max_feature))
+               tap_fn=M.free_tap_fn(free, mc))
     return free
 
 
+def _scaled(sched, codec):
+    """The phase's schedule with feature learning rates in the format's endpoint units."""
+    if codec.lr_scale == 1.0:
+        return sched
+    from dataclasses import replace
+
+    return replace(sched, lr_features=sched.lr_features * codec.lr_scale)
+
+
 def _encode(run: _Run, free: list[list[torch.Tensor]]) -> list[list[M.BlockParams]]:
-    """Phase 2's start: BC6H-encode the warm features, which chooses each block's partition."""
+    """Phase 2's start: encode the warm features (BC6H: this chooses each block's partition)."""
     mc = run.cfg.model
-    lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
+    codec = codec_of(mc)
+    lo, hi = codec.param_range(mc)
     t0 = time.perf_counter()
     blocks = []
     with torch.no_grad():
         for mips in free:
             layer = []
             for p in mips:
-                texels = M.endpoint_value(p.clamp(lo, hi), mc.signed).permute(1, 2, 0).cpu().numpy()
-                e, idx, part = encode_params(texels, signed=mc.signed)
-                layer.append(M.BlockParams(
-                    torch.as_tensor(e, dtype=torch.float32, device=run.device).requires_grad_(True),
-                    (torch.as_tensor(idx, dtype=torch.float32, device=run.device) / 7.0).requires_grad_(True),
-                    emulate.partition_mask(part, device=run.device), np.asarray(part)))
+                texels = codec.value(p.clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy()
+                layer.append(codec.encode(texels, mc, run.device))
             blocks.append(layer)
     run.seconds["encode"] = time.perf_counter() - t0
     if run.progress:
@@ -328,8 +326,10 @@ class _QuantizationAware:
 
 def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
     """Phase 2: the block parameters themselves, kept in the encodable range, with the QAT tail."""
-    mc, sched = run.cfg.model, run.cfg.preset.constrained
-    lo, hi = M.endpoint_range(mc.signed, mc.max_feature)
+    mc = run.cfg.model
+    codec = codec_of(mc)
+    sched = _scaled(run.cfg.preset.constrained, codec)
+    lo, hi = codec.param_range(mc)
     feat = [t for layer in blocks for b in layer for t in (b.endpoints, b.x)]
 
     def project() -> None:
@@ -344,25 +344,22 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
 
 
 def _quantize(run: _Run, blocks: list[list[M.BlockParams]]) -> tuple[list[list[BlockLevel]], list]:
-    """Phase 3: round to mode-11110 blocks and freeze; returns them and their exact decoded levels."""
+    """Phase 3: round to the format's blocks and freeze; returns them and their exact decoded levels."""
     mc = run.cfg.model
+    codec = codec_of(mc)
     t0 = time.perf_counter()
     layers: list[list[BlockLevel]] = []
     with torch.no_grad():
         for i, layer in enumerate(blocks):
-            out = []
-            for k, b in enumerate(layer):
-                e, idx, part = emulate.to_params(b.endpoints, b.x, b.partition, signed=mc.signed)
-                out.append(BlockLevel(e, idx, part, max(4, mc.resolutions[i] >> k)))
-            layers.append(out)
-        exact = [[exact_level(bl, mc.signed, run.device) for bl in layer] for layer in layers]
+            layers.append([codec.quantize(b, mc, max(4, mc.resolutions[i] >> k)) for k, b in enumerate(layer)])
+        exact = [[exact_level(bl, mc, run.device) for bl in layer] for layer in layers]
     run.seconds["quantize"] = time.perf_counter() - t0
     return layers, exact
 
 
 def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
           report_every: int = 50, keep_float_mips: bool = True, coverage: np.ndarray | None = None) -> TrainedMaterial:
-    """Train one neural material on ``ts`` (see module docstring): warm-up, BC6H encode,
+    """Train one neural material on ``ts`` (see module docstring): warm-up, encode,
     constrained, quantize, MLP fine-tune. ``coverage``: a (H, W) bool mask of the texels the
     scene reads (bcfpipe.scan.coverage); steps then draw their samples there only, which weights
     the loss by the mask."""

@@ -1,0 +1,241 @@
+"""The feature textures' block formats behind one interface, for the trainer and the export.
+
+A `FeatureCodec` says, for one format, how a layer's free (phase 1) parameters map to texel values,
+how warm features become trainable block parameters, how those decode (per sampled texel or per
+level, optionally quantization-aware), how they round to the exact blocks that are written, and how
+those blocks are packed into a DDS. Two formats:
+
+* `bc6h`: BC6H mode 11110 (the paper's), 3 channels, parameters in the 6-bit endpoint domain
+  (bcfpipe.bc6h);
+* `bc7`: BC7 mode 6, 4 channels in the same bytes, parameters in the 8-bit endpoint domain
+  (bcfpipe.bc7; issue 29).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from bcfpipe.config import ModelConfig
+from bcfpipe.formats.vocabulary import FeatureFormat
+
+__all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "codec_of"]
+
+
+@dataclass
+class BlockParams:
+    """One mip of one layer as trainable blocks (paper §4.2): ``endpoints`` and ``x`` (indices
+    scaled to [0, 1]) are learnt. BC6H: endpoints (n, 4, 3), two subsets, ``mask`` (n, 16) says
+    which texels use the second and ``partition`` (n,) is the shape the encoding chose. BC7 mode 6:
+    endpoints (n, 2, 4), one subset, no mask or partition."""
+
+    endpoints: torch.Tensor
+    x: torch.Tensor
+    mask: torch.Tensor | None = None
+    partition: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class QuantizedLevel:
+    """One mip of one layer as the exact block parameters that are written."""
+
+    endpoints: np.ndarray
+    indices: np.ndarray
+    partition: np.ndarray | None
+    size: int
+
+
+class FeatureCodec:
+    """One feature format (see the module docstring); stateless, one instance per format."""
+
+    format: FeatureFormat
+    channels: int
+    lr_scale: float  # feature learning rates are stated for BC6H's 6-bit endpoint units
+
+    def param_range(self, mc: ModelConfig) -> tuple[float, float]:
+        raise NotImplementedError
+
+    def init_range(self, mc: ModelConfig) -> tuple[float, float]:
+        raise NotImplementedError
+
+    def value(self, p: torch.Tensor, mc: ModelConfig) -> torch.Tensor:
+        """Texel values of free parameters ``p`` (already clamped to :meth:`param_range`)."""
+        raise NotImplementedError
+
+    def encode(self, texels: np.ndarray, mc: ModelConfig, device) -> BlockParams:
+        """Warm texel values (H, W, channels) -> trainable blocks (requires_grad)."""
+        raise NotImplementedError
+
+    def texels(self, b: BlockParams, blk: torch.Tensor, pos: torch.Tensor, mc: ModelConfig,
+               quantized: bool) -> torch.Tensor:
+        """Values (M, channels) of texel ``pos`` of blocks ``blk``."""
+        raise NotImplementedError
+
+    def decode_blocks(self, b: BlockParams, mc: ModelConfig, quantized: bool) -> torch.Tensor:
+        """Every texel (n, 16, channels) of a level."""
+        raise NotImplementedError
+
+    def quantize(self, b: BlockParams, mc: ModelConfig, size: int) -> QuantizedLevel:
+        raise NotImplementedError
+
+    def exact(self, q: QuantizedLevel, mc: ModelConfig, device) -> torch.Tensor:
+        """Bit-exact decoded texels (n, 16, channels) of quantized parameters."""
+        raise NotImplementedError
+
+    def pack(self, q: QuantizedLevel, mc: ModelConfig) -> np.ndarray:
+        """(n, 16) uint8 blocks of a quantized level, as written to the DDS file."""
+        raise NotImplementedError
+
+    def dxgi_format(self, mc: ModelConfig) -> int:
+        raise NotImplementedError
+
+    def decode_file_level(self, blocks: np.ndarray, width: int, height: int, mc: ModelConfig) -> np.ndarray:
+        """The spec decoder's (height, width, channels) float32 texels of written blocks."""
+        raise NotImplementedError
+
+
+class _BC6H(FeatureCodec):
+    format = FeatureFormat.BC6H
+    channels = 3
+    lr_scale = 1.0
+
+    def param_range(self, mc):
+        from bcfpipe.model.neural import endpoint_range
+
+        return endpoint_range(mc.signed, mc.max_feature)
+
+    def init_range(self, mc):
+        return (-15.0, 15.0) if mc.signed else (20.0, 32.0)
+
+    def value(self, p, mc):
+        from bcfpipe.model.neural import endpoint_value
+
+        return endpoint_value(p, mc.signed)
+
+    def encode(self, texels, mc, device):
+        from bcfpipe.bc6h import emulate
+        from bcfpipe.bc6h.encode import encode_params
+
+        e, idx, part = encode_params(texels, signed=mc.signed)
+        return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
+                           (torch.as_tensor(idx, dtype=torch.float32, device=device) / 7.0).requires_grad_(True),
+                           emulate.partition_mask(part, device=device), np.asarray(part))
+
+    def texels(self, b, blk, pos, mc, quantized):
+        from bcfpipe.bc6h import emulate
+
+        e = b.endpoints[blk]  # (M, 4, 3)
+        m = b.mask[blk, pos].unsqueeze(1)
+        ea = torch.where(m, e[:, 2], e[:, 0])
+        eb = torch.where(m, e[:, 3], e[:, 1])
+        return emulate.decode_texels(ea, eb, b.x[blk, pos], mc.signed, quantized)
+
+    def decode_blocks(self, b, mc, quantized):
+        from bcfpipe.bc6h import emulate
+
+        return emulate.decode_blocks(b.endpoints, b.x, b.mask, signed=mc.signed, quantized=quantized)
+
+    def quantize(self, b, mc, size):
+        from bcfpipe.bc6h import emulate
+
+        e, idx, part = emulate.to_params(b.endpoints, b.x, b.partition, signed=mc.signed)
+        return QuantizedLevel(e, idx, part, size)
+
+    def exact(self, q, mc, device):
+        from bcfpipe.bc6h import emulate
+
+        e, x, mask, _ = emulate.from_params(q.endpoints, q.indices, q.partition, device=device)
+        return emulate.decode_blocks(e, x, mask, signed=mc.signed, quantized=True)
+
+    def pack(self, q, mc):
+        from bcfpipe.bc6h import mode10
+
+        return mode10.pack(q.endpoints, q.indices, q.partition, signed=mc.signed)
+
+    def dxgi_format(self, mc):
+        from bcfpipe.formats import dds
+
+        return dds.DXGI_FORMAT_BC6H_SF16 if mc.signed else dds.DXGI_FORMAT_BC6H_UF16
+
+    def decode_file_level(self, blocks, width, height, mc):
+        from bcfpipe.bc6h import decode
+
+        return decode(blocks, width, height, signed=mc.signed).astype(np.float32)
+
+
+class _BC7(FeatureCodec):
+    format = FeatureFormat.BC7
+    channels = 4
+    # Adam moves a parameter by about lr per step; one 8-bit endpoint unit is 1/255 of the feature
+    # range, where a 6-bit BC6H unit near the top of its range moves the value by ~0.1. Measured on
+    # the brick set (tiny, draft; all-mip PSNR): x2 25.9, x4 26.6, x8 27.5, x16 27.8, x32 28.0 dB,
+    # x64 27.9, x128 27.1.
+    lr_scale = 32.0
+
+    def param_range(self, mc):
+        return 0.0, 255.0
+
+    def init_range(self, mc):
+        # features in [0.43, 0.57]; the same brick run: [0, 1] 27.6 dB, [0.25, 0.75] 28.0, this 28.1
+        return 110.0, 146.0
+
+    def value(self, p, mc):
+        return p / 255.0
+
+    def encode(self, texels, mc, device):
+        from bcfpipe.bc7.encode import encode_params
+
+        h, w, c = texels.shape
+        blocks = texels.reshape(h // 4, 4, w // 4, 4, c).transpose(0, 2, 1, 3, 4).reshape(-1, 16, c)
+        e, idx = encode_params(blocks)
+        return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
+                           (torch.as_tensor(idx, dtype=torch.float32, device=device) / 15.0).requires_grad_(True))
+
+    def texels(self, b, blk, pos, mc, quantized):
+        from bcfpipe.bc7 import emulate
+
+        e = b.endpoints[blk]  # (M, 2, 4)
+        return emulate.decode_texels(e[:, 0], e[:, 1], b.x[blk, pos], quantized)
+
+    def decode_blocks(self, b, mc, quantized):
+        from bcfpipe.bc7 import emulate
+
+        return emulate.decode_blocks(b.endpoints, b.x, quantized)
+
+    def quantize(self, b, mc, size):
+        """The values quantization-aware decoding uses (the same float32 arithmetic), as integers."""
+        from bcfpipe.bc7 import emulate
+
+        with torch.no_grad():
+            e = emulate.quantize_endpoints(b.endpoints.detach()).cpu().numpy().astype(np.uint8)
+            idx = torch.round(b.x.detach().clamp(0.0, 1.0) * emulate.LEVELS).cpu().numpy().astype(np.uint8)
+        return QuantizedLevel(e, idx, None, size)
+
+    def exact(self, q, mc, device):
+        from bcfpipe.bc7 import mode6
+
+        texels = mode6.interpolate(q.endpoints, q.indices).astype(np.float32) / np.float32(255.0)
+        return torch.as_tensor(texels, device=device)
+
+    def pack(self, q, mc):
+        from bcfpipe.bc7 import mode6
+
+        return mode6.pack(q.endpoints, q.indices)
+
+    def dxgi_format(self, mc):
+        from bcfpipe.formats import dds
+
+        return dds.DXGI_FORMAT_BC7_UNORM
+
+    def decode_file_level(self, blocks, width, height, mc):
+        from bcfpipe.bc7 import decode
+
+        return decode(blocks, width, height)
+
+
+_CODECS = {FeatureFormat.BC6H: _BC6H(), FeatureFormat.BC7: _BC7()}
+
+
+def codec_of(mc: ModelConfig) -> FeatureCodec:
+    return _CODECS[FeatureFormat(mc.features)]

@@ -1,0 +1,87 @@
+"""Issue 29: BC6H against BC7 feature textures, measured from the exported files.
+
+For each set and profile, trains `--features bc6h` and `--features bc7` side by side (two
+processes, one torch thread each, started together so both see the same load), then reports from
+each exported folder: PSNR at every reference mip and over all mips (`bcfpipe train --json`, which
+decodes the exported DDS and weights through onnxruntime), SSIM, the files' size and the training
+time. BC@1024 (bcfpipe bench's BC set at 1024²) is given per mip for comparison.
+
+  python benchmarks/bench_features.py [--sets teapot,brick] [--profiles 1k,0.5k] [--preset standard]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_fidelity import specs  # noqa: E402
+from common import machine  # noqa: E402
+
+FORMATS = ("bc6h", "bc7")
+
+
+def _spec_args(name: str) -> list[str]:
+    return [f"{s.semantic}={s.path}:{s.channels}" for s in specs(name)]
+
+
+def run_pair(name: str, profile: str, preset: str, seed: int, root: Path) -> dict[str, dict]:
+    procs = {}
+    for f in FORMATS:
+        out = root / f"{name}-{profile}-{f}"
+        procs[f] = subprocess.Popen([sys.executable, "-m", "bcfpipe", "train", *_spec_args(name), "-o", str(out),
+                                     "--profile", profile, "--quality", preset, "--seed", str(seed), "--features", f,
+                                     "--threads", "1", "--json"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                    text=True)
+    res = {}
+    for f, p in procs.items():
+        stdout, _ = p.communicate()
+        if p.returncode != 0:
+            raise SystemExit(f"{name} {profile} {f}: bcfpipe train exited {p.returncode}")
+        res[f] = json.loads(stdout)
+    return res
+
+
+def bc_per_mip(name: str) -> list[float]:
+    from bcfpipe.bench.baselines import encode_texture_set_baseline
+    from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
+    from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
+
+    ts = load_texture_set(specs(name))
+    ref = build_mip_chain(ts.data)
+    bc, _ = encode_texture_set_baseline(ts, "bc", 1024, ref_mips=ref)
+    return [psnr_from_mse(m) for m in mse_per_mip(ref, bc, ts.channels)]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sets", default="teapot,brick")
+    ap.add_argument("--profiles", default="1k,0.5k")
+    ap.add_argument("--preset", default="standard")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    print(f"machine: {machine()}; preset {args.preset}, seed {args.seed}, 1 thread per training, the two "
+          "formats trained side by side")
+    with tempfile.TemporaryDirectory(prefix="bcfpipe-features-") as tmp:
+        for name in args.sets.split(","):
+            bc = bc_per_mip(name)
+            n = len(bc)
+            print(f"\n### {name}\n")
+            print("| method | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | SSIM mip 0 | size | train |")
+            print("|---|" + "---:|" * (n + 4))
+            print("| BC@1024 | " + " | ".join(f"{v:.1f}" for v in bc) + " | | | | |")
+            for profile in args.profiles.split(","):
+                res = run_pair(name, profile, args.preset, args.seed, Path(tmp))
+                for f in FORMATS:
+                    r = res[f]
+                    per = r["metrics"]["psnr_per_mip"]
+                    print(f"| {profile} {f} | " + " | ".join(f"{v:.1f}" for v in per) +
+                          f" | **{r['psnr']:.2f}** | {r['ssim']:.3f} | {r['size_bytes'] / 2**20:.2f} MiB "
+                          f"| {r['train_seconds']:.0f} s |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
