@@ -1,4 +1,4 @@
-// bcf_decode.glsl - runtime decoder for bcfpipe neural materials (BC6H features + fp16 MLP).
+// bcf_decode.glsl - runtime decoder for bcfpipe neural materials (BC6H or BC7 features + fp16 MLP).
 //
 // GLSL 4.50 core, no extensions, no #version and no bindings: the host inserts this file right
 // after the #version line of the shader that uses it (see glsl/README.md; ES 3.2 notes there).
@@ -20,7 +20,9 @@
 //   clamp(uv, -1, 2) for clamp-to-edge, and s_i clamped to [0, BCF_MAX_LOD]; hardware guarantees
 //   full sub-texel precision only for |uv| <= 10 (D3D11_COMMONSHADER_TEXCOORD_RANGE_REDUCTION_MAX).
 //   Precision limits (glsl/README.md): the fp32 uv itself resolves ulp(|uv|) * width texels.
-//   f : relu MLP 12 -> n_hidden -> n_out in fp32 with fp16 weights, then per channel
+//   Features: BC6H layers give 3 channels (T_i.rgb, n_in 12), BC7 layers 4 (T_i.rgba, n_in 16; upload
+//   as GL_COMPRESSED_RGBA_BPTC_UNORM); the record's n_in says which.
+//   f : relu MLP n_in -> n_hidden -> n_out in fp32 with fp16 weights, then per channel
 //       y = clamp(raw * out_scale + out_bias, lo, hi), lo = -1 for the normal x/y pair, else 0,
 //       then for an HDR channel (record v2, log_gain g > 0) y = (exp2(g y) - 1) * (1 / (exp2(g) - 1)),
 //       and normal z = sqrt(max(0, 1 - x^2 - y^2)) inserted right after normal y.
@@ -40,8 +42,8 @@
 #endif
 
 // Weight record "BCFW" v1 or v2 (bcfpipe/model/decoder.py), at a 4-byte aligned byte offset:
-//   word 0 magic 'BCFW' (0x57464342), 1 version (1 or 2), 2 n_in (12), 3 n_hidden, 4 n_out,
-//   5 n_halves, then fp16 values from word 6: W1[n_hidden][12], b1[n_hidden], W2[n_out][n_hidden],
+//   word 0 magic 'BCFW' (0x57464342), 1 version (1 or 2), 2 n_in (12 or 16), 3 n_hidden, 4 n_out,
+//   5 n_halves, then fp16 values from word 6: W1[n_hidden][n_in], b1[n_hidden], W2[n_out][n_hidden],
 //   b2[n_out], out_scale[n_out], out_bias[n_out], and in v2 log_gain[n_out] (HDR channels).
 //   Value e sits in word 6 + e/2, low half if e even.
 const uint BCF_MAGIC = 0x57464342u;
@@ -71,7 +73,8 @@ vec4 bcfHalf4(uint base, uint word) {  // four consecutive values starting at an
 int bcfChannelCount(BcfMaterial m) {
     uint w0 = m.weightOffset >> 2u;
     uint version = bcfWeightWord(w0 + 1u);
-    if (bcfWeightWord(w0) != BCF_MAGIC || (version != 1u && version != 2u) || bcfWeightWord(w0 + 2u) != 12u)
+    uint ni = bcfWeightWord(w0 + 2u);
+    if (bcfWeightWord(w0) != BCF_MAGIC || (version != 1u && version != 2u) || (ni != 12u && ni != 16u))
         return 0;
     uint nh = bcfWeightWord(w0 + 3u), no = bcfWeightWord(w0 + 4u);
     int extra = m.normalIndex >= 0 ? 1 : 0;
@@ -87,9 +90,9 @@ int bcfChannelCount(BcfMaterial m) {
     return int(no) + extra;
 }
 
-// The decoder MLP and post-processing on already sampled features; returns the channel count
-// (see bcfChannelCount; 0 = invalid record, ch untouched).
-int bcfDecodeFeatures(BcfMaterial m, vec3 t0, vec3 t1, vec3 t2, vec3 t3, out float ch[BCF_MAX_OUT]) {
+// The decoder MLP and post-processing on already sampled features (T_i.rgba; for BC6H layers only
+// .rgb is read); returns the channel count (see bcfChannelCount; 0 = invalid record, ch untouched).
+int bcfDecodeFeatures(BcfMaterial m, vec4 t0, vec4 t1, vec4 t2, vec4 t3, out float ch[BCF_MAX_OUT]) {
     int count = bcfChannelCount(m);
     if (count == 0) return 0;
     uint w0 = m.weightOffset >> 2u;
@@ -104,15 +107,28 @@ int bcfDecodeFeatures(BcfMaterial m, vec3 t0, vec3 t1, vec3 t2, vec3 t3, out flo
     uint no = bcfWeightWord(w0 + 4u);
 #endif
     uint base = w0 + BCF_HEADER_WORDS;
-    // input order T0.rgb, T1.rgb, T2.rgb, T3.rgb; a W1 row is 12 halves = 6 whole words
-    vec4 fa = vec4(t0, t1.x), fb = vec4(t1.yz, t2.xy), fc = vec4(t2.z, t3);
     float hid[BCF_MAX_HIDDEN];
-    uint b1 = nh * 12u;
-    for (uint j = 0u; j < nh; ++j) {
-        uint row = j * 6u;
-        float a = bcfHalf(base, b1 + j);
-        a += dot(bcfHalf4(base, row), fa) + dot(bcfHalf4(base, row + 2u), fb) + dot(bcfHalf4(base, row + 4u), fc);
-        hid[j] = max(a, 0.0);
+    uint b1;
+    if (bcfWeightWord(w0 + 2u) == 16u) {
+        // BC7: input order T0.rgba .. T3.rgba; a W1 row is 16 halves = 8 whole words
+        b1 = nh * 16u;
+        for (uint j = 0u; j < nh; ++j) {
+            uint row = j * 8u;
+            float a = bcfHalf(base, b1 + j);
+            a += dot(bcfHalf4(base, row), t0) + dot(bcfHalf4(base, row + 2u), t1) +
+                 dot(bcfHalf4(base, row + 4u), t2) + dot(bcfHalf4(base, row + 6u), t3);
+            hid[j] = max(a, 0.0);
+        }
+    } else {
+        // BC6H: input order T0.rgb, T1.rgb, T2.rgb, T3.rgb; a W1 row is 12 halves = 6 whole words
+        vec4 fa = vec4(t0.rgb, t1.x), fb = vec4(t1.yz, t2.xy), fc = vec4(t2.z, t3.rgb);
+        b1 = nh * 12u;
+        for (uint j = 0u; j < nh; ++j) {
+            uint row = j * 6u;
+            float a = bcfHalf(base, b1 + j);
+            a += dot(bcfHalf4(base, row), fa) + dot(bcfHalf4(base, row + 2u), fb) + dot(bcfHalf4(base, row + 4u), fc);
+            hid[j] = max(a, 0.0);
+        }
     }
     uint w2 = b1 + nh, b2 = w2 + no * nh, sc = b2 + no, bi = sc + no, lg = bi + no;
     bool hdr = bcfWeightWord(w0 + 1u) == 2u;
@@ -142,13 +158,13 @@ vec2 bcfReduceUv(vec2 uv, bool repeat) {
 
 // Hardware trilinear samples of the four layers at s_i = s + b_i (s = +-inf is fine; NaN is not).
 void bcfSampleFeatures(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, float s,
-                       out vec3 t0, out vec3 t1, out vec3 t2, out vec3 t3) {
+                       out vec4 t0, out vec4 t1, out vec4 t2, out vec4 t3) {
     uv = bcfReduceUv(uv, m.repeat);
     vec4 l = clamp(vec4(s) + m.lodBias, 0.0, BCF_MAX_LOD);
-    t0 = textureLod(T0, uv, l.x).rgb;
-    t1 = textureLod(T1, uv, l.y).rgb;
-    t2 = textureLod(T2, uv, l.z).rgb;
-    t3 = textureLod(T3, uv, l.w).rgb;
+    t0 = textureLod(T0, uv, l.x);
+    t1 = textureLod(T1, uv, l.y);
+    t2 = textureLod(T2, uv, l.z);
+    t3 = textureLod(T3, uv, l.w);
 }
 
 // s from uv derivatives (paper sec. 5.2): log2 of the larger pixel footprint in reference texels.
@@ -163,7 +179,7 @@ float bcfLodFromGrad(vec2 duvdx, vec2 duvdy, vec2 refSize) {
 // Decode at an explicit lod s (reference mip units). Returns the channel count, 0 if invalid.
 int bcfDecodeLod(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, float s,
                  out float ch[BCF_MAX_OUT]) {
-    vec3 t0, t1, t2, t3;
+    vec4 t0, t1, t2, t3;
     bcfSampleFeatures(T0, T1, T2, T3, m, uv, s, t0, t1, t2, t3);
     return bcfDecodeFeatures(m, t0, t1, t2, t3, ch);
 }

@@ -113,13 +113,13 @@ class Renderer:
         f = surface.neural
         key = (f.textures, f.repeat)
         if key not in self._features:
-            fmt = glsl.GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT if f.signed else glsl.GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT
             texs = []
             for path in f.textures:
                 tex = dds.parse(read_asset(path), path)
                 if tex.signed != f.signed:
                     raise InputError(f"{path}: {tex.format_name} but {surface.material} says featureSigned={int(f.signed)}")
-                texs.append(self.rt.upload_compressed(tex.levels, fmt, Wrap.REPEAT if f.repeat else Wrap.CLAMP))
+                texs.append(self.rt.upload_compressed(tex.levels, glsl.gl_format(tex),
+                                                      Wrap.REPEAT if f.repeat else Wrap.CLAMP))
             self._features[key] = texs
         return self._features[key]
 

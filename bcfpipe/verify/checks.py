@@ -30,6 +30,7 @@ from typing import Sequence
 import numpy as np
 
 from bcfpipe.bc6h import mode10
+from bcfpipe.bc7 import mode6
 from bcfpipe.formats import dds
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
@@ -83,9 +84,15 @@ def check_files(m: MaterialDesc) -> tuple[Check, list[dds.DdsTexture]]:
             problems.append(f"{path.name}: {t.mip_count} mips, material.json says {m.mip_counts[i]}")
         if (t.width, t.height) != (layer.resolution, layer.resolution):
             problems.append(f"{path.name}: {t.width}x{t.height}, material.json says {layer.resolution}")
-        if t.signed != m.signed:
-            problems.append(f"{path.name}: {t.format_name}, material.json says signed={m.signed}")
-        if m.file.bc6h.block_mode == mode10.DESCRIPTION:
+        if t.signed != m.signed or t.is_bc7 != m.bc7:
+            problems.append(f"{path.name}: {t.format_name}, material.json says "
+                            f"{'bc7' if m.bc7 else 'signed=' + str(m.signed)}")
+        if m.bc7:
+            for k, (blocks, w, h) in enumerate(t.levels):
+                bad = int((~mode6.is_mode6(blocks)).sum())
+                if bad:
+                    problems.append(f"{path.name} mip {k}: {bad} block(s) not in the declared BC7 mode 6")
+        elif m.file.bc6h.block_mode == mode10.DESCRIPTION:
             for k, (blocks, w, h) in enumerate(t.levels):
                 bad = int((~mode10.is_mode10(blocks)).sum())
                 if bad:
@@ -97,12 +104,13 @@ def check_files(m: MaterialDesc) -> tuple[Check, list[dds.DdsTexture]]:
     except (OSError, ValueError) as e:
         raise VerifyInputError(f"{m.weights_file}: {e}") from None
     n_in, hidden, n_out = w.dims
-    if n_in != 3 * len(m.layer_files) or n_out != m.n_out:
+    if n_in != sum(layer.channels for layer in m.file.layers) or n_out != m.n_out:
         problems.append(f"weight record is {n_in}-{hidden}-{n_out}, material.json has {m.n_out} outputs")
     if m.file.mlp.n_hidden != hidden:
         problems.append(f"weight record has {hidden} hidden units, material.json says {m.file.mlp.n_hidden}")
     return Check("files", not problems, "; ".join(problems) or
-                 f"{len(texs)} BC6H layers ({'signed' if m.signed else 'unsigned'}), "
+                 f"{len(texs)} {'BC7 (mode 6)' if m.bc7 else 'BC6H'} layers"
+                 f"{'' if m.bc7 else ' (signed)' if m.signed else ' (unsigned)'}, "
                  f"mips {list(m.mip_counts)}, decoder {n_in}-{hidden}-{n_out}"), texs
 
 
@@ -155,7 +163,10 @@ def check_weights_onnx(m: MaterialDesc) -> Check:
 
 
 def check_openimageio(texs: Sequence[dds.DdsTexture], files: Sequence[Path]) -> Check:
+    """Every mip as OpenImageIO's DDS reader decodes it == our spec decoder's, bit for bit (BC6H
+    halves; BC7 8-bit values)."""
     from bcfpipe.bc6h import decode as bc6h_decode
+    from bcfpipe.bc7 import decode_to_u8
 
     try:
         import OpenImageIO as oiio
@@ -173,16 +184,22 @@ def check_openimageio(texs: Sequence[dds.DdsTexture], files: Sequence[Path]) -> 
                     bad.append(f"{path.name}: OpenImageIO has no mip {k}")
                     break
                 spec = inp.spec()
-                img = inp.read_image(format="half")
+                img = inp.read_image(format="uint8" if tex.is_bc7 else "half")
                 if img is None or (spec.width, spec.height) != (w, h):
                     bad.append(f"{path.name} mip {k}: OpenImageIO read failed or size differs")
                     continue
-                theirs = np.ascontiguousarray(np.asarray(img).reshape(h, w, -1)[..., :3]).view(np.uint16)
-                ours = bc6h_decode(blocks, w, h, signed=tex.signed).view(np.uint16)
+                if tex.is_bc7:
+                    theirs = np.asarray(img).reshape(h, w, -1)[..., :4]
+                    bw, bh = -(-w // 4), -(-h // 4)
+                    full = decode_to_u8(blocks).reshape(bh, bw, 4, 4, 4).transpose(0, 2, 1, 3, 4)
+                    ours = full.reshape(bh * 4, bw * 4, 4)[:h, :w]
+                else:
+                    theirs = np.ascontiguousarray(np.asarray(img).reshape(h, w, -1)[..., :3]).view(np.uint16)
+                    ours = bc6h_decode(blocks, w, h, signed=tex.signed).view(np.uint16)
                 diff = int((theirs != ours).sum())
                 n_levels += 1
                 if diff:
-                    bad.append(f"{path.name} mip {k}: {diff} fp16 value(s) differ")
+                    bad.append(f"{path.name} mip {k}: {diff} value(s) differ")
             if inp.seek_subimage(0, tex.mip_count):
                 bad.append(f"{path.name}: OpenImageIO sees more than {tex.mip_count} mips")
         finally:
@@ -216,7 +233,8 @@ def check_glsl(rt: GLRuntime, m: MaterialDesc, em: E.ExportedMaterial, tolerance
     if gl.shape != ref.shape:
         return Check("glsl", False, f"GLSL gives {gl.shape[1]} channels, ONNX {ref.shape[1]}"), [], [], len(uv)
     if tolerance is None:
-        fe = filter_error(em.levels, em.lod_biases, uv, s, em.wrap, filter_bits, exact_lods)
+        fe = filter_error(em.levels, em.lod_biases, uv, s, em.wrap, filter_bits, exact_lods,
+                          unorm8=em.desc.features == "bc7")
         tol = output_tolerance(em.weights, em.kinds, feats, fe, ref)
     else:
         tol = np.full(ref.shape, float(tolerance))

@@ -26,6 +26,14 @@ from bcfpipe.formats import material as mf
 
 GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT = 0x8E8E
 GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT = 0x8E8F
+GL_COMPRESSED_RGBA_BPTC_UNORM = 0x8E8C  # BC7 feature layers (--features bc7)
+
+
+def gl_format(tex) -> int:
+    """The GL internal format of a feature DDS (bcfpipe.formats.dds.DdsTexture), from its DXGI format."""
+    if tex.is_bc7:
+        return GL_COMPRESSED_RGBA_BPTC_UNORM
+    return GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT if tex.signed else GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT
 LOCAL_SIZE = 64  # bcf_decode.comp's local_size_x
 MAX_GROUPS = 65535  # GL's guaranteed minimum of GL_MAX_COMPUTE_WORK_GROUP_COUNT[0]
 LIBRARY = "bcf_decode.glsl"
@@ -105,6 +113,10 @@ class MaterialDesc:
     @property
     def signed(self) -> bool:
         return self.file.signed
+
+    @property
+    def bc7(self) -> bool:
+        return self.file.features == "bc7"
 
     @property
     def ref_size(self) -> tuple[int, int]:
@@ -280,15 +292,16 @@ class GLRuntime:
     # ------------------------------------------------------------------ materials
     @_current
     def load(self, m: MaterialDesc, weights: bytes | None = None) -> GLMaterial:
-        """Upload ``m``'s four BC6H layers and its weight buffer (``weights`` overrides the file)."""
-        fmt = GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT if m.signed else GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT
+        """Upload ``m``'s four feature layers (BC6H or BC7) and its weight buffer (``weights``
+        overrides the file)."""
         textures: list[int] = []
         try:
             for path in m.layer_files:
                 tex = dds.read(path)
-                if tex.signed != m.signed:
-                    raise ValueError(f"{path}: {tex.format_name} but material.json says signed={m.signed}")
-                textures.append(self.upload_compressed(tex.levels, fmt, m.wrap))
+                if tex.signed != m.signed or tex.is_bc7 != m.bc7:
+                    raise ValueError(f"{path}: {tex.format_name} but material.json says "
+                                     f"{'bc7' if m.bc7 else 'signed=' + str(m.signed)}")
+                textures.append(self.upload_compressed(tex.levels, gl_format(tex), m.wrap))
         except BaseException:
             self.delete_textures(textures)
             raise

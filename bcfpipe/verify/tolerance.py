@@ -23,6 +23,11 @@ Tolerance (``glsl``), per sample point p and output channel c, derived from the 
   * (b) fp32: the standard dot-product rounding bound (n_hidden + 16) * 2^-23 * (sum of |terms|)
     with the network's actual magnitudes, and 2^-20 of the largest feature for the filter arithmetic.
 
+  * BC7 layers (UNORM8, ``--features bc7``) are filtered by many texture units, llvmpipe included,
+    in 8-bit fixed point: each of trilinear filtering's three lerps may leave its result up to one
+    8-bit step off (rounded or truncated), so such a layer's features get UNORM8_FILTER_STEPS / 255
+    more on top of the fraction terms.
+
 The bound is checked against a simulated 8-bit texture unit (rounding and truncating) in the tests:
 it holds and is nearly reached (max error / bound ~0.9-0.98 with truncation). llvmpipe filters in
 fp32 and agrees to ~1e-7. The check fails when any |GL - ONNX| exceeds its bound (``--tolerance X``
@@ -42,6 +47,7 @@ from bcfpipe.formats.vocabulary import Wrap
 
 
 FILTER_BITS = 8
+UNORM8_FILTER_STEPS = 3  # lerps of a trilinear sample, each up to one 8-bit step off on a UNORM8 layer
 FP32_ULP = 2.0 ** -23
 TARGET = 2e-3
 
@@ -107,17 +113,20 @@ class FilterError:
 
 def filter_error(levels: Sequence[Sequence[np.ndarray]], biases: Sequence[float], uv: np.ndarray,
                  s: np.ndarray, wrap: str, filter_bits: int = FILTER_BITS,
-                 exact_lods: np.ndarray | bool = True) -> FilterError:
+                 exact_lods: np.ndarray | bool = True, unorm8: bool = False) -> FilterError:
     """Feature-error terms of trilinear filtering with 2^-filter_bits precision on the bilinear
     fractions and on the mip blend fraction (see the module docstring). ``exact_lods`` False (per
     point or for all) marks lods the runtime computes itself (from derivatives, in fp32): those may
-    sit off the fixed-point grid even where ``s`` is on it."""
+    sit off the fixed-point grid even where ``s`` is on it. ``unorm8``: the layers are 8-bit UNORM
+    (BC7), filtered in 8-bit fixed point."""
     delta = 2.0 ** -filter_bits
     n_pts = uv.shape[0]
-    n_feat = 3 * len(levels)
+    widths = [layer[0].shape[-1] for layer in levels]  # features per layer: 3 (BC6H) or 4 (BC7)
+    starts = np.concatenate([[0], np.cumsum(widths)]).astype(int)
+    n_feat = int(starts[-1])
     groups, second, total = [], np.zeros((n_pts, n_feat)), np.zeros((n_pts, n_feat))
     for i, (layer, b) in enumerate(zip(levels, biases)):
-        sl = slice(3 * i, 3 * i + 3)
+        sl = slice(int(starts[i]), int(starts[i + 1]))
         n = len(layer)
         # clipped a little beyond [0, n - 1] so that +-inf and 1e30 stay integers below
         lam = np.clip((s.astype(np.float32) + np.float32(b)).astype(np.float64), -2.0, n + 1.0)
@@ -126,7 +135,7 @@ def filter_error(levels: Sequence[Sequence[np.ndarray]], biases: Sequence[float]
         t = (lc - lo)[:, None]
         hi = np.minimum(lo + 1, n - 1)
         terms = [_bilinear_terms(tex.astype(np.float64), uv, wrap, delta) for tex in layer]
-        vals = np.stack([tr[0] for tr in terms])  # (n, N, 3)
+        vals = np.stack([tr[0] for tr in terms])  # (n, N, C)
         pick = lambda arr, k: np.take_along_axis(arr, k[None, :, None], 0)[0]  # noqa: E731
         for weight, k in ((1 - t, lo), (t, hi)):
             for part in (1, 2):  # dB/dfx, dB/dfy candidates of the level in use
@@ -154,6 +163,8 @@ def filter_error(levels: Sequence[Sequence[np.ndarray]], biases: Sequence[float]
             inside = ((k >= np.clip(k1, 0, n - 1)) & (k <= np.clip(k2 + 1, 0, n - 1)))[:, None]
             second[:, sl] += np.where(inside, delta * al[:, None] * errs[k], 0.0)
         second[:, sl] += 2.0 ** -20 * max(float(np.abs(tex).max()) for tex in layer)
+        if unorm8:
+            second[:, sl] += UNORM8_FILTER_STEPS / 255.0
     total += second
     return FilterError(delta, groups, second, total)
 
