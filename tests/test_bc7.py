@@ -253,3 +253,52 @@ def test_gradients_flow_and_match_the_smooth_interpolation():
         if not q:  # quantized: the rounded endpoints' difference
             off_knot = ((t - torch.round(t)).abs() >= 1e-4 * 15).numpy()  # at a knot phi's slope is one-sided
             np.testing.assert_allclose(gx.numpy()[off_knot], expect.numpy()[off_knot], rtol=1e-7, atol=1e-12)
+
+
+def test_fused_node_equals_the_composed_ops():
+    """The one-node decode the trainer uses: forward bit-identical to the composition, gradients
+    equal to autograd's through it (within float32 summation order)."""
+    torch.manual_seed(3)
+    n = 4096
+    e = (torch.rand(n, 2, 4) * 270 - 7).requires_grad_(True)  # some outside [0, 255]
+    x = (torch.rand(n, 16) * 1.1 - 0.05).requires_grad_(True)
+    for q in (False, True):
+        a, b = emulate.decode_blocks(e, x, q), emulate.decode_blocks_composed(e, x, q)
+        assert torch.equal(a, b)
+        g = torch.rand_like(a)
+        for ga, gb in zip(torch.autograd.grad(a, (e, x), g), torch.autograd.grad(b, (e, x), g)):
+            np.testing.assert_allclose(ga.numpy(), gb.numpy(), rtol=1e-5, atol=1e-7)
+
+
+def test_weight_table_in_closed_form():
+    assert torch.equal(emulate._table_weight(torch.arange(16.0)), torch.tensor(mode6.WEIGHTS4, dtype=torch.float32))
+
+
+def test_bc7_train_exports_verifies_and_refuses_signed(tmp_path):
+    """`bcfpipe train --features bc7`: BC7_UNORM mode-6 layers with 4 channels, a 16-input decoder,
+    material.json's bc7 record; `bcfpipe verify` passes (GLSL against ONNX where GL runs);
+    --signed with bc7 is refused in one line."""
+    import json
+    import subprocess
+
+    from bcfpipe.formats import material as mf
+
+    src = Path(__file__).resolve().parents[1] / "samples" / "textures"
+    base = [sys.executable, "-m", "bcfpipe", "train", f"albedo={src / 'bricks_albedo.png'}:rgb",
+            f"roughness={src / 'bricks_roughness.png'}:r", "--profile", "tiny", "--quality", "smoke", "--features", "bc7"]
+    r = subprocess.run(base + ["-o", str(tmp_path / "m"), "--json"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    desc = mf.read(tmp_path / "m")
+    assert desc.features == "bc7" and desc.bc6h is None and desc.bc7.dxgi_format == dds.DXGI_FORMAT_BC7_UNORM
+    assert [layer.channels for layer in desc.layers] == [4] * 4 and desc.mlp.n_in == 16
+    assert desc.mlp.input_order[:5] == ("T0.r", "T0.g", "T0.b", "T0.a", "T1.r")
+    for layer in desc.layers:
+        tex = dds.read(tmp_path / "m" / layer.file)
+        assert tex.is_bc7 and all(mode6.is_mode6(b).all() for b, _, _ in tex.levels)
+    v = subprocess.run([sys.executable, "-m", "bcfpipe", "verify", str(tmp_path / "m"), "--json"],
+                       capture_output=True, text=True, timeout=600)
+    assert v.returncode == 0, v.stdout[-3000:] + v.stderr[-2000:]
+    checks = {c["name"]: c["passed"] for c in json.loads(v.stdout)["materials"][0]["checks"]}
+    assert checks["files"] and checks["openimageio"] and checks["glsl"] in (True, None)
+    bad = subprocess.run(base + ["-o", str(tmp_path / "s"), "--signed"], capture_output=True, text=True, timeout=600)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "--signed is a BC6H choice" in bad.stderr

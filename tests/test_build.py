@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from bcfpipe.errors import InputError
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from bcfpipe.builder.events import ProgressEvent
@@ -400,6 +402,20 @@ def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
     # --all-materials adds the unbound material
     names = [m.path for m in plan(a, all_materials=True, **FAST).materials if m.decision == "model"]
     assert "/World/Looks/Unused" in names
+
+
+def test_features_option_keys_the_cache_and_the_manifest_only_when_bc7(tmp_path: Path) -> None:
+    """--features bc7 changes every key and is recorded in the job's options; the default bc6h
+    leaves both as they were (no key, no field), so existing caches and files stand."""
+    a = copy_samples(tmp_path / "a")
+    opts = TrainingOptions(profile="tiny", preset="smoke", seed=0)
+    p6, p6b, p7 = plan(a, opts), plan(a, opts.with_(features="bc6h")), plan(a, opts.with_(features="bc7"))
+    assert [j.content_hash for j in p6.jobs] == [j.content_hash for j in p6b.jobs]
+    assert not {j.content_hash for j in p6.jobs} & {j.content_hash for j in p7.jobs}
+    assert p6.jobs[0].options.features is None and p7.jobs[0].options.features == "bc7"
+    assert p7.jobs[0].training("cpu", 1).features == "bc7" and p6.jobs[0].training("cpu", 1).features == "bc6h"
+    with pytest.raises(InputError, match="unknown feature format"):
+        TrainingOptions(features="bc9")
 
 
 def test_plan_channel_mapping(tmp_path: Path) -> None:

@@ -96,15 +96,17 @@ def measure_baseline(ts: TextureSet, ref: Sequence[np.ndarray], b: Baseline, gri
 
 def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], profile: str, preset: str, out_dir: Path,
                grid: L.LodGrid, windows: Windows, *, device: str = "auto", seed: int = 0, hidden: int | None = None,
-               threads: int = 1, wrap: str = Wrap.REPEAT,
+               threads: int = 1, wrap: str = Wrap.REPEAT, features: str = "bc6h",
                progress: Callable[[float], None] | None = None) -> Cell:
-    """Train BCf at (profile, preset) into ``out_dir``; measure the exported files."""
+    """Train BCf at (profile, preset) with ``features`` (bc6h or bc7) into ``out_dir``; measure the
+    exported files. A bc7 cell's method name ends in " bc7"."""
     from bcfpipe.config import DEFAULT_HIDDEN, TrainingOptions
     from bcfpipe.export import writer as E
     from bcfpipe.export.fit import fit_material, make_config
 
     name, cfg = make_config(ts, TrainingOptions(profile=profile, preset=preset, device=device, seed=seed,
-                                                hidden=hidden or DEFAULT_HIDDEN, threads=threads), wrap)
+                                                hidden=hidden or DEFAULT_HIDDEN, threads=threads,
+                                                features=features), wrap)
     curve: list[tuple[float, float]] = []
 
     def on_progress(p) -> None:
@@ -119,9 +121,9 @@ def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], profile: str, preset: 
     del dec
     sweep = L.sweep(grid, L.exported_answer(out_dir))
     step = max(1, len(curve) // CURVE_POINTS)
-    extra = {"profile": name, "preset": preset, "resolutions": list(res.resolutions), "device": res.device,
+    extra = {"profile": name, "preset": preset, "features": features, "resolutions": list(res.resolutions), "device": res.device,
              "train_seconds": res.train_seconds,
              "float_psnr": res.float_metrics.psnr if res.float_metrics is not None else None,
              "training_curve": curve[::step] + ([curve[-1]] if curve and (len(curve) - 1) % step else [])}
-    return Cell(f"BCf {name} {preset}", "bcf", res.metrics, res.size_bytes, res.train_seconds, sweep, crops,
+    return Cell(f"BCf {name} {preset}" + ("" if features == "bc6h" else f" {features}"), "bcf", res.metrics, res.size_bytes, res.train_seconds, sweep, crops,
                 extra, folder=Path(out_dir))

@@ -34,6 +34,7 @@ SIMILAR_SIZE = 2.0  # the crops' baseline: the best one within this factor of th
 class BenchOptions:
     profiles: tuple[str, ...] = ("0.5k", "1k")
     presets: tuple[str, ...] = ("fast", "standard")
+    features: tuple[str, ...] = ("bc6h",)  # feature formats: a cell per (profile, preset, format)
     codecs: tuple[str, ...] = ("bc", "astc")
     astc_blocks: tuple[str, ...] = ("4x4", "6x6", "8x8", "12x12")
     shifts: tuple[int, ...] = (0, 1)  # baselines at full and half resolution
@@ -145,17 +146,19 @@ def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, pro
     failed: list[dict] = []
     for prof in opts.profiles:
         for preset in opts.presets:
-            progress.start(f"{bset.name}: BCf {prof} {preset}", _cell_weight(preset))
-            folder = work / bset.slug / f"{prof}-{preset}"
-            try:
-                bcf.append(C.train_cell(ts, ref, prof, preset, folder, grid, windows, device=opts.device,
-                                        seed=opts.seed, hidden=opts.hidden, threads=opts.threads, wrap=bset.wrap,
-                                        progress=progress.fraction))
-            except (FloatingPointError, RuntimeError, MemoryError) as exc:  # the other cells still count
-                from bcfpipe.errors import one_line
+            for feat in opts.features:
+                suffix = "" if feat == "bc6h" else f" {feat}"
+                progress.start(f"{bset.name}: BCf {prof} {preset}{suffix}", _cell_weight(preset))
+                folder = work / bset.slug / f"{prof}-{preset}{suffix.replace(' ', '-')}"
+                try:
+                    bcf.append(C.train_cell(ts, ref, prof, preset, folder, grid, windows, device=opts.device,
+                                            seed=opts.seed, hidden=opts.hidden, threads=opts.threads,
+                                            wrap=bset.wrap, features=feat, progress=progress.fraction))
+                except (FloatingPointError, RuntimeError, MemoryError) as exc:  # the other cells still count
+                    from bcfpipe.errors import one_line
 
-                failed.append({"method": f"BCf {prof} {preset}", "error": one_line(exc)})
-            progress.done()
+                    failed.append({"method": f"BCf {prof} {preset}{suffix}", "error": one_line(exc)})
+                progress.done()
 
     bc_full = next((b for b in baselines if b.kind == "bc" and b.extra["resolution"] == side), None)
     if rt is not None and bcf:
@@ -224,7 +227,7 @@ def run_bench(sets: Sequence[BenchSet], opts: BenchOptions, out: str | os.PathLi
         loaded.append((s, ts))
     grid = C.baseline_grid(opts.codecs, opts.astc_blocks, opts.shifts)
     total = sum(sum(_baseline_weight(ts, b) for b in grid) + 1.0 for _, ts in loaded)
-    total += len(loaded) * len(opts.profiles) * sum(_cell_weight(p) for p in opts.presets)
+    total += len(loaded) * len(opts.profiles) * len(opts.features) * sum(_cell_weight(p) for p in opts.presets)
     out.mkdir(parents=True, exist_ok=True)
     rt, gl_error = _gl() if opts.profiles and opts.presets else (None, None)
     results = []
@@ -240,7 +243,8 @@ def run_bench(sets: Sequence[BenchSet], opts: BenchOptions, out: str | os.PathLi
 
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "bcfpipe_version": __version__,
             "machine": machine(), "gl_error": gl_error,
-            "options": {"profiles": list(opts.profiles), "presets": list(opts.presets), "baselines": list(opts.codecs),
+            "options": {"profiles": list(opts.profiles), "presets": list(opts.presets), "features": list(opts.features),
+                        "baselines": list(opts.codecs),
                         "astc_blocks": list(opts.astc_blocks), "baseline_scales": [1 / (1 << s) for s in opts.shifts],
                         "seed": opts.seed, "device": opts.device, "threads": opts.threads,
                         "lod_step": opts.lod_step},

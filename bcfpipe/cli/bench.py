@@ -57,6 +57,9 @@ def _size(text: str) -> tuple[int, int]:
               help="Frame of the decode-cost pass: 1080p, 1440p, 2160p or WxH.")
 @click.option("--decode-frames", type=click.IntRange(min=1), default=None,
               help="Frames per pass (default 100 on a GPU, 3 on a software renderer).")
+@click.option("--features", "features", default="bc6h", show_default=True, metavar="LIST",
+              help="Feature formats to train, comma-separated: bc6h (the paper's), bc7; one cell per "
+                   "profile, preset and format.")
 @click.option("--seed", type=int, default=DEFAULT_SEED, show_default=True)
 @click.option("--device", default=DEFAULT_DEVICE, show_default=True, help="auto, cpu or cuda[:N].")
 @click.option("--threads", type=click.IntRange(min=1), default=DEFAULT_THREADS, show_default=True,
@@ -67,7 +70,7 @@ def _size(text: str) -> tuple[int, int]:
 @click.option("--json", "as_json", is_flag=True, help="Print bench.json to stdout (progress stays on stderr).")
 @click.pass_context
 def bench(ctx, inputs, output, materials, variants, name, profiles, presets, baselines, astc_blocks, no_half,
-          decode_size, decode_frames, seed, device, threads, keep_materials, redraw, force, as_json) -> None:
+          decode_size, decode_frames, features, seed, device, threads, keep_materials, redraw, force, as_json) -> None:
     """Measure BCf presets and profiles against BC and ASTC on a texture set, and report.
 
     \b
@@ -111,6 +114,7 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
                          "or pass --baselines bc")
     opts = BenchOptions(profiles=_list(profiles, "--profiles", PROFILE_NAMES),
                         presets=_list(presets, "--presets", tuple(PRESETS)), codecs=codecs,
+                        features=_list(features, "--features", ("bc6h", "bc7")),
                         astc_blocks=_list(astc_blocks, "--astc-blocks"), shifts=(0,) if no_half else (0, 1),
                         seed=seed, device=device, threads=threads, decode_size=_size(decode_size),
                         decode_frames=decode_frames, keep_materials=keep_materials)
