@@ -56,7 +56,7 @@ def build_state(ts, mc, dev, gen):
 def time_steps(phase, state, mlp, ref, mc, biases, batch, steps, taps, dev, gen):
     free, blocks, levels = state
     if phase == "warmup":
-        params, lvl, tap = [t for m in free for t in m], M.free_level_fn(free, mc.signed), M.free_tap_fn(free, mc.signed)
+        params, lvl, tap = [t for m in free for t in m], M.free_level_fn(free, mc), M.free_tap_fn(free, mc)
     elif phase == "constrained":
         params = [t for l in blocks for b in l for t in (b["endpoints"], b["x"])]
         lvl, tap = M.block_level_fn(blocks, mc), M.block_tap_fn(blocks, mc)

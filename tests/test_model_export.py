@@ -84,8 +84,8 @@ def test_tap_decode_equals_level_decode(signed):
         b = M.sample_features_taps(M.block_tap_fn(blocks, mc), M.level_sizes(mc), biases, uv, s, "repeat")
         assert torch.equal(a, b)
     free = M.init_free(mc, g, torch.device("cpu"))
-    a = M.sample_features(M.free_level_fn(free, signed), mc.mip_counts, biases, uv, 1.3, "clamp")
-    b = M.sample_features_taps(M.free_tap_fn(free, signed), M.level_sizes(mc), biases, uv, 1.3, "clamp")
+    a = M.sample_features(M.free_level_fn(free, mc), mc.mip_counts, biases, uv, 1.3, "clamp")
+    b = M.sample_features_taps(M.free_tap_fn(free, mc), M.level_sizes(mc), biases, uv, 1.3, "clamp")
     assert torch.equal(a, b)
 
 
@@ -107,7 +107,7 @@ def test_constrained_forward_equals_exported_dds(tmp_path, signed):
     np.testing.assert_array_equal(ours.numpy(), exported)
     for i, layer in enumerate(tm.layers):  # and level by level, bit for bit
         for k, bl in enumerate(layer):
-            np.testing.assert_array_equal(exact_level(bl, signed, "cpu").permute(1, 2, 0).numpy(), em.levels[i][k])
+            np.testing.assert_array_equal(exact_level(bl, mc, "cpu").permute(1, 2, 0).numpy(), em.levels[i][k])
 
 
 def test_onnx_matches_torch_fp16_model(tmp_path):
@@ -207,3 +207,51 @@ def test_hdr_record_version_2_and_its_expansion_in_torch_and_onnx():
     for c in (0, 2):
         np.testing.assert_allclose(ours[:, c], encoding.decode(linear[:, c], float(w.log_gain[c])), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(onnx_out, ours, rtol=1e-5, atol=1e-6)
+
+
+def test_bc7_constrained_forward_equals_exported_dds_and_onnx(tmp_path):
+    """--features bc7: the training-time BC7 emulation (quantization-aware) + sampler == the written
+    DDS decoded by bcfpipe.bc7 + sampler, bit for bit, level by level; ONNX takes the 16 features."""
+    from bcfpipe.bc7.encode import quantize_endpoints
+    from bcfpipe.formats.vocabulary import FeatureFormat
+    from bcfpipe.model.features import codec_of
+
+    mc = ModelConfig(resolutions=MC.resolutions, features=FeatureFormat.BC7)
+    rng = np.random.default_rng(7)
+    codec = codec_of(mc)
+    blocks, layers = [], []
+    for res, n in zip(mc.resolutions, mc.mip_counts):
+        bl_layer, q_layer = [], []
+        for k in range(n):
+            r = max(4, res >> k)
+            nb = (r // 4) ** 2
+            e = torch.as_tensor(rng.uniform(0, 255, (nb, 2, 4)), dtype=torch.float32)
+            x = torch.as_tensor(rng.uniform(0, 1, (nb, 16)), dtype=torch.float32)
+            b = M.BlockParams(e, x)
+            bl_layer.append(b)
+            q_layer.append(codec.quantize(b, mc, r))
+        blocks.append(bl_layer)
+        layers.append(q_layer)
+    assert (layers[0][0].endpoints == quantize_endpoints(blocks[0][0].endpoints.numpy())).all()
+    ch = _channels()
+    ts = TextureSet(np.zeros((64, 64, len(ch)), np.float32), ch, 64, 64)
+    w = _weights(3)
+    rng2 = np.random.default_rng(4)
+    w = MlpWeights(rng2.normal(0, 0.5, (16, 16)).astype(np.float32), w.b1, w.w2, w.b2, w.out_scale, w.out_bias).to_fp16()
+    tm = TrainedMaterial(TrainConfig(model=mc), ts, layers, w, M.lod_biases(mc.resolutions, 64, 64), {"warmup": 0.0})
+    E.export(tm, tmp_path)
+    em = E.load(tmp_path)
+    assert em.desc.features == "bc7" and em.desc.mlp.n_in == 16
+    g = torch.Generator().manual_seed(1)
+    uv = torch.rand((3000, 2), generator=g) * 2 - 0.5
+    s = torch.rand(3000, generator=g) * 9 - 2
+    with torch.no_grad():
+        ours = M.sample_features(M.block_level_fn(blocks, mc, quantized=True), mc.mip_counts, tm.lod_biases, uv, s,
+                                 mc.wrap)
+    exported = E.sample_exported_features(em, uv.numpy(), s.numpy())
+    np.testing.assert_array_equal(ours.numpy(), exported)
+    for i, layer in enumerate(tm.layers):
+        for k, bl in enumerate(layer):
+            np.testing.assert_array_equal(exact_level(bl, mc, "cpu").permute(1, 2, 0).numpy(), em.levels[i][k])
+    onnx_out = E.onnx_session(em).run(None, {"features": exported[:50].astype(np.float32)})[0]
+    assert onnx_out.shape[0] == 50 and np.isfinite(onnx_out).all()
