@@ -51,7 +51,7 @@ class FeatureCodec:
 
     format: FeatureFormat
     channels: int
-    lr_scale: float  # feature learning rates are stated for BC6H's 6-bit endpoint units
+    lr_scale: dict[str, float]  # per phase: feature learning rates are stated for BC6H's 6-bit endpoint units
 
     def param_range(self, mc: ModelConfig) -> tuple[float, float]:
         raise NotImplementedError
@@ -98,7 +98,7 @@ class FeatureCodec:
 class _BC6H(FeatureCodec):
     format = FeatureFormat.BC6H
     channels = 3
-    lr_scale = 1.0
+    lr_scale = {"warmup": 1.0, "constrained": 1.0}
 
     def param_range(self, mc):
         from bcfpipe.model.neural import endpoint_range
@@ -167,11 +167,13 @@ class _BC6H(FeatureCodec):
 class _BC7(FeatureCodec):
     format = FeatureFormat.BC7
     channels = 4
-    # Adam moves a parameter by about lr per step; one 8-bit endpoint unit is 1/255 of the feature
-    # range, where a 6-bit BC6H unit near the top of its range moves the value by ~0.1. Measured on
-    # the brick set (tiny, draft; all-mip PSNR): x2 25.9, x4 26.6, x8 27.5, x16 27.8, x32 28.0 dB,
-    # x64 27.9, x128 27.1.
-    lr_scale = 32.0
+    # Feature learning rates in 8-bit endpoint units, relative to the presets' (stated for BC6H's 6-bit,
+    # log-like endpoints). Measured on the teapot (0.5k, draft; all-mip PSNR, mips 0-1), warm-up x
+    # constrained: 32 x 32: 29.45 (25.9, 26.2); 128 x 8: 30.45; 512 x 8: 30.40; 1024 x 4: 30.98;
+    # 4096 x 4: 31.04; 1024 x 2: 31.23; 1024 x 1: 31.28 (28.9, 29.5); BC6H: 29.83 (27.5, 28.0).
+    # The warm-up wants large steps (features cross their range within a few steps while Adam's
+    # normalised moves stay small for noisy gradients); the constrained phase small ones.
+    lr_scale = {"warmup": 1024.0, "constrained": 1.0}
 
     def param_range(self, mc):
         return 0.0, 255.0

@@ -274,19 +274,20 @@ def _warmup(run: _Run) -> list[list[torch.Tensor]]:
         pca_init(mc, run.ref.mips, run.biases, free, run.mlp)
     codec = codec_of(mc)
     lo, hi = codec.param_range(mc)
-    _run_phase(run, "warmup", M.free_level_fn(free, mc), _flat(free), _scaled(run.cfg.preset.warmup, codec),
+    _run_phase(run, "warmup", M.free_level_fn(free, mc), _flat(free), _scaled(run.cfg.preset.warmup, codec, "warmup"),
                project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],
                tap_fn=M.free_tap_fn(free, mc))
     return free
 
 
-def _scaled(sched, codec):
+def _scaled(sched, codec, phase: str):
     """The phase's schedule with feature learning rates in the format's endpoint units."""
-    if codec.lr_scale == 1.0:
+    scale = codec.lr_scale[phase]
+    if scale == 1.0:
         return sched
     from dataclasses import replace
 
-    return replace(sched, lr_features=sched.lr_features * codec.lr_scale)
+    return replace(sched, lr_features=sched.lr_features * scale)
 
 
 def _encode(run: _Run, free: list[list[torch.Tensor]]) -> list[list[M.BlockParams]]:
@@ -328,7 +329,7 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
     """Phase 2: the block parameters themselves, kept in the encodable range, with the QAT tail."""
     mc = run.cfg.model
     codec = codec_of(mc)
-    sched = _scaled(run.cfg.preset.constrained, codec)
+    sched = _scaled(run.cfg.preset.constrained, codec, "constrained")
     lo, hi = codec.param_range(mc)
     feat = [t for layer in blocks for b in layer for t in (b.endpoints, b.x)]
 
