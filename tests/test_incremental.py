@@ -210,9 +210,12 @@ def test_ctrl_c_stops_the_workers_and_leaves_out_as_it_was(tmp_path):
     before = tree(out)
     entries = {e.key for e in Cache(cache).entries()}
     write_png(tmp_path / "tex" / "a.png", pattern(seed=9))  # one texture set to train again
+    # as from a terminal: SIGINT at its default disposition even where this test runs with it ignored
+    # (a background job of a non-interactive shell ignores SIGINT, and so would the build it starts)
     p = subprocess.Popen([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), "--cache",
                           str(cache), "--profile", "tiny", "--quality", "standard"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     for line in p.stderr:  # plain progress lines: wait until the worker reports a training phase
         lines.append(line)
