@@ -12,7 +12,6 @@ from dataclasses import dataclass, field, replace
 from bcfpipe.formats.vocabulary import FeatureFormat
 
 N_LAYERS = 4
-LAYER_CHANNELS = 3
 MIN_LEVEL = 4  # the smallest mip is one 4x4 BC6H block
 
 PAPER_PROFILES: dict[str, tuple[int, int, int, int]] = {

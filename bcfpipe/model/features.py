@@ -90,10 +90,6 @@ class FeatureCodec:
     def dxgi_format(self, mc: ModelConfig) -> int:
         raise NotImplementedError
 
-    def decode_file_level(self, blocks: np.ndarray, width: int, height: int, mc: ModelConfig) -> np.ndarray:
-        """The spec decoder's (height, width, channels) float32 texels of written blocks."""
-        raise NotImplementedError
-
 
 class _BC6H(FeatureCodec):
     format = FeatureFormat.BC6H
@@ -157,11 +153,6 @@ class _BC6H(FeatureCodec):
         from bcfpipe.formats import dds
 
         return dds.DXGI_FORMAT_BC6H_SF16 if mc.signed else dds.DXGI_FORMAT_BC6H_UF16
-
-    def decode_file_level(self, blocks, width, height, mc):
-        from bcfpipe.bc6h import decode
-
-        return decode(blocks, width, height, signed=mc.signed).astype(np.float32)
 
 
 class _BC7(FeatureCodec):
@@ -230,11 +221,6 @@ class _BC7(FeatureCodec):
         from bcfpipe.formats import dds
 
         return dds.DXGI_FORMAT_BC7_UNORM
-
-    def decode_file_level(self, blocks, width, height, mc):
-        from bcfpipe.bc7 import decode
-
-        return decode(blocks, width, height)
 
 
 _CODECS = {FeatureFormat.BC6H: _BC6H(), FeatureFormat.BC7: _BC7()}
