@@ -7,9 +7,11 @@ layer of resolution r has log2(r) - 1 mips (512 -> 8, as in Table 1).
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
-from bcfpipe.formats.vocabulary import FeatureFormat
+from bcfpipe.formats.vocabulary import FeatureFormat, Kernel
 
 N_LAYERS = 4
 MIN_LEVEL = 4  # the smallest mip is one 4x4 BC6H block
@@ -138,6 +140,7 @@ DEFAULT_SEED = 0
 DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
 DEFAULT_FEATURES = FeatureFormat.BC6H
+DEFAULT_KERNEL = Kernel.TORCH
 # Channels per feature layer T_i, per format: BC6H holds RGB, BC7 RGBA in the same bytes.
 LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 
@@ -190,6 +193,7 @@ class TrainConfig:
     # default: on a quiet 2-core machine whole levels were faster at batch 128² and 512² (benchmarks.md)
     tap_decode: bool = False
     feature_init: str = DEFAULT_INIT  # see FEATURE_INITS
+    kernel: Kernel = DEFAULT_KERNEL  # phases 1-2 through torch's ops or the fused kernel (bcfpipe.train.fused)
 
     def with_(self, **kw) -> "TrainConfig":
         return replace(self, **kw)
@@ -218,12 +222,15 @@ class TrainingOptions:
     target_psnr: float | None = None
     bench_data: str | None = None  # a `bcfpipe bench` report to predict --target-psnr from
     features: FeatureFormat = DEFAULT_FEATURES
+    kernel: Kernel = DEFAULT_KERNEL
 
     def __post_init__(self) -> None:
         from bcfpipe.errors import InputError
 
         if self.features in tuple(FeatureFormat) and not isinstance(self.features, FeatureFormat):
             object.__setattr__(self, "features", FeatureFormat(self.features))  # "bc7" from a command line
+        if self.kernel in tuple(Kernel) and not isinstance(self.kernel, Kernel):
+            object.__setattr__(self, "kernel", Kernel(self.kernel))
         for problem in self.problems():
             raise InputError(problem)
 
@@ -249,6 +256,10 @@ class TrainingOptions:
                        f"{', '.join(f.value for f in FeatureFormat)}")
         elif self.signed and FeatureFormat(self.features) != FeatureFormat.BC6H:
             out.append("--signed is a BC6H choice (BC6H_SF16); BC7 features are unsigned")
+        if self.kernel not in tuple(Kernel):
+            out.append(f"unknown kernel {self.kernel!r}; choose from {', '.join(k.value for k in Kernel)}")
+        elif self.kernel == Kernel.FUSED and str(self.device).startswith("cuda"):
+            out.append("--kernel fused runs on the CPU; use --kernel torch with --device cuda")
         return out
 
     def with_(self, **kw) -> "TrainingOptions":
@@ -264,4 +275,20 @@ class TrainingOptions:
         mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap,
                          features=FeatureFormat(self.features))
         return name, TrainConfig(model=mc, preset=PRESETS[self.preset], preset_name=self.preset, seed=self.seed,
-                                 device=device, threads=self.threads, feature_init=self.init)
+                                 device=device, threads=self.threads, feature_init=self.init,
+                                 kernel=Kernel(self.kernel) if device == "cpu" else Kernel.TORCH)
+
+
+CACHE_ENV = "BCFPIPE_CACHE"
+
+
+def default_cache_root() -> Path:
+    """The cache folder when none is given: ``BCFPIPE_CACHE``, else the platformdirs user cache
+    folder of bcfpipe. Trained materials live there (bcfpipe.cache), and compiled training kernels
+    under ``kernels/`` (bcfpipe.train.fused)."""
+    env = os.environ.get(CACHE_ENV)
+    if env:
+        return Path(env).expanduser()
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("bcfpipe", appauthor=False))

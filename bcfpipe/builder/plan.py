@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import DEFAULT_FEATURES, DEFAULT_INIT, MODEL_FORMAT, PRESETS, QUALITY_PRESETS, TrainingOptions
+from bcfpipe.config import DEFAULT_FEATURES, DEFAULT_INIT, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS, QUALITY_PRESETS, TrainingOptions
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
@@ -76,8 +76,9 @@ class MaterialJob:
         the job's record that `TrainingOptions` has, by name."""
         shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
                   if hasattr(self.options, f.name)}
-        if shared.get("features") is None:  # absent from the record: the default format
-            shared.pop("features", None)
+        for name in ("features", "kernel"):  # absent from the record: the default
+            if shared.get(name) is None:
+                shared.pop(name, None)
         return TrainingOptions(**{**shared, "device": device, "threads": threads})
 
     @property
@@ -248,7 +249,8 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
     options = Options(**{**shared, "device": _resolve_device_name(training.device),
                          "texel_density": float(texel_density) if texel_density is not None else None,
                          "coverage": bool(coverage),
-                         "features": None if training.features == DEFAULT_FEATURES else training.features.value})
+                         "features": None if training.features == DEFAULT_FEATURES else training.features.value,
+                         "kernel": None if training.kernel == DEFAULT_KERNEL else training.kernel.value})
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 

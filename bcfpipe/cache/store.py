@@ -8,6 +8,7 @@ Layout under the cache root (``--cache DIR``, ``BCFPIPE_CACHE``, or the platform
   v1/locks/<key>.lock         per-key lock (filelock): one process trains a key at a time
   v1/tmp/                     entries being written, and entries being deleted
   v1/facts/<h[:2]>/<h>.json   texel facts of source files, by their XXH3-128 (bcfpipe.cache.facts)
+  kernels/                    numba's compiled training kernels (--kernel fused, bcfpipe.train.fused)
 
 An entry is written into v1/tmp, every file and the folder are fsynced, and the folder is renamed
 into place; entry.json is written last, so a folder without a valid entry.json is never an entry.
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
+from bcfpipe.config import CACHE_ENV, default_cache_root
 from bcfpipe.errors import InputError
 from bcfpipe.formats.digest import sha256_file
 
@@ -33,21 +35,12 @@ LAYOUT = "v1"
 ENTRY_META = "entry.json"
 ENTRY_FORMAT = "bcfpipe-cache-entry"
 ENTRY_VERSION = 1
-ENV = "BCFPIPE_CACHE"
+ENV = CACHE_ENV
+default_root = default_cache_root
 
 
 class CacheError(InputError):
     """The cache folder cannot be used (exit code 2)."""
-
-
-def default_root() -> Path:
-    """``BCFPIPE_CACHE``, else the platformdirs user cache folder of bcfpipe."""
-    env = os.environ.get(ENV)
-    if env:
-        return Path(env).expanduser()
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("bcfpipe", appauthor=False))
 
 
 

@@ -6,9 +6,9 @@ import click
 
 from dataclasses import fields
 
-from bcfpipe.formats.vocabulary import FeatureFormat
+from bcfpipe.formats.vocabulary import FeatureFormat, Kernel
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
+                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
 
 # The training options, in --help order: one per field of config.TrainingOptions, named as it (a
 # test checks); `train`, `plan` and `build` take exactly these.
@@ -39,6 +39,10 @@ TRAINING_OPTIONS = (
     click.option("--threads", type=click.IntRange(min=1), default=DEFAULT_THREADS, show_default=True,
                  help="Torch CPU threads per training; 1 trained fastest on a 2-core machine "
                       "(docs/benchmarks.md). Parallelism comes from training materials side by side."),
+    click.option("--kernel", type=click.Choice([k.value for k in Kernel]), default=DEFAULT_KERNEL.value,
+                 show_default=True,
+                 help="How a CPU training step runs: torch (the reference; the only one on CUDA) or fused (one "
+                      "numba kernel for features, MLP and gradients, issue 30; compiled once into the cache)."),
     click.option("--target-psnr", "target_psnr", type=click.FloatRange(min=0, min_open=True), default=None,
                  metavar="DB",
                  help="Rate control: train the smallest, then quickest, profile and preset predicted to reach DB "

@@ -237,6 +237,7 @@ class Options(Record):
     coverage: bool = True  # training draws from the texels the bound meshes read
     target_psnr: float | None = optional()  # --target-psnr: rate control chose each job's profile and preset
     features: str | None = optional()  # --features when not the default bc6h: "bc7" (issue 29)
+    kernel: str | None = optional()  # --kernel when not the default torch: "fused" (issue 30)
 
 
 @dataclass(frozen=True)

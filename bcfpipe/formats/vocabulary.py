@@ -15,7 +15,7 @@ except ImportError:  # Python 3.10
         def __str__(self) -> str:
             return str(self.value)
 
-__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace", "FeatureFormat"]
+__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace", "FeatureFormat", "Kernel"]
 
 
 class Status(StrEnum):
@@ -63,3 +63,11 @@ class FeatureFormat(StrEnum):
 
     BC6H = "bc6h"
     BC7 = "bc7"
+
+
+class Kernel(StrEnum):
+    """How a CPU training step runs (issue 30): torch's ops (the reference, and the only one on
+    CUDA) or one fused numba kernel (bcfpipe.train.fused)."""
+
+    TORCH = "torch"
+    FUSED = "fused"

@@ -25,6 +25,7 @@ import torch
 
 from bcfpipe.model import neural as M
 from bcfpipe.config import ModelConfig, TrainConfig
+from bcfpipe.formats.vocabulary import Kernel
 from bcfpipe.model.features import QuantizedLevel, codec_of
 from bcfpipe.model.decoder import MlpWeights
 from bcfpipe.train.feature_init import pca_init
@@ -229,9 +230,20 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
     return uv, sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
 
 
+def _fused_step(run: _Run, levels, quantized=lambda: False):
+    """The fused kernel's step over ``levels`` when the run uses it (they move into its flat
+    storage, in place: take the parameters for the optimizer after this), else None."""
+    if run.cfg.kernel != Kernel.FUSED:
+        return None
+    from bcfpipe.train.fused.step import FusedStep
+
+    return FusedStep(run.cfg.model, run.biases, run.mlp, levels, quantized, chunks=run.cfg.threads or 1)
+
+
 def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=None, tap_fn=None,
-               on_step=None) -> None:
-    """``sched.steps`` Adam steps of the MSE against the reference (paper §5.1), features then MLP."""
+               on_step=None, fused=None) -> None:
+    """``sched.steps`` Adam steps of the MSE against the reference (paper §5.1), features then MLP;
+    with ``fused`` (bcfpipe.train.fused) the loss and gradients come from the fused kernel."""
     t0 = time.perf_counter()
     mc = run.cfg.model
     opt, lr = _optimizer(feature_params, run.mlp_params, sched, run.device)
@@ -242,19 +254,22 @@ def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=No
         s = run.next_s()
         uv, target, weight = _batch_at(run, s)
         run.samples[name] = run.samples.get(name, 0) + uv.shape[0]
-        pred = M.forward(level_fn, run.mlp, mc, run.biases, uv, s, tap_fn if run.cfg.tap_decode else None)
-        if weight is None:
-            loss = torch.mean((pred - target) ** 2)
-        else:
-            loss = torch.mean(weight[:, None] * (pred - target) ** 2) / weight.mean().clamp_min(1e-6)
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        if fused is not None:
+            loss = fused(uv, target, weight, s)
+        else:
+            pred = M.forward(level_fn, run.mlp, mc, run.biases, uv, s, tap_fn if run.cfg.tap_decode else None)
+            if weight is None:
+                loss = torch.mean((pred - target) ** 2)
+            else:
+                loss = torch.mean(weight[:, None] * (pred - target) ** 2) / weight.mean().clamp_min(1e-6)
+            loss.backward()
         opt.step()
         lr.step()
         if project is not None:
             with torch.no_grad():
                 project()
-        val = float(loss.detach())
+        val = float(loss)
         if not math.isfinite(val):
             raise FloatingPointError(f"{name}: loss became {val} at step {step}")
         ema = val if ema is None else 0.9 * ema + 0.1 * val
@@ -274,9 +289,11 @@ def _warmup(run: _Run) -> list[list[torch.Tensor]]:
         pca_init(mc, run.ref.mips, run.biases, free, run.mlp)
     codec = codec_of(mc)
     lo, hi = codec.param_range(mc)
-    _run_phase(run, "warmup", M.free_level_fn(free, mc), _flat(free), _scaled(run.cfg.preset.warmup, codec, "warmup"),
-               project=lambda: [t.clamp_(lo, hi) for t in _flat(free)],
-               tap_fn=M.free_tap_fn(free, mc))
+    fused = _fused_step(run, free)
+    params = _flat(free)
+    _run_phase(run, "warmup", M.free_level_fn(free, mc), params, _scaled(run.cfg.preset.warmup, codec, "warmup"),
+               project=lambda: [t.clamp_(lo, hi) for t in params],
+               tap_fn=M.free_tap_fn(free, mc), fused=fused)
     return free
 
 
@@ -331,6 +348,8 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
     codec = codec_of(mc)
     sched = _scaled(run.cfg.preset.constrained, codec, "constrained")
     lo, hi = codec.param_range(mc)
+    qat = _QuantizationAware(sched.steps, run.cfg.preset.qat_fraction)
+    fused = _fused_step(run, blocks, qat)
     feat = [t for layer in blocks for b in layer for t in (b.endpoints, b.x)]
 
     def project() -> None:
@@ -339,9 +358,8 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
                 b.endpoints.clamp_(lo, hi)
                 b.x.clamp_(0.0, 1.0)
 
-    qat = _QuantizationAware(sched.steps, run.cfg.preset.qat_fraction)
     _run_phase(run, "constrained", M.block_level_fn(blocks, mc, qat), feat, sched, project=project,
-               tap_fn=M.block_tap_fn(blocks, mc, qat), on_step=qat.step)
+               tap_fn=M.block_tap_fn(blocks, mc, qat), on_step=qat.step, fused=fused)
 
 
 def _quantize(run: _Run, blocks: list[list[M.BlockParams]]) -> tuple[list[list[BlockLevel]], list]:

@@ -1,0 +1,147 @@
+"""The trainer's side of the fused kernel: one call per step computes the loss and sets ``.grad``
+on the parameters the step touched (the two levels of each layer it samples, and the MLP), exactly
+where torch's autograd would set them, so the optimizer and its state are unchanged."""
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from bcfpipe.config import ModelConfig
+from bcfpipe.formats.vocabulary import FeatureFormat, Wrap
+from bcfpipe.model.features import BlockParams, codec_of
+from bcfpipe.model.sampling import level_weights
+
+def _tables(signed: bool):
+    from bcfpipe.bc6h import mode10
+    from bcfpipe.bc6h.tables import WEIGHTS3
+
+    u = mode10.unquantize_table(signed)[1].astype(np.float32)
+    w3 = WEIGHTS3.astype(np.float32)
+    return u, np.append(np.diff(u), 0).astype(np.float32), w3, np.append(np.diff(w3), 0).astype(np.float32)
+
+
+class FusedStep:
+    """Loss and gradients of one step at scale ``s`` through :func:`bcfpipe.train.fused.kernel.step`.
+
+    ``levels[i][k]`` are layer i's mip-k parameters: free (C, H, W) tensors (phase 1) or
+    `BlockParams` (phase 2). They are moved, in place in ``levels``, into one flat storage (the
+    kernel then addresses every level by offset), so build the optimizer after this. ``quantized()``
+    is asked per step, as the torch path does. ``chunks``: sample ranges run in parallel, each with
+    its own gradient buffers (the result depends on the count, not on the scheduling)."""
+
+    def __init__(self, mc: ModelConfig, biases: Sequence[float], mlp: dict[str, torch.Tensor], levels: list[list],
+                 quantized: Callable[[], bool] = lambda: False, chunks: int = 1):
+        from bcfpipe.train.fused import kernel as K
+
+        self.K, self.mc, self.biases, self.mlp, self.levels = K, mc, biases, mlp, levels
+        self.quantized, self.chunks = quantized, max(1, int(chunks))
+        codec = codec_of(mc)
+        blocks = isinstance(levels[0][0], BlockParams)
+        bc7 = FeatureFormat(mc.features) == FeatureFormat.BC7
+        self.fmt = (K.BLOCK_BC7 if bc7 else K.BLOCK_BC6H) if blocks else (K.FREE_BC7 if bc7 else K.FREE_BC6H)
+        self.C = codec.channels
+        self.plo, self.phi = (np.float32(v) for v in codec.param_range(mc))
+        self.tables = _tables(bool(mc.signed))
+        self._rehome(blocks)
+        import numba
+
+        numba.set_num_threads(min(self.chunks, numba.config.NUMBA_NUM_THREADS))
+
+    def _rehome(self, blocks: bool) -> None:
+        """One flat float32 storage for the levels' parameters (P) and indices (X), one uint8 for the
+        BC6H subset masks (M); ``self.slot[i][k]`` = (po, np, xo, nx, mo, plane)."""
+        tensors = [[(b.endpoints, b.x) if blocks else (b,) for b in layer] for layer in self.levels]
+        n_p = sum(ts[0].numel() for layer in tensors for ts in layer)
+        n_x = sum(ts[1].numel() for layer in tensors for ts in layer) if blocks else 0
+        P, X = torch.empty(n_p), torch.empty(max(n_x, 1))
+        M = np.zeros(max(n_x, 1), np.uint8)
+        po = xo = 0
+        self.slot = []
+        for i, layer in enumerate(self.levels):
+            row = []
+            for k, ts in enumerate(tensors[i]):
+                p = ts[0]
+                view = P[po:po + p.numel()].view(p.shape)
+                view.copy_(p.detach())
+                plane = p.shape[1] * p.shape[2] if not blocks else 0
+                if blocks:
+                    b = layer[k]
+                    xv = X[xo:xo + b.x.numel()].view(b.x.shape)
+                    xv.copy_(b.x.detach())
+                    if b.mask is not None:
+                        M[xo:xo + b.x.numel()] = b.mask.cpu().numpy().reshape(-1)
+                    b.endpoints, b.x = view.requires_grad_(True), xv.requires_grad_(True)
+                    row.append((po, p.numel(), xo, b.x.numel(), xo, plane))
+                    xo += b.x.numel()
+                else:
+                    layer[k] = view.requires_grad_(True)
+                    row.append((po, p.numel(), 0, 0, 0, plane))
+                po += p.numel()
+            self.slot.append(row)
+        self.P, self.X, self.M = P.numpy(), X.numpy(), M
+        self.gP = np.zeros((self.chunks, n_p), np.float32)
+        self.gX = np.zeros((self.chunks, max(n_x, 1)), np.float32)
+
+    def _slots(self, s: float):
+        """(slots (8, 6), blend (4,), touched (layer, mip) pairs) at scale s: slot 2 i is layer i's
+        lower level, 2 i + 1 its upper one (inactive when the blend does not reach it); a slot is
+        (active, size, po, xo, mo, plane)."""
+        mc = self.mc
+        slots = np.zeros((8, 6), np.int64)
+        blend = np.zeros(4, np.float32)
+        touched = []
+        for i, (count, b) in enumerate(zip(mc.mip_counts, self.biases)):
+            lo, hi, t = level_weights(s + b, count)
+            use_hi = hi != lo and t > 0
+            blend[i] = t if use_hi else 0.0
+            for j, (k, on) in enumerate(((lo, True), (hi, use_hi))):
+                if on:
+                    po, _, xo, _, mo, plane = self.slot[i][k]
+                    slots[2 * i + j] = (1, max(4, mc.resolutions[i] >> k), po, xo, mo, plane)
+                    touched.append((i, k))
+        return slots, blend, touched
+
+    def features(self, uv: torch.Tensor, s: float) -> torch.Tensor:
+        """The (N, 4 C) features the step feeds the MLP (tests compare them with the torch path's)."""
+        slots, blend, _ = self._slots(s)
+        mc = self.mc
+        return torch.from_numpy(self.K.features(self.fmt, bool(self.quantized()), bool(mc.signed),
+                                                mc.wrap == Wrap.REPEAT, uv.detach().numpy(), self.P, self.X, self.M,
+                                                slots, blend, self.C, self.plo, self.phi, *self.tables))
+
+    def __call__(self, uv: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None, s: float) -> float:
+        """The step's loss (the torch path's ``loss``); sets ``.grad`` as its ``backward`` would."""
+        mc, n = self.mc, self.chunks
+        slots, blend, touched = self._slots(s)
+        for i, k in touched:
+            po, np_, xo, nx, _, _ = self.slot[i][k]
+            self.gP[:, po:po + np_] = 0.0
+            self.gX[:, xo:xo + nx] = 0.0
+        w1, b1, w2, b2 = (self.mlp[k].detach().numpy() for k in ("w1", "b1", "w2", "b2"))
+        gw1, gb1 = np.zeros((n,) + w1.shape, np.float32), np.zeros((n,) + b1.shape, np.float32)
+        gw2, gb2 = np.zeros((n,) + w2.shape, np.float32), np.zeros((n,) + b2.shape, np.float32)
+        N, C_out = target.shape
+        wnp = weight.detach().numpy().astype(np.float32) if weight is not None else np.zeros(0, np.float32)
+        wmean = max(float(weight.mean()), 1e-6) if weight is not None else 1.0
+        loss_scale = 1.0 / (N * C_out * wmean)
+        sse = self.K.step(self.fmt, bool(self.quantized()), bool(mc.signed), mc.wrap == Wrap.REPEAT, n,
+                          uv.detach().numpy(), target.detach().numpy(), wnp, self.P, self.X, self.M, slots, blend,
+                          self.C, self.plo, self.phi, *self.tables, w1, b1, w2, b2,
+                          self.mlp["out_scale"].numpy(), self.mlp["out_bias"].numpy(), loss_scale,
+                          self.gP, self.gX, gw1, gb1, gw2, gb2)
+        for i, k in touched:
+            po, np_, xo, nx, _, _ = self.slot[i][k]
+            for q in range(1, n):  # chunk order: deterministic for a given count
+                self.gP[0, po:po + np_] += self.gP[q, po:po + np_]
+                self.gX[0, xo:xo + nx] += self.gX[q, xo:xo + nx]
+            lvl = self.levels[i][k]
+            if isinstance(lvl, BlockParams):
+                lvl.endpoints.grad = torch.from_numpy(self.gP[0, po:po + np_]).view(lvl.endpoints.shape)
+                lvl.x.grad = torch.from_numpy(self.gX[0, xo:xo + nx]).view(lvl.x.shape)
+            else:
+                lvl.grad = torch.from_numpy(self.gP[0, po:po + np_]).view(lvl.shape)
+        for name, g in (("w1", gw1), ("b1", gb1), ("w2", gw2), ("b2", gb2)):
+            self.mlp[name].grad = torch.from_numpy(g.sum(0))
+        return float(sse.sum()) * loss_scale

@@ -1,0 +1,175 @@
+"""The fused training kernel (issue 30) against the torch path it stands for: features bit-identical,
+gradients equal to float rounding, in every phase and format, on random and on real blocks."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("numba")
+
+from bcfpipe.config import ModelConfig, PRESETS, TrainConfig  # noqa: E402
+from bcfpipe.formats.vocabulary import FeatureFormat, Kernel  # noqa: E402
+from bcfpipe.model import neural as M  # noqa: E402
+from bcfpipe.model.features import codec_of  # noqa: E402
+from bcfpipe.train.fused.step import FusedStep  # noqa: E402
+
+TEXTURES = Path(__file__).resolve().parent.parent / "samples" / "textures"
+SCALES = (0.0, 0.3, 1.7, 3.0, 5.5, 7.9, 11.0)
+
+
+def _image(size: int, channels: int) -> np.ndarray:
+    """A real texture (the sample bricks), resized to ``size``, as (size, size, channels) in [0, 1]."""
+    from bcfpipe.formats.images import read
+
+    img = read(TEXTURES / "bricks_albedo.png").pixels.astype(np.float32)
+    img = img[..., :3] / max(float(img.max()), 1.0)
+    t = torch.nn.functional.interpolate(torch.as_tensor(img).permute(2, 0, 1)[None], size=(size, size), mode="area")[0]
+    t = torch.cat([t, t[:1].flip(-1)])[:channels]  # a fourth, different channel for BC7
+    return t.permute(1, 2, 0).numpy()
+
+
+def _model(fmt: str, phase: str, real: bool, signed: bool = False, wrap: str = "repeat", seed: int = 0):
+    """A small material in ``phase`` (free / blocks): its config, levels, level fn, MLP, biases."""
+    mc = ModelConfig(resolutions=(64, 32, 16, 8), features=FeatureFormat(fmt), signed=signed, wrap=wrap)
+    gen = torch.Generator().manual_seed(seed)
+    free = M.init_free(mc, gen, "cpu")
+    codec = codec_of(mc)
+    lo, hi = codec.param_range(mc)
+    with torch.no_grad():
+        for mips in free:
+            for p in mips:
+                p.uniform_(lo - 3, hi + 3, generator=gen)  # some outside the range: the clamps' gradients
+    mlp = M.init_mlp(mc.n_inputs, 16, 5, gen, "cpu", torch.rand(5, generator=gen))
+    with torch.no_grad():
+        mlp["w2"].uniform_(-1, 1, generator=gen)
+    biases = M.lod_biases(mc.resolutions, 128, 128)
+    if phase == "free":
+        return mc, free, (lambda q: M.free_level_fn(free, mc)), mlp, biases, gen
+    levels = []
+    with torch.no_grad():
+        for mips in free:
+            layer = []
+            for p in mips:
+                r = p.shape[-1]
+                texels = _image(r, codec.channels) if real else codec.value(p.clamp(lo, hi), mc).permute(1, 2, 0).numpy()
+                if real and fmt == "bc6h":
+                    texels = texels * 1.5  # BC6H features span about [0, 1.7]
+                b = codec.encode(np.ascontiguousarray(texels), mc, "cpu")
+                if not real:  # move off the encoder's exact values: continuous endpoints and indices
+                    b.endpoints.add_(torch.rand(b.endpoints.shape, generator=gen) * 2 - 1)
+                    b.x.add_(torch.rand(b.x.shape, generator=gen) * 0.2 - 0.1)
+                layer.append(b)
+            levels.append(layer)
+    return mc, levels, (lambda q: M.block_level_fn(levels, mc, q)), mlp, biases, gen
+
+
+def _params(levels):
+    return [t for layer in levels for b in layer for t in ((b.endpoints, b.x) if hasattr(b, "x") else (b,))]
+
+
+# (format, phase, real blocks, quantization-aware): the warm-up has no quantization-aware decoding
+CASES = [("bc6h", "free", False, False), ("bc7", "free", False, False)] + [
+    (fmt, "blocks", real, q) for fmt in ("bc6h", "bc7") for real in (False, True) for q in (False, True)]
+
+
+@pytest.mark.parametrize("fmt,phase,real,quantized", CASES)
+def test_features_are_bit_identical_to_the_torch_path(fmt, phase, real, quantized):
+    mc, levels, level_fn, mlp, biases, gen = _model(fmt, phase, real)
+    fs = FusedStep(mc, biases, mlp, levels, lambda: quantized)
+    for s in SCALES:
+        uv = torch.rand((2048, 2), generator=gen) * 3 - 1
+        with torch.no_grad():
+            ref = M.sample_features(level_fn(quantized), mc.mip_counts, biases, uv, s, mc.wrap)
+        got = fs.features(uv, s)
+        assert torch.equal(got.view(torch.int32), ref.view(torch.int32)), f"s={s}"
+
+
+@pytest.mark.parametrize("fmt,signed,wrap", [("bc6h", True, "repeat"), ("bc6h", False, "clamp"), ("bc7", False, "clamp")])
+def test_features_signed_and_clamped(fmt, signed, wrap):
+    for phase in ("free", "blocks"):
+        mc, levels, level_fn, mlp, biases, gen = _model(fmt, phase, False, signed=signed, wrap=wrap)
+        fs = FusedStep(mc, biases, mlp, levels)
+        for s in SCALES:
+            uv = torch.rand((1024, 2), generator=gen) * 3 - 1
+            with torch.no_grad():
+                ref = M.sample_features(level_fn(False), mc.mip_counts, biases, uv, s, mc.wrap)
+            assert torch.equal(fs.features(uv, s).view(torch.int32), ref.view(torch.int32)), f"{phase} s={s}"
+
+
+def _torch_step(mc, level_fn, mlp, biases, params, uv, target, weight, s):
+    for p in params:
+        p.grad = None
+    pred = M.mlp_raw(mlp, M.sample_features(level_fn, mc.mip_counts, biases, uv, s, mc.wrap)) * mlp["out_scale"] \
+        + mlp["out_bias"]
+    if weight is None:
+        loss = torch.mean((pred - target) ** 2)
+    else:
+        loss = torch.mean(weight[:, None] * (pred - target) ** 2) / weight.mean().clamp_min(1e-6)
+    loss.backward()
+    return float(loss.detach()), {id(p): (None if p.grad is None else p.grad.clone()) for p in params}
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+@pytest.mark.parametrize("fmt,phase,real,quantized", CASES)
+def test_loss_and_gradients_match_the_torch_path(fmt, phase, real, quantized, weighted):
+    mc, levels, level_fn, mlp, biases, gen = _model(fmt, phase, real)
+    fs = FusedStep(mc, biases, mlp, levels, lambda: quantized)
+    params = _params(levels) + [mlp[k] for k in ("w1", "b1", "w2", "b2")]
+    for s in (0.0, 1.7, 5.5, 11.0):
+        uv = torch.rand((2048, 2), generator=gen) * 3 - 1
+        target = torch.rand((2048, 5), generator=gen)
+        weight = (torch.rand(2048, generator=gen) > 0.3).float() if weighted else None
+        loss, ref = _torch_step(mc, level_fn(quantized), mlp, biases, params, uv, target, weight, s)
+        for p in params:
+            p.grad = None
+        got = fs(uv, target, weight, s)
+        assert got == pytest.approx(loss, rel=1e-5)
+        for p in params:
+            r = ref[id(p)]
+            if r is None:  # a level the step does not sample gets no gradient, as with autograd
+                assert p.grad is None
+                continue
+            scale = max(float(r.abs().max()), 1e-30)
+            assert float((p.grad - r).abs().max()) <= 1e-5 * scale, f"s={s} {tuple(p.shape)}"
+
+
+def test_chunks_give_the_same_gradients_every_run_and_agree_with_one():
+    mc, levels, _, mlp, biases, gen = _model("bc6h", "blocks", True)
+    uv = torch.rand((4096, 2), generator=gen)
+    target = torch.rand((4096, 5), generator=gen)
+    params = _params(levels) + [mlp[k] for k in ("w1", "b1", "w2", "b2")]
+    runs = []
+    for chunks in (2, 2, 1):
+        fs = FusedStep(mc, biases, mlp, levels, chunks=chunks)
+        for p in params:
+            p.grad = None
+        fs(uv, target, None, 0.7)
+        runs.append([None if p.grad is None else p.grad.clone() for p in params])
+    for a, b, c in zip(*runs):
+        if a is None:
+            continue
+        assert torch.equal(a, b)
+        assert float((a - c).abs().max()) <= 1e-5 * max(float(c.abs().max()), 1e-30)
+
+
+def test_fused_training_is_deterministic_and_trains_as_well_as_torch():
+    from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
+    from bcfpipe.train.trainer import train
+
+    ts = load_texture_set([TextureSpec.parse(f"albedo={TEXTURES / 'tiles_albedo.png'}:rgb")], resolution=128)
+    mc = ModelConfig(resolutions=(64, 32, 16, 8))
+    cfg = TrainConfig(model=mc, preset=PRESETS["smoke"], preset_name="smoke", threads=1)
+    torch_run = train(ts, cfg, keep_float_mips=False)
+    a = train(ts, cfg.with_(kernel=Kernel.FUSED), keep_float_mips=False)
+    b = train(ts, cfg.with_(kernel=Kernel.FUSED), keep_float_mips=False)
+    for la, lb in zip(a.layers, b.layers):
+        for x, y in zip(la, lb):
+            assert np.array_equal(x.endpoints, y.endpoints) and np.array_equal(x.indices, y.indices)
+    assert np.array_equal(a.mlp.w1, b.mlp.w1)
+    last = {name: v for name, _, v in torch_run.history}
+    fused_last = {name: v for name, _, v in a.history}
+    for phase in ("warmup", "constrained", "finetune"):  # the end-of-phase loss, within 10 %
+        assert fused_last[phase] == pytest.approx(last[phase], rel=0.1), phase
