@@ -418,6 +418,20 @@ def test_features_option_keys_the_cache_and_the_manifest_only_when_bc7(tmp_path:
         TrainingOptions(features="bc9")
 
 
+def test_kernel_option_keys_the_cache_and_the_manifest_only_when_fused(tmp_path: Path) -> None:
+    """--kernel fused trains to other float roundings, so it changes every key and is recorded; the
+    default torch leaves both as they were. On CUDA it is refused with one line."""
+    a = copy_samples(tmp_path / "a")
+    opts = TrainingOptions(profile="tiny", preset="smoke", seed=0)
+    pt, pt2, pf = plan(a, opts), plan(a, opts.with_(kernel="torch")), plan(a, opts.with_(kernel="fused"))
+    assert [j.content_hash for j in pt.jobs] == [j.content_hash for j in pt2.jobs]
+    assert not {j.content_hash for j in pt.jobs} & {j.content_hash for j in pf.jobs}
+    assert pt.jobs[0].options.kernel is None and pf.jobs[0].options.kernel == "fused"
+    assert pf.jobs[0].training("cpu", 1).kernel == "fused" and pt.jobs[0].training("cpu", 1).kernel == "torch"
+    with pytest.raises(InputError, match="runs on the CPU"):
+        TrainingOptions(kernel="fused", device="cuda")
+
+
 def test_plan_channel_mapping(tmp_path: Path) -> None:
     write_png(tmp_path / "tex" / "color.png", pattern())
     write_png(tmp_path / "tex" / "normal.png", pattern(seed=1))

@@ -269,7 +269,7 @@ def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=No
         if project is not None:
             with torch.no_grad():
                 project()
-        val = float(loss)
+        val = loss if fused is not None else float(loss.detach())
         if not math.isfinite(val):
             raise FloatingPointError(f"{name}: loss became {val} at step {step}")
         ema = val if ema is None else 0.9 * ema + 0.1 * val

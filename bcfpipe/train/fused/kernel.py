@@ -430,12 +430,9 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
 
 
 @nb.njit(parallel=True, cache=True)
-def step(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
+def _step_parallel(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
          plo, phi, utab, uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1, gw2,
          gb2):
-    """One training step's forward and backward over all samples, in ``n_chunks`` ranges run in
-    parallel, each into its own slice (axis 0) of the g* buffers; returns the per-chunk sums of
-    the squared errors (the caller adds buffers and sums in chunk order)."""
     N = uv.shape[0]
     sse = np.zeros(n_chunks, np.float64)
     w1t = np.ascontiguousarray(w1.T)
@@ -448,6 +445,27 @@ def step(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, 
                         plo, phi, utab, uslope, w3, w3s, w1, w1t, b1, w2, b2, out_scale, out_bias, loss_scale,
                         gP, gX, gw1, gb1, gw2, gb2, sf, si)
     return sse
+
+
+@nb.njit(cache=True)
+def _step_serial(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
+                 plo, phi, utab, uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1,
+                 gw2, gb2):
+    sse = np.zeros(1, np.float64)
+    sf = np.zeros(scratch_size(w1.shape[1], w1.shape[0], w2.shape[0], C), np.float32)
+    si = np.zeros(_SCRATCH_I, np.int64)
+    sse[0] = _chunk(fmt, quantized, signed, repeat, 0, 0, uv.shape[0], uv, target, weight, P, X, M, slots, blend, C,
+                    plo, phi, utab, uslope, w3, w3s, w1, np.ascontiguousarray(w1.T), b1, w2, b2, out_scale, out_bias,
+                    loss_scale, gP, gX, gw1, gb1, gw2, gb2, sf, si)
+    return sse
+
+
+def step(fmt, quantized, signed, repeat, n_chunks, *args):
+    """One training step's forward and backward over all samples, in ``n_chunks`` ranges (run in
+    parallel when there are several), each into its own row (axis 0) of the g* buffers; returns the
+    per-chunk sums of the squared errors (the caller adds the rows in chunk order)."""
+    run = _step_parallel if n_chunks > 1 else _step_serial
+    return run(fmt, quantized, signed, repeat, n_chunks, *args)
 
 
 @nb.njit(cache=True, _nrt=False)

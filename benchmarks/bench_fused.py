@@ -1,0 +1,74 @@
+"""Issue 30: training throughput of the fused kernel against the torch path, per phase.
+
+Trains the teapot (profile 1k, the `standard` preset's batch and rates) for a short schedule with
+each kernel, repetitions interleaved (torch, fused, torch, fused, ...) so that load hits both alike,
+at 1 and 2 threads, and reports samples per second of the warm-up and of the constrained phase (the
+real steps: targets, features, MLP, loss, backward, Adam), from the trainer's own phase timings.
+The kernels are compiled (or loaded from the cache) before anything is timed.
+
+  python benchmarks/bench_fused.py [--set teapot] [--profile 1k] [--steps 120] [--reps 2] [--threads 1,2]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_fidelity import specs  # noqa: E402
+from common import machine  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", default="teapot")
+    ap.add_argument("--profile", default="1k")
+    ap.add_argument("--features", default="bc6h")
+    ap.add_argument("--steps", type=int, default=120, help="steps of each timed phase")
+    ap.add_argument("--reps", type=int, default=2)
+    ap.add_argument("--threads", default="1,2")
+    args = ap.parse_args()
+
+    import torch
+
+    from bcfpipe.config import PRESETS, TrainingOptions
+    from bcfpipe.export.fit import make_config
+    from bcfpipe.formats.vocabulary import Kernel
+    from bcfpipe.texset.texture_set import load_texture_set
+    from bcfpipe.train.trainer import train
+
+    ts = load_texture_set(specs(args.set))
+    _, cfg = make_config(ts, TrainingOptions(profile=args.profile, features=args.features, device="cpu"))
+    std = PRESETS["standard"]
+    preset = replace(std, warmup=replace(std.warmup, steps=args.steps),
+                     constrained=replace(std.constrained, steps=args.steps), finetune=replace(std.finetune, steps=1))
+    cfg = cfg.with_(preset=preset, preset_name="bench")
+    print(f"machine: {machine()}; {args.set} {ts.width}x{ts.height}, profile {args.profile}, {args.features}, batch "
+          f"{preset.batch}, {args.steps} steps per phase (the constrained phase's second half quantization-aware), "
+          f"{args.reps} interleaved repetitions")
+    warm = replace(preset, warmup=replace(std.warmup, steps=2), constrained=replace(std.constrained, steps=2))
+    train(ts, cfg.with_(preset=warm, kernel=Kernel.FUSED, threads=1), keep_float_mips=False)  # compile / load
+
+    rows = []
+    for threads in (int(t) for t in args.threads.split(",")):
+        rate: dict[tuple[str, str], list[float]] = {}
+        for _ in range(args.reps):
+            for kernel in (Kernel.TORCH, Kernel.FUSED):
+                torch.manual_seed(0)
+                tm = train(ts, cfg.with_(kernel=kernel, threads=threads), keep_float_mips=False)
+                for phase in ("warmup", "constrained"):
+                    rate.setdefault((kernel, phase), []).append(tm.phase_samples[phase] / tm.phase_seconds[phase])
+        for phase in ("warmup", "constrained"):
+            t = max(rate[(Kernel.TORCH, phase)])
+            f = max(rate[(Kernel.FUSED, phase)])
+            rows.append((threads, phase, t, f))
+    print("\n| threads | phase | torch samples/s | fused samples/s | fused / torch |")
+    print("|---:|---|---:|---:|---:|")
+    for threads, phase, t, f in rows:
+        print(f"| {threads} | {phase} | {t:,.0f} | {f:,.0f} | {f / t:.2f}x |")
+    print("\n(best of the repetitions for each cell)")
+
+
+if __name__ == "__main__":
+    main()
