@@ -227,6 +227,10 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
         x = torch.remainder(torch.floor(uv[:, 0] * wd), wd).long()
         y = torch.remainder(torch.floor(uv[:, 1] * h), h).long()
         w = m[y, x].to(uv.dtype)
+    if run.cfg.kernel == Kernel.FUSED:
+        from bcfpipe.train.fused import targets
+
+        return uv, targets.sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
     return uv, sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
 
 
@@ -292,7 +296,7 @@ def _warmup(run: _Run) -> list[list[torch.Tensor]]:
     fused = _fused_step(run, free)
     params = _flat(free)
     _run_phase(run, "warmup", M.free_level_fn(free, mc), params, _scaled(run.cfg.preset.warmup, codec, "warmup"),
-               project=lambda: [t.clamp_(lo, hi) for t in params],
+               project=lambda: [t.clamp_(lo, hi) for t in params if t.grad is not None],
                tap_fn=M.free_tap_fn(free, mc), fused=fused)
     return free
 
@@ -352,11 +356,13 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
     fused = _fused_step(run, blocks, qat)
     feat = [t for layer in blocks for b in layer for t in (b.endpoints, b.x)]
 
-    def project() -> None:
+    def project() -> None:  # the levels this step sampled: Adam moves no parameter without a gradient
         for layer in blocks:
             for b in layer:
-                b.endpoints.clamp_(lo, hi)
-                b.x.clamp_(0.0, 1.0)
+                if b.endpoints.grad is not None:
+                    b.endpoints.clamp_(lo, hi)
+                if b.x.grad is not None:
+                    b.x.clamp_(0.0, 1.0)
 
     _run_phase(run, "constrained", M.block_level_fn(blocks, mc, qat), feat, sched, project=project,
                tap_fn=M.block_tap_fn(blocks, mc, qat), on_step=qat.step, fused=fused)
