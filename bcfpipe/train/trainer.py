@@ -295,10 +295,25 @@ def _warmup(run: _Run) -> list[list[torch.Tensor]]:
     lo, hi = codec.param_range(mc)
     fused = _fused_step(run, free)
     params = _flat(free)
+    first = [True]
+
+    def project() -> None:
+        for t in _sampled(params, first):
+            t.clamp_(lo, hi)
+
     _run_phase(run, "warmup", M.free_level_fn(free, mc), params, _scaled(run.cfg.preset.warmup, codec, "warmup"),
-               project=lambda: [t.clamp_(lo, hi) for t in params if t.grad is not None],
+               project=project,
                tap_fn=M.free_tap_fn(free, mc), fused=fused)
     return free
+
+
+def _sampled(params: list[torch.Tensor], first: list[bool]) -> list[torch.Tensor]:
+    """The parameters a projection must clamp: all of them after a phase's first step, then those
+    the step sampled (Adam moves no parameter without a gradient, so the others stay in range)."""
+    if first[0]:
+        first[0] = False
+        return params
+    return [t for t in params if t.grad is not None]
 
 
 def _scaled(sched, codec, phase: str):
@@ -356,13 +371,14 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
     fused = _fused_step(run, blocks, qat)
     feat = [t for layer in blocks for b in layer for t in (b.endpoints, b.x)]
 
-    def project() -> None:  # the levels this step sampled: Adam moves no parameter without a gradient
-        for layer in blocks:
-            for b in layer:
-                if b.endpoints.grad is not None:
-                    b.endpoints.clamp_(lo, hi)
-                if b.x.grad is not None:
-                    b.x.clamp_(0.0, 1.0)
+    first = [True]
+
+    def project() -> None:
+        for t in _sampled(feat, first):
+            if t.dim() == 3:  # endpoints
+                t.clamp_(lo, hi)
+            else:
+                t.clamp_(0.0, 1.0)
 
     _run_phase(run, "constrained", M.block_level_fn(blocks, mc, qat), feat, sched, project=project,
                tap_fn=M.block_tap_fn(blocks, mc, qat), on_step=qat.step, fused=fused)
