@@ -404,32 +404,25 @@ def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
     assert "/World/Looks/Unused" in names
 
 
-def test_features_option_keys_the_cache_and_the_manifest_only_when_bc7(tmp_path: Path) -> None:
-    """--features bc7 changes every key and is recorded in the job's options; the default bc6h
-    leaves both as they were (no key, no field), so existing caches and files stand."""
+@pytest.mark.parametrize("name,default,other,refused,why", [
+    ("features", "bc6h", "bc7", {"features": "bc9"}, "unknown feature format"),
+    ("kernel", "torch", "fused", {"kernel": "fused", "device": "cuda"}, "runs on the CPU"),
+])
+def test_a_newer_option_keys_the_cache_and_the_manifest_only_when_not_its_default(tmp_path: Path, name, default,
+                                                                                  other, refused, why) -> None:
+    """--features bc7 and --kernel fused change what trains, so every key changes and the job's
+    options record them; their defaults leave keys and records as they were (no key, no field), so
+    existing caches and files stand. A bad value is refused with one line."""
     a = copy_samples(tmp_path / "a")
     opts = TrainingOptions(profile="tiny", preset="smoke", seed=0)
-    p6, p6b, p7 = plan(a, opts), plan(a, opts.with_(features="bc6h")), plan(a, opts.with_(features="bc7"))
-    assert [j.content_hash for j in p6.jobs] == [j.content_hash for j in p6b.jobs]
-    assert not {j.content_hash for j in p6.jobs} & {j.content_hash for j in p7.jobs}
-    assert p6.jobs[0].options.features is None and p7.jobs[0].options.features == "bc7"
-    assert p7.jobs[0].training("cpu", 1).features == "bc7" and p6.jobs[0].training("cpu", 1).features == "bc6h"
-    with pytest.raises(InputError, match="unknown feature format"):
-        TrainingOptions(features="bc9")
-
-
-def test_kernel_option_keys_the_cache_and_the_manifest_only_when_fused(tmp_path: Path) -> None:
-    """--kernel fused trains to other float roundings, so it changes every key and is recorded; the
-    default torch leaves both as they were. On CUDA it is refused with one line."""
-    a = copy_samples(tmp_path / "a")
-    opts = TrainingOptions(profile="tiny", preset="smoke", seed=0)
-    pt, pt2, pf = plan(a, opts), plan(a, opts.with_(kernel="torch")), plan(a, opts.with_(kernel="fused"))
-    assert [j.content_hash for j in pt.jobs] == [j.content_hash for j in pt2.jobs]
-    assert not {j.content_hash for j in pt.jobs} & {j.content_hash for j in pf.jobs}
-    assert pt.jobs[0].options.kernel is None and pf.jobs[0].options.kernel == "fused"
-    assert pf.jobs[0].training("cpu", 1).kernel == "fused" and pt.jobs[0].training("cpu", 1).kernel == "torch"
-    with pytest.raises(InputError, match="runs on the CPU"):
-        TrainingOptions(kernel="fused", device="cuda")
+    p0, p0b, p1 = plan(a, opts), plan(a, opts.with_(**{name: default})), plan(a, opts.with_(**{name: other}))
+    assert [j.content_hash for j in p0.jobs] == [j.content_hash for j in p0b.jobs]
+    assert not {j.content_hash for j in p0.jobs} & {j.content_hash for j in p1.jobs}
+    assert getattr(p0.jobs[0].options, name) is None and getattr(p1.jobs[0].options, name) == other
+    assert getattr(p1.jobs[0].training("cpu", 1), name) == other
+    assert getattr(p0.jobs[0].training("cpu", 1), name) == default
+    with pytest.raises(InputError, match=why):
+        TrainingOptions(**refused)
 
 
 def test_plan_channel_mapping(tmp_path: Path) -> None:

@@ -240,6 +240,19 @@ def _texel_backward(fmt, signed, C, po, xo, plane, blk, pos, g, deriv, i, lv, t,
 
 
 @nb.njit(inline="always", cache=True, _nrt=False)
+def _dense_backward(dout, inp, w, gw, gb, q, din):
+    """Back through ``out = w @ inp + b``: adds into row ``q`` of ``gw`` and ``gb``, sets ``din``."""
+    for k in range(din.shape[0]):
+        din[k] = 0.0
+    for o in range(dout.shape[0]):
+        d = dout[o]
+        gb[q, o] += d
+        for k in range(inp.shape[0]):
+            gw[q, o, k] += d * inp[k]
+            din[k] += d * w[o, k]
+
+
+@nb.njit(inline="always", cache=True, _nrt=False)
 def _address(i, n, repeat):
     if repeat:
         return i % n
@@ -384,25 +397,11 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
             d = (acc * out_scale[o] + out_bias[o]) - target[n, o]
             sse += wn * d * d
             draw[o] = loss_scale * _F32(2.0) * wn * d * out_scale[o]
-        for h in range(hidden):
-            dh[h] = 0.0
-        for o in range(n_out):
-            do = draw[o]
-            gb2[q, o] += do
-            for h in range(hidden):
-                gw2[q, o, h] += do * hid[h]
-                dh[h] += do * w2[o, h]
+        _dense_backward(draw, hid, w2, gw2, gb2, q, dh)
         for h in range(hidden):
             if pre[h] <= 0:
                 dh[h] = 0.0
-        for k in range(n_in):
-            dfe[k] = 0.0
-        for h in range(hidden):
-            dhh = dh[h]
-            gb1[q, h] += dhh
-            for k in range(n_in):
-                gw1[q, h, k] += dhh * feats[k]
-                dfe[k] += dhh * w1[h, k]
+        _dense_backward(dh, feats, w1, gw1, gb1, q, dfe)
         # ---- back through the trilinear taps into the parameters
         for i in range(4):
             for lv in range(2):
