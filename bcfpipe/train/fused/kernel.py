@@ -364,7 +364,7 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
            gb2, sf, si):
     """Samples [a, b): forward, loss and backward, gradients added into row ``q`` of the g* buffers
     (each laid out as its parameter); returns the sum of the (weighted) squared errors. ``sf`` and
-    ``si`` are this chunk's float32 and int64 scratch (:func:`_scratch`); compiled without numba's
+    ``si`` are this chunk's float32 and int64 scratch (:func:`_split`); compiled without numba's
     reference counting, which otherwise costs an atomic add per array use in the inner loop."""
     n_in = w1.shape[1]
     hidden = w1.shape[0]
@@ -430,8 +430,8 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
 
 @nb.njit(parallel=True, cache=True)
 def _step_parallel(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
-         plo, phi, utab, uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1, gw2,
-         gb2):
+                   plo, phi, utab, uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1,
+                   gw2, gb2):
     N = uv.shape[0]
     sse = np.zeros(n_chunks, np.float64)
     w1t = np.ascontiguousarray(w1.T)

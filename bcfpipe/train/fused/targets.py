@@ -9,11 +9,7 @@ import torch
 
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.texset.reference import KEYS_A, ReferencePyramid, _level_split
-from bcfpipe.train.fused import kernel as _kernel  # noqa: F401  (sets numba's cache folder first)
-
-import numba as nb  # noqa: E402
-
-_F32 = np.float32
+from bcfpipe.train.fused.kernel import _F32, nb  # numba with its cache folder set
 
 
 @nb.njit(inline="always", cache=True)
