@@ -13,7 +13,10 @@ from bcfpipe.formats.vocabulary import FeatureFormat, Wrap
 from bcfpipe.model.features import BlockParams, codec_of
 from bcfpipe.model.sampling import level_weights
 
+
 def _tables(signed: bool):
+    """The BC6H decode's tables as bcfpipe.bc6h.emulate builds them: every 6-bit endpoint's
+    unquantized value and the slope to the next, and the 3-bit weights and theirs."""
     from bcfpipe.bc6h import mode10
     from bcfpipe.bc6h.tables import WEIGHTS3
 
