@@ -36,11 +36,14 @@ SAMPLE_MIN_PSNR_DB = 29.0
 
 
 def write_png(path: Path, rgb: np.ndarray) -> None:
+    """An 8-bit PNG of (H, W, c) values in [0, 1]; a fourth channel is straight alpha."""
     import OpenImageIO as oiio
 
     img = np.clip(np.rint(rgb * 255), 0, 255).astype(np.uint8)
     out = oiio.ImageOutput.create(str(path))
-    assert out.open(str(path), oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], oiio.UINT8))
+    spec = oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], oiio.UINT8)
+    spec.attribute("oiio:UnassociatedAlpha", 1)
+    assert out.open(str(path), spec)
     out.write_image(img)
     out.close()
 
@@ -304,3 +307,63 @@ def test_framing_view_sees_every_mesh(sample) -> None:
         ndc = clip[:, :3] / clip[:, 3:]
         assert np.all(clip[:, 3] > 0) and np.all(np.abs(ndc[:, :2]) <= 1.0 + 1e-6) and np.all(np.abs(ndc[:, 2]) <= 1.0)
         assert np.abs(ndc[:, :2]).max() > 0.85  # and fills it
+
+
+# ---------------------------------------------------------------------------------------- alpha
+
+
+def straight_colour_stage(src: Path, root: Path) -> Path:
+    """A layer over ``src`` in which every UsdUVTexture that feeds rgb from a file with alpha
+    reads instead an RGB PNG of that file's colour as stored (unassociated alpha, read with
+    OpenImageIO directly): the original drawn with nothing left to premultiply."""
+    import OpenImageIO as oiio
+
+    from bcfpipe.scan.texture_sets import local_file
+
+    stage = Usd.Stage.CreateNew(str(root / "straight.usda"))
+    stage.GetRootLayer().subLayerPaths.append(str(src))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.GetStageUpAxis(Usd.Stage.Open(str(src))))  # the same framing
+    straight: dict[str, Path] = {}
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    for prim in stage.Traverse():
+        shader = UsdShade.Shader(prim)
+        if not shader or shader.GetIdAttr().Get() != "UsdUVTexture" or not shader.GetOutput("rgb"):
+            continue
+        path = shader.GetInput("file").Get().resolvedPath
+        if path not in straight:
+            inp = oiio.ImageInput.open(local_file(path, root), config)
+            px = inp.read_image(0, 0, 0, inp.spec().nchannels, oiio.FLOAT)
+            inp.close()
+            if px.shape[2] != 4:
+                continue
+            assert (px[..., 3] < 1).mean() > 0.2  # the premise: colour where alpha < 1
+            straight[path] = root / f"straight{len(straight)}.png"
+            write_png(straight[path], px[..., :3])
+        shader.GetInput("file").Set(Sdf.AssetPath(str(straight[path])))
+    assert straight
+    stage.GetRootLayer().Save()
+    return root / "straight.usda"
+
+
+@pytest.mark.parametrize("scene", ["written", "RoughnessTest"])
+def test_original_reads_colour_with_unassociated_alpha(scene, rt, tmp_path, request) -> None:
+    """Colour from a PNG with alpha is drawn as stored, as training reads it (issue 32): the
+    original frame equals, to 1 level, the frame drawn from an RGB copy of that colour."""
+    camera = None
+    if scene == "written":  # the smooth quad's albedo with alpha 0.2 .. 0.9 across it
+        src, camera = smooth_stage(tmp_path), "/World/Cam"
+        n = 128
+        y, x = np.mgrid[0:n, 0:n] / n
+        write_png(tmp_path / "tex" / "albedo.png", np.stack([
+            0.5 + 0.3 * np.sin(2 * np.pi * x), 0.45 + 0.25 * np.cos(2 * np.pi * y),
+            0.4 + 0.2 * np.sin(2 * np.pi * (x + y)), 0.2 + 0.7 * x], -1))
+    else:  # the alpha-blend scene: diffuseColor from roughness-spec.png's rgb, opacity from its a
+        src = request.getfixturevalue("shared_scenes") / "usdwg_roughness_test" / "RoughnessTest.usdz"
+    (tmp_path / "ref").mkdir()
+    ref = straight_colour_stage(src, tmp_path / "ref")
+    got, want = (render_frames(load_scene(p, *SIZE, camera=camera, kinds=(ORIGINAL,)), *SIZE,
+                               runtime=rt)[ORIGINAL].image for p in (src, ref))
+    assert (want[..., 3] > 0).mean() > 0.1
+    d, _ = C.difference(got, want)
+    assert d.max_abs <= 1.0, d

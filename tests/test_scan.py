@@ -11,12 +11,13 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-from pxr import Sdf, Usd, UsdGeom, UsdShade
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 from bcfpipe.scan import stage as scan_mod
 from bcfpipe.scan.composition import parse_variant
 from bcfpipe.scan.results import ScanError, StageScan, Transform2d
 from bcfpipe.scan.stage import scan_stage
+from bcfpipe.scan.texture_sets import group_materials
 from bcfpipe.cli.scan import scan as scan_cmd
 
 SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
@@ -196,7 +197,9 @@ def test_shared_file_channel_across_inputs(tmp_path: Path, textures: dict[str, s
     assert all(len(k) == 4 for k in ma.texture_set_key)
 
 
-def test_one_bad_texture_skips_the_material(tmp_path: Path, textures: dict[str, str]) -> None:
+def test_missing_texture_gives_its_fallback_udim_skips(tmp_path: Path, textures: dict[str, str]) -> None:
+    """A texture with no file, or one that does not resolve, gives its fallback (as Hydra does);
+    a UDIM pattern or a time-sampled path with no default still skips the whole material."""
     stage = new_stage(tmp_path)
     good = {"diffuseColor": (textures["base"], "rgb")}
     mats = [
@@ -205,6 +208,8 @@ def test_one_bad_texture_skips_the_material(tmp_path: Path, textures: dict[str, 
         add_material(stage, "/World/Looks/Udim", {"diffuseColor": ("./tex/base_<UDIM>.png", "rgb")}),
         add_material(stage, "/World/Looks/Animated", good),
     ]
+    UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Missing/Tex_roughness")).CreateInput(
+        "fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.25, 0.5, 0.75, 1.0))
     animated_tex = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Animated/Tex_diffuseColor"))
     file_attr = animated_tex.GetInput("file").GetAttr()
     file_attr.Clear()
@@ -213,17 +218,28 @@ def test_one_bad_texture_skips_the_material(tmp_path: Path, textures: dict[str, 
         add_mesh(stage, f"/World/M{i}", m)
     stage.Save()
     result = scan_stage(tmp_path / "scene.usda")
-    assert set(reasons(result).values()) == {"unresolvable-file"}
+    assert reasons(result) == {"/World/Looks/Missing": "model", "/World/Looks/NoFile": "model",
+                               "/World/Looks/Udim": "unresolvable-file", "/World/Looks/Animated": "unresolvable-file"}
     missing = result.material("/World/Looks/Missing")
-    assert "roughness" in missing.message and "nope.png" in missing.message
-    assert "diffuseColor" not in missing.message
-    assert missing.input("diffuseColor").texture.ok
     assert missing.input("roughness").texture.problem_code == "missing"
-    assert missing.channel_uses == ()
+    assert missing.input("roughness").texture.uses_fallback
+    assert any("nope.png" in w and "fallback 0.25" in w for w in missing.warnings)
+    assert {u.input for u in missing.channel_uses} == {"diffuseColor"}
     assert result.material("/World/Looks/NoFile").input("roughness").texture.problem_code == "no-file"
     assert result.material("/World/Looks/Udim").input("diffuseColor").texture.problem_code == "udim"
     animated = result.material("/World/Looks/Animated").input("diffuseColor").texture
     assert (animated.problem_code, animated.animated_file) == ("time-sampled", True)
+
+    import numpy as np
+    import OpenImageIO as oiio
+
+    texels = np.random.default_rng(0).integers(0, 256, (8, 8, 3), dtype=np.uint8)
+    assert oiio.ImageBuf(texels).write(str(tmp_path / "tex" / "base.png"))
+    grouping = group_materials(tmp_path / "scene.usda", {}, result.materials, digest=False)
+    mm = grouping.model_of("/World/Looks/Missing")
+    assert [(c.target, c.value) for c in mm.constants] == [("roughness", 0.25)]
+    nofile = grouping.model_of("/World/Looks/NoFile")
+    assert [(c.target, c.value) for c in nofile.constants] == [("roughness", 0.0)]  # the spec's fallback (0, 0, 0, 1)
 
 
 def test_non_preview_surfaces(tmp_path: Path, textures: dict[str, str]) -> None:
@@ -440,7 +456,7 @@ def test_cli_json_and_table(tmp_path: Path, textures: dict[str, str]) -> None:
     assert {m["path"]: m["reason"] for m in data["materials"]} == {"/World/Looks/A": None, "/World/Looks/Spare": "unbound"}
     res = runner.invoke(scan_cmd, [str(tmp_path / "scene.usda")])
     assert res.exit_code == 0 and "/World/Looks/Spare" in res.stdout and "unbound" in res.stdout
-    assert "1 to model" in res.stdout
+    assert "conclusion: a build trains 1 texture set(s) for 1 material(s)" in res.stdout
     res = runner.invoke(scan_cmd, [str(tmp_path / "scene.usda"), "--all-materials", "--json"])
     assert json.loads(res.stdout)["summary"]["model"] == 1  # Spare has no textures
 
@@ -477,7 +493,7 @@ EXPECTED: dict[str, dict[str, int]] = {
     _OPENUSD + "testPreviewSurfaceDisplacement.usda": {"model": 1},
     _OPENUSD + "testPreviewSurfaceFallback.usda": {"no-textures": 100},
     _OPENUSD + "testPreviewSurfaceFallbackPrimvar.usda": {"no-textures": 1},
-    _OPENUSD + "testPreviewSurfaceFallbackTexture.usda": {"unresolvable-file": 1},
+    _OPENUSD + "testPreviewSurfaceFallbackTexture.usda": {"model": 1},  # the texture gives its fallback
     _OPENUSD + "testPreviewSurfaceInstancedMaterial.usda": {"no-textures": 2},
     _OPENUSD + "testPreviewSurfaceMaterialInterface.usda": {"no-textures": 1},
     _OPENUSD + "testPreviewSurfaceNormalMap.usda": {"model": 1},
@@ -488,11 +504,11 @@ EXPECTED: dict[str, dict[str, int]] = {
     _OPENUSD + "testPreviewSurfaceSourceColorSpace.usda": {"model": 2},
     _OPENUSD + "testPreviewSurfaceSpecular.usda": {"no-textures": 10},
     _OPENUSD + "testPreviewSurfaceTexture.usda": {"model": 1},
-    _OPENUSD + "testPreviewSurfaceTextureFallback.usda": {"unresolvable-file": 1},
-    _OPENUSD + "testPreviewSurfaceTextureNoFile.usda": {"unresolvable-file": 1},
+    _OPENUSD + "testPreviewSurfaceTextureFallback.usda": {"model": 1},  # the texture gives its fallback
+    _OPENUSD + "testPreviewSurfaceTextureNoFile.usda": {"model": 1},  # the texture gives its fallback
     _OPENUSD + "testPreviewSurfaceTextureOpacity.usda": {"model": 1},
     _OPENUSD + "testPreviewSurfaceTextureScaleAndBias.usda": {"model": 4},
-    _OPENUSD + "testPreviewSurfaceTextureWithToken.usda": {"unresolvable-file": 1},
+    _OPENUSD + "testPreviewSurfaceTextureWithToken.usda": {"model": 1},  # the texture gives its fallback
     _OPENUSD + "testPreviewSurfaceTransform2d.usda": {"model": 4},
     _OPENUSD + "testPreviewSurfaceTranslucent.usda": {"no-textures": 3},
     _UDIMS + "usdUdims.usda": {"unresolvable-file": 1},
@@ -512,7 +528,7 @@ EXPECTED: dict[str, dict[str, int]] = {
     "usdwg_teapot/Teapot_Payload.usd": {"no-textures": 1, "unbound": 1},
     "usdwg_teapot/geo/FancyTeapot.usd": {},
     "usdwg_teapot/geo/UtahTeapot.usd": {},
-    "usdwg_texture_file_formats/_scene.usda": {"unresolvable-file": 2},
+    "usdwg_texture_file_formats/_scene.usda": {"model": 2},  # no file: fallbacks
     "usdwg_texture_file_formats/all_files.usda": {"model": 16},
     "usdwg_texture_file_formats/jpeg_cmyk_8-bit.usda": {"model": 2},
     "usdwg_texture_file_formats/jpeg_grayscale_8-bit.usda": {"model": 2},
@@ -661,6 +677,7 @@ def test_texture_file_formats_channels() -> None:
         assert uses == want, m.path
     unauthored = scene("usdwg_texture_file_formats/_scene.usda")
     assert {i.texture.problem_code for m in unauthored.materials for i in m.texture_inputs} == {"no-file"}
+    assert all(i.texture.uses_fallback for m in unauthored.materials for i in m.texture_inputs)
 
 
 @needs_scenes
@@ -690,10 +707,6 @@ def test_roughness_usdz_resolves_inside_package() -> None:
 def test_openusd_bad_inputs_reported_per_material() -> None:
     cases = {
         _OPENUSD + "testPreviewSurfaceAnimated.usda": "time-sampled",
-        _OPENUSD + "testPreviewSurfaceFallbackTexture.usda": "missing",
-        _OPENUSD + "testPreviewSurfaceTextureFallback.usda": "missing",
-        _OPENUSD + "testPreviewSurfaceTextureWithToken.usda": "missing",
-        _OPENUSD + "testPreviewSurfaceTextureNoFile.usda": "no-file",
         _UDIMS + "usdUdims.usda": "udim",
         _UDIMS + "usdUdims.usdz": "udim",
         _UDIMS + "usdUdimsTextureFallback.usda": "udim",
@@ -702,6 +715,21 @@ def test_openusd_bad_inputs_reported_per_material() -> None:
         (m,) = scene(rel).materials
         assert m.reason == "unresolvable-file" and m.message.startswith("diffuseColor: "), rel
         assert m.input("diffuseColor").texture.problem_code == code, rel
+    fallbacks = {  # a missing file, or none: the texture's fallback, as Hydra draws it
+        _OPENUSD + "testPreviewSurfaceFallbackTexture.usda": ("missing", (0.0, 0.0, 0.0)),
+        _OPENUSD + "testPreviewSurfaceTextureFallback.usda": ("missing", (0.0, 0.0, 1.0)),
+        _OPENUSD + "testPreviewSurfaceTextureWithToken.usda": ("missing", None),
+        _OPENUSD + "testPreviewSurfaceTextureNoFile.usda": ("no-file", (0.0, 0.0, 1.0)),
+    }
+    for rel, (code, rgb) in fallbacks.items():
+        result = scene(rel)
+        (m,) = result.materials
+        assert m.decision == "model" and m.input("diffuseColor").texture.problem_code == code, rel
+        grouping = group_materials(SCENES / rel, {}, result.materials, digest=False)
+        assert grouping.outcome(m)[0] == "constant", rel
+        values = {c.target: c.value for c in grouping.model_of(m.path).constants}
+        if rgb is not None:
+            assert tuple(values[f"diffuseColor.{c}"] for c in "rgb") == rgb, rel
     # Bound only through a preview-purpose collection binding.
     (m,) = scene(_OPENUSD + "testPreviewSurfaceTextureNoFile.usda").materials
     assert m.bound_purposes == ("preview",)

@@ -5,11 +5,11 @@ local pool's queue, Ray's queue actor) as these records."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Mapping
 
 from bcfpipe.formats.vocabulary import StrEnum
 
-__all__ = ["EventKind", "ProgressEvent", "ProgressCallback"]
+__all__ = ["EventKind", "ProgressEvent", "ProgressCallback", "result_psnr"]
 
 
 class EventKind(StrEnum):
@@ -40,3 +40,10 @@ class ProgressEvent:
 
 
 ProgressCallback = Callable[[ProgressEvent], None]
+
+
+def result_psnr(result: Mapping) -> float | None:
+    """`bcfpipe.builder.report.headline_psnr` of a job's result dict (as the cache and the workers
+    hold it): what the progress lines print, so that they agree with the table."""
+    covered = (result.get("metrics") or {}).get("psnr_covered")
+    return covered if covered is not None else result.get("psnr")

@@ -17,7 +17,7 @@ from typing import Any, Mapping, Sequence
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import one_line
-from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
+from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
 from bcfpipe.builder.plan import MaterialJob
 from bcfpipe.errors import WorkFailed
 
@@ -329,7 +329,7 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
                     r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, dev, threads)
                 results[job.name] = r
                 _emit(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
-                      psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
+                      psnr=result_psnr(r.result), seconds=r.seconds, cache=r.cache)
     except BaseException:
         if own:
             _stop(pool)

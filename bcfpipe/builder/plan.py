@@ -15,7 +15,7 @@ from bcfpipe.formats.manifest import Options
 from bcfpipe.formats.vocabulary import ColorSpace, Decision
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
-from bcfpipe.scan.texture_sets import (INSTANCED_MESSAGE, ConstantTarget, FoldedChannel, ModelChannel, SourceFile,
+from bcfpipe.scan.texture_sets import (ConstantTarget, FoldedChannel, ModelChannel, SourceFile,
                                        decoder_index, group_materials)
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
@@ -232,7 +232,7 @@ def _resolve_device_name(device: str) -> str:
 
 def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions(), *,
          variants: Mapping[str, str] | Iterable[str] | None = None, all_materials: bool = False,
-         texel_density: float | None = None, coverage: bool = True, facts=None,
+         materials: Iterable[str] = (), texel_density: float | None = None, coverage: bool = True, facts=None,
          bench: Mapping | None = None) -> BuildPlan:
     """Scan ``scene`` and list what to train with ``training``. Reads the source textures (to hash
     them) but writes nothing. ``texel_density`` (px/m) caps each job's resolution at the smallest
@@ -256,7 +256,8 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
 
     vdict = _variants_dict(variants)
     try:
-        scan: StageScan = scan_stage(scene, vdict or None, all_materials=all_materials)
+        scan: StageScan = scan_stage(scene, vdict or None, all_materials=all_materials,
+                                          materials=tuple(materials))
     except ScanError as exc:
         raise BuildError(str(exc)) from None
 
@@ -284,23 +285,14 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
 
     plans: list[MaterialPlan] = []
     for ms in scan.materials:
-        if ms.decision != Decision.MODEL:
-            plans.append(MaterialPlan(ms.path, ms.aliases, Decision.SKIP, ms.reason, ms.message,
-                                      warnings=tuple(ms.warnings)))
+        decision, reason, message = grouping.outcome(ms)
+        if decision == Decision.SKIP or reason == "failed":
+            plans.append(MaterialPlan(ms.path, ms.aliases, decision, reason, message, warnings=tuple(ms.warnings)))
             continue
-        if ms.path in grouping.instanced:
-            plans.append(MaterialPlan(ms.path, ms.aliases, Decision.SKIP, "instanced", INSTANCED_MESSAGE,
-                                      warnings=tuple(ms.warnings)))
-            continue
-        if ms.path in grouping.failed:
-            plans.append(MaterialPlan(ms.path, ms.aliases, Decision.MODEL, "failed", grouping.failed[ms.path],
-                                      warnings=tuple(ms.warnings)))
-            continue
-        if ms.path in grouping.constant:
+        if decision == Decision.CONSTANT:
             mm = grouping.constant[ms.path]
             plans.append(MaterialPlan(
-                ms.path, ms.aliases, Decision.CONSTANT, None,
-                f"every textured input is constant: {len(mm.constants)} value(s) authored, nothing trained",
+                ms.path, ms.aliases, Decision.CONSTANT, None, message,
                 fallback_surface=ms.surface_shader, sources=tuple(mm.sources), warnings=tuple(mm.warnings),
                 constants=tuple(mm.constants), folded=tuple(mm.folded)))
             continue

@@ -30,7 +30,7 @@ from typing import Sequence
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.builder.executor import JobResult, _emit, _drain, _train_job, read_sources, store_entry
-from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
+from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
 from bcfpipe.builder.plan import MaterialJob
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import Unavailable, WorkFailed, one_line
@@ -218,7 +218,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
     def finish(job: MaterialJob, r: JobResult) -> None:
         results[job.name] = r
         _emit(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
-              psnr=r.result.get("psnr"), seconds=r.seconds, cache=r.cache)
+              psnr=result_psnr(r.result), seconds=r.seconds, cache=r.cache)
 
     def submit(job: MaterialJob):
         try:

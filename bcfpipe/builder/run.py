@@ -17,7 +17,7 @@ from bcfpipe.config import TrainingOptions
 from bcfpipe.errors import EXIT_OK, WorkFailed
 from bcfpipe.builder.assemble import assemble, default_out
 from bcfpipe.builder.depfile import dependencies, write as write_depfile
-from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
+from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
 from bcfpipe.builder.executor import JobResult, execute
 from bcfpipe.builder.report import make_report
 from bcfpipe.builder.sync import OUT_LOCK, STAGING_PREFIX, install, is_incomplete
@@ -180,13 +180,14 @@ def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
                                    CacheUse.HIT)
         if progress:
             progress(ProgressEvent(EventKind.DONE, job.name, job.materials, status=Status.BUILT,
-                                   psnr=found.entry.result.get("psnr"), seconds=0.0, cache=CacheUse.HIT))
+                                   psnr=result_psnr(found.entry.result), seconds=0.0, cache=CacheUse.HIT))
     return hits, damaged
 
 
 def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
           training: TrainingOptions = TrainingOptions(),
           variants: Mapping[str, str] | Iterable[str] | None = None, all_materials: bool = False,
+          materials: Iterable[str] = (),
           jobs: int | None = None, force: bool = False, progress: ProgressCallback | None = None,
           executor: cf.Executor | None = None,
           cache: str | os.PathLike | bool | None = None, depfile: str | os.PathLike | None = None,
@@ -217,7 +218,8 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     store = None
     if cache is not False:
         store = Cache(default_root() if cache in (None, True) else cache)
-    bplan = plan(scene_path, training, variants=variants, all_materials=all_materials, texel_density=texel_density,
+    bplan = plan(scene_path, training, variants=variants, all_materials=all_materials, materials=materials,
+                 texel_density=texel_density,
                  coverage=coverage, facts=store.facts if store is not None else None, bench=bench)
     check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
     # staging lives inside OUT (nothing is written outside OUT and the cache) and on its filesystem,

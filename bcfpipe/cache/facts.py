@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 
 FORMAT = "bcfpipe-texel-facts"
-VERSION = 1
+VERSION = 2  # 2: colour read as stored (unassociated alpha), not premultiplied
 
 
 class FactsStore:

@@ -11,7 +11,9 @@ table, or with ``--json`` the manifest as one JSON object, goes to stdout.
 from __future__ import annotations
 
 import os
+import threading
 import time
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
@@ -26,7 +28,8 @@ from bcfpipe.builder.events import EventKind, ProgressEvent
 from bcfpipe.cli.errors import Command
 from bcfpipe.formats.manifest import Manifest
 from bcfpipe.formats.report import BuildReport
-from bcfpipe.cli.options import all_materials_option, training_options, variant_option, texel_density_option
+from bcfpipe.train.pace import LINE_SECONDS, TICK_SECONDS, Ticker
+from bcfpipe.cli.options import all_materials_option, material_option, training_options, variant_option, texel_density_option
 
 __all__ = ["build", "BuildDisplay", "summary_table"]
 
@@ -48,34 +51,48 @@ class BuildDisplay:
     """Progress of a build: a live rich table on a terminal, plain lines otherwise.
 
     Call it with the `ProgressEvent`s of a build (bcfpipe.builder.events); use as a context manager.
+    Plain lines come at phase changes and ends, and (`tick`, once a second while entered) at least
+    every `LINE_SECONDS` for each running texture set, so that no phase goes quiet.
     """
 
     STYLE = {"queued": "dim", "running": "cyan", Status.BUILT: "green", Status.FAILED: "red"}
 
-    def __init__(self, console: Console | None = None, live: bool | None = None):
+    def __init__(self, console: Console | None = None, live: bool | None = None, clock=time.monotonic):
         self.console = console or Console(stderr=True)
         self.live_mode = self.console.is_terminal if live is None else live
         self.jobs: dict[str, dict] = {}
         self._live: Live | None = None
-        self.t0 = time.monotonic()
+        self._ticker: Ticker | None = None
+        self._lock = threading.RLock()
+        self.clock = clock
+        self.t0 = self.last_line = clock()
 
     def __enter__(self) -> "BuildDisplay":
         if self.live_mode:
             self._live = Live(get_renderable=self.table, console=self.console, refresh_per_second=4,
                               transient=False)
             self._live.__enter__()
+        else:
+            self._ticker = Ticker(self.tick).__enter__()
         return self
 
     def __exit__(self, *exc) -> None:
+        if self._ticker is not None:
+            self._ticker.__exit__(*exc)
+            self._ticker = None
         if self._live is not None:
             self._live.refresh()
             self._live.__exit__(*exc)
             self._live = None
 
     def __call__(self, ev: ProgressEvent) -> None:
+        with self._lock:
+            self._event(ev)
+
+    def _event(self, ev: ProgressEvent) -> None:
         name = ev.job
         st = self.jobs.setdefault(name, {"status": "queued", "phase": "", "step": 0, "steps": 0, "psnr": None,
-                                         "eta": None, "materials": []})
+                                         "eta": None, "materials": [], "since": 0.0, "line_at": 0.0})
         line = None
         if ev.event == EventKind.QUEUED:
             st["materials"] = list(ev.materials)
@@ -87,6 +104,7 @@ class BuildDisplay:
             if ev.psnr is not None:
                 st["psnr"] = ev.psnr
             if phase_changed:
+                st["since"] = self.clock()
                 line = f"{name}: {st['phase']}"
         elif ev.event == EventKind.DONE:
             st.update(status=ev.status or "?", phase="", eta=None)
@@ -104,8 +122,42 @@ class BuildDisplay:
             else:
                 line = f"{name}: FAILED: {ev.reason}"
         if line and not self.live_mode:
-            self.console.print(f"[{time.monotonic() - self.t0:6.1f}s] [{self.counts_line()}] {line}",
-                               highlight=False, markup=False, soft_wrap=True)
+            self._print(line, st)
+
+    def _print(self, line: str, st: dict | None = None) -> None:
+        now = self.clock()
+        self.console.print(f"[{now - self.t0:6.1f}s] [{self.counts_line()}] {line}",
+                           highlight=False, markup=False, soft_wrap=True)
+        self.last_line = now
+        if st is not None:
+            st["line_at"] = now
+
+    def tick(self) -> None:
+        """Plain mode: a line on the running texture set longest without one once that is
+        `LINE_SECONDS`, no two such lines within `TICK_SECONDS`; with none running, a line on what
+        the build waits for after that long a silence."""
+        if self.live_mode:
+            return
+        with self._lock:
+            now = self.clock()
+            if now - self.last_line < TICK_SECONDS:
+                return
+            running = [(st["line_at"], name) for name, st in self.jobs.items() if st["status"] == "running"]
+            if running:
+                at, name = min(running)
+                if now - at >= LINE_SECONDS:
+                    self._print(self._running_line(name, now), self.jobs[name])
+            elif now - self.last_line >= LINE_SECONDS:
+                n = self.counts()
+                self._print("planning" if not self.jobs else "waiting for a worker" if n["queued"]
+                            else "writing the results")
+
+    def _running_line(self, name: str, now: float) -> str:
+        st = self.jobs[name]
+        step = f" {st['step']}/{st['steps']}" if st["steps"] else ""
+        psnr = f", batch PSNR {st['psnr']:.2f} dB" if st["psnr"] is not None else ""
+        eta = f", ETA {_fmt_eta(st['eta'])}" if st["steps"] and st["eta"] is not None else ""
+        return f"{name}: {st['phase']}{step}, {now - st['since']:.0f}s in this phase{psnr}{eta}"
 
     def counts(self) -> dict[str, int]:
         """Texture sets by state: queued, running, done (trained), cached, failed."""
@@ -178,12 +230,26 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
     return t
 
 
+def nothing_built(manifest) -> str | None:
+    """The stderr line of a build that built nothing (no material trained, shared or made
+    constant), with the skip reasons counted; None when something was built."""
+    if any(m.status in (Status.BUILT, Status.CONSTANT) for m in manifest.materials):
+        return None
+    reasons = Counter(m.reason or m.status for m in manifest.materials)
+    if not reasons:
+        return "bcfpipe: nothing built: the stage has no materials"
+    counted = ", ".join(f"{n} {r}" for r, n in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0])))
+    return (f"bcfpipe: nothing built: {len(manifest.materials)} material(s), none modelled ({counted}); "
+            "`bcfpipe scan` explains each")
+
+
 @click.command("build", cls=Command)
 @click.argument("scene", type=click.Path(path_type=Path, dir_okay=False))
 @click.option("-o", "--out", type=click.Path(path_type=Path, file_okay=False),
               help="Output folder (default: <scene>.bcf/ next to the scene).")
 @variant_option
 @all_materials_option
+@material_option
 @training_options
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
               help="Materials trained in parallel [default: one per core, or per GPU].")
@@ -217,6 +283,7 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
               help="Run `bcfpipe verify` on OUT at the end (GLSL on OpenGL vs ONNX); a failure exits 1.")
 @click.pass_context
 def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str, str], all_materials: bool,
+          materials: tuple[str, ...],
           texel_density: float | None, no_coverage: bool,
           jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
           depfile_target: str | None, executor_name: str, ray_address: str | None, shard: str | None,
@@ -248,9 +315,10 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     if shard is not None:
         _shard(ctx, scene, shard, display, quiet, as_json, training, out=out, no_cache=no_cache, depfile=depfile,
                verify=run_verify_after, cache=cache_dir, jobs=jobs, variants=variants, all_materials=all_materials,
-               texel_density=texel_density, coverage=not no_coverage, bench=bench)
+               materials=materials, texel_density=texel_density, coverage=not no_coverage, bench=bench)
         return
-    options = dict(training=training, variants=variants, all_materials=all_materials, jobs=jobs, force=force,
+    options = dict(training=training, variants=variants, all_materials=all_materials, materials=materials, jobs=jobs,
+                   force=force,
                    texel_density=texel_density, coverage=not no_coverage, cache=False if no_cache else cache_dir,
                    depfile=depfile, depfile_target=depfile_target, bench=bench, executor_name=executor_name,
                    ray_address=ray_address)
@@ -278,6 +346,9 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
         shown = os.path.relpath(result.root_layer)
         out.print(f"open {shown if not shown.startswith('..') else result.root_layer}", highlight=False,
                   soft_wrap=True)
+    nothing = nothing_built(result.manifest)
+    if nothing and not quiet:
+        click.echo(nothing, err=True)
     ctx.exit(code)
 
 

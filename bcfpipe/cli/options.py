@@ -94,6 +94,10 @@ variant_option = click.option(
     help="Select VALUE in variant set SET on every prim offering it (repeatable).")
 all_materials_option = click.option(
     "--all-materials", is_flag=True, help="Also model materials not bound to rendered geometry.")
+material_option = click.option(
+    "--material", "materials", multiple=True, metavar="PRIM",
+    help="Only this material (its prim path, as `scan` lists it; repeatable). The others are reported "
+         "as skipped: not-selected.")
 
 texel_density_option = click.option(
     "--texel-density", "texel_density", type=click.FloatRange(min=0, min_open=True), default=None,

@@ -5,15 +5,17 @@ Exit codes: 0 the plan was made, 2 the stage cannot be read or an option is bad.
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
 
 import click
 from rich.console import Console
-from rich.table import Table
+from rich.markup import escape
 
 from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.cli.errors import Command
-from bcfpipe.cli.options import all_materials_option, texel_density_option, training_options, variant_option
+from bcfpipe.scan.composition import counted
+from bcfpipe.cli.options import all_materials_option, material_option, texel_density_option, training_options, variant_option
 
 __all__ = ["plan_cmd"]
 
@@ -31,12 +33,13 @@ def plan_json(bplan) -> dict:
 @click.argument("scene", type=click.Path(path_type=Path, dir_okay=False))
 @variant_option
 @all_materials_option
+@material_option
 @training_options
 @texel_density_option
 @click.option("--no-coverage", is_flag=True, help="As for build: train on every texel.")
 @click.option("--json", "as_json", is_flag=True, help="Print the plan as one JSON object on stdout.")
-def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, texel_density: float | None,
-             no_coverage: bool, as_json: bool, **_training) -> None:
+def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materials: tuple[str, ...],
+             texel_density: float | None, no_coverage: bool, as_json: bool, **_training) -> None:
     """List the training jobs `bcfpipe build SCENE` would run with these options: each job's
     content hash (its cache key), materials, channels, resolution, profile and covered fraction.
     Reads and hashes the textures; trains and writes nothing."""
@@ -44,23 +47,50 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, texel_d
     from bcfpipe.cli.options import training_record
 
     training, bench = training_record(click.get_current_context())
-    bplan = plan(scene, training, variants=variants, all_materials=all_materials, texel_density=texel_density,
+    bplan = plan(scene, training, variants=variants, all_materials=all_materials, materials=materials,
+                 texel_density=texel_density,
                  coverage=not no_coverage, bench=bench)
     if as_json:
         click.echo(json.dumps(plan_json(bplan), indent=2))
         return
-    t = Table(title=f"bcfpipe plan: {bplan.scene}", title_justify="left")
-    for col in ("job", "materials", "outputs", "resolution", "profile", "read", "content hash"):
-        t.add_column(col, overflow="fold")
+    con = Console()
+    say = lambda text: con.print(text, highlight=False, soft_wrap=True)  # noqa: E731
+    say(f"bcfpipe plan: {bplan.scene}")
+    for line in counted(bplan.diagnostics):
+        say(f"[yellow]usd:[/yellow] {escape(line)}")
     for j in bplan.jobs:
         w, h = j.size
-        prof = j.options.profile if j.options.target_psnr is None else (
-            f"target {j.options.target_psnr:g} dB ({'bench' if j.anchors else 'probe'})")
-        t.add_row(j.name, str(len(j.materials)), str(len(j.channels)), f"{w}x{h}", prof,
-                  f"{100 * j.covered_fraction:.0f}%" if j.covered_fraction is not None else "all",
-                  j.content_hash[:16])
-    con = Console()
-    con.print(t)
+        prof = _profile(j)
+        read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
+        say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
+            f"content hash {j.content_hash[:16]}")
+        for m in j.materials:
+            say(f"    {m}")
+    skipped = Counter(m.reason for m in bplan.materials if m.decision == Decision.SKIP)
+    for m in bplan.materials:
+        if m.decision == Decision.CONSTANT:
+            say(f"[cyan]constant[/cyan] {m.path}: {m.message}")
+        elif m.decision == Decision.SKIP and m.reason != "not-selected":
+            say(f"[yellow]skip: {m.reason}[/yellow] {m.path}: {escape(m.message)}")
     counts = {d: sum(1 for m in bplan.materials if m.decision == d) for d in Decision}
-    con.print(f"{len(bplan.jobs)} job(s) for {counts['model']} modelled material(s); {counts['constant']} "
-              f"constant, {counts['skip']} skipped", highlight=False)
+    reasons = ", ".join(f"{n} {r}" for r, n in sorted(skipped.items(), key=lambda kv: (-kv[1], kv[0])))
+    say(f"{len(bplan.jobs)} job(s) for {counts['model']} modelled material(s); {counts['constant']} constant, "
+        f"{counts['skip']} skipped" + (f" ({reasons})" if reasons else ""))
+
+
+def _profile(job) -> str:
+    """The profile the job trains at, as `build` reports it (``auto`` resolved from the job's size)."""
+    from bcfpipe.config import resolve_profile
+
+    if job.options.target_psnr is not None:
+        return f"chosen for target {job.options.target_psnr:g} dB ({'bench' if job.anchors else 'probe'})"
+    name, _ = resolve_profile(job.options.profile, max(job.size))
+    return name
+
+
+def _outputs(job) -> int:
+    """Decoder outputs: the job's channels, and normal z when a normal map is modelled."""
+    from bcfpipe.scan.texture_sets import decoder_index
+
+    _, z = decoder_index(job.channels)
+    return len(job.channels) + (z is not None)

@@ -6,144 +6,168 @@ Exit codes: 0 when the stage was scanned (skipped materials included),
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
 
 import click
 from rich.console import Console
-from rich.table import Table
+from rich.markup import escape
 from rich.text import Text
 
 from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.cli.errors import Command
-from bcfpipe.cli.options import all_materials_option, texel_density_option, variant_option
+from bcfpipe.cli.options import all_materials_option, material_option, texel_density_option, variant_option
 from bcfpipe.scan.results import MaterialScan, StageScan
 from bcfpipe.scan.stage import scan_stage
-from bcfpipe.scan.texture_sets import INSTANCED_MESSAGE, Grouping, group_materials
+from bcfpipe.scan.composition import counted
+from bcfpipe.scan.texture_sets import Grouping, group_materials
 
 __all__ = ["scan"]
 
 
-def _texture_lines(material: MaterialScan, grouping: Grouping) -> Text:
-    """One line per textured input: ``input ← file:channel`` (problems in red), then the
-    channels folded away (constant or duplicate)."""
-    text = Text()
-    for i, inp in enumerate(material.texture_inputs):
+def _texture_lines(material: MaterialScan, grouping: Grouping) -> list[Text]:
+    """One line per textured input: ``input ← file:channel`` (problems in red, fallbacks in
+    yellow), then the channels folded away (constant, duplicate, no alpha)."""
+    lines = []
+    for inp in material.texture_inputs:
         tex = inp.texture
         assert tex is not None
         name = Path(tex.asset_path).name if tex.asset_path else "(no file)"
-        if i:
-            text.append("\n")
-        text.append(f"{inp.name} ← {name}:{tex.channel}", style=None if tex.ok else "red")
+        style = None if tex.ok else "yellow" if tex.uses_fallback else "red"
+        lines.append(Text(f"{inp.name} ← {name}:{tex.channel}" + (" (fallback)" if tex.uses_fallback else ""),
+                          style=style))
     mm = grouping.model_of(material.path)
     for f in mm.folded if mm else ():
         what = f"= {Path(f.same_as.file).name}:{f.same_as.channel}" if f.same_as else f"= {f.value:.4g}"
-        text.append(f"\nfolded {Path(f.file).name}:{f.channel} {f.reason} {what}", style="cyan")
-    return text
+        lines.append(Text(f"folded {Path(f.file).name}:{f.channel} {f.reason} {what}", style="cyan"))
+    return lines
 
 
 def decision(material: MaterialScan, grouping: Grouping) -> str:
-    """model, constant (every textured input folded to a value) or skip."""
-    return Decision.CONSTANT if material.path in grouping.constant else material.decision
+    """model, constant (every textured input folded to a value) or skip: as `plan` and `build`."""
+    return grouping.outcome(material)[0]
 
 
 def _decision_text(material: MaterialScan, grouping: Grouping) -> Text:
-    """``model`` in green, ``constant`` in cyan, or ``skip: reason`` with the message below."""
-    if decision(material, grouping) == Decision.CONSTANT:
-        return Text("constant", style="cyan").append("\nnothing to train: values authored", style="dim")
-    if material.decision == Decision.MODEL:
-        return Text("model", style="green")
-    text = Text(f"skip: {material.reason}", style="yellow")
-    text.append(f"\n{material.message}", style="dim")
-    return text
+    """``model`` in green, ``constant`` in cyan, ``skip: reason`` in yellow."""
+    outcome, reason, _ = grouping.outcome(material)
+    if outcome == Decision.CONSTANT:
+        return Text("constant", style="cyan")
+    if outcome == Decision.MODEL:
+        return Text("model" + (f": {reason}" if reason else ""), style="red" if reason else "green")
+    return Text(f"skip: {reason}", style="yellow")
 
 
-def _need_text(req: dict | None) -> Text:
-    """Texel density, the profile and size a build would choose."""
+def _need_line(req: dict | None) -> Text:
+    """Texel density, the resolution, profile and size a build would choose, on one line."""
     if not req:
         return Text("")
-    text = Text()
+    parts = []
     d = req.get("density") or {}
     if d.get("texel_density"):
-        text.append(f"{d['texel_density']:.0f} px/m", style="dim")
-        if d.get("lowest_mesh_density") and d["meshes"] > 1:
-            text.append(f" (lowest mesh {d['lowest_mesh_density']:.0f})")
-    for note in d.get("notes", [])[:2]:
-        text.append(f"\n{note}" if text.plain else note, style="yellow")
+        low = (f" (lowest mesh {d['lowest_mesh_density']:.0f})"
+               if d.get("lowest_mesh_density") and d["meshes"] > 1 else "")
+        parts.append(f"{d['texel_density']:.0f} px/m{low}")
     if req["decision"] == Decision.MODEL:
-        cap = f" capped: {req['texel_density_reached']:.0f} px/m" if req["capped"] else ""
         if req.get("covered_fraction") is not None:
-            text.append(f"\n{100 * req['covered_fraction']:.0f}% of texels read" if text.plain else
-                        f"{100 * req['covered_fraction']:.0f}% of texels read", style="dim")
-        line = (f"{req['resolution']}²{cap}, {req['profile']}, ~{req['estimated_bytes'] / 2**20:.2f} MiB"
-                if req["estimated_bytes"] else f"{req['resolution']}²{cap}, {req['profile']}, shared")
-        text.append(f"\n{line}" if text.plain else line, style="dim")
+            parts.append(f"{100 * req['covered_fraction']:.0f}% of texels read")
+        cap = f" capped: {req['texel_density_reached']:.0f} px/m" if req["capped"] else ""
+        size = f"~{req['estimated_bytes'] / 2**20:.2f} MiB" if req["estimated_bytes"] else "shared"
+        parts.append(f"{req['resolution']}²{cap}, profile {req['profile']}, {size}")
+    text = Text(", ".join(parts), style="dim")
+    for note in d.get("notes", [])[:2]:
+        text.append(f"; {note}" if text.plain else note, style="yellow")
     return text
 
 
-def _table(result: StageScan, grouping: Grouping, reqs: dict) -> Table:
-    """The per-material table."""
-    table = Table(show_lines=False, expand=False)
-    table.add_column("material", overflow="fold")
-    table.add_column("bound")
-    table.add_column("decision", overflow="fold")
-    table.add_column("textured inputs", overflow="fold")
-    for m in result.materials:
-        bound = "yes" if m.bound else "no"
-        path = m.path + (f" (+{len(m.aliases)} instances)" if m.aliases else "")
-        need = _need_text(reqs["materials"].get(m.path))
-        decision = _decision_text(m, grouping)
-        if need.plain:
-            decision.append("\n").append_text(need)
-        table.add_row(path, bound, decision, _texture_lines(m, grouping))
-    return table
+def _print_material(m: MaterialScan, grouping: Grouping, reqs: dict, console: Console) -> None:
+    """A material's block: its path on a line of its own (never broken), the decision and why,
+    its textured inputs, what a build would choose, and its warnings, indented below."""
+    head = Text(m.path, style="bold")
+    if m.aliases:
+        head.append(f" (+{len(m.aliases)} instances)")
+    head.append("  ").append_text(_decision_text(m, grouping))
+    if not m.bound and m.reason != "unbound":
+        head.append("  (unbound)", style="dim")
+    console.print(head, highlight=False, soft_wrap=True)
+    outcome, reason, message = grouping.outcome(m)
+    body: list[Text] = []
+    if outcome != Decision.MODEL or reason:
+        body.append(Text(message, style="dim"))
+    elif m.aliases:
+        body.append(Text(f"instances: {', '.join(m.aliases[:3])}" + (" …" if len(m.aliases) > 3 else ""),
+                         style="dim"))
+    body += _texture_lines(m, grouping)
+    need = _need_line(reqs["materials"].get(m.path))
+    if need.plain:
+        body.append(need)
+    mm = grouping.model_of(m.path)
+    body += [Text(f"warning: {w}", style="yellow") for w in (mm.warnings if mm else m.warnings)]
+    for line in body:
+        console.print(Text("    ").append_text(line), highlight=False, soft_wrap=True)
+
+
+def _conclusion(result: StageScan, grouping: Grouping) -> str:
+    """What a build of this stage would do, in one sentence, with every skip reason counted."""
+    outcomes = [grouping.outcome(m) for m in result.materials]
+    n_model = sum(1 for d, r, _ in outcomes if d == Decision.MODEL)
+    n_const = sum(1 for d, _, _ in outcomes if d == Decision.CONSTANT)
+    skips = Counter(r for d, r, _ in outcomes if d == Decision.SKIP)
+    skipped = ", ".join(f"{n} {r}" for r, n in sorted(skips.items(), key=lambda kv: (-kv[1], kv[0])))
+    if not result.materials:
+        return "conclusion: a build builds nothing: the stage has no materials"
+    if not n_model and not n_const:
+        why = "MaterialX only, which bcfpipe does not read" if set(skips) == {"materialx-only"} else skipped
+        return f"conclusion: a build builds nothing: {len(result.materials)} material(s), none modelled ({why})"
+    tail = f"; skipped: {skipped}" if skipped else ""
+    return (f"conclusion: a build trains {len(grouping.groups)} texture set(s) for {n_model} material(s) and "
+            f"authors {n_const} constant material(s){tail}")
 
 
 def _print_human(result: StageScan, grouping: Grouping, reqs: dict, console: Console) -> None:
-    """Stage facts, the table and a summary line."""
-    console.print(f"[bold]{result.path}[/bold]", highlight=False)
-    console.print(
-        f"upAxis={result.up_axis}  metersPerUnit={result.meters_per_unit:g}  "
-        f"defaultPrim={result.default_prim or '-'}  rendered gprims={result.rendered_gprims}",
-        highlight=False,
-    )
+    """Stage facts, one block per material, the variant selections that bind other materials,
+    and the conclusion."""
+    say = lambda text: console.print(text, highlight=False, soft_wrap=True)  # noqa: E731
+    say(f"[bold]{result.path}[/bold]")
+    say(f"upAxis={result.up_axis}  metersPerUnit={result.meters_per_unit:g}  "
+        f"defaultPrim={result.default_prim or '-'}  rendered gprims={result.rendered_gprims}")
     for prim, vset, value in result.variant_selections:
-        console.print(f"variant {vset}={value} on {prim}", highlight=False)
+        say(f"variant {vset}={value} on {prim}")
     for target in result.dangling_bindings:
-        console.print(f"[yellow]warning:[/yellow] binding to missing material {target}", highlight=False)
-    for error in result.composition_errors:
-        console.print(f"[yellow]composition error:[/yellow] {error}", highlight=False)
-    for note in result.diagnostics:
-        console.print(f"[yellow]usd:[/yellow] {note}", highlight=False)
-    if result.materials:
-        console.print(_table(result, grouping, reqs))
-    for path in sorted(grouping.instanced):
-        console.print(f"[yellow]skip:[/yellow] {path}: {INSTANCED_MESSAGE}", highlight=False)
+        say(f"[yellow]warning:[/yellow] binding to missing material {target}")
+    for error in counted(result.composition_errors):
+        say(f"[yellow]composition error:[/yellow] {escape(error)}")
+    for note in counted(result.diagnostics):
+        say(f"[yellow]usd:[/yellow] {escape(note)}")
+    hidden = [m for m in result.materials if m.reason == "not-selected"]
+    for m in result.materials:
+        if m.reason != "not-selected":
+            _print_material(m, grouping, reqs, console)
+    if hidden:
+        say(f"{len(hidden)} other material(s) not named by --material")
+    for vset, value, mats in result.binding_variants:
+        say(f"[yellow]variant[/yellow] {vset}={value} binds {len(mats)} material(s) these selections leave "
+            f"unbound (e.g. {mats[0]}): add --variant {vset}={value} to scan or build them")
+    if result.variants_untried:
+        say(f"[dim]{result.variants_untried} more variant choice(s) not tried for bindings[/dim]")
     for path, message in grouping.failed.items():
-        console.print(f"[red]unreadable:[/red] {path}: {message}", highlight=False)
-    n_model = sum(len(g.materials) for g in grouping.groups)
-    n_const = len(grouping.constant)
-    console.print(
-        f"{len(result.materials)} material(s): {n_model} to model "
-        f"({len(grouping.groups)} distinct texture set(s), one training each), "
-        f"{n_const} constant (values authored, nothing trained), "
-        f"{len(result.materials) - n_model - n_const} not modelled",
-        highlight=False,
-    )
+        say(f"[red]unreadable:[/red] {path}: {escape(message)}")
     tot = reqs["totals"]
-    console.print(
-        f"a build writes ~{tot['estimated_bytes'] / 2**20:.2f} MiB ({tot['texture_sets']} texture set(s)); "
+    say(f"a build writes ~{tot['estimated_bytes'] / 2**20:.2f} MiB ({tot['texture_sets']} texture set(s)); "
         f"modelling everything (no folding, no density cap): ~{tot['everything_estimated_bytes'] / 2**20:.2f} MiB "
-        f"({tot['everything_texture_sets']} texture set(s))", highlight=False)
+        f"({tot['everything_texture_sets']} texture set(s))")
+    say(f"[bold]{_conclusion(result, grouping)}[/bold]")
 
 
 @click.command("scan", cls=Command)
 @click.argument("scene", type=click.Path(path_type=Path, dir_okay=False))
 @variant_option
 @all_materials_option
+@material_option
 @texel_density_option
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout instead of a table.")
-def scan(scene: Path, variants: dict[str, str], all_materials: bool, texel_density: float | None,
-         as_json: bool) -> None:
+def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: tuple[str, ...],
+         texel_density: float | None, as_json: bool) -> None:
     """Scan SCENE's UsdPreviewSurface materials: which ones `build` would model, and why not.
 
     Also what the scene requires: channels folded (constant or duplicate), the source's texel
@@ -152,7 +176,7 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, texel_densi
     """
     from bcfpipe.scan.requirements import requirements
 
-    result = scan_stage(scene, variants or None, all_materials=all_materials)
+    result = scan_stage(scene, variants or None, all_materials=all_materials, materials=materials)
     cache: dict = {}
     grouping = group_materials(scene, variants, result.materials, cache, digest=False)
     everything = group_materials(scene, variants, result.materials, cache, digest=False, fold=False)
@@ -160,7 +184,7 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, texel_densi
     if as_json:
         d = result.to_dict()
         for m, md in zip(result.materials, d["materials"]):
-            md["decision"] = decision(m, grouping)
+            md["decision"], md["reason"], md["message"] = grouping.outcome(m)
             mm = grouping.model_of(m.path)
             md["folded"] = [f.to_dict() for f in mm.folded] if mm else []
             md["constants"] = [{"target": c.target, "input": c.input, "value": c.value} for c in mm.constants] \
@@ -174,3 +198,4 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, texel_densi
         click.echo(json.dumps(d, indent=2))
         return
     _print_human(result, grouping, reqs, Console())
+    return None

@@ -3,8 +3,9 @@ framebuffer, one sample per pixel, with a depth buffer and no culling.
 
 Resources are uploaded once per renderer: BC6H feature mip chains as stored in the DDS files,
 weight buffers as shader storage, original texture files at their own resolution with GL's
-mip generation (8-bit files as RGBA8, others as RGBA16F), trilinear, no anisotropy, so both
-paths filter alike. Colour decoding (sRGB) happens after filtering in both, as in the decoder.
+mip generation (8-bit files as RGBA8, others as RGBA16F; colour as stored, not premultiplied by
+alpha, as training reads it), trilinear, no anisotropy, so both paths filter alike. Colour
+decoding (sRGB) happens after filtering in both, as in the decoder.
 """
 from __future__ import annotations
 
@@ -147,14 +148,16 @@ class Renderer:
         return int(n_hidden), int(n_out)
 
     def _original_texture(self, path: str, wrap: tuple[str, str], color_space: str) -> tuple[int, bool]:
-        """(GL texture, decoded as sRGB) for a UsdUVTexture file; rgba slots as its r, g, b, a."""
+        """(GL texture, decoded as sRGB) for a UsdUVTexture file; rgba slots as its r, g, b, a.
+        Colour is read as stored (unassociated alpha), as training reads it: OpenImageIO would
+        otherwise premultiply it by alpha and draw the original darker than its file."""
         key = (path, wrap, color_space)
         if key in self._originals:
             return self._originals[key]
         from bcfpipe.formats import images
         from bcfpipe.formats.images import channel_index as source_channel_index
 
-        im = images.read(local_file(path, self._tmp.name), as_float=True, name=path)
+        im = images.read(local_file(path, self._tmp.name), as_float=True, unassociated_alpha=True, name=path)
         px, names = im.pixels, im.names
         rgba = np.zeros((*px.shape[:2], 4), np.float32)
         for slot, letter in enumerate("rgba"):

@@ -4,6 +4,7 @@ docstring)."""
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from contextlib import contextmanager
 from typing import Iterable, Iterator, Mapping
@@ -226,3 +227,62 @@ def bound_materials(stage: Usd.Stage, gprims: list[Usd.Prim]) -> tuple[dict[str,
                 if target and not stage.GetPrimAtPath(target):
                     dangling.add(target)
     return bound, dangling
+
+
+#: (prim, set, value) trials `binding_variants` makes at most: each recomposes part of the stage
+MAX_VARIANT_TRIALS = 64
+
+
+def binding_variants(stage: Usd.Stage, bound: Iterable[str]) -> tuple[tuple[tuple[str, str, tuple[str, ...]], ...], int]:
+    """The variant selections that bind materials the current selections leave unbound:
+    ((set, value, (material, ...)), ...) with the materials' definition paths; and how many
+    (prim, set, value) choices were left untried (past ``MAX_VARIANT_TRIALS``). Each other value
+    of each variant set is selected in the session layer, the bindings recomputed, and the
+    selection put back, so the stage ends as it began."""
+    choices: list[tuple[str, str, str, str]] = []
+    for prim in stage.Traverse():
+        vsets = prim.GetVariantSets()
+        for name in vsets.GetNames():
+            vset = vsets.GetVariantSet(name)
+            current = vset.GetVariantSelection()
+            choices.extend((str(prim.GetPath()), name, value, current)
+                           for value in vset.GetVariantNames() if value != current)
+    known = set(bound)
+    found: dict[tuple[str, str], set[str]] = {}
+    with Usd.EditContext(stage, stage.GetSessionLayer()):
+        for path, name, value, current in choices[:MAX_VARIANT_TRIALS]:
+            prim = stage.GetPrimAtPath(path)
+            if not prim:
+                continue
+            vset = prim.GetVariantSets().GetVariantSet(name)
+            vset.SetVariantSelection(value)
+            now, _ = bound_materials(stage, rendered_gprims(stage))
+            new = set(now) - known
+            if new:
+                found.setdefault((name, value), set()).update(new)
+            prim = stage.GetPrimAtPath(path)
+            prim.GetVariantSets().GetVariantSet(name).SetVariantSelection(current)
+    return (tuple((s, v, tuple(sorted(m))) for (s, v), m in sorted(found.items())),
+            max(0, len(choices) - MAX_VARIANT_TRIALS))
+
+
+def counted(lines: Iterable[str]) -> list[str]:
+    """Messages that differ only in the prim path they name (``<...>``) reported once, with a
+    count: ``Could not open asset @a.mtlx@ … </World/M1> (and 39 more like it)``."""
+    groups: dict[str, list[str]] = {}
+    for line in lines:
+        groups.setdefault(re.sub(r"<[^<>]*>", "<>", line), []).append(line)
+    return [members[0] + (f" (and {len(members) - 1} more like it)" if len(members) > 1 else "")
+            for members in groups.values()]
+
+
+def mtlx_assets(prim: Usd.Prim) -> tuple[str, ...]:
+    """The MaterialX documents (.mtlx) a prim references or loads as a payload, as authored."""
+    found: list[str] = []
+    for spec in prim.GetPrimStack():
+        for op in (spec.referenceList, spec.payloadList):
+            for item in (*op.explicitItems, *op.prependedItems, *op.appendedItems, *op.addedItems):
+                path = item.assetPath or ""
+                if path.lower().endswith(".mtlx"):
+                    found.append(path)
+    return tuple(dict.fromkeys(found))

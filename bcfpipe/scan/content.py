@@ -50,12 +50,13 @@ def _step(arr: np.ndarray, lo: float, hi: float) -> float:
 
 
 def read_stored(path: str) -> tuple[np.ndarray, tuple[str, ...]]:
-    """The texels of a resolved path at their stored type, (H, W, C), and its channel names."""
+    """The texels of a resolved path at their stored type, (H, W, C), and its channel names; colour
+    as stored (unassociated alpha), as the training loader and Hydra read it."""
     from bcfpipe.formats import images
     from bcfpipe.scan.texture_sets import local_file
 
     with tempfile.TemporaryDirectory() as tmp:
-        im = images.read(local_file(path, tmp), name=path)
+        im = images.read(local_file(path, tmp), unassociated_alpha=True, name=path)
     return im.pixels, im.names
 
 

@@ -30,6 +30,10 @@ PREVIEW_SURFACE_INPUTS: dict[str, Any] = {
 
 
 
+#: TextureRef problem codes for which the UsdUVTexture gives its ``fallback`` value.
+FALLBACK_PROBLEMS = frozenset({"no-file", "missing"})
+
+
 class ScanError(InputError):
     """The stage cannot be scanned at all (missing, unreadable, bad variant request)."""
 
@@ -68,7 +72,8 @@ class TextureRef:
     (``pkg.usdz[inner/path.png]`` inside packages; empty when unresolved).
     ``problem`` is None when the file is usable, else a short message, with
     ``problem_code`` one of ``no-file``, ``missing``, ``udim``, ``time-sampled``,
-    ``bad-channel``.
+    ``bad-channel``. Without a file, or with one that does not resolve, the node gives its
+    ``fallback`` (as Hydra does): see :attr:`uses_fallback`.
     """
 
     shader: str
@@ -92,6 +97,17 @@ class TextureRef:
         return self.problem is None
 
     @property
+    def uses_fallback(self) -> bool:
+        """True when the node outputs its ``fallback`` instead of texels: no file authored, or a
+        file that does not resolve (Hydra draws the fallback there; a UDIM pattern or a
+        time-sampled path is a different problem, which skips the material)."""
+        return self.problem_code in FALLBACK_PROBLEMS
+
+    def fallback_value(self, channel: str) -> float:
+        """The fallback's component for an output channel letter (r, g, b, a)."""
+        return float(self.fallback["rgba".index(channel)])
+
+    @property
     def effective_wrap(self) -> tuple[str, str]:
         """(wrapS, wrapT) with ``useMetadata`` read as ``repeat``."""
         def effective(wrap: str) -> str:
@@ -103,6 +119,7 @@ class TextureRef:
         """JSON-ready dict (adds ``ok`` and ``effective_wrap``)."""
         d = asdict(self)
         d["ok"] = self.ok
+        d["uses_fallback"] = self.uses_fallback
         d["effective_wrap"] = list(self.effective_wrap)
         return d
 
@@ -229,6 +246,9 @@ class StageScan:
     composition_errors: tuple[str, ...] = ()
     diagnostics: tuple[str, ...] = ()
     layers: tuple[str, ...] = ()  # files of every composed layer (a packaged layer: its .usdz)
+    #: (set, value, materials): variant selections that bind materials these selections leave unbound
+    binding_variants: tuple[tuple[str, str, tuple[str, ...]], ...] = ()
+    variants_untried: int = 0  # variant choices past the trial limit, not checked
 
     @property
     def to_model(self) -> tuple[MaterialScan, ...]:
@@ -265,6 +285,8 @@ class StageScan:
             "composition_errors": list(self.composition_errors),
             "diagnostics": list(self.diagnostics),
             "layers": list(self.layers),
+            "binding_variants": [{"set": s, "value": v, "materials": list(m)} for s, v, m in self.binding_variants],
+            "variants_untried": self.variants_untried,
             "summary": {
                 "materials": len(self.materials),
                 "model": len(self.to_model),

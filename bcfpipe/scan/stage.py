@@ -16,12 +16,16 @@ reason                 when
 ``not-preview-surface`` the universal surface is not a UsdPreviewSurface (or none)
 ``unbound``            no rendered geometry binds it (ignored with ``all_materials``)
 ``no-textures``        every UsdPreviewSurface input is a constant (or a primvar)
-``unresolvable-file``  some texture's file is missing, unauthored, a ``<UDIM>``
-                       pattern or time-sampled without a default (or the texture
-                       output used is not r/g/b/a/rgb).  One bad texture
-                       skips the whole material: a neural material replaces all of
-                       its textures at once, so a partial set cannot be trained.
+``unresolvable-file``  some texture's file is a ``<UDIM>`` pattern or time-sampled
+                       without a default (or the texture output used is not
+                       r/g/b/a/rgb).  One such texture skips the whole material:
+                       a neural material replaces all of its textures at once.
+                       A texture with no file, or whose file does not resolve,
+                       gives its ``fallback`` instead, as Hydra does (a constant,
+                       with a warning); a material whose every texture does so is
+                       ``constant``.
 ``scan-error``         anything unexpected while reading that one material
+``not-selected``       ``--material`` names other materials (checked first)
 =====================  ====================================================
 
 Choices worth knowing:
@@ -51,20 +55,21 @@ from __future__ import annotations
 import os
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 from pxr import Ar, Usd, UsdGeom, UsdShade
 
 from bcfpipe.formats.vocabulary import ColorSpace, Decision
-from bcfpipe.scan.composition import (apply_variants, bound_materials, captured_diagnostics, composition_errors,
-                                      definition_path, first_line, new_diagnostics, open_stage, rendered_gprims)
+from bcfpipe.scan.composition import (apply_variants, binding_variants, bound_materials, captured_diagnostics,
+                                      composition_errors, definition_path, first_line, mtlx_assets, new_diagnostics,
+                                      open_stage, rendered_gprims)
 from bcfpipe.scan.density import MaterialDensity, material_bindings, material_density
 from bcfpipe.scan.network import COLOR_INPUTS, WRAP_MODES, scan_input, shader_id
 from bcfpipe.scan.results import (PREVIEW_SURFACE_INPUTS, ChannelUse, InputScan,
-                                  MaterialScan, StageScan)
+                                  MaterialScan, ScanError, StageScan)
 
 
-def _targets(name: str, channel: str) -> list[tuple[str, str]]:
+def texture_targets(name: str, channel: str) -> list[tuple[str, str]]:
     """(texture channel, UsdPreviewSurface target) pairs for `name` read through `channel`."""
     if channel == "rgb":
         if name == "normal":
@@ -82,9 +87,16 @@ def channel_uses(inputs: Iterable[InputScan]) -> tuple[ChannelUse, ...]:
         tex = inp.texture
         if inp.kind != "texture" or tex is None or not tex.ok:
             continue
-        for channel, target in _targets(inp.name, tex.channel):
+        for channel, target in texture_targets(inp.name, tex.channel):
             uses.append(ChannelUse(tex.resolved_path, channel, target, inp.name, tex.source_color_space))
     return tuple(uses)
+
+
+def _fallback_text(tex) -> str:
+    """The fallback components a texture's output reads, e.g. ``(0, 0, 1)`` for rgb."""
+    letters = "rgb" if tex.channel == "rgb" else tex.channel
+    values = [f"{tex.fallback_value(c):g}" for c in letters]
+    return values[0] if len(values) == 1 else f"({', '.join(values)})"
 
 
 def input_warnings(inputs: Iterable[InputScan]) -> tuple[str, ...]:
@@ -97,6 +109,9 @@ def input_warnings(inputs: Iterable[InputScan]) -> tuple[str, ...]:
         elif inp.kind == "constant" and inp.detail:
             notes.append(f"{inp.name}: {inp.detail}")
         if tex is None:
+            continue
+        if tex.uses_fallback:
+            notes.append(f"{inp.name}: {tex.problem}; its fallback {_fallback_text(tex)} is used, as Hydra does")
             continue
         if tex.st.kind == "constant":
             notes.append(f"{inp.name}: st not connected, texture sampled at {tex.st.value}")
@@ -130,7 +145,7 @@ def decide(
         others = [i.name for i in inputs if i.kind != "constant"]
         tail = f"; {', '.join(others)} from primvars/other nodes" if others else ""
         return Decision.SKIP, "no-textures", f"no texture inputs (constants{tail})"
-    bad = [i for i in textured if i.texture is not None and not i.texture.ok]
+    bad = [i for i in textured if i.texture is not None and not i.texture.ok and not i.texture.uses_fallback]
     if bad:
         detail = "; ".join(f"{i.name}: {i.texture.problem}" for i in bad)  # type: ignore[union-attr]
         return Decision.SKIP, "unresolvable-file", detail
@@ -141,6 +156,10 @@ def decide(
 def _surface(material: UsdShade.Material) -> tuple[UsdShade.Shader | None, tuple[str, str] | None]:
     """The universal surface shader and, if it is not a usable UsdPreviewSurface, (reason, message)."""
     shader, _, _ = material.ComputeSurfaceSource("")
+    mtlx = mtlx_assets(material.GetPrim())
+    if not shader and mtlx:
+        return None, ("materialx-only", f"defined in the MaterialX document {Path(mtlx[0]).name}, which bcfpipe "
+                                        "does not read")
     if not shader:
         names = [o.GetBaseName() for o in material.GetSurfaceOutputs() if o.HasConnectedSource()]
         contexts = sorted({n.split(":")[0] for n in names if ":" in n})
@@ -248,15 +267,32 @@ def _density(ms: MaterialScan, bindings, meters_per_unit: float) -> MaterialDens
     return material_density(bindings, st.varname, meters_per_unit, (0, 0), st.transform)
 
 
+def _select(scans: list[MaterialScan], wanted: Sequence[str]) -> list[MaterialScan]:
+    """``scans`` with every material that ``wanted`` does not name (by path or instance alias)
+    skipped as ``not-selected``; a name that matches no material is a ScanError."""
+    names = {m.path for m in scans} | {a for m in scans for a in m.aliases}
+    unknown = [w for w in wanted if w.rstrip("/") not in names]
+    if unknown:
+        raise ScanError(f"--material {unknown[0]}: no material at that path on the composed stage "
+                        f"(`bcfpipe scan` lists the {len(scans)} there)")
+    keep = {w.rstrip("/") for w in wanted}
+    return [m if m.path in keep or keep.intersection(m.aliases) else
+            replace(m, decision=Decision.SKIP, reason="not-selected", message="not named by --material",
+                    channel_uses=(), density=None)
+            for m in scans]
+
+
 def scan_stage(
     path: str | os.PathLike[str],
     variants: Mapping[str, str] | None = None,
     all_materials: bool = False,
+    materials: Sequence[str] = (),
 ) -> StageScan:
-    """Compose the stage at `path`, apply `variants`, and decide model/skip for every material.
+    """Compose the stage at `path`, apply `variants`, and decide model/skip for every material;
+    with ``materials`` (paths), every other material is skipped as ``not-selected``.
 
     Raises ScanError only for stage-level problems (missing or unparsable file,
-    unknown variant); per-material problems become skips.
+    unknown variant or material); per-material problems become skips.
     """
     with captured_diagnostics() as found:
         stage = open_stage(path)
@@ -276,6 +312,9 @@ def scan_stage(
                 scans.append(ms)
             except Exception as exc:  # noqa: BLE001 - one bad material must not stop the scan
                 scans.append(_error_scan(str(prims[0].GetPath()), exc, purposes, aliases))
+        variant_bindings, untried = binding_variants(stage, bound)
+    if materials:
+        scans = _select(scans, materials)
     errors = composition_errors(stage)
     return StageScan(
         path=str(Path(path).resolve()),
@@ -287,5 +326,7 @@ def scan_stage(
         composition_errors=errors,
         diagnostics=new_diagnostics(found, errors),
         layers=used_files(stage),
+        binding_variants=variant_bindings,
+        variants_untried=untried,
         **_stage_facts(stage),
     )

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Iterable, Mapping, Sequence
 
 from bcfpipe.formats.vocabulary import ColorSpace, Decision, Wrap
 from bcfpipe.errors import one_line
-from bcfpipe.formats.images import ImageReadError
+from bcfpipe.formats.images import ImageReadError, MissingChannel
 
 import xxhash
 
@@ -142,7 +142,8 @@ def source_file(path: str, asset_path: str, color_space: str, cache: dict, diges
 class FoldedChannel:
     """A source channel that is not a decoder output (issue #18): ``constant`` (``value`` in stored
     units), ``unread`` (st not connected: the texture is read at one point, whose ``value`` replaces
-    it) or ``duplicate`` (its texels are ``same_as``'s, which the decoder outputs instead)."""
+    it), ``no-alpha`` (the ``a`` of a file without alpha: 1, as Hydra reads it) or ``duplicate``
+    (its texels are ``same_as``'s, which the decoder outputs instead)."""
 
     file: str
     channel: str
@@ -152,7 +153,7 @@ class FoldedChannel:
 
     def to_dict(self) -> dict:
         d = {"file": self.file, "channel": self.channel, "reason": self.reason}
-        if self.reason in ("constant", "unread"):
+        if self.reason != "duplicate":
             d["value"] = self.value
         else:
             d["same_as"] = {"file": self.same_as.file, "channel": self.same_as.channel}
@@ -222,13 +223,22 @@ class Canonical:
         return first
 
 
+#: the content digest of an ``a`` read from a file without alpha, which Hydra reads as 1
+NO_ALPHA = "no-alpha"
+
+
 def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash: str = "", facts=None):
-    """The channel's content, or, for a file whose texels cannot be read, a content that is neither
-    constant nor a duplicate of anything (training will report the file)."""
+    """The channel's content; alpha = 1 for the ``a`` of a file without alpha (as Hydra reads it);
+    for a file whose texels cannot be read, a content that is neither constant nor a duplicate of
+    anything (training will report the file)."""
     from bcfpipe.scan.content import ChannelContent, content_of
 
     try:
         return content_of(path, letter, cache, file_hash, facts)
+    except MissingChannel:
+        if letter != "a":
+            raise
+        return ChannelContent(1.0, 1.0, 1.0, NO_ALPHA, True)
     except ImageReadError:
         raise  # a damaged file is the user's to fix: the material cannot be modelled from it
     except (OSError, ValueError) as exc:
@@ -280,7 +290,8 @@ def _fold(inp, tex, src: SourceFile, raw: list[ModelChannel], m: _Model, file_ca
     contents = [_content(k.file, k.channel, file_cache, m.warnings, src.xxh3_128, facts) for k in raw]
     unread = tex.st.kind == "constant" and tex.st.value is not None
     if unread:  # st not connected: the texture is read at one point; that value replaces it
-        contents = [_at(k.file, k.channel, tex.st.value, tex.effective_wrap, file_cache, m.warnings, c)
+        contents = [c if c.digest == NO_ALPHA else
+                    _at(k.file, k.channel, tex.st.value, tex.effective_wrap, file_cache, m.warnings, c)
                     for k, c in zip(raw, contents)]
     if is_normal:
         z = (_content(src.path, "b", file_cache, m.warnings, src.xxh3_128, facts)
@@ -298,7 +309,8 @@ def _fold(inp, tex, src: SourceFile, raw: list[ModelChannel], m: _Model, file_ca
                 for k, c in zip(raw, contents)]
     for k, key, c in zip(raw, keys, contents):
         if key is None:
-            m.folded.append(FoldedChannel(k.file, k.channel, "unread" if unread else "constant", value=c.mean))
+            reason = "no-alpha" if c.digest == NO_ALPHA else "unread" if unread else "constant"
+            m.folded.append(FoldedChannel(k.file, k.channel, reason, value=c.mean))
         elif key != k:
             m.folded.append(FoldedChannel(k.file, k.channel, "duplicate", same_as=key))
             m.sources.setdefault(key.file, canonical.sources[key.file])
@@ -351,6 +363,17 @@ def _add_targets(inp, tex, src: SourceFile, uses, keys: list[ModelChannel | None
         m.targets.append(ChannelTarget(u.target, inp.name, key, s, b, cs))
 
 
+def _add_fallback(inp, tex, m: _Model) -> None:
+    """The constants of an input whose UsdUVTexture gives its fallback (no file, or one that does
+    not resolve): the fallback's components, unscaled, as Hydra outputs them."""
+    from bcfpipe.scan.stage import texture_targets
+
+    for channel, target in texture_targets(inp.name, tex.channel):
+        m.constants.append(ConstantTarget(target, inp.name, tex.fallback_value(channel), "", channel))
+    if inp.name == "normal" and tex.channel == "rgb":
+        m.constants.append(ConstantTarget("normal.z", inp.name, tex.fallback_value("b"), "", "b"))
+
+
 def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, canonical: Canonical | None = None,
                    fold: bool = True, facts=None) -> MaterialModel:
     """Map a scanned material's texture inputs to model channels, texset specs and targets.
@@ -363,6 +386,9 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
     for inp in ms.texture_inputs:
         tex = inp.texture
         assert tex is not None
+        if tex.uses_fallback:
+            _add_fallback(inp, tex, m)
+            continue
         src = source_file(tex.resolved_path, tex.asset_path, tex.source_color_space, file_cache, digest)
         m.sources[src.path] = src
         uses = [u for u in ms.channel_uses if u.input == inp.name]
@@ -475,6 +501,21 @@ class Grouping:
             return self.group_of(material)[1]
         except KeyError:
             return None
+
+    def outcome(self, ms: "MaterialScan") -> tuple[str, str | None, str]:
+        """(decision, reason, message) of a scanned material: the one answer `scan`, `plan` and
+        `build` all give. A skip keeps the scan's reason; ``instanced`` skips; ``failed`` is a
+        material to model whose textures could not be read."""
+        if ms.decision != Decision.MODEL:
+            return Decision.SKIP, ms.reason, ms.message
+        if ms.path in self.instanced:
+            return Decision.SKIP, "instanced", INSTANCED_MESSAGE
+        if ms.path in self.failed:
+            return Decision.MODEL, "failed", self.failed[ms.path]
+        if ms.path in self.constant:
+            n = len(self.constant[ms.path].constants)
+            return Decision.CONSTANT, None, f"every textured input is constant: {n} value(s) authored, nothing trained"
+        return Decision.MODEL, None, ms.message
 
     def group_of(self, material: str) -> tuple[TextureSetGroup, MaterialModel]:
         for g in self.groups:

@@ -54,7 +54,7 @@ def check_source_constancy(root: Path, material: mfst.Material) -> list[str]:
         path = f.source if Path(f.source).is_absolute() or package_split(f.source) else str(root / f.source)
         with tempfile.TemporaryDirectory() as tmp:
             try:
-                im = images.read(local_file(path, tmp), as_float=True, name=f.source)
+                im = images.read(local_file(path, tmp), as_float=True, unassociated_alpha=True, name=f.source)
             except images.ImageReadError as exc:
                 problems.append(str(exc))
                 continue
