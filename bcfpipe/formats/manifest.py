@@ -57,7 +57,8 @@ class Target(Record):
 
 @dataclass(frozen=True)
 class Constant(Record):
-    """A UsdPreviewSurface input channel whose texture channel is constant: the value authored for it."""
+    """A UsdPreviewSurface input channel whose texture channel is constant, or whose texture gives
+    its fallback (``source`` empty): the value authored for it."""
 
     target: str
     input: str
@@ -69,8 +70,8 @@ class Constant(Record):
 @dataclass(frozen=True)
 class Folded(Record):
     """A source channel that is not a decoder output: ``constant`` (its stored ``value``), ``unread``
-    (read at one point, whose ``value`` replaces it) or ``duplicate`` (its texels equal
-    ``same_as_source``'s ``same_as_channel``)."""
+    (read at one point, whose ``value`` replaces it), ``no-alpha`` (the ``a`` of a file without
+    alpha: 1) or ``duplicate`` (its texels equal ``same_as_source``'s ``same_as_channel``)."""
 
     source: str
     channel: str
