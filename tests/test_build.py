@@ -601,6 +601,62 @@ def test_plain_progress_lines() -> None:
     assert "[1/1: 1 trained, 0 cached, 0 failed; 0 running, 0 queued]" in lines[1]
 
 
+def test_plain_progress_at_least_every_10_seconds() -> None:
+    """Plain lines on a fake clock, ticked once a second as the Ticker does, through two texture
+    sets: A's phases come with events (some shorter than a second), B sits 40 s in one call
+    without any. A line comes at least every LINE_SECONDS + TICK_SECONDS (under 10 s), also
+    before the jobs are known and after they end; no texture set prints two lines within a
+    second before its end; every phase is named but those of the last second before an end."""
+    import re
+
+    from rich.console import Console
+
+    from bcfpipe.train.pace import LINE_SECONDS, TICK_SECONDS
+
+    def ev(job, kind="progress", **kw):
+        return ProgressEvent(**{"event": kind, "job": job, **kw})
+
+    events: dict[float, list] = {12.0: [ev("A", "queued"), ev("B", "queued")], 14.0: [ev("A", phase="load")],
+                                 14.25: [ev("B", phase="load")], 15.0: [ev("A", phase="warmup", step=1, steps=100)],
+                                 15.5: [ev("B", phase="warmup", step=1, steps=100, psnr=20.0, eta=80.0)],
+                                 15.75: [ev("A", phase="encode", step=0, steps=8)],
+                                 16.0: [ev("A", phase="encode", step=8, steps=8)],
+                                 55.0: [ev("B", phase="encode", step=8, steps=8)],
+                                 62.0: [ev("B", "done", status="built", psnr=30.0, seconds=48.0)]}
+    for k in range(1, 120):  # A's constrained phase: a report every 0.25 s
+        events.setdefault(16.0 + 0.25 * k, []).append(ev("A", phase="constrained", step=5 * k, steps=600, psnr=25.0,
+                                                         eta=40.0))
+    events[46.25] = [ev("A", phase="quantize")]
+    events[46.5] = [ev("A", phase="finetune", step=1, steps=50)]
+    events[47.0] = [ev("A", phase="evaluate")]
+    events[47.25] = [ev("A", "done", status="built", psnr=31.0, seconds=33.0)]
+    now = [0.0]
+    buf = io.StringIO()
+    display = BuildDisplay(Console(file=buf, width=300), live=False, clock=lambda: now[0])
+    end = 80.0
+    for i in range(int(end / 0.25) + 1):
+        now[0] = 0.25 * i
+        for e in events.get(now[0], []):
+            display(e)
+        if now[0] % TICK_SECONDS == 0:
+            display.tick()
+    lines = [(float(m.group(1)), m.group(2)) for m in (re.match(r"\[\s*([\d.]+)s\] \[[^]]*\] (.*)", ln)
+                                                        for ln in buf.getvalue().splitlines())]
+    times = [0.0] + [t for t, _ in lines] + [end]
+    assert max(np.diff(times)) <= LINE_SECONDS + TICK_SECONDS < 10, lines
+    for job in "AB":
+        mine = [t for t, text in lines if text.startswith(f"{job}: ") and "built in" not in text]
+        assert min(np.diff(mine)) >= TICK_SECONDS, (job, lines)
+    texts = [text for _, text in lines]
+    assert texts[0] == "planning" and texts[-1] == "writing the results"
+    named = {ph for text in texts if text.startswith("A: ") and "in this phase" not in text and "built" not in text
+             for ph in text[3:].split(", ")}
+    assert named == {"load", "warmup", "encode", "constrained", "quantize"}  # not the last second's
+    assert "B: warmup" in texts and "B: encode" in texts
+    assert any(t.startswith("B: warmup 1/100, ") and "s in this phase, batch PSNR 20.00 dB, ETA 80s" in t
+               for t in texts), "\n".join(texts)
+
+
 def test_progress_counts_every_state() -> None:
     """queued, running, trained, cached and failed are counted (the live title and the plain lines)."""
     from rich.console import Console

@@ -56,10 +56,11 @@ def test_train_and_build_take_the_same_training_options():
     only_build = set(build) - set(names)
     assert only_train == {"output", "resolution", "wrap", "force", "as_json"}
     # --texel-density and --no-coverage read the scene's meshes (train's --resolution is the first's counterpart)
-    # --shard, --executor and --ray-address choose which jobs run and where, not how they train
-    assert only_build == {"out", "variants", "all_materials", "jobs", "as_json", "force", "run_verify_after",
-                          "cache_dir", "no_cache", "depfile", "depfile_target", "texel_density", "no_coverage",
-                          "shard", "executor_name", "ray_address"}
+    # --shard, --executor and --ray-address choose which jobs run and where, not how they train;
+    # --material which materials are built; -v how much --verify prints
+    assert only_build == {"out", "variants", "all_materials", "materials", "jobs", "as_json", "force",
+                          "run_verify_after", "verbose", "cache_dir", "no_cache", "depfile", "depfile_target",
+                          "texel_density", "no_coverage", "shard", "executor_name", "ray_address"}
 
 
 def _scenes(root):

@@ -74,3 +74,80 @@ def test_stratified_scale_power_favours_fine_lods():
         s = np.array([nxt() for _ in range(16 * 200)])
         assert s.min() >= 0 and s.max() <= 11.0
         assert abs(np.mean(s < 11.0 / 4) - share) < 0.02
+
+
+class _FakeClock:
+    """A clock that moves ``dt`` seconds each time it is read: a training of slow steps."""
+
+    def __init__(self, dt: float):
+        self.now, self.dt = 1000.0, dt
+
+    def __call__(self) -> float:
+        self.now += self.dt
+        return self.now
+
+
+def test_progress_comes_on_time_and_changes_nothing():
+    """With steps of 0.25 s (a fake clock) and no step-based reports, every phase reports at
+    least every second; the phases without steps (encode, quantize) report as they start. The
+    trained material is bit for bit the one trained without progress, and the loss history
+    (step-based) is unchanged."""
+    from bcfpipe.train.pace import Pace
+    from bcfpipe.train.trainer import train
+
+    data = np.random.default_rng(1).uniform(0, 1, (32, 32, 3)).astype(np.float32)
+    ts = TextureSet(data, tuple(Channel("albedo", c, "color", "gen", i) for i, c in enumerate("rgb")), 32, 32)
+    quick = Preset(PhaseSchedule(30, 0.5, 5e-3, 0.99, 0.99), PhaseSchedule(30, 0.1, 5e-3, 0.99, 0.99),
+                   PhaseSchedule(10, 0.0, 2e-3, 1.0, 0.99), 256)
+    cfg = TrainConfig(model=ModelConfig(resolutions=(16, 8, 8, 4)), preset=quick, seed=3, device="cpu", threads=1)
+    clock = _FakeClock(0.25)
+    seen = []
+    tm = train(ts, cfg, lambda p: seen.append((clock.now, p)), pace=Pace(every=10**6, seconds=1.0, clock=clock))
+    plain = train(ts, cfg, pace=Pace(every=10**6))
+    assert [p.phase for _, p in seen if p.phase in ("encode", "quantize") and p.step == 0] == ["encode", "quantize"]
+    phases = [p.phase for _, p in seen]
+    assert sorted(set(phases), key=phases.index) == ["warmup", "encode", "constrained", "quantize", "finetune"]
+    gaps = np.diff([t for t, _ in seen])
+    assert gaps.max() <= 1.0 + 0.25 + 1e-9, gaps  # due after 1 s, noticed at the end of that step
+    assert all(p.step - q.step <= 5 for (_, q), (_, p) in zip(seen, seen[1:])
+               if p.phase == q.phase and p.phase != "encode")
+    assert len([p for _, p in seen if p.phase == "warmup"]) >= 30 // 5
+    assert tm.history == [(ph, n, tm.history[i][2]) for i, (ph, n) in
+                          enumerate([("warmup", 30), ("constrained", 30), ("finetune", 10)])]
+    assert [h[:2] for h in tm.history] == [h[:2] for h in plain.history]
+    assert all(np.array_equal(a, b) for a, b in zip(tm.mlp.arrays(), plain.mlp.arrays()))
+    for la, lb in zip(tm.layers, plain.layers):
+        for a, b in zip(la, lb):
+            assert np.array_equal(a.endpoints, b.endpoints) and np.array_equal(a.indices, b.indices)
+            assert (a.partition is None) == (b.partition is None)
+            assert a.partition is None or np.array_equal(a.partition, b.partition)
+
+
+def test_train_reporter_prints_through_a_long_call():
+    """`bcfpipe train`'s plain lines: the latest report again, its elapsed time brought up to
+    date, once nothing was printed for LINE_SECONDS (a fake clock; the Ticker calls `tick`)."""
+    import io
+    import math
+
+    from rich.console import Console
+
+    from bcfpipe.cli.train import _Reporter
+    from bcfpipe.train.pace import LINE_SECONDS
+    from bcfpipe.train.trainer import Progress
+
+    now = [50.0]
+    buf = io.StringIO()
+    rep = _Reporter(False, Console(file=buf, width=200), clock=lambda: now[0])
+    rep.tick()
+    now[0] += LINE_SECONDS
+    rep.tick()
+    assert buf.getvalue().split() == ["starting", "elapsed", f"{LINE_SECONDS:.0f}s"]
+    rep(Progress("encode", 0, 14, math.nan, math.nan, 3.0, 40.0))  # within 5 s of a line: not printed
+    now[0] += LINE_SECONDS - 0.5
+    rep.tick()
+    assert len(buf.getvalue().splitlines()) == 1
+    now[0] += 0.5
+    rep.tick()
+    assert len(buf.getvalue().splitlines()) == 2
+    last = buf.getvalue().splitlines()[-1].split()
+    assert last[:2] == ["encode", "0/14"] and last[3] == f"{3 + LINE_SECONDS:.0f}s"

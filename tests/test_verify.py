@@ -291,7 +291,7 @@ def test_cli_json_and_exit_codes(materials, tmp_path):
     assert r.exit_code == 0, r.output
     rep = json.loads(r.output)
     assert rep["passed"] and rep["materials"][0]["channels"][5]["name"] == "normal.z"
-    r = CliRunner().invoke(main, ["verify", str(materials["unsigned_repeat"])])
+    r = CliRunner().invoke(main, ["verify", str(materials["unsigned_repeat"]), "-v"])
     assert r.exit_code == 0 and "1/1 material(s) passed" in r.output and "texel edges" in r.output
     r = CliRunner().invoke(main, ["verify", str(materials["unsigned_repeat"]), "--tolerance", "0"])
     assert r.exit_code in (0, 1)  # fixed tolerance 0: passes only if GL is bit-exact
@@ -302,6 +302,111 @@ def test_cli_json_and_exit_codes(materials, tmp_path):
     (bad / "T2.dds").write_bytes((bad / "T2.dds").read_bytes()[:-7])
     r = CliRunner().invoke(main, ["verify", str(bad), "--json"])
     assert r.exit_code == 2 and "truncated" in json.loads(r.output)["materials"][0]["input_error"]
+
+
+@pytest.mark.gl
+def test_cli_one_line_per_material_unless_verbose(materials, tmp_path):
+    """Default: the header (renderer, tolerance), one line per material with its figures, the
+    count; a failure says on its line what failed. -v: every check and the error tables. --json
+    keeps its keys."""
+    from bcfpipe.cli import main
+
+    root = tmp_path / "two"
+    _copy(materials["unsigned_repeat"], root / "a")
+    _copy(materials["signed_clamp_normal"], root / "b")
+    r = CliRunner().invoke(main, ["verify", str(root)])
+    assert r.exit_code == 0, r.output
+    lines = r.stdout.splitlines()
+    assert len(lines) == 2 + 2 + 1, r.stdout
+    assert lines[0].startswith("OpenGL: ") and lines[1].startswith("Tolerance: ")
+    assert [ln.split()[:2] for ln in lines[2:4]] == [["PASS", "a"], ["PASS", "b"]]
+    assert all("glsl: max |GLSL - ONNX| " in ln and "tolerance up to" in ln and " points x " in ln
+               and ln.endswith("ok: files, integrity, weights, openimageio") for ln in lines[2:4])
+    assert lines[4] == "2/2 material(s) passed"
+
+    r = CliRunner().invoke(main, ["verify", str(root), "--verbose"])
+    assert r.exit_code == 0
+    detail = r.stdout.splitlines()
+    assert len(detail) > 2 * 20 and "texel edges" in r.stdout and "by sample group" in r.stdout
+    assert sum(ln.lstrip().startswith("ok   files") for ln in detail) == 2
+
+    _flip_weight(root / "b", 5, ulps=1)
+    r = CliRunner().invoke(main, ["verify", str(root)])
+    assert r.exit_code == 1
+    lines = r.stdout.splitlines()
+    assert len(lines) == 5 and lines[4] == "1/2 material(s) passed"
+    assert lines[3].startswith("FAIL b  integrity: weights.bin differs from its recorded SHA-256; "
+                               "weights: W1: 1 value(s) differ; glsl: max |GLSL - ONNX| "), lines[3]
+
+    r = CliRunner().invoke(main, ["verify", str(root), "--json"])
+    rep = json.loads(r.stdout)
+    assert set(rep) == {"path", "passed", "exit_code", "renderer", "gl_error", "tolerance", "materials"}
+    assert set(rep["materials"][0]) == {"name", "folder", "passed", "input_error", "checks", "n_points", "channels",
+                                        "categories"}
+
+
+def _report(checks, channels=(), n_points=0, input_error=None) -> V.MaterialReport:
+    return V.MaterialReport("/W/M", "/out/m", [V.Check(*c) for c in checks], list(channels), [], n_points,
+                            input_error)
+
+
+def _channel(name, max_abs, max_tol, over=0, category="random") -> dict:
+    return {"name": name, "max_abs": max_abs, "mean_abs": max_abs / 10, "max_tolerance": max_tol,
+            "mean_tolerance": max_tol / 10, "over_tolerance": over,
+            "worst": {"u": 0.5, "v": 0.5, "s": 1.0, "category": category}, "passed": over == 0}
+
+
+def test_material_line_says_what_failed():
+    """The one-line form: failures first with their finding, the GLSL figures of the worst
+    channel (a failing one when any fails), then the checks that passed and were skipped."""
+    from bcfpipe.cli.verify import material_line
+
+    ok = [("files", True, "4 layers"), ("integrity", None, "no SHA-256 recorded"), ("weights", True, "equal"),
+          ("openimageio", True, "14 levels")]
+    line = material_line(_report(ok + [("glsl", True, "fine")],
+                                 [_channel("albedo.r", 1e-7, 2e-3), _channel("normal.x", 3e-7, 5e-4)], 100))
+    assert line == ("glsl: max |GLSL - ONNX| 3e-07 (normal.x; tolerance up to 0.0005), 100 points x 2 channels; "
+                    "ok: files, weights, openimageio; skipped: integrity")
+    line = material_line(_report(ok + [("glsl", False, "over")],
+                                 [_channel("albedo.r", 0.5, 2e-3, over=7, category="texel edges"),
+                                  _channel("normal.x", 0.9, 5e-1)], 100))
+    assert line.startswith("glsl: 7 of 200 values over tolerance, max |GLSL - ONNX| 0.5 (albedo.r; tolerance up "
+                           "to 0.002), worst at texel edges; ok: files, weights")
+    line = material_line(_report([("files", True, "ok"), ("weights", False, "W1: 1 value(s) differ"),
+                                  ("glsl", None, "skipped (--no-glsl)")]))
+    assert line == "weights: W1: 1 value(s) differ; ok: files; skipped: glsl"
+    assert material_line(_report([], input_error="T2.dds: truncated")) == "bad input: T2.dds: truncated"
+
+
+def test_verify_heartbeat_on_a_fake_clock():
+    """While a check runs, stderr gets a line once nothing was printed for LINE_SECONDS, and not
+    sooner; a material's line counts as output."""
+    import io
+
+    from rich.console import Console
+
+    from bcfpipe.cli.verify import VerifyOutput
+    from bcfpipe.train.pace import LINE_SECONDS
+
+    now = [100.0]
+    report, beat = io.StringIO(), io.StringIO()
+    out = VerifyOutput(Console(file=report, width=300), heartbeat=Console(file=beat, width=300),
+                       clock=lambda: now[0])
+    out(V.VerifyEvent("start", renderer={"renderer": "r", "version": "v"},
+                      tolerance={"mode": "fixed", "value": 0.1, "filter_bits": 8}, total=2))
+    out(V.VerifyEvent("check", "/W/A", "glsl"))
+    for t in (1.0, 4.0, LINE_SECONDS - 0.1):
+        now[0] = 100.0 + t
+        out.tick()
+    assert beat.getvalue() == ""
+    now[0] = 100.0 + LINE_SECONDS
+    out.tick()
+    assert beat.getvalue() == f"verify: 0/2 material(s) checked; /W/A: glsl, {LINE_SECONDS:.0f}s in\n"
+    now[0] += LINE_SECONDS - 0.5
+    out(V.VerifyEvent("done", "/W/A", report=_report([("files", True, "")])))
+    now[0] += 1.0
+    out.tick()
+    assert beat.getvalue().count("\n") == 1 and report.getvalue().splitlines()[-1] == "PASS /W/M  ok: files"
 
 
 def test_no_opengl_is_exit_2(materials, monkeypatch):

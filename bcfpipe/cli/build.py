@@ -51,8 +51,11 @@ class BuildDisplay:
     """Progress of a build: a live rich table on a terminal, plain lines otherwise.
 
     Call it with the `ProgressEvent`s of a build (bcfpipe.builder.events); use as a context manager.
-    Plain lines come at phase changes and ends, and (`tick`, once a second while entered) at least
-    every `LINE_SECONDS` for each running texture set, so that no phase goes quiet.
+    Plain lines: a texture set's end at once; its phase when the phase starts, or, within
+    `TICK_SECONDS` of its previous line, that long after it, with every phase it entered since
+    (only those of the last second before its end go unnamed); and, while it runs, at least every
+    `LINE_SECONDS` (`tick`, once a second while entered). So no phase goes quiet, and no texture
+    set prints more than a line a second before it ends.
     """
 
     STYLE = {"queued": "dim", "running": "cyan", Status.BUILT: "green", Status.FAILED: "red"}
@@ -92,7 +95,8 @@ class BuildDisplay:
     def _event(self, ev: ProgressEvent) -> None:
         name = ev.job
         st = self.jobs.setdefault(name, {"status": "queued", "phase": "", "step": 0, "steps": 0, "psnr": None,
-                                         "eta": None, "materials": [], "since": 0.0, "line_at": 0.0})
+                                         "eta": None, "materials": [], "since": 0.0,
+                                         "line_at": float("-inf"), "entered": []})
         line = None
         if ev.event == EventKind.QUEUED:
             st["materials"] = list(ev.materials)
@@ -105,7 +109,9 @@ class BuildDisplay:
                 st["psnr"] = ev.psnr
             if phase_changed:
                 st["since"] = self.clock()
-                line = f"{name}: {st['phase']}"
+                st["entered"].append(ev.phase)
+                if st["since"] - st["line_at"] >= TICK_SECONDS:
+                    line = f"{name}: {', '.join(st['entered'])}"
         elif ev.event == EventKind.DONE:
             st.update(status=ev.status or "?", phase="", eta=None)
             if ev.materials:
@@ -130,16 +136,20 @@ class BuildDisplay:
                            highlight=False, markup=False, soft_wrap=True)
         self.last_line = now
         if st is not None:
-            st["line_at"] = now
+            st["line_at"], st["entered"] = now, []
 
     def tick(self) -> None:
-        """Plain mode: a line on the running texture set longest without one once that is
+        """Plain mode: each texture set's phases entered and not yet named, `TICK_SECONDS` after
+        its last line; then a line on the running texture set longest without one once that is
         `LINE_SECONDS`, no two such lines within `TICK_SECONDS`; with none running, a line on what
         the build waits for after that long a silence."""
         if self.live_mode:
             return
         with self._lock:
             now = self.clock()
+            for name, st in self.jobs.items():
+                if st["status"] == "running" and st["entered"] and now - st["line_at"] >= TICK_SECONDS:
+                    self._print(f"{name}: {', '.join(st['entered'])}", st)
             if now - self.last_line < TICK_SECONDS:
                 return
             running = [(st["line_at"], name) for name, st in self.jobs.items() if st["status"] == "running"]
@@ -281,13 +291,15 @@ def nothing_built(manifest) -> str | None:
 @click.option("--force", is_flag=True, help="Replace the build of another scene in OUT. A folder that bcfpipe did not write (no manifest.json) is never replaced, even with --force.")
 @click.option("--verify", "run_verify_after", is_flag=True,
               help="Run `bcfpipe verify` on OUT at the end (GLSL on OpenGL vs ONNX); a failure exits 1.")
+@click.option("-v", "--verbose", is_flag=True,
+              help="With --verify: per material every check and the error tables (default: one line per material).")
 @click.pass_context
 def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str, str], all_materials: bool,
           materials: tuple[str, ...],
           texel_density: float | None, no_coverage: bool,
           jobs: int | None, cache_dir: Path | None, no_cache: bool, depfile: Path | None,
           depfile_target: str | None, executor_name: str, ray_address: str | None, shard: str | None,
-          as_json: bool, force: bool, run_verify_after: bool, **_training) -> None:
+          as_json: bool, force: bool, run_verify_after: bool, verbose: bool, **_training) -> None:
     """Build neural materials for SCENE's textured UsdPreviewSurface materials.
 
     Writes OUT/<scene>.bcf.usda (open this), overrides.usda, weights.bin, manifest.json and
@@ -335,7 +347,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
         # with --json the verify report goes to stderr so stdout stays one JSON object
         verify_code = run_verify(str(result.out), as_json=False,
                                  echo=(lambda m: click.echo(m, err=True)) if as_json else click.echo,
-                                 to_stderr=as_json)
+                                 to_stderr=as_json, verbose=verbose, quiet=quiet)
         code = max(code, 0 if verify_code == 0 else 1)
     if as_json:
         click.echo(replace(result.report, verify_exit_code=verify_code).dumps(), nl=False)

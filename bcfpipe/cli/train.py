@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 import math
-import sys
+import threading
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -14,6 +14,7 @@ from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
 from bcfpipe.cli.options import training_options
+from bcfpipe.train.pace import LINE_SECONDS, Ticker
 
 if TYPE_CHECKING:
     from bcfpipe.train.trainer import Progress
@@ -24,38 +25,77 @@ def _fmt_eta(sec: float) -> str:
     return f"{sec // 60}m{sec % 60:02d}s" if sec >= 60 else f"{sec}s"
 
 
-class _Reporter:
-    """Progress to stderr: a rich live line on a TTY, plain lines every few seconds otherwise."""
+def _line(p: Progress, elapsed: float) -> str:
+    """One report: a training step's loss and batch PSNR, or how far a phase without a loss is."""
+    if math.isfinite(p.loss):
+        psnr = f"{p.psnr:5.2f} dB" if math.isfinite(p.psnr) else "  -  "
+        return (f"{p.phase:<11} {p.step:>6}/{p.steps:<6} loss {p.loss:.2e}  psnr {psnr}  "
+                f"elapsed {_fmt_eta(elapsed)}  eta {_fmt_eta(p.eta)}")
+    steps = f"{p.step:>6}/{p.steps:<6}" if p.steps else " " * 13
+    eta = f"  eta {_fmt_eta(p.eta)}" if p.steps and math.isfinite(p.eta) else ""
+    return f"{p.phase:<11} {steps} elapsed {_fmt_eta(elapsed)}{eta}"
 
-    def __init__(self, quiet: bool):
+
+class _Reporter:
+    """Progress to stderr: a rich live line on a TTY; otherwise plain lines, every 5 s while
+    reports come and at each phase's last step, and at least every `LINE_SECONDS` whatever the
+    training does (a `Ticker` repeats the latest report, its elapsed time brought up to date)."""
+
+    EVERY = 5.0
+
+    def __init__(self, quiet: bool, console=None, clock=time.monotonic):
         from rich.console import Console
 
-        self.console = Console(stderr=True)
+        self.console = console or Console(stderr=True)
         self.quiet = quiet
         self.live = self.console.is_terminal and not quiet
-        self.last = 0.0
+        self.clock = clock
+        self.t0 = clock()
+        self.last: float | None = None  # when the last plain line was printed
+        self.latest: tuple[Progress, float] | None = None  # the latest report and when it came
+        self.lock = threading.Lock()
         self.status = None
+        self.ticker = None
 
     def __enter__(self):
         if self.live:
             self.status = self.console.status("starting")
             self.status.__enter__()
+        elif not self.quiet:
+            self.ticker = Ticker(self.tick).__enter__()
         return self
 
     def __exit__(self, *exc):
+        if self.ticker is not None:
+            self.ticker.__exit__(*exc)
         if self.status is not None:
             self.status.__exit__(*exc)
 
     def __call__(self, p: Progress) -> None:
-        psnr = f"{p.psnr:5.2f} dB" if math.isfinite(p.psnr) else "  -  "
-        line = (f"{p.phase:<11} {p.step:>6}/{p.steps:<6} loss {p.loss:.2e}  psnr {psnr}  "
-                f"elapsed {_fmt_eta(p.elapsed)}  eta {_fmt_eta(p.eta)}") if math.isfinite(p.loss) else \
-            f"{p.phase:<11} (initialising blocks)  elapsed {_fmt_eta(p.elapsed)}"
-        if self.status is not None:
-            self.status.update(line)
-        elif not self.quiet and (time.monotonic() - self.last > 5 or p.step == p.steps):
-            self.last = time.monotonic()
-            print(line, file=sys.stderr, flush=True)
+        with self.lock:
+            now = self.clock()
+            self.latest = (p, now)
+            if self.status is not None:
+                self.status.update(_line(p, p.elapsed))
+            elif not self.quiet and (self.last is None or now - self.last > self.EVERY or p.step == p.steps):
+                self._print(_line(p, p.elapsed), now)
+
+    def tick(self) -> None:
+        """A plain line when none was printed for `LINE_SECONDS`."""
+        with self.lock:
+            now = self.clock()
+            quiet_since = self.t0 if self.last is None else self.last
+            if self.quiet or self.status is not None or now - quiet_since < LINE_SECONDS:
+                return
+            if self.latest is None:
+                self._print(f"{'starting':<11} {'':13} elapsed {_fmt_eta(now - self.t0)}", now)
+            else:
+                p, at = self.latest
+                self._print(_line(p, p.elapsed + now - at), now)
+
+    def _print(self, line: str, now: float) -> None:
+        self.last = now
+        self.console.print(line, highlight=False, markup=False, soft_wrap=True)
 
 
 def _table(res) -> "object":

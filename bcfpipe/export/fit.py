@@ -14,7 +14,7 @@ from bcfpipe.formats import material as mf
 from bcfpipe.config import TrainConfig, TrainingOptions
 from bcfpipe.texset.metrics import Metrics, compute_metrics
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
-from bcfpipe.train.trainer import ProgressFn, TrainedMaterial, resolve_device, train
+from bcfpipe.train.trainer import Progress, ProgressFn, TrainedMaterial, resolve_device, train
 
 
 @dataclass(frozen=True)
@@ -61,9 +61,13 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
                  progress: ProgressFn | None = None,
                  coverage: np.ndarray | None = None) -> tuple[MaterialResult, TrainedMaterial]:
     """Train on ``ts``, export to ``out_dir``, then evaluate the exported files (over every texel,
-    and with a ``coverage`` mask also over the covered ones)."""
+    and with a ``coverage`` mask also over the covered ones). ``progress`` hears the training's
+    phases, then ``evaluate``."""
+    start = time.perf_counter()
     tm = train(ts, cfg, progress, coverage=coverage)
     out = E.export(tm, out_dir)
+    if progress:
+        progress(Progress("evaluate", 0, 0, float("nan"), float("nan"), time.perf_counter() - start, 0.0))
     t0 = time.perf_counter()
     ref = build_mip_chain(ts.data)
     float_metrics = compute_metrics(ref, tm.float_mips, ts.channels, ssim=False, flip=False) if tm.float_mips else None

@@ -29,6 +29,7 @@ from bcfpipe.formats.vocabulary import Kernel
 from bcfpipe.model.features import QuantizedLevel, codec_of
 from bcfpipe.model.decoder import MlpWeights
 from bcfpipe.train.feature_init import pca_init
+from bcfpipe.train.pace import Pace, Pacer
 from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_batch, sample_reference
 from bcfpipe.texset import encoding
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
@@ -132,6 +133,17 @@ class _Clock:
             seen = seen or p == phase
         return left
 
+    def left(self, phase: str) -> float:
+        """Seconds left from the start of ``phase`` on, at the step rates measured so far (a phase
+        not yet run at the latest one; the fine-tune at 0.3 of it, as `eta` does)."""
+        per = list(self.rate.values())[-1] if self.rate else 0.0
+        total, seen = 0.0, False
+        for p, n in self.steps.items():
+            seen = seen or p == phase
+            if seen:
+                total += n * self.rate.get(p, per if p != "finetune" else per * 0.3)
+        return total
+
 
 def exact_level(bl: BlockLevel, mc: ModelConfig, device) -> torch.Tensor:
     """Bit-exact decoded texels (C, H, W) of quantized block parameters."""
@@ -197,7 +209,8 @@ class _Run:
     centres: CentreTargets | None
     mask_levels: list[torch.Tensor] | None
     progress: ProgressFn | None
-    report_every: int
+    pace: Pace
+    pacer: Pacer
     seconds: dict[str, float] = field(default_factory=dict)
     samples: dict[str, int] = field(default_factory=dict)
     history: list[tuple[str, int, float]] = field(default_factory=list)
@@ -277,12 +290,22 @@ def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=No
         if not math.isfinite(val):
             raise FloatingPointError(f"{name}: loss became {val} at step {step}")
         ema = val if ema is None else 0.9 * ema + 0.1 * val
-        if step % run.report_every == 0 or step == sched.steps:
+        on_pace = step % run.pace.every == 0 or step == sched.steps
+        if on_pace:
             run.history.append((name, step, ema))
-            if run.progress:
-                run.progress(Progress(name, step, sched.steps, ema, -10 * math.log10(max(ema, 1e-12)),
-                                      time.perf_counter() - run.clock.t0, run.clock.eta(name, step, t0)))
+        if run.progress and (on_pace or run.pacer.due()):
+            run.pacer.mark()
+            run.progress(Progress(name, step, sched.steps, ema, -10 * math.log10(max(ema, 1e-12)),
+                                  time.perf_counter() - run.clock.t0, run.clock.eta(name, step, t0)))
     run.seconds[name] = time.perf_counter() - t0
+
+
+def _report(run: _Run, phase: str, step: int, steps: int, eta: float) -> None:
+    """A report without a loss, from a phase that takes no training steps (encode, quantize)."""
+    if run.progress:
+        run.pacer.mark()
+        run.progress(Progress(phase, step, steps, float("nan"), float("nan"), time.perf_counter() - run.clock.t0,
+                              eta))
 
 
 def _warmup(run: _Run) -> list[list[torch.Tensor]]:
@@ -333,17 +356,19 @@ def _encode(run: _Run, free: list[list[torch.Tensor]]) -> list[list[M.BlockParam
     lo, hi = codec.param_range(mc)
     t0 = time.perf_counter()
     blocks = []
+    levels, done = sum(len(mips) for mips in free), 0
+    _report(run, "encode", 0, levels, run.clock.left("constrained"))
     with torch.no_grad():
         for mips in free:
             layer = []
             for p in mips:
                 texels = codec.value(p.clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy()
                 layer.append(codec.encode(texels, mc, run.device))
+                done += 1
+                if done == levels or run.pacer.due():
+                    _report(run, "encode", done, levels, run.clock.left("constrained"))
             blocks.append(layer)
     run.seconds["encode"] = time.perf_counter() - t0
-    if run.progress:
-        run.progress(Progress("encode", 1, 1, float("nan"), float("nan"), time.perf_counter() - run.clock.t0,
-                              run.clock.eta("constrained", 0, time.perf_counter())))
     return blocks
 
 
@@ -399,11 +424,11 @@ def _quantize(run: _Run, blocks: list[list[M.BlockParams]]) -> tuple[list[list[B
 
 
 def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
-          report_every: int = 50, keep_float_mips: bool = True, coverage: np.ndarray | None = None) -> TrainedMaterial:
+          pace: Pace = Pace(), keep_float_mips: bool = True, coverage: np.ndarray | None = None) -> TrainedMaterial:
     """Train one neural material on ``ts`` (see module docstring): warm-up, encode,
     constrained, quantize, MLP fine-tune. ``coverage``: a (H, W) bool mask of the texels the
     scene reads (bcfpipe.scan.coverage); steps then draw their samples there only, which weights
-    the loss by the mask."""
+    the loss by the mask. ``progress`` is called as ``pace`` says, and as each phase starts."""
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)
@@ -428,13 +453,15 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     centres = (CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch, covered=masks)
                if preset.centre_targets else None)
     mask_levels = [torch.as_tensor(m, device=device) for m in masks] if masks is not None else None
-    run = _Run(cfg, device, gen, ref, biases, mlp, clock, next_s, centres, mask_levels, progress, report_every)
+    run = _Run(cfg, device, gen, ref, biases, mlp, clock, next_s, centres, mask_levels, progress, pace,
+               Pacer(pace.seconds, pace.clock))
     if centres is not None:
         run.seconds["targets"] = time.perf_counter() - t0  # part of the training time, not hidden before it
     free = _warmup(run)
     blocks = _encode(run, free)
     del free
     _constrained(run, blocks)
+    _report(run, "quantize", 0, 0, run.clock.left("finetune"))
     ref_shapes = [tuple(m.shape[1:]) for m in ref.mips]
     float_mips = (encoding.decode_levels(evaluate_levels(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases,
                                                          ref_shapes), gains)

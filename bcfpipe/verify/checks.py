@@ -25,7 +25,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -69,6 +69,26 @@ class MaterialReport:
         return {"name": self.name, "folder": self.folder, "passed": self.passed, "input_error": self.input_error,
                 "checks": [c.to_dict() for c in self.checks], "n_points": self.n_points,
                 "channels": self.channels, "categories": self.categories}
+
+
+@dataclass(frozen=True)
+class VerifyEvent:
+    """What `verify` reports as it goes, to its ``progress`` callback: ``start`` once the OpenGL
+    runtime is up (its ``renderer``, None without GLSL; the ``tolerance`` as `Report` has it;
+    ``total`` materials with files), ``check`` before each check of a ``material`` (the folded
+    constants: one ``constants`` check of the whole build), ``done`` with each material's
+    ``report``. The command line prints the report and its heartbeat from these."""
+
+    kind: str  # start, check, done
+    material: str = ""
+    check: str = ""
+    report: MaterialReport | None = None
+    renderer: dict | None = None
+    tolerance: dict | None = None
+    total: int = 0
+
+
+VerifyProgress = Callable[[VerifyEvent], None]
 
 
 def check_files(m: MaterialDesc) -> tuple[Check, list[dds.DdsTexture]]:
@@ -294,16 +314,23 @@ class Report:
 
 
 def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = None, seed: int = 0,
-                  filter_bits: int = FILTER_BITS) -> MaterialReport:
+                  filter_bits: int = FILTER_BITS, on_check: Callable[[str], None] | None = None) -> MaterialReport:
+    """Every check of one material; ``on_check`` hears each check's name before it runs."""
     m = t.desc
     rep = MaterialReport(m.name, str(m.folder))
+    started = on_check or (lambda name: None)
     try:
+        started("files")
         files, texs = check_files(m)
         rep.checks.append(files)
+        started("integrity")
         rep.checks.append(check_integrity(t))
+        started("weights")
         rep.checks.append(check_weights_onnx(m))
+        started("openimageio")
         rep.checks.append(check_openimageio(texs, m.layer_files))
         if rt is not None:
+            started("glsl")
             em = E.load(m.folder)
             em = E.ExportedMaterial(em.desc, em.levels, from_bytes(m.weights_file.read_bytes(), m.weight_offset)[0],
                                     em.onnx_path)
@@ -332,8 +359,10 @@ def constant_reports(root: Path) -> list[MaterialReport]:
 
 
 def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool = True, seed: int = 0,
-           filter_bits: int = FILTER_BITS, runtime: GLRuntime | None = None, progress=None) -> Report:
-    """Verify every material under ``path``; raises VerifyInputError when there is nothing to verify."""
+           filter_bits: int = FILTER_BITS, runtime: GLRuntime | None = None,
+           progress: VerifyProgress | None = None) -> Report:
+    """Verify every material under ``path``; raises VerifyInputError when there is nothing to verify.
+    ``progress`` hears `VerifyEvent`s as it goes (nothing when OpenGL is unavailable)."""
     targets = find_targets(path)
     tol_info = {"mode": "derived" if tolerance is None else "fixed", "filter_bits": filter_bits,
                 "target": TARGET}
@@ -345,14 +374,20 @@ def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool =
             rt, own = GLRuntime(), True
         except GLUnavailable as e:
             return Report(str(path), [], None, tol_info, gl_error=str(e))
+    tell = progress or (lambda ev: None)
     try:
         renderer = rt.info if rt is not None else None
+        tell(VerifyEvent("start", renderer=renderer, tolerance=tol_info, total=len(targets)))
         reports = []
         for t in targets:
-            if progress:
-                progress(t.desc.name)
-            reports.append(verify_target(t, rt if glsl else None, tolerance, seed, filter_bits))
-        reports += constant_reports(Path(path))
+            name = t.desc.name
+            reports.append(verify_target(t, rt if glsl else None, tolerance, seed, filter_bits,
+                                         on_check=lambda check, name=name: tell(VerifyEvent("check", name, check))))
+            tell(VerifyEvent("done", name, report=reports[-1]))
+        tell(VerifyEvent("check", check="constants"))
+        for rep in constant_reports(Path(path)):
+            reports.append(rep)
+            tell(VerifyEvent("done", rep.name, report=rep))
         return Report(str(path), reports, renderer, tol_info)
     finally:
         if own:
