@@ -209,8 +209,9 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
                        f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall; "
                        f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}"),
               caption_justify="left")
-    for col in ("material", "status", "targets", "profile", "PSNR", "size", "train", "note"):
-        t.add_column(col, overflow="fold", justify="right" if col in ("PSNR", "size", "train") else "left")
+    for col in ("material", "status", "outputs", "profile", "PSNR", "size", "train", "note"):
+        t.add_column(col, overflow="fold", no_wrap=col == "material",
+                     justify="right" if col in ("outputs", "PSNR", "size", "train") else "left")
     style = {Status.BUILT: "green", Status.CONSTANT: "cyan", Status.FAILED: "red", Status.SKIPPED: "yellow"}
     sharing = {j.name: len(j.materials) for j in manifest.jobs}
     for m, r in zip(manifest.materials, report.materials):
@@ -219,7 +220,8 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
             note = f"shared: {m.job} x{sharing[m.job]}"
         if m.folded:
             kinds = [f.reason for f in m.folded]
-            folded = ", ".join(f"{kinds.count(k)} {k}" for k in ("constant", "unread", "duplicate") if k in kinds)
+            folded = ", ".join(f"{kinds.count(k)} {k}" for k in ("constant", "unread", "no-alpha", "duplicate")
+                               if k in kinds)
             note = f"{note}; folded: {folded}" if note else f"folded: {folded}"
         head = headline_psnr(m)
         psnr = f"{head:.2f}" if head is not None else ""
@@ -235,7 +237,10 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
             note += f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)"
         size = _fmt_size(m.sizes.total_bytes) if m.sizes else ""
         train = "cached" if r.cache == CacheUse.HIT else f"{r.train_seconds:.1f}s" if r.train_seconds else ""
-        t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(len(m.targets or m.constants) or ""),
+        if m.status == Status.CONSTANT:
+            note = f"{len(m.constants)} value(s) authored" + (f"; {note}" if note else "")
+        outputs = len({tg.channel for tg in m.targets if tg.channel >= 0})
+        t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(outputs or ""),
                   f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "", psnr, size, train, note)
     return t
 
