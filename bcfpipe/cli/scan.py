@@ -176,7 +176,8 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
     """
     from bcfpipe.scan.requirements import requirements
 
-    result = scan_stage(scene, variants or None, all_materials=all_materials, materials=materials)
+    result = scan_stage(scene, variants or None, all_materials=all_materials, materials=materials,
+                        binding_variants_too=True)
     cache: dict = {}
     grouping = group_materials(scene, variants, result.materials, cache, digest=False)
     everything = group_materials(scene, variants, result.materials, cache, digest=False, fold=False)

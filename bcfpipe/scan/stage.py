@@ -287,9 +287,12 @@ def scan_stage(
     variants: Mapping[str, str] | None = None,
     all_materials: bool = False,
     materials: Sequence[str] = (),
+    binding_variants_too: bool = False,
 ) -> StageScan:
     """Compose the stage at `path`, apply `variants`, and decide model/skip for every material;
-    with ``materials`` (paths), every other material is skipped as ``not-selected``.
+    with ``materials`` (paths), every other material is skipped as ``not-selected``. With
+    ``binding_variants_too``, also try the other variant selections for materials they would bind
+    (what `bcfpipe scan` lists; it recomposes the stage per choice, so builds do not ask for it).
 
     Raises ScanError only for stage-level problems (missing or unparsable file,
     unknown variant or material); per-material problems become skips.
@@ -312,7 +315,7 @@ def scan_stage(
                 scans.append(ms)
             except Exception as exc:  # noqa: BLE001 - one bad material must not stop the scan
                 scans.append(_error_scan(str(prims[0].GetPath()), exc, purposes, aliases))
-        variant_bindings, untried = binding_variants(stage, bound)
+        variant_bindings, untried = binding_variants(stage, bound) if binding_variants_too else ((), 0)
     if materials:
         scans = _select(scans, materials)
     errors = composition_errors(stage)
