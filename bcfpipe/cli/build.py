@@ -252,6 +252,12 @@ def nothing_built(manifest) -> str | None:
         return None
     reasons = Counter(m.reason or m.status for m in manifest.materials)
     if not reasons:
+        from bcfpipe.scan.composition import mtlx_documents
+
+        mtlx = mtlx_documents(manifest.diagnostics)
+        if mtlx:
+            return (f"bcfpipe: nothing built: the stage's materials are in {len(mtlx)} MaterialX document(s) "
+                    "(.mtlx) that this USD cannot open; bcfpipe reads UsdPreviewSurface only")
         return "bcfpipe: nothing built: the stage has no materials"
     counted = ", ".join(f"{n} {r}" for r, n in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0])))
     return (f"bcfpipe: nothing built: {len(manifest.materials)} material(s), none modelled ({counted}); "

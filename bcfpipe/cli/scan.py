@@ -19,7 +19,7 @@ from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import all_materials_option, material_option, texel_density_option, variant_option
 from bcfpipe.scan.results import MaterialScan, StageScan
 from bcfpipe.scan.stage import scan_stage
-from bcfpipe.scan.composition import counted
+from bcfpipe.scan.composition import counted, mtlx_documents
 from bcfpipe.scan.texture_sets import Grouping, group_materials
 
 __all__ = ["scan"]
@@ -114,6 +114,10 @@ def _conclusion(result: StageScan, grouping: Grouping) -> str:
     n_const = sum(1 for d, _, _ in outcomes if d == Decision.CONSTANT)
     skips = Counter(r for d, r, _ in outcomes if d == Decision.SKIP)
     skipped = ", ".join(f"{n} {r}" for r, n in sorted(skips.items(), key=lambda kv: (-kv[1], kv[0])))
+    mtlx = mtlx_documents(result.composition_errors)
+    if not result.materials and mtlx:
+        return (f"conclusion: a build builds nothing: the stage's materials are in {len(mtlx)} MaterialX "
+                f"document(s) (.mtlx) that this USD cannot open, and bcfpipe reads UsdPreviewSurface only")
     if not result.materials:
         return "conclusion: a build builds nothing: the stage has no materials"
     if not n_model and not n_const:
@@ -133,8 +137,10 @@ def _print_human(result: StageScan, grouping: Grouping, reqs: dict, console: Con
         f"defaultPrim={result.default_prim or '-'}  rendered gprims={result.rendered_gprims}")
     for prim, vset, value in result.variant_selections:
         say(f"variant {vset}={value} on {prim}")
-    for target in result.dangling_bindings:
-        say(f"[yellow]warning:[/yellow] binding to missing material {target}")
+    if result.dangling_bindings:
+        more = len(result.dangling_bindings) - 1
+        say(f"[yellow]warning:[/yellow] binding to missing material {result.dangling_bindings[0]}"
+            + (f" (and {more} more missing material(s))" if more else ""))
     for error in counted(result.composition_errors):
         say(f"[yellow]composition error:[/yellow] {escape(error)}")
     for note in counted(result.diagnostics):

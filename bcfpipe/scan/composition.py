@@ -267,11 +267,12 @@ def binding_variants(stage: Usd.Stage, bound: Iterable[str]) -> tuple[tuple[tupl
 
 
 def counted(lines: Iterable[str]) -> list[str]:
-    """Messages that differ only in the prim path they name (``<...>``) reported once, with a
-    count: ``Could not open asset @a.mtlx@ … </World/M1> (and 39 more like it)``."""
+    """Messages that differ only in the prim paths (``<...>``) and assets (``@...@``) they name
+    reported once, with a count: ``Could not open asset @a.mtlx@ … </World/M1> (and 39 more
+    like it)``."""
     groups: dict[str, list[str]] = {}
     for line in lines:
-        groups.setdefault(re.sub(r"<[^<>]*>", "<>", line), []).append(line)
+        groups.setdefault(re.sub(r"@[^@]*@", "@@", re.sub(r"<[^<>]*>", "<>", line)), []).append(line)
     return [members[0] + (f" (and {len(members) - 1} more like it)" if len(members) > 1 else "")
             for members in groups.values()]
 
@@ -285,4 +286,10 @@ def mtlx_assets(prim: Usd.Prim) -> tuple[str, ...]:
                 path = item.assetPath or ""
                 if path.lower().endswith(".mtlx"):
                     found.append(path)
+    return tuple(dict.fromkeys(found))
+
+
+def mtlx_documents(messages: Iterable[str]) -> tuple[str, ...]:
+    """The MaterialX documents (``@….mtlx@``) that composition errors say could not be opened."""
+    found = (m.group(1) for line in messages for m in re.finditer(r"@([^@]*\.mtlx)@", line, re.IGNORECASE))
     return tuple(dict.fromkeys(found))
