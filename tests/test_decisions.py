@@ -44,6 +44,18 @@ def Xform "World"
 """
 
 
+#: the open chess set's shape: a Scope references the .mtlx document, so no Material prim exists and
+#: every binding dangles
+MTLX_SCOPE_SCENE = MTLX_SCENE.replace(
+    """    def Scope "Looks"
+    {
+        def Material "M1" ( prepend references = @./chess.mtlx@</MaterialX/Materials/M1> ) {}
+        def Material "M2" ( prepend references = @./chess.mtlx@</MaterialX/Materials/M2> ) {}
+        def Material "M3" ( prepend references = @./chess.mtlx@</MaterialX/Materials/M3> ) {}
+    }""",
+    """    def Scope "Looks" ( prepend references = @./chess.mtlx@</MaterialX/Materials> ) {}""")
+
+
 def _usd_files() -> list[Path]:
     if not SHARED_SCENES.is_dir():
         return []
@@ -97,6 +109,22 @@ def test_materialx_only_stage_concludes_and_builds_nothing_loudly(tmp_path: Path
     assert res.exit_code == 0, res.output
     lines = res.stderr.strip().splitlines()
     assert lines and lines[-1].startswith("bcfpipe: nothing built") and "3 materialx-only" in lines[-1]
+
+
+def test_materials_only_in_unopenable_mtlx_documents_conclude_so(tmp_path: Path) -> None:
+    """As in the open chess set: the materials live in .mtlx documents this USD cannot open, so
+    the stage has no Material prim and its bindings dangle; scan and build say why nothing is built."""
+    scene = tmp_path / "chess.usda"
+    scene.write_text(MTLX_SCOPE_SCENE)
+    runner = CliRunner()
+    res = runner.invoke(main, ["scan", str(scene)])
+    assert res.exit_code == 0, res.output
+    assert [line for line in res.stdout.splitlines() if "missing material" in line] == [
+        "warning: binding to missing material /World/Looks/M1 (and 1 more missing material(s))"]
+    assert "MaterialX document(s) (.mtlx) that this USD cannot open" in res.stdout.splitlines()[-1]
+    res = runner.invoke(main, ["build", str(scene), "-o", str(tmp_path / "out"), "--no-cache"])
+    assert res.exit_code == 0, res.output
+    assert "nothing built" in res.stderr and "MaterialX" in res.stderr
 
 
 def test_material_option_selects_on_scan_plan_and_build(tmp_path: Path) -> None:
