@@ -77,7 +77,10 @@ def check_constants(root: Path, manifest: mfst.Manifest) -> list[tuple[str, bool
     # unread channels (st not connected) are checked through their USD values only: the texture varies
     if not with_constants:
         return []
-    stage = Usd.Stage.Open(str(root / manifest.root_layer))
+    from bcfpipe.scan.composition import captured_diagnostics
+
+    with captured_diagnostics():  # the build reported the scene's composition errors already
+        stage = Usd.Stage.Open(str(root / manifest.root_layer))
     out = []
     for m in with_constants:
         problems = check_usd_values(root, manifest, m, stage) + check_source_constancy(root, m)
