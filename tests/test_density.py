@@ -15,7 +15,7 @@ from test_build import FAST, add_material, new_stage, pattern, write_png  # noqa
 
 from bcfpipe.builder import plan  # noqa: E402
 from bcfpipe.scan.stage import scan_stage  # noqa: E402
-from bcfpipe.scan.texture_sets import group_materials  # noqa: E402
+from bcfpipe.scan.grouping import group_materials  # noqa: E402
 
 
 def quad_scene(root: Path, mpu: float = 1.0, scale: float = 1.0, faces_uv: str = "vertex", st: bool = True,

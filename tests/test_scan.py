@@ -17,7 +17,7 @@ from bcfpipe.scan import stage as scan_mod
 from bcfpipe.scan.composition import parse_variant
 from bcfpipe.scan.results import ScanError, StageScan, Transform2d
 from bcfpipe.scan.stage import scan_stage
-from bcfpipe.scan.texture_sets import group_materials
+from bcfpipe.scan.grouping import group_materials
 from bcfpipe.cli.scan import scan as scan_cmd
 
 SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"

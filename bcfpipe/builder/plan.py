@@ -15,8 +15,8 @@ from bcfpipe.formats.manifest import Options
 from bcfpipe.formats.vocabulary import ColorSpace, Decision
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
-from bcfpipe.scan.texture_sets import (ConstantTarget, FoldedChannel, ModelChannel, SourceFile,
-                                       decoder_index, group_materials)
+from bcfpipe.scan.grouping import group_materials
+from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, SourceFile, decoder_index
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
     from bcfpipe.scan.results import StageScan

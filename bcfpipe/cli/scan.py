@@ -20,7 +20,7 @@ from bcfpipe.cli.options import all_materials_option, material_option, texel_den
 from bcfpipe.scan.results import MaterialScan, StageScan
 from bcfpipe.scan.stage import scan_stage
 from bcfpipe.scan.composition import counted, mtlx_documents
-from bcfpipe.scan.texture_sets import Grouping, group_materials
+from bcfpipe.scan.grouping import Grouping, group_materials
 
 __all__ = ["scan"]
 

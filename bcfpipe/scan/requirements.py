@@ -12,7 +12,8 @@ from bcfpipe.formats import dds, weights
 from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
-from bcfpipe.scan.texture_sets import Grouping, MaterialModel, decoder_index
+from bcfpipe.scan.grouping import Grouping
+from bcfpipe.scan.texture_sets import MaterialModel, decoder_index
 
 def estimated_bytes(resolutions, n_out: int, hidden: int) -> int:
     """Bytes of a built material as the manifest counts them: the four BC6H DDS files (one byte a
