@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -749,3 +750,28 @@ def test_size_estimate_equals_a_real_build(sample) -> None:
         written += (folder / desc.mlp.weights).stat().st_size
         assert estimated_bytes(tuple(layer.resolution for layer in desc.layers), desc.mlp.n_out,
                                desc.mlp.n_hidden) == written, job["name"]
+
+
+@pytest.mark.parametrize("width", [160, 40])
+def test_summary_never_breaks_a_path(sample, width: int) -> None:
+    """The end-of-run summary is a table when the console holds the longest path and the other
+    columns, else one block per material; either way every material path is on one line, whole,
+    with its status and PSNR."""
+    from rich.console import Console
+
+    from bcfpipe.builder.report import headline_psnr
+    from bcfpipe.cli.build import print_summary
+
+    _, result = sample
+    buf = io.StringIO()
+    print_summary(Console(file=buf, width=width, color_system=None), result.manifest, result.report)
+    lines = buf.getvalue().splitlines()
+    starts = [i for i, text in enumerate(lines) if re.search(r"(^|│ )/World/", text)]
+    for m in result.manifest.materials:
+        (line,) = [i for i in starts if re.search(re.escape(m.path) + r"(\s|$)", lines[i])]
+        end = min([i for i in starts if i > line] + [len(lines)])
+        block = " ".join(lines[line:end])
+        assert m.status in block
+        if headline_psnr(m) is not None:
+            assert f"{headline_psnr(m):.2f}" in block
+    assert ("┃ material" in buf.getvalue()) == (width == 160)

@@ -31,7 +31,7 @@ from bcfpipe.formats.report import BuildReport
 from bcfpipe.train.pace import LINE_SECONDS, TICK_SECONDS, Ticker
 from bcfpipe.cli.options import all_materials_option, material_option, training_options, variant_option, texel_density_option
 
-__all__ = ["build", "BuildDisplay", "summary_table"]
+__all__ = ["build", "BuildDisplay", "summary_table", "print_summary"]
 
 
 def _fmt_eta(eta) -> str:
@@ -197,52 +197,89 @@ class BuildDisplay:
         return t
 
 
-def summary_table(manifest: Manifest, report: BuildReport) -> Table:
-    """The end-of-run table: one row per material, then totals."""
+COLUMNS = ("material", "status", "outputs", "profile", "PSNR", "size", "train", "note")
+#: what the columns after the material need at least, in characters, for the table form to be readable
+_OTHER_COLUMNS_WIDTH = 80
+
+
+def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...]]:
+    """One row per material, in `COLUMNS` order: what the end-of-run summary shows."""
     from bcfpipe.builder.report import headline_psnr
 
+    rows = []
+    sharing = {j.name: len(j.materials) for j in manifest.jobs}
+    for m, r in zip(manifest.materials, report.materials):
+        notes = [m.reason] if m.reason else []
+        if m.status == Status.CONSTANT:
+            notes.append(f"{len(m.constants)} value(s) authored")
+        if m.status == Status.BUILT and sharing.get(m.job, 1) > 1:
+            notes = [f"shared: {m.job} x{sharing[m.job]}"]
+        if m.folded:
+            kinds = [f.reason for f in m.folded]
+            notes.append("folded: " + ", ".join(f"{kinds.count(k)} {k}" for k in
+                                                ("constant", "unread", "no-alpha", "duplicate") if k in kinds))
+        head = headline_psnr(m)
+        if m.metrics and m.metrics.detail and m.metrics.detail.covered_fraction is not None:
+            notes.append(f"PSNR over the {100 * m.metrics.detail.covered_fraction:.0f}% of texels read")
+        if r.attempts:
+            notes.append(f"worker died, retried: {r.attempts} attempts")
+        if m.target is not None:
+            goal = "met" if m.target.met else "unreachable"
+            notes.append(f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)")
+        outputs = len({tg.channel for tg in m.targets if tg.channel >= 0})
+        rows.append((m.path, m.status, str(outputs or ""),
+                     f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "",
+                     f"{head:.2f}" if head is not None else "",
+                     _fmt_size(m.sizes.total_bytes) if m.sizes else "",
+                     "cached" if r.cache == CacheUse.HIT else f"{r.train_seconds:.1f}s" if r.train_seconds else "",
+                     "; ".join(notes)))
+    return rows
+
+
+def summary_caption(manifest: Manifest, report: BuildReport) -> str:
+    """The totals line under the summary."""
     tot, rt = manifest.totals, report.totals
     cached = f", {rt.cached} from the cache" if rt.cached else ""
     wrote = f"; {rt.written_files} file(s) written" if rt.written_files else "; OUT unchanged"
+    return (f"{tot.built} built, {tot.constant} constant, {tot.failed} failed, {tot.skipped} skipped; "
+            f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall; "
+            f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}")
+
+
+_STYLE = {Status.BUILT: "green", Status.CONSTANT: "cyan", Status.FAILED: "red", Status.SKIPPED: "yellow"}
+
+
+def summary_table(manifest: Manifest, report: BuildReport) -> Table:
+    """The end-of-run table: one row per material (paths never wrapped), then totals."""
     t = Table(title=f"bcfpipe build: {manifest.root_layer}", title_justify="left",
-              caption=(f"{tot.built} built, {tot.constant} constant, {tot.failed} failed, {tot.skipped} skipped; "
-                       f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall; "
-                       f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}"),
-              caption_justify="left")
-    for col in ("material", "status", "outputs", "profile", "PSNR", "size", "train", "note"):
+              caption=summary_caption(manifest, report), caption_justify="left")
+    for col in COLUMNS:
         t.add_column(col, overflow="fold", no_wrap=col == "material",
                      justify="right" if col in ("outputs", "PSNR", "size", "train") else "left")
-    style = {Status.BUILT: "green", Status.CONSTANT: "cyan", Status.FAILED: "red", Status.SKIPPED: "yellow"}
-    sharing = {j.name: len(j.materials) for j in manifest.jobs}
-    for m, r in zip(manifest.materials, report.materials):
-        note = m.reason or ""
-        if m.status == Status.BUILT and sharing.get(m.job, 1) > 1:
-            note = f"shared: {m.job} x{sharing[m.job]}"
-        if m.folded:
-            kinds = [f.reason for f in m.folded]
-            folded = ", ".join(f"{kinds.count(k)} {k}" for k in ("constant", "unread", "no-alpha", "duplicate")
-                               if k in kinds)
-            note = f"{note}; folded: {folded}" if note else f"folded: {folded}"
-        head = headline_psnr(m)
-        psnr = f"{head:.2f}" if head is not None else ""
-        if m.metrics and m.metrics.detail and m.metrics.detail.covered_fraction is not None:
-            note = f"{note}; " if note else ""
-            note += f"PSNR over the {100 * m.metrics.detail.covered_fraction:.0f}% of texels read"
-        if r.attempts:
-            note = f"{note}; " if note else ""
-            note += f"worker died, retried: {r.attempts} attempts"
-        if m.target is not None:
-            goal = "met" if m.target.met else "unreachable"
-            note = f"{note}; " if note else ""
-            note += f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)"
-        size = _fmt_size(m.sizes.total_bytes) if m.sizes else ""
-        train = "cached" if r.cache == CacheUse.HIT else f"{r.train_seconds:.1f}s" if r.train_seconds else ""
-        if m.status == Status.CONSTANT:
-            note = f"{len(m.constants)} value(s) authored" + (f"; {note}" if note else "")
-        outputs = len({tg.channel for tg in m.targets if tg.channel >= 0})
-        t.add_row(m.path, Text(m.status, style=style.get(m.status, "")), str(outputs or ""),
-                  f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "", psnr, size, train, note)
+    for row in summary_rows(manifest, report):
+        t.add_row(row[0], Text(row[1], style=_STYLE.get(row[1], "")), *row[2:])
     return t
+
+
+def print_summary(console: Console, manifest: Manifest, report: BuildReport) -> None:
+    """The summary as a table when the console is wide enough for its longest path and the other
+    columns; else one block per material (the path on its own line, the figures below), so that a
+    narrow terminal never breaks a path or squeezes a column to one letter."""
+    rows = summary_rows(manifest, report)
+    longest = max((len(r[0]) for r in rows), default=0)
+    if console.width >= longest + _OTHER_COLUMNS_WIDTH:
+        console.print(summary_table(manifest, report))
+        return
+    console.print(f"bcfpipe build: {manifest.root_layer}", highlight=False, soft_wrap=True)
+    for row in rows:
+        console.print(Text(row[0], style="bold"), soft_wrap=True)
+        figures = [f"{name} {value}" + (" dB" if name == "PSNR" else "") for name, value in zip(COLUMNS[2:7], row[2:7])
+                   if value]
+        line = Text("    ").append(row[1], style=_STYLE.get(row[1], ""))
+        for part in figures + ([row[7]] if row[7] else []):
+            line.append(f", {part}")
+        console.print(line, highlight=False)
+    console.print(summary_caption(manifest, report), highlight=False)
 
 
 def nothing_built(manifest) -> str | None:
@@ -365,7 +402,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     elif not quiet:
         probe = Console()
         out = probe if probe.is_terminal else Console(width=160)  # pipes/logs: do not wrap at 80 columns
-        out.print(summary_table(result.manifest, result.report))
+        print_summary(out, result.manifest, result.report)
         shown = os.path.relpath(result.root_layer)
         out.print(f"open {shown if not shown.startswith('..') else result.root_layer}", highlight=False,
                   soft_wrap=True)
