@@ -243,7 +243,9 @@ def summary_caption(manifest: Manifest, report: BuildReport) -> str:
     wrote = f"; {rt.written_files} file(s) written" if rt.written_files else "; OUT unchanged"
     return (f"{tot.built} built, {tot.constant} constant, {tot.failed} failed, {tot.skipped} skipped; "
             f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall; "
-            f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}")
+            f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}\n"
+            "PSNR: dB, the exported files against the source textures, MSE averaged over every mip "
+            "(over the texels the meshes read where the note says so)")
 
 
 _STYLE = {Status.BUILT: "green", Status.CONSTANT: "cyan", Status.FAILED: "red", Status.SKIPPED: "yellow"}
