@@ -205,4 +205,3 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
         click.echo(json.dumps(d, indent=2))
         return
     _print_human(result, grouping, reqs, Console())
-    return None
