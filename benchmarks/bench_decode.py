@@ -47,9 +47,18 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
 
-    from bcfpipe.cli.decode import select_target
+    if args.material is None:  # no CLI import: runs where USD is not installed (a lent GPU machine)
+        from bcfpipe.verify.checks import find_targets
 
-    m = select_target(args.out, args.material).desc
+        targets = find_targets(args.out)
+        if len(targets) != 1:
+            print(f"{args.out} holds {len(targets)} materials; pick one with --material", file=sys.stderr)
+            return 2
+        m = targets[0].desc
+    else:
+        from bcfpipe.cli.decode import select_target
+
+        m = select_target(args.out, args.material).desc
     try:
         rt = G.GLRuntime()
     except G.GLUnavailable as e:
@@ -74,13 +83,13 @@ def main(argv=None) -> int:
         rt.delete_textures(ctex)
     hidden = m.file.mlp.n_hidden
     report = {"material": m.name, "renderer": rt.info, "software": software, "frames": frames,
-              "classic_formats": cfmts, "network": f"12-{hidden}-{m.n_out}",
+              "classic_formats": cfmts, "network": f"{m.file.mlp.n_in}-{hidden}-{m.n_out}",
               "layers": [x.resolution for x in m.file.layers], "rows": rows}
     rt.release()
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
-    print(f"{m.name}: neural 12-{hidden}-{m.n_out}, layers {report['layers']}; classic {', '.join(cfmts)}")
+    print(f"{m.name}: neural {report['network']}, layers {report['layers']}; classic {', '.join(cfmts)}")
     print(f"renderer: {report['renderer']['renderer']} | {report['renderer']['version']}")
     if software:
         r = rows[0]

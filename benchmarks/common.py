@@ -1,10 +1,12 @@
 """Shared bits of the benchmark scripts: the teapot texture set and machine description."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared" / "scenes"
+# BCFPIPE_SCENES points elsewhere, e.g. at a copy carried to a lent GPU machine
+SHARED = Path(os.environ.get("BCFPIPE_SCENES", REPO.parent / "shared" / "scenes"))
 TEAPOT = SHARED / "usdwg_teapot" / "textures"
 
 
