@@ -11,7 +11,7 @@ import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from bcfpipe.formats.vocabulary import FeatureFormat, Kernel
+from bcfpipe.formats.vocabulary import FeatureFormat, Kernel, Layout
 
 N_LAYERS = 4
 MIN_LEVEL = 4  # the smallest mip is one 4x4 BC6H block
@@ -141,13 +141,15 @@ DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
 DEFAULT_FEATURES = FeatureFormat.BC6H
 DEFAULT_KERNEL = Kernel.TORCH
+# all neural until the runtime (GLSL, render, verify, the USD layer) reads classic outputs (issue 31)
+DEFAULT_LAYOUT = Layout.NEURAL
 # Channels per feature layer T_i, per format: BC6H holds RGB, BC7 RGBA in the same bytes.
 LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 3
+MODEL_FORMAT = 4  # 4: material.json format 3 (issue 31)
 
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/train/feature_init.py: sharper fine mips, weaker
@@ -223,6 +225,8 @@ class TrainingOptions:
     bench_data: str | None = None  # a `bcfpipe bench` report to predict --target-psnr from
     features: FeatureFormat = DEFAULT_FEATURES
     kernel: Kernel = DEFAULT_KERNEL
+    layout: Layout = DEFAULT_LAYOUT
+    match_bc: bool = False  # with layout auto: the smallest layout whose every mip reaches BC@R
 
     def __post_init__(self) -> None:
         from bcfpipe.errors import InputError
@@ -231,6 +235,8 @@ class TrainingOptions:
             object.__setattr__(self, "features", FeatureFormat(self.features))  # "bc7" from a command line
         if self.kernel in tuple(Kernel) and not isinstance(self.kernel, Kernel):
             object.__setattr__(self, "kernel", Kernel(self.kernel))
+        if self.layout in tuple(Layout) and not isinstance(self.layout, Layout):
+            object.__setattr__(self, "layout", Layout(self.layout))
         for problem in self.problems():
             raise InputError(problem)
 
@@ -256,6 +262,13 @@ class TrainingOptions:
                        f"{', '.join(f.value for f in FeatureFormat)}")
         elif self.signed and FeatureFormat(self.features) != FeatureFormat.BC6H:
             out.append("--signed is a BC6H choice (BC6H_SF16); BC7 features are unsigned")
+        if self.layout not in tuple(Layout):
+            out.append(f"unknown layout {self.layout!r}; choose from {', '.join(v.value for v in Layout)}")
+        elif self.match_bc and self.layout != Layout.AUTO:
+            out.append("--match-bc chooses a layout: use it with --layout auto")
+        elif self.layout == Layout.AUTO and self.target_psnr is not None:
+            out.append("--layout auto chooses the profile against BC; --target-psnr chooses it against a PSNR: "
+                       "use one (--layout neural --target-psnr DB)")
         if self.kernel not in tuple(Kernel):
             out.append(f"unknown kernel {self.kernel!r}; choose from {', '.join(k.value for k in Kernel)}")
         elif self.kernel == Kernel.FUSED and str(self.device).startswith("cuda"):

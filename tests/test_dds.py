@@ -84,9 +84,9 @@ def test_trailing_bytes_and_bad_fields(tmp_path):
     p.write_bytes(good + b"\0" * 16)
     with pytest.raises(dds.DdsError, match="trailing"):
         dds.read(p)
-    bad = bytearray(good); struct.pack_into("<I", bad, 128, 71)  # BC1
+    bad = bytearray(good); struct.pack_into("<I", bad, 128, 77)  # BC3
     p.write_bytes(bytes(bad))
-    with pytest.raises(dds.DdsError, match="not BC6H"):
+    with pytest.raises(dds.DdsError, match="DXGI format 77 is not one bcfpipe reads"):
         dds.read(p)
     bad = bytearray(good); struct.pack_into("<I", bad, 4 + 24, 9)  # 9 mips for 16x16
     p.write_bytes(bytes(bad))

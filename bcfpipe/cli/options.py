@@ -6,9 +6,9 @@ import click
 
 from dataclasses import fields
 
-from bcfpipe.formats.vocabulary import FeatureFormat, Kernel
+from bcfpipe.formats.vocabulary import FeatureFormat, Kernel, Layout
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
+                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, DEFAULT_LAYOUT, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
 
 # The training options, in --help order: one per field of config.TrainingOptions, named as it (a
 # test checks); `train`, `plan` and `build` take exactly these.
@@ -48,6 +48,14 @@ TRAINING_OPTIONS = (
                  help="Rate control: train the smallest, then quickest, profile and preset predicted to reach DB "
                       "(PSNR over all mips of the exported files), instead of --profile and --quality. A probe "
                       "training (or --bench-data) predicts; a miss climbs to the next setting. docs/rate_control.md."),
+    click.option("--layout", type=click.Choice([v.value for v in Layout]), default=DEFAULT_LAYOUT.value,
+                 show_default=True,
+                 help="neural: every output from the MLP. auto: per material, keep as classic BC textures the "
+                      "channel groups the features lose, and pick the profile, by the highest PSNR over all mips "
+                      "within the size of the BC set you would ship (BC@R) and 0.5 dB of it at every mip; never "
+                      "worse than BC@R. A probe training and at most one more (docs/layout.md)."),
+    click.option("--match-bc", "match_bc", is_flag=True,
+                 help="With --layout auto: the smallest layout whose every mip reaches BC@R instead."),
     click.option("--bench-data", "bench_data", type=click.Path(dir_okay=False, exists=True), default=None,
                  metavar="BENCH_JSON",
                  help="With --target-psnr: predict from the measured cells of this `bcfpipe bench` report "
@@ -56,12 +64,17 @@ TRAINING_OPTIONS = (
 def training_record(ctx: click.Context) -> tuple[TrainingOptions, dict | None]:
     """The command's `TrainingOptions`, made (and so validated) once from its parameters of the same
     names, and the bench report to predict --target-psnr from, if any. --target-psnr together with
-    an explicit --profile or --quality is refused: it chooses them."""
+    an explicit --profile or --quality is refused: it chooses them. --layout auto is `train`'s
+    alone for now: a build's USD layer, verify and renderer read neural outputs only."""
     from click.core import ParameterSource
 
     from bcfpipe.errors import InputError
 
     options = TrainingOptions(**{f.name: ctx.params[f.name] for f in fields(TrainingOptions)})
+    if options.layout == Layout.AUTO and ctx.info_name != "train":
+        raise InputError(f"--layout auto is not in `bcfpipe {ctx.info_name}` yet: its USD layer, verify and "
+                         "renderer read neural outputs only; `bcfpipe train --layout auto` chooses a "
+                         "material's layout (docs/layout.md)")
     if options.target_psnr is None:
         return options, None
     given = [f"--{'quality' if n == 'preset' else n}" for n in ("profile", "preset")

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from bcfpipe.formats.vocabulary import Wrap
+from bcfpipe.formats.vocabulary import Layout, Wrap
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
 from bcfpipe.cli.options import training_options
@@ -164,7 +164,17 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
     outcome = None
     try:
         with _Reporter(quiet) as rep:
-            if options.target_psnr is None:
+            if options.layout == Layout.AUTO:
+                from bcfpipe.layout.material import fit_material_layout
+
+                def said_layout(text: str) -> None:
+                    if not quiet:
+                        rep.console.print(f"layout: {text}", highlight=False)
+
+                res = fit_material_layout(ts, out, options, wrap, said_layout, progress=rep)
+                click.echo(f"bcfpipe train: layout {res.layout['chosen']['layout']}: {res.layout['reason']}",
+                           err=True)
+            elif options.target_psnr is None:
                 res, _ = fit_material(ts, out, cfg, name, progress=rep)
             else:
                 from bcfpipe.train import rate

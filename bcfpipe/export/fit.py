@@ -12,7 +12,7 @@ from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
 from bcfpipe.config import TrainConfig, TrainingOptions
-from bcfpipe.texset.metrics import Metrics, compute_metrics
+from bcfpipe.texset.metrics import Metrics, compute_metrics, mse_per_channel
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import Progress, ProgressFn, TrainedMaterial, resolve_device, train
 
@@ -32,6 +32,8 @@ class MaterialResult:
     train_seconds: float
     phase_seconds: dict[str, float]
     phase_samples: dict[str, int] | None = None
+    mse_per_channel: np.ndarray | None = None  # (mips, channels) of the exported files (bcfpipe.layout)
+    layout: dict | None = None  # --layout auto: the decision (bcfpipe.layout.choose.Decision.to_json)
 
     def to_dict(self) -> dict:
         m = self.metrics
@@ -44,6 +46,8 @@ class MaterialResult:
         if self.float_metrics is not None:
             d["float_psnr"] = self.float_metrics.psnr
             d["quantization_loss_db"] = self.float_metrics.psnr - m.psnr
+        if self.layout is not None:
+            d["layout"] = self.layout
         return d
 
 
@@ -54,7 +58,10 @@ def make_config(ts: TextureSet, options: TrainingOptions, wrap: str = Wrap.REPEA
 
 
 def exported_size(out_dir: Path) -> int:
-    return sum((out_dir / f).stat().st_size for f in (*(mf.layer_file(i) for i in range(4)), mf.WEIGHTS))
+    """Bytes a renderer loads: the feature textures, the weight record and any classic textures (not
+    the ONNX decoder or material.json)."""
+    desc = mf.read(out_dir)
+    return sum((out_dir / f).stat().st_size for f in desc.files if f != (desc.onnx.file if desc.onnx else None))
 
 
 def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
@@ -80,9 +87,10 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
 
         masks = mask_mips(coverage, len(ref), cfg.model.wrap)
     metrics = compute_metrics(ref, dec, ts.channels, masks=masks)
+    per_channel = mse_per_channel(ref, dec, ts.channels)
     del dec
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)
     res = MaterialResult(out, profile, cfg.model.resolutions, cfg.preset_name, cfg.device, metrics, float_metrics,
                          exported_size(out), tm.train_seconds, {k: round(v, 3) for k, v in phases.items()},
-                         dict(tm.phase_samples))
+                         dict(tm.phase_samples), per_channel)
     return res, tm

@@ -10,7 +10,7 @@ Folder layout (``material.json`` describes it completely for consumers that do n
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +27,7 @@ from bcfpipe.bc7.mode6 import DESCRIPTION as BC7_MODE
 from bcfpipe.config import N_LAYERS, ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
 from bcfpipe.model.features import codec_of
-from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_bytes, normal_xy_index, to_bytes, to_onnx
+from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_bytes, to_bytes, to_onnx
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.texset.texture_set import Channel, semantic_info
 
@@ -93,8 +93,9 @@ class ExportedMaterial:
 
     desc: mf.MaterialFile
     levels: list[list[np.ndarray]]  # per layer, per mip: (H, W, C) float32 from the spec decoder (bc6h / bc7)
-    weights: MlpWeights
-    onnx_path: Path
+    weights: MlpWeights | None  # None when no output comes from the MLP (a classic-only layout)
+    onnx_path: Path | None
+    classic: list[list[np.ndarray]] = field(default_factory=list)  # per classic texture, per mip: texels in [0, 1]
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -112,17 +113,31 @@ class ExportedMaterial:
 def load(folder: str | os.PathLike) -> ExportedMaterial:
     """Read an exported material folder back (DDS through bcfpipe.bc6h or bcfpipe.bc7's decoder,
     fp16 weights)."""
+    from bcfpipe.layout.classic import ClassicFormat, decode_levels
+
     folder = Path(folder)
     desc = mf.read(folder)
     levels = []
     for layer in desc.layers:
         tex = dds.read(folder / layer.file)
+        if tex.dxgi_format not in (dds.DXGI_FORMAT_BC6H_UF16, dds.DXGI_FORMAT_BC6H_SF16, dds.DXGI_FORMAT_BC7_UNORM):
+            raise dds.DdsError(f"{folder / layer.file}: {tex.format_name} is no feature-layer format")
         if tex.is_bc7:
             levels.append([bc7_decode(b, w, h)[..., :layer.channels] for b, w, h in tex.levels])
         else:
             levels.append([bc6h_decode(b, w, h, signed=tex.signed).astype(np.float32) for b, w, h in tex.levels])
+    classic = []
+    fmt_of = {dds.DXGI_FORMAT_BC1_UNORM: ClassicFormat.BC1, dds.DXGI_FORMAT_BC4_UNORM: ClassicFormat.BC4,
+              dds.DXGI_FORMAT_BC5_UNORM: ClassicFormat.BC5}
+    for c in desc.classic:
+        tex = dds.read(folder / c.file)
+        if tex.dxgi_format not in fmt_of or tex.dxgi_format != c.dxgi_format:
+            raise dds.DdsError(f"{folder / c.file}: {tex.format_name}, where material.json says {c.format}")
+        classic.append(decode_levels(fmt_of[tex.dxgi_format], tex.levels))
+    if desc.mlp is None:
+        return ExportedMaterial(desc, levels, None, None, classic)
     weights, _ = from_bytes((folder / desc.mlp.weights).read_bytes(), desc.mlp.offset)
-    return ExportedMaterial(desc, levels, weights, folder / desc.onnx.file)
+    return ExportedMaterial(desc, levels, weights, folder / desc.onnx.file, classic)
 
 
 def sample_exported_features(em: ExportedMaterial, uv: np.ndarray, s: float | np.ndarray) -> np.ndarray:
@@ -149,22 +164,47 @@ def onnx_session(em: ExportedMaterial):
 
 def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: int = 1 << 18,
                 drop_normal_z: bool = True) -> list[np.ndarray]:
-    """The exported material decoded through onnxruntime at each reference mip's texel centres
-    (s = mip index) -> [(H, W, c)]; normal z is dropped unless asked for."""
-    sess = onnx_session(em)
-    kinds = em.kinds
-    nz = normal_xy_index(kinds)
+    """The exported material decoded at each reference mip's texel centres (s = mip index) ->
+    [(H, W, c)], every output in material.json's order: the decoder's through onnxruntime, a
+    classic output from its texture (trilinear, like the layers); normal z is dropped unless asked
+    for."""
+    sess = onnx_session(em) if em.desc.mlp is not None else None
+    outputs = em.desc.outputs
+    mlp_cols = [i for i, o in enumerate(outputs) if o.source != mf.Source.CLASSIC]
+    keep = [i for i, o in enumerate(outputs) if not (drop_normal_z and o.reconstructed)]
     out = []
     for k, (h, w) in enumerate(ref_shapes):
-        level = None
+        level = np.empty((h * w, len(keep)), np.float32)
         for a in range(0, h * w, chunk):  # texel-centre uvs made per chunk: O(chunk) scratch at 8K
             ids = np.arange(a, min(a + chunk, h * w))
             uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1).astype(np.float32)
-            y = sess.run([ONNX_OUTPUT], {ONNX_INPUT: sample_exported_features(em, uv, float(k))})[0]
-            if drop_normal_z and nz is not None:
-                y = np.delete(y, nz + 2, axis=1)
-            if level is None:
-                level = np.empty((h * w, y.shape[1]), np.float32)
-            level[a:a + len(ids)] = y
+            y = np.empty((len(ids), len(outputs)), np.float32)
+            if sess is not None:
+                y[:, mlp_cols] = sess.run([ONNX_OUTPUT], {ONNX_INPUT: sample_exported_features(em, uv, float(k))})[0]
+            if em.classic:
+                classic_outputs(em, uv, float(k), y)
+            level[a:a + len(ids)] = y[:, keep]
         out.append(level.reshape(h, w, -1))
     return out
+
+
+def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarray) -> None:
+    """Fill the classic outputs' columns of ``y`` (N, outputs): each texture sampled trilinearly at
+    s + its lod_bias (lod clamped to its mips, so below 0 level 0 is magnified), value = texel *
+    texel_scale + texel_bias clamped to the output's range; a normal's z from its x and y."""
+    desc = em.desc
+    levels = [[torch.from_numpy(np.ascontiguousarray(np.moveaxis(m, -1, 0))) for m in tex] for tex in em.classic]
+    lvl = M.cached_level_fn(levels)
+    with torch.no_grad():
+        t = M.sample_features(lvl, [len(tex) for tex in levels], tuple(c.lod_bias for c in desc.classic),
+                              torch.from_numpy(uv), s, desc.wrap).numpy()
+    first = np.cumsum([0] + [c.channels for c in desc.classic])
+    for i, o in enumerate(desc.outputs):
+        if o.source != mf.Source.CLASSIC or o.reconstructed:
+            continue
+        v = t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias
+        y[:, i] = np.clip(v, o.range[0], o.range[1])
+    for i, o in enumerate(desc.outputs):
+        if o.source == mf.Source.CLASSIC and o.reconstructed:  # normal z after its x and y
+            x, yy = y[:, i - 2], y[:, i - 1]
+            y[:, i] = np.sqrt(np.maximum(0.0, 1.0 - x * x - yy * yy))

@@ -20,8 +20,17 @@ from bcfpipe.errors import InputError
 DXGI_FORMAT_BC6H_UF16 = 95
 DXGI_FORMAT_BC6H_SF16 = 96
 DXGI_FORMAT_BC7_UNORM = 98
+# classic textures of a layout (issue 31): 8-byte blocks for BC1 and BC4, 16 for BC5
+DXGI_FORMAT_BC1_UNORM, DXGI_FORMAT_BC4_UNORM, DXGI_FORMAT_BC5_UNORM = 71, 80, 83
 DXGI_NAMES = {DXGI_FORMAT_BC6H_UF16: "BC6H_UF16", DXGI_FORMAT_BC6H_SF16: "BC6H_SF16",
-              DXGI_FORMAT_BC7_UNORM: "BC7_UNORM"}
+              DXGI_FORMAT_BC7_UNORM: "BC7_UNORM", DXGI_FORMAT_BC1_UNORM: "BC1_UNORM",
+              DXGI_FORMAT_BC4_UNORM: "BC4_UNORM", DXGI_FORMAT_BC5_UNORM: "BC5_UNORM"}
+_BLOCK_BYTES_OF = {DXGI_FORMAT_BC1_UNORM: 8, DXGI_FORMAT_BC4_UNORM: 8}
+
+
+def block_bytes(dxgi_format: int) -> int:
+    """Bytes per 4x4 block: 8 for BC1 and BC4, 16 for the others bcfpipe writes."""
+    return _BLOCK_BYTES_OF.get(dxgi_format, BLOCK_BYTES)
 
 _MAGIC = b"DDS "
 _HEADER = struct.Struct("<7I44x8I4I4x")  # DDS_HEADER without reserved fields' contents
@@ -87,7 +96,7 @@ def max_mip_count(width: int, height: int) -> int:
     return max(width, height).bit_length()
 
 
-def _check_levels(levels: Sequence[Level]) -> None:
+def _check_levels(levels: Sequence[Level], bb: int = BLOCK_BYTES) -> None:
     if not levels:
         raise ValueError("a DDS texture needs at least one level")
     _, w0, h0 = levels[0]
@@ -99,8 +108,8 @@ def _check_levels(levels: Sequence[Level]) -> None:
         if (w, h) != mip_dims(w0, h0, k):
             raise ValueError(f"level {k} is {w}x{h}, expected {mip_dims(w0, h0, k)} for a {w0}x{h0} chain")
         b = np.asarray(blocks)
-        if b.dtype != np.uint8 or b.ndim != 2 or b.shape != (block_count(w, h), BLOCK_BYTES):
-            raise ValueError(f"level {k} ({w}x{h}) needs uint8 blocks of shape ({block_count(w, h)}, 16), "
+        if b.dtype != np.uint8 or b.ndim != 2 or b.shape != (block_count(w, h), bb):
+            raise ValueError(f"level {k} ({w}x{h}) needs uint8 blocks of shape ({block_count(w, h)}, {bb}), "
                              f"got {b.dtype} {b.shape}")
 
 
@@ -109,11 +118,11 @@ def encode_header(width: int, height: int, mip_count: int, signed: bool, dxgi_fo
     95 or 96), or of ``dxgi_format`` when given."""
     flags = DDSD_CAPS | DDSD_HEIGHT | DDSD_WIDTH | DDSD_PIXELFORMAT | DDSD_MIPMAPCOUNT | DDSD_LINEARSIZE
     caps = DDSCAPS_TEXTURE | ((DDSCAPS_COMPLEX | DDSCAPS_MIPMAP) if mip_count > 1 else 0)
-    linear_size = block_count(width, height) * BLOCK_BYTES
+    dxgi = dxgi_format if dxgi_format is not None else DXGI_FORMAT_BC6H_SF16 if signed else DXGI_FORMAT_BC6H_UF16
+    linear_size = block_count(width, height) * block_bytes(dxgi)
     header = _HEADER.pack(124, flags, height, width, linear_size, 0, mip_count,
                           32, DDPF_FOURCC, _FOURCC_DX10, 0, 0, 0, 0, 0,
                           caps, 0, 0, 0)
-    dxgi = dxgi_format if dxgi_format is not None else DXGI_FORMAT_BC6H_SF16 if signed else DXGI_FORMAT_BC6H_UF16
     if dxgi not in DXGI_NAMES:
         raise ValueError(f"DXGI format {dxgi} is not one bcfpipe writes ({', '.join(map(str, DXGI_NAMES))})")
     dx10 = _DX10.pack(dxgi, D3D10_RESOURCE_DIMENSION_TEXTURE2D, 0, 1, 0)
@@ -127,7 +136,7 @@ def write(path: str | os.PathLike, levels: Sequence[Level], signed: bool = False
 
     The file is written to a temporary name and renamed, so a failure never leaves a partial file.
     """
-    _check_levels(levels)
+    _check_levels(levels, block_bytes(dxgi_format or DXGI_FORMAT_BC6H_UF16))
     path = Path(path)
     _, w0, h0 = levels[0]
     data = encode_header(w0, h0, len(levels), signed, dxgi_format) + b"".join(
@@ -164,7 +173,8 @@ def parse(data: bytes, name: str = "<bytes>") -> DdsTexture:
         raise DdsError(f"{name}: truncated DX10 header")
     dxgi, dim, misc, array_size, _misc2 = _DX10.unpack_from(data, head)
     if dxgi not in DXGI_NAMES:
-        raise DdsError(f"{name}: DXGI format {dxgi} is not BC6H (95 or 96) or BC7_UNORM (98)")
+        raise DdsError(f"{name}: DXGI format {dxgi} is not one bcfpipe reads "
+                       f"({', '.join(f'{v} {k}' for k, v in DXGI_NAMES.items())})")
     if dim != D3D10_RESOURCE_DIMENSION_TEXTURE2D or array_size != 1 or misc & 0x4 or caps2 & 0x200:
         raise DdsError(f"{name}: only single 2D textures are supported (dimension {dim}, "
                        f"array size {array_size}, cube {bool(misc & 0x4)})")
@@ -179,10 +189,10 @@ def parse(data: bytes, name: str = "<bytes>") -> DdsTexture:
     levels: list[Level] = []
     for k in range(mips):
         w, h = mip_dims(width, height, k)
-        n = block_count(w, h) * BLOCK_BYTES
+        n = block_count(w, h) * block_bytes(dxgi)
         if offset + n > len(data):
             raise DdsError(f"{name}: truncated at mip {k} ({w}x{h}): needs {offset + n} bytes, file has {len(data)}")
-        blocks = np.frombuffer(data, dtype=np.uint8, count=n, offset=offset).reshape(-1, BLOCK_BYTES).copy()
+        blocks = np.frombuffer(data, dtype=np.uint8, count=n, offset=offset).reshape(-1, block_bytes(dxgi)).copy()
         levels.append((blocks, w, h))
         offset += n
     if offset != len(data):

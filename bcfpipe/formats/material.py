@@ -11,10 +11,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bcfpipe.formats.atomic import atomic_write
+from bcfpipe.formats.vocabulary import Source
 from bcfpipe.formats.record import FormatError, Record, optional, read as read_record
 
 FORMAT = "bcfpipe-material"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3  # 3: classic textures and each output's source (issue 31); version 2 files read as before
 FILE = "material.json"
 WEIGHTS = "weights.bin"
 ONNX = "decoder.onnx"
@@ -23,6 +24,11 @@ ONNX = "decoder.onnx"
 def layer_file(i: int) -> str:
     """File name of feature texture T_i."""
     return f"T{i}.dds"
+
+
+def classic_file(i: int) -> str:
+    """File name of classic texture C_i."""
+    return f"C{i}.dds"
 
 
 @dataclass(frozen=True)
@@ -110,6 +116,27 @@ class Output(Record):
     value_scale: float = 1.0
     value_bias: float = 0.0
     log_gain: float | None = optional()  # HDR channels only: the decoder's log-domain gain (BCFW v2)
+    source: str | None = optional()  # None: the MLP's (Source.MLP); Source.CLASSIC: a classic texture's
+    texture: int | None = optional()  # classic outputs: index into MaterialFile.classic
+    texel_channel: int | None = optional()  # classic outputs: the texture's channel (0 = r)
+    texel_scale: float | None = optional()  # classic outputs: value = texel * texel_scale + texel_bias
+    texel_bias: float | None = optional()
+
+
+@dataclass(frozen=True)
+class ClassicTexture(Record):
+    """A classic BC texture that outputs read directly (a layout's classic group, issue 31): a DDS
+    (DX10 header) of ``width`` × ``height`` with every mip down to 1×1, sampled like the feature
+    layers (trilinear, the material's addressing) at s + ``lod_bias``; texels are UNORM in [0, 1]."""
+
+    file: str
+    dxgi_format: int
+    format: str
+    width: int
+    height: int
+    mip_count: int
+    lod_bias: float
+    channels: int
 
 
 @dataclass(frozen=True)
@@ -136,25 +163,45 @@ class Training(Record):
 class MaterialFile(Record):
     """The material.json of one exported material folder."""
 
-    layers: tuple[Layer, ...]
+    layers: tuple[Layer, ...]  # empty when no output comes from the MLP
     sampling: Sampling
     reference: Reference
-    mlp: Mlp
     outputs: tuple[Output, ...]
-    onnx: Onnx
     training: Training
-    bc6h: BC6H | None = optional()  # exactly one of bc6h and bc7
+    mlp: Mlp | None = optional()  # None when no output comes from the MLP
+    onnx: Onnx | None = optional()
+    bc6h: BC6H | None = optional()  # exactly one of bc6h and bc7 when there are layers
     bc7: BC7 | None = optional()
+    classic: tuple[ClassicTexture, ...] = ()
     sha256: dict[str, str] | None = optional()
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
     bcfpipe_version: str = field(default_factory=lambda: _version())
 
-    _ORDER = ("format", "format_version", "bcfpipe_version", "layers", "bc6h", "bc7")
+    _ORDER = ("format", "format_version", "bcfpipe_version", "layers", "bc6h", "bc7", "sampling", "reference", "mlp",
+              "outputs", "onnx", "training")
 
     def __post_init__(self) -> None:
-        if (self.bc6h is None) == (self.bc7 is None):
+        neural = any(o.source != Source.CLASSIC for o in self.outputs)
+        if neural and (self.bc6h is None) == (self.bc7 is None):
             raise FormatError("material.json needs exactly one of 'bc6h' and 'bc7' (the feature format)")
+        if neural and (self.mlp is None or self.onnx is None or not self.layers):
+            raise FormatError("material.json: outputs from the MLP need 'layers', 'mlp' and 'onnx'")
+        if not neural and (self.layers or self.mlp or self.onnx or self.bc6h or self.bc7):
+            raise FormatError("material.json: no output comes from the MLP, yet it has feature layers or an MLP")
+        for o in self.outputs:
+            if o.source == Source.CLASSIC and (o.texture is None or not 0 <= o.texture < len(self.classic)):
+                raise FormatError(f"material.json: output {o.name} names no classic texture")
+
+    @property
+    def neural(self) -> bool:
+        """Whether any output comes from the MLP (a layout may ship classic textures only)."""
+        return self.mlp is not None
+
+    @property
+    def mixed(self) -> bool:
+        """Whether some outputs come from classic textures."""
+        return any(o.source == Source.CLASSIC for o in self.outputs)
 
     @property
     def features(self) -> str:
@@ -178,9 +225,14 @@ class MaterialFile(Record):
         return tuple(layer.mip_count for layer in self.layers)
 
     @property
+    def mlp_outputs(self) -> tuple[Output, ...]:
+        """The outputs the decoder (MLP and its post-processing) produces, in its output order."""
+        return tuple(o for o in self.outputs if o.source != Source.CLASSIC)
+
+    @property
     def kinds(self) -> tuple[str, ...]:
         """Kinds of the MLP's outputs (reconstructed outputs excluded)."""
-        return tuple(o.kind for o in self.outputs if not o.reconstructed)
+        return tuple(o.kind for o in self.mlp_outputs if not o.reconstructed)
 
     @property
     def normal_index(self) -> int:
@@ -190,7 +242,8 @@ class MaterialFile(Record):
     @property
     def files(self) -> list[str]:
         """Every file of the material besides material.json, in digest order."""
-        return [layer.file for layer in self.layers] + [self.mlp.weights, self.onnx.file]
+        neural = [layer.file for layer in self.layers] + ([self.mlp.weights, self.onnx.file] if self.mlp else [])
+        return neural + [c.file for c in self.classic]
 
 
 def _version() -> str:
@@ -201,7 +254,8 @@ def _version() -> str:
 
 def read(folder: str | os.PathLike) -> MaterialFile:
     """``folder/material.json``; a missing, foreign or malformed file raises FormatError."""
-    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION)
+    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2,),
+                       upgrade=lambda data: dict(data, format_version=FORMAT_VERSION))  # v2: all from the MLP
 
 
 def write(folder: str | os.PathLike, desc: MaterialFile) -> Path:

@@ -38,7 +38,17 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("MaterialFile", "outputs"): "Decoded channels in output order, normal z included after normal y.",
     ("MaterialFile", "onnx"): "The decoder as an ONNX model (features in, post-processed channels out).",
     ("MaterialFile", "training"): "How the material was trained (informative; times vary between runs).",
+    ("MaterialFile", "classic"): "Classic BC textures that some outputs read directly (a layout's classic groups, "
+                                 "--layout auto); empty when every output comes from the MLP.",
     ("MaterialFile", "sha256"): "SHA-256 (hex) of every other file of the material, by file name.",
+    ("ClassicTexture", "file"): "DDS file name, relative to the material folder.",
+    ("ClassicTexture", "dxgi_format"): "71 (BC1_UNORM), 80 (BC4_UNORM) or 83 (BC5_UNORM).",
+    ("ClassicTexture", "format"): "The DXGI format's name.",
+    ("ClassicTexture", "width"): "Width of mip 0 in texels.",
+    ("ClassicTexture", "height"): "Height of mip 0 in texels.",
+    ("ClassicTexture", "mip_count"): "Mips stored, down to 1x1.",
+    ("ClassicTexture", "lod_bias"): "Added to s before sampling: log2 of this texture's width over the reference's.",
+    ("ClassicTexture", "channels"): "Channels the outputs read (BC1: 3, BC4: 1, BC5: 2); texels are UNORM in [0, 1].",
     ("Layer", "file"): "DDS file name, relative to the material folder.",
     ("Layer", "resolution"): "Width and height of mip 0 in texels (square, a power of two).",
     ("Layer", "mip_count"): "Number of mips stored (down to 4x4, the BC6H block size).",
@@ -87,6 +97,14 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                             "learns t = log2(1 + v (2^g - 1)) / g of the normalised value v, and the "
                             "decoder returns v = (2^(g t) - 1) / (2^g - 1) after the clamp (weight record "
                             "BCFW v2). Absent: linear.",
+    ("Output", "source"): "Absent: the decoder's (MLP and post-processing) output, in the order of the outputs "
+                          "without a source. \"classic\": read from classic texture `texture`, channel "
+                          "`texel_channel`, as texel * texel_scale + texel_bias, then clamped to range; a "
+                          "classic normal's z is sqrt(max(0, 1 - x^2 - y^2)).",
+    ("Output", "texture"): "Classic outputs: index into classic.",
+    ("Output", "texel_channel"): "Classic outputs: the texture channel (0 = r).",
+    ("Output", "texel_scale"): "Classic outputs: value = texel * texel_scale + texel_bias (normals: 2, -1).",
+    ("Output", "texel_bias"): "Classic outputs: see texel_scale.",
     ("Onnx", "file"): "ONNX file name, relative to the material folder.",
     ("Onnx", "input"): "Input tensor name: float32 (N, n_in) features.",
     ("Onnx", "output"): "Output tensor name: float32 (N, outputs) channels.",

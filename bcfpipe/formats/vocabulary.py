@@ -15,7 +15,7 @@ except ImportError:  # Python 3.10
         def __str__(self) -> str:
             return str(self.value)
 
-__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace", "FeatureFormat", "Kernel"]
+__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace", "FeatureFormat", "Kernel", "Source", "Layout"]
 
 
 class Status(StrEnum):
@@ -71,3 +71,18 @@ class Kernel(StrEnum):
 
     TORCH = "torch"
     FUSED = "fused"
+
+
+class Source(StrEnum):
+    """Where a material.json output's value comes from (issue 31's layouts)."""
+
+    MLP = "mlp"
+    CLASSIC = "classic"
+
+
+class Layout(StrEnum):
+    """How a material's outputs are split between neural features and classic BC textures
+    (``--layout``, issue 31): all neural, or chosen per material by rate and per-mip distortion."""
+
+    NEURAL = "neural"
+    AUTO = "auto"

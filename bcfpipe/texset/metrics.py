@@ -37,7 +37,7 @@ from bcfpipe.formats.manifest import Quality as Metrics
 from bcfpipe.texset.texture_set import Channel
 from bcfpipe.texset import encoding
 
-__all__ = ["Metrics", "compute_metrics", "psnr_from_mse", "mse_per_mip", "ssim_group", "flip_group"]
+__all__ = ["Metrics", "compute_metrics", "psnr_from_mse", "mse_per_mip", "mse_per_channel", "ssim_group", "flip_group"]
 
 COLOR_KIND = "color"
 BAND_VALUES = 1 << 22  # values per band when a metric walks a large mip in bands of rows
@@ -87,6 +87,13 @@ def mse_per_mip(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
         n = (r.shape[0] * r.shape[1] if masks is None else count) * len(sel)
         out.append(total / n if n else 0.0)
     return out
+
+
+def mse_per_channel(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
+                    channels: Sequence[Channel]) -> np.ndarray:
+    """(mips, channels) peak-normalised MSE: the terms whose mean over channels is `mse_per_mip`
+    (a layout's figures follow from them channel by channel, bcfpipe.layout)."""
+    return np.array([mse_per_mip(ref_mips, dec_mips, channels, [c]) for c in range(len(channels))]).T
 
 
 def _mean_psnr(mses: Sequence[float], use: Sequence[int]) -> float:

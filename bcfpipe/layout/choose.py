@@ -1,0 +1,130 @@
+"""The layout rule of issue 31: which channel groups stay classic BC textures, and at which
+profile the neural features carry the rest, chosen by rate and per-mip distortion against BC@R.
+
+BC@R is the classic set a user would ship at the material's resolution R (`bcfpipe.layout.classic`).
+Every candidate is a set of classic groups plus, for the other channels, a neural model at a
+profile. Its per-mip MSE is the mean over channels of each channel's own MSE (the metric is a
+plain mean over channels, `bcfpipe.texset.metrics`), so a candidate's figures follow from
+per-channel errors without decoding it:
+
+* classic channels: exact, from the encoded blocks;
+* neural channels, ``bound``: from a model trained on *all* channels at that profile. A model
+  trained on fewer channels fits those at least as well in expectation, so this is what the
+  candidate can hold at the least;
+* ``predicted``: the same errors moved by the measured gain between two profiles
+  (`bcfpipe.train.rate.GAINS_DB`), for profiles that were not trained.
+
+Default objective: the highest all-mip PSNR with the size at most BC@R's and no reference mip
+more than `SLACK_DB` below BC@R at that mip (mips whose smaller side is at least 4 texels, the ones
+the all-mip PSNR averages). ``match_bc``: the smallest layout whose every such mip reaches BC@R.
+The all-classic layout (BC@R itself) always qualifies, so the result is never worse than it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Sequence
+
+import numpy as np
+
+from bcfpipe.texset.metrics import psnr_from_mse
+
+SLACK_DB = 0.5
+Basis = Literal["measured", "bound", "predicted"]
+ALL_CLASSIC = "all classic (BC@R)"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One layout: the classic groups (by name), the neural profile (None: no neural part)."""
+
+    classic: tuple[str, ...]
+    profile: str | None
+    size_bytes: int
+    mse_per_mip: tuple[float, ...]
+    basis: Basis
+    use: tuple[int, ...] = field(repr=False, default=())  # the mips the all-mip PSNR averages
+
+    @property
+    def label(self) -> str:
+        if self.profile is None:
+            return ALL_CLASSIC
+        if not self.classic:
+            return f"neural {self.profile}"
+        return f"neural {self.profile} + classic {', '.join(self.classic)}"
+
+    @property
+    def psnr_per_mip(self) -> tuple[float, ...]:
+        return tuple(psnr_from_mse(m) for m in self.mse_per_mip)
+
+    @property
+    def psnr(self) -> float:
+        use = self.use or tuple(range(len(self.mse_per_mip)))
+        return psnr_from_mse(float(np.mean([self.mse_per_mip[k] for k in use])))
+
+    def margins(self, bc: "Candidate") -> tuple[float, ...]:
+        """Per-mip PSNR minus BC@R's, in dB."""
+        return tuple(a - b for a, b in zip(self.psnr_per_mip, bc.psnr_per_mip))
+
+    def to_json(self, bc: "Candidate | None" = None) -> dict:
+        d = {"layout": self.label, "classic": list(self.classic), "profile": self.profile,
+             "size_bytes": self.size_bytes, "psnr": round(self.psnr, 3),
+             "psnr_per_mip": [round(v, 3) for v in self.psnr_per_mip], "basis": self.basis}
+        if bc is not None:
+            d["margin_per_mip_db"] = [round(v, 3) for v in self.margins(bc)]
+        return d
+
+
+def combine(neural: np.ndarray | None, classic: np.ndarray, classic_channels: Sequence[int]) -> tuple[float, ...]:
+    """Per-mip MSE of a layout from per-channel errors ((mips, channels) each): classic channels
+    from ``classic``, the others from ``neural``."""
+    err = classic.copy() if neural is None else neural.copy()
+    cols = list(classic_channels)
+    err[:, cols] = classic[:, cols]
+    return tuple(float(v) for v in err.mean(axis=1))
+
+
+def admissible(c: Candidate, bc: Candidate, match_bc: bool = False) -> str | None:
+    """Why ``c`` may not be shipped (None when it may): the size, or the first mip below the floor."""
+    if c.size_bytes > bc.size_bytes and not match_bc:
+        return f"{c.size_bytes / 2**20:.2f} MiB > BC@R's {bc.size_bytes / 2**20:.2f} MiB"
+    slack = 0.0 if match_bc else SLACK_DB
+    for k in bc.use:
+        if c.psnr_per_mip[k] < bc.psnr_per_mip[k] - slack - 1e-9:
+            return (f"mip {k} at {c.psnr_per_mip[k]:.1f} dB, below BC@R's {bc.psnr_per_mip[k]:.1f}"
+                    + (f" - {slack:g}" if slack else ""))
+    return None
+
+
+@dataclass(frozen=True)
+class Decision:
+    """The candidates weighed, the one chosen and why, against BC@R."""
+
+    bc: Candidate
+    candidates: tuple[Candidate, ...]
+    chosen: Candidate
+    reason: str
+    objective: Literal["quality", "match-bc"]
+
+    def to_json(self) -> dict:
+        return {"objective": self.objective, "chosen": self.chosen.to_json(self.bc), "reason": self.reason,
+                "bc": self.bc.to_json(),
+                "candidates": [dict(c.to_json(self.bc), rejected=admissible(c, self.bc, self.objective == "match-bc"))
+                               for c in self.candidates]}
+
+
+def choose(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = False) -> Decision:
+    """The best admissible candidate (BC@R itself among them, so there always is one)."""
+    pool = [bc, *[c for c in candidates if c.label != bc.label]]
+    ok = [c for c in pool if admissible(c, bc, match_bc) is None]
+    if match_bc:
+        best = min(ok, key=lambda c: (c.size_bytes, -c.psnr))
+        why = (f"the smallest layout whose every mip reaches BC@R: {best.size_bytes / 2**20:.2f} MiB "
+               f"against BC@R's {bc.size_bytes / 2**20:.2f} MiB")
+    else:
+        best = max(ok, key=lambda c: (c.psnr, -c.size_bytes))
+        worst = min(best.margins(bc)[k] for k in bc.use)
+        why = (f"highest all-mip PSNR ({best.psnr:.2f} dB, BC@R {bc.psnr:.2f}) within BC@R's size and "
+               f"{SLACK_DB:g} dB of it at every mip (worst mip {worst:+.1f} dB)")
+        if best is bc:
+            why = "no other layout stays within BC@R's size and 0.5 dB of it at every mip; shipping BC@R"
+    return Decision(bc, tuple(pool), best, why, "match-bc" if match_bc else "quality")

@@ -1,0 +1,84 @@
+"""Write a chosen layout as one material folder: the neural model's files (if any), the classic
+groups as C_i.dds, and a material.json whose every output says where its value comes from.
+
+Only the chosen parts are written; the probe and any model not chosen stay behind. The folder is
+deterministic for the same inputs (the build's cache relies on it), and material.json goes last.
+"""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+from bcfpipe.export.writer import output_channels
+from bcfpipe.formats import dds, material as mf
+from bcfpipe.formats.atomic import atomic_write
+from bcfpipe.formats.digest import sha256_file
+from bcfpipe.formats.vocabulary import Source
+from bcfpipe.layout.classic import DXGI, EncodedGroup
+from bcfpipe.layout.fit import LayoutFit
+from bcfpipe.texset.texture_set import TextureSet
+
+
+def classic_texture(i: int, enc: EncodedGroup, reference_width: int) -> mf.ClassicTexture:
+    _, w, h = enc.levels[0]
+    fmt = DXGI[enc.group.format]
+    return mf.ClassicTexture(mf.classic_file(i), fmt, dds.DXGI_NAMES[fmt], w, h, len(enc.levels),
+                             math.log2(w / reference_width), len(enc.group.channels))
+
+
+def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wrap: str) -> Path:
+    """Write ``fit``'s chosen layout of ``ts`` to ``out_dir``; returns it."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    chosen = fit.decision.chosen
+    shipped = [g for g in fit.classic if g.group.name in chosen.classic]
+    classic = []
+    where: dict[int, tuple[int, int, float, float]] = {}  # set channel -> (texture, channel, scale, bias)
+    for i, enc in enumerate(shipped):
+        dds.write(out / mf.classic_file(i), enc.levels, dxgi_format=DXGI[enc.group.format])
+        classic.append(classic_texture(i, enc, ts.width))
+        for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.group.texel_map(ts))):
+            where[c] = (i, j, scale, bias)
+
+    base = None
+    if fit.neural is not None:
+        src = Path(fit.neural.out_dir)
+        base = mf.read(src)
+        for f in base.files:
+            shutil.copyfile(src / f, out / f)
+    outputs = []
+    names = {ch.name: c for c, ch in enumerate(ts.channels)}
+    for o in output_channels(ts.channels):
+        c = names.get(o.name)
+        if o.reconstructed:  # normal z follows its x and y
+            c = names[f"{o.semantic}.y"] if f"{o.semantic}.y" in names else None
+        if c in where:
+            t, j, scale, bias = where[c]
+            outputs.append(replace(o, source=Source.CLASSIC.value, texture=t,
+                                   texel_channel=None if o.reconstructed else j,
+                                   texel_scale=None if o.reconstructed else scale,
+                                   texel_bias=None if o.reconstructed else bias))
+        else:
+            outputs.append(o)
+    if base is not None:
+        desc = replace(base, outputs=tuple(outputs), classic=tuple(classic), sha256=None)
+    else:
+        desc = mf.MaterialFile(layers=(), sampling=mf.Sampling(wrap),
+                               reference=mf.Reference(ts.width, ts.height, max(ts.width, ts.height).bit_length()),
+                               outputs=tuple(outputs), training=mf.Training((), "none", 0, "cpu"),
+                               classic=tuple(classic))
+    desc = replace(desc, sha256={f: sha256_file(out / f) for f in desc.files})
+    mf.write(out, desc)
+    return out
+
+
+def write_decision(out_dir: str | os.PathLike, fit: LayoutFit) -> Path:
+    """layout.json beside material.json: the candidates, the choice and why (informative)."""
+    import json
+
+    path = Path(out_dir) / "layout.json"
+    atomic_write(path, (json.dumps(fit.decision.to_json(), indent=2) + "\n").encode())
+    return path

@@ -1,0 +1,146 @@
+"""Fit one material's layout (issue 31): probe, choose, train what was chosen, measure it.
+
+1. Encode BC@R (every classic group, every mip) and measure it per channel: exact, no training.
+2. The probe: one neural model on all channels at p0, the largest profile no larger than the one
+   asked for whose bytes fit within BC@R's (the smallest when none does), trained and measured
+   from its exported files, per channel.
+3. Candidates: every subset of classic groups × every profile up to the one asked for, with
+   figures from (1) and (2) (`bcfpipe.layout.choose`: ``bound`` at p0, ``predicted`` elsewhere).
+   The rule picks one.
+4. If it needs a model the probe is not (fewer channels, or another profile), that model is
+   trained on its channels alone and measured. The final choice is made among measured layouts
+   only: BC@R, the probe, and that model with its classic groups.
+
+Cost: the probe plus at most one training, each at a profile no larger than the one asked for,
+so at most twice a `--layout neural` training.
+"""
+from __future__ import annotations
+
+import itertools
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from bcfpipe.config import PROFILES, TrainingOptions
+from bcfpipe.export.fit import MaterialResult, fit_material, make_config
+from bcfpipe.layout import choose as C
+from bcfpipe.layout.classic import EncodedGroup, encode
+from bcfpipe.texset.metrics import mse_per_channel
+from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
+from bcfpipe.train.trainer import ProgressFn
+
+
+@dataclass
+class LayoutFit:
+    """What `fit_layout` decided and trained."""
+
+    decision: C.Decision  # among measured layouts
+    first: C.Decision  # among all candidates, some predicted: what was trained next
+    classic: list[EncodedGroup]  # every group of BC@R
+    neural: MaterialResult | None  # the chosen layout's model (None: all classic)
+    neural_channels: tuple[int, ...]  # the texture set's channels it decodes
+    probe: MaterialResult
+    train_seconds: float  # probe + the second training, if any
+    seconds: float  # everything, encoding and measuring included
+
+
+def subset(ts: TextureSet, keep: Sequence[int]) -> TextureSet:
+    """``ts`` restricted to the channels ``keep`` (in that order)."""
+    keep = list(keep)
+    return TextureSet(np.ascontiguousarray(ts.data[..., keep]), tuple(ts.channels[i] for i in keep),
+                      ts.width, ts.height)
+
+
+def neural_bytes(profile: str, n_in: int, hidden: int, n_out: int) -> int:
+    """Feature textures (every mip down to 4×4) and the fp16 decoder record, about as exported."""
+    from bcfpipe.train.rate import _feature_bytes
+
+    return _feature_bytes(PROFILES[profile]) + 2 * (n_in * hidden + hidden + hidden * n_out + 3 * n_out) + 64
+
+
+def candidate_profiles(asked: str, device: str) -> list[str]:
+    """Paper profiles no larger than ``asked``, largest first."""
+    from bcfpipe.train.rate import CPU_PROFILES, GPU_PROFILES
+
+    pool = GPU_PROFILES if device.startswith("cuda") else CPU_PROFILES
+    top = PROFILES[asked][0]
+    return sorted((p for p in pool if PROFILES[p][0] <= top), key=lambda p: -PROFILES[p][0]) or [asked]
+
+
+def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
+               wrap: str = "repeat", match_bc: bool = False, log: Callable[[str], None] = lambda s: None,
+               progress: ProgressFn | None = None) -> LayoutFit:
+    """Choose and train ``ts``'s layout at BC resolution ``resolution``; neural files of the probe
+    and of the chosen model go under ``out_dir``/probe and ``out_dir``/neural."""
+    from bcfpipe.train.rate import _gain as rate_gain
+
+    def _gain(p: str, preset: str) -> float:  # smoke is no rate-control preset: draft's gains stand in
+        return rate_gain(p, preset if preset in ("draft", "fast", "standard", "paper") else "draft")
+
+    start = time.perf_counter()
+    out = Path(out_dir)
+    ref = build_mip_chain(ts.data)
+    use = tuple(k for k, m in enumerate(ref) if min(m.shape[:2]) >= 4) or tuple(range(len(ref)))
+    groups = encode(ts, resolution, ref, wrap)
+    bc_dec = [np.zeros_like(m) for m in ref]
+    for g in groups:
+        for k, m in enumerate(g.decoded):
+            bc_dec[k][..., list(g.group.channels)] = m
+    e_bc = mse_per_channel(ref, bc_dec, ts.channels)
+    del bc_dec
+    names = [g.group.name for g in groups]
+    bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
+                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
+    log(f"BC@{resolution}: {bc.size_bytes / 2**20:.2f} MiB, {bc.psnr:.2f} dB over all mips")
+
+    asked, cfg = make_config(ts, options, wrap)
+    profiles = candidate_profiles(asked if asked in PROFILES else "1k", cfg.device)
+    dims = (cfg.model.n_inputs, cfg.model.hidden)
+    size_of = {p: neural_bytes(p, *dims, ts.num_channels) for p in profiles}
+    p0 = next((p for p in profiles if size_of[p] <= bc.size_bytes), profiles[-1])
+    log(f"probe: all {ts.num_channels} channels at {p0}")
+    t = time.perf_counter()
+    probe, _ = fit_material(ts, out / "probe", make_config(ts, replace(options, profile=p0), wrap)[1], p0,
+                            progress=progress)
+    train_s = time.perf_counter() - t
+    e0 = probe.mse_per_channel
+    size_of[p0] = probe.size_bytes
+
+    cands = []
+    for r in range(len(groups)):
+        for chosen in itertools.combinations(range(len(groups)), r):
+            cols = [c for i in chosen for c in groups[i].group.channels]
+            classic_bytes = sum(groups[i].size_bytes for i in chosen)
+            for p in profiles:
+                e = e0 if p == p0 else e0 * 10 ** (-(_gain(p, options.preset) - _gain(p0, options.preset)) / 10)
+                basis = "measured" if (p == p0 and not chosen) else "bound" if p == p0 else "predicted"
+                cands.append(C.Candidate(tuple(names[i] for i in chosen), p, size_of[p] + classic_bytes,
+                                         C.combine(e, e_bc, cols), basis, use))
+    first = C.choose(cands, bc, match_bc)
+    log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
+
+    ch = first.chosen
+    final_pool = [bc, next(c for c in cands if c.profile == p0 and not c.classic)]
+    models = {final_pool[1].label: (probe, tuple(range(ts.num_channels)))}
+    if ch.profile is not None and (ch.classic or ch.profile != p0):
+        keep = [c for c in range(ts.num_channels)
+                if not any(c in g.group.channels for g in groups if g.group.name in ch.classic)]
+        sub = subset(ts, keep)
+        log(f"training {len(keep)} channel(s) at {ch.profile} for: {ch.label}")
+        t = time.perf_counter()
+        res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=ch.profile), wrap)[1],
+                              ch.profile, progress=progress)
+        train_s += time.perf_counter() - t
+        e = e_bc.copy()
+        e[:, keep] = res.mse_per_channel
+        classic_bytes = sum(g.size_bytes for g in groups if g.group.name in ch.classic)
+        m = C.Candidate(ch.classic, ch.profile, res.size_bytes + classic_bytes, tuple(float(v) for v in e.mean(1)),
+                        "measured", use)
+        final_pool.append(m)
+        models[m.label] = (res, tuple(keep))
+    decision = C.choose(final_pool, bc, match_bc)
+    neural, channels = models.get(decision.chosen.label, (None, ()))
+    return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start)

@@ -1,0 +1,51 @@
+"""`--layout auto` for one material: fit the layout, export it, and measure the exported folder."""
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+from typing import Callable
+
+from bcfpipe.config import PROFILES, TrainingOptions
+from bcfpipe.export import writer as E
+from bcfpipe.export.fit import MaterialResult, exported_size
+from bcfpipe.layout.export import export_layout, write_decision
+from bcfpipe.layout.fit import fit_layout
+from bcfpipe.texset.metrics import compute_metrics, mse_per_channel
+from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
+from bcfpipe.train.trainer import ProgressFn
+
+WORK = ".layout-work"  # inside the output folder while the probe and the chosen model train
+
+
+def bc_resolution(ts: TextureSet, profile: str) -> int:
+    """R: the T_0 of the profile asked for (1k -> 1024), or the source's larger side for auto."""
+    return PROFILES[profile][0] if profile in PROFILES else max(ts.width, ts.height)
+
+
+def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, wrap: str,
+                        log: Callable[[str], None] = lambda s: None,
+                        progress: ProgressFn | None = None) -> MaterialResult:
+    """Choose, train and export ``ts``'s layout into ``out_dir`` (material.json says where every
+    output comes from; layout.json why), measured from the exported files."""
+    out = Path(out_dir)
+    work = out / WORK
+    start = time.perf_counter()
+    try:
+        fit = fit_layout(ts, work, options, bc_resolution(ts, options.profile), wrap=wrap,
+                         match_bc=options.match_bc, log=log, progress=progress)
+        export_layout(fit, ts, out, wrap)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    write_decision(out, fit)
+    t0 = time.perf_counter()
+    ref = build_mip_chain(ts.data)
+    dec = E.decode_mips(E.load(out), [m.shape[:2] for m in ref])
+    metrics = compute_metrics(ref, dec, ts.channels)
+    per_channel = mse_per_channel(ref, dec, ts.channels)
+    ch, n = fit.decision.chosen, fit.neural
+    return MaterialResult(out, ch.profile or "classic", PROFILES[ch.profile] if ch.profile else (),
+                          options.preset if n else "none", n.device if n else "cpu", metrics, None, exported_size(out),
+                          fit.train_seconds, {"layout": round(time.perf_counter() - start, 3),
+                                              "evaluate": round(time.perf_counter() - t0, 3)},
+                          None, per_channel, fit.decision.to_json())

@@ -1,0 +1,232 @@
+"""Issue 31's layouts: classic groups, the choice rule, and a mixed material rebuilt from its
+material.json alone (OpenImageIO for every DDS, onnxruntime for the decoder)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bcfpipe.config import TrainingOptions
+from bcfpipe.export import writer as E
+from bcfpipe.export.fit import fit_material, make_config
+from bcfpipe.formats import dds
+from bcfpipe.layout import choose as C
+from bcfpipe.layout.classic import ClassicFormat, decode_levels, encode, groups
+from bcfpipe.layout.export import export_layout
+from bcfpipe.layout.fit import LayoutFit, subset
+from bcfpipe.texset.metrics import mse_per_channel
+from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
+
+SCHEMA = Path(__file__).resolve().parents[1] / "schemas" / "material.schema.json"
+
+
+def _set(size=64, seed=0) -> TextureSet:
+    """albedo (rgb, its own file), normal (x, y), roughness alone in its file: BC1 + BC5 + BC4."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:size, 0:size] / size
+    alb = np.stack([0.5 + 0.4 * np.sin(6.28 * xx), 0.5 + 0.3 * np.cos(6.28 * yy), 0.3 + 0.2 * xx], -1)
+    nx, ny = 0.4 * np.sin(12.56 * xx), 0.4 * np.cos(12.56 * yy)
+    rough = 0.5 + 0.3 * np.sin(6.28 * (xx + yy)) + 0.05 * rng.standard_normal((size, size))
+    data = np.concatenate([alb, nx[..., None], ny[..., None], np.clip(rough, 0, 1)[..., None]], -1).astype(np.float32)
+    ch = (Channel("albedo", "r", "color", "a.png", 0), Channel("albedo", "g", "color", "a.png", 1),
+          Channel("albedo", "b", "color", "a.png", 2), Channel("normal", "x", "normal", "n.png", 0),
+          Channel("normal", "y", "normal", "n.png", 1), Channel("roughness", "r", "scalar", "r.png", 0))
+    return TextureSet(data, ch, size, size)
+
+
+def test_groups_are_benchs_bc_set():
+    gs = groups(_set())
+    assert [(g.format, g.channels, g.name) for g in gs] == [
+        (ClassicFormat.BC1, (0, 1, 2), "albedo"), (ClassicFormat.BC5, (3, 4), "normal"),
+        (ClassicFormat.BC4, (5,), "roughness")]
+
+
+def test_classic_blocks_decode_to_what_bench_measured():
+    ts = _set()
+    ref = build_mip_chain(ts.data)
+    for enc in encode(ts, 32, ref):
+        texels = decode_levels(enc.group.format, enc.levels)
+        scale_bias = np.array(enc.group.texel_map(ts))
+        # level 0 is reference mip 1 (R = 32 for a 64² set); every level after it in turn
+        for k, t in enumerate(texels):
+            np.testing.assert_allclose(t * scale_bias[:, 0] + scale_bias[:, 1], enc.decoded[k + 1], atol=1e-6)
+
+
+def _cand(classic, size, mse, basis="measured", profile="1k"):
+    return C.Candidate(classic, profile, size, tuple(mse), basis, (0, 1, 2))
+
+
+def test_rule_keeps_bc_when_nothing_else_qualifies_and_picks_the_best_that_does():
+    bc = _cand(("a", "b"), 1000, [1e-4, 1e-4, 1e-4], profile=None)
+    too_big = _cand((), 1001, [1e-6] * 3)
+    too_weak_at_mip0 = _cand((), 500, [1.2e-4, 1e-6, 1e-6])  # 0.79 dB below BC at mip 0
+    assert C.choose([too_big, too_weak_at_mip0], bc).chosen is bc
+    assert "2.67" not in C.admissible(too_big, bc) and "MiB" in C.admissible(too_big, bc)
+    assert C.admissible(too_weak_at_mip0, bc).startswith("mip 0")
+    ok_small = _cand(("a",), 900, [1.1e-4, 5e-5, 5e-5])  # 0.41 dB under at mip 0: within the slack
+    ok_best = _cand(("b",), 950, [1.05e-4, 2e-5, 2e-5])
+    d = C.choose([ok_small, ok_best, too_big], bc)
+    assert d.chosen is ok_best and d.chosen.psnr > bc.psnr
+    # --match-bc: every mip at BC or better, then the smallest
+    m1, m2 = _cand(("a",), 800, [1e-4, 9e-5, 9e-5]), _cand(("b",), 700, [0.99e-4, 5e-5, 5e-5])
+    assert C.choose([m1, m2, ok_small], bc, match_bc=True).chosen is m2
+
+
+def test_combine_is_the_per_channel_mean():
+    n = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    c = np.array([[10.0, 20.0, 30.0], [40.0, 50.0, 60.0]])
+    assert C.combine(n, c, [1]) == (pytest.approx((1 + 20 + 3) / 3), pytest.approx((4 + 50 + 6) / 3))
+
+
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory):
+    """albedo and roughness neural (a model on those channels alone), the normal map classic BC5."""
+    tmp = tmp_path_factory.mktemp("mixed")
+    ts = _set()
+    ref = build_mip_chain(ts.data)
+    enc = encode(ts, 32, ref)
+    keep = [0, 1, 2, 5]
+    sub = subset(ts, keep)
+    _, cfg = make_config(sub, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
+    res, _ = fit_material(sub, tmp / "neural", cfg, "tiny")
+    err = np.zeros((len(ref), ts.num_channels))
+    err[:, keep] = res.mse_per_channel
+    bc_dec = [np.zeros_like(m) for m in ref]
+    for g in enc:
+        for k, m in enumerate(g.decoded):
+            bc_dec[k][..., list(g.group.channels)] = m
+    e_bc = mse_per_channel(ref, bc_dec, ts.channels)
+    err[:, [3, 4]] = e_bc[:, [3, 4]]
+    use = tuple(range(len(ref)))
+    chosen = C.Candidate(("normal",), "tiny", res.size_bytes + enc[1].size_bytes, tuple(err.mean(1)), "measured", use)
+    bc = C.Candidate(("albedo", "normal", "roughness"), None, sum(g.size_bytes for g in enc),
+                     C.combine(None, e_bc, range(6)), "measured", use)
+    d = C.Decision(bc, (bc, chosen), chosen, "test", "quality")
+    fit = LayoutFit(d, d, enc, res, tuple(keep), res, 0.0, 0.0)
+    out = export_layout(fit, ts, tmp / "material", "repeat")
+    return ts, ref, out, chosen
+
+
+def test_mixed_material_json_says_where_each_output_comes_from(mixed):
+    import jsonschema
+
+    ts, _, out, _ = mixed
+    d = json.loads((out / "material.json").read_text())
+    jsonschema.validate(d, json.loads(SCHEMA.read_text()))
+    assert d["format_version"] == 3
+    assert [c["file"] for c in d["classic"]] == ["C0.dds"] and d["classic"][0]["format"] == "BC5_UNORM"
+    assert d["classic"][0]["width"] == 32 and d["classic"][0]["lod_bias"] == -1.0
+    src = {o["name"]: o.get("source", "mlp") for o in d["outputs"]}
+    assert src == {"albedo.r": "mlp", "albedo.g": "mlp", "albedo.b": "mlp", "normal.x": "classic",
+                   "normal.y": "classic", "normal.z": "classic", "roughness.r": "mlp"}
+    nx = next(o for o in d["outputs"] if o["name"] == "normal.x")
+    assert (nx["texture"], nx["texel_channel"], nx["texel_scale"], nx["texel_bias"]) == (0, 0, 2.0, -1.0)
+    assert d["mlp"]["n_out"] == 4 and sorted(d["sha256"]) == sorted(
+        ["T0.dds", "T1.dds", "T2.dds", "T3.dds", "weights.bin", "decoder.onnx", "C0.dds"])
+    assert not (out / "probe").exists() and sorted(p.name for p in out.iterdir()) == sorted(
+        [*d["sha256"], "material.json"])
+
+
+def test_mixed_material_measures_what_its_choice_predicted(mixed):
+    """Decoding the exported folder gives exactly the per-mip errors the choice combined."""
+    ts, ref, out, chosen = mixed
+    em = E.load(out)
+    dec = E.decode_mips(em, [m.shape[:2] for m in ref])
+    got = mse_per_channel(ref, dec, ts.channels).mean(1)
+    np.testing.assert_allclose(got, chosen.mse_per_mip, rtol=1e-5)
+
+
+def _trilinear(levels, uv, lod, wrap):
+    """GL's LINEAR_MIPMAP_LINEAR at one lod for every uv, in float64, written from the spec."""
+    lod = min(max(lod, 0.0), len(levels) - 1)
+    l0 = int(np.floor(lod))
+    l1, f = min(l0 + 1, len(levels) - 1), lod - l0
+
+    def bilinear(img):
+        h, w = img.shape[:2]
+        x, y = uv[:, 0] * w - 0.5, uv[:, 1] * h - 0.5
+        x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+
+        def at(ix, iy):
+            ix = ix % w if wrap == "repeat" else np.clip(ix, 0, w - 1)
+            iy = iy % h if wrap == "repeat" else np.clip(iy, 0, h - 1)
+            return img[iy, ix].astype(np.float64)
+
+        top = at(x0, y0) * (1 - fx) + at(x0 + 1, y0) * fx
+        bot = at(x0, y0 + 1) * (1 - fx) + at(x0 + 1, y0 + 1) * fx
+        return top * (1 - fy) + bot * fy
+
+    return bilinear(levels[l0]) * (1 - f) + bilinear(levels[l1]) * f
+
+
+def _oiio_levels(path, channels):
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    levels, k = [], 0
+    while inp.seek_subimage(0, k):
+        px = inp.read_image(format="float")
+        levels.append(np.asarray(px, np.float32)[..., :channels])
+        k += 1
+    inp.close()
+    return levels
+
+
+def test_mixed_material_rebuilt_from_material_json_alone(mixed):
+    """An independent consumer: OpenImageIO reads every DDS (BC6H features, BC5 normals), numpy
+    samples them as GL would, onnxruntime runs the decoder, material.json says the rest."""
+    import onnxruntime as ort
+
+    ts, ref, out, _ = mixed
+    d = json.loads((out / "material.json").read_text())
+    wrap = d["sampling"]["addressing"]
+    layers = [_oiio_levels(out / l["file"], l["channels"]) for l in d["layers"]]
+    classic = [_oiio_levels(out / c["file"], c["channels"]) for c in d["classic"]]
+    assert [len(c) for c in classic] == [c["mip_count"] for c in d["classic"]]
+    sess = ort.InferenceSession(str(out / d["onnx"]["file"]), providers=["CPUExecutionProvider"])
+    ours = E.decode_mips(E.load(out), [m.shape[:2] for m in ref], drop_normal_z=False)
+    for k in (0, 1, 3):
+        h, w = ref[k].shape[:2]
+        ids = np.arange(h * w)
+        uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1)
+        feats = np.concatenate([_trilinear(lv, uv, k + l["lod_bias"], wrap) for lv, l in zip(layers, d["layers"])], 1)
+        y_mlp = sess.run([d["onnx"]["output"]], {d["onnx"]["input"]: feats.astype(np.float32)})[0]
+        texels = [_trilinear(lv, uv, k + c["lod_bias"], wrap) for lv, c in zip(classic, d["classic"])]
+        cols, j = [], 0
+        for o in d["outputs"]:
+            if o.get("source", "mlp") == "mlp":
+                cols.append(y_mlp[:, j])
+                j += 1
+            elif o["reconstructed"]:
+                x, y = cols[-2], cols[-1]
+                cols.append(np.sqrt(np.maximum(0.0, 1.0 - x * x - y * y)))
+            else:
+                v = texels[o["texture"]][:, o["texel_channel"]] * o["texel_scale"] + o["texel_bias"]
+                cols.append(np.clip(v, *o["range"]))
+        theirs, mine = np.stack(cols, 1), ours[k].reshape(h * w, -1)
+        for i, o in enumerate(d["outputs"]):
+            if o.get("source", "mlp") == "mlp":
+                np.testing.assert_allclose(theirs[:, i], mine[:, i], atol=2e-4, err_msg=o["name"])
+            elif not o["reconstructed"]:
+                # OpenImageIO rounds BC5's interpolated palette differently from quicktex and
+                # texture2ddecoder (which agree exactly): at most one 8-bit step apart
+                step = abs(o["texel_scale"]) / 255
+                np.testing.assert_allclose(theirs[:, i], mine[:, i], atol=step + 1e-6, err_msg=o["name"])
+            else:
+                x, y = mine[:, i - 2], mine[:, i - 1]
+                np.testing.assert_allclose(mine[:, i], np.sqrt(np.maximum(0, 1 - x * x - y * y)), atol=1e-6)
+
+
+def test_a_layer_file_that_is_a_classic_format_is_refused(mixed, tmp_path):
+    import shutil
+
+    _, _, out, _ = mixed
+    bad = tmp_path / "bad"
+    shutil.copytree(out, bad)
+    shutil.copyfile(bad / "C0.dds", bad / "T0.dds")
+    with pytest.raises(dds.DdsError, match="no feature-layer format"):
+        E.load(bad)
