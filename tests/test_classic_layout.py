@@ -230,3 +230,33 @@ def test_a_layer_file_that_is_a_classic_format_is_refused(mixed, tmp_path):
     shutil.copyfile(bad / "C0.dds", bad / "T0.dds")
     with pytest.raises(dds.DdsError, match="no feature-layer format"):
         E.load(bad)
+
+
+@pytest.mark.gl
+def test_verify_checks_both_parts_of_a_mixed_material(mixed):
+    """The MLP's outputs GLSL against ONNX, the classic texture against independent decoders."""
+    from bcfpipe.verify.checks import verify
+
+    _, _, out, _ = mixed
+    rep = verify(out)
+    assert rep.exit_code == 0, rep.to_dict()
+    checks = {c.name: c for c in rep.materials[0].checks}
+    assert set(checks) == {"files", "integrity", "weights", "openimageio", "classic", "glsl"}
+    assert "1 classic texture(s)" in checks["classic"].detail
+    assert [ch["name"] for ch in rep.materials[0].channels] == ["albedo.r", "albedo.g", "albedo.b", "roughness.r"]
+
+
+def test_verify_refuses_a_classic_texture_whose_bytes_changed(mixed, tmp_path):
+    import shutil
+
+    from bcfpipe.verify.checks import verify
+
+    _, _, out, _ = mixed
+    bad = tmp_path / "bad"
+    shutil.copytree(out, bad)
+    data = bytearray((bad / "C0.dds").read_bytes())
+    data[200] ^= 0xFF
+    (bad / "C0.dds").write_bytes(bytes(data))
+    rep = verify(bad, glsl=False)
+    assert rep.exit_code == 1
+    assert "C0.dds differs from its recorded SHA-256" in {c.name: c for c in rep.materials[0].checks}["integrity"].detail

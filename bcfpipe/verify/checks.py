@@ -9,6 +9,11 @@ For every material (one exported folder, or every material of a build) the check
 ``weights``    the fp16 record the runtime reads (the material's weights.bin, or the build's combined
                buffer at the material's offset) holds exactly the values of decoder.onnx.
 ``openimageio`` OpenImageIO reads every mip of every DDS to the same fp16 bits as bcfpipe.bc6h.decode.
+``classic``    a layout's classic textures (--layout auto): each DDS agrees with material.json (format,
+               size, full mip chain); texture2ddecoder decodes every mip to the same 8-bit values as
+               bcfpipe (quicktex), and OpenImageIO to within 2 (BC1) or 1 (BC4/BC5) 8-bit steps (its
+               palettes round differently). A material with classic outputs only has no other check but
+               ``integrity``.
 ``glsl``       glsl/bcf_decode.comp, run through OpenGL (moderngl on EGL: the GPU driver, or Mesa
                llvmpipe), against an independent path: features sampled in numpy/torch from the DDS
                decoded by bcfpipe.bc6h.decode (bcfpipe.model.sampling conventions) fed to decoder.onnx
@@ -225,6 +230,70 @@ def check_openimageio(texs: Sequence[dds.DdsTexture], files: Sequence[Path]) -> 
     return Check("openimageio", not bad, "; ".join(bad) or f"{n_levels} mip levels bit-identical")
 
 
+# OpenImageIO (bcdec) rounds the interpolated BC palettes differently from quicktex and
+# texture2ddecoder (which agree bit for bit): measured at most 2 8-bit steps for BC1's 565 colours
+# and 1 for BC4/BC5. Hardware decoders differ among themselves in the same way.
+OIIO_STEPS = {"bc1": 2, "bc4": 1, "bc5": 1}
+
+
+def check_classic(m: MaterialDesc) -> Check:
+    """A layout's classic textures: headers against material.json, and three decoders agreeing."""
+    import OpenImageIO as oiio
+
+    from bcfpipe.layout.classic import ClassicFormat, decode_levels
+
+    fmt_of = {dds.DXGI_FORMAT_BC1_UNORM: ClassicFormat.BC1, dds.DXGI_FORMAT_BC4_UNORM: ClassicFormat.BC4,
+              dds.DXGI_FORMAT_BC5_UNORM: ClassicFormat.BC5}
+    bad, n_levels, exact = [], 0, True
+    try:
+        import texture2ddecoder as t2d
+    except ImportError:
+        t2d, exact = None, False
+    for c in m.file.classic:
+        path = m.folder / c.file
+        try:
+            tex = dds.read(path)
+        except dds.DdsError as e:
+            raise VerifyInputError(str(e)) from None
+        if (tex.dxgi_format, tex.width, tex.height, tex.mip_count) != (c.dxgi_format, c.width, c.height, c.mip_count):
+            bad.append(f"{c.file}: {tex.format_name} {tex.width}x{tex.height}, {tex.mip_count} mips; material.json "
+                       f"says {c.format} {c.width}x{c.height}, {c.mip_count} mips")
+            continue
+        if tex.mip_count != dds.max_mip_count(tex.width, tex.height):
+            bad.append(f"{c.file}: {tex.mip_count} mips, not the full chain")
+        fmt = fmt_of[tex.dxgi_format]
+        ours = decode_levels(fmt, tex.levels)
+        inp = oiio.ImageInput.open(str(path))
+        if inp is None:
+            bad.append(f"{c.file}: OpenImageIO cannot open it ({oiio.geterror()})")
+            continue
+        try:
+            for k, ((blocks, w, h), o) in enumerate(zip(tex.levels, ours)):
+                n_levels += 1
+                mine = np.rint(o * 255).astype(np.int32)
+                if t2d is not None:
+                    pw, ph = (w + 3) // 4 * 4, (h + 3) // 4 * 4
+                    dec = {ClassicFormat.BC1: t2d.decode_bc1, ClassicFormat.BC4: t2d.decode_bc4,
+                           ClassicFormat.BC5: t2d.decode_bc5}[fmt]
+                    bgra = np.frombuffer(dec(blocks.tobytes(), pw, ph), np.uint8).reshape(ph, pw, 4)[:h, :w]
+                    theirs = bgra[..., [2, 1, 0]][..., :c.channels].astype(np.int32)
+                    if (theirs != mine).any():
+                        bad.append(f"{c.file} mip {k}: texture2ddecoder differs in {int((theirs != mine).sum())} value(s)")
+                if not inp.seek_subimage(0, k):
+                    bad.append(f"{c.file}: OpenImageIO has no mip {k}")
+                    break
+                img = np.asarray(inp.read_image(format="float")).reshape(h, w, -1)[..., :c.channels]
+                step = np.abs(np.rint(img * 255).astype(np.int32) - mine).max()
+                if step > OIIO_STEPS[fmt]:
+                    bad.append(f"{c.file} mip {k}: OpenImageIO differs by {step} 8-bit steps")
+        finally:
+            inp.close()
+    detail = (f"{len(m.file.classic)} classic texture(s), {n_levels} mip levels: texture2ddecoder "
+              f"{'bit-identical' if exact else 'not installed'}, OpenImageIO within 2 (BC1) or 1 (BC4/BC5) "
+              "8-bit steps")
+    return Check("classic", not bad, "; ".join(bad) or detail)
+
+
 def _finite(x) -> float | str:
     """A float for JSON, or 'inf' / '-inf' (strict JSON has no infinities)."""
     x = float(x)
@@ -320,6 +389,12 @@ def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = Non
     rep = MaterialReport(m.name, str(m.folder))
     started = on_check or (lambda name: None)
     try:
+        if not m.file.neural:  # a layout of classic textures only
+            started("integrity")
+            rep.checks.append(check_integrity(t))
+            started("classic")
+            rep.checks.append(check_classic(m))
+            return rep
         started("files")
         files, texs = check_files(m)
         rep.checks.append(files)
@@ -329,6 +404,9 @@ def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = Non
         rep.checks.append(check_weights_onnx(m))
         started("openimageio")
         rep.checks.append(check_openimageio(texs, m.layer_files))
+        if m.file.classic:
+            started("classic")
+            rep.checks.append(check_classic(m))
         if rt is not None:
             started("glsl")
             em = E.load(m.folder)

@@ -132,7 +132,8 @@ class MaterialDesc:
 
     @property
     def outputs(self) -> tuple[mf.Output, ...]:
-        return self.file.outputs
+        """The decoder's outputs (a layout's classic outputs are not the shader's)."""
+        return self.file.mlp_outputs
 
     @property
     def c_out(self) -> int:
@@ -147,8 +148,8 @@ def read_material(folder: str | os.PathLike, weights_file: str | os.PathLike | N
     desc = mf.read(folder)
     return MaterialDesc(
         folder=folder, name=name or folder.name, file=desc,
-        weights_file=Path(weights_file) if weights_file is not None else folder / desc.mlp.weights,
-        weight_offset=int(weight_offset if weight_offset is not None else desc.mlp.offset))
+        weights_file=Path(weights_file) if weights_file is not None else folder / desc.mlp.weights if desc.mlp else None,
+        weight_offset=int(weight_offset if weight_offset is not None else desc.mlp.offset if desc.mlp else 0))
 
 
 @dataclass
