@@ -260,3 +260,71 @@ def test_verify_refuses_a_classic_texture_whose_bytes_changed(mixed, tmp_path):
     rep = verify(bad, glsl=False)
     assert rep.exit_code == 1
     assert "C0.dds differs from its recorded SHA-256" in {c.name: c for c in rep.materials[0].checks}["integrity"].detail
+
+
+def test_the_closest_mixed_bound_is_explored_when_none_qualifies():
+    bc = _cand(("a", "b"), 1000, [1e-4, 1e-4, 1e-4], profile=None)
+    near = C.Candidate(("a",), "1k", 800, (2e-4, 5e-5, 5e-5), "bound", (0, 1, 2))  # 3.0 dB under at mip 0
+    nearer = C.Candidate(("b",), "1k", 900, (1.5e-4, 5e-5, 5e-5), "bound", (0, 1, 2))  # 1.3 dB under
+    too_big = C.Candidate(("b",), "2k", 1100, (1.2e-4, 5e-5, 5e-5), "bound", (0, 1, 2))
+    hopeless = C.Candidate(("a",), "0.5k", 500, (1e-3, 5e-5, 5e-5), "bound", (0, 1, 2))  # 9.5 dB under
+    assert C.choose([near, nearer, too_big, hopeless], bc).chosen is bc
+    assert C.most_promising([near, nearer, too_big, hopeless], bc) is nearer
+    assert C.most_promising([hopeless], bc) is None
+    assert C.deficit(nearer, bc) == pytest.approx(10 * np.log10(1.5) - 0.5)
+
+
+SAMPLE = Path(__file__).resolve().parents[1] / "samples"
+
+
+def test_train_layout_auto_writes_the_chosen_layout_and_why(tmp_path):
+    """A real `bcfpipe train --layout auto`: one folder, material.json + layout.json, measured."""
+    from click.testing import CliRunner
+
+    from bcfpipe.cli import main
+
+    t = SAMPLE / "textures"
+    out = tmp_path / "m"
+    r = CliRunner().invoke(main, ["train", f"albedo={t / 'bricks_albedo.png'}:rgb",
+                                  f"normal={t / 'bricks_normal.png'}:xy", "--layout", "auto",
+                                  "--quality", "smoke", "--threads", "1", "-o", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    d = json.loads(r.stdout.strip().splitlines()[-1])
+    lay = d["layout"]
+    assert lay["objective"] == "quality" and lay["chosen"]["layout"]
+    assert {c["layout"] for c in lay["candidates"]} >= {"all classic (BC@R)", "neural 0.5k"}
+    assert json.loads((out / "layout.json").read_text()) == lay
+    assert not (out / ".layout-work").exists()
+    assert d["size_bytes"] <= lay["bc"]["size_bytes"] and d["size_bytes"] == lay["chosen"]["size_bytes"]
+    assert abs(d["psnr"] - lay["chosen"]["psnr"]) < 0.01  # the folder measures what the choice said
+    from bcfpipe.verify.checks import verify
+
+    assert verify(out, glsl=False).exit_code == 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--match-bc"], "--match-bc chooses a layout: use it with --layout auto"),
+    (["--layout", "auto", "--target-psnr", "30"], "use one (--layout neural --target-psnr DB)"),
+])
+def test_layout_options_that_do_not_combine_are_refused_in_one_line(tmp_path, args, message):
+    from click.testing import CliRunner
+
+    from bcfpipe.cli import main
+
+    t = SAMPLE / "textures"
+    r = CliRunner().invoke(main, ["train", f"albedo={t / 'bricks_albedo.png'}:rgb", "-o", str(tmp_path / "m"), *args])
+    assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output
+
+
+@pytest.mark.parametrize("command", ["build", "plan"])
+def test_build_and_plan_refuse_layout_auto_until_the_runtime_follows(tmp_path, command):
+    from click.testing import CliRunner
+
+    from bcfpipe.cli import main
+
+    args = [command, str(SAMPLE / "sample_scene.usda"), "--layout", "auto"]
+    if command == "build":
+        args += ["-o", str(tmp_path / "out")]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and f"--layout auto is not in `bcfpipe {command}` yet" in r.output
+    assert not (tmp_path / "out").exists()

@@ -18,6 +18,8 @@ Default objective: the highest all-mip PSNR with the size at most BC@R's and no 
 more than `SLACK_DB` below BC@R at that mip (mips whose smaller side is at least 4 texels, the ones
 the all-mip PSNR averages). ``match_bc``: the smallest layout whose every such mip reaches BC@R.
 The all-classic layout (BC@R itself) always qualifies, so the result is never worse than it.
+When no candidate qualifies on its bound, the mixed one that falls shortest (`most_promising`,
+within `EXPLORE_DB`) is trained anyway: its own model may clear the floor where the bound did not.
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ import numpy as np
 from bcfpipe.texset.metrics import psnr_from_mse
 
 SLACK_DB = 0.5
+EXPLORE_DB = 3.0  # a bound this far below the floor may still be reached by its own training
 Basis = Literal["measured", "bound", "predicted"]
 ALL_CLASSIC = "all classic (BC@R)"
 
@@ -110,6 +113,22 @@ class Decision:
                 "bc": self.bc.to_json(),
                 "candidates": [dict(c.to_json(self.bc), rejected=admissible(c, self.bc, self.objective == "match-bc"))
                                for c in self.candidates]}
+
+
+def deficit(c: Candidate, bc: Candidate, match_bc: bool = False) -> float:
+    """How far ``c``'s worst mip falls short of its floor (BC@R - slack), in dB; <= 0 when none does."""
+    slack = 0.0 if match_bc else SLACK_DB
+    return max(bc.psnr_per_mip[k] - slack - c.psnr_per_mip[k] for k in bc.use)
+
+
+def most_promising(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = False,
+                   within_db: float = EXPLORE_DB) -> Candidate | None:
+    """The mixed candidate (some groups classic, a neural part) whose ``bound`` falls shortest of
+    the floor, within ``within_db``, and within BC@R's size: worth its own training, since a model
+    trained on fewer channels fits them better than the all-channel probe did."""
+    pool = [c for c in candidates if c.classic and c.profile is not None and c.basis == "bound"
+            and (match_bc or c.size_bytes <= bc.size_bytes) and 0 < deficit(c, bc, match_bc) <= within_db]
+    return min(pool, key=lambda c: (deficit(c, bc, match_bc), c.size_bytes), default=None)
 
 
 def choose(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = False) -> Decision:

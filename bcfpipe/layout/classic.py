@@ -55,7 +55,10 @@ class EncodedGroup:
 
     @property
     def size_bytes(self) -> int:
-        return sum(b.nbytes for b, _, _ in self.levels)
+        """Its DDS file's bytes (header included), as a layout's other files are counted."""
+        from bcfpipe.formats.dds import HEADER_BYTES
+
+        return HEADER_BYTES + sum(b.nbytes for b, _, _ in self.levels)
 
 
 def groups(ts: TextureSet) -> tuple[Group, ...]:

@@ -6,8 +6,9 @@
    from its exported files, per channel.
 3. Candidates: every subset of classic groups × every profile up to the one asked for, with
    figures from (1) and (2) (`bcfpipe.layout.choose`: ``bound`` at p0, ``predicted`` elsewhere).
-   The rule picks one.
-4. If it needs a model the probe is not (fewer channels, or another profile), that model is
+   The rule picks one; when it picks BC@R or the probe, the mixed candidate closest to qualifying
+   (`choose.most_promising`) is picked for training instead.
+4. If that needs a model the probe is not (fewer channels, or another profile), the model is
    trained on its channels alone and measured. The final choice is made among measured layouts
    only: BC@R, the probe, and that model with its classic groups.
 
@@ -123,6 +124,12 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
 
     ch = first.chosen
+    if ch.profile is None or (not ch.classic and ch.profile == p0):  # nothing new is certain: explore
+        alt = C.most_promising(cands, bc, match_bc)
+        if alt is not None:
+            log(f"no candidate clears the floor on its bound; training the closest: {alt.label} "
+                f"({C.deficit(alt, bc, match_bc):.1f} dB short)")
+            ch = alt
     final_pool = [bc, next(c for c in cands if c.profile == p0 and not c.classic)]
     models = {final_pool[1].label: (probe, tuple(range(ts.num_channels)))}
     if ch.profile is not None and (ch.classic or ch.profile != p0):
