@@ -11,7 +11,7 @@ import pytest
 from bcfpipe.config import TrainingOptions
 from bcfpipe.export import writer as E
 from bcfpipe.export.fit import fit_material, make_config
-from bcfpipe.formats import dds
+from bcfpipe.formats import dds, material as mf
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import ClassicFormat, decode_levels, encode, groups
 from bcfpipe.layout.export import export_layout
@@ -316,15 +316,45 @@ def test_layout_options_that_do_not_combine_are_refused_in_one_line(tmp_path, ar
     assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output
 
 
-@pytest.mark.parametrize("command", ["build", "plan"])
-def test_build_and_plan_refuse_layout_auto_until_the_runtime_follows(tmp_path, command):
+def test_build_layout_auto_records_each_choice_and_verifies(tmp_path):
+    """A real build with --layout auto: every built material says what was chosen against BC@R;
+    one kept as BC@R gets no neural override (its UsdUVTexture network stays), and verify passes."""
     from click.testing import CliRunner
 
     from bcfpipe.cli import main
+    from bcfpipe.formats import manifest as mfst
+    from bcfpipe.verify.checks import verify
 
-    args = [command, str(SAMPLE / "sample_scene.usda"), "--layout", "auto"]
-    if command == "build":
-        args += ["-o", str(tmp_path / "out")]
-    r = CliRunner().invoke(main, args)
-    assert r.exit_code == 2 and f"--layout auto is not in `bcfpipe {command}` yet" in r.output
-    assert not (tmp_path / "out").exists()
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["build", str(SAMPLE / "sample_scene.usda"), "-o", str(out), "--layout", "auto",
+                                  "--quality", "smoke", "--jobs", "1", "--threads", "1"])
+    assert r.exit_code == 0, r.output
+    man = mfst.read(out)
+    assert man.options.layout == "auto"
+    built = man.built()
+    assert built and all(m.layout is not None for m in built)
+    for m in built:
+        assert m.layout.size_bytes <= m.layout.bc_size_bytes
+        assert min(m.layout.margin_per_mip_db) >= -0.5 - 1e-6
+        if m.layout.profile is None:
+            assert m.outputs.weights_index is None and m.sizes.classic_bytes > 0
+            assert m.path not in (out / "overrides.usda").read_text()
+    assert "layout" in r.output
+    assert verify(out, glsl=False).exit_code == 0
+
+
+def test_a_builds_usd_override_drives_only_the_decoders_outputs(mixed):
+    """assemble keeps the classic targets on their UsdUVTexture and renumbers the rest to the
+    decoder's outputs (normal z is the decoder's own only when the normal is)."""
+    from bcfpipe.builder.assemble import _neural_targets
+    from bcfpipe.builder.plan import TargetMap
+
+    _, _, out, _ = mixed
+    desc = mf.read(out)
+    names = ["diffuseColor.r", "diffuseColor.g", "diffuseColor.b", "normal.x", "normal.y", "normal.z", "roughness"]
+    targets = [TargetMap(n, n.split(".")[0], i, 1.0, 0.0, "raw", "f.png", "r") for i, n in enumerate(names)]
+    targets.append(TargetMap("metallic", "metallic", -1, 0.0, 0.25, "raw", None, None))
+    kept = _neural_targets(targets, desc)
+    assert [(t.target, t.channel) for t in kept] == [("diffuseColor.r", 0), ("diffuseColor.g", 1),
+                                                     ("diffuseColor.b", 2), ("roughness", 3), ("metallic", -1)]
+    assert [o.name for o in desc.mlp_outputs] == ["albedo.r", "albedo.g", "albedo.b", "roughness.r"]

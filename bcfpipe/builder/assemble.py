@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Mapping
 
@@ -40,6 +41,21 @@ def _features_bytes(folder: Path) -> int:
     return sum((folder / f"T{i}.dds").stat().st_size for i in range(4) if (folder / f"T{i}.dds").exists())
 
 
+def _classic_bytes(folder: Path) -> int:
+    return sum(p.stat().st_size for p in folder.glob("C*.dds"))
+
+
+def _neural_targets(targets, desc: mf.MaterialFile) -> list:
+    """The targets the decoder drives, with channels renumbered to its outputs; a layout's classic
+    targets keep their UsdUVTexture (and are left out). Constant components (channel -1) stay."""
+    index = {}
+    for i, o in enumerate(desc.outputs):
+        if o.source != mf.Source.CLASSIC:
+            index[i] = len(index)
+    return [replace(t, channel=index[t.channel]) if t.channel >= 0 else t
+            for t in targets if t.channel < 0 or t.channel in index]
+
+
 def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | os.PathLike,
              final_out: str | os.PathLike | None = None) -> mfst.Manifest:
     """Write weights.bin, the USD layers and manifest.json into ``staging`` (whose contents will
@@ -49,11 +65,12 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
     staging = Path(staging)
     final_out = Path(final_out) if final_out is not None else staging
     built = [j for j in bplan.jobs if results.get(j.name) and results[j.name].status == Status.BUILT]
-    records = [(staging / MATERIALS_DIR / j.name / WEIGHTS).read_bytes() for j in built]
+    descs = {j.name: mf.read(staging / MATERIALS_DIR / j.name) for j in built}
+    neural = [j for j in built if descs[j.name].neural]  # a --layout auto material may be all classic
+    records = [(staging / MATERIALS_DIR / j.name / WEIGHTS).read_bytes() for j in neural]
     buffer, entries = weightsbuf.pack(records)
     (staging / WEIGHTS).write_bytes(buffer)
-    entry_of = {j.name: e for j, e in zip(built, entries)}
-    descs = {j.name: mf.read(staging / MATERIALS_DIR / j.name) for j in built}
+    entry_of = {j.name: e for j, e in zip(neural, entries)}
 
     overrides: list[usdout.NeuralMaterialOverride] = []
     for mp_ in bplan.materials:
@@ -62,6 +79,8 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
         e, desc = entry_of[mp_.job], descs[mp_.job]
         folder = f"./{MATERIALS_DIR}/{mp_.job}"
         layers = desc.layers
+        targets = _neural_targets(mp_.targets, desc)
+        outs = desc.mlp_outputs
         overrides.append(usdout.NeuralMaterialOverride(
             material=mp_.path,
             feature_textures=tuple(f"{folder}/{layer.file}" for layer in layers),
@@ -76,14 +95,13 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
             weights=f"./{WEIGHTS}", weights_offset=e.offset, weights_size=e.size, weights_index=e.index,
             mlp=desc.mlp,
             decoder=f"{folder}/{desc.onnx.file}",
-            targets=tuple(t.target for t in mp_.targets), channels=tuple(t.channel for t in mp_.targets),
+            targets=tuple(t.target for t in targets), channels=tuple(t.channel for t in targets),
             # an HDR output's value map (material.json value_scale/value_bias) folds into the target's;
             # channel -1 is a constant component (its value is the bias)
-            scale=tuple(t.scale * desc.outputs[t.channel].value_scale if t.channel >= 0 else 0.0
-                        for t in mp_.targets),
-            bias=tuple(t.bias + t.scale * desc.outputs[t.channel].value_bias if t.channel >= 0 else t.bias
-                       for t in mp_.targets),
-            color_spaces=tuple(t.color_space for t in mp_.targets),
+            scale=tuple(t.scale * outs[t.channel].value_scale if t.channel >= 0 else 0.0 for t in targets),
+            bias=tuple(t.bias + t.scale * outs[t.channel].value_bias if t.channel >= 0 else t.bias
+                       for t in targets),
+            color_spaces=tuple(t.color_space for t in targets),
             fallback_surface=mp_.fallback_surface, version=__version__,
         ))
     scene_rel = usdout.relative_asset(bplan.scene, final_out)
@@ -126,16 +144,20 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
                                      f.same_as.channel if f.same_as else None) for f in mp_.folded),
             warnings=tuple(mp_.warnings))
         if status == Status.BUILT:
-            e = entry_of[mp_.job]
+            e = entry_of.get(mp_.job)
             feats = _features_bytes(staging / MATERIALS_DIR / mp_.job)
+            classic = _classic_bytes(staging / MATERIALS_DIR / mp_.job)
+            wsize = e.size if e else 0
             res = r.result
             mats.append(mfst.Material(
                 **common,
                 metrics=mfst.Metrics(res.get("psnr"), res.get("ssim"), res.get("flip"), res.get("float_psnr"),
                                      mfst.Quality.from_json(res["metrics"], "metrics")),
-                sizes=mfst.Sizes(feats, e.size, feats + e.size,
-                                 sum(sources[p].size_bytes for p in mp_.sources if p in sources)),
-                outputs=mfst.Outputs(f"{MATERIALS_DIR}/{mp_.job}", e.index, e.offset, e.size),
+                sizes=mfst.Sizes(feats, wsize, feats + wsize + classic,
+                                 sum(sources[p].size_bytes for p in mp_.sources if p in sources), classic),
+                outputs=mfst.Outputs(f"{MATERIALS_DIR}/{mp_.job}", e.index if e else None, e.offset if e else None,
+                                     e.size if e else None),
+                layout=_layout_choice(res.get("layout")),
                 profile=res.get("profile"), resolutions=tuple(res.get("resolutions")), preset=res.get("preset"),
                 target=mfst.RateControl.from_json(res["target"], "target") if res.get("target") else None,
                 device=_device_class(res.get("device") or r.device)))
@@ -149,7 +171,8 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
                                     r.reason if r else None, _device_class(r.device) if r else None,
                                     entry_of[j.name].index if j.name in entry_of else None))
     counts = {s: sum(1 for m in mats if m.status == s) for s in mfst.STATUSES}
-    feature_total = sum(_features_bytes(staging / MATERIALS_DIR / j.name) for j in built)
+    feature_total = sum(_features_bytes(staging / MATERIALS_DIR / j.name) + _classic_bytes(staging / MATERIALS_DIR / j.name)
+                        for j in built)
     weights_size = (staging / WEIGHTS).stat().st_size
     manifest = mfst.Manifest(
         scene=scene_rel, root_layer=root_name, overrides_layer=OVERRIDES, weights=WEIGHTS,
@@ -159,7 +182,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
         stage=mfst.Stage(bplan.up_axis, bplan.meters_per_unit, bplan.default_prim),
         materials=tuple(mats), jobs=tuple(job_entries),
         weights_table=tuple(mfst.WeightsRecord(e.index, e.offset, e.size, e.n_hidden, e.n_out, j.name)
-                            for j, e in zip(built, entries)),
+                            for j, e in zip(neural, entries)),
         totals=mfst.Totals(
             materials=len(mats), **counts, jobs=len(bplan.jobs), trained=len(built),
             features_bytes=feature_total, weights_bytes=weights_size,
@@ -169,6 +192,15 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
     mfst.write(staging, manifest)
     _normalise_modes(staging)
     return manifest
+
+
+def _layout_choice(d: dict | None) -> mfst.LayoutChoice | None:
+    """The manifest's summary of a --layout auto decision (bcfpipe.layout.choose.Decision.to_json)."""
+    if not d:
+        return None
+    ch, bc = d["chosen"], d["bc"]
+    return mfst.LayoutChoice(ch["layout"], tuple(ch["classic"]), ch["profile"], d["reason"], ch["size_bytes"],
+                             bc["size_bytes"], ch["psnr"], bc["psnr"], tuple(ch["margin_per_mip_db"]))
 
 
 def _constant_inputs(bplan: BuildPlan) -> list:

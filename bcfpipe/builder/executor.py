@@ -173,7 +173,12 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
             from bcfpipe.scan.coverage import unpack
 
             mask = unpack(mj.coverage, ts.width, ts.height)
-        if o.target_psnr is None:
+        if o.layout == "auto":
+            from bcfpipe.layout.material import fit_material_layout
+
+            res = fit_material_layout(ts, out_dir, training, mj.wrap, progress=progress, coverage=mask)
+            outcome = None
+        elif o.target_psnr is None:
             res, _ = fit_material(ts, out_dir, cfg, prof, progress, coverage=mask)
             outcome = None
         else:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import DEFAULT_FEATURES, DEFAULT_INIT, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS, QUALITY_PRESETS, TrainingOptions
+from bcfpipe.config import DEFAULT_FEATURES, DEFAULT_INIT, DEFAULT_KERNEL, DEFAULT_LAYOUT, MODEL_FORMAT, PRESETS, QUALITY_PRESETS, TrainingOptions
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
@@ -76,7 +76,7 @@ class MaterialJob:
         the job's record that `TrainingOptions` has, by name."""
         shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
                   if hasattr(self.options, f.name)}
-        for name in ("features", "kernel"):  # absent from the record: the default
+        for name in ("features", "kernel", "layout", "match_bc"):  # absent from the record: the default
             if shared.get(name) is None:
                 shared.pop(name, None)
         return TrainingOptions(**{**shared, "device": device, "threads": threads})
@@ -250,7 +250,9 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
                          "texel_density": float(texel_density) if texel_density is not None else None,
                          "coverage": bool(coverage),
                          "features": None if training.features == DEFAULT_FEATURES else training.features.value,
-                         "kernel": None if training.kernel == DEFAULT_KERNEL else training.kernel.value})
+                         "kernel": None if training.kernel == DEFAULT_KERNEL else training.kernel.value,
+                         "layout": None if training.layout == DEFAULT_LAYOUT else training.layout.value,
+                         "match_bc": True if training.match_bc else None})
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 

@@ -226,9 +226,19 @@ def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...
         if m.target is not None:
             goal = "met" if m.target.met else "unreachable"
             notes.append(f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)")
+        if m.layout is not None:
+            lay = m.layout
+            worst = min(lay.margin_per_mip_db) if lay.margin_per_mip_db else 0.0
+            notes.append("layout: BC@R, nothing neural held it at every mip" if lay.profile is None else
+                         f"layout {lay.chosen}: {lay.psnr - lay.bc_psnr:+.1f} dB all mips, worst mip "
+                         f"{worst:+.1f} dB against BC@R")
         outputs = len({tg.channel for tg in m.targets if tg.channel >= 0})
-        rows.append((m.path, m.status, str(outputs or ""),
-                     f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "",
+        profile = (f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "")
+        if m.layout is not None and m.layout.profile is None:
+            profile = "BC@R"
+        elif m.layout is not None and m.layout.classic:
+            profile += " + BC"
+        rows.append((m.path, m.status, str(outputs or ""), profile,
                      f"{head:.2f}" if head is not None else "",
                      _fmt_size(m.sizes.total_bytes) if m.sizes else "",
                      "cached" if r.cache == CacheUse.HIT else f"{r.train_seconds:.1f}s" if r.train_seconds else "",

@@ -64,17 +64,12 @@ TRAINING_OPTIONS = (
 def training_record(ctx: click.Context) -> tuple[TrainingOptions, dict | None]:
     """The command's `TrainingOptions`, made (and so validated) once from its parameters of the same
     names, and the bench report to predict --target-psnr from, if any. --target-psnr together with
-    an explicit --profile or --quality is refused: it chooses them. --layout auto is `train`'s
-    alone for now: a build's USD layer, verify and renderer read neural outputs only."""
+    an explicit --profile or --quality is refused: it chooses them."""
     from click.core import ParameterSource
 
     from bcfpipe.errors import InputError
 
     options = TrainingOptions(**{f.name: ctx.params[f.name] for f in fields(TrainingOptions)})
-    if options.layout == Layout.AUTO and ctx.info_name != "train":
-        raise InputError(f"--layout auto is not in `bcfpipe {ctx.info_name}` yet: its USD layer, verify and "
-                         "renderer read neural outputs only; `bcfpipe train --layout auto` chooses a "
-                         "material's layout (docs/layout.md)")
     if options.target_psnr is None:
         return options, None
     given = [f"--{'quality' if n == 'preset' else n}" for n in ("profile", "preset")

@@ -87,7 +87,7 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
 
         masks = mask_mips(coverage, len(ref), cfg.model.wrap)
     metrics = compute_metrics(ref, dec, ts.channels, masks=masks)
-    per_channel = mse_per_channel(ref, dec, ts.channels)
+    per_channel = mse_per_channel(ref, dec, ts.channels, masks)
     del dec
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)
     res = MaterialResult(out, profile, cfg.model.resolutions, cfg.preset_name, cfg.device, metrics, float_metrics,

@@ -119,16 +119,33 @@ class Sizes(Record):
     weights_bytes: int
     total_bytes: int
     source_bytes: int
+    classic_bytes: int = 0  # --layout auto: the classic BC textures it ships
 
 
 @dataclass(frozen=True)
 class Outputs(Record):
-    """Where a built material's files are: its folder and its record in the combined weights.bin."""
+    """Where a built material's files are: its folder and its record in the combined weights.bin
+    (none for a layout of classic textures only)."""
 
     folder: str
-    weights_index: int
-    weights_offset: int
-    weights_size: int
+    weights_index: int | None
+    weights_offset: int | None
+    weights_size: int | None
+
+
+@dataclass(frozen=True)
+class LayoutChoice(Record):
+    """What --layout auto chose for a material (the folder's layout.json has every candidate)."""
+
+    chosen: str
+    classic: tuple[str, ...]
+    profile: str | None
+    reason: str
+    size_bytes: int
+    bc_size_bytes: int
+    psnr: float
+    bc_psnr: float
+    margin_per_mip_db: tuple[float, ...]
 
 
 @dataclass(frozen=True)
@@ -183,6 +200,7 @@ class Material(Record):
     warnings: tuple[str, ...] = ()
     preset: str | None = optional()
     target: RateControl | None = optional()
+    layout: LayoutChoice | None = optional()  # --layout auto only
 
     _ORDER = ("path", "aliases", "job", "status")
 
@@ -239,6 +257,8 @@ class Options(Record):
     target_psnr: float | None = optional()  # --target-psnr: rate control chose each job's profile and preset
     features: str | None = optional()  # --features when not the default bc6h: "bc7" (issue 29)
     kernel: str | None = optional()  # --kernel when not the default torch: "fused" (issue 30)
+    layout: str | None = optional()  # --layout when not the default neural: "auto" (issue 31)
+    match_bc: bool | None = optional()  # --match-bc (with --layout auto); absent when not given
 
 
 @dataclass(frozen=True)

@@ -73,7 +73,7 @@ def candidate_profiles(asked: str, device: str) -> list[str]:
 
 def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
                wrap: str = "repeat", match_bc: bool = False, log: Callable[[str], None] = lambda s: None,
-               progress: ProgressFn | None = None) -> LayoutFit:
+               progress: ProgressFn | None = None, coverage: np.ndarray | None = None) -> LayoutFit:
     """Choose and train ``ts``'s layout at BC resolution ``resolution``; neural files of the probe
     and of the chosen model go under ``out_dir``/probe and ``out_dir``/neural."""
     from bcfpipe.train.rate import _gain as rate_gain
@@ -90,7 +90,12 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     for g in groups:
         for k, m in enumerate(g.decoded):
             bc_dec[k][..., list(g.group.channels)] = m
-    e_bc = mse_per_channel(ref, bc_dec, ts.channels)
+    masks = None
+    if coverage is not None:  # every figure over the texels the scene reads
+        from bcfpipe.scan.coverage import mask_mips
+
+        masks = mask_mips(coverage, len(ref), wrap)
+    e_bc = mse_per_channel(ref, bc_dec, ts.channels, masks)
     del bc_dec
     names = [g.group.name for g in groups]
     bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
@@ -105,7 +110,7 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     log(f"probe: all {ts.num_channels} channels at {p0}")
     t = time.perf_counter()
     probe, _ = fit_material(ts, out / "probe", make_config(ts, replace(options, profile=p0), wrap)[1], p0,
-                            progress=progress)
+                            progress=progress, coverage=coverage)
     train_s = time.perf_counter() - t
     e0 = probe.mse_per_channel
     size_of[p0] = probe.size_bytes
@@ -139,7 +144,7 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         log(f"training {len(keep)} channel(s) at {ch.profile} for: {ch.label}")
         t = time.perf_counter()
         res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=ch.profile), wrap)[1],
-                              ch.profile, progress=progress)
+                              ch.profile, progress=progress, coverage=coverage)
         train_s += time.perf_counter() - t
         e = e_bc.copy()
         e[:, keep] = res.mse_per_channel

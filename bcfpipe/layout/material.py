@@ -4,6 +4,8 @@ from __future__ import annotations
 import shutil
 import time
 from pathlib import Path
+
+import numpy as np
 from typing import Callable
 
 from bcfpipe.config import PROFILES, TrainingOptions
@@ -25,15 +27,16 @@ def bc_resolution(ts: TextureSet, profile: str) -> int:
 
 def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, wrap: str,
                         log: Callable[[str], None] = lambda s: None,
-                        progress: ProgressFn | None = None) -> MaterialResult:
+                        progress: ProgressFn | None = None, coverage: np.ndarray | None = None) -> MaterialResult:
     """Choose, train and export ``ts``'s layout into ``out_dir`` (material.json says where every
-    output comes from; layout.json why), measured from the exported files."""
+    output comes from; layout.json why), measured from the exported files. With ``coverage`` (the
+    texels the scene reads) training draws there and every figure is over those texels."""
     out = Path(out_dir)
     work = out / WORK
     start = time.perf_counter()
     try:
         fit = fit_layout(ts, work, options, bc_resolution(ts, options.profile), wrap=wrap,
-                         match_bc=options.match_bc, log=log, progress=progress)
+                         match_bc=options.match_bc, log=log, progress=progress, coverage=coverage)
         export_layout(fit, ts, out, wrap)
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -41,8 +44,13 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
     t0 = time.perf_counter()
     ref = build_mip_chain(ts.data)
     dec = E.decode_mips(E.load(out), [m.shape[:2] for m in ref])
-    metrics = compute_metrics(ref, dec, ts.channels)
-    per_channel = mse_per_channel(ref, dec, ts.channels)
+    masks = None
+    if coverage is not None:
+        from bcfpipe.scan.coverage import mask_mips
+
+        masks = mask_mips(coverage, len(ref), wrap)
+    metrics = compute_metrics(ref, dec, ts.channels, masks=masks)
+    per_channel = mse_per_channel(ref, dec, ts.channels, masks)
     ch, n = fit.decision.chosen, fit.neural
     return MaterialResult(out, ch.profile or "classic", PROFILES[ch.profile] if ch.profile else (),
                           options.preset if n else "none", n.device if n else "cpu", metrics, None, exported_size(out),

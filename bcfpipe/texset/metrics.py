@@ -90,10 +90,10 @@ def mse_per_mip(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
 
 
 def mse_per_channel(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
-                    channels: Sequence[Channel]) -> np.ndarray:
-    """(mips, channels) peak-normalised MSE: the terms whose mean over channels is `mse_per_mip`
-    (a layout's figures follow from them channel by channel, bcfpipe.layout)."""
-    return np.array([mse_per_mip(ref_mips, dec_mips, channels, [c]) for c in range(len(channels))]).T
+                    channels: Sequence[Channel], masks: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """(mips, channels) peak-normalised MSE (over the ``masks``' texels when given): the terms whose
+    mean over channels is `mse_per_mip` (a layout's figures follow from them, bcfpipe.layout)."""
+    return np.array([mse_per_mip(ref_mips, dec_mips, channels, [c], masks) for c in range(len(channels))]).T
 
 
 def _mean_psnr(mses: Sequence[float], use: Sequence[int]) -> float:

@@ -45,6 +45,9 @@ def _manifest_targets(root: Path, manifest: mfst.Manifest) -> list[Target]:
         if key in by_key:
             by_key[key].aliases.append(e.path)
             continue
+        if e.outputs.weights_offset is None:  # a --layout auto material of classic textures only
+            by_key[key] = Target(read_material(folder, name=e.path), [e.path])
+            continue
         by_key[key] = Target(read_material(folder, combined, e.outputs.weights_offset, name=e.path), [e.path])
     return list(by_key.values())
 
