@@ -4,6 +4,8 @@
 //
 // BCF_NEURAL 1: the UsdPreviewSurface components come from the neural decoder, one sample per
 //   pixel, at the lod s from the uv derivatives (bcfDecodeGrad, paper sec. 5.2).
+//   A component the decoder does not drive (a --layout auto material's classic group) reads
+//   its UsdUVTexture as below, from texture units 4 and up: its source is 1024 + unit * 4 + slot.
 // BCF_NEURAL 0: they come from up to 8 UsdUVTexture files (trilinear, each with its own
 //   UsdTransform2d), or are constants.
 // Both then shade with the same model (shade() below): Lambert diffuse plus GGX specular
@@ -58,6 +60,8 @@ uniform vec4 uLodBias;
 uniform vec2 uRefSize;
 uniform int uNormalIndex;
 uniform bool uRepeat;
+#define TEXTURE_SOURCE 1024  // bcfpipe/render/surfaces.py
+layout(binding = 4) uniform sampler2D uTexture[MAX_TEXTURES];
 #else
 layout(binding = 0) uniform sampler2D uTexture[MAX_TEXTURES];
 #endif
@@ -128,12 +132,24 @@ void main() {
         fragColor = vec4(1.0, 0.0, 1.0, 1.0);
         return;
     }
-    for (int k = 0; k < N_COMPONENTS; ++k)
+    vec4 texel[MAX_TEXTURES];
+    for (int t = 0; t < BCF_TEXTURES; ++t) {
+        vec2 tst = stTransform(t, vSt);
+        texel[t] = texture(uTexture[t], vec2(tst.x, 1.0 - tst.y));
+    }
+    for (int k = 0; k < N_COMPONENTS; ++k) {
+        int s = kSource[k];
+        if (s >= TEXTURE_SOURCE) {
+            s -= TEXTURE_SOURCE;
+            c[k] = component(k, texel[s >> 2][s & 3]);
+            continue;
+        }
 #ifdef BCF_N_OUT  // the host checked every source against the compiled-in network shape
-        c[k] = component(k, kSource[k] < 0 ? 0.0 : ch[kSource[k]]);
+        c[k] = component(k, s < 0 ? 0.0 : ch[s]);
 #else
-        c[k] = component(k, kSource[k] < 0 ? 0.0 : ch[min(kSource[k], n - 1)]);
+        c[k] = component(k, s < 0 ? 0.0 : ch[min(s, n - 1)]);
 #endif
+    }
 #else
     vec4 texel[MAX_TEXTURES];
     for (int t = 0; t < BCF_TEXTURES; ++t) {

@@ -367,3 +367,40 @@ def test_original_reads_colour_with_unassociated_alpha(scene, rt, tmp_path, requ
     assert (want[..., 3] > 0).mean() > 0.1
     d, _ = C.difference(got, want)
     assert d.max_abs <= 1.0, d
+
+
+def keep_only_targets(overrides: Path, material: str, keep: set[str]) -> None:
+    """Leave the decoder driving only ``keep`` (as a --layout auto material whose other groups
+    stay classic): the other bcf:outputs:* entries go, their UsdUVTexture stays."""
+    layer = Sdf.Layer.FindOrOpen(str(overrides))
+    spec = layer.GetPrimAtPath(material)
+    targets = list(spec.attributes["bcf:outputs:targets"].default)
+    idx = [i for i, t in enumerate(targets) if t in keep]
+    for name in ("targets", "channels", "scale", "bias", "colorSpaces"):
+        a = spec.attributes[f"bcf:outputs:{name}"]
+        a.default = type(a.default)([list(a.default)[i] for i in idx])
+    layer.Save()
+
+
+def test_mixed_material_samples_its_classic_textures_beside_the_decoder(smooth, rt, tmp_path) -> None:
+    """A material whose decoder drives roughness only: diffuse comes from its UsdUVTexture in the
+    same program. With a scrambled record the fully neural frame is far off; the mixed one keeps
+    the textured diffuse and stays close to the original."""
+    from bcfpipe.render.surfaces import TEXTURE_SOURCE, read_surface
+
+    out = tmp_path / "out"
+    shutil.copytree(smooth.parent, out)
+    for p in smooth.parent.parent.iterdir():
+        if p != smooth.parent:
+            (tmp_path / p.name).symlink_to(p)
+    scramble_record(out / smooth.name, "/World/Looks/Smooth")
+    full = frames_of(out / smooth.name, rt, camera="/World/Cam")[1]
+    keep_only_targets(out / "overrides.usda", "/World/Looks/Smooth", {"roughness"})
+    surf = read_surface(Usd.Stage.Open(str(out / smooth.name)), "/World/Looks/Smooth", True)
+    comps = dict(zip(["r", "g", "b"], surf.components[:3]))
+    assert surf.kind == "neural" and surf.textures and all(c.source >= TEXTURE_SOURCE for c in comps.values())
+    mixed = frames_of(out / smooth.name, rt, camera="/World/Cam")[1]
+    d_full, _ = C.difference(full[NEURAL].image, full[ORIGINAL].image)
+    d_mixed, _ = C.difference(mixed[NEURAL].image, mixed[ORIGINAL].image)
+    assert d_mixed.psnr > d_full.psnr + 5, (d_full, d_mixed)
+    assert np.isfinite(mixed[NEURAL].image).all()

@@ -64,6 +64,12 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
         read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
         say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
             f"content hash {j.content_hash[:16]}")
+        if j.options.layout == "auto":
+            from bcfpipe.config import PROFILES
+
+            r = PROFILES[j.options.profile][0] if j.options.profile in PROFILES else max(w, h)
+            say(f"    layout auto: against BC@{r}; a probe at the largest profile within its bytes, at most one "
+                f"more training, decided when trained (docs/layout.md)")
         for m in j.materials:
             say(f"    {m}")
     skipped = Counter(m.reason for m in bplan.materials if m.decision == Decision.SKIP)

@@ -19,7 +19,7 @@ from bcfpipe.formats.vocabulary import ColorSpace, Wrap
 from bcfpipe.errors import InputError
 from bcfpipe.formats import dds
 from bcfpipe.render.scene import Batch, View
-from bcfpipe.render.surfaces import COMPONENTS, MAX_TEXTURES, Surface
+from bcfpipe.render.surfaces import COMPONENTS, MAX_TEXTURES, TEXTURE_SOURCE, Surface
 from bcfpipe.scan.results import Transform2d
 from bcfpipe.scan.texture_sets import local_file, read_asset, resolved_color_space
 from bcfpipe.verify import glsl
@@ -62,14 +62,18 @@ def _routing_defines(surface: Surface, srgb_units: tuple[bool, ...],
     with a valid record, its network shape (n_hidden, n_out)) into bcf_render.frag."""
     comps = surface.components
     net = {"BCF_N_HIDDEN": shape[0], "BCF_N_OUT": shape[1]} if shape else {}
-    srgb = [int(c.srgb and (surface.kind == "neural" or c.source < 0 or srgb_units[c.source >> 2]))
-            for c in comps]
+    def unit(c):  # the original texture unit a component reads, or None (a constant or a decoder channel)
+        if c.source < 0 or (surface.kind == "neural" and c.source < TEXTURE_SOURCE):
+            return None
+        return (c.source - (TEXTURE_SOURCE if surface.kind == "neural" else 0)) >> 2
+
+    srgb = [int(c.srgb and (unit(c) is None or srgb_units[unit(c)])) for c in comps]
     return {"BCF_NEURAL": int(surface.kind == "neural"),
             "BCF_SOURCE": _glsl_array("int", [c.source for c in comps]),
             "BCF_SCALE": _glsl_array("float", [np.nan_to_num(c.scale) for c in comps]),
             "BCF_BIAS": _glsl_array("float", [np.nan_to_num(c.bias) for c in comps]),
             "BCF_SRGB": _glsl_array("int", srgb),
-            "BCF_TEXTURES": len(surface.textures) if surface.kind != "neural" else 0, **net}
+            "BCF_TEXTURES": len(surface.textures), **net}
 
 
 def _st_uniform(t: Transform2d) -> tuple[tuple[float, float, float, float], tuple[float, float]]:
@@ -141,7 +145,7 @@ class Renderer:
         if (magic, n_in) != (0x57464342, 12) or version not in (1, 2) or not (0 < n_hidden <= 64 and 0 < n_out < 16):
             return None
         c_out = int(n_out) + (1 if f.normal_index >= 0 else 0)
-        bad = [c.source for c in surface.components if c.source >= c_out]
+        bad = [c.source for c in surface.components if c_out <= c.source < TEXTURE_SOURCE]
         if bad:
             raise InputError(f"{surface.material}: bcf:outputs:channels name channel {max(bad)}, "
                              f"but its decoder has {c_out}")
@@ -201,13 +205,12 @@ class Renderer:
             st = np.zeros((len(batch.positions), 2), np.float32)
         verts = np.ascontiguousarray(np.concatenate([batch.positions, batch.normals, st], axis=1), np.float32)
         shape = None
-        if surface.kind == "neural":
-            textures, srgb_units = self._feature_textures(surface), ()
+        units = [self._original_texture(t.path, t.wrap, t.color_space) for t in surface.textures]
+        textures, srgb_units, weights = [u[0] for u in units], tuple(u[1] for u in units), None
+        if surface.kind == "neural":  # the four feature layers first, then any classic group's textures
+            textures = self._feature_textures(surface) + textures
             weights = self._weight_buffer(surface.neural.weights)[0]
             shape = self._network_shape(surface)
-        else:
-            units = [self._original_texture(t.path, t.wrap, t.color_space) for t in surface.textures]
-            textures, srgb_units, weights = [u[0] for u in units], tuple(u[1] for u in units), None
         prog = self.program(surface, srgb_units, shape)
         vbo = self.ctx.buffer(verts.tobytes())
         vao = self.ctx.vertex_array(prog, [(vbo, "3f 3f 2f", "inPosition", "inNormal", "inSt")])
@@ -216,13 +219,13 @@ class Renderer:
     def _uniforms(self, d: _Draw, view: View) -> dict[str, object]:
         s = d.surface
         mats = [_st_uniform(Transform2d())] * (MAX_TEXTURES + 1)
+        for i, t in enumerate(s.textures):
+            mats[i] = _st_uniform(t.transform)
+        src = s.components[COMPONENTS.index("normal.x")].source
         if s.kind == "neural":
             mats[_NEURAL_ST] = _st_uniform(s.st_transform)
-            normal_st = _NEURAL_ST
+            normal_st = (src - TEXTURE_SOURCE) >> 2 if src >= TEXTURE_SOURCE else _NEURAL_ST
         else:
-            for i, t in enumerate(s.textures):
-                mats[i] = _st_uniform(t.transform)
-            src = s.components[COMPONENTS.index("normal.x")].source
             normal_st = src >> 2 if src >= 0 else _NEURAL_ST
         inv_view = np.linalg.inv(view.view)  # rows: camera right, up, back (row-vector convention)
         light = np.asarray(self.lighting.direction, np.float64) @ inv_view[:3, :3]

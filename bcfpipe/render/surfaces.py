@@ -22,10 +22,14 @@ from bcfpipe.scan.results import PREVIEW_SURFACE_INPUTS, TextureRef, Transform2d
 from bcfpipe.scan.values import is_unregistered
 
 __all__ = ["COMPONENTS", "Component", "NeuralFeatures", "OriginalTexture", "Surface", "read_surface",
-           "NEURAL_SHADER_ID", "MAX_TEXTURES"]
+           "NEURAL_SHADER_ID", "MAX_TEXTURES", "TEXTURE_SOURCE"]
 
 NEURAL_SHADER_ID = "BcfNeuralMaterial"
 MAX_TEXTURES = 8  # texture units of the original program
+# In a neural surface, a component source at or above this reads an original texture (source -
+# TEXTURE_SOURCE = unit * 4 + slot): a --layout auto material's classic groups keep their
+# UsdUVTexture, which the same program samples beside the decoder.
+TEXTURE_SOURCE = 1024
 
 #: The shading components, in the order of the shader's uniform arrays.
 COMPONENTS = (
@@ -202,6 +206,7 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
         from bcfpipe.errors import InputError
         raise InputError(f"{path}: bcf:outputs:* are missing or of different lengths; not a bcfpipe build?")
     comps = list(base.components)
+    driven = set()
     for t, c, s, b, cs in zip(targets, channels, scale, bias, spaces):
         if t in COMPONENTS:  # bare "diffuseColor": one channel drives the colour
             names = [t]
@@ -209,6 +214,10 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
             names = [x for x in COMPONENTS if _INPUT_OF[x] == t]
         for n in names:
             comps[COMPONENTS.index(n)] = Component(int(c), float(s), float(b), cs == ColorSpace.SRGB)
+            driven.add(n)
+    for k, name in enumerate(COMPONENTS):  # what the decoder does not drive keeps its texture
+        if name not in driven and comps[k].source >= 0:
+            comps[k] = replace(comps[k], source=comps[k].source + TEXTURE_SOURCE)
     st = st_source(shader)
     res = _input(shader, "referenceResolution", (0, 0))
     feats = NeuralFeatures(
@@ -225,7 +234,7 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
     if st.kind not in ("primvar", "transform2d"):
         notes.append(f"st {st.kind} ({st.detail}); primvar 'st' used")
     return replace(base, kind="neural", components=tuple(comps), st_primvar=st.varname or "st",
-                   st_transform=st.transform or Transform2d(), textures=(), neural=feats, notes=tuple(notes))
+                   st_transform=st.transform or Transform2d(), neural=feats, notes=tuple(notes))
 
 
 def read_surface(stage: Usd.Stage, path: str | None, neural: bool,
