@@ -23,10 +23,10 @@ from bench_fidelity import specs  # noqa: E402
 from common import machine  # noqa: E402
 
 
-def row(c, bc, mark=""):
+def row(c, bc, mark="", match_bc=False):
     from bcfpipe.layout.choose import admissible
 
-    why = admissible(c, bc) or "ok"
+    why = admissible(c, bc, match_bc) or "ok"
     return (f"| {mark}{c.label} | {c.basis} | {c.size_bytes / 2**20:.2f} | "
             + " | ".join(f"{v:.1f}" for v in c.psnr_per_mip) + f" | **{c.psnr:.2f}** | {why} |")
 
@@ -60,10 +60,10 @@ def main() -> None:
     print("\nCandidates (the first choice is made here):\n\n" + head + "\n" + sep)
     bc = fit.first.bc
     for c in sorted(fit.first.candidates, key=lambda c: -c.psnr):
-        print(row(c, bc, "→ " if c is fit.first.chosen else ""))
+        print(row(c, bc, "→ " if c is fit.first.chosen else "", args.match_bc))
     print("\nMeasured layouts (the final choice):\n\n" + head + "\n" + sep)
     for c in fit.decision.candidates:
-        print(row(c, bc, "→ " if c is fit.decision.chosen else ""))
+        print(row(c, bc, "→ " if c is fit.decision.chosen else "", args.match_bc))
     ch = fit.decision.chosen
     print(f"\nchosen: {ch.label}: {fit.decision.reason}")
     print("margin against BC@R per mip (dB): " + " ".join(f"{v:+.1f}" for v in ch.margins(bc)))

@@ -55,17 +55,20 @@ def subset(ts: TextureSet, keep: Sequence[int]) -> TextureSet:
                       ts.width, ts.height)
 
 
-def neural_bytes(profile: str, n_in: int, hidden: int, n_out: int) -> int:
+def neural_bytes(resolutions: Sequence[int], n_in: int, hidden: int, n_out: int) -> int:
     """Feature textures (every mip down to 4×4) and the fp16 decoder record, about as exported."""
     from bcfpipe.train.rate import _feature_bytes
 
-    return _feature_bytes(PROFILES[profile]) + 2 * (n_in * hidden + hidden + hidden * n_out + 3 * n_out) + 64
+    return _feature_bytes(resolutions) + 2 * (n_in * hidden + hidden + hidden * n_out + 3 * n_out) + 64
 
 
 def candidate_profiles(asked: str, device: str) -> list[str]:
-    """Paper profiles no larger than ``asked``, largest first."""
+    """Paper profiles no larger than ``asked``, largest first; a small source's own profile
+    (``auto-N``) alone."""
     from bcfpipe.train.rate import CPU_PROFILES, GPU_PROFILES
 
+    if asked not in PROFILES:
+        return [asked]
     pool = GPU_PROFILES if device.startswith("cuda") else CPU_PROFILES
     top = PROFILES[asked][0]
     return sorted((p for p in pool if PROFILES[p][0] <= top), key=lambda p: -PROFILES[p][0]) or [asked]
@@ -103,13 +106,15 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     log(f"BC@{resolution}: {bc.size_bytes / 2**20:.2f} MiB, {bc.psnr:.2f} dB over all mips")
 
     asked, cfg = make_config(ts, options, wrap)
-    profiles = candidate_profiles(asked if asked in PROFILES else "1k", cfg.device)
+    profiles = candidate_profiles(asked, cfg.device)
+    own = {p: (p if p in PROFILES else options.profile) for p in profiles}  # auto-N trains as "auto"
     dims = (cfg.model.n_inputs, cfg.model.hidden)
-    size_of = {p: neural_bytes(p, *dims, ts.num_channels) for p in profiles}
+    size_of = {p: neural_bytes(PROFILES[p] if p in PROFILES else cfg.model.resolutions, *dims, ts.num_channels)
+               for p in profiles}
     p0 = next((p for p in profiles if size_of[p] <= bc.size_bytes), profiles[-1])
     log(f"probe: all {ts.num_channels} channels at {p0}")
     t = time.perf_counter()
-    probe, _ = fit_material(ts, out / "probe", make_config(ts, replace(options, profile=p0), wrap)[1], p0,
+    probe, _ = fit_material(ts, out / "probe", make_config(ts, replace(options, profile=own[p0]), wrap)[1], p0,
                             progress=progress, coverage=coverage)
     train_s = time.perf_counter() - t
     e0 = probe.mse_per_channel
@@ -143,7 +148,7 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         sub = subset(ts, keep)
         log(f"training {len(keep)} channel(s) at {ch.profile} for: {ch.label}")
         t = time.perf_counter()
-        res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=ch.profile), wrap)[1],
+        res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=own[ch.profile]), wrap)[1],
                               ch.profile, progress=progress, coverage=coverage)
         train_s += time.perf_counter() - t
         e = e_bc.copy()

@@ -52,7 +52,8 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
     metrics = compute_metrics(ref, dec, ts.channels, masks=masks)
     per_channel = mse_per_channel(ref, dec, ts.channels, masks)
     ch, n = fit.decision.chosen, fit.neural
-    return MaterialResult(out, ch.profile or "classic", PROFILES[ch.profile] if ch.profile else (),
+    res = tuple(n.resolutions) if n else ()
+    return MaterialResult(out, ch.profile or "classic", res,
                           options.preset if n else "none", n.device if n else "cpu", metrics, None, exported_size(out),
                           fit.train_seconds, {"layout": round(time.perf_counter() - start, 3),
                                               "evaluate": round(time.perf_counter() - t0, 3)},
