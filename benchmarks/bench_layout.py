@@ -8,6 +8,10 @@ onnxruntime; the classic groups' blocks through quicktex's decoder). Run one pro
 two cores.
 
   python benchmarks/bench_layout.py --set teapot [--match-bc] [--kernel fused] [--json out.json]
+  python benchmarks/bench_layout.py --set teapot --classic albedo --layout-profile 0.5k
+
+``--classic GROUPS`` measures one layout instead of running the rule: those groups (comma list, as
+the tables name them) classic, a model on the other channels alone at ``--layout-profile``.
 """
 from __future__ import annotations
 
@@ -39,6 +43,8 @@ def main() -> None:
     ap.add_argument("--match-bc", action="store_true")
     ap.add_argument("--kernel", default="fused")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--classic", default=None, help="measure this one layout: these groups classic")
+    ap.add_argument("--layout-profile", default="0.5k", help="with --classic: the neural part's profile")
     args = ap.parse_args()
 
     from bcfpipe.config import PROFILES, TrainingOptions
@@ -51,6 +57,8 @@ def main() -> None:
                            kernel=args.kernel)
     print(f"machine: {machine()}; {args.set} {ts.width}x{ts.height}, --profile {args.profile} (R = {r}), "
           f"{args.preset}, --kernel {args.kernel}, 1 thread{', --match-bc' if args.match_bc else ''}", flush=True)
+    if args.classic is not None:
+        return one_layout(ts, opts, r, args.classic.split(","), args.layout_profile)
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bcfpipe-layout-") as tmp:
         fit = fit_layout(ts, tmp, opts, r, match_bc=args.match_bc, log=lambda s: print("  " + s, flush=True))
@@ -74,6 +82,49 @@ def main() -> None:
         Path(args.json).write_text(json.dumps({"set": args.set, "decision": fit.decision.to_json(),
                                                "first": fit.first.to_json(), "train_seconds": fit.train_seconds,
                                                "seconds": fit.seconds}, indent=1))
+
+
+def one_layout(ts, opts, r, classic, profile) -> None:
+    """Measure one layout: ``classic`` groups as BC@R has them, a model on the rest at ``profile``."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from bcfpipe.export.fit import fit_material, make_config
+    from bcfpipe.layout import choose as C
+    from bcfpipe.layout.classic import encode
+    from bcfpipe.layout.fit import subset
+    from bcfpipe.texset.metrics import mse_per_channel
+    from bcfpipe.texset.texture_set import build_mip_chain
+
+    ref = build_mip_chain(ts.data)
+    use = tuple(k for k, m in enumerate(ref) if min(m.shape[:2]) >= 4)
+    enc = encode(ts, r, ref)
+    unknown = set(classic) - {g.group.name for g in enc}
+    if unknown:
+        raise SystemExit(f"no group {', '.join(sorted(unknown))}; the set has {', '.join(g.group.name for g in enc)}")
+    bc_dec = [np.zeros_like(m) for m in ref]
+    for g in enc:
+        for k, m in enumerate(g.decoded):
+            bc_dec[k][..., list(g.group.channels)] = m
+    e_bc = mse_per_channel(ref, bc_dec, ts.channels)
+    bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
+                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
+    keep = [c for c in range(ts.num_channels) if not any(c in g.group.channels for g in enc if g.group.name in classic)]
+    sub = subset(ts, keep)
+    with tempfile.TemporaryDirectory(prefix="bcfpipe-layout-") as tmp:
+        res, _ = fit_material(sub, Path(tmp) / "m", make_config(sub, replace(opts, profile=profile))[1], profile)
+    e = e_bc.copy()
+    e[:, keep] = res.mse_per_channel
+    c = C.Candidate(tuple(classic), profile, res.size_bytes + sum(g.size_bytes for g in enc if g.group.name in classic),
+                    tuple(float(v) for v in e.mean(1)), "measured", use)
+    n = len(ref)
+    print("\n| layout | basis | MiB | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | admissible |")
+    print("|---|---|---:|" + "---:|" * (n + 1) + "---|")
+    print(row(bc, bc))
+    print(row(c, bc))
+    print(f"\nthe neural part alone ({len(keep)} channels at {profile}): "
+          + " ".join(f"{v:.1f}" for v in res.metrics.psnr_per_mip) + f"; trained in {res.train_seconds:.0f} s")
 
 
 if __name__ == "__main__":
