@@ -176,7 +176,9 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         if o.layout == "auto":
             from bcfpipe.layout.material import fit_material_layout
 
-            res = fit_material_layout(ts, out_dir, training, mj.wrap, progress=progress, coverage=mask)
+            res = fit_material_layout(ts, out_dir, training, mj.wrap, progress=progress, coverage=mask,
+                                      log=(lambda text: progress.phase(f"layout: {text}")) if progress else
+                                      (lambda text: None))
             outcome = None
         elif o.target_psnr is None:
             res, _ = fit_material(ts, out_dir, cfg, prof, progress, coverage=mask)

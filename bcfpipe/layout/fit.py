@@ -86,6 +86,7 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
 
     start = time.perf_counter()
     out = Path(out_dir)
+    log(f"BC@{resolution}: encoding every mip")
     ref = build_mip_chain(ts.data)
     use = tuple(k for k, m in enumerate(ref) if min(m.shape[:2]) >= 4) or tuple(range(len(ref)))
     groups = encode(ts, resolution, ref, wrap)
