@@ -75,8 +75,7 @@ def main() -> None:
     ch = fit.decision.chosen
     print(f"\nchosen: {ch.label}: {fit.decision.reason}")
     print("margin against BC@R per mip (dB): " + " ".join(f"{v:+.1f}" for v in ch.margins(bc)))
-    print(f"probe and second model {fit.train_seconds:.0f} s with export and measuring (probe training "
-          f"{fit.probe.train_seconds:.0f} s), "
+    print(f"training {fit.train_seconds:.0f} s (the probe {fit.probe.train_seconds:.0f} s), "
           f"{time.perf_counter() - t:.0f} s in all", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps({"set": args.set, "decision": fit.decision.to_json(),

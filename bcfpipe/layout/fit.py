@@ -44,8 +44,8 @@ class LayoutFit:
     neural: MaterialResult | None  # the chosen layout's model (None: all classic)
     neural_channels: tuple[int, ...]  # the texture set's channels it decodes
     probe: MaterialResult
-    train_seconds: float  # probe + the second training, if any
-    seconds: float  # everything, encoding and measuring included
+    train_seconds: float  # training of the probe and of the second model, if any
+    seconds: float  # everything: BC@R, trainings, exports and measuring
 
 
 def subset(ts: TextureSet, keep: Sequence[int]) -> TextureSet:
@@ -114,10 +114,9 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
                for p in profiles}
     p0 = next((p for p in profiles if size_of[p] <= bc.size_bytes), profiles[-1])
     log(f"probe: all {ts.num_channels} channels at {p0}")
-    t = time.perf_counter()
     probe, _ = fit_material(ts, out / "probe", make_config(ts, replace(options, profile=own[p0]), wrap)[1], p0,
                             progress=progress, coverage=coverage)
-    train_s = time.perf_counter() - t
+    train_s = probe.train_seconds
     e0 = probe.mse_per_channel
     size_of[p0] = probe.size_bytes
 
@@ -148,10 +147,9 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
                 if not any(c in g.group.channels for g in groups if g.group.name in ch.classic)]
         sub = subset(ts, keep)
         log(f"training {len(keep)} channel(s) at {ch.profile} for: {ch.label}")
-        t = time.perf_counter()
         res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=own[ch.profile]), wrap)[1],
                               ch.profile, progress=progress, coverage=coverage)
-        train_s += time.perf_counter() - t
+        train_s += res.train_seconds
         e = e_bc.copy()
         e[:, keep] = res.mse_per_channel
         classic_bytes = sum(g.size_bytes for g in groups if g.group.name in ch.classic)
