@@ -46,7 +46,7 @@ def run_pair(name: str, profile: str, preset: str, seed: int, root: Path) -> dic
 
 
 def bc_per_mip(name: str) -> list[float]:
-    from bcfpipe.bench.baselines import encode_texture_set_baseline
+    from bcfpipe.texset.baselines import encode_texture_set_baseline
     from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 

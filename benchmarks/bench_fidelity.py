@@ -74,7 +74,7 @@ def run_variant(set_name: str, variant: str, profile: str, seed: int, out: str) 
 
 
 def baseline(set_name: str) -> dict:
-    from bcfpipe.bench.baselines import encode_texture_set_baseline
+    from bcfpipe.texset.baselines import encode_texture_set_baseline
     from bcfpipe.texset.metrics import compute_metrics
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 

@@ -34,7 +34,7 @@ def main() -> None:
                          "p = 8 gives mip 0 about 75%% of the samples, RTXNTC's share (texel-count proportional)")
     args = ap.parse_args()
 
-    from bcfpipe.bench.baselines import encode_texture_set_baseline
+    from bcfpipe.texset.baselines import encode_texture_set_baseline
     from bcfpipe.config import PRESETS, PROFILES, TrainingOptions, _cpu_preset
     from bcfpipe.export.fit import fit_material, make_config
     from bcfpipe.formats.vocabulary import Kernel

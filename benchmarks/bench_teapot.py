@@ -17,7 +17,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, teapot_specs  # noqa: E402
 
-from bcfpipe.bench.baselines import encode_texture_set_baseline  # noqa: E402
+from bcfpipe.texset.baselines import encode_texture_set_baseline  # noqa: E402
 from bcfpipe.config import TrainingOptions  # noqa: E402
 from bcfpipe.export.fit import fit_material, make_config  # noqa: E402
 from bcfpipe.texset.metrics import compute_metrics  # noqa: E402

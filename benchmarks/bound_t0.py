@@ -146,7 +146,7 @@ def main() -> None:
     ap.add_argument("--sets", default="teapot,brick")
     args = ap.parse_args()
 
-    from bcfpipe.bench.baselines import _bilinear_up, encode_texture_set_baseline
+    from bcfpipe.texset.baselines import _bilinear_up, encode_texture_set_baseline
     from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 

@@ -17,7 +17,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import TEAPOT  # noqa: E402
 
-from bcfpipe.bench.baselines import encode_texture_set_baseline  # noqa: E402
+from bcfpipe.texset.baselines import encode_texture_set_baseline  # noqa: E402
 from bcfpipe.texset.metrics import psnr_from_mse  # noqa: E402
 from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set  # noqa: E402
 

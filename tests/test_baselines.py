@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bcfpipe.bench.baselines import (
+from bcfpipe.texset.baselines import (
     astc_mips, astcenc_path, bc1_mips, bc4_mips, bc5_mips, encode_texture_set_baseline, pack_texture_set,
 )
 from bcfpipe.texset.metrics import compute_metrics

@@ -79,8 +79,8 @@ def test_report_files_and_keys(report: Path) -> None:
 
 
 def test_baselines_match_the_library(report: Path, tmp_path: Path) -> None:
-    """The report's BC row is what bcfpipe.bench.baselines + texset.metrics give on the same set."""
-    from bcfpipe.bench.baselines import encode_texture_set_baseline
+    """The report's BC row is what bcfpipe.texset.baselines + texset.metrics give on the same set."""
+    from bcfpipe.texset.baselines import encode_texture_set_baseline
     from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
     from bcfpipe.texset.metrics import compute_metrics
 

@@ -13,7 +13,8 @@ from bcfpipe.export import writer as E
 from bcfpipe.export.fit import fit_material, make_config
 from bcfpipe.formats import dds, material as mf
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import ClassicFormat, decode_levels, encode, groups
+from bcfpipe.formats.bcn import ClassicFormat, decode_levels
+from bcfpipe.layout.classic import encode, groups
 from bcfpipe.layout.export import export_layout
 from bcfpipe.layout.fit import LayoutFit, subset
 from bcfpipe.texset.metrics import mse_per_channel

@@ -2,7 +2,7 @@
 
 A BCf cell trains, exports, and is measured from the exported files (BC6H DDS + fp16 decoder
 through onnxruntime), as `bcfpipe train` does. A baseline cell encodes and decodes every mip of
-the texture set with a classic codec (bcfpipe.bench.baselines). Both keep what the report needs
+the texture set with a classic codec (bcfpipe.texset.baselines). Both keep what the report needs
 beyond the metrics: a lod sweep and the decoded texels of the crop windows.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.bench import lod_sweep as L
-from bcfpipe.bench.baselines import encode_texture_set_baseline
+from bcfpipe.texset.baselines import encode_texture_set_baseline
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.texset.metrics import Metrics, compute_metrics
 

@@ -76,7 +76,7 @@ void main() {{
 
 
 def upload_classic(rt: G.GLRuntime, textures: Sequence[tuple[str, list, list]], wrap: str) -> tuple[list[int], list[str]]:
-    """Upload a BC baseline's own blocks (bcfpipe.bench.baselines ``textures=``) -> (GL names, formats).
+    """Upload a BC baseline's own blocks (bcfpipe.texset.baselines ``textures=``) -> (GL names, formats).
 
     BC1 needs GL_EXT_texture_compression_s3tc (every desktop driver and Mesa have it); without it
     a BC1 texture is replaced by random BC7 blocks of its size, which the format list says."""

@@ -210,7 +210,7 @@ def _cell_weight(preset: str) -> float:
 
 
 def _baseline_weight(ts, b: C.Baseline) -> float:
-    from bcfpipe.bench.baselines import pack_texture_set
+    from bcfpipe.texset.baselines import pack_texture_set
 
     texels = (ts.width >> b.shift) * (ts.height >> b.shift)
     k = {"4x4": 4.0, "6x6": 2.0, "8x8": 1.5}.get(b.block or "", 1.0)  # astcenc -thorough slows with small blocks

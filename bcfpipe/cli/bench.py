@@ -103,7 +103,7 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
         raise InputError("give a SCENE or texture specs (SEMANTIC=FILE[:CHANNELS]); see --help")
     if output.exists() and any(output.iterdir()) and not force:
         raise InputError(f"{output} is not empty; pass --force to write into it")
-    from bcfpipe.bench.baselines import CODECS, astcenc_path, parse_block
+    from bcfpipe.texset.baselines import CODECS, astcenc_path, parse_block
     from bcfpipe.bench.run import BenchOptions, run_bench
     from bcfpipe.bench.sets import from_scene, from_specs
     from bcfpipe.config import PRESETS, PROFILE_NAMES

@@ -113,7 +113,7 @@ class ExportedMaterial:
 def load(folder: str | os.PathLike) -> ExportedMaterial:
     """Read an exported material folder back (DDS through bcfpipe.bc6h or bcfpipe.bc7's decoder,
     fp16 weights)."""
-    from bcfpipe.layout.classic import ClassicFormat, decode_levels
+    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 
     folder = Path(folder)
     desc = mf.read(folder)

@@ -1,7 +1,7 @@
 """Classic channel groups: the BC textures an engine ships for a texture set, as candidates for
 the channels that neural features lose (issue 31).
 
-A group is one texture of `bcfpipe.bench.baselines.pack_texture_set` (codec 'bc'): BC1 for a colour
+A group is one texture of `bcfpipe.texset.baselines.pack_texture_set` (codec 'bc'): BC1 for a colour
 or a packed (ARM-style) file, BC4 for a lone scalar, BC5 for a normal map's x and y. Its texels
 store set values v as t in [0, 1], with v = t * texel_scale + texel_bias (normals: 2t - 1). Every
 mip down to 1×1 is encoded, at the resolution R the material settles on; when R is below the
@@ -14,22 +14,8 @@ from typing import Sequence
 
 import numpy as np
 
-from bcfpipe.formats.vocabulary import StrEnum
+from bcfpipe.formats.bcn import ClassicFormat
 from bcfpipe.texset.texture_set import TextureSet
-
-
-class ClassicFormat(StrEnum):
-    """Block formats of a classic group (DXGI names in `DXGI`)."""
-
-    BC1 = "bc1"
-    BC4 = "bc4"
-    BC5 = "bc5"
-
-
-# DXGI_FORMAT values (dxgiformat.h) and bytes per 4x4 block (BC1/BC4: 8, BC5: 16)
-DXGI = {ClassicFormat.BC1: 71, ClassicFormat.BC4: 80, ClassicFormat.BC5: 83}
-DXGI_NAMES = {71: "BC1_UNORM", 80: "BC4_UNORM", 83: "BC5_UNORM"}
-BLOCK_BYTES = {ClassicFormat.BC1: 8, ClassicFormat.BC4: 8, ClassicFormat.BC5: 16}
 
 
 @dataclass(frozen=True)
@@ -63,7 +49,7 @@ class EncodedGroup:
 
 def groups(ts: TextureSet) -> tuple[Group, ...]:
     """The classic textures of ``ts``, in pack order."""
-    from bcfpipe.bench.baselines import pack_texture_set
+    from bcfpipe.texset.baselines import pack_texture_set
 
     out = []
     for fmt, idx in pack_texture_set(ts, "bc"):
@@ -76,7 +62,7 @@ def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap
     """Every group of ``ts`` encoded at ``resolution`` with its full mip chain (bench's BC@R).
     Reference mips above ``resolution`` see level 0 magnified with the material's addressing, as
     the runtime samples it (bench's baseline clamps at the edges)."""
-    from bcfpipe.bench.baselines import encode_texture_set_baseline
+    from bcfpipe.texset.baselines import encode_texture_set_baseline
 
     textures: list = []
     decoded, _ = encode_texture_set_baseline(ts, "bc", resolution, ref_mips=ref_mips, textures=textures)
@@ -106,22 +92,3 @@ def magnify(img: np.ndarray, height: int, width: int, wrap: str) -> np.ndarray:
     xa, xb, fx = taps(width, w)
     rows = img[ya] * (1 - fy)[:, None, None] + img[yb] * fy[:, None, None]
     return (rows[:, xa] * (1 - fx)[None, :, None] + rows[:, xb] * fx[None, :, None]).astype(np.float32)
-
-
-def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, int]]) -> list[np.ndarray]:
-    """Blocks -> stored texels t in [0, 1], (h, w, channels) per level, through quicktex's decoders."""
-    import quicktex
-    from quicktex.s3tc.bc1 import BC1Decoder
-    from quicktex.s3tc.bc4 import BC4Decoder
-    from quicktex.s3tc.bc5 import BC5Decoder
-
-    dec, cls, n = {ClassicFormat.BC1: (BC1Decoder(), quicktex.s3tc.bc1.BC1Texture, 3),
-                   ClassicFormat.BC4: (BC4Decoder(0), quicktex.s3tc.bc4.BC4Texture, 1),
-                   ClassicFormat.BC5: (BC5Decoder(0, 1), quicktex.s3tc.bc5.BC5Texture, 2)}[fmt]
-    out = []
-    for blocks, w, h in levels:
-        pw, ph = (w + 3) // 4 * 4, (h + 3) // 4 * 4
-        tex = cls.from_bytes(np.ascontiguousarray(blocks).tobytes(), pw, ph)
-        px = np.frombuffer(dec.decode(tex).tobytes(), np.uint8).reshape(ph, pw, 4)
-        out.append(px[:h, :w, :n].astype(np.float32) / 255.0)
-    return out

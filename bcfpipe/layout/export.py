@@ -17,7 +17,8 @@ from bcfpipe.formats import dds, material as mf
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.formats.vocabulary import Source
-from bcfpipe.layout.classic import DXGI, EncodedGroup
+from bcfpipe.formats.bcn import DXGI
+from bcfpipe.layout.classic import EncodedGroup
 from bcfpipe.layout.fit import LayoutFit
 from bcfpipe.texset.texture_set import TextureSet
 

@@ -240,7 +240,7 @@ def check_classic(m: MaterialDesc) -> Check:
     """A layout's classic textures: headers against material.json, and three decoders agreeing."""
     import OpenImageIO as oiio
 
-    from bcfpipe.layout.classic import ClassicFormat, decode_levels
+    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 
     fmt_of = {dds.DXGI_FORMAT_BC1_UNORM: ClassicFormat.BC1, dds.DXGI_FORMAT_BC4_UNORM: ClassicFormat.BC4,
               dds.DXGI_FORMAT_BC5_UNORM: ClassicFormat.BC5}
