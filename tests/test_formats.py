@@ -171,3 +171,22 @@ def test_shader_definition_in_sdr(case):
         assert not r["node"] and any("BcfNeuralMaterial" in e for e in r["errors"]), r["errors"]
     else:
         assert r["node"] and any("lodBias1" in e for e in r["errors"]), r["errors"]
+
+
+def test_version_2_material_reads_as_every_output_from_the_mlp(tmp_path):
+    """material.json format 2 (before layouts) still reads: no classic textures, every output the
+    decoder's; it is upgraded to the current version's record."""
+    data = _material().to_json()
+    data["format_version"] = 2
+    (tmp_path / mf.FILE).write_text(json.dumps(data))
+    d = mf.read(tmp_path)
+    assert d.format_version == mf.FORMAT_VERSION and d.neural and not d.mixed and not d.classic
+    assert [o.name for o in d.mlp_outputs] == ["roughness.r", "metallic.r"]
+
+
+def test_outputs_from_classic_textures_must_name_one(tmp_path):
+    data = _material().to_json()
+    data["outputs"][1].update(source="classic", texture=0, texel_channel=0, texel_scale=1.0, texel_bias=0.0)
+    (tmp_path / mf.FILE).write_text(json.dumps(data))
+    with pytest.raises(FormatError, match="output metallic.r names no classic texture"):
+        mf.read(tmp_path)
