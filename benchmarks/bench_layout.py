@@ -87,13 +87,10 @@ def one_layout(ts, opts, r, classic, profile) -> None:
     """Measure one layout: ``classic`` groups as BC@R has them, a model on the rest at ``profile``."""
     from dataclasses import replace
 
-    import numpy as np
-
     from bcfpipe.export.fit import fit_material, make_config
     from bcfpipe.layout import choose as C
-    from bcfpipe.layout.classic import encode
+    from bcfpipe.layout.classic import channel_errors, encode
     from bcfpipe.layout.fit import subset
-    from bcfpipe.texset.metrics import mse_per_channel
     from bcfpipe.texset.texture_set import build_mip_chain
 
     ref = build_mip_chain(ts.data)
@@ -102,11 +99,7 @@ def one_layout(ts, opts, r, classic, profile) -> None:
     unknown = set(classic) - {g.group.name for g in enc}
     if unknown:
         raise SystemExit(f"no group {', '.join(sorted(unknown))}; the set has {', '.join(g.group.name for g in enc)}")
-    bc_dec = [np.zeros_like(m) for m in ref]
-    for g in enc:
-        for k, m in enumerate(g.decoded):
-            bc_dec[k][..., list(g.group.channels)] = m
-    e_bc = mse_per_channel(ref, bc_dec, ts.channels)
+    e_bc = channel_errors(ts, enc, ref)
     bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
                      C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
     keep = [c for c in range(ts.num_channels) if not any(c in g.group.channels for g in enc if g.group.name in classic)]

@@ -46,7 +46,7 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
             seconds=round(r.seconds, 3) if r is not None else None,
             total_bytes=m.sizes.total_bytes if m.sizes else None,
             files=material_files(m, manifest, files), folded=m.folded,
-            attempts=r.attempts if r is not None and r.attempts > 1 else None))
+            attempts=r.attempts if r is not None and r.attempts > 1 else None, layout=m.layout))
     built = [r for r in results.values() if r.status == Status.BUILT]
     hits = sum(1 for r in built if r.cache == CacheUse.HIT)
     trained = [r for r in built if r.cache != CacheUse.HIT]

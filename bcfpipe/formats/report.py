@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from bcfpipe.formats.vocabulary import CacheUse
-from bcfpipe.formats.manifest import Folded
+from bcfpipe.formats.manifest import Folded, LayoutChoice
 from bcfpipe.formats.record import Record, optional
 
 FORMAT = "bcfpipe-build-report"
@@ -35,6 +35,7 @@ class MaterialReport(Record):
     files: tuple[str, ...]
     folded: tuple[Folded, ...] = ()
     attempts: int | None = optional()  # only when its job ran more than once (a worker died)
+    layout: LayoutChoice | None = optional()  # --layout auto: what was chosen against BC@R, and why
 
 
 @dataclass(frozen=True)

@@ -92,3 +92,16 @@ def magnify(img: np.ndarray, height: int, width: int, wrap: str) -> np.ndarray:
     xa, xb, fx = taps(width, w)
     rows = img[ya] * (1 - fy)[:, None, None] + img[yb] * fy[:, None, None]
     return (rows[:, xa] * (1 - fx)[None, :, None] + rows[:, xb] * fx[None, :, None]).astype(np.float32)
+
+
+def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Sequence[np.ndarray],
+                   masks: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """(mips, channels) MSE of BC@R, every channel from its group (over ``masks``' texels if given)."""
+    from bcfpipe.texset.metrics import mse_per_channel
+
+    dec = [np.zeros_like(m) for m in ref_mips]
+    for g in groups:
+        for k, m in enumerate(g.decoded):
+            dec[k][..., list(g.group.channels)] = m
+    return mse_per_channel(ref_mips, dec, ts.channels, masks)
+

@@ -28,8 +28,7 @@ import numpy as np
 from bcfpipe.config import PROFILES, TrainingOptions
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import EncodedGroup, encode
-from bcfpipe.texset.metrics import mse_per_channel
+from bcfpipe.layout.classic import EncodedGroup, channel_errors, encode
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn
 
@@ -90,17 +89,12 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     ref = build_mip_chain(ts.data)
     use = tuple(k for k, m in enumerate(ref) if min(m.shape[:2]) >= 4) or tuple(range(len(ref)))
     groups = encode(ts, resolution, ref, wrap)
-    bc_dec = [np.zeros_like(m) for m in ref]
-    for g in groups:
-        for k, m in enumerate(g.decoded):
-            bc_dec[k][..., list(g.group.channels)] = m
     masks = None
     if coverage is not None:  # every figure over the texels the scene reads
         from bcfpipe.scan.coverage import mask_mips
 
         masks = mask_mips(coverage, len(ref), wrap)
-    e_bc = mse_per_channel(ref, bc_dec, ts.channels, masks)
-    del bc_dec
+    e_bc = channel_errors(ts, groups, ref, masks)
     names = [g.group.name for g in groups]
     bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
                      C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
