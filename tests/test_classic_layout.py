@@ -356,3 +356,21 @@ def test_a_builds_usd_override_drives_only_the_decoders_outputs(mixed):
     assert [(t.target, t.channel) for t in kept] == [("diffuseColor.r", 0), ("diffuseColor.g", 1),
                                                      ("diffuseColor.b", 2), ("roughness", 3), ("metallic", -1)]
     assert [o.name for o in desc.mlp_outputs] == ["albedo.r", "albedo.g", "albedo.b", "roughness.r"]
+
+
+def test_a_layout_exported_over_an_earlier_one_leaves_none_of_its_files(mixed, tmp_path):
+    """`train --force` into a folder that held another layout: only the new layout's files stay."""
+    import shutil
+
+    from bcfpipe.layout.export import export_layout
+
+    ts, _, out, chosen = mixed
+    folder = tmp_path / "m"
+    shutil.copytree(out, folder)
+    (folder / "C1.dds").write_bytes((folder / "C0.dds").read_bytes())  # as if an earlier layout had two
+    bc_only = C.Decision(chosen, (chosen,), C.Candidate(("albedo", "normal", "roughness"), None, 0, chosen.mse_per_mip,
+                                                        "measured", chosen.use), "test", "quality")
+    fit = LayoutFit(bc_only, bc_only, encode(ts, 32, build_mip_chain(ts.data)), None, (), None, 0.0, 0.0)
+    export_layout(fit, ts, folder, "repeat")
+    assert sorted(p.name for p in folder.iterdir()) == ["C0.dds", "C1.dds", "C2.dds", "material.json"]
+    assert not mf.read(folder).neural

@@ -72,6 +72,9 @@ def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wr
                                outputs=tuple(outputs), training=mf.Training((), "none", 0, "cpu"),
                                classic=tuple(classic))
     desc = replace(desc, sha256={f: sha256_file(out / f) for f in desc.files})
+    for stale in (*out.glob("T[0-9].dds"), *out.glob("C[0-9]*.dds"), out / mf.WEIGHTS, out / mf.ONNX):
+        if stale.name not in desc.files and stale.is_file():  # an earlier export's (train --force)
+            stale.unlink()
     mf.write(out, desc)
     return out
 
