@@ -113,6 +113,11 @@ def _table(res) -> "object":
     t.add_row("SSIM (mip 0)", f"{m.ssim:.4f}" if m.ssim is not None else "-")
     t.add_row("FLIP (mip 0, colour)", f"{m.flip:.4f}" if m.flip is not None else "-")
     t.add_row("size", f"{res.size_bytes} B ({res.size_bytes / 2**20:.2f} MiB)")
+    if res.layout is not None:
+        ch, bc = res.layout["chosen"], res.layout["bc"]
+        t.add_row("layout", ch["layout"])
+        t.add_row("  against BC@R", f"{ch['psnr'] - bc['psnr']:+.2f} dB all mips, worst mip "
+                                    f"{min(ch['margin_per_mip_db']):+.2f} dB, {bc['size_bytes'] / 2**20:.2f} MiB")
     t.add_row("train time", f"{res.train_seconds:.1f} s")
     return t
 
