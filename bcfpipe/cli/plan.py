@@ -65,9 +65,9 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
         say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
             f"content hash {j.content_hash[:16]}")
         if j.options.layout == "auto":
-            from bcfpipe.config import PROFILES
+            from bcfpipe.layout.material import bc_resolution
 
-            r = PROFILES[j.options.profile][0] if j.options.profile in PROFILES else max(w, h)
+            r = bc_resolution(max(w, h), j.options.profile)
             say(f"    layout auto: against BC@{r}; a probe at the largest profile within its bytes, at most one "
                 f"more training, decided when trained (docs/layout.md)")
         for m in j.materials:

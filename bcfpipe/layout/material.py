@@ -20,9 +20,9 @@ from bcfpipe.train.trainer import ProgressFn
 WORK = ".layout-work"  # inside the output folder while the probe and the chosen model train
 
 
-def bc_resolution(ts: TextureSet, profile: str) -> int:
-    """R: the T_0 of the profile asked for (1k -> 1024), or the source's larger side for auto."""
-    return PROFILES[profile][0] if profile in PROFILES else max(ts.width, ts.height)
+def bc_resolution(side: int, profile: str) -> int:
+    """R: the T_0 of the profile asked for (1k -> 1024), or the set's larger ``side`` for auto."""
+    return PROFILES[profile][0] if profile in PROFILES else side
 
 
 def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, wrap: str,
@@ -35,7 +35,7 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
     work = out / WORK
     start = time.perf_counter()
     try:
-        fit = fit_layout(ts, work, options, bc_resolution(ts, options.profile), wrap=wrap,
+        fit = fit_layout(ts, work, options, bc_resolution(max(ts.width, ts.height), options.profile), wrap=wrap,
                          match_bc=options.match_bc, log=log, progress=progress, coverage=coverage)
         export_layout(fit, ts, out, wrap)
     finally:
