@@ -1,31 +1,22 @@
-"""Bit-exact BC7 decoder for mode-6 blocks (vectorized numpy), the format bcfpipe writes.
+"""Bit-exact BC7 decoder for the blocks bcfpipe writes, modes 6 and 7 (vectorized numpy).
 
 Follows the BPTC decoding of the Khronos Data Format specification (§"BC7"): mode from the lowest
-set bit of byte 0, then :mod:`bcfpipe.bc7.mode6`'s field layout and interpolation. A block of any
-other mode is refused with ValueError naming it: bcfpipe's feature textures hold mode 6 only, and
-a file with other modes was not written by it.
+set bit of byte 0, then :mod:`bcfpipe.bc7.mode6`'s or :mod:`bcfpipe.bc7.mode7`'s field layout and
+interpolation. A block of any other mode is refused with ValueError naming it: a file with other
+modes was not written by bcfpipe.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from . import mode6
+from . import modes
 
 __all__ = ["decode", "decode_to_u8"]
 
 
 def decode_to_u8(blocks: np.ndarray) -> np.ndarray:
     """(n, 16) uint8 blocks -> (n, 16, 4) uint8 texels (row-major within each block)."""
-    b = np.asarray(blocks, np.uint8).reshape(-1, 16)
-    bad = ~mode6.is_mode6(b)
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
-        b0 = int(b[k, 0])
-        mode = (b0 & -b0).bit_length() - 1 if b0 else None
-        what = f"mode {mode}" if mode is not None and mode < 8 else "the reserved mode 8"
-        raise ValueError(f"BC7 block {k} uses {what}; bcfpipe's BC7 feature textures hold mode 6 only "
-                         f"({int(bad.sum())} such block(s))")
-    return mode6.interpolate(*mode6.unpack(b))
+    return modes.interpolate(*modes.unpack(blocks))
 
 
 def decode(blocks: np.ndarray, width: int, height: int) -> np.ndarray:

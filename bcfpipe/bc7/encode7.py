@@ -1,0 +1,166 @@
+"""BC7 mode-7 encoder and the per-block choice between modes 6 and 7 (vectorized numpy).
+
+Mode 7 (:mod:`bcfpipe.bc7.mode7`) splits a block into two subsets by one of 64 shapes. Shapes are
+ranked by how well one line per subset fits the texels (the residual off each subset's principal
+axis, from masked second moments); the best :data:`SHAPES_TRIED` are encoded in full (1: on the teapot's and the brick's principal components four shapes gain nothing over one, benchmarks/bound_t0.py), as the mode-6
+encoder does (principal-axis endpoints, then alternating nearest-index choice and least-squares
+refits, errors measured on the integer decode), and the block keeps whichever of them, or of its
+mode-6 encoding, decodes closest.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .encode import encode_params as _encode6
+from . import mode6, mode7
+from .modes import MODE6
+from .partitions import PARTITIONS2
+
+__all__ = ["encode_params", "quantize_endpoints", "shape_order"]
+
+SHAPES_TRIED = 1
+ROUNDS = 4
+_CHUNK = 1 << 12
+_V6 = np.arange(64)
+_WIDE = mode7.widen(_V6).astype(np.float64)  # the 64 representable 8-bit values
+
+
+def quantize_endpoints(e: np.ndarray) -> np.ndarray:
+    """Continuous 8-bit-domain endpoints (..., 4) -> the nearest widened mode-7 values (..., 4)
+    uint8: for p in {0, 1} each channel takes the nearest widened 6-bit value with low bit p (ties
+    to the smaller); the p with the smaller squared error wins (ties to p = 0)."""
+    v = np.clip(np.asarray(e, np.float64), 0.0, 255.0)
+    best = best_err = None
+    for p in (0, 1):
+        grid = _WIDE[p::2]  # 32 values, increasing
+        k = np.clip(np.searchsorted(grid, v), 1, 31)
+        lo, hi = grid[k - 1], grid[k]
+        q = np.where(v - lo <= hi - v, lo, hi)
+        err = ((q - v) ** 2).sum(-1)
+        if best is None:
+            best, best_err = q, err
+        else:
+            take = err < best_err
+            best = np.where(take[..., None], q, best)
+            best_err = np.where(take, err, best_err)
+    return best.astype(np.uint8)
+
+
+def shape_order(x: np.ndarray) -> np.ndarray:
+    """(n, 16, 4) texels -> (n, 64) shapes, best first, by the summed off-line residual of the two
+    subsets (trace minus largest eigenvalue of each subset's scatter matrix)."""
+    n = len(x)
+    m1 = PARTITIONS2.astype(np.float64)  # (64, 16)
+    outer = np.einsum("nti,ntj->ntij", x, x)
+    tot1, tot2 = x.sum(1), outer.sum(1)
+    s1 = m1 @ x  # (n, 64, 4)
+    s2 = (m1 @ outer.reshape(n, 16, 16)).reshape(n, 64, 4, 4)
+    c1 = m1.sum(1)[None, :, None]
+    resid = np.zeros((n, 64))
+    for a1, a2, cnt in ((s1, s2, c1), (tot1[:, None] - s1, tot2[:, None] - s2, 16.0 - c1)):
+        scatter = a2 - np.einsum("npi,npj->npij", a1, a1) / cnt[..., None]
+        resid += np.trace(scatter, axis1=2, axis2=3) - _largest_eigenvalue(scatter)
+    return np.argsort(resid, axis=1, kind="stable")
+
+
+def _largest_eigenvalue(s: np.ndarray) -> np.ndarray:
+    """Largest eigenvalue of symmetric positive semi-definite 4x4 matrices, by power iteration from
+    the column of the largest diagonal entry (never orthogonal to the top eigenvector unless the
+    matrix is zero); enough to rank shapes, 4x faster than eigvalsh."""
+    j = np.argmax(np.diagonal(s, axis1=-2, axis2=-1), -1)
+    v = np.take_along_axis(s, j[..., None, None], -1)[..., 0]
+    for _ in range(8):
+        v = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-30)
+        v = np.einsum("...ij,...j->...i", s, v)
+    u = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-30)
+    return np.einsum("...i,...ij,...j->...", u, s, u)
+
+
+def _initial(x: np.ndarray, member: np.ndarray) -> np.ndarray:
+    """Per block, endpoints at the extremes of the member texels' principal axis: (n, 2, 4)."""
+    m = member[..., None].astype(np.float64)
+    cnt = np.maximum(m.sum(1), 1.0)
+    mean = (m * x).sum(1) / cnt
+    c = (x - mean[:, None]) * m
+    cov = np.einsum("nki,nkj->nij", c, c)
+    far = np.linalg.norm(c, axis=2).argmax(1)
+    axis = c[np.arange(len(x)), far]
+    axis = axis / np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    for _ in range(8):
+        axis = np.einsum("nij,nj->ni", cov, axis)
+        axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    proj = np.einsum("nki,ni->nk", x - mean[:, None], axis)
+    lo = np.where(member, proj, np.inf).min(1)
+    hi = np.where(member, proj, -np.inf).max(1)
+    return np.stack([mean + lo[:, None] * axis, mean + hi[:, None] * axis], 1)
+
+
+def _refit(x: np.ndarray, t: np.ndarray, member: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Least-squares endpoints (n, 2, 4) of the member texels for fixed weights t = w / 64."""
+    a, b = (1.0 - t) * member, t * member
+    aa, ab, bb = (a * (1.0 - t)).sum(1), (a * t).sum(1), (b * t).sum(1)
+    ax, bx = (a[..., None] * x).sum(1), (b[..., None] * x).sum(1)
+    det = aa * bb - ab * ab
+    ok = np.abs(det) > 1e-9
+    safe = np.where(ok, det, 1.0)[:, None]
+    out = np.stack([(bb[:, None] * ax - ab[:, None] * bx) / safe, (aa[:, None] * bx - ab[:, None] * ax) / safe], 1)
+    return np.where(ok[:, None, None], out, fallback)
+
+
+def _encode_shape(x: np.ndarray, w: np.ndarray, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mode-7 encoding of every block with its given shape -> (endpoints (n, 4, 4), indices, error)."""
+    sub = PARTITIONS2[shape].astype(np.int64)  # (n, 16)
+    rows = np.arange(len(x))[:, None]
+    cont = np.concatenate([_initial(x, sub == 0), _initial(x, sub == 1)], 1)  # (n, 4, 4)
+    best_e = best_i = best_err = None
+    for _ in range(ROUNDS + 1):
+        e = quantize_endpoints(cont).astype(np.int32)
+        pal = ((64 - mode7.WEIGHTS2[None, None, :, None]) * e[:, [0, 2], None] +
+               mode7.WEIGHTS2[None, None, :, None] * e[:, [1, 3], None] + 32) >> 6  # (n, 2, 4 entries, 4)
+        mine = pal[rows, sub]  # (n, 16, 4 entries, 4)
+        d = (((mine / 255.0 - x[:, :, None] / 255.0) ** 2) * w).sum(-1)
+        idx = d.argmin(-1)
+        err = np.take_along_axis(d, idx[..., None], -1)[..., 0].sum(-1)
+        if best_err is None:
+            best_e, best_i, best_err = e, idx, err
+        else:
+            take = err < best_err
+            best_e = np.where(take[:, None, None], e, best_e)
+            best_i = np.where(take[:, None], idx, best_i)
+            best_err = np.where(take, err, best_err)
+        t = mode7.WEIGHTS2[idx] / 64.0
+        cont = np.concatenate([_refit(x, t, sub == 0, cont[:, :2]), _refit(x, t, sub == 1, cont[:, 2:])], 1)
+    return best_e.astype(np.uint8), best_i.astype(np.uint8), best_err
+
+
+def _mode6_error(x: np.ndarray, w: np.ndarray, e: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    dec = mode6.interpolate(e, idx).astype(np.float64)
+    return (((dec - x) / 255.0) ** 2 * w).sum((1, 2))
+
+
+def _encode_chunk(x: np.ndarray, w: np.ndarray, shapes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = len(x)
+    e6, i6 = _encode6(x / 255.0, w)
+    best_e = np.zeros((n, 4, 4), np.uint8)
+    best_e[:, :2] = e6
+    best_i, best_p = i6.copy(), np.full(n, MODE6, np.int64)
+    best_err = _mode6_error(x, w, e6, i6)
+    order = shape_order(x) if shapes else None
+    for k in range(shapes):
+        e7, i7, err = _encode_shape(x, w, order[:, k])
+        take = err < best_err
+        best_e[take], best_i[take], best_p[take], best_err[take] = e7[take], i7[take], order[take, k], err[take]
+    return best_e, best_i, best_p
+
+
+def encode_params(texels: np.ndarray, weights: np.ndarray | None = None,
+                  shapes: int = SHAPES_TRIED) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n, 16, 4) texels in [0, 1] -> :mod:`bcfpipe.bc7.modes` parameters (endpoints (n, 4, 4),
+    indices (n, 16), partition (n,)), before the anchor fix. ``weights`` (4,): per-channel error
+    weights (default equal); ``shapes``: mode-7 shapes encoded in full per block (0: mode 6 only)."""
+    x = np.clip(np.asarray(texels, np.float64).reshape(-1, 16, 4), 0.0, 1.0) * 255.0
+    w = np.ones(4) if weights is None else np.asarray(weights, np.float64).reshape(4)
+    parts = [_encode_chunk(x[s:s + _CHUNK], w, shapes) for s in range(0, len(x), _CHUNK)]
+    if not parts:
+        return np.zeros((0, 4, 4), np.uint8), np.zeros((0, 16), np.uint8), np.zeros(0, np.int64)
+    return tuple(np.concatenate(a) for a in zip(*parts))
