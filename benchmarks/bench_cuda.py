@@ -11,6 +11,8 @@ predicted from the step times measured first, so a lent machine's minutes are ne
               (128² batch), k = 10 and 30 as batch 512² (16×) with steps ×k/16 (same decays)
   bc7         the teapot at 1k at 10× the standard samples, bc6h and bc7 (issue 29: is mip 1's gap
               to BC a training budget?)
+  runs        any list of ``set:profile:features:k[:batch]`` (``--runs``): the standard schedule's
+              samples ×k at that batch (default 128², so ×k the steps)
 
 Every quality figure is from the exported files (DDS features, fp16 decoder through onnxruntime).
 Rows print as they finish and go to ``--jsonl``.
@@ -60,6 +62,8 @@ def main() -> None:
     ap.add_argument("--sections", default="throughput,standard,saturation,bc7")
     ap.add_argument("--saturation", default="1:teapot,1:brick,30:teapot,30:brick,10:teapot,10:brick",
                     help="k:set[:batch] of the saturation section, in order (batch: 128² at k = 1, else 512²)")
+    ap.add_argument("--runs", default="teapot:1k:bc7:1,teapot:1k:bc7:3",
+                    help="set:profile:features:k[:batch] of the runs section, in order")
     ap.add_argument("--bc7-formats", default="bc7,bc6h", help="feature formats of the bc7 section, in order")
     ap.add_argument("--keep", default=None, help="keep the `standard` section's exported material here (for bench_decode)")
     ap.add_argument("--scale", type=float, default=1.0, help="scale every step count (a quick CPU check: 0.02)")
@@ -180,6 +184,12 @@ def main() -> None:
                 k, name, *batch = pair.split(":")
                 b = int(batch[0]) if batch else STD_BATCH if int(k) == 1 else BIG
                 fit(name, "0.5k", schedule(int(k), b), f"standard x{k} @{b}")
+        elif section == "runs":
+            print(head, flush=True)
+            for run in args.runs.split(","):
+                name, profile, features, k, *batch = run.split(":")
+                b = int(batch[0]) if batch else STD_BATCH
+                fit(name, profile, schedule(float(k), b), f"standard x{k} @{b}", features)
         elif section == "bc7":
             print(head, flush=True)
             for features in args.bc7_formats.split(","):

@@ -11,6 +11,10 @@ Every compressed row but the last spends **one byte per texel at 1024²**, the b
 * ``BC7 mode 6``: 4 PCs in one BC7 texture of mode 6 only (one subset, RGBA, 7-bit endpoints plus a
   p-bit, 4-bit indices);
 * ``BC7 modes 1/3/7``: the partitioned modes only (two subsets; mode 7 carries alpha);
+* ``BC7 modes 1/3/7+6``: those and mode 6, the encoder's choice per block (ISPC picks mode 7 or 6
+  for every block of a four-channel image, so this is modes 6 and 7);
+* ``bcfpipe modes 6+7``: bcfpipe's own encoder (bcfpipe.bc7.encode7), the blocks
+  ``--features bc7`` could write;
 * ``BC7 free``: every mode, the encoder's choice;
 * ``2×BC1``: 6 PCs in two BC1 textures (4 bits per texel each).
 
@@ -74,6 +78,17 @@ def _bc7(img: np.ndarray, modes: str) -> np.ndarray:
     return _bgra_to_unit(texture2ddecoder.decode_bc7(blocks, w, h), h, w, 4)
 
 
+def _bcfpipe_bc7(img: np.ndarray) -> np.ndarray:
+    """BC7 modes 6 and 7 through bcfpipe's encoder and decoder, from the same 8-bit input."""
+    from bcfpipe.bc7 import encode7, modes
+
+    h, w = img.shape[:2]
+    u8 = np.rint(np.clip(img, 0.0, 1.0) * 255.0) / 255.0
+    texels = u8.reshape(h // 4, 4, w // 4, 4, 4).transpose(0, 2, 1, 3, 4).reshape(-1, 16, 4)
+    dec = modes.interpolate(*encode7.encode_params(texels)).astype(np.float64) / 255.0
+    return dec.reshape(h // 4, w // 4, 4, 4, 4).transpose(0, 2, 1, 3, 4).reshape(h, w, 4)
+
+
 def _bc1(img: np.ndarray) -> np.ndarray:
     import ispc_texcomp as ispc
     import texture2ddecoder
@@ -95,6 +110,8 @@ CODECS = {
     "BC6H 11110": (3, _bc6h),
     "BC7 mode 6": (4, lambda img: _bc7(img, "6")),
     "BC7 modes 1/3/7": (4, lambda img: _bc7(img, "137")),
+    "BC7 modes 1/3/7+6": (4, lambda img: _bc7(img, "137,6")),
+    "bcfpipe modes 6+7": (4, lambda img: _bcfpipe_bc7(img)),
     "BC7 free": (4, lambda img: _bc7(img, "02,137,45,6")),
     "BC1": (3, _bc1),
 }
@@ -134,6 +151,8 @@ def rows_for(c: int) -> list[tuple[str, int, str, str]]:
         (f"{k4} PCs", k4, "8-bit", "4 B/texel"),
         (f"{k4} PCs", k4, "BC7 mode 6", "1 B/texel"),
         (f"{k4} PCs", k4, "BC7 modes 1/3/7", "1 B/texel"),
+        (f"{k4} PCs", k4, "BC7 modes 1/3/7+6", "1 B/texel"),
+        (f"{k4} PCs", k4, "bcfpipe modes 6+7", "1 B/texel"),
         (f"{k4} PCs", k4, "BC7 free", "1 B/texel"),
         (f"{k6} PCs", k6, "float", "float"),
         (f"{k6} PCs", k6, "BC1", "1 B/texel (2×BC1)" if k6 > 3 else "0.5 B/texel"),

@@ -1,6 +1,6 @@
-"""BC7 mode 7 and the mode-6/7 blocks bcfpipe writes (issue 29): the partition tables and the
-decoder against three independent decoders (Mesa's OpenGL, OpenImageIO, texture2ddecoder), the
-encoder's mode choice against Intel's ISPC, and the trainable emulation against the decoder."""
+"""BC7 mode 7 and mode-6/7 blocks (issue 29's measurement of the partitioned modes): the partition
+tables and the decoder against three independent decoders (Mesa's OpenGL, OpenImageIO,
+texture2ddecoder), and the encoder's mode choice against Intel's ISPC."""
 from __future__ import annotations
 
 import sys
@@ -8,10 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from bcfpipe.bc6h.tables import ANCHOR2 as BC6H_ANCHOR2, PARTITIONS2 as BC6H_PARTITIONS2
-from bcfpipe.bc7 import emulate, encode7, mode7, modes
+from bcfpipe.bc7 import encode7, mode7, modes
 from bcfpipe.bc7.decode import decode, decode_to_u8
 from bcfpipe.bc7.partitions import ANCHOR2, PARTITIONS2
 
@@ -38,15 +37,6 @@ def random_mixed(n: int, seed: int) -> np.ndarray:
              random_mode7(n // 4, seed + 3), random_mode7(n - 3 * (n // 4), seed + 4, True)]
     b = np.concatenate(parts)
     return b[rng.permutation(len(b))]
-
-
-def random_params(n: int, seed: int):
-    """Continuous training-domain parameters of mixed blocks, some outside their ranges."""
-    rng = np.random.default_rng(seed)
-    part = np.where(rng.random(n) < 0.5, -1, rng.integers(0, 64, n))
-    e = rng.uniform(-3, 258, (n, 4, 4)).astype(np.float32)
-    x = rng.uniform(-0.05, 1.05, (n, 16)).astype(np.float32)
-    return e, x, part
 
 
 # --------------------------------------------------------------------------- tables and layout
@@ -172,89 +162,3 @@ def test_quantize_endpoints_is_the_nearest_widened_value():
         cand = mode7.widen(np.arange(p, 64, 2)).astype(np.float64)
         best = cand[np.abs(vc[..., None] - cand).argmin(-1)]
         assert (((q - vc) ** 2).sum(-1) <= ((best - vc) ** 2).sum(-1) + 1e-9).all()
-    t = emulate.quantize_endpoints(torch.tensor(v, dtype=torch.float32), torch.tensor(True)).numpy()
-    np.testing.assert_array_equal(t, encode7.quantize_endpoints(v.astype(np.float32)))
-
-
-# --------------------------------------------------------------------------- emulation
-
-
-def _torch_params(e, i, p):
-    L = emulate.levels_of(p)
-    return (torch.tensor(e, dtype=torch.float32), torch.tensor(i, dtype=torch.float32) / L[:, None],
-            torch.as_tensor(modes.subsets(p).astype(bool)), L)
-
-
-def test_emulation_is_bit_exact_on_mixed_blocks():
-    blocks = random_mixed(100_000, 50)
-    ref = decode_to_u8(blocks).astype(np.float32) / np.float32(255.0)
-    e, x, m, L = _torch_params(*modes.unpack(blocks))
-    for q in (False, True):
-        np.testing.assert_array_equal(emulate.decode_blocks(e, x, m, L, q).numpy(), ref)
-        np.testing.assert_array_equal(emulate.decode_blocks_composed(e, x, m, L, q).numpy(), ref)
-    # per texel, as the trainer samples
-    blk = torch.arange(len(blocks)).repeat_interleave(16)
-    pos = torch.arange(16).repeat(len(blocks))
-    mm = m[blk, pos].unsqueeze(1)
-    v = emulate.decode_texels(torch.where(mm, e[blk, 2], e[blk, 0]), torch.where(mm, e[blk, 3], e[blk, 1]),
-                              x[blk, pos], L[blk], quantized=True)
-    np.testing.assert_array_equal(v.numpy(), ref.reshape(-1, 4))
-
-
-def test_quantized_decoding_equals_the_exported_blocks():
-    """What quantization-aware training sees is what the codec's exported blocks decode to."""
-    from bcfpipe.config import ModelConfig
-    from bcfpipe.model.features import BlockParams, codec_of
-
-    e, x, part = random_params(20_000, 52)
-    L = emulate.levels_of(part)
-    m = torch.as_tensor(modes.subsets(part).astype(bool))
-    b = BlockParams(torch.tensor(e), torch.tensor(x), m, part, L)
-    mc = ModelConfig(features="bc7")
-    codec = codec_of(mc)
-    seen = codec.decode_blocks(b, mc, quantized=True).numpy()
-    q = codec.quantize(b, mc, 4)
-    np.testing.assert_array_equal(seen, decode_to_u8(codec.pack(q, mc)).astype(np.float32) / np.float32(255.0))
-    np.testing.assert_array_equal(seen, codec.exact(q, mc, "cpu").numpy())
-
-
-def test_fused_node_equals_the_composed_ops_on_mixed_blocks():
-    e, x, part = random_params(4096, 3)
-    e, x = torch.tensor(e).requires_grad_(True), torch.tensor(x).requires_grad_(True)
-    m, L = torch.as_tensor(modes.subsets(part).astype(bool)), emulate.levels_of(part)
-    for q in (False, True):
-        a, b = emulate.decode_blocks(e, x, m, L, q), emulate.decode_blocks_composed(e, x, m, L, q)
-        assert torch.equal(a, b)
-        g = torch.rand_like(a)
-        for ga, gb in zip(torch.autograd.grad(a, (e, x), g), torch.autograd.grad(b, (e, x), g)):
-            # within 1e-5 of each tensor's largest magnitude (float32 summation order differs)
-            np.testing.assert_allclose(ga.numpy(), gb.numpy(), rtol=1e-5, atol=1e-5 * float(gb.abs().max()))
-
-
-def test_mode7_gradients_match_the_smooth_interpolation():
-    """d value / d e_b = w / (64 * 255) summed over the subset's texels, and d value / d x =
-    3 (W2[k + 1] - W2[k]) (e_b - e_a) / (64 * 255)."""
-    torch.manual_seed(0)
-    n = 500
-    part = np.random.default_rng(1).integers(0, 64, n)
-    m, L = torch.as_tensor(modes.subsets(part).astype(bool)), emulate.levels_of(part).double()
-    e = (torch.rand(n, 4, 4, dtype=torch.float64) * 255).requires_grad_(True)
-    x = (torch.rand(n, 16, dtype=torch.float64) * 0.98 + 0.01).requires_grad_(True)
-    v = emulate.decode_blocks(e, x, m, L, False)
-    ge, gx = torch.autograd.grad(v.sum(), (e, x))
-    w = emulate.weight_of(x.detach(), 3.0)
-    np.testing.assert_allclose(ge[:, 3].numpy(), ((w * m).sum(1, keepdim=True) / 64 / 255).expand(-1, 4).numpy(), rtol=1e-9)
-    np.testing.assert_allclose(ge[:, 1].numpy(), ((w * ~m).sum(1, keepdim=True) / 64 / 255).expand(-1, 4).numpy(), rtol=1e-9)
-    t = x.detach() * 3
-    k = torch.clamp(torch.floor(t), max=2).long()
-    w2 = torch.as_tensor(mode7.WEIGHTS2, dtype=torch.float64)
-    ed = e.detach()
-    diff = torch.where(m[..., None], ed[:, None, 3] - ed[:, None, 2], ed[:, None, 1] - ed[:, None, 0]).sum(-1)
-    expect = (w2[k + 1] - w2[k]) * 3 * diff / 64 / 255
-    off_knot = ((t - torch.round(t)).abs() >= 1e-4 * 3).numpy()
-    np.testing.assert_allclose(gx.numpy()[off_knot], expect.numpy()[off_knot], rtol=1e-7, atol=1e-12)
-
-
-def test_weight_table_in_closed_form_for_two_bit_indices():
-    assert torch.equal(emulate._table_weight(torch.arange(4.0), torch.tensor(3.0)),
-                       torch.tensor(mode7.WEIGHTS2, dtype=torch.float32))

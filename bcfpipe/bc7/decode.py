@@ -1,9 +1,10 @@
-"""Bit-exact BC7 decoder for the blocks bcfpipe writes, modes 6 and 7 (vectorized numpy).
+"""Bit-exact BC7 decoder for modes 6 and 7 (vectorized numpy): bcfpipe's feature textures are mode 6,
+and mode 7 is issue 29's measured alternative (:mod:`bcfpipe.bc7.modes`).
 
 Follows the BPTC decoding of the Khronos Data Format specification (§"BC7"): mode from the lowest
 set bit of byte 0, then :mod:`bcfpipe.bc7.mode6`'s or :mod:`bcfpipe.bc7.mode7`'s field layout and
-interpolation. A block of any other mode is refused with ValueError naming it: a file with other
-modes was not written by bcfpipe.
+interpolation. A block of any other mode is refused with ValueError naming it: such a file was not
+written by bcfpipe.
 """
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""BC7 mode-7 encoder and the per-block choice between modes 6 and 7 (vectorized numpy).
+"""BC7 mode-7 encoder and the per-block choice between modes 6 and 7 (vectorized numpy), issue 29's
+measurement of the partitioned modes (benchmarks/bound_t0.py, docs/benchmarks.md); the feature
+textures bcfpipe trains are mode 6.
 
 Mode 7 (:mod:`bcfpipe.bc7.mode7`) splits a block into two subsets by one of 64 shapes. Shapes are
 ranked by how well one line per subset fits the texels (the residual off each subset's principal
@@ -19,6 +21,8 @@ from .partitions import PARTITIONS2
 __all__ = ["encode_params", "quantize_endpoints", "shape_order"]
 
 SHAPES_TRIED = 1
+#: A block takes mode 7 when its error is below this fraction of its mode-6 error.
+MODE7_MARGIN = 1.0
 ROUNDS = 4
 _CHUNK = 1 << 12
 _V6 = np.arange(64)
@@ -138,13 +142,14 @@ def _mode6_error(x: np.ndarray, w: np.ndarray, e: np.ndarray, idx: np.ndarray) -
     return (((dec - x) / 255.0) ** 2 * w).sum((1, 2))
 
 
-def _encode_chunk(x: np.ndarray, w: np.ndarray, shapes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _encode_chunk(x: np.ndarray, w: np.ndarray, shapes: int, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n = len(x)
     e6, i6 = _encode6(x / 255.0, w)
     best_e = np.zeros((n, 4, 4), np.uint8)
     best_e[:, :2] = e6
     best_i, best_p = i6.copy(), np.full(n, MODE6, np.int64)
-    best_err = _mode6_error(x, w, e6, i6)
+    err6 = _mode6_error(x, w, e6, i6)
+    best_err = err6 * margin
     order = shape_order(x) if shapes else None
     for k in range(shapes):
         e7, i7, err = _encode_shape(x, w, order[:, k])
@@ -154,13 +159,15 @@ def _encode_chunk(x: np.ndarray, w: np.ndarray, shapes: int) -> tuple[np.ndarray
 
 
 def encode_params(texels: np.ndarray, weights: np.ndarray | None = None,
-                  shapes: int = SHAPES_TRIED) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  shapes: int = SHAPES_TRIED, margin: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(n, 16, 4) texels in [0, 1] -> :mod:`bcfpipe.bc7.modes` parameters (endpoints (n, 4, 4),
     indices (n, 16), partition (n,)), before the anchor fix. ``weights`` (4,): per-channel error
-    weights (default equal); ``shapes``: mode-7 shapes encoded in full per block (0: mode 6 only)."""
+    weights (default equal); ``shapes``: mode-7 shapes encoded in full per block (0: mode 6 only);
+    ``margin``: mode 7 is taken below this fraction of the mode-6 error (default MODE7_MARGIN)."""
+    margin = MODE7_MARGIN if margin is None else margin
     x = np.clip(np.asarray(texels, np.float64).reshape(-1, 16, 4), 0.0, 1.0) * 255.0
     w = np.ones(4) if weights is None else np.asarray(weights, np.float64).reshape(4)
-    parts = [_encode_chunk(x[s:s + _CHUNK], w, shapes) for s in range(0, len(x), _CHUNK)]
+    parts = [_encode_chunk(x[s:s + _CHUNK], w, shapes, margin) for s in range(0, len(x), _CHUNK)]
     if not parts:
         return np.zeros((0, 4, 4), np.uint8), np.zeros((0, 16), np.uint8), np.zeros(0, np.int64)
     return tuple(np.concatenate(a) for a in zip(*parts))

@@ -1,7 +1,8 @@
-"""The BC7 blocks bcfpipe writes: each block is mode 6 (one subset, 4-bit indices) or mode 7 (two
-subsets of one of 64 shapes, 2-bit indices), whichever the encoder found closer (issue 29: at one
-byte per texel the two together hold 2.1 and 2.6 dB more than mode 6 alone on the teapot's and the
-brick's principal components, docs/benchmarks.md).
+"""BC7 blocks of mode 6 (one subset, 4-bit indices) or mode 7 (two subsets of one of 64 shapes,
+2-bit indices), the modes bcfpipe reads. Issue 29 measured the two together against mode 6 alone:
+at one byte per texel they hold 2.1 and 2.6 dB more of the teapot's and the brick's principal
+components at mip 1, but trained features gain nothing from them (docs/benchmarks.md, "Partitioned
+BC7 modes, trained"), so ``--features bc7`` writes mode 6 alone.
 
 Parameters of n blocks, one representation for both modes:
 
@@ -17,12 +18,9 @@ import numpy as np
 from . import mode6, mode7
 from .partitions import PARTITIONS2
 
-__all__ = ["MODE6", "DESCRIPTION", "pack", "unpack", "interpolate", "subsets"]
+__all__ = ["MODE6", "pack", "unpack", "interpolate", "subsets"]
 
 MODE6 = -1
-#: The block modes' name in material.json (like bcfpipe.bc6h.mode10.DESCRIPTION).
-DESCRIPTION = ("BC7 modes 6 and 7 per block (mode 6: one subset, 7-bit endpoints + p-bit, 4-bit indices; "
-               "mode 7: two subsets of 64 shapes, 5-bit endpoints + p-bit, 2-bit indices)")
 
 
 def subsets(partition: np.ndarray) -> np.ndarray:
@@ -55,7 +53,7 @@ def unpack(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         b0 = int(b[k, 0])
         mode = (b0 & -b0).bit_length() - 1 if b0 else None
         what = f"mode {mode}" if mode is not None and mode < 8 else "the reserved mode 8"
-        raise ValueError(f"BC7 block {k} uses {what}; bcfpipe's BC7 feature textures hold modes 6 and 7 only "
+        raise ValueError(f"BC7 block {k} uses {what}; bcfpipe reads BC7 modes 6 and 7 only (its feature textures are mode 6) "
                          f"({int(bad.sum())} such block(s))")
     n = len(b)
     e = np.zeros((n, 4, 4), np.uint8)

@@ -36,7 +36,7 @@ def _decode_level(tex: ddsmod.DdsTexture, k: int) -> np.ndarray:
 
 @click.group(cls=Group)
 def dds() -> None:
-    """Inspect and decode BC6H and BC7 (mode 6) DDS feature textures."""
+    """Inspect and decode BC6H and BC7 (mode 6; mode 7 read too) DDS feature textures."""
 
 
 @dds.command("info")

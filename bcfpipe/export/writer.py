@@ -2,7 +2,7 @@
 
 Folder layout (``material.json`` describes it completely for consumers that do not use bcfpipe):
   T0.dds .. T3.dds   mipmapped feature layers, DX10 header: BC6H mode 11110 blocks (3 channels), or
-                     BC7 mode 6 and 7 blocks (4 channels) with --features bc7
+                     BC7 mode 6 blocks (4 channels) with --features bc7
   weights.bin        the decoder as one BCFW fp16 record (v1; v2 with HDR channels; bcfpipe.model.decoder)
   decoder.onnx       the decoder with output post-processing: features (N, 12 or 16) -> channels (N, c_out)
   material.json      everything needed to decode (bcfpipe.formats.material, schemas/material.schema.json)
@@ -23,7 +23,7 @@ from bcfpipe.model import neural as M
 from bcfpipe.bc6h import decode as bc6h_decode
 from bcfpipe.bc6h import mode10
 from bcfpipe.bc7 import decode as bc7_decode
-from bcfpipe.bc7.modes import DESCRIPTION as BC7_MODE
+from bcfpipe.bc7.mode6 import DESCRIPTION as BC7_MODE
 from bcfpipe.config import N_LAYERS, ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
 from bcfpipe.model.features import codec_of

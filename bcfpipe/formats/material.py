@@ -55,7 +55,7 @@ class BC6H(Record):
 @dataclass(frozen=True)
 class BC7(Record):
     """How the feature textures are block-compressed, when they are BC7 (``--features bc7``):
-    UNORM, every block in one of the modes ``block_mode`` names; a texel's value is its 8-bit value / 255."""
+    UNORM, every block in ``block_mode``; a texel's value is its 8-bit value / 255."""
 
     dxgi_format: int
     block_mode: str

@@ -55,8 +55,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Layer", "lod_bias"): "Added to the level of detail s before sampling this layer: s_i = s + lod_bias.",
     ("Layer", "channels"): "Feature channels: 3 (BC6H, RGB) or 4 (BC7, RGBA); the MLP reads them in order.",
     ("BC7", "dxgi_format"): "98 (BC7_UNORM).",
-    ("BC7", "block_mode"): "The BC7 modes the blocks use: 6 and 7 (bcfpipe.bc7.modes), or 6 alone in files before "
-                          "issue 29's partitioned modes; a texel is its 8-bit value / 255.",
+    ("BC7", "block_mode"): "The one BC7 mode every block uses (bcfpipe.bc7.mode6); a texel is its 8-bit value / 255.",
     ("BC6H", "dxgi_format"): "95 (BC6H_UF16) or 96 (BC6H_SF16).",
     ("BC6H", "signed"): "Whether the features use the signed BC6H format.",
     ("BC6H", "block_mode"): "The one BC6H mode every block uses (bcfpipe.bc6h.mode10).",

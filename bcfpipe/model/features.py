@@ -7,8 +7,8 @@ those blocks are packed into a DDS. Two formats:
 
 * `bc6h`: BC6H mode 11110 (the paper's), 3 channels, parameters in the 6-bit endpoint domain
   (bcfpipe.bc6h);
-* `bc7`: BC7 modes 6 and 7 (each block's mode and mode-7 shape as the encoder chose them), 4
-  channels in the same bytes, parameters in the 8-bit endpoint domain (bcfpipe.bc7; issue 29).
+* `bc7`: BC7 mode 6, 4 channels in the same bytes, parameters in the 8-bit endpoint domain
+  (bcfpipe.bc7; issue 29).
 """
 from __future__ import annotations
 
@@ -27,15 +27,13 @@ __all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "codec_of"]
 class BlockParams:
     """One mip of one layer as trainable blocks (paper §4.2): ``endpoints`` and ``x`` (indices
     scaled to [0, 1]) are learnt. BC6H: endpoints (n, 4, 3), two subsets, ``mask`` (n, 16) says
-    which texels use the second and ``partition`` (n,) is the shape the encoding chose. BC7:
-    endpoints (n, 4, 4), the same mask, ``partition`` -1 for a mode-6 block (one subset, endpoints
-    2 and 3 unused), and ``levels`` (n,) each block's index steps (15 for mode 6, 3 for mode 7)."""
+    which texels use the second and ``partition`` (n,) is the shape the encoding chose. BC7 mode 6:
+    endpoints (n, 2, 4), one subset, no mask or partition."""
 
     endpoints: torch.Tensor
     x: torch.Tensor
     mask: torch.Tensor | None = None
     partition: np.ndarray | None = None
-    levels: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -180,53 +178,44 @@ class _BC7(FeatureCodec):
         return p / 255.0
 
     def encode(self, texels, mc, device):
-        from bcfpipe.bc7 import emulate, modes
-        from bcfpipe.bc7.encode7 import encode_params
+        from bcfpipe.bc7.encode import encode_params
 
         h, w, c = texels.shape
         blocks = texels.reshape(h // 4, 4, w // 4, 4, c).transpose(0, 2, 1, 3, 4).reshape(-1, 16, c)
-        e, idx, part = encode_params(blocks)
-        levels = emulate.levels_of(part, device=device)
+        e, idx = encode_params(blocks)
         return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
-                           (torch.as_tensor(idx, dtype=torch.float32, device=device) / levels[:, None]).requires_grad_(True),
-                           torch.as_tensor(modes.subsets(part).astype(bool), device=device), part, levels)
+                           (torch.as_tensor(idx, dtype=torch.float32, device=device) / 15.0).requires_grad_(True))
 
     def texels(self, b, blk, pos, mc, quantized):
         from bcfpipe.bc7 import emulate
 
-        e = b.endpoints[blk]  # (M, 4, 4)
-        m = b.mask[blk, pos].unsqueeze(1)
-        ea = torch.where(m, e[:, 2], e[:, 0])
-        eb = torch.where(m, e[:, 3], e[:, 1])
-        return emulate.decode_texels(ea, eb, b.x[blk, pos], b.levels[blk], quantized)
+        e = b.endpoints[blk]  # (M, 2, 4)
+        return emulate.decode_texels(e[:, 0], e[:, 1], b.x[blk, pos], quantized)
 
     def decode_blocks(self, b, mc, quantized):
         from bcfpipe.bc7 import emulate
 
-        return emulate.decode_blocks(b.endpoints, b.x, b.mask, b.levels, quantized)
+        return emulate.decode_blocks(b.endpoints, b.x, quantized)
 
     def quantize(self, b, mc, size):
         """The values quantization-aware decoding uses (the same float32 arithmetic), as integers."""
         from bcfpipe.bc7 import emulate
 
         with torch.no_grad():
-            seven = (b.levels == emulate.MODE7_LEVELS)[:, None, None]
-            e = emulate.quantize_endpoints(b.endpoints.detach(), seven)
-            e = torch.where(seven | (torch.arange(4, device=e.device) < 2)[None, :, None], e, 0.0)
-            idx = torch.round(b.x.detach().clamp(0.0, 1.0) * b.levels[:, None])
-        return QuantizedLevel(e.cpu().numpy().astype(np.uint8), idx.cpu().numpy().astype(np.uint8),
-                              np.asarray(b.partition), size)
+            e = emulate.quantize_endpoints(b.endpoints.detach()).cpu().numpy().astype(np.uint8)
+            idx = torch.round(b.x.detach().clamp(0.0, 1.0) * emulate.LEVELS).cpu().numpy().astype(np.uint8)
+        return QuantizedLevel(e, idx, None, size)
 
     def exact(self, q, mc, device):
-        from bcfpipe.bc7 import modes
+        from bcfpipe.bc7 import mode6
 
-        texels = modes.interpolate(q.endpoints, q.indices, q.partition).astype(np.float32) / np.float32(255.0)
+        texels = mode6.interpolate(q.endpoints, q.indices).astype(np.float32) / np.float32(255.0)
         return torch.as_tensor(texels, device=device)
 
     def pack(self, q, mc):
-        from bcfpipe.bc7 import modes
+        from bcfpipe.bc7 import mode6
 
-        return modes.pack(q.endpoints, q.indices, q.partition)
+        return mode6.pack(q.endpoints, q.indices)
 
     def dxgi_format(self, mc):
         from bcfpipe.formats import dds

@@ -35,8 +35,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from bcfpipe.bc6h import mode10
-from bcfpipe.bc7 import mode6, mode7
-from bcfpipe.bc7 import modes as bc7_modes
+from bcfpipe.bc7 import mode6
 from bcfpipe.formats import dds
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
@@ -114,13 +113,10 @@ def check_files(m: MaterialDesc) -> tuple[Check, list[dds.DdsTexture]]:
             problems.append(f"{path.name}: {t.format_name}, material.json says "
                             f"{'bc7' if m.bc7 else 'signed=' + str(m.signed)}")
         if m.bc7:
-            both = m.file.bc7.block_mode == bc7_modes.DESCRIPTION  # else mode 6 only (files before modes 6+7)
             for k, (blocks, w, h) in enumerate(t.levels):
-                ok = mode6.is_mode6(blocks) | (mode7.is_mode7(blocks) if both else False)
-                bad = int((~ok).sum())
+                bad = int((~mode6.is_mode6(blocks)).sum())
                 if bad:
-                    problems.append(f"{path.name} mip {k}: {bad} block(s) not in the declared BC7 "
-                                    f"{'modes 6 and 7' if both else 'mode 6'}")
+                    problems.append(f"{path.name} mip {k}: {bad} block(s) not in the declared BC7 mode 6")
         elif m.file.bc6h.block_mode == mode10.DESCRIPTION:
             for k, (blocks, w, h) in enumerate(t.levels):
                 bad = int((~mode10.is_mode10(blocks)).sum())

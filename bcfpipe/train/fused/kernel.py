@@ -8,7 +8,7 @@ emulation it stands for, so the decoded values are bit-identical:
 * ``FREE_BC6H``  :func:`bcfpipe.model.neural.endpoint_value` of a clamped free parameter;
 * ``FREE_BC7``   a clamped free parameter / 255;
 * ``BLOCK_BC6H`` :func:`bcfpipe.bc6h.emulate.decode_blocks` (mode 11110, one of two subsets);
-* ``BLOCK_BC7``  :func:`bcfpipe.bc7.emulate.decode_blocks` (mode 6, or mode 7's subset of the texel);
+* ``BLOCK_BC7``  :func:`bcfpipe.bc7.emulate.decode_blocks` (mode 6);
 
 optionally quantization-aware (the forward of the rounded parameters, gradients straight through).
 Bilinear and trilinear weights follow :mod:`bcfpipe.model.sampling`. The MLP's sums run in a
@@ -42,7 +42,7 @@ FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3
 
 _F32 = np.float32
 _SNAP6 = np.float32(7.0 * 1e-4)  # bc6h.emulate: |7x - round(7x)| below this snaps
-_SNAP_BC7 = np.float32(1e-4)  # bc7.emulate._SNAP, times L in float32 as there
+_SNAP7 = np.float32(1e-4 * 15)  # bc7.emulate
 _POW2 = (2.0 ** np.arange(-64, 64)).astype(np.float32)  # _POW2[64 + e] = 2^e, exact: no pow() per texel
 
 
@@ -97,56 +97,33 @@ def _weight3(x, quantized, w3, w3s):
 
 
 @nb.njit(inline="always", cache=True, _nrt=False)
-def _weight_bc7(x, quantized, L):
-    """(bc7.emulate weight, d/dx without the clamp's mask, clamp mask) of a continuous index with
-    L steps (15: mode 6, 3: mode 7)."""
+def _weight4(x, quantized):
+    """(bc7.emulate weight, d/dx without the clamp's mask, clamp mask) of a continuous index."""
     xc = min(max(x, _F32(0.0)), _F32(1.0))
     inside = _F32(1.0) if xc == x else _F32(0.0)
     if quantized:
-        xc = _rint(xc * L) / L
-    t = min(max(xc, _F32(0.0)), _F32(1.0)) * L
+        xc = _rint(xc * _F32(15.0)) / _F32(15.0)
+    t = min(max(xc, _F32(0.0)), _F32(1.0)) * _F32(15.0)
     near = _rint(t)
-    if abs(t - near) < _SNAP_BC7 * L:
+    if abs(t - near) < _SNAP7:
         t = near
-    k = min(np.floor(t), L - _F32(1.0))
-    half = (L - _F32(1.0)) * _F32(0.5)
-    lo = np.floor((_F32(64.0) * _F32(k) + half) / L)
-    hi = np.floor((_F32(64.0) * _F32(k + _F32(1.0)) + half) / L)
+    k = min(np.floor(t), 14.0)
+    lo = np.floor((_F32(64.0) * _F32(k) + _F32(7.0)) / _F32(15.0))
+    hi = np.floor((_F32(64.0) * _F32(k + 1.0) + _F32(7.0)) / _F32(15.0))
     step = _F32(hi - lo)
-    return _F32(lo) + (t - _F32(k)) * step, step * L, inside
+    return _F32(lo) + (t - _F32(k)) * step, step * _F32(15.0), inside
 
 
 @nb.njit(inline="always", cache=True, _nrt=False)
-def _nearest7(v, p):
-    """bc7.emulate._nearest_on_grid for a mode-7 endpoint channel: the nearest widened 6-bit value
-    with low bit p (ties to the smaller)."""
-    c0 = min(max(_rint((v * _F32(63.0 / 255.0) - p) / _F32(2.0)), _F32(0.0)), _F32(31.0))
-    best = _F32(0.0)
-    best_d = _F32(0.0)
-    for dc in range(-1, 2):
-        v6 = _F32(2.0) * min(max(c0 + _F32(dc), _F32(0.0)), _F32(31.0)) + p
-        cand = _F32(4.0) * v6 + _F32(np.floor(v6 / _F32(16.0)))
-        d = abs(cand - v)
-        if dc == -1 or d < best_d or (d == best_d and cand < best):
-            best = cand
-            best_d = d
-    return best
-
-
-@nb.njit(inline="always", cache=True, _nrt=False)
-def _q7(e, j, seven):
-    """bc7.emulate.quantize_endpoints of clamped endpoint ``e[j]`` (4 channels), mode 6 or 7: both
-    p-bit choices into rows 2 and 3 of ``e``; returns the one chosen."""
+def _q7(e, j):
+    """bc7.emulate.quantize_endpoints of clamped endpoint ``e[j]`` (4 channels): both p-bit choices
+    into rows 2 and 3 of ``e``; returns the one chosen."""
     err0 = _F32(0.0)
     err1 = _F32(0.0)
     for c in range(4):
         v = e[j, c]
-        if seven:
-            q0 = _nearest7(v, _F32(0.0))
-            q1 = _nearest7(v, _F32(1.0))
-        else:
-            q0 = min(max(_F32(2.0) * _F32(np.floor((v - _F32(0.0)) / _F32(2.0) + _F32(0.5))) + _F32(0.0), _F32(0.0)), _F32(254.0))
-            q1 = min(max(_F32(2.0) * _F32(np.floor((v - _F32(1.0)) / _F32(2.0) + _F32(0.5))) + _F32(1.0), _F32(1.0)), _F32(255.0))
+        q0 = min(max(_F32(2.0) * _F32(np.floor((v - _F32(0.0)) / _F32(2.0) + _F32(0.5))) + _F32(0.0), _F32(0.0)), _F32(254.0))
+        q1 = min(max(_F32(2.0) * _F32(np.floor((v - _F32(1.0)) / _F32(2.0) + _F32(0.5))) + _F32(1.0), _F32(1.0)), _F32(255.0))
         err0 += (q0 - v) * (q0 - v)
         err1 += (q1 - v) * (q1 - v)
         e[2, c] = q0
@@ -163,8 +140,8 @@ def _texel(fmt, quantized, signed, P, X, M, po, xo, mo, plane, blk, pos, C, lo, 
     masks at ``M[mo]`` (16 per block). Free formats: ``deriv[i, lv, t, c]`` = d value / d p.
     BC6H blocks: 4 endpoints x 3 channels; deriv = [g-scale per channel (3),
     ub - ua (3), d ua/de (3), d ub/de (3), w, dw/dx, subset].
-    BC7 blocks: 4 endpoints x 4 channels, ``M`` = subset + 2 for a mode-7 block; deriv = [e_b - e_a
-    (4), endpoint masks (8), w, d w/dx (clamp mask applied unless quantized), subset].
+    BC7 blocks: 2 endpoints x 4 channels; deriv = [e1 - e0 (4), endpoint masks (8),
+    w, d w/dx (clamp mask applied unless quantized)].
     """
     if fmt == FREE_BC7:
         for c in range(C):
@@ -212,21 +189,18 @@ def _texel(fmt, quantized, signed, P, X, M, po, xo, mo, plane, blk, pos, C, lo, 
         deriv[i, lv, t, 13] = dw
         deriv[i, lv, t, 14] = sub
     else:  # BLOCK_BC7
-        m = M[mo + blk * 16 + pos]
-        sub = m & 1
-        seven = m >= 2
         for j in range(2):
             for c in range(4):
-                v = P[po + blk * 16 + 4 * (2 * sub + j) + c]
+                v = P[po + blk * 8 + 4 * j + c]
                 vc = min(max(v, _F32(0.0)), _F32(255.0))
                 deriv[i, lv, t, 4 + 4 * j + c] = _F32(1.0) if vc == v else _F32(0.0)
                 scratch[j, c] = vc
         if quantized:
             for j in range(2):
-                pick = _q7(scratch, j, seven)
+                pick = _q7(scratch, j)
                 for c in range(4):
                     scratch[j, c] = scratch[2 + pick, c]
-        w, dw, inside = _weight_bc7(X[xo + blk * 16 + pos], quantized, _F32(3.0) if seven else _F32(15.0))
+        w, dw, inside = _weight4(X[xo + blk * 16 + pos], quantized)
         for c in range(4):
             ea = scratch[0, c]
             d = scratch[1, c] - ea
@@ -234,7 +208,6 @@ def _texel(fmt, quantized, signed, P, X, M, po, xo, mo, plane, blk, pos, C, lo, 
             deriv[i, lv, t, c] = d
         deriv[i, lv, t, 12] = w
         deriv[i, lv, t, 13] = dw if quantized else dw * inside
-        deriv[i, lv, t, 14] = sub
 
 
 @nb.njit(inline="always", cache=True, _nrt=False)
@@ -258,12 +231,11 @@ def _texel_backward(fmt, signed, C, po, xo, plane, blk, pos, g, deriv, i, lv, t,
     else:
         s = _F32(1.0 / (64.0 * 255.0))
         w = deriv[i, lv, t, 12]
-        ea = po + blk * 16 + 8 * int(deriv[i, lv, t, 14])
         acc = _F32(0.0)
         for c in range(4):
             acc += g[c] * deriv[i, lv, t, c]
-            gP[q, ea + c] += (_F32(64.0) - w) * g[c] * s * deriv[i, lv, t, 4 + c]
-            gP[q, ea + 4 + c] += w * g[c] * s * deriv[i, lv, t, 8 + c]
+            gP[q, po + blk * 8 + c] += (_F32(64.0) - w) * g[c] * s * deriv[i, lv, t, 4 + c]
+            gP[q, po + blk * 8 + 4 + c] += w * g[c] * s * deriv[i, lv, t, 8 + c]
         gX[q, xo + blk * 16 + pos] += acc * s * deriv[i, lv, t, 13]
 
 

@@ -54,7 +54,7 @@ class FusedStep:
 
     def _rehome(self, blocks: bool) -> None:
         """One flat float32 storage for the levels' parameters (P) and indices (X), one uint8 for the
-        subset masks (M); ``self.slot[i][k]`` = (po, np, xo, nx, mo, plane)."""
+        BC6H subset masks (M); ``self.slot[i][k]`` = (po, np, xo, nx, mo, plane)."""
         tensors = [[(b.endpoints, b.x) if blocks else (b,) for b in layer] for layer in self.levels]
         n_p = sum(ts[0].numel() for layer in tensors for ts in layer)
         n_x = sum(ts[1].numel() for layer in tensors for ts in layer) if blocks else 0
@@ -73,11 +73,8 @@ class FusedStep:
                     b = layer[k]
                     xv = X[xo:xo + b.x.numel()].view(b.x.shape)
                     xv.copy_(b.x.detach())
-                    if b.mask is not None:  # BC6H and BC7: the texel's subset; BC7: + 2 in a mode-7 block
-                        m = b.mask.cpu().numpy().astype(np.uint8)
-                        if b.levels is not None:
-                            m = m + 2 * (b.levels.cpu().numpy() == 3.0)[:, None].astype(np.uint8)
-                        M[xo:xo + b.x.numel()] = m.reshape(-1)
+                    if b.mask is not None:
+                        M[xo:xo + b.x.numel()] = b.mask.cpu().numpy().reshape(-1)
                     b.endpoints, b.x = view.requires_grad_(True), xv.requires_grad_(True)
                     row.append((po, p.numel(), xo, b.x.numel(), xo, plane))
                     xo += b.x.numel()
