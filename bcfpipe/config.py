@@ -227,6 +227,7 @@ class TrainingOptions:
     kernel: Kernel = DEFAULT_KERNEL
     layout: Layout = DEFAULT_LAYOUT
     match_bc: bool = False  # with layout auto: the smallest layout whose every mip reaches BC@R
+    classic: tuple[str, ...] = ()  # semantics whose channel groups stay classic BC textures (BC@R)
 
     def __post_init__(self) -> None:
         from bcfpipe.errors import InputError
@@ -237,6 +238,10 @@ class TrainingOptions:
             object.__setattr__(self, "kernel", Kernel(self.kernel))
         if self.layout in tuple(Layout) and not isinstance(self.layout, Layout):
             object.__setattr__(self, "layout", Layout(self.layout))
+        if isinstance(self.classic, str):  # "normal,opacity" from a command line
+            object.__setattr__(self, "classic", tuple(s.strip() for s in self.classic.split(",") if s.strip()))
+        elif not isinstance(self.classic, tuple):
+            object.__setattr__(self, "classic", tuple(self.classic or ()))
         for problem in self.problems():
             raise InputError(problem)
 
@@ -269,6 +274,9 @@ class TrainingOptions:
         elif self.layout == Layout.AUTO and self.target_psnr is not None:
             out.append("--layout auto chooses the profile against BC; --target-psnr chooses it against a PSNR: "
                        "use one (--layout neural --target-psnr DB)")
+        if self.classic and self.target_psnr is not None:
+            out.append("--classic fixes part of the layout against BC@R; --target-psnr sizes an all-neural "
+                       "material against a PSNR: use one")
         if self.kernel not in tuple(Kernel):
             out.append(f"unknown kernel {self.kernel!r}; choose from {', '.join(k.value for k in Kernel)}")
         elif self.kernel == Kernel.FUSED and str(self.device).startswith("cuda"):

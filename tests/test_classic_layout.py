@@ -301,6 +301,7 @@ def test_train_layout_auto_writes_the_chosen_layout_and_why(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["--match-bc"], "--match-bc chooses a layout: use it with --layout auto"),
+    (["--classic", "albedo", "--target-psnr", "30"], "--classic fixes part of the layout"),
     (["--layout", "auto", "--target-psnr", "30"], "use one (--layout neural --target-psnr DB)"),
 ])
 def test_layout_options_that_do_not_combine_are_refused_in_one_line(tmp_path, args, message):
@@ -374,3 +375,61 @@ def test_a_layout_exported_over_an_earlier_one_leaves_none_of_its_files(mixed, t
     export_layout(fit, ts, folder, "repeat")
     assert sorted(p.name for p in folder.iterdir()) == ["C0.dds", "C1.dds", "C2.dds", "material.json"]
     assert not mf.read(folder).neural
+
+
+def test_classic_option_is_parsed_once():
+    assert TrainingOptions(classic="normal, opacity").classic == ("normal", "opacity")
+    assert TrainingOptions(classic="").classic == () and TrainingOptions().classic == ()
+
+
+def test_train_classic_keeps_the_named_group_and_trains_the_rest(tmp_path):
+    """`bcfpipe train --classic normal`: the normal map ships as BC@R's BC5, the decoder learns the
+    other channels only, no probe is trained, and verify passes; a semantic the set lacks changes
+    nothing (an all-neural folder)."""
+    from click.testing import CliRunner
+
+    from bcfpipe.cli import main
+    from bcfpipe.verify.checks import verify
+
+    t = SAMPLE / "textures"
+    base = ["train", f"albedo={t / 'bricks_albedo.png'}:rgb", f"normal={t / 'bricks_normal.png'}:xy",
+            "--profile", "tiny", "--quality", "smoke", "--threads", "1", "--json"]
+    out = tmp_path / "m"
+    r = CliRunner().invoke(main, base + ["-o", str(out), "--classic", "normal"])
+    assert r.exit_code == 0, r.output
+    d = json.loads(r.stdout.strip().splitlines()[-1])
+    assert d["layout"]["chosen"]["layout"] == "neural tiny + classic normal"
+    assert "--classic normal" in d["layout"]["reason"]
+    desc = mf.read(out)
+    assert [c.dxgi_format for c in desc.classic] == [dds.DXGI_FORMAT_BC5_UNORM]
+    assert {o.name for o in desc.outputs if o.source == "classic"} == {"normal.x", "normal.y", "normal.z"}
+    assert desc.mlp.n_out == 3  # albedo only
+    assert not (out / ".layout-work").exists()
+    assert verify(out, glsl=False).exit_code == 0
+    plain = tmp_path / "p"
+    r = CliRunner().invoke(main, base[:2] + base[3:] + ["-o", str(plain), "--classic", "normal"])
+    assert r.exit_code == 0, r.output
+    assert not mf.read(plain).classic and not (plain / "layout.json").exists()
+
+
+def test_build_classic_applies_to_the_materials_that_have_it(tmp_path):
+    """`bcfpipe build --classic normal`: the materials with a normal map keep it classic, the
+    leaves (no normal) train all neural; the option is in the manifest and the cache key."""
+    from click.testing import CliRunner
+
+    from bcfpipe.builder.plan import plan
+    from bcfpipe.cli import main
+    from bcfpipe.formats import manifest as mfst
+
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["build", str(SAMPLE / "sample_scene.usda"), "-o", str(out), "--classic", "normal",
+                                  "--quality", "smoke", "--jobs", "1", "--threads", "1", "--json"])
+    assert r.exit_code == 0, r.output
+    man = mfst.read(out)
+    assert man.options.classic == ("normal",)
+    kept = {m.path: m.layout.classic if m.layout else () for m in man.built()}
+    assert kept["/World/Looks/Bricks"] == ("normal",) and kept["/World/Looks/Leaves"] == ()
+    keys = {j.name: j.content_hash for j in plan(SAMPLE / "sample_scene.usda", TrainingOptions(preset="smoke")).jobs}
+    with_classic = {j.name: j.content_hash for j in plan(SAMPLE / "sample_scene.usda",
+                                                         TrainingOptions(preset="smoke", classic=("normal",))).jobs}
+    assert all(keys[n] != with_classic[n] for n in keys)

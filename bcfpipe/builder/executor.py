@@ -173,7 +173,9 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
             from bcfpipe.scan.coverage import unpack
 
             mask = unpack(mj.coverage, ts.width, ts.height)
-        if o.layout == "auto":
+        from bcfpipe.layout.material import uses_layout
+
+        if uses_layout(o, [sem for sem, _, _ in mj.specs]):
             from bcfpipe.layout.material import fit_material_layout
 
             res = fit_material_layout(ts, out_dir, training, mj.wrap, progress=progress, coverage=mask,

@@ -76,7 +76,7 @@ class MaterialJob:
         the job's record that `TrainingOptions` has, by name."""
         shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
                   if hasattr(self.options, f.name)}
-        for name in ("features", "kernel", "layout", "match_bc"):  # absent from the record: the default
+        for name in ("features", "kernel", "layout", "match_bc", "classic"):  # absent from the record: the default
             if shared.get(name) is None:
                 shared.pop(name, None)
         return TrainingOptions(**{**shared, "device": device, "threads": threads})
@@ -252,7 +252,8 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
                          "features": None if training.features == DEFAULT_FEATURES else training.features.value,
                          "kernel": None if training.kernel == DEFAULT_KERNEL else training.kernel.value,
                          "layout": None if training.layout == DEFAULT_LAYOUT else training.layout.value,
-                         "match_bc": True if training.match_bc else None})
+                         "match_bc": True if training.match_bc else None,
+                         "classic": tuple(training.classic) or None})
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 

@@ -64,12 +64,17 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
         read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
         say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
             f"content hash {j.content_hash[:16]}")
-        if j.options.layout == "auto":
-            from bcfpipe.layout.material import bc_resolution
+        from bcfpipe.layout.material import bc_resolution, uses_layout
 
+        if uses_layout(j.options, [sem for sem, _, _ in j.specs]):
             r = bc_resolution(max(w, h), j.options.profile)
-            say(f"    layout auto: against BC@{r}; a probe at the largest profile within its bytes, at most one "
-                f"more training, decided when trained (docs/layout.md)")
+            kept = sorted(set(j.options.classic or ()) & {sem for sem, _, _ in j.specs})
+            held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
+            if j.options.layout == "auto":
+                say(f"    layout auto: against BC@{r}{held}; a probe at the largest profile within its bytes, at most "
+                    f"one more training, decided when trained (docs/layout.md)")
+            else:
+                say(f"    layout: against BC@{r}{held}; the rest neural at {prof}")
         for m in j.materials:
             say(f"    {m}")
     skipped = Counter(m.reason for m in bplan.materials if m.decision == Decision.SKIP)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from bcfpipe.formats.vocabulary import Layout, Wrap
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
 from bcfpipe.cli.options import training_options
@@ -169,7 +169,9 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
     outcome = None
     try:
         with _Reporter(quiet) as rep:
-            if options.layout == Layout.AUTO:
+            from bcfpipe.layout.material import uses_layout
+
+            if uses_layout(options, [s.semantic for s in specs]):
                 from bcfpipe.layout.material import fit_material_layout
 
                 def said_layout(text: str) -> None:

@@ -135,7 +135,7 @@ class Outputs(Record):
 
 @dataclass(frozen=True)
 class LayoutChoice(Record):
-    """What --layout auto chose for a material (the folder's layout.json has every candidate)."""
+    """What --layout auto or --classic chose for a material (the folder's layout.json has every candidate)."""
 
     chosen: str
     classic: tuple[str, ...]
@@ -259,6 +259,7 @@ class Options(Record):
     kernel: str | None = optional()  # --kernel when not the default torch: "fused" (issue 30)
     layout: str | None = optional()  # --layout when not the default neural: "auto" (issue 31)
     match_bc: bool | None = optional()  # --match-bc (with --layout auto); absent when not given
+    classic: tuple[str, ...] | None = optional()  # --classic: semantics whose groups stay BC textures
 
 
 @dataclass(frozen=True)

@@ -115,7 +115,7 @@ def _load(tp: Any, v: Any, where: str) -> Any:
                 raise _fail(where, f"missing key {name!r}")
         return tp(**kw)
     if origin in (tuple, list):
-        if not isinstance(v, list):
+        if not isinstance(v, (list, tuple)):  # JSON gives lists; asdict() of a record, tuples
             raise _fail(where, f"expected a list, got {type(v).__name__}")
         item = args[0] if args else Any
         if origin is tuple and args and not (len(args) == 2 and args[1] is Ellipsis):

@@ -121,6 +121,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Manifest", "root_layer"): "The USD layer to open: the overrides over the untouched scene.",
     ("Options", "layout"): "--layout when not the default neural: auto.",
     ("Options", "match_bc"): "--match-bc: with --layout auto, the smallest layout whose every mip reaches BC@R.",
+    ("Options", "classic"): "--classic: the semantics (e.g. normal) whose channel groups every material keeps as "
+                            "classic BC textures, as BC@R has them; the rest is neural (or chosen by --layout auto).",
     ("MaterialReport", "layout"): "--layout auto only: what was chosen against BC@R and why (as manifest.json says).",
     ("Material", "layout"): "--layout auto only: what was chosen for this material and why.",
     ("LayoutChoice", "chosen"): "The layout shipped: 'neural P', 'neural P + classic G, ...' or 'all classic (BC@R)'.",

@@ -26,6 +26,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from bcfpipe.config import PROFILES, TrainingOptions
+from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import EncodedGroup, channel_errors, encode
@@ -42,7 +43,7 @@ class LayoutFit:
     classic: list[EncodedGroup]  # every group of BC@R
     neural: MaterialResult | None  # the chosen layout's model (None: all classic)
     neural_channels: tuple[int, ...]  # the texture set's channels it decodes
-    probe: MaterialResult
+    probe: MaterialResult | None  # None when --classic fixed the layout
     train_seconds: float  # training of the probe and of the second model, if any
     seconds: float  # everything: BC@R, trainings, exports and measuring
 
@@ -73,11 +74,21 @@ def candidate_profiles(asked: str, device: str) -> list[str]:
     return sorted((p for p in pool if PROFILES[p][0] <= top), key=lambda p: -PROFILES[p][0]) or [asked]
 
 
+def named_groups(groups: Sequence, semantics: Sequence[str]) -> tuple[str, ...]:
+    """The names of the groups (`bcfpipe.layout.classic.Group` or encoded) that hold one of
+    ``semantics`` (--classic): a packed group goes whole."""
+    wanted = set(semantics)
+    names = [getattr(g, "group", g).name for g in groups]
+    return tuple(n for n in names if wanted & set(n.split("+")))
+
+
 def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
                wrap: str = "repeat", match_bc: bool = False, log: Callable[[str], None] = lambda s: None,
                progress: ProgressFn | None = None, coverage: np.ndarray | None = None) -> LayoutFit:
     """Choose and train ``ts``'s layout at BC resolution ``resolution``; neural files of the probe
-    and of the chosen model go under ``out_dir``/probe and ``out_dir``/neural."""
+    and of the chosen model go under ``out_dir``/probe and ``out_dir``/neural. The groups that
+    ``options.classic`` names stay classic in every candidate; with ``--layout neural`` that one
+    layout is trained, at the profile asked, without a probe."""
     from bcfpipe.train.rate import _gain as rate_gain
 
     def _gain(p: str, preset: str) -> float:  # smoke is no rate-control preset: draft's gains stand in
@@ -101,6 +112,9 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     log(f"BC@{resolution}: {bc.size_bytes / 2**20:.2f} MiB, {bc.psnr:.2f} dB over all mips")
 
     asked, cfg = make_config(ts, options, wrap)
+    forced = named_groups(groups, options.classic)
+    if options.layout == Layout.NEURAL:
+        return _fixed(ts, out, options, wrap, groups, e_bc, bc, forced, asked, use, log, progress, coverage, start)
     profiles = candidate_profiles(asked, cfg.device)
     own = {p: (p if p in PROFILES else options.profile) for p in profiles}  # auto-N trains as "auto"
     dims = (cfg.model.n_inputs, cfg.model.hidden)
@@ -119,6 +133,8 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         for chosen in itertools.combinations(range(len(groups)), r):
             cols = [c for i in chosen for c in groups[i].group.channels]
             classic_bytes = sum(groups[i].size_bytes for i in chosen)
+            if not set(forced) <= {names[i] for i in chosen}:
+                continue
             for p in profiles:
                 e = e0 if p == p0 else e0 * 10 ** (-(_gain(p, options.preset) - _gain(p0, options.preset)) / 10)
                 basis = "measured" if (p == p0 and not chosen) else "bound" if p == p0 else "predicted"
@@ -134,23 +150,44 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
             log(f"no candidate clears the floor on its bound; training the closest: {alt.label} "
                 f"({C.deficit(alt, bc, match_bc):.1f} dB short)")
             ch = alt
-    final_pool = [bc, next(c for c in cands if c.profile == p0 and not c.classic)]
-    models = {final_pool[1].label: (probe, tuple(range(ts.num_channels)))}
+    final_pool = [bc] + [c for c in cands if c.profile == p0 and not c.classic]
+    models = {final_pool[-1].label: (probe, tuple(range(ts.num_channels)))} if len(final_pool) > 1 else {}
     if ch.profile is not None and (ch.classic or ch.profile != p0):
-        keep = [c for c in range(ts.num_channels)
-                if not any(c in g.group.channels for g in groups if g.group.name in ch.classic)]
-        sub = subset(ts, keep)
-        log(f"training {len(keep)} channel(s) at {ch.profile} for: {ch.label}")
-        res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=own[ch.profile]), wrap)[1],
-                              ch.profile, progress=progress, coverage=coverage)
+        log(f"training the channels outside the classic groups at {ch.profile} for: {ch.label}")
+        res, keep, m = _train_subset(ts, out, options, wrap, groups, e_bc, ch.classic, own[ch.profile], ch.profile,
+                                     use, progress, coverage)
         train_s += res.train_seconds
-        e = e_bc.copy()
-        e[:, keep] = res.mse_per_channel
-        classic_bytes = sum(g.size_bytes for g in groups if g.group.name in ch.classic)
-        m = C.Candidate(ch.classic, ch.profile, res.size_bytes + classic_bytes, tuple(float(v) for v in e.mean(1)),
-                        "measured", use)
         final_pool.append(m)
-        models[m.label] = (res, tuple(keep))
+        models[m.label] = (res, keep)
     decision = C.choose(final_pool, bc, match_bc)
     neural, channels = models.get(decision.chosen.label, (None, ()))
     return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start)
+
+
+def _train_subset(ts, out, options, wrap, groups, e_bc, classic, profile, name, use, progress, coverage):
+    """Train the channels outside the ``classic`` groups at ``profile`` (reported as ``name``):
+    (result, channels, measured candidate)."""
+    keep = [c for c in range(ts.num_channels) if not any(c in g.group.channels for g in groups if g.group.name in classic)]
+    sub = subset(ts, keep)
+    res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=profile), wrap)[1],
+                          name, progress=progress, coverage=coverage)
+    e = e_bc.copy()
+    e[:, keep] = res.mse_per_channel
+    classic_bytes = sum(g.size_bytes for g in groups if g.group.name in classic)
+    return res, tuple(keep), C.Candidate(tuple(classic), name, res.size_bytes + classic_bytes,
+                                         tuple(float(v) for v in e.mean(1)), "measured", use)
+
+
+def _fixed(ts, out, options, wrap, groups, e_bc, bc, forced, asked, use, log, progress, coverage, start) -> LayoutFit:
+    """``--classic`` with ``--layout neural``: the named groups classic, the rest at the profile asked."""
+    if len(forced) == len(groups):
+        decision = C.Decision(bc, (bc,), bc, f"--classic {','.join(options.classic)} names every group: shipping BC@R",
+                              "quality")
+        return LayoutFit(decision, decision, groups, None, (), None, 0.0, time.perf_counter() - start)
+    log(f"training the channels outside {', '.join(forced)} at {asked}")
+    res, keep, m = _train_subset(ts, out, options, wrap, groups, e_bc, forced, options.profile, asked, use, progress,
+                                 coverage)
+    worst = min(m.margins(bc)[k] for k in bc.use)
+    decision = C.Decision(bc, (bc, m), m, f"--classic {','.join(options.classic)}: {', '.join(forced)} kept as BC "
+                          f"textures, the rest neural at {asked} (worst mip {worst:+.1f} dB against BC@R)", "quality")
+    return LayoutFit(decision, decision, groups, res, keep, None, res.train_seconds, time.perf_counter() - start)

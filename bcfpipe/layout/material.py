@@ -20,6 +20,12 @@ from bcfpipe.train.trainer import ProgressFn
 WORK = ".layout-work"  # inside the output folder while the probe and the chosen model train
 
 
+def uses_layout(options, semantics) -> bool:
+    """Whether a material is fitted here rather than trained all neural: ``--layout auto``, or
+    ``--classic`` naming one of its ``semantics`` (``options``: TrainingOptions or a job's Options)."""
+    return options.layout == "auto" or bool(set(options.classic or ()) & set(semantics))
+
+
 def bc_resolution(side: int, profile: str) -> int:
     """R: the T_0 of the profile asked for (1k -> 1024), or the set's larger ``side`` for auto."""
     return PROFILES[profile][0] if profile in PROFILES else side
