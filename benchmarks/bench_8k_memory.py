@@ -80,6 +80,7 @@ def main() -> None:
         res = json.loads(p.stdout)
         per_mip = ", ".join(f"{v:.1f}" for v in res["metrics"]["psnr_per_mip"])
         print(f"exit 0 in {wall:.0f} s, peak RSS {peak:.2f} GiB, PSNR {res['psnr']:.2f} dB (per mip {per_mip})")
+        print(f"phases: {res['phase_seconds']}")
         print(f"| {args.size}² x 8 channels, --kernel {args.kernel} | {args.profile} | {args.preset} | {peak:.2f} GiB | {wall:.0f} s | "
               f"{res['psnr']:.2f} dB |")
 

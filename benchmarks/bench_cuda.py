@@ -111,7 +111,7 @@ def main() -> None:
 
     def measure(batch, steps):
         p = _cpu_preset(steps, steps, steps, batch)
-        tm = train(texture_set("teapot"), config("teapot", "1k", p, f"probe {batch}"), keep_float_mips=False)
+        tm = train(texture_set("teapot"), config("teapot", "1k", p, f"probe {batch}"), measure_float=False)
         ps, n = tm.phase_seconds, tm.phase_samples
         step[batch] = tuple(ps[ph] / max(1, p.warmup.steps if ph == "warmup" else p.constrained.steps
                                           if ph == "constrained" else p.finetune.steps)

@@ -48,7 +48,7 @@ def main() -> None:
           f"{preset.batch}, {args.steps} steps per phase (the constrained phase's second half quantization-aware), "
           f"{args.reps} interleaved repetitions")
     warm = replace(preset, warmup=replace(std.warmup, steps=2), constrained=replace(std.constrained, steps=2))
-    train(ts, cfg.with_(preset=warm, kernel=Kernel.FUSED, threads=1), keep_float_mips=False)  # compile / load
+    train(ts, cfg.with_(preset=warm, kernel=Kernel.FUSED, threads=1), measure_float=False)  # compile / load
 
     rows = []
     for threads in (int(t) for t in args.threads.split(",")):
@@ -56,7 +56,7 @@ def main() -> None:
         for _ in range(args.reps):
             for kernel in (Kernel.TORCH, Kernel.FUSED):
                 torch.manual_seed(0)
-                tm = train(ts, cfg.with_(kernel=kernel, threads=threads), keep_float_mips=False)
+                tm = train(ts, cfg.with_(kernel=kernel, threads=threads), measure_float=False)
                 for phase in ("warmup", "constrained"):
                     rate.setdefault((kernel, phase), []).append(tm.phase_samples[phase] / tm.phase_seconds[phase])
         for phase in ("warmup", "constrained"):

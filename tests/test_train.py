@@ -151,3 +151,46 @@ def test_train_reporter_prints_through_a_long_call():
     assert len(buf.getvalue().splitlines()) == 2
     last = buf.getvalue().splitlines()[-1].split()
     assert last[:2] == ["encode", "0/14"] and last[3] == f"{3 + LINE_SECONDS:.0f}s"
+
+
+@pytest.mark.parametrize("hdr", [False, True])
+def test_float_model_measured_chunk_by_chunk_equals_the_held_mips(hdr):
+    """The float model's PSNR, accumulated chunk by chunk against the training reference, equals
+    compute_metrics on the decoded mips held whole (as before, when an 8K set held 2.7 GiB more);
+    with an HDR channel both measure in its log domain."""
+    import torch
+
+    from bcfpipe.model import neural as M
+    from bcfpipe.texset import encoding
+    from bcfpipe.texset.metrics import compute_metrics, metrics_from_mse
+    from bcfpipe.texset.reference import ReferencePyramid
+    from bcfpipe.texset.texture_set import build_mip_chain
+    from bcfpipe.train.trainer import evaluate_levels, float_model_mse
+
+    rng = np.random.default_rng(0)
+    data = rng.random((64, 32, 4)).astype(np.float32)
+    data[..., 3] **= 4  # HDR-like: mostly dark, a few bright texels
+    chans = [Channel("albedo", c, "color", "a.png", i) for i, c in enumerate("rgb")]
+    chans.append(Channel("emission", "r", "generic", "e.exr", 0, log_gain=6.0) if hdr
+                 else Channel("roughness", "r", "generic", "r.png", 0))
+    ts = TextureSet(data, tuple(chans), 32, 64)
+    mc = TINY
+    gen = torch.Generator().manual_seed(1)
+    free = M.init_free(mc, gen, "cpu")
+    mlp = M.init_mlp(mc.n_inputs, mc.hidden, 4, gen, "cpu", torch.full((4,), 0.5))
+    biases = M.lod_biases(mc.resolutions, 32, 64)
+    kinds = tuple(c.kind for c in chans)
+    gains = encoding.gains(ts.channels)
+    ref_mips = build_mip_chain(ts.data)
+    ref = ReferencePyramid.from_mips(encoding.encode_levels(ref_mips, gains))
+    fn = M.free_level_fn(free, mc)
+    got = metrics_from_mse(float_model_mse(fn, mlp, mc, kinds, biases, ref), chans, [m.shape[:2] for m in ref_mips])
+    held = [np.empty((h * w, 4), np.float32) for h, w in (m.shape[:2] for m in ref_mips)]
+    for k, a, y in evaluate_levels(fn, mlp, mc, kinds, biases, [m.shape[:2] for m in ref_mips], chunk=97):
+        held[k][a:a + len(y)] = y.numpy()
+    held = encoding.decode_levels([h.reshape(m.shape) for h, m in zip(held, ref_mips)], gains)
+    want = compute_metrics(ref_mips, held, chans, ssim=False, flip=False)
+    np.testing.assert_allclose(got.psnr_per_mip, want.psnr_per_mip, atol=1e-4)
+    assert abs(got.psnr - want.psnr) < 1e-4 and got.mips_in_mean == want.mips_in_mean
+    assert got.psnr_per_group.keys() == want.psnr_per_group.keys()
+    np.testing.assert_allclose(list(got.psnr_per_group.values()), list(want.psnr_per_group.values()), atol=1e-4)

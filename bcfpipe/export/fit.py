@@ -12,7 +12,7 @@ from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
 from bcfpipe.config import TrainConfig, TrainingOptions
-from bcfpipe.texset.metrics import Metrics, compute_metrics, mse_per_channel
+from bcfpipe.texset.metrics import Metrics, compute_metrics, metrics_from_mse, mse_per_channel
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import Progress, ProgressFn, TrainedMaterial, resolve_device, train
 
@@ -77,8 +77,8 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
         progress(Progress("evaluate", 0, 0, float("nan"), float("nan"), time.perf_counter() - start, 0.0))
     t0 = time.perf_counter()
     ref = build_mip_chain(ts.data)
-    float_metrics = compute_metrics(ref, tm.float_mips, ts.channels, ssim=False, flip=False) if tm.float_mips else None
-    tm.float_mips = []  # measured: free them before the exported mips are decoded (an 8K set's are 2.7 GiB)
+    float_metrics = (metrics_from_mse(tm.float_mse, ts.channels, [m.shape[:2] for m in ref])
+                     if tm.float_mse is not None else None)
     em = E.load(out)
     dec = E.decode_mips(em, [m.shape[:2] for m in ref])
     masks = None

@@ -37,7 +37,7 @@ from bcfpipe.formats.manifest import Quality as Metrics
 from bcfpipe.texset.texture_set import Channel
 from bcfpipe.texset import encoding
 
-__all__ = ["Metrics", "compute_metrics", "psnr_from_mse", "mse_per_mip", "mse_per_channel", "ssim_group", "flip_group"]
+__all__ = ["Metrics", "compute_metrics", "metrics_from_mse", "psnr_from_mse", "mse_per_mip", "mse_per_channel", "ssim_group", "flip_group"]
 
 COLOR_KIND = "color"
 BAND_VALUES = 1 << 22  # values per band when a metric walks a large mip in bands of rows
@@ -164,6 +164,24 @@ def flip_group(ref: np.ndarray, dec: np.ndarray) -> float:
         err, _, _ = flip.evaluate(r, d, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=False)
         total += float(np.asarray(err)[y0 - a:y1 - a].sum(dtype=np.float64))
     return total / (h * w)
+
+
+def metrics_from_mse(mse: np.ndarray, channels: Sequence[Channel], shapes: Sequence[tuple[int, int]],
+                     min_size: int = 4) -> Metrics:
+    """The PSNR part of :func:`compute_metrics` (no SSIM, FLIP or coverage) from each mip's squared
+    error per channel, ``mse`` (mips, channels), measured where compute_metrics measures (HDR
+    channels in their learnt domain); ``shapes``: each mip's (H, W)."""
+    channels = tuple(channels)
+    inv_peak2 = np.array([1.0 / ch.peak ** 2 for ch in channels])
+    norm = np.asarray(mse, np.float64) * inv_peak2
+    use = [k for k, s in enumerate(shapes) if min(s) >= min_size] or list(range(len(shapes)))
+    groups: dict[str, list[int]] = {}
+    for i, ch in enumerate(channels):
+        groups.setdefault(ch.semantic, []).append(i)
+    mses = norm.mean(1)
+    return Metrics(psnr=_mean_psnr(mses, use), psnr_per_mip=tuple(psnr_from_mse(m) for m in mses),
+                   psnr_per_group={g: _mean_psnr(norm[:, idx].mean(1), use) for g, idx in groups.items()},
+                   ssim=None, ssim_per_group={}, flip=None, flip_per_group={}, mips_in_mean=len(use))
 
 
 def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],

@@ -65,7 +65,7 @@ class TrainedMaterial:
     mlp: MlpWeights  # fp16-rounded
     lod_biases: tuple[float, ...]
     phase_seconds: dict[str, float]
-    float_mips: list[np.ndarray] = field(default_factory=list)  # decoded by the float model before phase 3
+    float_mse: np.ndarray | None = None  # (mips, channels): the float model's squared error before phase 3
     history: list[tuple[str, int, float]] = field(default_factory=list)
     phase_samples: dict[str, int] = field(default_factory=dict)  # training samples drawn per phase
 
@@ -173,25 +173,35 @@ def _flat(layers):
 
 
 def evaluate_levels(level_fn: M.LevelFn, mlp: dict[str, torch.Tensor], mc, kinds: tuple[str, ...], biases,
-                    ref_shapes, chunk: int = 1 << 18) -> list[np.ndarray]:
+                    ref_shapes, chunk: int = 1 << 18):
     """The float model decoded at every reference mip's texel centres with s = mip index, clamped
-    to each channel's range (no normal z) -> [(H, W, c)]."""
+    to each channel's range (no normal z): per mip k, its chunks (k, first texel, (n, c) values),
+    in the learnt domain; O(chunk) memory, whatever the set's size."""
     with torch.no_grad():
         levels = [[level_fn(i, k).detach() for k in range(n)] for i, n in enumerate(mc.mip_counts)]
     cached = M.cached_level_fn(levels)
-    out = []
     dev = levels[0][0].device
     lo = torch.tensor([-1.0 if t == "normal" else 0.0 for t in kinds], device=dev)
     with torch.no_grad():
         for k, (h, w) in enumerate(ref_shapes):
-            level = np.empty((h * w, len(kinds)), np.float32)
             for a in range(0, h * w, chunk):  # texel-centre uvs made per chunk: O(chunk) scratch at 8K
                 ids = torch.arange(a, min(a + chunk, h * w), device=dev)
                 uv = torch.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1)
                 y = M.forward(cached, mlp, mc, biases, uv, float(k))
-                level[a:a + len(ids)] = torch.maximum(torch.minimum(y, torch.ones_like(lo)), lo).cpu().numpy()
-            out.append(level.reshape(h, w, -1))
-    return out
+                yield k, a, torch.maximum(torch.minimum(y, torch.ones_like(lo)), lo)
+
+
+def float_model_mse(level_fn: M.LevelFn, mlp: dict[str, torch.Tensor], mc, kinds: tuple[str, ...], biases,
+                    ref: ReferencePyramid) -> np.ndarray:
+    """(mips, channels) squared error of the float model against ``ref``, both in the learnt domain
+    (where `bcfpipe.texset.metrics` measures HDR channels), accumulated chunk by chunk: the decoded
+    mips are never held (an 8K set's would be 2.7 GiB)."""
+    shapes = [tuple(m.shape[1:]) for m in ref.mips]
+    total = np.zeros((len(shapes), len(kinds)))
+    for k, a, y in evaluate_levels(level_fn, mlp, mc, kinds, biases, shapes):
+        r = ref.mips[k].reshape(len(kinds), -1)[:, a:a + y.shape[0]].T
+        total[k] += ((y.double() - r.double()) ** 2).sum(0).cpu().numpy()
+    return total / np.array([[h * w] for h, w in shapes], np.float64)
 
 
 @dataclass
@@ -424,7 +434,7 @@ def _quantize(run: _Run, blocks: list[list[M.BlockParams]]) -> tuple[list[list[B
 
 
 def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
-          pace: Pace = Pace(), keep_float_mips: bool = True, coverage: np.ndarray | None = None) -> TrainedMaterial:
+          pace: Pace = Pace(), measure_float: bool = True, coverage: np.ndarray | None = None) -> TrainedMaterial:
     """Train one neural material on ``ts`` (see module docstring): warm-up, encode,
     constrained, quantize, MLP fine-tune. ``coverage``: a (H, W) bool mask of the texels the
     scene reads (bcfpipe.scan.coverage); steps then draw their samples there only, which weights
@@ -462,10 +472,7 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     del free
     _constrained(run, blocks)
     _report(run, "quantize", 0, 0, run.clock.left("finetune"))
-    ref_shapes = [tuple(m.shape[1:]) for m in ref.mips]
-    float_mips = (encoding.decode_levels(evaluate_levels(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases,
-                                                         ref_shapes), gains)
-                  if keep_float_mips else [])
+    float_mse = float_model_mse(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases, ref) if measure_float else None
     layers, exact = _quantize(run, blocks)
     del blocks
     _run_phase(run, "finetune", M.cached_level_fn(exact), [], preset.finetune)  # phase 4
@@ -473,4 +480,4 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     w = MlpWeights(*(mlp[k].detach().cpu().numpy().astype(np.float32)
                      for k in ("w1", "b1", "w2", "b2", "out_scale", "out_bias")),
                    log_gain=gains if np.any(gains > 0) else None).to_fp16()
-    return TrainedMaterial(cfg, ts, layers, w, biases, run.seconds, float_mips, run.history, run.samples)
+    return TrainedMaterial(cfg, ts, layers, w, biases, run.seconds, float_mse, run.history, run.samples)
