@@ -238,10 +238,10 @@ class TrainingOptions:
             object.__setattr__(self, "kernel", Kernel(self.kernel))
         if self.layout in tuple(Layout) and not isinstance(self.layout, Layout):
             object.__setattr__(self, "layout", Layout(self.layout))
-        if isinstance(self.classic, str):  # "normal,opacity" from a command line
-            object.__setattr__(self, "classic", tuple(s.strip() for s in self.classic.split(",") if s.strip()))
-        elif not isinstance(self.classic, tuple):
-            object.__setattr__(self, "classic", tuple(self.classic or ()))
+        given = (self.classic,) if isinstance(self.classic, str) else tuple(self.classic or ())
+        names = tuple(s.strip() for g in given for s in g.split(",") if s.strip())  # "normal,opacity", repeated
+        if names != self.classic:
+            object.__setattr__(self, "classic", names)
         for problem in self.problems():
             raise InputError(problem)
 

@@ -56,9 +56,9 @@ TRAINING_OPTIONS = (
                       "worse than BC@R. A probe training and at most one more (docs/layout.md)."),
     click.option("--match-bc", "match_bc", is_flag=True,
                  help="With --layout auto: the smallest layout whose every mip reaches BC@R instead."),
-    click.option("--classic", "classic", default="", metavar="SEMANTICS",
+    click.option("--classic", "classic", multiple=True, default=(), metavar="SEMANTICS",
                  help="Keep these channel groups as the classic BC textures BC@R has (BC1, BC4, BC5, every mip), "
-                      "comma-separated by semantic, e.g. normal or opacity; a packed file's group (ARM) goes whole "
+                      "by semantic, comma-separated or repeated, e.g. normal or opacity; a packed file's group (ARM) goes whole "
                       "when one of its semantics is named. The rest is neural, or chosen by --layout auto. "
                       "Materials without such a channel train as they would without it."),
     click.option("--bench-data", "bench_data", type=click.Path(dir_okay=False, exists=True), default=None,
