@@ -14,6 +14,9 @@
 
 Cost: the probe plus at most one training, each at a profile no larger than the one asked for,
 so at most twice a `--layout neural` training.
+
+``--classic`` names groups that stay classic: with ``auto`` every candidate keeps them; with
+``neural`` the one layout they make is trained (the other channels at the profile asked), no probe.
 """
 from __future__ import annotations
 
