@@ -23,10 +23,16 @@ def quantize_endpoints(e: np.ndarray) -> np.ndarray:
     """Continuous 8-bit-domain endpoints (..., 4) -> the nearest mode-6 endpoints (..., 4) uint8:
     for p in {0, 1}, each channel rounds to the nearest value of 2k + p in [p, 254 + p]; the p
     with the smaller squared error wins (ties to p = 0)."""
+    return nearest_with_pbit(e, lambda v, p: np.clip(2.0 * np.floor((v - p) / 2.0 + 0.5) + p, p, 254 + p))
+
+
+def nearest_with_pbit(e: np.ndarray, grid) -> np.ndarray:
+    """Per endpoint (..., 4), the p-bit whose ``grid(v, p)`` (each channel's nearest representable
+    value with that low bit) lies nearer in squared error, ties to p = 0 -> uint8 values."""
     v = np.clip(np.asarray(e, np.float64), 0.0, 255.0)
     best, best_err = None, None
     for p in (0, 1):
-        q = np.clip(2.0 * np.floor((v - p) / 2.0 + 0.5) + p, p, 254 + p)
+        q = grid(v, p)
         err = ((q - v) ** 2).sum(-1)
         if best is None:
             best, best_err = q, err
@@ -47,28 +53,13 @@ def _pick_indices(texels: np.ndarray, endpoints: np.ndarray, weights: np.ndarray
     return idx.astype(np.uint8), np.take_along_axis(d, idx[..., None], -1)[..., 0].sum(-1)
 
 
-def _refit(texels: np.ndarray, indices: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Least-squares endpoints (8-bit domain, continuous) for fixed indices: minimise
-    sum ||(1 - t) e0 + t e1 - x||^2 with t = WEIGHTS4[index] / 64, per block in closed form."""
-    t = mode6.WEIGHTS4[indices.astype(np.int64)] / 64.0  # (n, 16)
-    a, b = 1.0 - t, t
-    aa, ab, bb = (a * a).sum(1), (a * b).sum(1), (b * b).sum(1)
-    x = texels * 255.0
-    ax, bx = (a[..., None] * x).sum(1), (b[..., None] * x).sum(1)
-    det = aa * bb - ab * ab
-    ok = np.abs(det) > 1e-9
-    safe = np.where(ok, det, 1.0)[:, None]
-    e0 = (bb[:, None] * ax - ab[:, None] * bx) / safe
-    e1 = (aa[:, None] * bx - ab[:, None] * ax) / safe
-    out = np.stack([e0, e1], 1)
-    return np.where(ok[:, None, None], out, fallback)
-
-
-def _initial(texels: np.ndarray) -> np.ndarray:
-    """Endpoints at the extremes of each block's principal axis (8-bit domain)."""
-    x = texels * 255.0
-    mean = x.mean(1, keepdims=True)
-    c = x - mean
+def principal_endpoints(x: np.ndarray, member: np.ndarray) -> np.ndarray:
+    """Per block, endpoints (n, 2, 4) at the extremes of the member texels' principal axis; ``x``
+    (n, 16, 4) in the 8-bit domain, ``member`` (n, 16) bool (mode 6: all; mode 7: one subset)."""
+    m = member[..., None].astype(np.float64)
+    cnt = np.maximum(m.sum(1), 1.0)
+    mean = (m * x).sum(1) / cnt
+    c = (x - mean[:, None]) * m
     cov = np.einsum("nki,nkj->nij", c, c)
     # power iteration from the texel farthest from the mean (a fixed start such as (1, 1, 1, 1)
     # is orthogonal to some blocks' axis and would collapse them to their mean)
@@ -78,9 +69,33 @@ def _initial(texels: np.ndarray) -> np.ndarray:
     for _ in range(8):
         axis = np.einsum("nij,nj->ni", cov, axis)
         axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
-    proj = np.einsum("nki,ni->nk", c, axis)
-    lo, hi = proj.min(1), proj.max(1)
-    return np.stack([mean[:, 0] + lo[:, None] * axis, mean[:, 0] + hi[:, None] * axis], 1)
+    proj = np.einsum("nki,ni->nk", x - mean[:, None], axis)
+    lo = np.where(member, proj, np.inf).min(1)
+    hi = np.where(member, proj, -np.inf).max(1)
+    return np.stack([mean + lo[:, None] * axis, mean + hi[:, None] * axis], 1)
+
+
+def refit_endpoints(x: np.ndarray, t: np.ndarray, member: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Least-squares endpoints (n, 2, 4), 8-bit domain, of the member texels for fixed weights
+    t = w / 64: minimise sum ||(1 - t) e0 + t e1 - x||^2 per block in closed form (``fallback``
+    where the system is singular)."""
+    a, b = (1.0 - t) * member, t * member
+    aa, ab, bb = (a * (1.0 - t)).sum(1), (a * t).sum(1), (b * t).sum(1)
+    ax, bx = (a[..., None] * x).sum(1), (b[..., None] * x).sum(1)
+    det = aa * bb - ab * ab
+    ok = np.abs(det) > 1e-9
+    safe = np.where(ok, det, 1.0)[:, None]
+    out = np.stack([(bb[:, None] * ax - ab[:, None] * bx) / safe, (aa[:, None] * bx - ab[:, None] * ax) / safe], 1)
+    return np.where(ok[:, None, None], out, fallback)
+
+
+def _initial(texels: np.ndarray) -> np.ndarray:
+    return principal_endpoints(texels * 255.0, np.ones(texels.shape[:2], bool))
+
+
+def _refit(texels: np.ndarray, indices: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    t = mode6.WEIGHTS4[indices.astype(np.int64)] / 64.0
+    return refit_endpoints(texels * 255.0, t, np.ones(t.shape, np.float64), fallback)
 
 
 def _encode_chunk(texels: np.ndarray, weights: np.ndarray, rounds: int) -> tuple[np.ndarray, np.ndarray]:

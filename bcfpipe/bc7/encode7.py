@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .encode import encode_params as _encode6
+from .encode import encode_params as _encode6, nearest_with_pbit, principal_endpoints, refit_endpoints
 from . import mode6, mode7
 from .modes import MODE6
 from .partitions import PARTITIONS2
@@ -33,21 +33,13 @@ def quantize_endpoints(e: np.ndarray) -> np.ndarray:
     """Continuous 8-bit-domain endpoints (..., 4) -> the nearest widened mode-7 values (..., 4)
     uint8: for p in {0, 1} each channel takes the nearest widened 6-bit value with low bit p (ties
     to the smaller); the p with the smaller squared error wins (ties to p = 0)."""
-    v = np.clip(np.asarray(e, np.float64), 0.0, 255.0)
-    best = best_err = None
-    for p in (0, 1):
-        grid = _WIDE[p::2]  # 32 values, increasing
-        k = np.clip(np.searchsorted(grid, v), 1, 31)
-        lo, hi = grid[k - 1], grid[k]
-        q = np.where(v - lo <= hi - v, lo, hi)
-        err = ((q - v) ** 2).sum(-1)
-        if best is None:
-            best, best_err = q, err
-        else:
-            take = err < best_err
-            best = np.where(take[..., None], q, best)
-            best_err = np.where(take, err, best_err)
-    return best.astype(np.uint8)
+    def grid(v, p):
+        g = _WIDE[p::2]  # 32 values, increasing
+        k = np.clip(np.searchsorted(g, v), 1, 31)
+        lo, hi = g[k - 1], g[k]
+        return np.where(v - lo <= hi - v, lo, hi)
+
+    return nearest_with_pbit(e, grid)
 
 
 def shape_order(x: np.ndarray) -> np.ndarray:
@@ -80,42 +72,11 @@ def _largest_eigenvalue(s: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...ij,...j->...", u, s, u)
 
 
-def _initial(x: np.ndarray, member: np.ndarray) -> np.ndarray:
-    """Per block, endpoints at the extremes of the member texels' principal axis: (n, 2, 4)."""
-    m = member[..., None].astype(np.float64)
-    cnt = np.maximum(m.sum(1), 1.0)
-    mean = (m * x).sum(1) / cnt
-    c = (x - mean[:, None]) * m
-    cov = np.einsum("nki,nkj->nij", c, c)
-    far = np.linalg.norm(c, axis=2).argmax(1)
-    axis = c[np.arange(len(x)), far]
-    axis = axis / np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
-    for _ in range(8):
-        axis = np.einsum("nij,nj->ni", cov, axis)
-        axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
-    proj = np.einsum("nki,ni->nk", x - mean[:, None], axis)
-    lo = np.where(member, proj, np.inf).min(1)
-    hi = np.where(member, proj, -np.inf).max(1)
-    return np.stack([mean + lo[:, None] * axis, mean + hi[:, None] * axis], 1)
-
-
-def _refit(x: np.ndarray, t: np.ndarray, member: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Least-squares endpoints (n, 2, 4) of the member texels for fixed weights t = w / 64."""
-    a, b = (1.0 - t) * member, t * member
-    aa, ab, bb = (a * (1.0 - t)).sum(1), (a * t).sum(1), (b * t).sum(1)
-    ax, bx = (a[..., None] * x).sum(1), (b[..., None] * x).sum(1)
-    det = aa * bb - ab * ab
-    ok = np.abs(det) > 1e-9
-    safe = np.where(ok, det, 1.0)[:, None]
-    out = np.stack([(bb[:, None] * ax - ab[:, None] * bx) / safe, (aa[:, None] * bx - ab[:, None] * ax) / safe], 1)
-    return np.where(ok[:, None, None], out, fallback)
-
-
 def _encode_shape(x: np.ndarray, w: np.ndarray, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mode-7 encoding of every block with its given shape -> (endpoints (n, 4, 4), indices, error)."""
     sub = PARTITIONS2[shape].astype(np.int64)  # (n, 16)
     rows = np.arange(len(x))[:, None]
-    cont = np.concatenate([_initial(x, sub == 0), _initial(x, sub == 1)], 1)  # (n, 4, 4)
+    cont = np.concatenate([principal_endpoints(x, sub == 0), principal_endpoints(x, sub == 1)], 1)  # (n, 4, 4)
     best_e = best_i = best_err = None
     for _ in range(ROUNDS + 1):
         e = quantize_endpoints(cont).astype(np.int32)
@@ -133,7 +94,7 @@ def _encode_shape(x: np.ndarray, w: np.ndarray, shape: np.ndarray) -> tuple[np.n
             best_i = np.where(take[:, None], idx, best_i)
             best_err = np.where(take, err, best_err)
         t = mode7.WEIGHTS2[idx] / 64.0
-        cont = np.concatenate([_refit(x, t, sub == 0, cont[:, :2]), _refit(x, t, sub == 1, cont[:, 2:])], 1)
+        cont = np.concatenate([refit_endpoints(x, t, sub == 0, cont[:, :2]), refit_endpoints(x, t, sub == 1, cont[:, 2:])], 1)
     return best_e.astype(np.uint8), best_i.astype(np.uint8), best_err
 
 
