@@ -433,3 +433,6 @@ def test_build_classic_applies_to_the_materials_that_have_it(tmp_path):
     with_classic = {j.name: j.content_hash for j in plan(SAMPLE / "sample_scene.usda",
                                                          TrainingOptions(preset="smoke", classic=("normal",))).jobs}
     assert all(keys[n] != with_classic[n] for n in keys)
+    r = CliRunner().invoke(main, ["plan", str(SAMPLE / "sample_scene.usda"), "--classic", "normal,normals"])
+    assert r.exit_code == 0 and "--classic normals: no modelled material has such a channel" in r.output
+    assert "--classic normal:" not in r.output

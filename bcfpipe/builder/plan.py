@@ -142,6 +142,12 @@ class BuildPlan:
     layers: tuple[str, ...] = ()  # every layer file the stage composed (for --depfile)
     folded_sources: tuple[SourceFile, ...] = ()  # files no job trains on: read for constants and duplicates
 
+    @property
+    def unused_classic(self) -> tuple[str, ...]:
+        """The --classic semantics no job has a channel of (a typo, or a scene without them)."""
+        have = {sem for j in self.jobs for sem, _, _ in j.specs}
+        return tuple(s for s in (self.options.classic or ()) if s not in have)
+
     def job(self, name: str) -> MaterialJob:
         for j in self.jobs:
             if j.name == name:

@@ -421,6 +421,9 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     nothing = nothing_built(result.manifest)
     if nothing and not quiet:
         click.echo(nothing, err=True)
+    if not quiet:
+        for sem in result.plan.unused_classic:
+            click.echo(f"bcfpipe: warning: --classic {sem}: no modelled material has such a channel", err=True)
     ctx.exit(code)
 
 
