@@ -70,7 +70,8 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
 
         if uses_layout(j.options, [sem for sem, _, _ in j.specs]):
             r = bc_resolution(max(w, h), j.options.profile)
-            kept = sorted(set(j.options.classic or ()) & {sem for sem, _, _ in j.specs})
+            files = {f for sem, f, _ in j.specs if sem in (j.options.classic or ())}
+            kept = list(dict.fromkeys(sem for sem, f, _ in j.specs if f in files))  # a packed file goes whole
             held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
             if j.options.layout == "auto":
                 say(f"    layout auto: against BC@{r}{held}; a probe at the largest profile within its bytes, at most "
