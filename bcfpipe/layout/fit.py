@@ -191,6 +191,7 @@ def _fixed(ts, out, options, wrap, groups, e_bc, bc, forced, asked, use, log, pr
     res, keep, m = _train_subset(ts, out, options, wrap, groups, e_bc, forced, options.profile, asked, use, progress,
                                  coverage)
     worst = min(m.margins(bc)[k] for k in bc.use)
-    decision = C.Decision(bc, (bc, m), m, f"--classic {','.join(options.classic)}: {', '.join(forced)} kept as BC "
-                          f"textures, the rest neural at {asked} (worst mip {worst:+.1f} dB against BC@R)", "quality")
+    kept = f"{', '.join(forced)} kept as BC textures" if forced else "no channel group of this set named"
+    decision = C.Decision(bc, (bc, m), m, f"--classic {','.join(options.classic)}: {kept}, the rest neural at {asked} "
+                          f"(worst mip {worst:+.1f} dB against BC@R)", "quality")
     return LayoutFit(decision, decision, groups, res, keep, None, res.train_seconds, time.perf_counter() - start)
