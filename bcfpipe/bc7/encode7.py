@@ -4,10 +4,11 @@ textures bcfpipe trains are mode 6.
 
 Mode 7 (:mod:`bcfpipe.bc7.mode7`) splits a block into two subsets by one of 64 shapes. Shapes are
 ranked by how well one line per subset fits the texels (the residual off each subset's principal
-axis, from masked second moments); the best :data:`SHAPES_TRIED` are encoded in full (1: on the teapot's and the brick's principal components four shapes gain nothing over one, benchmarks/bound_t0.py), as the mode-6
-encoder does (principal-axis endpoints, then alternating nearest-index choice and least-squares
-refits, errors measured on the integer decode), and the block keeps whichever of them, or of its
-mode-6 encoding, decodes closest.
+axis, from masked second moments). The best :data:`SHAPES_TRIED` are encoded in full, as the
+mode-6 encoder does (principal-axis endpoints, then alternating nearest-index choice and
+least-squares refits, errors measured on the integer decode), and the block keeps whichever of
+them, or of its mode-6 encoding, decodes closest. One shape is tried: on the teapot's and the
+brick's principal components four gain nothing over one (benchmarks/bound_t0.py).
 """
 from __future__ import annotations
 

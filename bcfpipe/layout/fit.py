@@ -77,12 +77,10 @@ def candidate_profiles(asked: str, device: str) -> list[str]:
     return sorted((p for p in pool if PROFILES[p][0] <= top), key=lambda p: -PROFILES[p][0]) or [asked]
 
 
-def named_groups(groups: Sequence, semantics: Sequence[str]) -> tuple[str, ...]:
-    """The names of the groups (`bcfpipe.layout.classic.Group` or encoded) that hold one of
-    ``semantics`` (--classic): a packed group goes whole."""
+def named_groups(groups: Sequence[EncodedGroup], semantics: Sequence[str]) -> tuple[str, ...]:
+    """The names of the groups that hold one of ``semantics`` (--classic): a packed group goes whole."""
     wanted = set(semantics)
-    names = [getattr(g, "group", g).name for g in groups]
-    return tuple(n for n in names if wanted & set(n.split("+")))
+    return tuple(g.group.name for g in groups if wanted & set(g.group.name.split("+")))
 
 
 def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
@@ -134,10 +132,10 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     cands = []
     for r in range(len(groups)):
         for chosen in itertools.combinations(range(len(groups)), r):
-            cols = [c for i in chosen for c in groups[i].group.channels]
-            classic_bytes = sum(groups[i].size_bytes for i in chosen)
             if not set(forced) <= {names[i] for i in chosen}:
                 continue
+            cols = [c for i in chosen for c in groups[i].group.channels]
+            classic_bytes = sum(groups[i].size_bytes for i in chosen)
             for p in profiles:
                 e = e0 if p == p0 else e0 * 10 ** (-(_gain(p, options.preset) - _gain(p0, options.preset)) / 10)
                 basis = "measured" if (p == p0 and not chosen) else "bound" if p == p0 else "predicted"
