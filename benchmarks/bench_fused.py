@@ -7,6 +7,7 @@ real steps: targets, features, MLP, loss, backward, Adam), from the trainer's ow
 The kernels are compiled (or loaded from the cache) before anything is timed.
 
   python benchmarks/bench_fused.py [--set teapot] [--profile 1k] [--steps 120] [--reps 2] [--threads 1,2]
+                                  [--backends native,numba]
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=120, help="steps of each timed phase")
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--backends", default="native,numba", help="fused implementations to time beside torch")
     args = ap.parse_args()
 
     import torch
@@ -36,6 +38,7 @@ def main() -> None:
     from bcfpipe.export.fit import make_config
     from bcfpipe.formats.vocabulary import Kernel
     from bcfpipe.texset.texture_set import load_texture_set
+    from bcfpipe.train.fused import step as fused_step
     from bcfpipe.train.trainer import train
 
     ts = load_texture_set(specs(args.set))
@@ -48,25 +51,28 @@ def main() -> None:
           f"{preset.batch}, {args.steps} steps per phase (the constrained phase's second half quantization-aware), "
           f"{args.reps} interleaved repetitions")
     warm = replace(preset, warmup=replace(std.warmup, steps=2), constrained=replace(std.constrained, steps=2))
-    train(ts, cfg.with_(preset=warm, kernel=Kernel.FUSED, threads=1), measure_float=False)  # compile / load
+    backends = args.backends.split(",")
+    for b in backends:  # compile / load
+        fused_step._BACKEND = b
+        train(ts, cfg.with_(preset=warm, kernel=Kernel.FUSED, threads=1), measure_float=False)
 
     rows = []
     for threads in (int(t) for t in args.threads.split(",")):
         rate: dict[tuple[str, str], list[float]] = {}
         for _ in range(args.reps):
-            for kernel in (Kernel.TORCH, Kernel.FUSED):
+            for name in ["torch", *backends]:
+                fused_step._BACKEND = None if name == "torch" else name
+                kernel = Kernel.TORCH if name == "torch" else Kernel.FUSED
                 torch.manual_seed(0)
                 tm = train(ts, cfg.with_(kernel=kernel, threads=threads), measure_float=False)
                 for phase in ("warmup", "constrained"):
-                    rate.setdefault((kernel, phase), []).append(tm.phase_samples[phase] / tm.phase_seconds[phase])
+                    rate.setdefault((name, phase), []).append(tm.phase_samples[phase] / tm.phase_seconds[phase])
         for phase in ("warmup", "constrained"):
-            t = max(rate[(Kernel.TORCH, phase)])
-            f = max(rate[(Kernel.FUSED, phase)])
-            rows.append((threads, phase, t, f))
-    print("\n| threads | phase | torch samples/s | fused samples/s | fused / torch |")
-    print("|---:|---|---:|---:|---:|")
-    for threads, phase, t, f in rows:
-        print(f"| {threads} | {phase} | {t:,.0f} | {f:,.0f} | {f / t:.2f}x |")
+            rows.append((threads, phase, [max(rate[(name, phase)]) for name in ["torch", *backends]]))
+    print("\n| threads | phase | torch samples/s | " + " | ".join(f"{b} samples/s | {b} / torch" for b in backends) + " |")
+    print("|---:|---|---:|" + "---:|---:|" * len(backends))
+    for threads, phase, r in rows:
+        print(f"| {threads} | {phase} | {r[0]:,.0f} | " + " | ".join(f"{f:,.0f} | {f / r[0]:.2f}x" for f in r[1:]) + " |")
     print("\n(best of the repetitions for each cell)")
 
 

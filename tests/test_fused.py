@@ -18,6 +18,7 @@ from bcfpipe.train.fused.step import FusedStep  # noqa: E402
 
 TEXTURES = Path(__file__).resolve().parent.parent / "samples" / "textures"
 SCALES = (0.0, 0.3, 1.7, 3.0, 5.5, 7.9, 11.0)
+BACKENDS = ("native", "numba")  # step.cpp (vectorised) and kernel.py: the same contract
 
 
 def _image(size: int, channels: int) -> np.ndarray:
@@ -75,10 +76,11 @@ CASES = [("bc6h", "free", False, False), ("bc7", "free", False, False)] + [
     (fmt, "blocks", real, q) for fmt in ("bc6h", "bc7") for real in (False, True) for q in (False, True)]
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("fmt,phase,real,quantized", CASES)
-def test_features_are_bit_identical_to_the_torch_path(fmt, phase, real, quantized):
+def test_features_are_bit_identical_to_the_torch_path(fmt, phase, real, quantized, backend):
     mc, levels, level_fn, mlp, biases, gen = _model(fmt, phase, real)
-    fs = FusedStep(mc, biases, mlp, levels, lambda: quantized)
+    fs = FusedStep(mc, biases, mlp, levels, lambda: quantized, backend=backend)
     for s in SCALES:
         uv = torch.rand((2048, 2), generator=gen) * 3 - 1
         with torch.no_grad():
@@ -87,11 +89,12 @@ def test_features_are_bit_identical_to_the_torch_path(fmt, phase, real, quantize
         assert torch.equal(got.view(torch.int32), ref.view(torch.int32)), f"s={s}"
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("fmt,signed,wrap", [("bc6h", True, "repeat"), ("bc6h", False, "clamp"), ("bc7", False, "clamp")])
-def test_features_signed_and_clamped(fmt, signed, wrap):
+def test_features_signed_and_clamped(fmt, signed, wrap, backend):
     for phase in ("free", "blocks"):
         mc, levels, level_fn, mlp, biases, gen = _model(fmt, phase, False, signed=signed, wrap=wrap)
-        fs = FusedStep(mc, biases, mlp, levels)
+        fs = FusedStep(mc, biases, mlp, levels, backend=backend)
         for s in SCALES:
             uv = torch.rand((1024, 2), generator=gen) * 3 - 1
             with torch.no_grad():
@@ -112,11 +115,12 @@ def _torch_step(mc, level_fn, mlp, biases, params, uv, target, weight, s):
     return float(loss.detach()), {id(p): (None if p.grad is None else p.grad.clone()) for p in params}
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("weighted", [False, True])
 @pytest.mark.parametrize("fmt,phase,real,quantized", CASES)
-def test_loss_and_gradients_match_the_torch_path(fmt, phase, real, quantized, weighted):
+def test_loss_and_gradients_match_the_torch_path(fmt, phase, real, quantized, weighted, backend):
     mc, levels, level_fn, mlp, biases, gen = _model(fmt, phase, real)
-    fs = FusedStep(mc, biases, mlp, levels, lambda: quantized)
+    fs = FusedStep(mc, biases, mlp, levels, lambda: quantized, backend=backend)
     params = _params(levels) + [mlp[k] for k in ("w1", "b1", "w2", "b2")]
     for s in (0.0, 1.7, 5.5, 11.0):
         uv = torch.rand((2048, 2), generator=gen) * 3 - 1
@@ -136,14 +140,15 @@ def test_loss_and_gradients_match_the_torch_path(fmt, phase, real, quantized, we
             assert float((p.grad - r).abs().max()) <= 1e-5 * scale, f"s={s} {tuple(p.shape)}"
 
 
-def test_chunks_give_the_same_gradients_every_run_and_agree_with_one():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_chunks_give_the_same_gradients_every_run_and_agree_with_one(backend):
     mc, levels, _, mlp, biases, gen = _model("bc6h", "blocks", True)
     uv = torch.rand((4096, 2), generator=gen)
     target = torch.rand((4096, 5), generator=gen)
     params = _params(levels) + [mlp[k] for k in ("w1", "b1", "w2", "b2")]
     runs = []
     for chunks in (2, 2, 1):
-        fs = FusedStep(mc, biases, mlp, levels, chunks=chunks)
+        fs = FusedStep(mc, biases, mlp, levels, chunks=chunks, backend=backend)
         for p in params:
             p.grad = None
         fs(uv, target, None, 0.7)

@@ -67,7 +67,7 @@ class FeatureFormat(StrEnum):
 
 class Kernel(StrEnum):
     """How a CPU training step runs (issue 30): torch's ops (the reference, and the only one on
-    CUDA) or one fused numba kernel (bcfpipe.train.fused)."""
+    CUDA) or one fused kernel (bcfpipe.train.fused: C++, or numba without a compiler)."""
 
     TORCH = "torch"
     FUSED = "fused"

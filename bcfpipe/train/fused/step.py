@@ -14,6 +14,27 @@ from bcfpipe.model.features import BlockParams, codec_of
 from bcfpipe.model.sampling import level_weights
 
 
+def default_backend() -> str:
+    """``native`` (step.cpp, vectorised) where a C++ compiler builds it, else ``numba`` (kernel.py),
+    with one line on stderr saying why."""
+    global _BACKEND
+    if _BACKEND is None:
+        from bcfpipe.train.fused import native
+
+        try:
+            native.load()
+            _BACKEND = "native"
+        except native.NativeUnavailable as e:
+            import sys
+
+            print(f"bcfpipe: {e}; the fused kernel runs in numba (slower)", file=sys.stderr)
+            _BACKEND = "numba"
+    return _BACKEND
+
+
+_BACKEND: str | None = None
+
+
 def _tables(signed: bool):
     """The BC6H decode's tables as bcfpipe.bc6h.emulate builds them: every 6-bit endpoint's
     unquantized value and the slope to the next, and the 3-bit weights and theirs."""
@@ -35,10 +56,11 @@ class FusedStep:
     its own gradient buffers (the result depends on the count, not on the scheduling)."""
 
     def __init__(self, mc: ModelConfig, biases: Sequence[float], mlp: dict[str, torch.Tensor], levels: list[list],
-                 quantized: Callable[[], bool] = lambda: False, chunks: int = 1):
+                 quantized: Callable[[], bool] = lambda: False, chunks: int = 1, backend: str | None = None):
         from bcfpipe.train.fused import kernel as K
 
-        self.K, self.mc, self.biases, self.mlp, self.levels = K, mc, biases, mlp, levels
+        self.backend = backend or default_backend()
+        self.mc, self.biases, self.mlp, self.levels = mc, biases, mlp, levels
         self.quantized, self.chunks = quantized, max(1, int(chunks))
         codec = codec_of(mc)
         blocks = isinstance(levels[0][0], BlockParams)
@@ -48,9 +70,15 @@ class FusedStep:
         self.plo, self.phi = (np.float32(v) for v in codec.param_range(mc))
         self.tables = _tables(bool(mc.signed))
         self._rehome(blocks)
-        import numba
+        if self.backend == "native":
+            from bcfpipe.train.fused import native
 
-        numba.set_num_threads(min(self.chunks, numba.config.NUMBA_NUM_THREADS))
+            self.K, self.M = native, native.block_masks(self.M)
+        else:
+            import numba
+
+            self.K = K
+            numba.set_num_threads(min(self.chunks, numba.config.NUMBA_NUM_THREADS))
 
     def _rehome(self, blocks: bool) -> None:
         """One flat float32 storage for the levels' parameters (P) and indices (X), one uint8 for the

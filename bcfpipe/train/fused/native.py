@@ -1,0 +1,154 @@
+"""The C++ build of the fused step (step.cpp): compiled on first use for this machine's CPU into
+bcfpipe's cache (``kernels/``), loaded with ctypes, and called with kernel.py's arguments, so
+:class:`bcfpipe.train.fused.step.FusedStep` can run either.
+
+The library's name hashes the source, the compiler's version and its flags; a build writes a
+temporary file and renames it, so concurrent first uses never load half a library. Without a C++
+compiler, :func:`load` says why in one line and the numba kernel runs instead."""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+SOURCE = Path(__file__).with_name("step.cpp")
+# -ffp-contract=off: no fused multiply-adds, so every product and sum rounds as torch's does;
+# -fno-math-errno / -fno-trapping-math change no result, they let rounding calls inline
+FLAGS = ("-O3", "-march=native", "-std=c++17", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math",
+         "-shared", "-fPIC")
+
+_f32p = ctypes.POINTER(ctypes.c_float)
+_i32p = ctypes.POINTER(ctypes.c_int32)
+_i64p = ctypes.POINTER(ctypes.c_int64)
+
+
+class Args(ctypes.Structure):
+    """step.cpp's ``Args``, field for field."""
+
+    _fields_ = [(n, ctypes.c_int32) for n in ("fmt", "quantized", "sgn", "repeat", "C", "n_in", "hidden", "n_out")] + [
+        ("a", ctypes.c_int64), ("b", ctypes.c_int64),
+        ("uv", _f32p), ("target", _f32p), ("weight", _f32p), ("P", _f32p), ("X", _f32p), ("M", _i32p),
+        ("slots", _i64p), ("blend", _f32p),
+        ("plo", ctypes.c_float), ("phi", ctypes.c_float), ("loss_scale", ctypes.c_float), ("pad_", ctypes.c_float),
+        ("w1", _f32p), ("b1", _f32p), ("w2", _f32p), ("b2", _f32p), ("out_scale", _f32p), ("out_bias", _f32p),
+        ("gP", _f32p), ("gX", _f32p), ("gw1", _f32p), ("gb1", _f32p), ("gw2", _f32p), ("gb2", _f32p),
+        ("feats_out", _f32p)]
+
+
+class NativeUnavailable(RuntimeError):
+    """No C++ compiler, or the build failed: the message says which, in one line."""
+
+
+_lock = threading.Lock()
+_lib: ctypes.CDLL | None = None
+
+
+def _compiler() -> str:
+    cxx = os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++") or shutil.which("clang++")
+    if not cxx:
+        raise NativeUnavailable("no C++ compiler (g++) found; scripts/setup.sh installs one")
+    return cxx
+
+
+def library_path() -> Path:
+    """Where this source, compiler and flag set's library lives in the cache."""
+    from bcfpipe.train.fused.kernel import _cache_dir
+
+    cxx = _compiler()
+    version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout.splitlines()[:1]
+    key = hashlib.sha256(SOURCE.read_bytes() + repr((cxx, version, FLAGS)).encode()).hexdigest()[:16]
+    return Path(_cache_dir()) / f"bcf_step-{key}.so"
+
+
+def load() -> ctypes.CDLL:
+    """The compiled kernel, built into the cache on first use (a few seconds)."""
+    global _lib
+    with _lock:
+        if _lib is not None:
+            return _lib
+        path = library_path()
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(suffix=".so", dir=path.parent)
+            os.close(fd)
+            try:
+                r = subprocess.run([_compiler(), *FLAGS, "-o", tmp, str(SOURCE)], capture_output=True, text=True)
+                if r.returncode != 0:
+                    last = (r.stderr.strip().splitlines() or ["?"])[-1]
+                    raise NativeUnavailable(f"building the fused kernel failed: {last}")
+                os.replace(tmp, path)
+            finally:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+        lib = ctypes.CDLL(str(path))
+        lib.bcf_step.argtypes = [ctypes.POINTER(Args)]
+        lib.bcf_step.restype = ctypes.c_double
+        lib.bcf_features.argtypes = [ctypes.POINTER(Args)]
+        lib.bcf_features.restype = None
+        lib.bcf_lanes.restype = ctypes.c_int
+        _lib = lib
+        return lib
+
+
+def block_masks(M: np.ndarray) -> np.ndarray:
+    """kernel.py's per-texel BC6H subsets (uint8, 16 per block) as one int32 per block, bit p for
+    texel p: one gather per tap instead of sixteen bytes."""
+    M = np.concatenate([M, np.zeros(-M.size % 16, M.dtype)])
+    bits = M.reshape(-1, 16).astype(np.int32) << np.arange(16, dtype=np.int32)
+    return np.ascontiguousarray(bits.sum(1, dtype=np.int32))
+
+
+def _p(a: np.ndarray | None, t=_f32p):
+    return None if a is None or a.size == 0 else a.ctypes.data_as(t)
+
+
+def _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s, **kw):
+    a = Args(fmt=fmt, quantized=int(quantized), sgn=int(signed), repeat=int(repeat), C=C,
+             uv=_p(uv), P=_p(P), X=_p(X), M=_p(M, _i32p), slots=_p(slots, _i64p), blend=_p(blend),
+             plo=float(plo), phi=float(phi))
+    for k, v in kw.items():
+        setattr(a, k, v)
+    return a
+
+
+def step(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, slots, blend, C, plo, phi, utab,
+         uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1, gw2, gb2):
+    """kernel.step's contract: samples in ``n_chunks`` fixed ranges, each (on its own thread when
+    there are several; ctypes releases the GIL) into its own row of the g* buffers; returns the
+    per-chunk sums of squared errors. ``M`` is :func:`block_masks`'. The BC6H tables are arithmetic
+    in step.cpp; ``utab`` ... ``w3s`` are accepted for kernel.py's signature."""
+    lib = load()
+    uv, target, weight, w1, w2 = (np.ascontiguousarray(a) for a in (uv, target, weight, w1, w2))
+    N = uv.shape[0]
+    common = dict(n_in=w1.shape[1], hidden=w1.shape[0], n_out=w2.shape[0], target=_p(target),
+                  weight=_p(weight), loss_scale=float(loss_scale), w1=_p(w1), b1=_p(b1), w2=_p(w2), b2=_p(b2),
+                  out_scale=_p(out_scale), out_bias=_p(out_bias))
+
+    def run(q: int) -> float:
+        a = _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
+                  a=N * q // n_chunks, b=N * (q + 1) // n_chunks, gP=_p(gP[q]), gX=_p(gX[q]), gw1=_p(gw1[q]),
+                  gb1=_p(gb1[q]), gw2=_p(gw2[q]), gb2=_p(gb2[q]), **common)
+        return lib.bcf_step(ctypes.byref(a))
+
+    if n_chunks == 1:
+        return np.array([run(0)])
+    with ThreadPoolExecutor(n_chunks) as ex:
+        return np.array(list(ex.map(run, range(n_chunks))))
+
+
+def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s):
+    """kernel.features' contract: the (N, 4 C) features the step feeds the MLP."""
+    lib = load()
+    out = np.zeros((uv.shape[0], 4 * C), np.float32)
+    a = _args(fmt, quantized, signed, repeat, np.ascontiguousarray(uv), P, X, M, slots, blend, C, plo, phi, utab,
+              uslope, w3, w3s, a=0, b=uv.shape[0], feats_out=_p(out))
+    lib.bcf_features(ctypes.byref(a))
+    return out
