@@ -1,7 +1,6 @@
 #!/usr/bin/env bash
-# One-shot, idempotent set-up: Debian packages (Mesa EGL/GL, astcenc, glslang, ninja, chromium, g++
-# for the fused training kernel)
-# for the bench report test),
+# One-shot, idempotent set-up: Debian packages (Mesa EGL/GL, astcenc, glslang, ninja, chromium
+# for the bench report test, g++ for the fused training kernel),
 # a virtual environment in .venv, torch, and bcfpipe with its test extras.
 #
 #   BCF_TORCH   pip requirement for torch (default: torch==2.13.0, the CPU build).
