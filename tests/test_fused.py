@@ -178,3 +178,40 @@ def test_fused_training_is_deterministic_and_trains_as_well_as_torch():
     fused_last = {name: v for name, _, v in a.history}
     for phase in ("warmup", "constrained", "finetune"):  # the end-of-phase loss, within 10 %
         assert fused_last[phase] == pytest.approx(last[phase], rel=0.1), phase
+
+
+@pytest.mark.parametrize("wrap", ["repeat", "clamp"])
+def test_targets_match_the_reference_lookup(wrap):
+    """The fused path's targets, both backends: the bicubic lookup agrees with
+    reference.sample_reference to float rounding, the texel-centre batches are bit-identical to
+    CentreTargets.batch with the same draws (native: sorted into texel order)."""
+    from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, sample_reference
+    from bcfpipe.train.fused import step as fused_step
+    from bcfpipe.train.fused import targets
+
+    img = _image(64, 3)
+    mips = [img]
+    while mips[-1].shape[0] > 1:
+        m = mips[-1]
+        mips.append(0.25 * (m[0::2, 0::2] + m[1::2, 0::2] + m[0::2, 1::2] + m[1::2, 1::2]))
+    pyr = ReferencePyramid.from_mips(mips)
+    centres = CentreTargets(pyr, wrap, min_texels=256)
+    gen = torch.Generator().manual_seed(3)
+    uv = torch.rand((1000, 2), generator=gen) * 3 - 1
+    saved = fused_step._BACKEND
+    try:
+        for backend in BACKENDS:
+            fused_step._BACKEND = backend
+            for s in (0.0, 0.4, 2.5, 3.0, 5.7, 6.0):
+                ref = sample_reference(pyr, uv, s, wrap)
+                got = targets.sample_reference(pyr, uv, s, wrap)
+                assert float((got - ref).abs().max()) <= 1e-5, (backend, s)
+                if centres.covers(s):
+                    a = centres.batch(500, s, torch.Generator().manual_seed(1))
+                    b = targets.centre_batch(centres, 500, s, torch.Generator().manual_seed(1))
+                    if backend == "native":  # the same samples, in texel order
+                        order = torch.argsort(a[0][:, 1] * 1e4 + a[0][:, 0], stable=True)
+                        a = a[0][order], a[1][order]
+                    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1]), (backend, s)
+    finally:
+        fused_step._BACKEND = saved

@@ -203,16 +203,22 @@ class CentreTargets:
         l0, _, _ = _level_split(s, self.pyr.num_levels)
         return self.up[l0] is not None
 
-    def batch(self, n: int, s: float, gen: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
-        """``n`` uniformly random texel centres of mip floor(s) and their targets at ``s``:
-        (uv (n, 2), target (n, c)), equal to sample_reference(pyr, uv, s)."""
+    def draw(self, n: int, s: float, gen: torch.Generator | None) -> tuple[int, float, torch.Tensor]:
+        """(mip floor(s), the blend t towards the next, ``n`` uniformly random texel ids of it)."""
         l0, _, t = _level_split(s, self.pyr.num_levels)
-        m, up = self.pyr.mips[l0], self.up[l0]
+        m = self.pyr.mips[l0]
         c, h, w = m.shape
         gdev = gen.device if gen is not None else torch.device("cpu")
         allowed = self.allowed[l0] if self.allowed is not None and len(self.allowed[l0]) else None
         ids = torch.randint(0, h * w if allowed is None else len(allowed), (n,), generator=gen, device=gdev)
-        ids = ids.to(m.device) if allowed is None else allowed[ids.to(m.device)]
+        return l0, t, (ids.to(m.device) if allowed is None else allowed[ids.to(m.device)])
+
+    def batch(self, n: int, s: float, gen: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``n`` uniformly random texel centres of mip floor(s) and their targets at ``s``:
+        (uv (n, 2), target (n, c)), equal to sample_reference(pyr, uv, s)."""
+        l0, t, ids = self.draw(n, s, gen)
+        m, up = self.pyr.mips[l0], self.up[l0]
+        c, h, w = m.shape
         target = m.reshape(c, -1).index_select(1, ids)
         if t > 0.0:
             target = torch.lerp(target, up.reshape(c, -1).index_select(1, ids), t)

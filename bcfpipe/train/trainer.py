@@ -240,6 +240,10 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
     bicubic lookup, weighted by the coverage of mip floor(s)."""
     batch = run.cfg.preset.batch
     if run.centres is not None and run.centres.covers(s):
+        if run.cfg.kernel == Kernel.FUSED:
+            from bcfpipe.train.fused import targets
+
+            return (*targets.centre_batch(run.centres, batch, s, run.gen), None)
         uv, target = run.centres.batch(batch, s, run.gen)
         return uv.to(run.device), target, None
     uv, _ = random_batch(batch, run.gen, run.device, run.s_max)

@@ -1,4 +1,4 @@
-"""The C++ build of the fused step (step.cpp): compiled on first use for this machine's CPU into
+"""The C++ build of the fused step (step.cpp) and its targets (targets.cpp): compiled on first use for this machine's CPU into
 bcfpipe's cache (``kernels/``), loaded with ctypes, and called with kernel.py's arguments, so
 :class:`bcfpipe.train.fused.step.FusedStep` can run either.
 
@@ -19,7 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-SOURCE = Path(__file__).with_name("step.cpp")
+HERE = Path(__file__).parent
+SOURCES = (HERE / "step.cpp", HERE / "targets.cpp")
+HEADERS = (HERE / "lanes.h",)
 # -ffp-contract=off: no fused multiply-adds, so every product and sum rounds as torch's does;
 # -fno-math-errno / -fno-trapping-math change no result, they let rounding calls inline
 FLAGS = ("-O3", "-march=native", "-std=c++17", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math",
@@ -64,7 +66,8 @@ def library_path() -> Path:
 
     cxx = _compiler()
     version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout.splitlines()[:1]
-    key = hashlib.sha256(SOURCE.read_bytes() + repr((cxx, version, FLAGS)).encode()).hexdigest()[:16]
+    text = b"".join(p.read_bytes() for p in SOURCES + HEADERS)
+    key = hashlib.sha256(text + repr((cxx, version, FLAGS)).encode()).hexdigest()[:16]
     return Path(_cache_dir()) / f"bcf_step-{key}.so"
 
 
@@ -80,7 +83,7 @@ def load() -> ctypes.CDLL:
             fd, tmp = tempfile.mkstemp(suffix=".so", dir=path.parent)
             os.close(fd)
             try:
-                r = subprocess.run([_compiler(), *FLAGS, "-o", tmp, str(SOURCE)], capture_output=True, text=True)
+                r = subprocess.run([_compiler(), *FLAGS, "-o", tmp, *map(str, SOURCES)], capture_output=True, text=True)
                 if r.returncode != 0:
                     last = (r.stderr.strip().splitlines() or ["?"])[-1]
                     raise NativeUnavailable(f"building the fused kernel failed: {last}")
@@ -94,6 +97,11 @@ def load() -> ctypes.CDLL:
         lib.bcf_features.argtypes = [ctypes.POINTER(Args)]
         lib.bcf_features.restype = None
         lib.bcf_lanes.restype = ctypes.c_int
+        vp, i32, i64, f32 = ctypes.c_void_p, ctypes.c_int, ctypes.c_int64, ctypes.c_float
+        lib.bcf_bicubic.argtypes = [vp, i32, i32, i32, vp, i64, i32, f32, f32, vp]
+        lib.bcf_bicubic.restype = None
+        lib.bcf_centres.argtypes = [vp, vp, i32, i32, i32, vp, i64, f32, vp, vp]
+        lib.bcf_centres.restype = None
         _lib = lib
         return lib
 
@@ -152,3 +160,23 @@ def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, 
               uslope, w3, w3s, a=0, b=uv.shape[0], feats_out=_p(out))
     lib.bcf_features(ctypes.byref(a))
     return out
+
+
+def bicubic_into(tex: np.ndarray, uv: np.ndarray, repeat: bool, a: float, t: float, out: np.ndarray) -> None:
+    """targets.py's ``_bicubic_into``: out = bicubic(tex, uv), or lerp(out, it, t) when t >= 0."""
+    lib = load()
+    tex, uv = np.ascontiguousarray(tex, np.float32), np.ascontiguousarray(uv, np.float32)
+    c, h, w = tex.shape
+    lib.bcf_bicubic(tex.ctypes.data, c, h, w, uv.ctypes.data, uv.shape[0], int(repeat), a, t, out.ctypes.data)
+
+
+def centres(mip: np.ndarray, up: np.ndarray | None, ids: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(uv (n, 2), target (n, c)) at the texel centres ``ids`` of ``mip`` (c, h, w), lerped towards
+    ``up`` (c, h w) by t as reference.CentreTargets.batch does."""
+    lib = load()
+    c, h, w = mip.shape
+    ids = np.ascontiguousarray(ids, np.int64)
+    uv, target = np.empty((ids.size, 2), np.float32), np.empty((ids.size, c), np.float32)
+    lib.bcf_centres(np.ascontiguousarray(mip).ctypes.data, None if up is None else np.ascontiguousarray(up).ctypes.data,
+                    c, h, w, ids.ctypes.data, ids.size, t if up is not None else 0.0, uv.ctypes.data, target.ctypes.data)
+    return uv, target

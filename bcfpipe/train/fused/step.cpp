@@ -9,63 +9,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <vector>
 
-#if defined(__AVX2__) || defined(__AVX512F__)
-#include <immintrin.h>
-#endif
+#include "lanes.h"
+
+using namespace bcf;
 
 namespace {
-
-// ---- lanes: W samples at once, in GCC's vector types; the few operations that have no operator
-// (rounding, gathers, table lookups) use the target's intrinsics, or per-lane loops elsewhere
-#if defined(__AVX512F__)
-constexpr int W = 16;
-#elif defined(__AVX2__)
-constexpr int W = 8;
-#else
-constexpr int W = 4;
-#endif
-typedef float vf __attribute__((vector_size(4 * W)));
-typedef int32_t vi __attribute__((vector_size(4 * W)));
-
-inline vf S(float x) { return vf{} + x; }
-inline vi Si(int32_t x) { return vi{} + x; }
-inline vf sel(vi m, vf a, vf b) { return m ? a : b; }
-inline vi seli(vi m, vi a, vi b) { return m ? a : b; }
-inline vf tof(vi x) { return __builtin_convertvector(x, vf); }
-inline vi toi(vf x) { return __builtin_convertvector(x, vi); }  // truncates, as int(x)
-inline vf bits_f(vi x) { return (vf)x; }  // a vector cast reinterprets the bits
-inline vi bits_i(vf x) { return (vi)x; }
-inline vf vabs(vf x) { return bits_f(bits_i(x) & Si(0x7fffffff)); }
-// Python's max(v, lo) and min(v, hi), whose ties keep the first argument
-inline vf vmax(vf v, vf lo) { return sel(lo > v, lo, v); }
-inline vf vmin(vf v, vf hi) { return sel(hi < v, hi, v); }
-inline vf vclamp(vf v, float lo, float hi) { return vmin(vmax(v, S(lo)), S(hi)); }
-inline vi vmaxi(vi a, vi b) { return seli(b > a, b, a); }
-inline vi vmini(vi a, vi b) { return seli(b < a, b, a); }
-inline vf one_if(vi m) { return sel(m, S(1.0f), S(0.0f)); }
-
-#if defined(__AVX512F__)
-inline vf vfloor(vf x) { return (vf)_mm512_roundscale_ps((__m512)x, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC); }
-inline vf vrint(vf x) { return (vf)_mm512_roundscale_ps((__m512)x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC); }
-inline vf vtrunc(vf x) { return (vf)_mm512_roundscale_ps((__m512)x, _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC); }
-inline vf gather(const float* base, vi idx) { return (vf)_mm512_i32gather_ps((__m512i)idx, base, 4); }
-inline vi gatheri(const int32_t* base, vi idx) { return (vi)_mm512_i32gather_epi32((__m512i)idx, base, 4); }
-#elif defined(__AVX2__)
-inline vf vfloor(vf x) { return (vf)_mm256_round_ps((__m256)x, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC); }
-inline vf vrint(vf x) { return (vf)_mm256_round_ps((__m256)x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC); }
-inline vf vtrunc(vf x) { return (vf)_mm256_round_ps((__m256)x, _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC); }
-inline vf gather(const float* base, vi idx) { return (vf)_mm256_i32gather_ps(base, (__m256i)idx, 4); }
-inline vi gatheri(const int32_t* base, vi idx) { return (vi)_mm256_i32gather_epi32((const int*)base, (__m256i)idx, 4); }
-#else
-inline vf vfloor(vf x) { vf r; for (int l = 0; l < W; ++l) r[l] = std::floor(x[l]); return r; }
-inline vf vrint(vf x) { vf r; for (int l = 0; l < W; ++l) r[l] = std::rint(x[l]); return r; }
-inline vf vtrunc(vf x) { vf r; for (int l = 0; l < W; ++l) r[l] = std::trunc(x[l]); return r; }
-inline vf gather(const float* base, vi idx) { vf r; for (int l = 0; l < W; ++l) r[l] = base[idx[l]]; return r; }
-inline vi gatheri(const int32_t* base, vi idx) { vi r; for (int l = 0; l < W; ++l) r[l] = base[idx[l]]; return r; }
-#endif
 
 constexpr int FREE_BC6H = 0, FREE_BC7 = 1, BLOCK_BC6H = 2, BLOCK_BC7 = 3;
 constexpr int ND = 15;  // decode derivatives kept per tap (kernel.py's deriv layout)
@@ -158,13 +108,6 @@ inline void q7(vf* e) {
     for (int c = 0; c < 4; ++c) e[c] = sel(pick, q1[c], q0[c]);
 }
 
-inline vi address(vi i, int n, bool repeat) {
-    if (repeat) {
-        vi m = i % n;
-        return seli(m < 0, m + n, m);  // Python's modulo
-    }
-    return vmini(vmaxi(i, Si(0)), Si(n - 1));
-}
 
 struct Args {  // mirrored by native.py's ctypes Structure
     int32_t fmt, quantized, sgn, repeat, C, n_in, hidden, n_out;
@@ -377,18 +320,6 @@ inline void texel_backward(const Args& A, int j, int t, const Taps& T, const vf*
             gX[xi[l]] += gx[l];
         }
     }
-}
-
-inline float hsum(vf x) {
-    float acc = 0.0f;
-    for (int l = 0; l < W; ++l) acc += x[l];
-    return acc;
-}
-
-inline vi lanes(int64_t n0, int live) {
-    vi idx;
-    for (int l = 0; l < W; ++l) idx[l] = int32_t(l < live ? n0 + l : n0);
-    return idx;
 }
 
 }  // namespace

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from bcfpipe.formats.vocabulary import Wrap
-from bcfpipe.texset.reference import KEYS_A, ReferencePyramid, _level_split
+from bcfpipe.texset.reference import KEYS_A, CentreTargets, ReferencePyramid, _level_split
 from bcfpipe.train.fused.kernel import _F32, nb  # numba with its cache folder set
 
 
@@ -62,12 +62,41 @@ def _bicubic_into(tex, uv, repeat, t, out):
 
 
 def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: str) -> torch.Tensor:
-    """:func:`bcfpipe.texset.reference.sample_reference` at one scale ``s`` (CPU, float32)."""
+    """:func:`bcfpipe.texset.reference.sample_reference` at one scale ``s`` (CPU, float32), in the
+    fused kernel's backend (native: targets.cpp, the same sums vectorised)."""
+    from bcfpipe.train.fused.step import default_backend
+
     l0, l1, t = _level_split(float(s), pyr.num_levels)
     u = uv.detach().numpy().astype(np.float32, copy=False)
     out = np.zeros((u.shape[0], pyr.num_channels), np.float32)
     repeat = wrap == Wrap.REPEAT
+    if default_backend() == "native":
+        from bcfpipe.train.fused import native
+
+        native.bicubic_into(pyr.mips[l0].numpy(), u, repeat, KEYS_A, -1.0, out)
+        if t > 0.0:
+            native.bicubic_into(pyr.mips[l1].numpy(), u, repeat, KEYS_A, float(t), out)
+        return torch.from_numpy(out)
     _bicubic_into(pyr.mips[l0].numpy(), u, repeat, -1.0, out)
     if t > 0.0:
         _bicubic_into(pyr.mips[l1].numpy(), u, repeat, float(t), out)
     return torch.from_numpy(out)
+
+
+def centre_batch(centres: CentreTargets, n: int, s: float, gen: torch.Generator | None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """:meth:`CentreTargets.batch`'s draws and values, natively where the fused kernel is native:
+    without torch's (c, n) gathers and transposes, and in texel order, so the lookups and then the
+    kernel's taps walk memory forwards (the same samples; only the order of the gradient's sums
+    changes)."""
+    from bcfpipe.train.fused.step import default_backend
+
+    if default_backend() != "native":
+        return centres.batch(n, s, gen)
+    from bcfpipe.train.fused import native
+
+    l0, t, ids = centres.draw(n, s, gen)
+    up = centres.up[l0]
+    ids = np.sort(ids.numpy())
+    uv, target = native.centres(centres.pyr.mips[l0].numpy(), None if t <= 0.0 else up.numpy(), ids, float(t))
+    return torch.from_numpy(uv), torch.from_numpy(target)
