@@ -140,7 +140,7 @@ DEFAULT_SEED = 0
 DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
 DEFAULT_FEATURES = FeatureFormat.BC6H
-DEFAULT_KERNEL = Kernel.TORCH
+DEFAULT_KERNEL = Kernel.AUTO  # fused on the CPU: 5-8x the torch path's samples/s (docs/benchmarks.md)
 # all neural until the runtime (GLSL, render, verify, the USD layer) reads classic outputs (issue 31)
 DEFAULT_LAYOUT = Layout.NEURAL
 # Channels per feature layer T_i, per format: BC6H holds RGB, BC7 RGBA in the same bytes.
@@ -195,7 +195,7 @@ class TrainConfig:
     # default: on a quiet 2-core machine whole levels were faster at batch 128² and 512² (benchmarks.md)
     tap_decode: bool = False
     feature_init: str = DEFAULT_INIT  # see FEATURE_INITS
-    kernel: Kernel = DEFAULT_KERNEL  # phases 1-2 through torch's ops or the fused kernel (bcfpipe.train.fused)
+    kernel: Kernel = DEFAULT_KERNEL  # phases 1-2 through torch's ops or the fused kernel; see Kernel.on
 
     def with_(self, **kw) -> "TrainConfig":
         return replace(self, **kw)
@@ -297,7 +297,7 @@ class TrainingOptions:
                          features=FeatureFormat(self.features))
         return name, TrainConfig(model=mc, preset=PRESETS[self.preset], preset_name=self.preset, seed=self.seed,
                                  device=device, threads=self.threads, feature_init=self.init,
-                                 kernel=Kernel(self.kernel) if device == "cpu" else Kernel.TORCH)
+                                 kernel=Kernel(self.kernel).on(device))
 
 
 CACHE_ENV = "BCFPIPE_CACHE"

@@ -215,3 +215,35 @@ def test_targets_match_the_reference_lookup(wrap):
                     assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1]), (backend, s)
     finally:
         fused_step._BACKEND = saved
+
+
+def test_the_native_steps_adam_is_torchs_adam_then_the_clamp():
+    """FusedStep.adam (adam.cpp) against torch.optim.Adam and the trainer's clamp on the same
+    gradients: the levels a step touches move alike, with per-level step counts; the others stay."""
+    import copy
+
+    mc, levels, _, mlp, biases, gen = _model("bc6h", "blocks", True)
+    ref = copy.deepcopy(levels)
+    lo, hi = codec_of(mc).param_range(mc)
+    ours = FusedStep(mc, biases, mlp, levels, backend="native", own_adam=True)
+    theirs = FusedStep(mc, biases, mlp, ref, backend="native")
+    params = _params(ref)
+    opt = torch.optim.Adam(params, lr=0.3)
+    uv = torch.rand((2048, 2), generator=gen)
+    target = torch.rand((2048, 5), generator=gen)
+    for s in (0.0, 1.7, 0.0, 5.5, 0.4):
+        ours(uv, target, None, s)
+        ours.adam(0.3)
+        for p in params:
+            p.grad = None
+        theirs(uv, target, None, s)
+        opt.step()
+        with torch.no_grad():
+            for p in params:
+                if p.grad is not None:
+                    p.clamp_(lo, hi) if p.dim() == 3 else p.clamp_(0.0, 1.0)
+    moved = 0
+    for a, b, start in zip(_params(levels), params, _params(_model("bc6h", "blocks", True)[1])):
+        assert float((a.detach() - b.detach()).abs().max()) <= 1e-4, tuple(a.shape)
+        moved += int(not torch.equal(b.detach(), start.detach()))
+    assert 0 < moved < len(params)  # some levels were never sampled: they did not move

@@ -207,6 +207,12 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
 
 
+def _kernel_option(kernel, device: str) -> str | None:
+    """The manifest's and key's kernel: None when it runs what the default runs on ``device``."""
+    ran = kernel.on(device)
+    return None if ran == DEFAULT_KERNEL.on(device) else ran.value
+
+
 #: the Options fields content_hash states itself (texel_density and coverage act through the
 #: resolution and the coverage digest)
 _KEYED_ABOVE = frozenset({"profile", "preset", "seed", "device", "hidden", "signed", "init", "fix_nonfinite",
@@ -256,7 +262,7 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
                          "texel_density": float(texel_density) if texel_density is not None else None,
                          "coverage": bool(coverage),
                          "features": None if training.features == DEFAULT_FEATURES else training.features.value,
-                         "kernel": None if training.kernel == DEFAULT_KERNEL else training.kernel.value,
+                         "kernel": _kernel_option(training.kernel, _resolve_device_name(training.device)),
                          "layout": None if training.layout == DEFAULT_LAYOUT else training.layout.value,
                          "match_bc": True if training.match_bc else None,
                          "classic": tuple(training.classic) or None})

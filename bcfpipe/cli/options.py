@@ -41,8 +41,10 @@ TRAINING_OPTIONS = (
                       "(docs/benchmarks.md). Parallelism comes from training materials side by side."),
     click.option("--kernel", type=click.Choice([k.value for k in Kernel]), default=DEFAULT_KERNEL.value,
                  show_default=True,
-                 help="How a CPU training step runs: torch (the reference; the only one on CUDA) or fused (one "
-                      "numba kernel for features, MLP and gradients, about 1.6x faster; compiled once into the cache)."),
+                 help="How a training step runs: fused (one vectorised C++ kernel for features, MLP and gradients, "
+                      "5-8x the samples/s of torch on a CPU; built once into the cache, numba where no C++ "
+                      "compiler is found), torch (the reference; the only one on CUDA), or auto: fused on the "
+                      "CPU, torch on CUDA."),
     click.option("--target-psnr", "target_psnr", type=click.FloatRange(min=0, min_open=True), default=None,
                  metavar="DB",
                  help="Rate control: train the smallest, then quickest, profile and preset predicted to reach DB "

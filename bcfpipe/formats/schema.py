@@ -160,7 +160,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Options", "coverage"): "Whether training draws its samples from the texels the bound meshes read (false: --no-coverage).",
     ("Options", "target_psnr"): "--target-psnr in dB: rate control chose each job's profile and preset (absent: not used).",
     ("Options", "features"): "Feature texture format when not the default bc6h: \"bc7\" (--features).",
-    ("Options", "kernel"): "How CPU training steps ran when not the default torch: \"fused\" (--kernel).",
+    ("Options", "kernel"): "How training steps ran when not what the default (auto: fused on the CPU, torch on "
+                           "CUDA) runs on that device: \"torch\" or \"fused\" (--kernel).",
     ("Stage", "up_axis"): "The scene's upAxis.",
     ("Stage", "meters_per_unit"): "The scene's metersPerUnit.",
     ("Stage", "default_prim"): "The scene's defaultPrim path, null if unset.",

@@ -66,11 +66,19 @@ class FeatureFormat(StrEnum):
 
 
 class Kernel(StrEnum):
-    """How a CPU training step runs (issue 30): torch's ops (the reference, and the only one on
-    CUDA) or one fused kernel (bcfpipe.train.fused: C++, or numba without a compiler)."""
+    """How a training step runs (issue 30): torch's ops (the reference, and the only one on CUDA),
+    one fused kernel (bcfpipe.train.fused: C++, or numba without a compiler; CPU only), or auto:
+    fused on the CPU, torch on CUDA."""
 
+    AUTO = "auto"
     TORCH = "torch"
     FUSED = "fused"
+
+    def on(self, device: str) -> "Kernel":
+        """The kernel this choice runs on ``device`` (auto resolved)."""
+        if self is Kernel.AUTO:
+            return Kernel.FUSED if str(device).startswith("cpu") else Kernel.TORCH
+        return self
 
 
 class Source(StrEnum):

@@ -240,7 +240,7 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
     bicubic lookup, weighted by the coverage of mip floor(s)."""
     batch = run.cfg.preset.batch
     if run.centres is not None and run.centres.covers(s):
-        if run.cfg.kernel == Kernel.FUSED:
+        if run.cfg.kernel.on(run.device) == Kernel.FUSED:
             from bcfpipe.train.fused import targets
 
             return (*targets.centre_batch(run.centres, batch, s, run.gen), None)
@@ -254,7 +254,7 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
         x = torch.remainder(torch.floor(uv[:, 0] * wd), wd).long()
         y = torch.remainder(torch.floor(uv[:, 1] * h), h).long()
         w = m[y, x].to(uv.dtype)
-    if run.cfg.kernel == Kernel.FUSED:
+    if run.cfg.kernel.on(run.device) == Kernel.FUSED:
         from bcfpipe.train.fused import targets
 
         return uv, targets.sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
@@ -264,11 +264,12 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
 def _fused_step(run: _Run, levels, quantized=lambda: False):
     """The fused kernel's step over ``levels`` when the run uses it (they move into its flat
     storage, in place: take the parameters for the optimizer after this), else None."""
-    if run.cfg.kernel != Kernel.FUSED:
+    if run.cfg.kernel.on(run.device) != Kernel.FUSED:
         return None
     from bcfpipe.train.fused.step import FusedStep
 
-    return FusedStep(run.cfg.model, run.biases, run.mlp, levels, quantized, chunks=run.cfg.threads or 1)
+    return FusedStep(run.cfg.model, run.biases, run.mlp, levels, quantized, chunks=run.cfg.threads or 1,
+                     own_adam=True)
 
 
 def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=None, tap_fn=None,
@@ -277,7 +278,8 @@ def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=No
     with ``fused`` (bcfpipe.train.fused) the loss and gradients come from the fused kernel."""
     t0 = time.perf_counter()
     mc = run.cfg.model
-    opt, lr = _optimizer(feature_params, run.mlp_params, sched, run.device)
+    own = fused is not None and fused.owns_adam  # the fused step's Adam updates the features
+    opt, lr = _optimizer([] if own else feature_params, run.mlp_params, sched, run.device)
     ema = None
     for step in range(1, sched.steps + 1):
         if on_step is not None:
@@ -296,6 +298,8 @@ def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=No
                 loss = torch.mean(weight[:, None] * (pred - target) ** 2) / weight.mean().clamp_min(1e-6)
             loss.backward()
         opt.step()
+        if own:
+            fused.adam(sched.lr_features * sched.gamma_features ** (step - 1))  # LambdaLR's rate for this step
         lr.step()
         if project is not None:
             with torch.no_grad():

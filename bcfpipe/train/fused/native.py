@@ -1,4 +1,4 @@
-"""The C++ build of the fused step (step.cpp) and its targets (targets.cpp): compiled on first use for this machine's CPU into
+"""The C++ build of the fused step (step.cpp), its targets (targets.cpp) and its Adam (adam.cpp): compiled on first use for this machine's CPU into
 bcfpipe's cache (``kernels/``), loaded with ctypes, and called with kernel.py's arguments, so
 :class:`bcfpipe.train.fused.step.FusedStep` can run either.
 
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).parent
-SOURCES = (HERE / "step.cpp", HERE / "targets.cpp")
+SOURCES = (HERE / "step.cpp", HERE / "targets.cpp", HERE / "adam.cpp")
 HEADERS = (HERE / "lanes.h",)
 # -ffp-contract=off: no fused multiply-adds, so every product and sum rounds as torch's does;
 # -fno-math-errno / -fno-trapping-math change no result, they let rounding calls inline
@@ -102,6 +102,9 @@ def load() -> ctypes.CDLL:
         lib.bcf_bicubic.restype = None
         lib.bcf_centres.argtypes = [vp, vp, i32, i32, i32, vp, i64, f32, vp, vp]
         lib.bcf_centres.restype = None
+        f64 = ctypes.c_double
+        lib.bcf_adam.argtypes = [vp, vp, i32, i64, vp, vp, i64, f64, f64, f64, f64, i64, f32, f32]
+        lib.bcf_adam.restype = None
         _lib = lib
         return lib
 
@@ -148,8 +151,18 @@ def step(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, 
 
     if n_chunks == 1:
         return np.array([run(0)])
-    with ThreadPoolExecutor(n_chunks) as ex:
-        return np.array(list(ex.map(run, range(n_chunks))))
+    return np.array(list(_pool(n_chunks).map(run, range(n_chunks))))
+
+
+_pools: dict[int, ThreadPoolExecutor] = {}
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    """One lasting pool per chunk count: a step is milliseconds, a pool's start is not free."""
+    with _lock:
+        if n not in _pools:
+            _pools[n] = ThreadPoolExecutor(n, thread_name_prefix="bcf-fused")
+        return _pools[n]
 
 
 def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s):
@@ -180,3 +193,13 @@ def centres(mip: np.ndarray, up: np.ndarray | None, ids: np.ndarray, t: float) -
     lib.bcf_centres(np.ascontiguousarray(mip).ctypes.data, None if up is None else np.ascontiguousarray(up).ctypes.data,
                     c, h, w, ids.ctypes.data, ids.size, t if up is not None else 0.0, uv.ctypes.data, target.ctypes.data)
     return uv, target
+
+
+def adam(p: np.ndarray, g: np.ndarray, m: np.ndarray, v: np.ndarray, lr: float, betas: tuple[float, float],
+         eps: float, step: int, lo: float, hi: float) -> None:
+    """adam.cpp over one level: ``p``, ``m``, ``v`` are 1-d views of it, ``g`` its (chunks, n)
+    gradient rows (a view with the storage's row stride)."""
+    lib = load()
+    rows, n = g.shape
+    lib.bcf_adam(p.ctypes.data, g.ctypes.data, rows, g.strides[0] // 4, m.ctypes.data, v.ctypes.data, n, lr,
+                 betas[0], betas[1], eps, step, lo, hi)

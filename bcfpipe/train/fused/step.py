@@ -53,10 +53,13 @@ class FusedStep:
     `BlockParams` (phase 2). They are moved, in place in ``levels``, into one flat storage (the
     kernel then addresses every level by offset), so build the optimizer after this. ``quantized()``
     is asked per step, as the torch path does. ``chunks``: sample ranges run in parallel, each with
-    its own gradient buffers (the result depends on the count, not on the scheduling)."""
+    its own gradient buffers (the result depends on the count, not on the scheduling). ``own_adam``
+    (native only; see ``owns_adam``): :meth:`adam` updates the feature parameters, their gradients
+    stay in the step's buffers, and the trainer's optimizer holds the MLP alone."""
 
     def __init__(self, mc: ModelConfig, biases: Sequence[float], mlp: dict[str, torch.Tensor], levels: list[list],
-                 quantized: Callable[[], bool] = lambda: False, chunks: int = 1, backend: str | None = None):
+                 quantized: Callable[[], bool] = lambda: False, chunks: int = 1, backend: str | None = None,
+                 own_adam: bool = False):
         from bcfpipe.train.fused import kernel as K
 
         self.backend = backend or default_backend()
@@ -70,6 +73,13 @@ class FusedStep:
         self.plo, self.phi = (np.float32(v) for v in codec.param_range(mc))
         self.tables = _tables(bool(mc.signed))
         self._rehome(blocks)
+        self.blocks = blocks
+        self._touched: list[tuple[int, int]] = []
+        self.owns_adam = own_adam and self.backend == "native"
+        if self.owns_adam:  # Adam's moments for every level's parameters, and each level's update count
+            self.mP, self.vP = np.zeros_like(self.P), np.zeros_like(self.P)
+            self.mX, self.vX = np.zeros_like(self.X), np.zeros_like(self.X)
+            self.updates = {(i, k): 0 for i, row in enumerate(self.slot) for k in range(len(row))}
         if self.backend == "native":
             from bcfpipe.train.fused import native
 
@@ -79,6 +89,20 @@ class FusedStep:
 
             self.K = K
             numba.set_num_threads(min(self.chunks, numba.config.NUMBA_NUM_THREADS))
+
+    def adam(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> None:
+        """Adam (torch's update, per-level step counts as torch keeps per tensor) on the levels the
+        last step touched, then the clamp that the trainer's projection applies (parameters to the
+        codec's range, block indices to [0, 1]), and their gradients zeroed for the next step."""
+        for i, k in self._touched:
+            po, np_, xo, nx, _, _ = self.slot[i][k]
+            self.updates[(i, k)] += 1
+            t = self.updates[(i, k)]
+            self.K.adam(self.P[po:po + np_], self.gP[:, po:po + np_], self.mP[po:po + np_], self.vP[po:po + np_],
+                        lr, betas, eps, t, float(self.plo), float(self.phi))
+            if self.blocks:
+                self.K.adam(self.X[xo:xo + nx], self.gX[:, xo:xo + nx], self.mX[xo:xo + nx], self.vX[xo:xo + nx],
+                            lr, betas, eps, t, 0.0, 1.0)
 
     def _rehome(self, blocks: bool) -> None:
         """One flat float32 storage for the levels' parameters (P) and indices (X), one uint8 for the
@@ -146,10 +170,12 @@ class FusedStep:
         """The step's loss (the torch path's ``loss``); sets ``.grad`` as its ``backward`` would."""
         mc, n = self.mc, self.chunks
         slots, blend, touched = self._slots(s)
-        for i, k in touched:
-            po, np_, xo, nx, _, _ = self.slot[i][k]
-            self.gP[:, po:po + np_] = 0.0
-            self.gX[:, xo:xo + nx] = 0.0
+        self._touched = touched
+        if not self.owns_adam:
+            for i, k in touched:
+                po, np_, xo, nx, _, _ = self.slot[i][k]
+                self.gP[:, po:po + np_] = 0.0
+                self.gX[:, xo:xo + nx] = 0.0
         w1, b1, w2, b2 = (self.mlp[k].detach().numpy() for k in ("w1", "b1", "w2", "b2"))
         gw1, gb1 = np.zeros((n,) + w1.shape, np.float32), np.zeros((n,) + b1.shape, np.float32)
         gw2, gb2 = np.zeros((n,) + w2.shape, np.float32), np.zeros((n,) + b2.shape, np.float32)
@@ -162,7 +188,7 @@ class FusedStep:
                           self.C, self.plo, self.phi, *self.tables, w1, b1, w2, b2,
                           self.mlp["out_scale"].numpy(), self.mlp["out_bias"].numpy(), loss_scale,
                           self.gP, self.gX, gw1, gb1, gw2, gb2)
-        for i, k in touched:
+        for i, k in touched if not self.owns_adam else ():
             po, np_, xo, nx, _, _ = self.slot[i][k]
             for q in range(1, n):  # chunk order: deterministic for a given count
                 self.gP[0, po:po + np_] += self.gP[q, po:po + np_]
