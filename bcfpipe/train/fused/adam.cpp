@@ -9,18 +9,22 @@ extern "C" {
 // p[0, n): parameters; g: `rows` gradient rows of `stride` floats each (row 0 holds their sum
 // afterwards, then every row is zero); m, v: Adam's moments. `step` counts this level's updates,
 // this one included. The update is ATen's fused CPU Adam (no weight decay, no amsgrad).
-void bcf_adam(float* p, float* g, int rows, int64_t stride, float* m, float* v, int64_t n, double lr, double beta1,
-              double beta2, double eps, int64_t step, float lo, float hi) {
+void bcf_adam(float* __restrict__ p, float* __restrict__ g, int rows, int64_t stride, float* __restrict__ m,
+              float* __restrict__ v, int64_t n, double lr, double beta1, double beta2, double eps, int64_t step, float lo,
+              float hi) {
     const double bc1 = 1.0 - std::pow(beta1, double(step));
     const double bc2_sqrt = std::sqrt(1.0 - std::pow(beta2, double(step)));
     const float b1 = float(beta1), b2 = float(beta2), c1 = float(1.0 - beta1), c2 = float(1.0 - beta2);
     const float step_size = float(lr / bc1), bc2s = float(bc2_sqrt), e = float(eps);
+    for (int q = 1; q < rows; ++q) {  // the chunks' rows, added in order
+        float* __restrict__ gq = g + q * stride;
+        for (int64_t k = 0; k < n; ++k) {
+            g[k] += gq[k];
+            gq[k] = 0.0f;
+        }
+    }
     for (int64_t k = 0; k < n; ++k) {
         float gk = g[k];
-        for (int q = 1; q < rows; ++q) {
-            gk += g[q * stride + k];
-            g[q * stride + k] = 0.0f;
-        }
         g[k] = 0.0f;
         float mk = b1 * m[k] + c1 * gk;
         float vk = b2 * v[k] + c2 * gk * gk;

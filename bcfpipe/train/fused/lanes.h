@@ -48,7 +48,36 @@ inline vf vrint(vf x) { return (vf)_mm256_round_ps((__m256)x, _MM_FROUND_TO_NEAR
 inline vf vtrunc(vf x) { return (vf)_mm256_round_ps((__m256)x, _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC); }
 inline vf gather(const float* base, vi idx) { return (vf)_mm256_i32gather_ps(base, (__m256i)idx, 4); }
 inline vi gatheri(const int32_t* base, vi idx) { return (vi)_mm256_i32gather_epi32((const int*)base, (__m256i)idx, 4); }
+#endif
+
+// base[idx] and base[idx + 1] for even idx: one 64-bit gather per 8 lanes, where AVX-512 has it,
+// then the pairs split (half the gathered elements of two float gathers)
+#if defined(__AVX512F__)
+inline void gather_pair(const float* base, vi idx, vf& first, vf& second) {
+    const __m512i i2 = (__m512i)(idx >> 1);
+    const __m512d lo = _mm512_i32gather_pd(_mm512_castsi512_si256(i2), (const double*)base, 8);
+    const __m512d hi = _mm512_i32gather_pd(_mm512_extracti64x4_epi64(i2, 1), (const double*)base, 8);
+    const vi even = {0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30};
+    first = (vf)_mm512_permutex2var_ps(_mm512_castpd_ps(lo), (__m512i)even, _mm512_castpd_ps(hi));
+    second = (vf)_mm512_permutex2var_ps(_mm512_castpd_ps(lo), (__m512i)(even + 1), _mm512_castpd_ps(hi));
+}
 #else
+inline void gather_pair(const float* base, vi idx, vf& first, vf& second) {
+    first = gather(base, idx);
+    second = gather(base, idx + 1);
+}
+#endif
+
+// a * b + c: one rounding where the target fuses it (the MLP only: the decode stays unfused, as torch's)
+#if defined(__AVX512F__)
+inline vf madd(vf a, vf b, vf c) { return (vf)_mm512_fmadd_ps((__m512)a, (__m512)b, (__m512)c); }
+#elif defined(__AVX2__) && defined(__FMA__)
+inline vf madd(vf a, vf b, vf c) { return (vf)_mm256_fmadd_ps((__m256)a, (__m256)b, (__m256)c); }
+#else
+inline vf madd(vf a, vf b, vf c) { return a * b + c; }
+#endif
+
+#if !defined(__AVX512F__) && !defined(__AVX2__)
 inline vf vfloor(vf x) { vf r; for (int l = 0; l < W; ++l) r[l] = std::floor(x[l]); return r; }
 inline vf vrint(vf x) { vf r; for (int l = 0; l < W; ++l) r[l] = std::rint(x[l]); return r; }
 inline vf vtrunc(vf x) { vf r; for (int l = 0; l < W; ++l) r[l] = std::trunc(x[l]); return r; }

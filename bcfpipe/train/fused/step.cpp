@@ -164,12 +164,15 @@ inline void texel(const Args& A, int j, int t, Taps& T, vf* val) {
         const vi sub = (gatheri(A.M + (mo >> 4), blk) >> pos) & 1;
         vf w, dw;
         weight3(gather(A.X + xo, blk * 16 + pos), q, w, dw);
-        const vi ea = blk * 12 + sub * 6, eb = ea + 3;
-        const float* P = A.P + po;
+        const vi ea = blk * 12 + sub * 6;  // the subset's endpoints a, b: 6 floats from an even offset
+        vf e[6];
+        gather_pair(A.P + po, ea, e[0], e[1]);
+        gather_pair(A.P + po, ea + 2, e[2], e[3]);
+        gather_pair(A.P + po, ea + 4, e[4], e[5]);
         for (int c = 0; c < 3; ++c) {
             vf ua, dua, ub, dub;
-            unquantize(gather(P, ea + c), sgn, q, ua, dua);
-            unquantize(gather(P, eb + c), sgn, q, ub, dub);
+            unquantize(e[c], sgn, q, ua, dua);
+            unquantize(e[3 + c], sgn, q, ub, dub);
             vf f = ua * (64.0f - w) + ub * w;
             f = vfloor((f + 32.0f) / 64.0f);
             f = sgn ? vtrunc(f * (31.0f / 32.0f)) + 0.0f : vfloor(f * (31.0f / 64.0f));
@@ -188,9 +191,11 @@ inline void texel(const Args& A, int j, int t, Taps& T, vf* val) {
         const float* P = A.P + po;
         const vi e0 = blk * 8;
         vf e[2][4];
+        vf raw[8];
+        for (int k = 0; k < 8; k += 2) gather_pair(P, e0 + k, raw[k], raw[k + 1]);
         for (int k = 0; k < 2; ++k)
             for (int c = 0; c < 4; ++c) {
-                vf v = gather(P, e0 + (4 * k + c));
+                vf v = raw[4 * k + c];
                 vf vc = vclamp(v, 0.0f, 255.0f);
                 d[4 + 4 * k + c] = one_if(vc == v);
                 e[k][c] = vc;
@@ -345,7 +350,7 @@ double bcf_step(const Args* args) {
         for (int h = 0; h < H; ++h) {
             const float* wr = A.w1 + size_t(h) * NI;
             vf acc = S(0.0f);
-            for (int k = 0; k < NI; ++k) acc += feats[k] * wr[k];
+            for (int k = 0; k < NI; ++k) acc = madd(feats[k], S(wr[k]), acc);
             acc += A.b1[h];
             pre[h] = acc;
             hid[h] = sel(acc > 0.0f, acc, S(0.0f));
@@ -357,7 +362,7 @@ double bcf_step(const Args* args) {
         for (int o = 0; o < NO; ++o) {
             const float* wr = A.w2 + size_t(o) * H;
             vf acc = S(0.0f);
-            for (int h = 0; h < H; ++h) acc += hid[h] * wr[h];
+            for (int h = 0; h < H; ++h) acc = madd(hid[h], S(wr[h]), acc);
             acc += A.b2[o];
             vf dd = (acc * A.out_scale[o] + A.out_bias[o]) - gather(A.target, idx * NO + o);
             e += wn * dd * dd;
@@ -367,18 +372,18 @@ double bcf_step(const Args* args) {
         // back through the MLP (per-lane gradient sums), and the inputs' gradient
         for (int o = 0; o < NO; ++o) {
             gb2[o] += dout[o];
-            for (int h = 0; h < H; ++h) gw2[o * H + h] += dout[o] * hid[h];
+            for (int h = 0; h < H; ++h) gw2[o * H + h] = madd(dout[o], hid[h], gw2[o * H + h]);
         }
         for (int h = 0; h < H; ++h) {
             vf acc = S(0.0f);
-            for (int o = 0; o < NO; ++o) acc += dout[o] * A.w2[o * H + h];
+            for (int o = 0; o < NO; ++o) acc = madd(dout[o], S(A.w2[o * H + h]), acc);
             dh[h] = sel(pre[h] > 0.0f, acc, S(0.0f));
             gb1[h] += dh[h];
-            for (int k = 0; k < NI; ++k) gw1[h * NI + k] += dh[h] * feats[k];
+            for (int k = 0; k < NI; ++k) gw1[h * NI + k] = madd(dh[h], feats[k], gw1[h * NI + k]);
         }
         for (int k = 0; k < NI; ++k) {
             vf acc = S(0.0f);
-            for (int h = 0; h < H; ++h) acc += dh[h] * A.w1[h * NI + k];
+            for (int h = 0; h < H; ++h) acc = madd(dh[h], S(A.w1[h * NI + k]), acc);
             dfe[k] = acc;
         }
         // back through the trilinear taps into the parameters
