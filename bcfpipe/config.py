@@ -109,11 +109,14 @@ class Preset:
 # draw s = s_max * u^2 so the fine mips, which hold most texels, get more of the few steps
 # (teapot, fast: +2.5 dB at mips 0-1, +1 dB over all mips; docs/benchmarks.md, issue #9), and
 # take the steps at large mips at precomputed texel-centre targets (the same target, cheaper).
+# Their step counts spend the fused kernel's speed (issue 30): standard trains 4x the steps it did
+# with the torch kernel, in less time (teapot at 1k: 37.55 dB in 256 s, against 35.51 dB in 450 s),
+# fast 2.5x, and draft takes batches of 128^2 (docs/benchmarks.md, "Presets re-tuned").
 PRESETS: dict[str, Preset] = {
     "smoke": _cpu_preset(20, 60, 10, 32 * 32),
-    "draft": _cpu_preset(200, 600, 100, 64 * 64),
-    "fast": _cpu_preset(400, 2000, 200, 128 * 128),
-    "standard": _cpu_preset(800, 4000, 300, 128 * 128),
+    "draft": _cpu_preset(150, 450, 100, 128 * 128),
+    "fast": _cpu_preset(1000, 5000, 200, 128 * 128),
+    "standard": _cpu_preset(3200, 16000, 300, 128 * 128),
     "paper": Preset(
         warmup=PhaseSchedule(5000, 5e-2, 1e-3, 0.9995, 0.9995),
         constrained=PhaseSchedule(200_000, 1e-2, 1e-3, 0.9999, 0.9999),
@@ -149,7 +152,7 @@ LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 4  # 4: material.json format 3 (issue 31)
+MODEL_FORMAT = 5  # 5: the fused kernel by default and the re-tuned presets (issue 30)
 
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/train/feature_init.py: sharper fine mips, weaker

@@ -1,6 +1,6 @@
 """Peak memory and time of `bcfpipe train` on an 8192² texture set with 8 channels (issue #11, item 3).
 
-    .venv/bin/python benchmarks/bench_8k_memory.py [--size 8192] [--profile tiny] [--preset draft] [--kernel torch]
+    .venv/bin/python benchmarks/bench_8k_memory.py [--size 8192] [--profile tiny] [--preset draft] [--kernel auto]
 
 Writes a synthetic but not trivially compressible set into a temporary folder (8-bit PNGs:
 albedo rgb, normal xy, and an ORM file for occlusion, roughness, metallic: 8 channels), runs
@@ -61,7 +61,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=8192)
     ap.add_argument("--profile", default="tiny")
     ap.add_argument("--preset", default="draft")
-    ap.add_argument("--kernel", default="torch", help="bcfpipe train --kernel (issue 30)")
+    ap.add_argument("--kernel", default="auto", help="bcfpipe train --kernel (issue 30)")
     args = ap.parse_args()
     print(f"machine: {machine()}")
     with tempfile.TemporaryDirectory(prefix="bcf8k-") as tmp:

@@ -407,11 +407,11 @@ def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("name,default,other,refused,why", [
     ("features", "bc6h", "bc7", {"features": "bc9"}, "unknown feature format"),
-    ("kernel", "torch", "fused", {"kernel": "fused", "device": "cuda"}, "runs on the CPU"),
+    ("kernel", "auto", "torch", {"kernel": "fused", "device": "cuda"}, "runs on the CPU"),
 ])
 def test_a_newer_option_keys_the_cache_and_the_manifest_only_when_not_its_default(tmp_path: Path, name, default,
                                                                                   other, refused, why) -> None:
-    """--features bc7 and --kernel fused change what trains, so every key changes and the job's
+    """--features bc7 and --kernel torch change what trains, so every key changes and the job's
     options record them; their defaults leave keys and records as they were (no key, no field), so
     existing caches and files stand. A bad value is refused with one line."""
     a = copy_samples(tmp_path / "a")
@@ -424,6 +424,20 @@ def test_a_newer_option_keys_the_cache_and_the_manifest_only_when_not_its_defaul
     assert getattr(p0.jobs[0].training("cpu", 1), name) == default
     with pytest.raises(InputError, match=why):
         TrainingOptions(**refused)
+
+
+def test_a_kernel_named_keys_what_it_runs(tmp_path: Path) -> None:
+    """--kernel auto runs fused on the CPU: naming fused there trains, keys and records the same job
+    as the default; auto resolves to torch on CUDA, fused is refused there."""
+    from bcfpipe.formats.vocabulary import Kernel
+
+    a = copy_samples(tmp_path / "a")
+    opts = TrainingOptions(profile="tiny", preset="smoke", seed=0, device="cpu")
+    assert [j.content_hash for j in plan(a, opts).jobs] == [j.content_hash for j in plan(a, opts.with_(kernel="fused")).jobs]
+    assert Kernel.AUTO.on("cpu") == Kernel.FUSED and Kernel.AUTO.on("cuda:0") == Kernel.TORCH
+    assert opts.train_config(64, "repeat", "cpu")[1].kernel == Kernel.FUSED
+    assert opts.train_config(64, "repeat", "cuda")[1].kernel == Kernel.TORCH
+    assert opts.with_(kernel="torch").train_config(64, "repeat", "cpu")[1].kernel == Kernel.TORCH
 
 
 def test_plan_channel_mapping(tmp_path: Path) -> None:

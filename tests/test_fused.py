@@ -247,3 +247,16 @@ def test_the_native_steps_adam_is_torchs_adam_then_the_clamp():
         assert float((a.detach() - b.detach()).abs().max()) <= 1e-4, tuple(a.shape)
         moved += int(not torch.equal(b.detach(), start.detach()))
     assert 0 < moved < len(params)  # some levels were never sampled: they did not move
+
+
+def test_without_a_compiler_the_numba_kernel_runs_and_says_why(monkeypatch, capsys):
+    from bcfpipe.train.fused import native
+    from bcfpipe.train.fused import step as fused_step
+
+    monkeypatch.setenv("CXX", "/nonexistent/g++")
+    monkeypatch.setattr(native, "_lib", None)
+    monkeypatch.setattr(fused_step, "_BACKEND", None)
+    assert fused_step.default_backend() == "numba"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["bcfpipe: no C++ compiler (/nonexistent/g++) found; scripts/setup.sh installs one; "
+                   "the fused kernel runs in numba (slower)"]

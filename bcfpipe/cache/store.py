@@ -8,7 +8,7 @@ Layout under the cache root (``--cache DIR``, ``BCFPIPE_CACHE``, or the platform
   v1/locks/<key>.lock         per-key lock (filelock): one process trains a key at a time
   v1/tmp/                     entries being written, and entries being deleted
   v1/facts/<h[:2]>/<h>.json   texel facts of source files, by their XXH3-128 (bcfpipe.cache.facts)
-  kernels/                    numba's compiled training kernels (--kernel fused, bcfpipe.train.fused)
+  kernels/                    the compiled training kernels (C++, or numba; bcfpipe.train.fused)
 
 An entry is written into v1/tmp, every file and the folder are fsynced, and the folder is renamed
 into place; entry.json is written last, so a folder without a valid entry.json is never an entry.

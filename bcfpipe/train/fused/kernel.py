@@ -20,25 +20,17 @@ scheduling.
 """
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
-
-def _cache_dir() -> str:
-    """Compiled kernels live in bcfpipe's cache (``kernels/``), never beside the package or in
-    numba's default places; NUMBA_CACHE_DIR, when set, wins."""
-    from bcfpipe.config import default_cache_root
-
-    return os.environ.get("NUMBA_CACHE_DIR") or str(default_cache_root() / "kernels")
+from bcfpipe.texset.reference import KEYS_A
+from bcfpipe.train.fused.common import BLOCK_BC6H, BLOCK_BC7, FREE_BC6H, FREE_BC7, kernels_dir
 
 
 import numba.core.config  # noqa: E402
 
-numba.core.config.CACHE_DIR = _cache_dir()  # read when the decorators below make their caches
+numba.core.config.CACHE_DIR = kernels_dir()  # read when the decorators below make their caches
 import numba as nb  # noqa: E402
 
-FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3
 
 _F32 = np.float32
 _SNAP6 = np.float32(7.0 * 1e-4)  # bc6h.emulate: |7x - round(7x)| below this snaps
@@ -486,3 +478,54 @@ def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, 
     _features_all(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
                   out, np.zeros(scratch_size(4 * C, 1, 1, C), np.float32), np.zeros(_SCRATCH_I, np.int64))
     return out
+
+
+# ---- the training targets (targets.py): the reference's bicubic lookup
+
+@nb.njit(inline="always", cache=True)
+def _keys(f, a, w):
+    """keys_weights: cubic-convolution weights of the taps at -1, 0, 1, 2 for fraction ``f`` into ``w``."""
+    f2 = f * f
+    f3 = f2 * f
+    w[0] = a * (f3 - _F32(2.0) * f2 + f)
+    w[1] = (a + _F32(2.0)) * f3 - (a + _F32(3.0)) * f2 + _F32(1.0)
+    w[2] = -(a + _F32(2.0)) * f3 + (_F32(2.0) * a + _F32(3.0)) * f2 - a * f
+    w[3] = a * (f2 - f3)
+
+
+@nb.njit(cache=True)
+def bicubic_into(tex, uv, repeat, t, out):
+    """out = lerp(out, bicubic(tex, uv), t) when ``t`` >= 0, else out = bicubic(tex, uv)."""
+    c, h, w = tex.shape
+    a = _F32(KEYS_A)
+    wx = np.zeros(4, np.float32)
+    wy = np.zeros(4, np.float32)
+    xs = np.zeros(4, np.int64)
+    ys = np.zeros(4, np.int64)
+    for n in range(uv.shape[0]):
+        x = uv[n, 0] * _F32(w) - _F32(0.5)
+        y = uv[n, 1] * _F32(h) - _F32(0.5)
+        x0 = np.floor(x)
+        y0 = np.floor(y)
+        _keys(x - x0, a, wx)
+        _keys(y - y0, a, wy)
+        for k in range(4):
+            xi = int(x0) - 1 + k
+            yi = int(y0) - 1 + k
+            if repeat:
+                xs[k] = xi % w
+                ys[k] = yi % h
+            else:
+                xs[k] = min(max(xi, 0), w - 1)
+                ys[k] = min(max(yi, 0), h - 1)
+        for ch in range(c):
+            acc = _F32(0.0)
+            for ky in range(4):
+                row = _F32(0.0)
+                for kx in range(4):
+                    row += tex[ch, ys[ky], xs[kx]] * wx[kx]
+                acc += row * wy[ky]
+            if t >= 0:
+                out[n, ch] = out[n, ch] + _F32(t) * (acc - out[n, ch])
+            else:
+                out[n, ch] = acc

@@ -54,21 +54,23 @@ _lib: ctypes.CDLL | None = None
 
 
 def _compiler() -> str:
-    cxx = os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++") or shutil.which("clang++")
+    """$CXX, else g++, c++ or clang++ on the PATH."""
+    named = os.environ.get("CXX")
+    cxx = shutil.which(named) if named else (shutil.which("g++") or shutil.which("c++") or shutil.which("clang++"))
     if not cxx:
-        raise NativeUnavailable("no C++ compiler (g++) found; scripts/setup.sh installs one")
+        raise NativeUnavailable(f"no C++ compiler ({named or 'g++'}) found; scripts/setup.sh installs one")
     return cxx
 
 
 def library_path() -> Path:
     """Where this source, compiler and flag set's library lives in the cache."""
-    from bcfpipe.train.fused.kernel import _cache_dir
+    from bcfpipe.train.fused.common import kernels_dir
 
     cxx = _compiler()
     version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout.splitlines()[:1]
     text = b"".join(p.read_bytes() for p in SOURCES + HEADERS)
     key = hashlib.sha256(text + repr((cxx, version, FLAGS)).encode()).hexdigest()[:16]
-    return Path(_cache_dir()) / f"bcf_step-{key}.so"
+    return Path(kernels_dir()) / f"bcf_step-{key}.so"
 
 
 def load() -> ctypes.CDLL:

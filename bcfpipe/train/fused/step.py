@@ -60,7 +60,7 @@ class FusedStep:
     def __init__(self, mc: ModelConfig, biases: Sequence[float], mlp: dict[str, torch.Tensor], levels: list[list],
                  quantized: Callable[[], bool] = lambda: False, chunks: int = 1, backend: str | None = None,
                  own_adam: bool = False):
-        from bcfpipe.train.fused import kernel as K
+        from bcfpipe.train.fused import common as K
 
         self.backend = backend or default_backend()
         self.mc, self.biases, self.mlp, self.levels = mc, biases, mlp, levels
@@ -86,6 +86,8 @@ class FusedStep:
             self.K, self.M = native, native.block_masks(self.M)
         else:
             import numba
+
+            from bcfpipe.train.fused import kernel as K
 
             self.K = K
             numba.set_num_threads(min(self.chunks, numba.config.NUMBA_NUM_THREADS))

@@ -1,0 +1,70 @@
+"""Issue 30: what each quality preset buys, per mip, from the exported files.
+
+Trains one texture set at one profile with each preset named (one of config.PRESETS, or a custom
+``name:warmup:constrained:finetune:batch`` schedule in the CPU presets' rates), one after another on
+one thread with the default kernel, and prints one row per preset as it finishes: PSNR at every
+reference mip and over all mips (the DDS features and fp16 decoder through onnxruntime,
+``fit_material``), the training time and the wall time with export and measurement.
+
+  python benchmarks/bench_presets.py --set teapot --profile 1k [--features bc6h] [--kernel auto]
+                                     [--presets draft,fast,standard]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_fidelity import specs  # noqa: E402
+from common import machine  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", default="teapot")
+    ap.add_argument("--profile", default="1k")
+    ap.add_argument("--features", default="bc6h")
+    ap.add_argument("--kernel", default="auto")
+    ap.add_argument("--presets", default="draft,fast,standard")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+
+    from bcfpipe.config import PRESETS, TrainingOptions, _cpu_preset
+    from bcfpipe.export.fit import fit_material, make_config
+    from bcfpipe.texset.texture_set import load_texture_set
+
+    ts = load_texture_set(specs(args.set))
+    print(f"machine: {machine()}; {args.set} {ts.width}x{ts.height}, profile {args.profile}, {args.features}, "
+          f"--kernel {args.kernel}, 1 thread, seed {args.seed}", flush=True)
+    header = False
+    for spec in args.presets.split(","):
+        if ":" in spec:
+            name, w, b, m, batch = spec.split(":")
+            preset = _cpu_preset(int(w), int(b), int(m), int(batch))
+        else:
+            name, preset = spec, PRESETS[spec]
+        _, cfg = make_config(ts, TrainingOptions(profile=args.profile, features=args.features, kernel=args.kernel,
+                                                 device="cpu", seed=args.seed))
+        cfg = cfg.with_(preset=preset, preset_name=name, threads=1)
+        with tempfile.TemporaryDirectory(prefix="bcfpipe-presets-") as tmp:
+            t = time.perf_counter()
+            res, _ = fit_material(ts, Path(tmp) / "m", cfg, args.profile)
+            wall = time.perf_counter() - t
+        m = res.metrics
+        if not header:
+            n = len(m.psnr_per_mip)
+            print("\n| preset | steps (warm-up + constrained + MLP) x batch | " + " | ".join(f"mip {i}" for i in range(n))
+                  + " | all mips | train | wall |")
+            print("|---|---|" + "---:|" * (n + 3))
+            header = True
+        steps = f"{preset.warmup.steps} + {preset.constrained.steps} + {preset.finetune.steps} x {preset.batch}"
+        print(f"| {name} | {steps} | " + " | ".join(f"{v:.1f}" for v in m.psnr_per_mip)
+              + f" | **{m.psnr:.2f}** | {res.train_seconds:.0f} s | {wall:.0f} s |", flush=True)
+    print("\n(PSNR in dB from the exported files; all mips: MSE averaged over the mips, as everywhere in bcfpipe)")
+
+
+if __name__ == "__main__":
+    main()
