@@ -111,10 +111,10 @@ class Preset:
 # take the steps at large mips at precomputed texel-centre targets (the same target, cheaper).
 # Their step counts spend the fused kernel's speed (issue 30): standard trains 4x the steps it did
 # with the torch kernel, in less time (teapot at 1k: 37.55 dB in 256 s, against 35.51 dB in 450 s),
-# fast 2.5x, and draft takes batches of 128^2 (docs/benchmarks.md, "Presets re-tuned").
+# fast 2.5x, and draft takes batches of 128^2 (4x) (docs/benchmarks.md, "Presets re-tuned").
 PRESETS: dict[str, Preset] = {
     "smoke": _cpu_preset(20, 60, 10, 32 * 32),
-    "draft": _cpu_preset(150, 450, 100, 128 * 128),
+    "draft": _cpu_preset(200, 600, 100, 128 * 128),
     "fast": _cpu_preset(1000, 5000, 200, 128 * 128),
     "standard": _cpu_preset(3200, 16000, 300, 128 * 128),
     "paper": Preset(

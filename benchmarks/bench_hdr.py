@@ -2,7 +2,7 @@
 measured from the exported files (BC6H DDS + fp16 weights through onnxruntime, in source units
 via material.json's value_scale/value_bias).
 
-    .venv/bin/python benchmarks/bench_hdr.py [--size 256] [--profile tiny] [--quality draft] [--wrap clamp]
+    .venv/bin/python benchmarks/bench_hdr.py [--size 256] [--profile tiny] [--quality draft] [--wrap clamp] [--kernel auto]
 
 Prints, per mip: mean |log1p(decoded) - log1p(source)| over every texel and channel, the median
 relative error of texels whose source value lies in [1, 10], and the PSNR against the peak.
@@ -70,6 +70,7 @@ def main() -> None:
     ap.add_argument("--profile", default="tiny")
     ap.add_argument("--quality", default="draft")
     ap.add_argument("--wrap", default="clamp", choices=("clamp", "repeat"))
+    ap.add_argument("--kernel", default="auto", help="bcfpipe train --kernel (issue 30)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -77,7 +78,7 @@ def main() -> None:
         ramp = hdr_ramp(a.size)
         src = write_exr(tmp / "hdr.exr", ramp)
         p = subprocess.run([sys.executable, "-m", "bcfpipe", "train", f"emissiveColor={src}:rgb", "-o", str(tmp / "out"),
-                            "--profile", a.profile, "--quality", a.quality, "--wrap", a.wrap, "--json"],
+                            "--profile", a.profile, "--quality", a.quality, "--wrap", a.wrap, "--kernel", a.kernel, "--json"],
                            capture_output=True, text=True)
         if p.returncode:
             raise SystemExit(p.stderr)

@@ -52,7 +52,9 @@ def test_hdr_emissive_ramp_keeps_relative_precision(tmp_path):
     import OpenImageIO as oiio
 
     src = write_exr(tmp_path / "hdr.exr", hdr_ramp(256))
-    p = train(tmp_path, f"emissiveColor={src}:rgb", extra=("--wrap", "clamp"), preset="draft")
+    # fast, not draft: draft's 800 steps leave these figures at the bounds, moving by +-0.005 and +-1 %
+    # with the order samples are drawn in (docs/benchmarks.md, "HDR precision")
+    p = train(tmp_path, f"emissiveColor={src}:rgb", extra=("--wrap", "clamp"), preset="fast")
     assert p.returncode == 0, p.stderr
     desc = json.loads((tmp_path / "out" / "material.json").read_text())
     gains = [o["log_gain"] for o in desc["outputs"]]

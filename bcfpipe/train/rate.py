@@ -17,8 +17,8 @@ Policy:
    candidate with the highest prediction is trained if it is predicted to beat the best result so
    far by `MARGIN_DB` (the best the tool can do), and the best result is kept and reported.
 
-Cost: a probe (0.5k draft: about 30 s on a 2-core CPU for a 2048² set) plus the chosen training,
-plus one training per climb.
+Cost: a probe (0.5k draft: about 20 s of training on one core of a 2-core CPU for a 2048² set)
+plus the chosen training, plus one training per climb.
 """
 from __future__ import annotations
 
@@ -38,18 +38,19 @@ MARGIN_DB = 0.5
 # 34.62 dB at 7.08 MiB in 844 s, 1k standard 35.51 dB at 1.77 MiB in 443 s (docs/benchmarks.md).
 CPU_PROFILES = ("0.5k", "1k")
 GPU_PROFILES = ("0.5k", "1k", "2k")
-# Mean PSNR over all mips relative to (0.5k, draft) on the committed benches (docs/bench; the draft
-# cells from the same command with --presets draft), CPU presets:
-#   teapot 29.83 / 33.24 / 34.30 (0.5k draft / fast / standard), 29.61 / 34.03 / 35.51 (1k)
-#   brick  28.37 / 29.01 / 29.21, 28.39 / 29.71 / 30.09
-# 2k is a candidate on CUDA only; its rows are the teapot's 2k fast over its 1k fast (+0.59 dB,
-# docs/benchmarks.md) applied to each 1k row: estimates until a GPU measures them.
+# Mean PSNR over all mips relative to (0.5k, draft) on the teapot and the brick, CPU presets as
+# re-tuned for the fused kernel (issue 30), `benchmarks/bench_presets.py --set S --profile P`
+# (docs/benchmarks.md, "Presets re-tuned"):
+#   teapot 30.15 / 34.60 / 35.50 (0.5k draft / fast / standard), 30.16 / 35.90 / 37.55 (1k)
+#   brick  28.44 / 29.28 / 29.52, 28.59 / 30.20 / 30.80
+# 2k is a candidate on CUDA only; its rows are the teapot's 2k standard over its 1k standard
+# (+0.59 dB, docs/benchmarks.md) applied to each 1k row: estimates until a GPU measures them.
 GAINS_DB: dict[tuple[str, str], float] = {
-    ("0.5k", "draft"): 0.0, ("0.5k", "fast"): 2.03, ("0.5k", "standard"): 2.66,
-    ("1k", "draft"): -0.10, ("1k", "fast"): 2.77, ("1k", "standard"): 3.70,
-    ("2k", "draft"): 0.49, ("2k", "fast"): 3.36, ("2k", "standard"): 4.29,
+    ("0.5k", "draft"): 0.0, ("0.5k", "fast"): 2.65, ("0.5k", "standard"): 3.22,
+    ("1k", "draft"): 0.08, ("1k", "fast"): 3.76, ("1k", "standard"): 4.88,
+    ("2k", "draft"): 0.67, ("2k", "fast"): 4.35, ("2k", "standard"): 5.47,
 }
-PAPER_OVER_STANDARD_DB = 2.0  # a GPU's 206k steps over `standard`'s 5.1k: a guess until measured on a GPU
+PAPER_OVER_STANDARD_DB = 1.0  # a GPU's 206k steps over `standard`'s 19.5k: a guess until measured on a GPU
 
 
 def _gain(profile: str, preset: str) -> float:
