@@ -290,8 +290,11 @@ def _build_locked(bplan: BuildPlan, out_path: Path, out_given: Path, staging: Pa
                                          progress=progress, cache_root=store.root if store else None)
             results.update({k: replace(r, attempts=attempts.get(k, 1)) for k, r in done.items()})
         else:
-            results.update(execute(todo, staging / MATERIALS_DIR, workers=jobs, executor=executor,
-                                   progress=progress, threads=threads, cache_root=store.root if store else None))
+            from bcfpipe.train.fused.common import kernels_in
+
+            with kernels_in(store.root if store else None):  # compiled kernels in the build's cache
+                results.update(execute(todo, staging / MATERIALS_DIR, workers=jobs, executor=executor,
+                                       progress=progress, threads=threads, cache_root=store.root if store else None))
         (staging / _PID).unlink()
         manifest = assemble(bplan, results, staging, out_path)
         files = sorted(p.relative_to(staging).as_posix() for p in staging.rglob("*") if p.is_file())

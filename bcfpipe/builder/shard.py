@@ -83,7 +83,11 @@ def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: Trai
     work = store.base / "tmp" / f"shard-{i}-of-{n}.{uuid.uuid4().hex[:8]}"
     try:
         work.mkdir(parents=True)
-        results.update(execute(todo, work, workers=jobs, progress=progress, threads=training.threads, cache_root=store.root))
+        from bcfpipe.train.fused.common import kernels_in
+
+        with kernels_in(store.root):  # compiled kernels in the shard's cache
+            results.update(execute(todo, work, workers=jobs, progress=progress, threads=training.threads,
+                                   cache_root=store.root))
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return ShardResult(shard, store.root, tuple(results[j.name] for j in mine), len(bplan.jobs),
