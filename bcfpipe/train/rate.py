@@ -34,8 +34,8 @@ __all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_
            "GAINS_DB", "MARGIN_DB"]
 
 MARGIN_DB = 0.5
-# On a CPU, 2k trains too few steps per texel to pay for its 4x bytes: on the teapot, 2k fast gave
-# 34.62 dB at 7.08 MiB in 844 s, 1k standard 35.51 dB at 1.77 MiB in 443 s (docs/benchmarks.md).
+# On a CPU, 2k does not pay for its 4x bytes and 2.4x time: on the teapot, 2k standard gave 38.54 dB
+# at 7.08 MiB in 606 s, 1k standard 37.55 dB at 1.77 MiB in 256 s (docs/benchmarks.md).
 CPU_PROFILES = ("0.5k", "1k")
 GPU_PROFILES = ("0.5k", "1k", "2k")
 # Mean PSNR over all mips relative to (0.5k, draft) on the teapot and the brick, CPU presets as
@@ -44,11 +44,12 @@ GPU_PROFILES = ("0.5k", "1k", "2k")
 #   teapot 30.91 / 34.60 / 35.50 (0.5k draft / fast / standard), 31.24 / 35.90 / 37.55 (1k)
 #   brick  28.59 / 29.28 / 29.52, 28.82 / 30.20 / 30.80
 # 2k is a candidate on CUDA only; its rows are the teapot's 2k standard over its 1k standard
-# (+0.59 dB, docs/benchmarks.md) applied to each 1k row: estimates until a GPU measures them.
+# (+0.99 dB: 38.54 against 37.55, docs/benchmarks.md) applied to each 1k row: estimates until a
+# GPU measures them.
 GAINS_DB: dict[tuple[str, str], float] = {
     ("0.5k", "draft"): 0.0, ("0.5k", "fast"): 2.19, ("0.5k", "standard"): 2.76,
     ("1k", "draft"): 0.28, ("1k", "fast"): 3.30, ("1k", "standard"): 4.43,
-    ("2k", "draft"): 0.87, ("2k", "fast"): 3.89, ("2k", "standard"): 5.02,
+    ("2k", "draft"): 1.27, ("2k", "fast"): 4.29, ("2k", "standard"): 5.42,
 }
 PAPER_OVER_STANDARD_DB = 1.0  # a GPU's 206k steps over `standard`'s 19.5k: a guess until measured on a GPU
 
