@@ -1,6 +1,7 @@
-"""The C++ build of the fused step (step.cpp), its targets (targets.cpp) and its Adam (adam.cpp): compiled on first use for this machine's CPU into
-bcfpipe's cache (``kernels/``), loaded with ctypes, and called with kernel.py's arguments, so
-:class:`bcfpipe.train.fused.step.FusedStep` can run either.
+"""The C++ build of the fused step (step.cpp), its targets (targets.cpp) and its Adam (adam.cpp):
+compiled on first use for this machine's CPU into bcfpipe's cache (``kernels/``), loaded with
+ctypes, and called with kernel.py's arguments, so :class:`bcfpipe.train.fused.step.FusedStep` can
+run either.
 
 The library's name hashes the source, the compiler's version and its flags; a build writes a
 temporary file and renames it, so concurrent first uses never load half a library. Without a C++
@@ -98,7 +99,6 @@ def load() -> ctypes.CDLL:
         lib.bcf_step.restype = ctypes.c_double
         lib.bcf_features.argtypes = [ctypes.POINTER(Args)]
         lib.bcf_features.restype = None
-        lib.bcf_lanes.restype = ctypes.c_int
         vp, i32, i64, f32 = ctypes.c_void_p, ctypes.c_int, ctypes.c_int64, ctypes.c_float
         lib.bcf_bicubic.argtypes = [vp, i32, i32, i32, vp, i64, i32, f32, f32, vp]
         lib.bcf_bicubic.restype = None
@@ -123,7 +123,7 @@ def _p(a: np.ndarray | None, t=_f32p):
     return None if a is None or a.size == 0 else a.ctypes.data_as(t)
 
 
-def _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s, **kw):
+def _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, **kw):
     a = Args(fmt=fmt, quantized=int(quantized), sgn=int(signed), repeat=int(repeat), C=C,
              uv=_p(uv), P=_p(P), X=_p(X), M=_p(M, _i32p), slots=_p(slots, _i64p), blend=_p(blend),
              plo=float(plo), phi=float(phi))
@@ -146,9 +146,9 @@ def step(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, 
                   out_scale=_p(out_scale), out_bias=_p(out_bias))
 
     def run(q: int) -> float:
-        a = _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
-                  a=N * q // n_chunks, b=N * (q + 1) // n_chunks, gP=_p(gP[q]), gX=_p(gX[q]), gw1=_p(gw1[q]),
-                  gb1=_p(gb1[q]), gw2=_p(gw2[q]), gb2=_p(gb2[q]), **common)
+        a = _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, a=N * q // n_chunks,
+                  b=N * (q + 1) // n_chunks, gP=_p(gP[q]), gX=_p(gX[q]), gw1=_p(gw1[q]), gb1=_p(gb1[q]),
+                  gw2=_p(gw2[q]), gb2=_p(gb2[q]), **common)
         return lib.bcf_step(ctypes.byref(a))
 
     if n_chunks == 1:
@@ -171,8 +171,8 @@ def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, 
     """kernel.features' contract: the (N, 4 C) features the step feeds the MLP."""
     lib = load()
     out = np.zeros((uv.shape[0], 4 * C), np.float32)
-    a = _args(fmt, quantized, signed, repeat, np.ascontiguousarray(uv), P, X, M, slots, blend, C, plo, phi, utab,
-              uslope, w3, w3s, a=0, b=uv.shape[0], feats_out=_p(out))
+    a = _args(fmt, quantized, signed, repeat, np.ascontiguousarray(uv), P, X, M, slots, blend, C, plo, phi, a=0,
+              b=uv.shape[0], feats_out=_p(out))
     lib.bcf_features(ctypes.byref(a))
     return out
 

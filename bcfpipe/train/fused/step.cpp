@@ -19,8 +19,8 @@ namespace {
 
 constexpr int FREE_BC6H = 0, FREE_BC7 = 1, BLOCK_BC6H = 2, BLOCK_BC7 = 3;
 constexpr int ND = 15;  // decode derivatives kept per tap (kernel.py's deriv layout)
-const float SNAP6 = 7.0f * 1e-4f;  // np.float32(7.0 * 1e-4)
-const float SNAP7 = 1.5e-3f;       // np.float32(1e-4 * 15)
+const float SNAP6 = float(7.0 * 1e-4);  // bc6h.emulate's snap, as kernel.py's np.float32(7.0 * 1e-4)
+const float SNAP7 = float(1e-4 * 15);   // bc7.emulate's
 
 // 2^e as a float32, exactly, for -126 <= e <= 127 (kernel.py's _POW2 table)
 inline vf pow2(vi e) { return bits_f((e + 127) << 23); }
@@ -34,8 +34,8 @@ inline vf half_value(vf f) {
 
 // bc6h.emulate's table of every 6-bit endpoint's unquantized value (mode10.unquantize_table: the
 // spec's ((e << 16) + 0x8000) >> 6, sign-magnitude when signed, saturating at the ends) and its
-// slope to the next entry, as arithmetic for k = the endpoint's offset from the lowest, 0..62;
-// the tests check it against the tables, bit for bit.
+// slope to the next entry, as arithmetic for k = the endpoint's offset from the lowest, 0..62.
+// test_fused's random endpoints span every entry, signed and unsigned, against the torch tables.
 inline void unquantize_entry(vi k, bool sgn, vf& value, vf& slope) {
     if (!sgn) {
         value = sel(k == 0, S(0.0f), tof(k * 1024 + 512));
@@ -427,7 +427,5 @@ void bcf_features(const Args* args) {
             for (int k = 0; k < 4 * A.C; ++k) A.feats_out[(n0 - A.a + l) * 4 * A.C + k] = feats[k][l];
     }
 }
-
-int bcf_lanes() { return W; }
 
 }  // extern "C"
