@@ -1,6 +1,7 @@
 """The trainer's side of the fused kernel: one call per step computes the loss and sets ``.grad``
 on the parameters the step touched (the two levels of each layer it samples, and the MLP), exactly
-where torch's autograd would set them, so the optimizer and its state are unchanged."""
+where torch's autograd would set them. With ``own_adam`` (native) the feature levels' gradients
+stay in the step's buffers and :meth:`FusedStep.adam` updates them; the MLP keeps torch's Adam."""
 from __future__ import annotations
 
 from typing import Callable, Sequence
@@ -47,7 +48,8 @@ def _tables(signed: bool):
 
 
 class FusedStep:
-    """Loss and gradients of one step at scale ``s`` through :func:`bcfpipe.train.fused.kernel.step`.
+    """Loss and gradients of one step at scale ``s`` through the native kernel (native.py) or the
+    numba one (kernel.py), ``backend`` (default: :func:`default_backend`).
 
     ``levels[i][k]`` are layer i's mip-k parameters: free (C, H, W) tensors (phase 1) or
     `BlockParams` (phase 2). They are moved, in place in ``levels``, into one flat storage (the
@@ -60,7 +62,7 @@ class FusedStep:
     def __init__(self, mc: ModelConfig, biases: Sequence[float], mlp: dict[str, torch.Tensor], levels: list[list],
                  quantized: Callable[[], bool] = lambda: False, chunks: int = 1, backend: str | None = None,
                  own_adam: bool = False):
-        from bcfpipe.train.fused import common as K
+        from bcfpipe.train.fused import common
 
         self.backend = backend or default_backend()
         self.mc, self.biases, self.mlp, self.levels = mc, biases, mlp, levels
@@ -68,7 +70,8 @@ class FusedStep:
         codec = codec_of(mc)
         blocks = isinstance(levels[0][0], BlockParams)
         bc7 = FeatureFormat(mc.features) == FeatureFormat.BC7
-        self.fmt = (K.BLOCK_BC7 if bc7 else K.BLOCK_BC6H) if blocks else (K.FREE_BC7 if bc7 else K.FREE_BC6H)
+        self.fmt = ((common.BLOCK_BC7 if bc7 else common.BLOCK_BC6H) if blocks
+                    else (common.FREE_BC7 if bc7 else common.FREE_BC6H))
         self.C = codec.channels
         self.plo, self.phi = (np.float32(v) for v in codec.param_range(mc))
         self.tables = _tables(bool(mc.signed))
