@@ -74,27 +74,41 @@ def library_path() -> Path:
     return Path(kernels_dir()) / f"bcf_step-{key}.so"
 
 
+def _build(cxx: str, path: Path) -> None:
+    """Compile the sources into ``path`` through a temporary file beside it (renamed when whole)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".so", dir=path.parent)
+    os.close(fd)
+    try:
+        r = subprocess.run([cxx, *FLAGS, "-o", tmp, *map(str, SOURCES)], capture_output=True, text=True)
+        if r.returncode != 0:
+            last = (r.stderr.strip().splitlines() or ["?"])[-1]
+            raise NativeUnavailable(f"building the fused kernel failed: {last}")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
 def load() -> ctypes.CDLL:
-    """The compiled kernel, built into the cache on first use (a few seconds)."""
+    """The compiled kernel, built into the cache on first use (a few seconds). Where the cache
+    cannot take it (full, read-only), it is built in a temporary folder, loaded, and the folder
+    removed: the training goes on, and the next one builds again."""
     global _lib
     with _lock:
         if _lib is not None:
             return _lib
-        path = library_path()
-        if not path.exists():
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(suffix=".so", dir=path.parent)
-            os.close(fd)
+        cxx, path = _compiler(), library_path()
+        if path.exists():
+            lib = ctypes.CDLL(str(path))
+        else:
             try:
-                r = subprocess.run([_compiler(), *FLAGS, "-o", tmp, *map(str, SOURCES)], capture_output=True, text=True)
-                if r.returncode != 0:
-                    last = (r.stderr.strip().splitlines() or ["?"])[-1]
-                    raise NativeUnavailable(f"building the fused kernel failed: {last}")
-                os.replace(tmp, path)
-            finally:
-                if os.path.exists(tmp):
-                    os.unlink(tmp)
-        lib = ctypes.CDLL(str(path))
+                _build(cxx, path)
+                lib = ctypes.CDLL(str(path))
+            except (OSError, NativeUnavailable):
+                with tempfile.TemporaryDirectory(prefix="bcfpipe-kernel-") as d:
+                    _build(cxx, Path(d) / path.name)  # a compiler error is raised from here
+                    lib = ctypes.CDLL(str(Path(d) / path.name))  # stays mapped once the folder is gone
         lib.bcf_step.argtypes = [ctypes.POINTER(Args)]
         lib.bcf_step.restype = ctypes.c_double
         lib.bcf_features.argtypes = [ctypes.POINTER(Args)]
