@@ -143,7 +143,7 @@ DEFAULT_SEED = 0
 DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
 DEFAULT_FEATURES = FeatureFormat.BC6H
-DEFAULT_KERNEL = Kernel.AUTO  # fused on the CPU: 5-8x the torch path's samples/s (docs/benchmarks.md)
+DEFAULT_KERNEL = Kernel.AUTO  # fused on the CPU: 6-10x the torch path's samples/s (docs/benchmarks.md)
 # all neural until the runtime (GLSL, render, verify, the USD layer) reads classic outputs (issue 31)
 DEFAULT_LAYOUT = Layout.NEURAL
 # Channels per feature layer T_i, per format: BC6H holds RGB, BC7 RGBA in the same bytes.

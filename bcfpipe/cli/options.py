@@ -42,7 +42,7 @@ TRAINING_OPTIONS = (
     click.option("--kernel", type=click.Choice([k.value for k in Kernel]), default=DEFAULT_KERNEL.value,
                  show_default=True,
                  help="How a training step runs: fused (one vectorised C++ kernel for features, MLP and gradients, "
-                      "5-8x the samples/s of torch on a CPU; built once into the cache, numba where no C++ "
+                      "6-10x the samples/s of torch on a CPU; built once into the cache, numba where no C++ "
                       "compiler is found), torch (the reference; the only one on CUDA), or auto: fused on the "
                       "CPU, torch on CUDA."),
     click.option("--target-psnr", "target_psnr", type=click.FloatRange(min=0, min_open=True), default=None,
