@@ -451,12 +451,26 @@ def _step_serial(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P
     return sse
 
 
+def uncached(call):
+    """Run ``call``; if numba cannot write its cache (a full or read-only cache folder), compile
+    every kernel here without caching and run it again: a slower start, never a failed training."""
+    try:
+        return call()
+    except OSError:
+        from numba.core.caching import NullCache
+
+        for obj in list(globals().values()):
+            if isinstance(obj, nb.core.registry.CPUDispatcher):
+                obj._cache = NullCache()
+        return call()
+
+
 def step(fmt, quantized, signed, repeat, n_chunks, *args):
     """One training step's forward and backward over all samples, in ``n_chunks`` ranges (run in
     parallel when there are several), each into its own row (axis 0) of the g* buffers; returns the
     per-chunk sums of the squared errors (the caller adds the rows in chunk order)."""
     run = _step_parallel if n_chunks > 1 else _step_serial
-    return run(fmt, quantized, signed, repeat, n_chunks, *args)
+    return uncached(lambda: run(fmt, quantized, signed, repeat, n_chunks, *args))
 
 
 @nb.njit(cache=True, _nrt=False)

@@ -28,11 +28,11 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: st
         if t > 0.0:
             native.bicubic_into(pyr.mips[l1].numpy(), u, repeat, KEYS_A, float(t), out)
         return torch.from_numpy(out)
-    from bcfpipe.train.fused.kernel import bicubic_into
+    from bcfpipe.train.fused.kernel import bicubic_into, uncached
 
-    bicubic_into(pyr.mips[l0].numpy(), u, repeat, -1.0, out)
+    uncached(lambda: bicubic_into(pyr.mips[l0].numpy(), u, repeat, -1.0, out))
     if t > 0.0:
-        bicubic_into(pyr.mips[l1].numpy(), u, repeat, float(t), out)
+        uncached(lambda: bicubic_into(pyr.mips[l1].numpy(), u, repeat, float(t), out))
     return torch.from_numpy(out)
 
 
