@@ -156,8 +156,7 @@ def test_concurrent_builds_share_one_cache(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
     procs = [subprocess.Popen([sys.executable, "-m", "bcfpipe", "-q", "build", str(scene), "-o", str(tmp_path / o),
-                               "--cache", str(cache), "--jobs", "1", "--json", *CLI_FAST,
-                          "--kernel", "torch"],  # the slower kernel: the first job outlasts the source's rewrite
+                               "--cache", str(cache), "--jobs", "1", "--json", *CLI_FAST],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for o in ("o1", "o2")]
     outs = [p.communicate(timeout=900) for p in procs]
     assert [p.returncode for p in procs] == [0, 0], [e for _, e in outs]
@@ -299,8 +298,7 @@ def test_a_source_saved_during_the_build_fails_its_job_only(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
     p = subprocess.Popen([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(tmp_path / "out"),
-                          "--cache", str(cache), "--jobs", "1", "--json", *CLI_FAST,
-                          "--kernel", "torch"],  # the slower kernel: the first job outlasts the source's rewrite
+                          "--cache", str(cache), "--jobs", "1", "--json", *CLI_FAST],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines = []
     for line in p.stderr:  # --jobs 1: the second job reads its sources after the first has trained
