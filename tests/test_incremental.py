@@ -294,24 +294,33 @@ def test_outputs_grow_linearly_with_materials_sharing_a_set(tmp_path):
 def test_a_source_saved_during_the_build_fails_its_job_only(tmp_path):
     """A texture saved again between the plan and its training: its job fails with one line (its
     bytes are not those its cache key names), the other job builds, exit 1, nothing is cached
-    under the stale key; the next build trains it from the new bytes."""
+    under the stale key; the next build trains it from the new bytes.
+
+    No race: the test holds the second job's cache lock (the real one a concurrent build would
+    hold), so with ``--jobs 1`` that job waits until the first is built and the file rewritten.
+    """
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
-    p = subprocess.Popen([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(tmp_path / "out"),
-                          "--cache", str(cache), "--jobs", "1", "--json", *CLI_FAST],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines = []
-    for line in p.stderr:  # --jobs 1: the second job reads its sources after the first has trained
-        lines.append(line)
-        if ": warmup" in line:
-            break
-    first = lines[-1].split("] ")[-1].split(":")[0]
-    changed = "b.png" if first == "A" else "a.png"
-    write_png(tmp_path / "tex" / changed, pattern(seed=11))
+    plan = json.loads(cli("plan", str(scene), "--json", *CLI_FAST).stdout)
+    first, second = plan["jobs"]
+    paths = {s["path"] for s in second["sources"]} - {s["path"] for s in first["sources"]}
+    changed = Path(sorted(paths)[0])
+    with Cache(cache).lock(second["content_hash"]):
+        p = subprocess.Popen([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(tmp_path / "out"),
+                              "--cache", str(cache), "--jobs", "1", "--json", *CLI_FAST],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        lines = []
+        for line in p.stderr:
+            lines.append(line)
+            assert f"{second['name']}: " not in line, lines
+            if f"{first['name']}: built" in line:
+                break
+        assert lines and f"{first['name']}: built" in lines[-1], "".join(lines)
+        write_png(changed, pattern(seed=11))
     out, err = p.communicate(timeout=600)
     assert p.returncode == 1, err[-3000:]
     failed = [m for m in json.loads(out)["materials"] if m["status"] == "failed"]
-    assert failed and all(f"{changed} changed during the build" in m["reason"] for m in failed), failed
+    assert failed and all(f"{changed.name} changed during the build" in m["reason"] for m in failed), failed
     assert len(list(Cache(cache).entries())) == 1
     again = cli("build", str(scene), "-o", str(tmp_path / "out"), "--cache", str(cache), "--json", *CLI_FAST)
     assert again.returncode == 0 and json.loads(again.stdout)["totals"]["trained"] == 1, again.stderr[-2000:]

@@ -17,6 +17,7 @@ class EventKind(StrEnum):
     PROGRESS = "progress"  # a training phase and step
     DONE = "done"  # built (trained or from the cache) or failed
     ATTEMPT = "attempt"  # a Ray task started (again, after a worker died); counted, not shown
+    RETURNED = "returned"  # a local worker's last event before it returns a job: its `done` goes here, in order
 
 
 @dataclass(frozen=True)

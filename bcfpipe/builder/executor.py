@@ -12,7 +12,7 @@ import time
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import DEFAULT_THREADS
@@ -90,6 +90,15 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
     stored meanwhile is copied instead of trained (a hit), and a trained result is stored. Returns
     a `JobResult` as a dict. Only this process's own thread settings are changed.
     """
+    try:
+        return _run_job(job, out_dir, threads, device, queue, cache_root)
+    finally:
+        if queue is not None:
+            with contextlib.suppress(Exception):
+                queue.put(ProgressEvent(EventKind.RETURNED, job.get("name", "?")))
+
+
+def _run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, cache_root: str | None) -> dict:
     t0 = time.perf_counter()
     name = job.get("name", "?")
     if cache_root is None:
@@ -277,7 +286,7 @@ def read_sources(job: MaterialJob) -> dict[str, bytes]:
     return out
 
 
-def _drain(queue, progress: ProgressCallback | None) -> None:
+def _drain(queue, progress: ProgressCallback | None, returned: Callable[[ProgressEvent], None] | None = None) -> None:
     if queue is None:
         return
     import queue as queue_mod
@@ -287,7 +296,10 @@ def _drain(queue, progress: ProgressCallback | None) -> None:
             ev = queue.get_nowait()
         except (queue_mod.Empty, EOFError, OSError):
             return
-        if progress:
+        if ev.event == EventKind.RETURNED:
+            if returned:
+                returned(ev)
+        elif progress:
             progress(ev)
 
 
@@ -323,22 +335,35 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
             fut = pool.submit(run_job, job.to_dict(), str(materials_dir / job.name), threads, dev, queue, cache_root)
             futures[fut] = (job, dev)
             _emit(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
+        by_name = {job.name: fut for fut, (job, _) in futures.items()}
         pending = set(futures)
+
+        def finish(fut) -> None:
+            job, dev = futures[fut]
+            pending.discard(fut)
+            try:
+                r = JobResult(**fut.result())
+            except BrokenProcessPool:
+                broken.append(job)
+                return
+            except BaseException as exc:  # noqa: BLE001
+                r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, dev, threads)
+            results[job.name] = r
+            _emit(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
+                  psnr=result_psnr(r.result), seconds=r.seconds, cache=r.cache)
+
+        def returned(ev: ProgressEvent) -> None:
+            """A job's `done` where its worker said it returns: after its own progress, before the
+            next job's (the queue's order; else a drain shows both running at once)."""
+            if by_name.get(ev.job) in pending:
+                finish(by_name[ev.job])
+
         while pending:
-            done, pending = cf.wait(pending, timeout=0.2, return_when=cf.FIRST_COMPLETED)
-            _drain(queue, progress)
+            done, _ = cf.wait(pending, timeout=0.2, return_when=cf.FIRST_COMPLETED)
+            _drain(queue, progress, returned)
             for fut in done:
-                job, dev = futures[fut]
-                try:
-                    r = JobResult(**fut.result())
-                except BrokenProcessPool:
-                    broken.append(job)
-                    continue
-                except BaseException as exc:  # noqa: BLE001
-                    r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, dev, threads)
-                results[job.name] = r
-                _emit(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
-                      psnr=result_psnr(r.result), seconds=r.seconds, cache=r.cache)
+                if fut in pending:
+                    finish(fut)
     except BaseException:
         if own:
             _stop(pool)
