@@ -41,22 +41,25 @@ def main() -> None:
     ap.add_argument("--profile", default="1k")
     ap.add_argument("--preset", default="standard")
     ap.add_argument("--match-bc", action="store_true")
-    ap.add_argument("--kernel", default="fused")
+    ap.add_argument("--kernel", default="auto")
+    ap.add_argument("--features", default="bc6h", help="the feature format of every neural candidate")
     ap.add_argument("--json", default=None)
     ap.add_argument("--classic", default=None, help="measure this one layout: these groups classic")
     ap.add_argument("--layout-profile", default="0.5k", help="with --classic: the neural part's profile")
     args = ap.parse_args()
 
     from bcfpipe.config import PROFILES, TrainingOptions
+    from bcfpipe.formats.vocabulary import Layout
     from bcfpipe.layout.fit import fit_layout
     from bcfpipe.texset.texture_set import load_texture_set
 
     ts = load_texture_set(specs(args.set))
     r = PROFILES[args.profile][0]
     opts = TrainingOptions(profile=args.profile, preset=args.preset, device="cpu", seed=0, threads=1,
-                           kernel=args.kernel)
+                           kernel=args.kernel, features=args.features, layout=Layout.AUTO, match_bc=args.match_bc)
     print(f"machine: {machine()}; {args.set} {ts.width}x{ts.height}, --profile {args.profile} (R = {r}), "
-          f"{args.preset}, --kernel {args.kernel}, 1 thread{', --match-bc' if args.match_bc else ''}", flush=True)
+          f"{args.preset}, --features {args.features}, --kernel {args.kernel}, 1 thread"
+          f"{', --match-bc' if args.match_bc else ''}", flush=True)
     if args.classic is not None:
         return one_layout(ts, opts, r, args.classic.split(","), args.layout_profile)
     t = time.perf_counter()
