@@ -8,7 +8,7 @@ onnxruntime; the classic groups' blocks through quicktex's decoder). Run one pro
 two cores.
 
   python benchmarks/bench_layout.py --set teapot [--match-bc] [--kernel fused] [--json out.json]
-  python benchmarks/bench_layout.py --set teapot --classic albedo --layout-profile 0.5k
+  python benchmarks/bench_layout.py --set teapot --classic albedo --layout-profile 0.5k [--lod-power 8]
 
 ``--classic GROUPS`` measures one layout instead of running the rule: those groups (comma list, as
 the tables name them) classic, a model on the other channels alone at ``--layout-profile``.
@@ -46,6 +46,8 @@ def main() -> None:
     ap.add_argument("--json", default=None)
     ap.add_argument("--classic", default=None, help="measure this one layout: these groups classic")
     ap.add_argument("--layout-profile", default="0.5k", help="with --classic: the neural part's profile")
+    ap.add_argument("--lod-power", type=float, default=None,
+                    help="with --classic: draw the neural part's lods as s_max * u**P (the presets' P is 2)")
     args = ap.parse_args()
 
     from bcfpipe.config import PROFILES, TrainingOptions
@@ -61,7 +63,7 @@ def main() -> None:
           f"{args.preset}, --features {args.features}, --kernel {args.kernel}, 1 thread"
           f"{', --match-bc' if args.match_bc else ''}", flush=True)
     if args.classic is not None:
-        return one_layout(ts, opts, r, args.classic.split(","), args.layout_profile)
+        return one_layout(ts, opts, r, args.classic.split(","), args.layout_profile, args.lod_power)
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bcfpipe-layout-") as tmp:
         fit = fit_layout(ts, tmp, opts, r, match_bc=args.match_bc, log=lambda s: print("  " + s, flush=True))
@@ -86,7 +88,7 @@ def main() -> None:
                                                "seconds": fit.seconds}, indent=1))
 
 
-def one_layout(ts, opts, r, classic, profile) -> None:
+def one_layout(ts, opts, r, classic, profile, lod_power=None) -> None:
     """Measure one layout: ``classic`` groups as BC@R has them, a model on the rest at ``profile``."""
     from dataclasses import replace
 
@@ -108,7 +110,10 @@ def one_layout(ts, opts, r, classic, profile) -> None:
     keep = [c for c in range(ts.num_channels) if not any(c in g.group.channels for g in enc if g.group.name in classic)]
     sub = subset(ts, keep)
     with tempfile.TemporaryDirectory(prefix="bcfpipe-layout-") as tmp:
-        res, _ = fit_material(sub, Path(tmp) / "m", make_config(sub, replace(opts, profile=profile))[1], profile)
+        cfg = make_config(sub, replace(opts, profile=profile))[1]
+        if lod_power is not None:
+            cfg = replace(cfg, preset=replace(cfg.preset, lod_power=lod_power))
+        res, _ = fit_material(sub, Path(tmp) / "m", cfg, profile)
     e = e_bc.copy()
     e[:, keep] = res.mse_per_channel
     c = C.Candidate(tuple(classic), profile, res.size_bytes + sum(g.size_bytes for g in enc if g.group.name in classic),

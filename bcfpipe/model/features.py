@@ -91,6 +91,16 @@ class FeatureCodec:
         raise NotImplementedError
 
 
+# Phase 2's first encode picks each block's partition and a start that training then moves, so the
+# encoder's refinement (its defaults: four shapes refined, two rounds, a window of 4 codes) buys
+# nothing there: one shape, one round, a window of 1 trained teapot 1k `standard` to 37.61 dB (37.55
+# refined), `draft` 31.20 (31.24), brick `draft` 28.80 (28.82), in a third of the encode's time
+# (4.6 s against 12.9 s at 1k). BC7 likewise takes one round of its four: 37.86 (37.90) and 33.21
+# (33.11), 5.5 s against 13.2 s (docs/benchmarks.md, "The first encode").
+_BC6H_START = dict(refine_top=1, keep=1, rounds=1, window=1)
+_BC7_START_ROUNDS = 1
+
+
 class _BC6H(FeatureCodec):
     format = FeatureFormat.BC6H
     channels = 3
@@ -113,7 +123,7 @@ class _BC6H(FeatureCodec):
         from bcfpipe.bc6h import emulate
         from bcfpipe.bc6h.encode import encode_params
 
-        e, idx, part = encode_params(texels, signed=mc.signed)
+        e, idx, part = encode_params(texels, signed=mc.signed, **_BC6H_START)
         return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
                            (torch.as_tensor(idx, dtype=torch.float32, device=device) / 7.0).requires_grad_(True),
                            emulate.partition_mask(part, device=device), np.asarray(part))
@@ -182,7 +192,7 @@ class _BC7(FeatureCodec):
 
         h, w, c = texels.shape
         blocks = texels.reshape(h // 4, 4, w // 4, 4, c).transpose(0, 2, 1, 3, 4).reshape(-1, 16, c)
-        e, idx = encode_params(blocks)
+        e, idx = encode_params(blocks, rounds=_BC7_START_ROUNDS)
         return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
                            (torch.as_tensor(idx, dtype=torch.float32, device=device) / 15.0).requires_grad_(True))
 
