@@ -178,11 +178,13 @@ def write_png(path: Path, a: np.ndarray) -> Path:
 
 @pytest.mark.parametrize("w, h", [(1, 1), (2, 2), (3, 5), (4096, 8)])
 def test_edge_sizes_train_and_export(tmp_path, w, h):
-    """Sizes at the edges train, export and decode (item 3; 8192² and memory are measured apart)."""
+    """Sizes at the edges train, export and decode (item 3; 8192² and memory are measured apart).
+    At `draft`: `smoke`'s 90 steps leave the 4096×8 ramp at 19.9–21.3 dB over seeds, on the
+    threshold; `draft` gives it 27.4–27.7."""
     y, x = np.mgrid[0:h, 0:w]
     a = np.stack([(x + 0.5) / w, (y + 0.5) / h, np.full((h, w), 0.25)], -1)
     src = write_png(tmp_path / f"s{w}x{h}.png", a)
-    p = train(tmp_path, f"albedo={src}:rgb")
+    p = train(tmp_path, f"albedo={src}:rgb", preset="draft")
     assert p.returncode == 0, p.stderr
     res = json.loads(p.stdout)
     assert res["psnr"] > 20, res["psnr"]  # may be inf for a constant texture
