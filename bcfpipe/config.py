@@ -153,7 +153,8 @@ LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 6  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode (BC6H and BC7)
+MODEL_FORMAT = 7  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
+# (BC6H and BC7); 7: the BC6H first encode compiled (bc6h/quick.cpp: a few blocks in a thousand differ)
 
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/train/feature_init.py: sharper fine mips, weaker

@@ -1,12 +1,14 @@
 """Issue 30: the trainer's first encode, refined (the encoders' defaults) against quick (its setting).
 
-Trains one set at one profile and preset twice, side by side (two processes, one thread each): once
-with phase 2's first encode at the encoders' full refinement (BC6H: four shapes refined, two rounds,
-a window of ±4 codes; BC7: four rounds), once with the trainer's quick start
-(`bcfpipe.model.features._BC6H_START`, `_BC7_START_ROUNDS`). Prints, from the exported files, the
-PSNR over all mips and at mips 0 and 1, and the encode phase's seconds.
+Trains one set at one profile and preset once per start named, side by side (one process, one
+thread each): `refined`, phase 2's first encode at the encoders' full refinement (BC6H: four shapes
+refined, two rounds, a window of ±4 codes; BC7: four rounds); `quick`, the trainer's start
+(`bcfpipe.model.features._BC6H_START`, `_BC7_START_ROUNDS`; BC6H compiled, bc6h/quick.cpp);
+`quick-torch`, the same BC6H start in the torch encoder. Prints, from the exported files, the PSNR
+over all mips and at mips 0 and 1, and the encode phase's seconds.
 
   python benchmarks/bench_first_encode.py --set teapot --profile 1k --preset draft [--features bc7]
+                                          [--starts refined,quick,quick-torch]
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ def one(args) -> None:
     if args.child == "refined":
         F._BC6H_START = REFINED["bc6h"]
         F._BC7_START_ROUNDS = REFINED["bc7"]
+    F._BC6H_NATIVE = args.child != "quick-torch"
     ts = load_texture_set(specs(args.set))
     _, cfg = make_config(ts, TrainingOptions(profile=args.profile, preset=args.preset, features=args.features,
                                              device="cpu", seed=args.seed, threads=1))
@@ -50,6 +53,7 @@ def main() -> None:
     ap.add_argument("--preset", default="draft")
     ap.add_argument("--features", default="bc6h")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--starts", default="refined,quick")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -58,7 +62,7 @@ def main() -> None:
           f"{args.seed}, one thread each, side by side", flush=True)
     base = [sys.executable, __file__, "--set", args.set, "--profile", args.profile, "--preset", args.preset,
             "--features", args.features, "--seed", str(args.seed), "--child"]
-    procs = {k: subprocess.Popen(base + [k], stdout=subprocess.PIPE, text=True) for k in ("refined", "quick")}
+    procs = {k: subprocess.Popen(base + [k], stdout=subprocess.PIPE, text=True) for k in args.starts.split(",")}
     print("\n| start | all mips | mip 0 | mip 1 | encode | train |\n|---|---:|---:|---:|---:|---:|")
     for k, p in procs.items():
         out, _ = p.communicate()

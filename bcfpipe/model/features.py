@@ -63,8 +63,10 @@ class FeatureCodec:
         """Texel values of free parameters ``p`` (already clamped to :meth:`param_range`)."""
         raise NotImplementedError
 
-    def encode(self, texels: np.ndarray, mc: ModelConfig, device) -> BlockParams:
-        """Warm texel values (H, W, channels) -> trainable blocks (requires_grad)."""
+    def encode(self, texels: np.ndarray, mc: ModelConfig, device, lib=None) -> BlockParams:
+        """Warm texel values (H, W, channels) -> trainable blocks (requires_grad). ``lib``: the
+        fused kernel's compiled library (bcfpipe.train.fused.native.load()), whose encoder a
+        format may use where the caller has it."""
         raise NotImplementedError
 
     def texels(self, b: BlockParams, blk: torch.Tensor, pos: torch.Tensor, mc: ModelConfig,
@@ -99,6 +101,21 @@ class FeatureCodec:
 # (33.11), 5.5 s against 13.2 s (docs/benchmarks.md, "The first encode").
 _BC6H_START = dict(refine_top=1, keep=1, rounds=1, window=1)
 _BC7_START_ROUNDS = 1
+_BC6H_NATIVE = True  # the one-shape start compiled (bc6h/quick.cpp) where a C++ compiler builds it
+
+
+def _bc6h_start(texels, signed: bool, lib):
+    """The first encode's parameters: the compiled one-shape path (bc6h/quick.cpp) in ``lib``, the
+    fused kernel's library, where the caller has it; else the torch encoder with the same settings
+    (the same blocks but for a few in a thousand, where float sums taken in another order tip a
+    choice)."""
+    if lib is not None and _BC6H_NATIVE and _BC6H_START["refine_top"] == 1:
+        from bcfpipe.bc6h import quick
+
+        return quick.encode_params(texels, signed, lib, rounds=_BC6H_START["rounds"], window=_BC6H_START["window"])
+    from bcfpipe.bc6h.encode import encode_params
+
+    return encode_params(texels, signed=signed, **_BC6H_START)
 
 
 class _BC6H(FeatureCodec):
@@ -119,11 +136,10 @@ class _BC6H(FeatureCodec):
 
         return endpoint_value(p, mc.signed)
 
-    def encode(self, texels, mc, device):
+    def encode(self, texels, mc, device, lib=None):
         from bcfpipe.bc6h import emulate
-        from bcfpipe.bc6h.encode import encode_params
 
-        e, idx, part = encode_params(texels, signed=mc.signed, **_BC6H_START)
+        e, idx, part = _bc6h_start(texels, mc.signed, lib)
         return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
                            (torch.as_tensor(idx, dtype=torch.float32, device=device) / 7.0).requires_grad_(True),
                            emulate.partition_mask(part, device=device), np.asarray(part))
@@ -187,7 +203,7 @@ class _BC7(FeatureCodec):
     def value(self, p, mc):
         return p / 255.0
 
-    def encode(self, texels, mc, device):
+    def encode(self, texels, mc, device, lib=None):
         from bcfpipe.bc7.encode import encode_params
 
         h, w, c = texels.shape

@@ -1,4 +1,5 @@
-"""The C++ build of the fused step (step.cpp), its targets (targets.cpp) and its Adam (adam.cpp):
+"""The C++ build of the fused step (step.cpp), its targets (targets.cpp), its Adam (adam.cpp) and
+the first encode (bcfpipe/bc6h/quick.cpp):
 compiled on first use for this machine's CPU into bcfpipe's cache (``kernels/``), loaded with
 ctypes, and called with kernel.py's arguments, so :class:`bcfpipe.train.fused.step.FusedStep` can
 run either.
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).parent
-SOURCES = (HERE / "step.cpp", HERE / "targets.cpp", HERE / "adam.cpp")
+SOURCES = (HERE / "step.cpp", HERE / "targets.cpp", HERE / "adam.cpp", HERE.parent.parent / "bc6h" / "quick.cpp")
 HEADERS = (HERE / "lanes.h",)
 # -ffp-contract=off: no fused multiply-adds, so every product and sum rounds as torch's does;
 # -fno-math-errno / -fno-trapping-math change no result, they let rounding calls inline
@@ -121,6 +122,8 @@ def load() -> ctypes.CDLL:
         f64 = ctypes.c_double
         lib.bcf_adam.argtypes = [vp, vp, i32, i64, vp, vp, i64, f64, f64, f64, f64, i64, f32, f32]
         lib.bcf_adam.restype = None
+        lib.bcf_bc6h_quick.argtypes = [vp, i64, i32, i32, i32, vp, vp, vp, vp, vp, vp, vp]
+        lib.bcf_bc6h_quick.restype = None
         _lib = lib
         return lib
 

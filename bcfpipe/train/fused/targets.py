@@ -36,6 +36,17 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: st
     return torch.from_numpy(out)
 
 
+def bicubic(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
+    """reference._bicubic's (N, c) lookup of one level (CPU, float32) in targets.cpp: the same taps
+    and weights, summed in another order (CentreTargets' precomputed images, natively)."""
+    from bcfpipe.train.fused import native
+
+    out = np.zeros((uv.shape[0], tex.shape[0]), np.float32)
+    native.bicubic_into(tex.numpy(), uv.detach().numpy().astype(np.float32, copy=False), wrap == Wrap.REPEAT, KEYS_A,
+                        -1.0, out)
+    return torch.from_numpy(out)
+
+
 def centre_batch(centres: CentreTargets, n: int, s: float, gen: torch.Generator | None
                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """:meth:`CentreTargets.batch`'s draws and values, natively where the fused kernel is native:
