@@ -275,19 +275,11 @@ void encode_block(const Tables& T, const float* tin, int rounds, int window, int
     }
     for (int j = 0; j < NS; ++j)
         for (int p = 0; p < 16; ++p) best_k[j][p] = k[j][p];
-    float c[3], qd[16][3];
-    for (int ch = 0; ch < 3; ++ch) {
-        float sum = 0.0f;
-        for (int p = 0; p < 16; ++p) sum += q[p][ch];
-        c[ch] = sum / 16.0f;
-    }
-    for (int p = 0; p < 16; ++p)
-        for (int ch = 0; ch < 3; ++ch) qd[p][ch] = q[p][ch] - c[ch];
     for (int r = 0; r < (rounds > 1 ? rounds : 1); ++r)
-        for (int j = 0; j < NS; ++j) {
+        for (int j = 0; j < NS; ++j) {  // _refine's offset c and q - c are _pca's qm and qc
             int ia[2][3], ib[2][3];
             float sub_err[2];
-            grid_step(T, qd, c, wt, member, k[j], window, ia, ib);
+            grid_step(T, qc, qm, wt, member, k[j], window, ia, ib);
             assign(T, t, ia, ib, member, k[j], sub_err);
             bool better[2];
             for (int s = 0; s < 2; ++s) {
