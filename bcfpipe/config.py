@@ -125,6 +125,23 @@ PRESETS: dict[str, Preset] = {
     ),
 }
 DEFAULT_PRESET = "standard"
+
+# A 2048² T_0 costs about 1.6x per step on the CPU: Adam streams every parameter of each level a step
+# samples, and the finest level holds 4x the blocks (docs/benchmarks.md, "Presets re-tuned"). To keep
+# issue 30's limits for a 2K material on a quiet 2-core machine (standard 5 min, fast 2 min, draft
+# 30 s), `fast` and `standard` take fewer steps there; CUDA and smaller profiles train PRESETS as is.
+LARGE_T0 = 2048
+CPU_PRESETS_LARGE: dict[str, Preset] = {
+    "fast": _cpu_preset(800, 4400, 200, 128 * 128),
+    "standard": _cpu_preset(2000, 11000, 300, 128 * 128),
+}
+
+
+def preset_for(name: str, t0: int, device: str) -> Preset:
+    """The schedule that preset ``name`` trains with a T_0 of ``t0`` texels on ``device``."""
+    if t0 >= LARGE_T0 and not str(device).startswith("cuda") and name in CPU_PRESETS_LARGE:
+        return CPU_PRESETS_LARGE[name]
+    return PRESETS[name]
 # `smoke` checks that a scene and a pipeline (build system, cache, shards, Ray) work end to end, in
 # about a second of training per material; its quality is not meant to be looked at. Rate control
 # never chooses it, and it is not in the schedules that key a rate-controlled build.
@@ -144,17 +161,32 @@ DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
 DEFAULT_FEATURES = FeatureFormat.BC6H
 DEFAULT_KERNEL = Kernel.AUTO  # fused on the CPU: 6-10x the torch path's samples/s (docs/benchmarks.md)
-# all neural for now: the runtime reads classic outputs, and `auto` ships a mixed layout on the teapot
-# scene (+8.55 dB, docs/benchmarks.md); making it the default adds a probe to every build (issue 31)
-DEFAULT_LAYOUT = Layout.NEURAL
+# Per material, the best layout within BC@R's size and 0.5 dB of it at every mip, BC@R itself
+# included: a default build is never worse than the BC set a user would ship (issue 31). It costs a
+# probe training and at most one more (docs/layout.md). --target-psnr sizes an all-neural material
+# against a PSNR instead, so with it the default is neural.
+DEFAULT_LAYOUT = Layout.AUTO
+
+
+def default_layout(target_psnr: float | None) -> Layout:
+    """The layout when --layout is not given: auto, or neural with --target-psnr."""
+    return Layout.NEURAL if target_psnr is not None else DEFAULT_LAYOUT
+
+
+def layout_of(options) -> Layout:
+    """The layout of ``options`` (`TrainingOptions`, or a job's recorded manifest.Options): records
+    from before MODEL_FORMAT 8 leave it out, and then it was neural."""
+    return Layout(options.layout or Layout.NEURAL)
 # Channels per feature layer T_i, per format: BC6H holds RGB, BC7 RGBA in the same bytes.
 LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 7  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
-# (BC6H and BC7); 7: the BC6H first encode compiled (bc6h/quick.cpp: a few blocks in a thousand differ)
+MODEL_FORMAT = 8  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
+# (BC6H and BC7); 7: the BC6H first encode compiled (bc6h/quick.cpp: a few blocks in a thousand differ);
+# 8: --layout auto the default (a record without a layout meant neural before); fast and standard take
+# fewer steps at a 2048² T_0 on a CPU (CPU_PRESETS_LARGE)
 
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/train/feature_init.py: sharper fine mips, weaker
@@ -230,7 +262,7 @@ class TrainingOptions:
     bench_data: str | None = None  # a `bcfpipe bench` report to predict --target-psnr from
     features: FeatureFormat = DEFAULT_FEATURES
     kernel: Kernel = DEFAULT_KERNEL
-    layout: Layout = DEFAULT_LAYOUT
+    layout: Layout | None = None  # None: default_layout(target_psnr)
     match_bc: bool = False  # with layout auto: the smallest layout whose every mip reaches BC@R
     classic: tuple[str, ...] = ()  # semantics whose channel groups stay classic BC textures (BC@R)
 
@@ -241,7 +273,9 @@ class TrainingOptions:
             object.__setattr__(self, "features", FeatureFormat(self.features))  # "bc7" from a command line
         if self.kernel in tuple(Kernel) and not isinstance(self.kernel, Kernel):
             object.__setattr__(self, "kernel", Kernel(self.kernel))
-        if self.layout in tuple(Layout) and not isinstance(self.layout, Layout):
+        if self.layout is None:
+            object.__setattr__(self, "layout", default_layout(self.target_psnr))
+        elif self.layout in tuple(Layout) and not isinstance(self.layout, Layout):
             object.__setattr__(self, "layout", Layout(self.layout))
         given = (self.classic,) if isinstance(self.classic, str) else tuple(self.classic or ())
         names = tuple(s.strip() for g in given for s in g.split(",") if s.strip())  # "normal,opacity", repeated
@@ -300,7 +334,8 @@ class TrainingOptions:
         name, res = resolve_profile(self.profile, source_size)
         mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap,
                          features=FeatureFormat(self.features))
-        return name, TrainConfig(model=mc, preset=PRESETS[self.preset], preset_name=self.preset, seed=self.seed,
+        return name, TrainConfig(model=mc, preset=preset_for(self.preset, res[0], device), preset_name=self.preset,
+                                 seed=self.seed,
                                  device=device, threads=self.threads, feature_init=self.init,
                                  kernel=Kernel(self.kernel).on(device))
 

@@ -1,6 +1,7 @@
 """Peak memory and time of `bcfpipe train` on an 8192² texture set with 8 channels (issue #11, item 3).
 
     .venv/bin/python benchmarks/bench_8k_memory.py [--size 8192] [--profile tiny] [--preset draft] [--kernel auto]
+                                                   [--layout auto|neural]
 
 Writes a synthetic but not trivially compressible set into a temporary folder (8-bit PNGs:
 albedo rgb, normal xy, and an ORM file for occlusion, roughness, metallic: 8 channels), runs
@@ -62,6 +63,7 @@ def main() -> None:
     ap.add_argument("--profile", default="tiny")
     ap.add_argument("--preset", default="draft")
     ap.add_argument("--kernel", default="auto", help="bcfpipe train --kernel (issue 30)")
+    ap.add_argument("--layout", default=None, help="bcfpipe train --layout (issue 31); default: train's default")
     args = ap.parse_args()
     print(f"machine: {machine()}")
     with tempfile.TemporaryDirectory(prefix="bcf8k-") as tmp:
@@ -70,7 +72,8 @@ def main() -> None:
         specs = write_set(tmp, args.size)
         print(f"wrote the {args.size}² set in {time.perf_counter() - t0:.0f} s")
         cmd = [sys.executable, "-m", "bcfpipe", "train", *specs, "-o", str(tmp / "out"), "--profile", args.profile,
-               "--quality", args.preset, "--kernel", args.kernel, "--json"]
+               "--quality", args.preset, "--kernel", args.kernel, "--json",
+               *(["--layout", args.layout] if args.layout else [])]
         t0 = time.perf_counter()
         p = subprocess.run(cmd, capture_output=True, text=True)
         wall = time.perf_counter() - t0
@@ -81,8 +84,9 @@ def main() -> None:
         per_mip = ", ".join(f"{v:.1f}" for v in res["metrics"]["psnr_per_mip"])
         print(f"exit 0 in {wall:.0f} s, peak RSS {peak:.2f} GiB, PSNR {res['psnr']:.2f} dB (per mip {per_mip})")
         print(f"phases: {res['phase_seconds']}")
-        print(f"| {args.size}² x 8 channels, --kernel {args.kernel} | {args.profile} | {args.preset} | {peak:.2f} GiB | {wall:.0f} s | "
-              f"{res['psnr']:.2f} dB |")
+        layout = (res.get("layout") or {}).get("chosen", {}).get("layout", "neural")
+        print(f"| {args.size}² x 8 channels, --kernel {args.kernel}, layout {args.layout or 'default'} ({layout}) | "
+              f"{args.profile} | {args.preset} | {peak:.2f} GiB | {wall:.0f} s | {res['psnr']:.2f} dB |")
 
 
 if __name__ == "__main__":

@@ -285,7 +285,8 @@ def test_bc7_train_exports_verifies_and_refuses_signed(tmp_path):
 
     src = Path(__file__).resolve().parents[1] / "samples" / "textures"
     base = [sys.executable, "-m", "bcfpipe", "train", f"albedo={src / 'bricks_albedo.png'}:rgb",
-            f"roughness={src / 'bricks_roughness.png'}:r", "--profile", "tiny", "--quality", "smoke", "--features", "bc7"]
+            f"roughness={src / 'bricks_roughness.png'}:r", "--profile", "tiny", "--quality", "smoke", "--features", "bc7",
+            "--layout", "neural"]
     r = subprocess.run(base + ["-o", str(tmp_path / "m"), "--json"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     desc = mf.read(tmp_path / "m")

@@ -33,7 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "samples"
 SCHEMAS = REPO / "schemas"
 SCENES = REPO.parent / "shared" / "scenes"
-FAST = {"training": TrainingOptions(profile="tiny", preset="smoke", seed=0)}
+FAST = {"training": TrainingOptions(profile="tiny", preset="smoke", seed=0, layout="neural")}  # the neural path
 
 
 def run_py(code: str, plugin: bool, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -440,6 +440,30 @@ def test_a_kernel_named_keys_what_it_runs(tmp_path: Path) -> None:
     assert opts.with_(kernel="torch").train_config(64, "repeat", "cpu")[1].kernel == Kernel.TORCH
 
 
+def test_cpu_presets_take_fewer_steps_at_2k_and_the_key_follows(tmp_path: Path, monkeypatch) -> None:
+    """Issue 30's limits for a 2K material: on a CPU, fast and standard train CPU_PRESETS_LARGE at a
+    2048² T_0; CUDA, smaller profiles and the other presets train PRESETS. The cache key holds the
+    schedule a job trains."""
+    from bcfpipe import config
+
+    assert config.preset_for("standard", 2048, "cpu") is config.CPU_PRESETS_LARGE["standard"]
+    assert config.preset_for("fast", 2048, "cpu") is config.CPU_PRESETS_LARGE["fast"]
+    assert config.preset_for("standard", 1024, "cpu") is config.PRESETS["standard"]
+    assert config.preset_for("standard", 2048, "cuda:0") is config.PRESETS["standard"]
+    assert config.preset_for("draft", 2048, "cpu") is config.PRESETS["draft"]
+    big = TrainingOptions(profile="2k", device="cpu", layout="neural")
+    assert big.train_config(2048, "repeat", "cpu")[1].preset == config.CPU_PRESETS_LARGE["standard"]
+    assert big.train_config(2048, "repeat", "cuda:0")[1].preset == config.PRESETS["standard"]
+    a = copy_samples(tmp_path / "a")
+
+    def keys(o):
+        return [j.content_hash for j in plan(a, o).jobs]
+
+    k2, k1 = keys(big), keys(big.with_(profile="1k"))
+    monkeypatch.setitem(config.CPU_PRESETS_LARGE, "standard", config.PRESETS["fast"])
+    assert keys(big) != k2 and keys(big.with_(profile="1k")) == k1
+
+
 def test_plan_channel_mapping(tmp_path: Path) -> None:
     write_png(tmp_path / "tex" / "color.png", pattern())
     write_png(tmp_path / "tex" / "normal.png", pattern(seed=1))
@@ -508,7 +532,7 @@ def test_damaged_source_is_refused_before_training_then_dedup_and_json(tmp_path:
     stage.Save()
     out = tmp_path / "out"
     args = [sys.executable, "-m", "bcfpipe", "build", str(tmp_path / "scene.usda"), "-o", str(out),
-            "--profile", "tiny", "--quality", "smoke", "--jobs", "2", "--threads", "1", "--json"]
+            "--profile", "tiny", "--quality", "smoke", "--layout", "neural", "--jobs", "2", "--threads", "1", "--json"]
     proc = subprocess.run(args, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 2, proc.stderr
     assert proc.stdout == "" and "Traceback" not in proc.stderr

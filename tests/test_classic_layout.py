@@ -300,7 +300,7 @@ def test_train_layout_auto_writes_the_chosen_layout_and_why(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--match-bc"], "--match-bc chooses a layout: use it with --layout auto"),
+    (["--match-bc", "--layout", "neural"], "--match-bc chooses a layout: use it with --layout auto"),
     (["--classic", "albedo", "--target-psnr", "30"], "--classic fixes part of the layout"),
     (["--layout", "auto", "--target-psnr", "30"], "use one (--layout neural --target-psnr DB)"),
 ])
@@ -314,9 +314,23 @@ def test_layout_options_that_do_not_combine_are_refused_in_one_line(tmp_path, ar
     assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output
 
 
+def test_layout_defaults_to_auto_and_to_neural_with_a_target_psnr():
+    """Issue 31: `auto` is the default; --target-psnr sizes an all-neural material, so with it the
+    default is neural; asking for both is refused."""
+    from bcfpipe.errors import InputError
+    from bcfpipe.formats.vocabulary import Layout
+
+    assert TrainingOptions().layout == Layout.AUTO
+    assert TrainingOptions(target_psnr=30.0).layout == Layout.NEURAL
+    assert TrainingOptions(layout="neural").layout == Layout.NEURAL
+    with pytest.raises(InputError, match="use one"):
+        TrainingOptions(layout="auto", target_psnr=30.0)
+
+
 def test_build_layout_auto_records_each_choice_and_verifies(tmp_path):
-    """A real build with --layout auto: every built material says what was chosen against BC@R;
-    one kept as BC@R gets no neural override (its UsdUVTexture network stays), and verify passes."""
+    """A real build with the default layout (auto): every built material says what was chosen
+    against BC@R; one kept as BC@R gets no neural override (its UsdUVTexture network stays), and
+    verify passes. When every material kept BC@R, `render --compare` says so in one line."""
     from click.testing import CliRunner
 
     from bcfpipe.cli import main
@@ -324,7 +338,7 @@ def test_build_layout_auto_records_each_choice_and_verifies(tmp_path):
     from bcfpipe.verify.checks import verify
 
     out = tmp_path / "out"
-    r = CliRunner().invoke(main, ["build", str(SAMPLE / "sample_scene.usda"), "-o", str(out), "--layout", "auto",
+    r = CliRunner().invoke(main, ["build", str(SAMPLE / "sample_scene.usda"), "-o", str(out),
                                   "--quality", "smoke", "--jobs", "1", "--threads", "1", "--json"])
     assert r.exit_code == 0, r.output
     report = json.loads(r.stdout)
@@ -340,6 +354,9 @@ def test_build_layout_auto_records_each_choice_and_verifies(tmp_path):
             assert m.outputs.weights_index is None and m.sizes.classic_bytes > 0
             assert m.path not in (out / "overrides.usda").read_text()
     assert verify(out, glsl=False).exit_code == 0
+    if all(m.layout.profile is None for m in built):
+        r = CliRunner().invoke(main, ["render", str(out), "-o", str(tmp_path / "c.png"), "--compare"])
+        assert r.exit_code == 2 and "every built material kept its BC textures" in r.output, r.output
 
 
 def test_a_builds_usd_override_drives_only_the_decoders_outputs(mixed):
@@ -395,7 +412,7 @@ def test_train_classic_keeps_the_named_group_and_trains_the_rest(tmp_path):
     base = ["train", f"albedo={t / 'bricks_albedo.png'}:rgb", f"normal={t / 'bricks_normal.png'}:xy",
             "--profile", "tiny", "--quality", "smoke", "--threads", "1", "--json"]
     out = tmp_path / "m"
-    r = CliRunner().invoke(main, base + ["-o", str(out), "--classic", "normal"])
+    r = CliRunner().invoke(main, base + ["-o", str(out), "--classic", "normal", "--layout", "neural"])
     assert r.exit_code == 0, r.output
     d = json.loads(r.stdout.strip().splitlines()[-1])
     assert d["layout"]["chosen"]["layout"] == "neural tiny + classic normal"
@@ -407,7 +424,7 @@ def test_train_classic_keeps_the_named_group_and_trains_the_rest(tmp_path):
     assert not (out / ".layout-work").exists()
     assert verify(out, glsl=False).exit_code == 0
     plain = tmp_path / "p"
-    r = CliRunner().invoke(main, base[:2] + base[3:] + ["-o", str(plain), "--classic", "normal"])
+    r = CliRunner().invoke(main, base[:2] + base[3:] + ["-o", str(plain), "--classic", "normal", "--layout", "neural"])
     assert r.exit_code == 0, r.output
     assert not mf.read(plain).classic and not (plain / "layout.json").exists()
 
@@ -422,16 +439,18 @@ def test_build_classic_applies_to_the_materials_that_have_it(tmp_path):
     from bcfpipe.formats import manifest as mfst
 
     out = tmp_path / "out"
-    r = CliRunner().invoke(main, ["build", str(SAMPLE / "sample_scene.usda"), "-o", str(out), "--classic", "normal",
+    r = CliRunner().invoke(main, ["build", str(SAMPLE / "sample_scene.usda"), "-o", str(out), "--classic", "normal", "--layout", "neural",
                                   "--quality", "smoke", "--jobs", "1", "--threads", "1", "--json"])
     assert r.exit_code == 0, r.output
     man = mfst.read(out)
     assert man.options.classic == ("normal",)
     kept = {m.path: m.layout.classic if m.layout else () for m in man.built()}
     assert kept["/World/Looks/Bricks"] == ("normal",) and kept["/World/Looks/Leaves"] == ()
-    keys = {j.name: j.content_hash for j in plan(SAMPLE / "sample_scene.usda", TrainingOptions(preset="smoke")).jobs}
+    keys = {j.name: j.content_hash for j in plan(SAMPLE / "sample_scene.usda",
+                                                 TrainingOptions(preset="smoke", layout="neural")).jobs}
     with_classic = {j.name: j.content_hash for j in plan(SAMPLE / "sample_scene.usda",
-                                                         TrainingOptions(preset="smoke", classic=("normal",))).jobs}
+                                                         TrainingOptions(preset="smoke", layout="neural",
+                                                                         classic=("normal",))).jobs}
     assert all(keys[n] != with_classic[n] for n in keys)
     r = CliRunner().invoke(main, ["plan", str(SAMPLE / "sample_scene.usda"), "--classic", "normal,normals"])
     assert r.exit_code == 0 and "--classic normals: no modelled material has such a channel" in r.output

@@ -18,7 +18,7 @@ import pytest
 from test_build import add_material, new_stage, pattern, write_png
 
 BUILD = [sys.executable, "-m", "bcfpipe", "build"]
-FAST = ["--profile", "tiny", "--quality", "smoke", "--threads", "1", "--jobs", "1"]
+FAST = ["--profile", "tiny", "--quality", "smoke", "--threads", "1", "--jobs", "1", "--layout", "neural"]
 
 
 def scene(tmp: Path) -> Path:

@@ -38,7 +38,7 @@ def ramp(scale: float) -> np.ndarray:
 def train(tmp_path: Path, *specs: str, extra: tuple[str, ...] = (), preset: str = "smoke") -> subprocess.CompletedProcess:
     """`bcfpipe train` at the tiny profile; the smoke preset unless a test measures precision."""
     return subprocess.run([sys.executable, "-m", "bcfpipe", "train", *specs, "-o", str(tmp_path / "out"),
-                           "--profile", "tiny", "--quality", preset, "--json", *extra],
+                           "--profile", "tiny", "--quality", preset, "--layout", "neural", "--json", *extra],
                           capture_output=True, text=True, timeout=900)
 
 
@@ -153,7 +153,7 @@ def test_hdr_value_map_folds_into_the_usd_targets(tmp_path):
     add_material(stage, "/World/Looks/Lamp", {"emissiveColor": ("./tex/hdr.exr", "rgb", {"scale": (2.0, 2.0, 2.0, 1.0)})},
                  mesh="/World/Lamp")
     stage.Save()
-    r = build(tmp_path / "scene.usda", tmp_path / "out", training=TrainingOptions(profile="tiny", preset="draft"),
+    r = build(tmp_path / "scene.usda", tmp_path / "out", training=TrainingOptions(profile="tiny", preset="draft", layout="neural"),
               cache=False)
     assert r.exit_code == 0
     desc = mf.read(tmp_path / "out" / "materials" / "Lamp")
@@ -260,7 +260,8 @@ def test_hdr_through_build_usd_verify_decode_and_render(tmp_path):
         return subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True, timeout=900)
 
     out = tmp_path / "out"
-    b = cli("build", str(quad), "-o", str(out), "--profile", "tiny", "--quality", "draft", "--no-cache")
+    b = cli("build", str(quad), "-o", str(out), "--profile", "tiny", "--quality", "draft", "--layout", "neural",
+            "--no-cache")
     assert b.returncode == 0, b.stderr
     desc = json.loads((out / "materials" / "Smooth" / "material.json").read_text())
     assert [o["log_gain"] > 11 for o in desc["outputs"]] == [True] * 3

@@ -14,7 +14,7 @@ import pytest
 from test_build import copy_samples
 from test_incremental import small_scene, tree
 
-CLI_FAST = ["--profile", "tiny", "--quality", "smoke", "--seed", "0"]
+CLI_FAST = ["--profile", "tiny", "--quality", "smoke", "--seed", "0", "--layout", "neural"]
 
 
 def bcf(*args: str) -> subprocess.CompletedProcess:

@@ -18,7 +18,7 @@ from bcfpipe.builder import build, plan  # noqa: E402
 from bcfpipe.config import TrainingOptions  # noqa: E402
 from bcfpipe.scan.content import channel_contents, srgb_to_linear  # noqa: E402
 
-DRAFT = {"training": TrainingOptions(profile="tiny", preset="draft", seed=0)}  # where decoded values are measured
+DRAFT = {"training": TrainingOptions(profile="tiny", preset="draft", seed=0, layout="neural")}  # where decoded values are measured
 
 VEHICLES = "usdwg_vehicles/USD_Mini_Car_Kit/assets/vehicles/vehicleVariants.usda"
 

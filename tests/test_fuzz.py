@@ -114,7 +114,7 @@ def real_files(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("fuzz")
     scene = copy_samples(root)
-    r = build(scene, root / "out", training=TrainingOptions(profile="tiny", preset="smoke", seed=0), cache=False)
+    r = build(scene, root / "out", training=TrainingOptions(profile="tiny", preset="smoke", seed=0, layout="neural"), cache=False)
     mat = root / "out" / "materials" / r.plan.jobs[0].name
     return {"dds": (mat / "T0.dds").read_bytes(), "dds2": (mat / "T3.dds").read_bytes(),
             "record": (mat / "weights.bin").read_bytes(), "buffer": (root / "out" / "weights.bin").read_bytes(),

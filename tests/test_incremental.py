@@ -22,8 +22,8 @@ from bcfpipe.cache import Cache
 from test_build import add_material, new_stage, pattern, write_png
 
 REPO = Path(__file__).resolve().parents[1]
-FAST = {"training": TrainingOptions(profile="tiny", preset="smoke", seed=0)}
-CLI_FAST = ["--profile", "tiny", "--quality", "smoke", "--seed", "0"]
+FAST = {"training": TrainingOptions(profile="tiny", preset="smoke", seed=0, layout="neural")}
+CLI_FAST = ["--profile", "tiny", "--quality", "smoke", "--seed", "0", "--layout", "neural"]
 
 
 def small_scene(root: Path) -> Path:

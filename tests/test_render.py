@@ -24,7 +24,7 @@ from bcfpipe.render.scene import _fan, read_batches
 from bcfpipe.verify import glsl as G
 
 REPO = Path(__file__).resolve().parents[1]
-FAST = {"training": TrainingOptions(profile="tiny", preset="draft", seed=0)}
+FAST = {"training": TrainingOptions(profile="tiny", preset="draft", seed=0, layout="neural")}
 SIZE = (256, 192)
 
 #: Neural against original renders of the smooth material, whose decoder reproduces its textures

@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import DEFAULT_FEATURES, DEFAULT_INIT, DEFAULT_KERNEL, DEFAULT_LAYOUT, MODEL_FORMAT, PRESETS, QUALITY_PRESETS, TrainingOptions
+from bcfpipe.config import (CPU_PRESETS_LARGE, DEFAULT_FEATURES, DEFAULT_INIT, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS,
+                            QUALITY_PRESETS, TrainingOptions, layout_of, preset_for, resolve_profile)
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
@@ -76,9 +77,10 @@ class MaterialJob:
         the job's record that `TrainingOptions` has, by name."""
         shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
                   if hasattr(self.options, f.name)}
-        for name in ("features", "kernel", "layout", "match_bc", "classic"):  # absent from the record: the default
+        for name in ("features", "kernel", "match_bc", "classic"):  # absent from the record: the default
             if shared.get(name) is None:
                 shared.pop(name, None)
+        shared["layout"] = layout_of(self.options)
         return TrainingOptions(**{**shared, "device": device, "threads": threads})
 
     @property
@@ -164,6 +166,12 @@ class BuildPlan:
         return d
 
 
+def _t0(sources: Mapping[str, SourceFile], options: Options) -> int:
+    """The T_0 side a job trains at: its profile, resolved against the set's size."""
+    w, h = job_size(sources.values(), options.resolution)
+    return resolve_profile(options.profile, max(w, h))[1][0]
+
+
 def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options,
                  coverage_digest: str | None = None, anchors: tuple = ()) -> str:
     """The job's cache key: everything that changes the trained files and nothing else.
@@ -181,7 +189,7 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         "wrap": wrap,
         "profile": options.profile,
         "preset": options.preset,
-        "schedule": asdict(PRESETS[options.preset]),
+        "schedule": asdict(preset_for(options.preset, _t0(sources, options), options.device)),
         "seed": options.seed,
         "device": options.device,
         "hidden": options.hidden,
@@ -200,6 +208,7 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
     if options.target_psnr is not None:  # rate control picks among every preset, from these predictions
         payload["target_psnr"] = options.target_psnr
         payload["schedules"] = {name: asdict(PRESETS[name]) for name in QUALITY_PRESETS}
+        payload["schedules_large"] = {name: asdict(p) for name, p in CPU_PRESETS_LARGE.items()}
         payload["anchors"] = [list(a) for a in anchors]
     for f in fields(options):  # a newer option: in the key when it is not its default (old keys stand)
         if f.name not in _KEYED_ABOVE and getattr(options, f.name) != f.default:
@@ -263,7 +272,7 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
                          "coverage": bool(coverage),
                          "features": None if training.features == DEFAULT_FEATURES else training.features.value,
                          "kernel": _kernel_option(training.kernel, _resolve_device_name(training.device)),
-                         "layout": None if training.layout == DEFAULT_LAYOUT else training.layout.value,
+                         "layout": training.layout.value,
                          "match_bc": True if training.match_bc else None,
                          "classic": tuple(training.classic) or None})
     from bcfpipe.scan.results import ScanError

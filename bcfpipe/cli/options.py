@@ -8,7 +8,7 @@ from dataclasses import fields
 
 from bcfpipe.formats.vocabulary import FeatureFormat, Kernel, Layout
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, DEFAULT_LAYOUT, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
+                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
 
 # The training options, in --help order: one per field of config.TrainingOptions, named as it (a
 # test checks); `train`, `plan` and `build` take exactly these.
@@ -19,7 +19,8 @@ TRAINING_OPTIONS = (
     click.option("--quality", "--preset", "preset", type=click.Choice(list(PRESETS)), default=DEFAULT_PRESET,
                  show_default=True, help="Training preset (steps, batch, learning rates): draft is the fastest worth "
                                          "looking at; smoke only checks a pipeline end to end (about 1 s of "
-                                         "training a material); 'paper' is the paper's 206k-step schedule (for a GPU)."),
+                                         "training a material); 'paper' is the paper's 206k-step schedule (for a GPU). On a "
+                                         "CPU, fast and standard take fewer steps at a 2048² T_0 (docs/training.md)."),
     click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
                  help="Hidden units of the decoder MLP."),
     click.option("--features", type=click.Choice([f.value for f in FeatureFormat]), default=DEFAULT_FEATURES.value,
@@ -50,12 +51,12 @@ TRAINING_OPTIONS = (
                  help="Rate control: train the smallest, then quickest, profile and preset predicted to reach DB "
                       "(PSNR over all mips of the exported files), instead of --profile and --quality. A probe "
                       "training (or --bench-data) predicts; a miss climbs to the next setting. docs/rate_control.md."),
-    click.option("--layout", type=click.Choice([v.value for v in Layout]), default=DEFAULT_LAYOUT.value,
-                 show_default=True,
-                 help="neural: every output from the MLP. auto: per material, keep as classic BC textures the "
-                      "channel groups the features lose, and pick the profile, by the highest PSNR over all mips "
-                      "within the size of the BC set you would ship (BC@R) and 0.5 dB of it at every mip; never "
-                      "worse than BC@R. A probe training and at most one more (docs/layout.md)."),
+    click.option("--layout", type=click.Choice([v.value for v in Layout]), default=None,
+                 help="auto (the default; neural with --target-psnr): per material, keep as classic BC textures "
+                      "the channel groups the features lose, and pick the profile, by the highest PSNR over all "
+                      "mips within the size of the BC set you would ship (BC@R) and 0.5 dB of it at every mip; "
+                      "never worse than BC@R, which it ships when nothing neural qualifies. A probe training and "
+                      "at most one more (docs/layout.md). neural: every output from the MLP."),
     click.option("--match-bc", "match_bc", is_flag=True,
                  help="With --layout auto: the smallest layout whose every mip reaches BC@R instead."),
     click.option("--classic", "classic", multiple=True, default=(), metavar="SEMANTICS",

@@ -66,6 +66,7 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
         read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
         say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
             f"content hash {j.content_hash[:16]}")
+        from bcfpipe.config import layout_of
         from bcfpipe.layout.material import bc_resolution, uses_layout
 
         if uses_layout(j.options, [sem for sem, _, _ in j.specs]):
@@ -73,7 +74,7 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
             files = {f for sem, f, _ in j.specs if sem in (j.options.classic or ())}
             kept = list(dict.fromkeys(sem for sem, f, _ in j.specs if f in files))  # a packed file goes whole
             held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
-            if j.options.layout == "auto":
+            if layout_of(j.options) == "auto":
                 say(f"    layout auto: against BC@{r}{held}; a probe at the largest profile within its bytes, at most "
                     f"one more training, decided when trained (docs/layout.md)")
             else:

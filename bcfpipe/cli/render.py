@@ -23,6 +23,23 @@ def _stage_file(path: str) -> str:
     return os.path.join(path, roots[0])
 
 
+def _why_nothing_neural(scene: str) -> str:
+    """Why a stage has no material with a bcf render context: a build whose materials all kept BC@R
+    under --layout auto says so in the manifest.json beside it."""
+    from bcfpipe.formats import manifest as mfst
+    from bcfpipe.formats.record import FormatError
+
+    try:
+        built = mfst.read(os.path.dirname(os.path.abspath(scene))).built()
+    except FormatError:  # not a build folder
+        return "no material has a bcf render context (not a bcfpipe build?)"
+    if built and all(m.layout is not None and m.layout.profile is None for m in built):
+        return ("every built material kept its BC textures (--layout auto found nothing neural within BC@R's "
+                "size and 0.5 dB of it at every mip; manifest.json says why); build with --layout neural to "
+                "compare neural frames")
+    return "no material has a bcf render context"
+
+
 @click.command("render", cls=Command)
 @click.argument("scene", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), metavar="PNG",
@@ -70,7 +87,7 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
     sc = load_scene(scene, width, height, camera=camera, zoom=zoom, kinds=kinds)
     neural = sc.neural_materials() if NEURAL in kinds else []
     if compare and not neural:
-        raise InputError(f"{scene}: no material has a bcf render context (not a bcfpipe build?); nothing to compare")
+        raise InputError(f"{scene}: {_why_nothing_neural(scene)}; nothing to compare")
     frames = render_frames(sc, width, height)
     report = {"output": output, "width": width, "height": height, "camera": sc.view.source,
               "triangles": sc.triangles, "neural_materials": neural,

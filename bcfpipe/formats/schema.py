@@ -119,12 +119,13 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Manifest", "bcfpipe_version"): "The bcfpipe release that wrote the file.",
     ("Manifest", "scene"): "The input scene, relative to the build folder.",
     ("Manifest", "root_layer"): "The USD layer to open: the overrides over the untouched scene.",
-    ("Options", "layout"): "--layout when not the default neural: auto.",
+    ("Options", "layout"): "--layout: auto (the default; neural with --target-psnr) or neural. Absent in builds "
+                           "before model format 8, where it meant neural.",
     ("Options", "match_bc"): "--match-bc: with --layout auto, the smallest layout whose every mip reaches BC@R.",
     ("Options", "classic"): "--classic: the semantics (e.g. normal) whose channel groups every material keeps as "
                             "classic BC textures, as BC@R has them; the rest is neural (or chosen by --layout auto).",
-    ("MaterialReport", "layout"): "--layout auto only: what was chosen against BC@R and why (as manifest.json says).",
-    ("Material", "layout"): "--layout auto only: what was chosen for this material and why.",
+    ("MaterialReport", "layout"): "--layout auto (the default) or --classic only: what was chosen against BC@R and why (as manifest.json says).",
+    ("Material", "layout"): "--layout auto (the default) or --classic only: what was chosen for this material and why.",
     ("LayoutChoice", "chosen"): "The layout shipped: 'neural P', 'neural P + classic G, ...' or 'all classic (BC@R)'.",
     ("LayoutChoice", "classic"): "The channel groups shipped as classic BC textures.",
     ("LayoutChoice", "profile"): "The neural part's profile; null when every output is classic.",

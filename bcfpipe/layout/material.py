@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 from typing import Callable
 
-from bcfpipe.config import PROFILES, TrainingOptions
+from bcfpipe.config import PROFILES, TrainingOptions, layout_of
+from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export import writer as E
 from bcfpipe.export.fit import MaterialResult, exported_size
 from bcfpipe.layout.export import export_layout, write_decision
@@ -23,7 +24,8 @@ WORK = ".layout-work"  # inside the output folder while the probe and the chosen
 def uses_layout(options, semantics) -> bool:
     """Whether a material is fitted here rather than trained all neural: ``--layout auto``, or
     ``--classic`` naming one of its ``semantics`` (``options``: TrainingOptions or a job's Options)."""
-    return options.layout == "auto" or bool(set(options.classic or ()) & set(semantics))
+    return layout_of(options) == Layout.AUTO or bool(set(options.classic or ()) & set(semantics))
+
 
 
 def bc_resolution(side: int, profile: str) -> int:

@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
-from bcfpipe.config import PRESETS, PROFILES, QUALITY_PRESETS, resolve_profile
+from bcfpipe.config import PROFILES, QUALITY_PRESETS, preset_for, resolve_profile
 
 __all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_to_target", "anchors_from_bench",
            "GAINS_DB", "MARGIN_DB"]
@@ -91,7 +91,7 @@ def candidates(source_side: int, device: str = "cpu") -> list[Setting]:
     for prof in profiles:
         res = resolve_profile(prof, source_side)[1]
         for pre in presets:
-            p = PRESETS[pre]
+            p = preset_for(pre, res[0], device)
             out.append(Setting(prof, pre, tuple(res), _feature_bytes(res), float(p.total_steps * p.batch)))
     return sorted(out, key=lambda s: (s.feature_bytes, s.cost))
 
