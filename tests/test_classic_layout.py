@@ -106,6 +106,19 @@ def mixed(tmp_path_factory):
     return ts, ref, out, chosen
 
 
+def test_a_probe_skips_ssim_and_flip_but_measures_the_same_errors(tmp_path):
+    """The layout judges its probe by PSNR and per-channel errors: ``image_metrics=False`` leaves
+    out SSIM and FLIP and changes no error (training is deterministic on the CPU)."""
+    ts = _set()
+    _, cfg = make_config(ts, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
+    full, _ = fit_material(ts, tmp_path / "full", cfg, "tiny")
+    probe, _ = fit_material(ts, tmp_path / "probe", cfg, "tiny", image_metrics=False)
+    assert full.metrics.ssim is not None and full.metrics.flip is not None
+    assert probe.metrics.ssim is None and probe.metrics.flip is None
+    assert probe.metrics.psnr_per_mip == full.metrics.psnr_per_mip
+    assert np.array_equal(probe.mse_per_channel, full.mse_per_channel)
+
+
 def test_mixed_material_json_says_where_each_output_comes_from(mixed):
     import jsonschema
 

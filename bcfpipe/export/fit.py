@@ -65,11 +65,12 @@ def exported_size(out_dir: Path) -> int:
 
 
 def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
-                 progress: ProgressFn | None = None,
-                 coverage: np.ndarray | None = None) -> tuple[MaterialResult, TrainedMaterial]:
+                 progress: ProgressFn | None = None, coverage: np.ndarray | None = None,
+                 image_metrics: bool = True) -> tuple[MaterialResult, TrainedMaterial]:
     """Train on ``ts``, export to ``out_dir``, then evaluate the exported files (over every texel,
     and with a ``coverage`` mask also over the covered ones). ``progress`` hears the training's
-    phases, then ``evaluate``."""
+    phases, then ``evaluate``. ``image_metrics=False`` leaves out SSIM and FLIP (seconds at 2048²)
+    for a model that is judged by its PSNR and per-channel errors alone, as the layout's probe."""
     start = time.perf_counter()
     tm = train(ts, cfg, progress, coverage=coverage)
     out = E.export(tm, out_dir)
@@ -86,7 +87,7 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
         from bcfpipe.scan.coverage import mask_mips
 
         masks = mask_mips(coverage, len(ref), cfg.model.wrap)
-    metrics = compute_metrics(ref, dec, ts.channels, masks=masks)
+    metrics = compute_metrics(ref, dec, ts.channels, masks=masks, ssim=image_metrics, flip=image_metrics)
     per_channel = mse_per_channel(ref, dec, ts.channels, masks)
     del dec
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)

@@ -107,6 +107,9 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
 
         masks = mask_mips(coverage, len(ref), wrap)
     e_bc = channel_errors(ts, groups, ref, masks)
+    for g in groups:  # measured: from here on BC@R is its blocks and these errors. An 8192² set's
+        g.decoded = []  # decoded mips and reference chain hold 2.7 GiB each, which training needs
+    del ref
     names = [g.group.name for g in groups]
     bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
                      C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
@@ -124,7 +127,7 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     p0 = next((p for p in profiles if size_of[p] <= bc.size_bytes), profiles[-1])
     log(f"probe: all {ts.num_channels} channels at {p0}")
     probe, _ = fit_material(ts, out / "probe", make_config(ts, replace(options, profile=own[p0]), wrap)[1], p0,
-                            progress=progress, coverage=coverage)
+                            progress=progress, coverage=coverage, image_metrics=False)
     train_s = probe.train_seconds
     e0 = probe.mse_per_channel
     size_of[p0] = probe.size_bytes
@@ -171,7 +174,7 @@ def _train_subset(ts, out, options, wrap, groups, e_bc, classic, profile, name, 
     keep = [c for c in range(ts.num_channels) if not any(c in g.group.channels for g in groups if g.group.name in classic)]
     sub = subset(ts, keep)
     res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=profile), wrap)[1],
-                          name, progress=progress, coverage=coverage)
+                          name, progress=progress, coverage=coverage, image_metrics=False)
     e = e_bc.copy()
     e[:, keep] = res.mse_per_channel
     classic_bytes = sum(g.size_bytes for g in groups if g.group.name in classic)
