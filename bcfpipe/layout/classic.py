@@ -66,7 +66,8 @@ def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap
     from bcfpipe.texset.baselines import encode_texture_set_baseline
 
     textures: list = []
-    decoded, _ = encode_texture_set_baseline(ts, "bc", resolution, ref_mips=ref_mips, textures=textures)
+    decoded, _ = encode_texture_set_baseline(ts, "bc", resolution, ref_mips=ref_mips, textures=textures,
+                                             top_mips=False)
     d = sum(1 for m in ref_mips if max(m.shape[:2]) > resolution)
     for k in range(d):
         decoded[k] = magnify(decoded[d], *ref_mips[k].shape[:2], wrap)
@@ -95,8 +96,13 @@ def magnify(img: np.ndarray, height: int, width: int, wrap: str) -> np.ndarray:
 
     ya, yb, fy = taps(height, h)
     xa, xb, fx = taps(width, w)
-    rows = img[ya] * (1 - fy)[:, None, None] + img[yb] * fy[:, None, None]
-    return (rows[:, xa] * (1 - fx)[None, :, None] + rows[:, xb] * fx[None, :, None]).astype(np.float32)
+    out = np.empty((height, width) + img.shape[2:], np.float32)
+    band = max(1, (1 << 22) // max(1, width * int(np.prod(img.shape[2:]))))  # 16 MiB temporaries, even at 8K
+    for y0 in range(0, height, band):
+        y = slice(y0, y0 + band)
+        rows = img[ya[y]] * (1 - fy[y])[:, None, None] + img[yb[y]] * fy[y][:, None, None]
+        out[y] = rows[:, xa] * (1 - fx)[None, :, None] + rows[:, xb] * fx[None, :, None]
+    return out
 
 
 def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Sequence[np.ndarray],

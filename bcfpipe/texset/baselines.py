@@ -222,7 +222,7 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
                                 ref_mips: Sequence[np.ndarray] | None = None, astc_block: str = "12x12",
                                 astc_preset: str = "-thorough",
                                 textures: list | None = None,
-                                tmp_dir: str | None = None) -> tuple[list[np.ndarray], int]:
+                                tmp_dir: str | None = None, top_mips: bool = True) -> tuple[list[np.ndarray], int]:
     """Compress `ts` with a classic codec; returns (decoded mips in the reference's shapes, bytes).
 
     `codec` 'bc': BC1 for colour and packed scalar textures, BC4 for a lone scalar, BC5 for
@@ -236,6 +236,7 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
     `ref_mips` may pass a precomputed `build_mip_chain(ts.data)`. With ``textures`` (codec 'bc'),
     each shipped texture is appended as (format, channel indices, [(blocks, w, h) per level]) so
     that a renderer can sample the very blocks that were measured (bcfpipe.bench.decode_cost).
+    ``top_mips=False`` leaves those d top mips None, for a caller that magnifies them itself.
     """
     if codec not in CODECS:
         raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
@@ -271,5 +272,7 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
         for k, o in enumerate(out):
             dec_low[k][..., idx] = _from_storage(o, normal[idx])
 
+    if not top_mips:  # the caller magnifies them its own way (bcfpipe.layout.classic, with the addressing)
+        return [None] * d + dec_low, total
     decoded = [_bilinear_up(dec_low[0], *ref[k].shape[:2]) for k in range(d)] + dec_low
     return decoded, total
