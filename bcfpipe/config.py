@@ -308,6 +308,9 @@ class TrainingOptions:
             out.append("--signed is a BC6H choice (BC6H_SF16); BC7 features are unsigned")
         if self.layout not in tuple(Layout):
             out.append(f"unknown layout {self.layout!r}; choose from {', '.join(v.value for v in Layout)}")
+        elif self.match_bc and self.target_psnr is not None:
+            out.append("--match-bc sizes a layout against BC@R; --target-psnr sizes an all-neural material against "
+                       "a PSNR: use one")
         elif self.match_bc and self.layout != Layout.AUTO:
             out.append("--match-bc chooses a layout: use it with --layout auto")
         elif self.layout == Layout.AUTO and self.target_psnr is not None:

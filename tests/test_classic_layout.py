@@ -314,6 +314,7 @@ def test_train_layout_auto_writes_the_chosen_layout_and_why(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["--match-bc", "--layout", "neural"], "--match-bc chooses a layout: use it with --layout auto"),
+    (["--match-bc", "--target-psnr", "30"], "--match-bc sizes a layout against BC@R; --target-psnr sizes"),
     (["--classic", "albedo", "--target-psnr", "30"], "--classic fixes part of the layout"),
     (["--layout", "auto", "--target-psnr", "30"], "use one (--layout neural --target-psnr DB)"),
 ])
