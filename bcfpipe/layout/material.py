@@ -27,7 +27,6 @@ def uses_layout(options, semantics) -> bool:
     return layout_of(options) == Layout.AUTO or bool(set(options.classic or ()) & set(semantics))
 
 
-
 def bc_resolution(side: int, profile: str) -> int:
     """R: the T_0 of the profile asked for (1k -> 1024), or the set's larger ``side`` for auto."""
     return PROFILES[profile][0] if profile in PROFILES else side
