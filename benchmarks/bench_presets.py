@@ -7,7 +7,10 @@ reference mip and over all mips (the DDS features and fp16 decoder through onnxr
 ``fit_material``), the training time and the wall time with export and measurement.
 
   python benchmarks/bench_presets.py --set teapot --profile 1k [--features bc6h] [--kernel auto]
-                                     [--presets draft,fast,standard]
+                                     [--presets draft,fast,standard] [--device cpu] [--keep DIR]
+
+``--device cuda`` trains on a GPU (the presets' CUDA step counts; ``--kernel auto`` is torch there);
+``--keep DIR`` keeps each preset's exported material in DIR/<preset> (for bench_decode_formats.py).
 """
 from __future__ import annotations
 
@@ -30,6 +33,8 @@ def main() -> None:
     ap.add_argument("--kernel", default="auto")
     ap.add_argument("--presets", default="draft,fast,standard")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N")
+    ap.add_argument("--keep", type=Path, default=None, help="keep each exported material in KEEP/<preset>")
     args = ap.parse_args()
 
     from bcfpipe.config import PRESETS, TrainingOptions, _cpu_preset
@@ -38,7 +43,7 @@ def main() -> None:
 
     ts = load_texture_set(specs(args.set))
     print(f"machine: {machine()}; {args.set} {ts.width}x{ts.height}, profile {args.profile}, {args.features}, "
-          f"--kernel {args.kernel}, 1 thread, seed {args.seed}", flush=True)
+          f"--kernel {args.kernel}, --device {args.device}, 1 thread, seed {args.seed}", flush=True)
     header = False
     for spec in args.presets.split(","):
         if ":" in spec:
@@ -47,11 +52,12 @@ def main() -> None:
         else:
             name, preset = spec, PRESETS[spec]
         _, cfg = make_config(ts, TrainingOptions(profile=args.profile, features=args.features, kernel=args.kernel,
-                                                 device="cpu", seed=args.seed))
+                                                 device=args.device, seed=args.seed))
         cfg = cfg.with_(preset=preset, preset_name=name, threads=1)
         with tempfile.TemporaryDirectory(prefix="bcfpipe-presets-") as tmp:
             t = time.perf_counter()
-            res, _ = fit_material(ts, Path(tmp) / "m", cfg, args.profile)
+            out = args.keep / name if args.keep else Path(tmp) / "m"
+            res, _ = fit_material(ts, out, cfg, args.profile)
             wall = time.perf_counter() - t
         m = res.metrics
         if not header:

@@ -165,3 +165,24 @@ def test_normal_z_is_reconstructed(rt, loaded):
     assert (np.abs(x) <= 1).all() and (np.abs(yy) <= 1).all()
     others = np.delete(y, [n, n + 1, n + 2], axis=1)
     assert (others >= 0).all() and (others <= 1).all()
+
+
+@pytest.mark.gl
+def test_decode_cost_times_both_stages(rt, mat):
+    """The decode-cost protocol in the fragment and the compute stage: one row per material, the
+    classic pass built from the material's own semantics, grids past one dispatch refused."""
+    from bcfpipe.bench import decode_cost as D
+
+    desc = G.read_material(mat)
+    classic = D.random_classic(desc)
+    names, fmts = D.upload_classic(rt, classic, desc.wrap)
+    assert "BC5" in fmts  # the material's normal map
+    try:
+        for run, stage in ((D.measure, "fragment"), (D.measure_compute, "compute")):
+            (c,) = run(rt, [desc], names, (48, 32), frames=2, warmup=1)
+            assert (c.stage, c.width, c.height, c.frames) == (stage, 48, 32, 2)
+            assert c.neural_ms > 0 and c.classic_ms > 0 and c.to_json()["stage"] == stage
+        with pytest.raises(ValueError, match="exceeds one dispatch"):
+            D.measure_compute(rt, [desc], names, (1 << 14, 1 << 14), frames=1, warmup=0)
+    finally:
+        rt.delete_textures(names)

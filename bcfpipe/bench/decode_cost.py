@@ -10,6 +10,11 @@ shared machine falls on both alike; each time is the median over the frames.
 On a GPU each draw is timed with a GL timer query (GL_TIME_ELAPSED). On a software renderer
 (Mesa llvmpipe) a timer query misses the rasterizer threads, so each draw is timed as draw +
 glFinish on the CPU clock, and only the ratio means anything.
+
+:func:`measure_compute` times the same two decodes as compute dispatches over a W x H grid
+(glsl/bcf_decode.comp at lod 0 against ``textureLod`` of the classic set), each writing three
+float channels per sample: on parts whose fragment stage is weak (a data-centre GPU) it separates
+the decoder's own cost from the rasterizer's.
 """
 from __future__ import annotations
 
@@ -22,7 +27,8 @@ import numpy as np
 
 from bcfpipe.verify import glsl as G
 
-__all__ = ["DecodeCost", "measure", "upload_classic", "random_classic", "classic_frag", "FORMATS", "SIZES"]
+__all__ = ["DecodeCost", "measure", "measure_compute", "upload_classic", "random_classic", "classic_frag",
+           "classic_comp", "FORMATS", "SIZES"]
 
 GL_COMPRESSED_RGB_S3TC_DXT1_EXT = 0x83F0
 GL_COMPRESSED_RED_RGTC1 = 0x8DBB
@@ -45,6 +51,7 @@ class DecodeCost:
     classic_ms: float
     timer: str  # "GL_TIME_ELAPSED" or "draw+glFinish wall clock"
     software: bool
+    stage: str = "fragment"  # "fragment" (full-screen draw) or "compute" (grid dispatch)
 
     @property
     def ratio(self) -> float:
@@ -71,6 +78,33 @@ void main() {{
 {fetch}
     int last = {4 * n - 1};
     fragColor = vec4(ch[clamp(uView, 0, last)], ch[clamp(uView + 1, 0, last)], ch[clamp(uView + 2, 0, last)], 1.0);
+}}
+"""
+
+
+def classic_comp(n: int) -> str:
+    """The classic pass as a compute dispatch: sample each of ``n`` textures at the grid's texel
+    centres (``textureLod``, as bcf_decode.comp's grid) and write three of their channels."""
+    decl = "\n".join(f"layout(binding = {k}) uniform sampler2D tex{k};" for k in range(n))
+    fetch = "\n".join(f"    t = textureLod(tex{k}, uv, uGridLod); ch[{4 * k}] = t.r; ch[{4 * k + 1}] = t.g; "
+                      f"ch[{4 * k + 2}] = t.b; ch[{4 * k + 3}] = t.a;" for k in range(n))
+    return f"""#version 450 core
+layout(local_size_x = {G.LOCAL_SIZE}) in;
+{decl}
+layout(std430, binding = 2) writeonly buffer ClassicOut {{ float outCh[]; }};
+uniform uint uCount;
+uniform uvec2 uGrid;
+uniform float uGridLod;
+uniform int uView;
+void main() {{
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= uCount) return;
+    vec2 uv = (vec2(float(i % uGrid.x), float(i / uGrid.x)) + 0.5) / vec2(uGrid);
+    float ch[{4 * n}];
+    vec4 t;
+{fetch}
+    int last = {4 * n - 1};
+    for (int k = 0; k < 3; ++k) outCh[i * 3u + uint(k)] = ch[clamp(uView + k, 0, last)];
 }}
 """
 
@@ -175,3 +209,63 @@ def measure(rt: G.GLRuntime, materials: Sequence[G.MaterialDesc], classic: Seque
     classic_ms = statistics.median(times[0])
     timer = "draw+glFinish wall clock" if software else "GL_TIME_ELAPSED"
     return [DecodeCost(w, h, frames, statistics.median(t), classic_ms, timer, software) for t in times[1:]]
+
+
+def _time_dispatch(rt: G.GLRuntime, prog, groups: int, query, wall: bool) -> float:
+    if wall:
+        t0 = time.perf_counter()
+        prog.run(group_x=groups)
+        rt.ctx.finish()
+        return (time.perf_counter() - t0) * 1e3
+    with query:
+        prog.run(group_x=groups)
+    return query.elapsed / 1e6
+
+
+def measure_compute(rt: G.GLRuntime, materials: Sequence[G.MaterialDesc], classic: Sequence[int],
+                    size: tuple[int, int], frames: int = 200, warmup: int = 20) -> list[DecodeCost]:
+    """As :func:`measure`, with each pass a compute dispatch over a ``size`` grid at lod 0 (one
+    invocation per sample, three float channels written per sample by both passes)."""
+    w, h = size
+    count = w * h
+    groups = -(-count // G.LOCAL_SIZE)
+    if groups > G.MAX_GROUPS:
+        raise ValueError(f"a {w}x{h} grid exceeds one dispatch ({G.MAX_GROUPS} groups of {G.LOCAL_SIZE})")
+    software = rt.is_software
+    grid = {"uCount": count, "uGrid": (w, h), "uGridLod": 0.0}
+    plain = rt.ctx.compute_shader(classic_comp(len(classic)))
+    out = rt.ctx.buffer(reserve=count * 3 * 4)
+    dummy = rt.ctx.buffer(reserve=16)
+    query = rt.ctx.query(time=True)
+    passes, loaded = [], []
+    try:
+        G.set_uniforms(plain, dict(grid, uView=0))
+        passes.append((plain, list(classic), None))
+        for m in materials:
+            gm = rt.load(m)
+            loaded.append(gm)
+            prog = rt.compute_program({"BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out,
+                                       "BCF_MAX_OUT": m.c_out})
+            passes.append((prog, gm.textures, (dict(gm.uniforms(), uOutStride=3, uGradQueries=False, **grid), gm)))
+        times: list[list[float]] = [[] for _ in passes]
+        out.bind_to_storage_buffer(2)
+        dummy.bind_to_storage_buffer(1)
+        for i in range(warmup + frames):
+            for k, (prog, tex, neural) in enumerate(passes):
+                if neural is not None:  # the programs are shared between materials of one shape
+                    uniforms, gm = neural
+                    G.set_uniforms(prog, uniforms)
+                    gm.weights.bind_to_storage_buffer(0)
+                rt.bind_textures(tex)
+                t = _time_dispatch(rt, prog, groups, query, software)
+                if i >= warmup:
+                    times[k].append(t)
+    finally:
+        for gm in loaded:
+            rt.unload(gm)
+        plain.release()
+        out.release()
+        dummy.release()
+    classic_ms = statistics.median(times[0])
+    timer = "dispatch+glFinish wall clock" if software else "GL_TIME_ELAPSED"
+    return [DecodeCost(w, h, frames, statistics.median(t), classic_ms, timer, software, "compute") for t in times[1:]]

@@ -36,7 +36,8 @@ TRAINING_OPTIONS = (
                       "smallest finite value) instead of refusing them (exit 2)."),
     click.option("--seed", type=int, default=DEFAULT_SEED, show_default=True,
                  help="Random seed (CPU runs are deterministic)."),
-    click.option("--device", default=DEFAULT_DEVICE, show_default=True, help="auto, cpu or cuda[:N]."),
+    click.option("--device", default=DEFAULT_DEVICE, show_default=True, help="auto, cpu or cuda[:N]. auto trains on CUDA when torch sees a GPU; the CPU presets "
+                      "train faster with --device cpu (the fused kernel) even there (README, CUDA)."),
     click.option("--threads", type=click.IntRange(min=1), default=DEFAULT_THREADS, show_default=True,
                  help="Torch CPU threads per training; 1 trained fastest on a 2-core machine "
                       "(docs/benchmarks.md). Parallelism comes from training materials side by side."),
