@@ -196,6 +196,7 @@ def test_targets_match_the_reference_lookup(wrap):
         mips.append(0.25 * (m[0::2, 0::2] + m[1::2, 0::2] + m[0::2, 1::2] + m[1::2, 1::2]))
     pyr = ReferencePyramid.from_mips(mips)
     centres = CentreTargets(pyr, wrap, min_texels=256)
+    rows = CentreTargets(pyr, wrap, min_texels=256, interleave=True)  # the levels texel by texel
     gen = torch.Generator().manual_seed(3)
     uv = torch.rand((1000, 2), generator=gen) * 3 - 1
     saved = fused_step._BACKEND
@@ -213,6 +214,8 @@ def test_targets_match_the_reference_lookup(wrap):
                         order = torch.argsort(a[0][:, 1] * 1e4 + a[0][:, 0], stable=True)
                         a = a[0][order], a[1][order]
                     assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1]), (backend, s)
+                    c = targets.centre_batch(rows, 500, s, torch.Generator().manual_seed(1))
+                    assert torch.equal(c[0], b[0]) and torch.equal(c[1], b[1]), (backend, s)
     finally:
         fused_step._BACKEND = saved
 

@@ -145,16 +145,20 @@ def test_random_batch():
         random_batch(0, g, "cpu", 1.0)
 
 
+@pytest.mark.parametrize("interleave", [False, True])
 @pytest.mark.parametrize("wrap", ["repeat", "clamp"])
-def test_centre_targets_equal_sample_reference(wrap):
+def test_centre_targets_equal_sample_reference(wrap, interleave):
     """Precomputed texel-centre targets are the bicubic reference at those points, bit for bit,
-    for integer and fractional s and for the last mips (where floor(s) + 1 is clamped)."""
+    for integer and fractional s and for the last mips (where floor(s) + 1 is clamped), with the
+    levels kept plane by plane or texel by texel."""
     from bcfpipe.texset.reference import CentreTargets
 
     rng = np.random.default_rng(5)
     data = rng.uniform(0, 1, (64, 32, 3)).astype(np.float32)
     pyr = ReferencePyramid.from_mips(build_mip_chain(data))
-    ct = CentreTargets(pyr, wrap, min_texels=64)
+    ct = CentreTargets(pyr, wrap, min_texels=64, interleave=interleave)
+    assert [t is not None for t in ct.texels[:4]] == [interleave] * 3 + [False]
+    assert [u is not None for u in ct.up[:4]] == [not interleave] * 3 + [False]
     gen = torch.Generator().manual_seed(0)
     covered = [s for s in (0.0, 0.25, 1.0, 1.5, 2.75, 3.0, 5.9) if ct.covers(s)]
     assert covered == [0.0, 0.25, 1.0, 1.5, 2.75]  # mips of >= 64 texels: 64x32, 32x16, 16x8

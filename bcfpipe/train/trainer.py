@@ -493,7 +493,8 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
 
         masks = mask_mips(coverage, ref.num_levels, mc.wrap)
     centres = (CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch, covered=masks,
-                             bicubic=_centre_bicubic(cfg, device)) if preset.centre_targets else None)
+                             bicubic=_centre_bicubic(cfg, device), interleave=_native_library(cfg, device) is not None)
+               if preset.centre_targets else None)
     mask_levels = [torch.as_tensor(m, device=device) for m in masks] if masks is not None else None
     run = _Run(cfg, device, gen, ref, biases, mlp, clock, next_s, centres, mask_levels, progress, pace,
                Pacer(pace.seconds, pace.clock))

@@ -119,6 +119,8 @@ def load() -> ctypes.CDLL:
         lib.bcf_bicubic.restype = None
         lib.bcf_centres.argtypes = [vp, vp, i32, i32, i32, vp, i64, f32, vp, vp]
         lib.bcf_centres.restype = None
+        lib.bcf_centre_rows.argtypes = [vp, i32, i32, i32, vp, i64, f32, vp, vp]
+        lib.bcf_centre_rows.restype = None
         f64 = ctypes.c_double
         lib.bcf_adam.argtypes = [vp, vp, i32, i64, vp, vp, i64, f64, f64, f64, f64, i64, f32, f32]
         lib.bcf_adam.restype = None
@@ -211,6 +213,17 @@ def centres(mip: np.ndarray, up: np.ndarray | None, ids: np.ndarray, t: float) -
     uv, target = np.empty((ids.size, 2), np.float32), np.empty((ids.size, c), np.float32)
     lib.bcf_centres(np.ascontiguousarray(mip).ctypes.data, None if up is None else np.ascontiguousarray(up).ctypes.data,
                     c, h, w, ids.ctypes.data, ids.size, t if up is not None else 0.0, uv.ctypes.data, target.ctypes.data)
+    return uv, target
+
+
+def centre_rows(rows: np.ndarray, h: int, w: int, ids: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`centres` from a level kept texel by texel, ``rows`` (h w, 2 c) = [mip | up]."""
+    lib = load()
+    c = rows.shape[1] // 2
+    ids = np.ascontiguousarray(ids, np.int64)
+    uv, target = np.empty((ids.size, 2), np.float32), np.empty((ids.size, c), np.float32)
+    lib.bcf_centre_rows(np.ascontiguousarray(rows).ctypes.data, c, h, w, ids.ctypes.data, ids.size, max(t, 0.0),
+                        uv.ctypes.data, target.ctypes.data)
     return uv, target
 
 

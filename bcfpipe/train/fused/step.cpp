@@ -130,22 +130,25 @@ struct Taps {
     vf deriv[8][4][ND];
 };
 
-// Decode tap t of slot j into val[c], keeping its derivatives (kernel.py _texel).
+// Decode tap t of slot j into val[c], keeping its derivatives (kernel.py _texel). The format F,
+// quantization-awareness q and signedness sgn are compile-time (one instantiation per case that
+// a training runs: no per-tap branches on them).
+template <int F, bool q, bool sgn>
 inline void texel(const Args& A, int j, int t, Taps& T, vf* val) {
     const int64_t* s = A.slots + 6 * j;
     const int64_t po = s[2], xo = s[3], mo = s[4], plane = s[5];
     const int C = A.C;
-    const bool q = A.quantized, sgn = A.sgn;
     const vi blk = T.blk[j][t], pos = T.pos[j][t];
     vf* d = T.deriv[j][t];
-    if (A.fmt == FREE_BC7) {
+    (void)mo, (void)plane, (void)C;
+    if constexpr (F == FREE_BC7) {
         for (int c = 0; c < C; ++c) {
             vf v = gather(A.P + po + c * plane, blk);
             vf vc = vclamp(v, A.plo, A.phi);
             val[c] = vc / 255.0f;
             d[c] = sel(vc == v, S(1.0f / 255.0f), S(0.0f));
         }
-    } else if (A.fmt == FREE_BC6H) {
+    } else if constexpr (F == FREE_BC6H) {
         const float scale = sgn ? 31.0f / 32.0f : 31.0f / 64.0f;
         for (int c = 0; c < C; ++c) {
             vf v = gather(A.P + po + c * plane, blk);
@@ -160,7 +163,7 @@ inline void texel(const Args& A, int j, int t, Taps& T, vf* val) {
             val[c] = e2 * (y / 1024.0f - sg * h);
             d[c] = e2 / 1024.0f * scale * du * inside;
         }
-    } else if (A.fmt == BLOCK_BC6H) {
+    } else if constexpr (F == BLOCK_BC6H) {
         const vi sub = (gatheri(A.M + (mo >> 4), blk) >> pos) & 1;
         vf w, dw;
         weight3(gather(A.X + xo, blk * 16 + pos), q, w, dw);
@@ -200,7 +203,7 @@ inline void texel(const Args& A, int j, int t, Taps& T, vf* val) {
                 d[4 + 4 * k + c] = one_if(vc == v);
                 e[k][c] = vc;
             }
-        if (q) {
+        if constexpr (q) {
             q7(e[0]);
             q7(e[1]);
         }
@@ -218,9 +221,11 @@ inline void texel(const Args& A, int j, int t, Taps& T, vf* val) {
 }
 
 // The features feats[k] of the lane group whose samples are idx (kernel.py _features).
+template <int F, bool q, bool sgn>
 void features(const Args& A, vi idx, Taps& T, vf* feats) {
     const int C = A.C;
-    const bool repeat = A.repeat, free_ = A.fmt == FREE_BC6H || A.fmt == FREE_BC7;
+    const bool repeat = A.repeat;
+    constexpr bool free_ = F == FREE_BC6H || F == FREE_BC7;
     const vf u0 = gather(A.uv, idx * 2), v0 = gather(A.uv, idx * 2 + 1);
     vf val[4][4], lvl[2][4];
     for (int i = 0; i < 4; ++i) {
@@ -245,14 +250,14 @@ void features(const Args& A, vi idx, Taps& T, vf* feats) {
             vi ya = address(toi(y0), r, repeat), yb = address(toi(y0) + 1, r, repeat);
             for (int t = 0; t < 4; ++t) {
                 vi ty = t < 2 ? ya : yb, tx = (t & 1) ? xb : xa;
-                if (free_) {
+                if constexpr (free_) {
                     T.blk[j][t] = ty * r + tx;
                     T.pos[j][t] = Si(0);
                 } else {
                     T.blk[j][t] = (ty >> 2) * (r >> 2) + (tx >> 2);
                     T.pos[j][t] = (ty & 3) * 4 + (tx & 3);
                 }
-                texel(A, j, t, T, val[t]);
+                texel<F, q, sgn>(A, j, t, T, val[t]);
             }
             const vf fx = T.fx[j], fy = T.fy[j];
             for (int c = 0; c < C; ++c) {
@@ -272,6 +277,7 @@ void features(const Args& A, vi idx, Taps& T, vf* feats) {
 
 // Add the gradient g[c] of tap t of slot j into the chunk's rows, lane by lane in order
 // (kernel.py _texel_backward); lanes at or past `live` are padding.
+template <int F, bool sgn>
 inline void texel_backward(const Args& A, int j, int t, const Taps& T, const vf* g, int live) {
     const int64_t* s = A.slots + 6 * j;
     const int64_t po = s[2], xo = s[3], plane = s[5];
@@ -280,13 +286,14 @@ inline void texel_backward(const Args& A, int j, int t, const Taps& T, const vf*
     const vf* d = T.deriv[j][t];
     float* gP = A.gP + po;
     float* gX = A.gX + xo;
-    if (A.fmt == FREE_BC7 || A.fmt == FREE_BC6H) {
+    (void)plane, (void)C;
+    if constexpr (F == FREE_BC7 || F == FREE_BC6H) {
         vf add[4];
         for (int c = 0; c < C; ++c) add[c] = g[c] * d[c];
         for (int l = 0; l < live; ++l)
             for (int c = 0; c < C; ++c) gP[c * plane + blk[l]] += add[c][l];
-    } else if (A.fmt == BLOCK_BC6H) {
-        const float k = float((A.sgn ? 31.0 / 32.0 : 31.0 / 64.0) * std::ldexp(1.0, -16));
+    } else if constexpr (F == BLOCK_BC6H) {
+        const float k = float((sgn ? 31.0 / 32.0 : 31.0 / 64.0) * std::ldexp(1.0, -16));
         const vf w = d[12];
         vf ga[3], gb[3], acc = S(0.0f);
         for (int c = 0; c < 3; ++c) {
@@ -327,14 +334,10 @@ inline void texel_backward(const Args& A, int j, int t, const Taps& T, const vf*
     }
 }
 
-}  // namespace
-
-extern "C" {
-
 // Samples [a, b): forward, loss and backward; gradients added into the chunk's rows; returns the
 // sum of the (weighted) squared errors.
-double bcf_step(const Args* args) {
-    const Args& A = *args;
+template <int F, bool q, bool sgn>
+double step(const Args& A) {
     const int C = A.C, NI = A.n_in, H = A.hidden, NO = A.n_out;
     std::vector<vf> buf(size_t(NI) * 2 + size_t(H) * 3 + size_t(NO) + size_t(H) * NI + size_t(NO) * H + H + NO, S(0.0f));
     vf* p = buf.data();
@@ -346,7 +349,7 @@ double bcf_step(const Args* args) {
     for (int64_t n0 = A.a; n0 < A.b; n0 += W) {
         const int live = int(std::min<int64_t>(W, A.b - n0));
         const vi idx = lanes(n0, live);
-        features(A, idx, T, feats);
+        features<F, q, sgn>(A, idx, T, feats);
         for (int h = 0; h < H; ++h) {
             const float* wr = A.w1 + size_t(h) * NI;
             vf acc = S(0.0f);
@@ -403,7 +406,7 @@ double bcf_step(const Args* args) {
                 for (int t = 0; t < 4; ++t) {
                     const vf wy = t >= 2 ? fy : 1.0f - fy, wx = (t & 1) ? fx : 1.0f - fx;
                     for (int c = 0; c < C; ++c) g[c] = gl[c] * wy * wx;
-                    texel_backward(A, j, t, T, g, live);
+                    texel_backward<F, sgn>(A, j, t, T, g, live);
                 }
             }
         }
@@ -416,16 +419,48 @@ double bcf_step(const Args* args) {
 }
 
 // The features (b - a, n_in) of samples [a, b) into feats_out (tests against the torch path).
-void bcf_features(const Args* args) {
-    const Args& A = *args;
+template <int F, bool q, bool sgn>
+void features_out(const Args& A) {
     Taps T;
     vf feats[16];
     for (int64_t n0 = A.a; n0 < A.b; n0 += W) {
         const int live = int(std::min<int64_t>(W, A.b - n0));
-        features(A, lanes(n0, live), T, feats);
+        features<F, q, sgn>(A, lanes(n0, live), T, feats);
         for (int l = 0; l < live; ++l)
             for (int k = 0; k < 4 * A.C; ++k) A.feats_out[(n0 - A.a + l) * 4 * A.C + k] = feats[k][l];
     }
 }
+
+// fn<F, q, sgn>(A) for the args' case; the flags a format does not read are fixed, so that it
+// is compiled once (BC6H blocks 4 ways, BC7 blocks 2, free BC6H features 2, free BC7 features 1).
+template <template <int, bool, bool> class Fn>
+auto dispatch(const Args& A) {
+    const bool q = A.quantized != 0, sg = A.sgn != 0;
+    switch (A.fmt) {
+        case FREE_BC7: return Fn<FREE_BC7, false, false>::run(A);
+        case FREE_BC6H: return sg ? Fn<FREE_BC6H, false, true>::run(A) : Fn<FREE_BC6H, false, false>::run(A);
+        case BLOCK_BC7: return q ? Fn<BLOCK_BC7, true, false>::run(A) : Fn<BLOCK_BC7, false, false>::run(A);
+        default:
+            if (q) return sg ? Fn<BLOCK_BC6H, true, true>::run(A) : Fn<BLOCK_BC6H, true, false>::run(A);
+            return sg ? Fn<BLOCK_BC6H, false, true>::run(A) : Fn<BLOCK_BC6H, false, false>::run(A);
+    }
+}
+
+template <int F, bool q, bool sgn>
+struct StepFn {
+    static double run(const Args& A) { return step<F, q, sgn>(A); }
+};
+template <int F, bool q, bool sgn>
+struct FeaturesFn {
+    static int run(const Args& A) { features_out<F, q, sgn>(A); return 0; }
+};
+
+}  // namespace
+
+extern "C" {
+
+double bcf_step(const Args* args) { return dispatch<StepFn>(*args); }
+
+void bcf_features(const Args* args) { dispatch<FeaturesFn>(*args); }
 
 }  // extern "C"

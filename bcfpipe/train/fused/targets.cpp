@@ -77,4 +77,23 @@ void bcf_centres(const float* mip, const float* up, int c, int h, int w, const i
     }
 }
 
+// The same from a level kept texel by texel (CentreTargets.texels): rows (h w, 2 c) = [mip | up].
+void bcf_centre_rows(const float* rows, int c, int h, int w, const int64_t* ids, int64_t n, float t, float* uv,
+                     float* target) {
+    for (int64_t k = 0; k < n; ++k) {
+        const int64_t id = ids[k];
+        const float* r = rows + id * 2 * c;
+        uv[2 * k] = (float(id % w) + 0.5f) / float(w);
+        uv[2 * k + 1] = (float(id / w) + 0.5f) / float(h);
+        for (int ch = 0; ch < c; ++ch) {
+            float a = r[ch];
+            if (t > 0.0f) {
+                float b = r[c + ch];
+                a = t < 0.5f ? std::fma(t, b - a, a) : std::fma(-(b - a), 1.0f - t, b);  // ATen's vectorised lerp
+            }
+            target[k * c + ch] = a;
+        }
+    }
+}
+
 }  // extern "C"

@@ -60,7 +60,11 @@ def centre_batch(centres: CentreTargets, n: int, s: float, gen: torch.Generator 
     from bcfpipe.train.fused import native
 
     l0, t, ids = centres.draw(n, s, gen)
-    up = centres.up[l0]
+    up, rows = centres.up[l0], centres.texels[l0]
     ids = np.sort(ids.numpy())
-    uv, target = native.centres(centres.pyr.mips[l0].numpy(), None if t <= 0.0 else up.numpy(), ids, float(t))
+    if rows is not None:
+        _, h, w = centres.pyr.mips[l0].shape
+        uv, target = native.centre_rows(rows.numpy(), h, w, ids, float(t))
+    else:
+        uv, target = native.centres(centres.pyr.mips[l0].numpy(), None if t <= 0.0 else up.numpy(), ids, float(t))
     return torch.from_numpy(uv), torch.from_numpy(target)
