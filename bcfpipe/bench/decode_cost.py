@@ -149,6 +149,28 @@ def random_classic(m: G.MaterialDesc) -> list[tuple[str, list, list]]:
     return out
 
 
+def _net(m: G.MaterialDesc) -> dict[str, int]:
+    """The #defines that compile the decoder for ``m``'s network shape."""
+    return {"BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out, "BCF_MAX_OUT": m.c_out}
+
+
+def _medians(rt: G.GLRuntime, passes: Sequence[tuple], frames: int, warmup: int, timed) -> list[float]:
+    """Each pass's median time (ms) over ``frames`` after ``warmup``, the passes interleaved per
+    frame. A pass is (program, textures, uniforms, weight buffer), the last two None for the classic
+    one; ``timed(k)`` runs pass k once and returns its time."""
+    times: list[list[float]] = [[] for _ in passes]
+    for i in range(warmup + frames):
+        for k, (prog, tex, uniforms, weights) in enumerate(passes):
+            if uniforms is not None:  # the programs are shared between materials of one shape
+                G.set_uniforms(prog, uniforms)
+                weights.bind_to_storage_buffer(0)
+            rt.bind_textures(tex)
+            t = timed(k)
+            if i >= warmup:
+                times[k].append(t)
+    return [statistics.median(t) for t in times]
+
+
 def _time_draw(rt: G.GLRuntime, vao, query, wall: bool) -> float:
     if wall:
         t0 = time.perf_counter()
@@ -173,42 +195,28 @@ def measure(rt: G.GLRuntime, materials: Sequence[G.MaterialDesc], classic: Seque
     query = rt.ctx.query(time=True)
     passes, loaded, vaos = [], [], []
     try:
-        cvao = rt.ctx.vertex_array(plain, [])
-        vaos.append(cvao)
+        vaos.append(rt.ctx.vertex_array(plain, []))
         G.set_uniforms(plain, {"uView": 0, "uUvTransform": (w / materials[0].ref_size[0], h / materials[0].ref_size[1],
                                                              0.0, 0.0)})
-        passes.append((cvao, list(classic), None))
+        passes.append((plain, list(classic), None, None))
         for m in materials:
             gm = rt.load(m)
             loaded.append(gm)
-            prog = rt.render_program({"BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out,
-                                      "BCF_MAX_OUT": m.c_out})
-            vao = rt.ctx.vertex_array(prog, [])
-            vaos.append(vao)
+            prog = rt.render_program(_net(m))
+            vaos.append(rt.ctx.vertex_array(prog, []))
             uvt = (w / m.ref_size[0], h / m.ref_size[1], 0.0, 0.0)  # ~1 reference texel per pixel
-            passes.append((vao, gm.textures, (prog, dict(gm.uniforms(), uLodMode=0, uLod=0.0, uView=0,
-                                                         uUvTransform=uvt), gm)))
-        times: list[list[float]] = [[] for _ in passes]
+            passes.append((prog, gm.textures, dict(gm.uniforms(), uLodMode=0, uLod=0.0, uView=0, uUvTransform=uvt),
+                           gm.weights))
         fbo.use()
-        for i in range(warmup + frames):
-            for k, (vao, tex, neural) in enumerate(passes):
-                if neural is not None:  # the programs are shared between materials of one shape
-                    prog, uniforms, gm = neural
-                    G.set_uniforms(prog, uniforms)
-                    gm.weights.bind_to_storage_buffer(0)
-                rt.bind_textures(tex)
-                t = _time_draw(rt, vao, query, software)
-                if i >= warmup:
-                    times[k].append(t)
+        ms = _medians(rt, passes, frames, warmup, lambda k: _time_draw(rt, vaos[k], query, software))
     finally:
         for vao in vaos:
             vao.release()
         for gm in loaded:
             rt.unload(gm)
         plain.release()
-    classic_ms = statistics.median(times[0])
     timer = "draw+glFinish wall clock" if software else "GL_TIME_ELAPSED"
-    return [DecodeCost(w, h, frames, statistics.median(t), classic_ms, timer, software) for t in times[1:]]
+    return [DecodeCost(w, h, frames, t, ms[0], timer, software) for t in ms[1:]]
 
 
 def _time_dispatch(rt: G.GLRuntime, prog, groups: int, query, wall: bool) -> float:
@@ -240,32 +248,20 @@ def measure_compute(rt: G.GLRuntime, materials: Sequence[G.MaterialDesc], classi
     passes, loaded = [], []
     try:
         G.set_uniforms(plain, dict(grid, uView=0))
-        passes.append((plain, list(classic), None))
+        passes.append((plain, list(classic), None, None))
         for m in materials:
             gm = rt.load(m)
             loaded.append(gm)
-            prog = rt.compute_program({"BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out,
-                                       "BCF_MAX_OUT": m.c_out})
-            passes.append((prog, gm.textures, (dict(gm.uniforms(), uOutStride=3, uGradQueries=False, **grid), gm)))
-        times: list[list[float]] = [[] for _ in passes]
+            passes.append((rt.compute_program(_net(m)), gm.textures,
+                           dict(gm.uniforms(), uOutStride=3, uGradQueries=False, **grid), gm.weights))
         out.bind_to_storage_buffer(2)
         dummy.bind_to_storage_buffer(1)
-        for i in range(warmup + frames):
-            for k, (prog, tex, neural) in enumerate(passes):
-                if neural is not None:  # the programs are shared between materials of one shape
-                    uniforms, gm = neural
-                    G.set_uniforms(prog, uniforms)
-                    gm.weights.bind_to_storage_buffer(0)
-                rt.bind_textures(tex)
-                t = _time_dispatch(rt, prog, groups, query, software)
-                if i >= warmup:
-                    times[k].append(t)
+        ms = _medians(rt, passes, frames, warmup, lambda k: _time_dispatch(rt, passes[k][0], groups, query, software))
     finally:
         for gm in loaded:
             rt.unload(gm)
         plain.release()
         out.release()
         dummy.release()
-    classic_ms = statistics.median(times[0])
     timer = "dispatch+glFinish wall clock" if software else "GL_TIME_ELAPSED"
-    return [DecodeCost(w, h, frames, statistics.median(t), classic_ms, timer, software, "compute") for t in times[1:]]
+    return [DecodeCost(w, h, frames, t, ms[0], timer, software, "compute") for t in ms[1:]]
