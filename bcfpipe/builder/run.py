@@ -290,9 +290,11 @@ def _build_locked(bplan: BuildPlan, out_path: Path, out_given: Path, staging: Pa
                                          progress=progress, cache_root=store.root if store else None)
             results.update({k: replace(r, attempts=attempts.get(k, 1)) for k, r in done.items()})
         else:
+            from bcfpipe.cache.blocks import blocks_in
             from bcfpipe.train.fused.common import kernels_in
 
-            with kernels_in(store.root if store else None):  # compiled kernels in the build's cache
+            # compiled kernels and BC@R's blocks in the build's cache
+            with kernels_in(store.root if store else None), blocks_in(store.base if store else None):
                 results.update(execute(todo, staging / MATERIALS_DIR, workers=jobs, executor=executor,
                                        progress=progress, threads=threads, cache_root=store.root if store else None))
         (staging / _PID).unlink()

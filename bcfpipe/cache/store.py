@@ -101,9 +101,11 @@ class Cache:
                 (self.base / d).mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise CacheError(f"cache folder {self.root}: {e.strerror or e}") from None
+        from bcfpipe.cache.blocks import BlocksStore
         from bcfpipe.cache.facts import FactsStore
 
         self.facts = FactsStore(self.base)
+        self.blocks = BlocksStore(self.base)
 
     def folder(self, key: str) -> Path:
         if not key or not all(c in "0123456789abcdef" for c in key):
@@ -218,12 +220,14 @@ class Cache:
         entries = list(self.entries())
         return {"root": str(self.root), "layout": LAYOUT, "entries": len(entries),
                 "size_bytes": sum(e.size_bytes for e in entries),
-                "leftover_bytes": folder_bytes(self.base / "tmp"), "texel_facts": self.facts.count()}
+                "leftover_bytes": folder_bytes(self.base / "tmp"), "texel_facts": self.facts.count(),
+                "bc_blocks": len(self.blocks.files()), "bc_blocks_bytes": folder_bytes(self.blocks.dir)}
 
     def prune(self, max_size: int | None = None, older_than: float | None = None,
               now: float | None = None) -> list[EntryInfo]:
         """Delete entries unused for ``older_than`` seconds, then the least recently used until the
-        cache holds at most ``max_size`` bytes; also clears leftovers of killed writers."""
+        cache holds at most ``max_size`` bytes; also clears leftovers of killed writers, and BC@R's
+        blocks unused for ``older_than`` (bcfpipe.cache.blocks; ``max_size`` counts the entries)."""
         now = time.time() if now is None else now
         removed = []
         entries = sorted(self.entries(), key=lambda e: e.last_used)
@@ -242,11 +246,13 @@ class Cache:
         for e in removed:
             with self.lock(e.key):
                 self._discard(e.folder)
+        if older_than is not None:
+            self.blocks.prune(older_than, now)
         self._clear_leftovers(min_age=3600.0, now=now)
         return removed
 
     def clear(self) -> int:
-        """Delete every entry (and the texel facts); returns how many entries."""
+        """Delete every entry (and the texel facts and BC@R's blocks); returns how many entries."""
         n = 0
         for e in list(self.entries()):
             with self.lock(e.key):
@@ -254,6 +260,7 @@ class Cache:
             n += 1
         self._clear_leftovers(min_age=0.0)
         shutil.rmtree(self.facts.dir, ignore_errors=True)
+        shutil.rmtree(self.blocks.dir, ignore_errors=True)
         return n
 
     def _clear_leftovers(self, min_age: float, now: float | None = None) -> None:

@@ -328,7 +328,8 @@ def nothing_built(manifest) -> str | None:
               help="Train on every texel, not only on those the bound meshes' uvs cover (the default; "
                    "see docs/build.md).")
 @click.option("--cache", "cache_dir", type=click.Path(path_type=Path, file_okay=False),
-              help="Cache of trained materials [default: $BCFPIPE_CACHE, else the user cache folder].")
+              help="Cache of trained materials and of BC@R's encoded blocks [default: $BCFPIPE_CACHE, else the user "
+                   "cache folder].")
 @click.option("--no-cache", is_flag=True, help="Neither read nor write the cache: train every texture set.")
 @click.option("--depfile", type=click.Path(path_type=Path, dir_okay=False),
               help="Write the files the result depends on (every composed layer, every texture) as a "

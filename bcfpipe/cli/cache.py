@@ -70,7 +70,9 @@ def info(cache_dir: Path | None, as_json: bool) -> None:
         click.echo(json.dumps(d, indent=2))
         return
     click.echo(f"cache: {d['root']}\nentries: {d['entries']}\nsize: {_fmt_size(d['size_bytes'])}\n"
-               f"texel facts: {d['texel_facts']} source file(s) (a rebuild decodes only textures whose bytes changed)")
+               f"texel facts: {d['texel_facts']} source file(s) (a rebuild decodes only textures whose bytes changed)\n"
+               f"BC@R blocks: {d['bc_blocks']} texture(s), {_fmt_size(d['bc_blocks_bytes'])} (a rebuild with other "
+               f"options does not encode BC@R again)")
     if d["leftover_bytes"]:
         click.echo(f"leftovers of interrupted writes: {_fmt_size(d['leftover_bytes'])} (prune removes them)")
 

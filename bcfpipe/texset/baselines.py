@@ -59,22 +59,40 @@ def _check_mips(mips: Sequence[np.ndarray], channels: int, what: str) -> None:
             raise ValueError(f"{what}: mip {k} has shape {np.shape(m)}, expected (H, W, {channels})")
 
 
-def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, channels: int,
+def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cls, tag: str, channels: int,
                         block_bytes: int, blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """Encode and decode each mip; with ``blocks`` also append each level's (block bytes as an
-    (n, block_bytes) uint8 array, width, height), ready for a GPU upload."""
+    (n, block_bytes) uint8 array, width, height), ready for a GPU upload. Inside a build with a
+    cache (bcfpipe.cache.blocks), blocks already encoded from the same texels by the same encoder
+    (``tag`` names it and its settings) are read back instead of encoded again."""
     import quicktex
+    import xxhash
 
+    from bcfpipe.cache.blocks import store as blocks_store
+
+    pixels = [_pad4(_to_u8_rgba(np.asarray(m))) for m in mips]
+    cache, key, levels = blocks_store(), "", None
+    if cache is not None:
+        h = xxhash.xxh3_128(f"{tag}|quicktex {quicktex.__version__}|{block_bytes}".encode())
+        for px in pixels:
+            h.update(repr(px.shape).encode())
+            h.update(px.tobytes())
+        key = h.hexdigest()
+        levels = cache.get(key, len(pixels))
+    if levels is None:
+        levels = [np.frombuffer(encoder.encode(quicktex.RawTexture.frombytes(px.tobytes(), px.shape[1], px.shape[0]))
+                                .tobytes(), np.uint8).reshape(-1, block_bytes).copy() for px in pixels]
+        if cache is not None:
+            cache.put(key, levels)
     decoded, size = [], 0
-    for m in mips:
+    for m, px, b in zip(mips, pixels, levels):
         h, w = m.shape[:2]
-        px = _pad4(_to_u8_rgba(np.asarray(m)))
         ph, pw = px.shape[:2]
-        enc = encoder.encode(quicktex.RawTexture.frombytes(px.tobytes(), pw, ph))
-        size += enc.width_blocks * enc.height_blocks * block_bytes
+        size += b.nbytes
         if blocks is not None:
-            blocks.append((np.frombuffer(enc.tobytes(), np.uint8).reshape(-1, block_bytes).copy(), w, h))
-        out = np.frombuffer(decoder.decode(enc).tobytes(), np.uint8).reshape(ph, pw, 4)
+            blocks.append((b, w, h))
+        out = np.frombuffer(decoder.decode(texture_cls.from_bytes(b.tobytes(), pw, ph)).tobytes(),
+                            np.uint8).reshape(ph, pw, 4)
         decoded.append(out[:h, :w, :channels].astype(np.float32) / 255.0)
     return decoded, size
 
@@ -82,26 +100,28 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, channels: 
 def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL,
              blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC1-encode and decode every (H, W, 3) mip; returns (decoded mips, bytes)."""
-    from quicktex.s3tc.bc1 import BC1Decoder, BC1Encoder
+    from quicktex.s3tc.bc1 import BC1Decoder, BC1Encoder, BC1Texture
 
     _check_mips(mips_rgb, 3, "bc1")
-    return _quicktex_roundtrip(mips_rgb, BC1Encoder(level), BC1Decoder(), 3, 8, blocks)
+    return _quicktex_roundtrip(mips_rgb, BC1Encoder(level), BC1Decoder(), BC1Texture, f"bc1 level {level}", 3, 8,
+                               blocks)
 
 
 def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC5-encode and decode every (H, W, 2) mip of [0, 1] data; returns (decoded mips, bytes)."""
-    from quicktex.s3tc.bc5 import BC5Decoder, BC5Encoder
+    from quicktex.s3tc.bc5 import BC5Decoder, BC5Encoder, BC5Texture
 
     _check_mips(mips_xy, 2, "bc5")
-    return _quicktex_roundtrip(mips_xy, BC5Encoder(0, 1), BC5Decoder(0, 1), 2, 16, blocks)
+    return _quicktex_roundtrip(mips_xy, BC5Encoder(0, 1), BC5Decoder(0, 1), BC5Texture, "bc5 channels 0 1", 2, 16,
+                               blocks)
 
 
 def bc4_mips(mips_x: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC4-encode and decode every (H, W, 1) mip of [0, 1] data; returns (decoded mips, bytes)."""
-    from quicktex.s3tc.bc4 import BC4Decoder, BC4Encoder
+    from quicktex.s3tc.bc4 import BC4Decoder, BC4Encoder, BC4Texture
 
     _check_mips(mips_x, 1, "bc4")
-    return _quicktex_roundtrip(mips_x, BC4Encoder(0), BC4Decoder(0), 1, 8, blocks)
+    return _quicktex_roundtrip(mips_x, BC4Encoder(0), BC4Decoder(0), BC4Texture, "bc4 channel 0", 1, 8, blocks)
 
 
 def astcenc_path() -> str | None:
