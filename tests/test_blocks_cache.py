@@ -1,10 +1,10 @@
-"""BC@R's blocks kept in a build's cache (bcfpipe.cache.blocks): read back only for the same texels
+"""BC@R's blocks kept in a build's cache (bcfpipe.texset.blocks): read back only for the same texels
 and encoder, never trusted when damaged, nothing written outside a build's cache."""
 from __future__ import annotations
 
 import numpy as np
 
-from bcfpipe.cache.blocks import BlocksStore, blocks_in
+from bcfpipe.texset.blocks import BlocksStore, blocks_in
 from bcfpipe.cache.store import Cache
 from bcfpipe.texset.baselines import bc1_mips, bc4_mips
 from bcfpipe.texset.texture_set import build_mip_chain
@@ -56,3 +56,20 @@ def test_prune_removes_blocks_unused_that_long(tmp_path):
     cache.prune(older_than=10.0, now=f.stat().st_mtime + 20.0)
     assert not f.exists()
     assert BlocksStore(tmp_path / "none").files() == []
+
+
+def test_a_build_without_a_cache_keeps_no_blocks(tmp_path, monkeypatch):
+    """`--no-cache` neither reads nor writes BC@R's blocks (the default layout measures BC@R)."""
+    from pathlib import Path
+
+    from click.testing import CliRunner
+
+    from bcfpipe.cli import main
+
+    root = tmp_path / "cache"
+    monkeypatch.setenv("BCFPIPE_CACHE", str(root))
+    sample = Path(__file__).resolve().parents[1] / "samples" / "sample_scene.usda"
+    r = CliRunner().invoke(main, ["build", str(sample), "-o", str(tmp_path / "out"), "--quality", "smoke",
+                                  "--jobs", "1", "--threads", "1", "--no-cache"])
+    assert r.exit_code == 0, r.output
+    assert not list(root.rglob("*.npz")) and not (root / "v1" / "bc-blocks").exists()

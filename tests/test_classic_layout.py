@@ -3,6 +3,7 @@ material.json alone (OpenImageIO for every DDS, onnxruntime for the decoder)."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -368,6 +369,9 @@ def test_build_layout_auto_records_each_choice_and_verifies(tmp_path):
             assert m.outputs.weights_index is None and m.sizes.classic_bytes > 0
             assert m.path not in (out / "overrides.usda").read_text()
     assert verify(out, glsl=False).exit_code == 0
+    from bcfpipe.cache.store import Cache  # BC@R's blocks were kept in the build's cache
+
+    assert Cache(os.environ["BCFPIPE_CACHE"]).blocks.files()
     if all(m.layout.profile is None for m in built):
         r = CliRunner().invoke(main, ["render", str(out), "-o", str(tmp_path / "c.png"), "--compare"])
         assert r.exit_code == 2 and "every built material kept its BC textures" in r.output, r.output

@@ -290,7 +290,7 @@ def _build_locked(bplan: BuildPlan, out_path: Path, out_given: Path, staging: Pa
                                          progress=progress, cache_root=store.root if store else None)
             results.update({k: replace(r, attempts=attempts.get(k, 1)) for k, r in done.items()})
         else:
-            from bcfpipe.cache.blocks import blocks_in
+            from bcfpipe.texset.blocks import blocks_in
             from bcfpipe.train.fused.common import kernels_in
 
             # compiled kernels and BC@R's blocks in the build's cache

@@ -83,7 +83,7 @@ def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: Trai
     work = store.base / "tmp" / f"shard-{i}-of-{n}.{uuid.uuid4().hex[:8]}"
     try:
         work.mkdir(parents=True)
-        from bcfpipe.cache.blocks import blocks_in
+        from bcfpipe.texset.blocks import blocks_in
         from bcfpipe.train.fused.common import kernels_in
 
         with kernels_in(store.root), blocks_in(store.base):  # compiled kernels and BC@R's blocks in its cache

@@ -101,7 +101,7 @@ class Cache:
                 (self.base / d).mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise CacheError(f"cache folder {self.root}: {e.strerror or e}") from None
-        from bcfpipe.cache.blocks import BlocksStore
+        from bcfpipe.texset.blocks import BlocksStore
         from bcfpipe.cache.facts import FactsStore
 
         self.facts = FactsStore(self.base)
@@ -227,7 +227,7 @@ class Cache:
               now: float | None = None) -> list[EntryInfo]:
         """Delete entries unused for ``older_than`` seconds, then the least recently used until the
         cache holds at most ``max_size`` bytes; also clears leftovers of killed writers, and BC@R's
-        blocks unused for ``older_than`` (bcfpipe.cache.blocks; ``max_size`` counts the entries)."""
+        blocks unused for ``older_than`` (bcfpipe.texset.blocks; ``max_size`` counts the entries)."""
         now = time.time() if now is None else now
         removed = []
         entries = sorted(self.entries(), key=lambda e: e.last_used)

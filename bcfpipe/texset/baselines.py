@@ -63,12 +63,12 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cl
                         block_bytes: int, blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """Encode and decode each mip; with ``blocks`` also append each level's (block bytes as an
     (n, block_bytes) uint8 array, width, height), ready for a GPU upload. Inside a build with a
-    cache (bcfpipe.cache.blocks), blocks already encoded from the same texels by the same encoder
+    cache (bcfpipe.texset.blocks), blocks already encoded from the same texels by the same encoder
     (``tag`` names it and its settings) are read back instead of encoded again."""
     import quicktex
     import xxhash
 
-    from bcfpipe.cache.blocks import store as blocks_store
+    from bcfpipe.texset.blocks import store as blocks_store
 
     pixels = [_pad4(_to_u8_rgba(np.asarray(m))) for m in mips]
     cache, key, levels = blocks_store(), "", None
