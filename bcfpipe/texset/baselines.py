@@ -70,30 +70,35 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cl
 
     from bcfpipe.texset.blocks import store as blocks_store
 
-    pixels = [_pad4(_to_u8_rgba(np.asarray(m))) for m in mips]
     cache, key, levels = blocks_store(), "", None
-    if cache is not None:
-        h = xxhash.xxh3_128(f"{tag}|quicktex {quicktex.__version__}|{block_bytes}".encode())
-        for px in pixels:
-            h.update(repr(px.shape).encode())
-            h.update(px.tobytes())
-        key = h.hexdigest()
-        levels = cache.get(key, len(pixels))
-    if levels is None:
-        levels = [np.frombuffer(encoder.encode(quicktex.RawTexture.frombytes(px.tobytes(), px.shape[1], px.shape[0]))
-                                .tobytes(), np.uint8).reshape(-1, block_bytes).copy() for px in pixels]
-        if cache is not None:
-            cache.put(key, levels)
+    if cache is not None:  # one mip's padded texels at a time, as the encode below: no 8K chain held twice
+        digest = xxhash.xxh3_128(f"{tag}|quicktex {quicktex.__version__}|{block_bytes}".encode())
+        for m in mips:
+            px = _pad4(_to_u8_rgba(np.asarray(m)))
+            digest.update(repr(px.shape).encode())
+            digest.update(px.tobytes())
+        key = digest.hexdigest()
+        levels = cache.get(key, len(mips))
+    encoded = []
     decoded, size = [], 0
-    for m, px, b in zip(mips, pixels, levels):
+    for k, m in enumerate(mips):
         h, w = m.shape[:2]
+        px = _pad4(_to_u8_rgba(np.asarray(m)))
         ph, pw = px.shape[:2]
+        if levels is None:
+            enc = encoder.encode(quicktex.RawTexture.frombytes(px.tobytes(), pw, ph))
+            b = np.frombuffer(enc.tobytes(), np.uint8).reshape(-1, block_bytes).copy()
+            encoded.append(b)
+        else:
+            b = levels[k]
         size += b.nbytes
         if blocks is not None:
             blocks.append((b, w, h))
         out = np.frombuffer(decoder.decode(texture_cls.from_bytes(b.tobytes(), pw, ph)).tobytes(),
                             np.uint8).reshape(ph, pw, 4)
         decoded.append(out[:h, :w, :channels].astype(np.float32) / 255.0)
+    if cache is not None and levels is None:
+        cache.put(key, encoded)
     return decoded, size
 
 
