@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import math
 import os
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Callable, Iterator
 
 from bcfpipe.formats.vocabulary import FeatureFormat, Kernel, Layout
 
@@ -356,3 +358,39 @@ def default_cache_root() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_cache_dir("bcfpipe", appauthor=False))
+
+
+@contextmanager
+def environment(name: str, value: str | None) -> Iterator[None]:
+    """Within the block, ``name`` is ``value`` in this process's environment (and so in the workers
+    it starts); None changes nothing. How a build points its workers at its cache's folders."""
+    if value is None:
+        yield
+        return
+    old = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = old
+
+
+def replace_atomically(path: Path, write: Callable[[Path], None]) -> bool:
+    """``write`` a temporary file beside ``path``, then rename it into place, so that no reader sees
+    it half-written; False (and nothing left behind) when the folder cannot take it. For the
+    cache's derived files, where a failed write only costs recomputing them."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write(tmp)
+        os.replace(tmp, path)
+        return True
+    except OSError:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        return False

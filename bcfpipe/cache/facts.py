@@ -10,7 +10,6 @@ removes them, and deleting them only costs a decode.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 FORMAT = "bcfpipe-texel-facts"
@@ -42,19 +41,11 @@ class FactsStore:
         """Record a file's facts; a cache that cannot be written costs a decode next time, nothing else."""
         from dataclasses import asdict
 
-        path = self._path(file_hash)
+        from bcfpipe.config import replace_atomically
+
         data = json.dumps({"format": FORMAT, "version": VERSION, "names": list(names),
                            "channels": [asdict(c) for c in contents]})
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp.write_text(data)
-            os.replace(tmp, path)
-        except OSError:
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
+        replace_atomically(self._path(file_hash), lambda tmp: tmp.write_text(data))
 
     def count(self) -> int:
         return sum(1 for _ in self.dir.glob("*/*.json")) if self.dir.is_dir() else 0

@@ -13,9 +13,8 @@ from __future__ import annotations
 import os
 import time
 import zipfile
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -48,17 +47,13 @@ class BlocksStore:
 
     def put(self, key: str, levels: Sequence[np.ndarray]) -> None:
         """Record the levels' blocks; a cache that cannot be written costs an encode next time."""
-        path = self._path(key)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            np.savez(tmp, format=np.array(FORMAT), **{f"level{k}": b for k, b in enumerate(levels)})
-            os.replace(tmp, path)
-        except OSError:
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
+        from bcfpipe.config import replace_atomically
+
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as f:  # a file object: savez adds no .npz to the temporary name
+                np.savez(f, format=np.array(FORMAT), **{f"level{k}": b for k, b in enumerate(levels)})
+
+        replace_atomically(self._path(key), write)
 
     def files(self) -> list[Path]:
         return sorted(self.dir.glob("*/*.npz")) if self.dir.is_dir() else []
@@ -83,19 +78,9 @@ def store() -> BlocksStore | None:
     return BlocksStore(Path(d).parent) if d else None
 
 
-@contextmanager
-def blocks_in(cache_base: str | os.PathLike | None) -> Iterator[None]:
-    """Within the block, this process and the workers it starts keep BC@R's blocks under
-    ``cache_base/bc-blocks`` (a build cache's ``v1`` folder); None changes nothing."""
-    if cache_base is None:
-        yield
-        return
-    old = os.environ.get(BLOCKS_ENV)
-    os.environ[BLOCKS_ENV] = str(Path(cache_base) / "bc-blocks")
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop(BLOCKS_ENV, None)
-        else:
-            os.environ[BLOCKS_ENV] = old
+def blocks_in(cache_base: str | os.PathLike | None):
+    """Within the block (a context manager), this process and the workers it starts keep BC@R's
+    blocks under ``cache_base/bc-blocks`` (a build cache's ``v1`` folder); None changes nothing."""
+    from bcfpipe.config import environment
+
+    return environment(BLOCKS_ENV, None if cache_base is None else str(Path(cache_base) / "bc-blocks"))

@@ -3,9 +3,7 @@ cache folder their compiled code lives in (neither needs numba or a compiler to 
 from __future__ import annotations
 
 import os
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3  # free texels (warm-up) or blocks, per format
 
@@ -23,19 +21,9 @@ def kernels_dir() -> str:
             or str(default_cache_root() / "kernels"))
 
 
-@contextmanager
-def kernels_in(cache_root: str | os.PathLike | None) -> Iterator[None]:
-    """Within the block, this process and the workers it starts keep compiled kernels under
-    ``cache_root/kernels`` (a build's --cache); None changes nothing."""
-    if cache_root is None:
-        yield
-        return
-    old = os.environ.get(KERNELS_ENV)
-    os.environ[KERNELS_ENV] = str(Path(cache_root) / "kernels")
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop(KERNELS_ENV, None)
-        else:
-            os.environ[KERNELS_ENV] = old
+def kernels_in(cache_root: str | os.PathLike | None):
+    """Within the block (a context manager), this process and the workers it starts keep compiled
+    kernels under ``cache_root/kernels`` (a build's --cache); None changes nothing."""
+    from bcfpipe.config import environment
+
+    return environment(KERNELS_ENV, None if cache_root is None else str(Path(cache_root) / "kernels"))
