@@ -206,6 +206,9 @@ class ModelConfig:
     wrap: str = "repeat"
     max_feature: float = 2.0  # decoded features are kept within +-max_feature (model.endpoint_range)
     features: FeatureFormat = DEFAULT_FEATURES
+    # The first reference mip the features serve: 0 for a neural material; k > 0 in a mip-split
+    # layout (issue 31), whose classic textures serve the mips below k, so steps draw s in [k, s_max].
+    split: int = 0
 
     @property
     def layer_channels(self) -> int:

@@ -188,10 +188,17 @@ def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: 
     return out
 
 
+def split_weight(split: int, s: float) -> float:
+    """How much of a split output is the MLP's at lod ``s``: 0 up to split - 1, 1 from split on,
+    linear between (material.json ``split``)."""
+    return float(min(1.0, max(0.0, s - (split - 1))))
+
+
 def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarray) -> None:
     """Fill the classic outputs' columns of ``y`` (N, outputs): each texture sampled trilinearly at
     s + its lod_bias (lod clamped to its mips, so below 0 level 0 is magnified), value = texel *
-    texel_scale + texel_bias clamped to the output's range; a normal's z from its x and y."""
+    texel_scale + texel_bias clamped to the output's range; a normal's z from its x and y. A split
+    output's column, which holds the MLP's value, becomes the two mixed by `split_weight`."""
     desc = em.desc
     levels = [[torch.from_numpy(np.ascontiguousarray(np.moveaxis(m, -1, 0))) for m in tex] for tex in em.classic]
     lvl = M.cached_level_fn(levels)
@@ -199,12 +206,13 @@ def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarra
         t = M.sample_features(lvl, [len(tex) for tex in levels], tuple(c.lod_bias for c in desc.classic),
                               torch.from_numpy(uv), s, desc.wrap).numpy()
     first = np.cumsum([0] + [c.channels for c in desc.classic])
+    w = split_weight(desc.split, s) if desc.split is not None else 1.0
     for i, o in enumerate(desc.outputs):
-        if o.source != mf.Source.CLASSIC or o.reconstructed:
+        if o.source not in (mf.Source.CLASSIC, mf.Source.SPLIT) or o.reconstructed or w == 1.0 and o.source == mf.Source.SPLIT:
             continue
-        v = t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias
-        y[:, i] = np.clip(v, o.range[0], o.range[1])
+        v = np.clip(t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias, o.range[0], o.range[1])
+        y[:, i] = v if o.source == mf.Source.CLASSIC else (1.0 - w) * v + w * y[:, i]
     for i, o in enumerate(desc.outputs):
-        if o.source == mf.Source.CLASSIC and o.reconstructed:  # normal z after its x and y
-            x, yy = y[:, i - 2], y[:, i - 1]
+        if o.source in (mf.Source.CLASSIC, mf.Source.SPLIT) and o.reconstructed and (o.source == mf.Source.CLASSIC or w < 1.0):
+            x, yy = y[:, i - 2], y[:, i - 1]  # normal z after its x and y (a split one's: of the mixed x and y)
             y[:, i] = np.sqrt(np.maximum(0.0, 1.0 - x * x - yy * yy))

@@ -7,7 +7,7 @@ only writer is :func:`bcfpipe.export.writer.export`; every reader goes through :
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from bcfpipe.formats.atomic import atomic_write
@@ -15,7 +15,10 @@ from bcfpipe.formats.vocabulary import Source
 from bcfpipe.formats.record import FormatError, Record, optional, read as read_record
 
 FORMAT = "bcfpipe-material"
-FORMAT_VERSION = 3  # 3: classic textures and each output's source (issue 31); version 2 files read as before
+FORMAT_VERSION = 4  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
+# versions 2 and 3 read as before. A material without a split is written as version 3, byte for byte as
+# before, so that cached and rebuilt materials stay identical and readers of version 3 read them.
+NO_SPLIT_VERSION = 3
 FILE = "material.json"
 WEIGHTS = "weights.bin"
 ONNX = "decoder.onnx"
@@ -116,8 +119,10 @@ class Output(Record):
     value_scale: float = 1.0
     value_bias: float = 0.0
     log_gain: float | None = optional()  # HDR channels only: the decoder's log-domain gain (BCFW v2)
-    source: str | None = optional()  # None: the MLP's (Source.MLP); Source.CLASSIC: a classic texture's
-    texture: int | None = optional()  # classic outputs: index into MaterialFile.classic
+    # None: the MLP's (Source.MLP); Source.CLASSIC: a classic texture's; Source.SPLIT: the classic
+    # texture's for s <= split - 1, the MLP's for s >= split, linear in s between (MaterialFile.split)
+    source: str | None = optional()
+    texture: int | None = optional()  # classic and split outputs: index into MaterialFile.classic
     texel_channel: int | None = optional()  # classic outputs: the texture's channel (0 = r)
     texel_scale: float | None = optional()  # classic outputs: value = texel * texel_scale + texel_bias
     texel_bias: float | None = optional()
@@ -126,8 +131,9 @@ class Output(Record):
 @dataclass(frozen=True)
 class ClassicTexture(Record):
     """A classic BC texture that outputs read directly (a layout's classic group, issue 31): a DDS
-    (DX10 header) of ``width`` × ``height`` with every mip down to 1×1, sampled like the feature
-    layers (trilinear, the material's addressing) at s + ``lod_bias``; texels are UNORM in [0, 1]."""
+    (DX10 header) of ``width`` × ``height`` with ``mip_count`` mips (every mip down to 1×1, or in a
+    mip-split layout those that serve s < split), sampled like the feature layers (trilinear, the
+    material's addressing) at s + ``lod_bias``, the lod clamped to its mips; texels are UNORM in [0, 1]."""
 
     file: str
     dxgi_format: int
@@ -173,6 +179,8 @@ class MaterialFile(Record):
     bc6h: BC6H | None = optional()  # exactly one of bc6h and bc7 when there are layers
     bc7: BC7 | None = optional()
     classic: tuple[ClassicTexture, ...] = ()
+    # A mip-split layout: the first reference mip (s) the MLP serves; its outputs are Source.SPLIT
+    split: int | None = optional()
     sha256: dict[str, str] | None = optional()
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
@@ -190,8 +198,13 @@ class MaterialFile(Record):
         if not neural and (self.layers or self.mlp or self.onnx or self.bc6h or self.bc7):
             raise FormatError("material.json: no output comes from the MLP, yet it has feature layers or an MLP")
         for o in self.outputs:
-            if o.source == Source.CLASSIC and (o.texture is None or not 0 <= o.texture < len(self.classic)):
+            if o.source in (Source.CLASSIC, Source.SPLIT) and (o.texture is None
+                                                               or not 0 <= o.texture < len(self.classic)):
                 raise FormatError(f"material.json: output {o.name} names no classic texture")
+        splits = any(o.source == Source.SPLIT for o in self.outputs)
+        if splits != (self.split is not None) or (self.split is not None and self.split < 1):
+            raise FormatError("material.json: 'split' (a reference mip >= 1) goes with outputs whose source is "
+                              "'split', and only with them")
 
     @property
     def neural(self) -> bool:
@@ -201,7 +214,7 @@ class MaterialFile(Record):
     @property
     def mixed(self) -> bool:
         """Whether some outputs come from classic textures."""
-        return any(o.source == Source.CLASSIC for o in self.outputs)
+        return any(o.source in (Source.CLASSIC, Source.SPLIT) for o in self.outputs)
 
     @property
     def features(self) -> str:
@@ -254,11 +267,13 @@ def _version() -> str:
 
 def read(folder: str | os.PathLike) -> MaterialFile:
     """``folder/material.json``; a missing, foreign or malformed file raises FormatError."""
-    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2,),
+    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3),
                        upgrade=lambda data: dict(data, format_version=FORMAT_VERSION))  # v2: all from the MLP
 
 
 def write(folder: str | os.PathLike, desc: MaterialFile) -> Path:
+    """``folder/material.json``: version 4 with a mip split, else 3 (NO_SPLIT_VERSION)."""
+    desc = replace(desc, format_version=FORMAT_VERSION if desc.split is not None else NO_SPLIT_VERSION)
     path = Path(folder) / FILE
     atomic_write(path, desc.dumps().encode())
     return path

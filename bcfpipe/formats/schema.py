@@ -26,7 +26,7 @@ BASE_URI = "https://bcfpipe.dev/schemas/"
 DESCRIPTIONS: dict[tuple[str, str], str] = {
     # ---------------------------------------------------------------- material.json
     ("MaterialFile", "format"): "Always \"bcfpipe-material\".",
-    ("MaterialFile", "format_version"): "Version of this contract; a reader refuses versions it does not know.",
+    ("MaterialFile", "format_version"): "4 for a mip-split layout (split), else 3. Version of this contract; a reader refuses versions it does not know.",
     ("MaterialFile", "bcfpipe_version"): "The bcfpipe release that wrote the file.",
     ("MaterialFile", "layers"): "The feature textures T_0..T_3, in MLP input order.",
     ("MaterialFile", "bc6h"): "How the feature textures are compressed, when they are BC6H (the default).",
@@ -40,13 +40,17 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("MaterialFile", "training"): "How the material was trained (informative; times vary between runs).",
     ("MaterialFile", "classic"): "Classic BC textures that some outputs read directly (a layout's classic groups, "
                                  "--layout auto); empty when every output comes from the MLP.",
+    ("MaterialFile", "split"): "A mip-split layout only: the first reference mip s that the MLP serves. Its outputs "
+                               "(source \"split\") read their classic texture up to s = split - 1, the MLP from "
+                               "s = split, and (1 - w) * classic + w * MLP between, w = clamp(s - split + 1, 0, 1).",
     ("MaterialFile", "sha256"): "SHA-256 (hex) of every other file of the material, by file name.",
     ("ClassicTexture", "file"): "DDS file name, relative to the material folder.",
     ("ClassicTexture", "dxgi_format"): "71 (BC1_UNORM), 80 (BC4_UNORM) or 83 (BC5_UNORM).",
     ("ClassicTexture", "format"): "The DXGI format's name.",
     ("ClassicTexture", "width"): "Width of mip 0 in texels.",
     ("ClassicTexture", "height"): "Height of mip 0 in texels.",
-    ("ClassicTexture", "mip_count"): "Mips stored, down to 1x1.",
+    ("ClassicTexture", "mip_count"): "Mips stored: down to 1x1, or in a mip-split layout those that serve s < split "
+                                     "(the lod clamps to the last).",
     ("ClassicTexture", "lod_bias"): "Added to s before sampling: log2 of this texture's width over the reference's.",
     ("ClassicTexture", "channels"): "Channels the outputs read (BC1: 3, BC4: 1, BC5: 2); texels are UNORM in [0, 1].",
     ("Layer", "file"): "DDS file name, relative to the material folder.",
@@ -97,11 +101,13 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                             "learns t = log2(1 + v (2^g - 1)) / g of the normalised value v, and the "
                             "decoder returns v = (2^(g t) - 1) / (2^g - 1) after the clamp (weight record "
                             "BCFW v2). Absent: linear.",
-    ("Output", "source"): "Absent: the decoder's (MLP and post-processing) output, in the order of the outputs "
-                          "without a source. \"classic\": read from classic texture `texture`, channel "
-                          "`texel_channel`, as texel * texel_scale + texel_bias, then clamped to range; a "
-                          "classic normal's z is sqrt(max(0, 1 - x^2 - y^2)).",
-    ("Output", "texture"): "Classic outputs: index into classic.",
+    ("Output", "source"): "Absent: the decoder's (MLP and post-processing) output; the decoder's outputs are the "
+                          "outputs without a source or with source \"split\", in order. \"classic\": read from "
+                          "classic texture `texture`, channel `texel_channel`, as texel * texel_scale + texel_bias, "
+                          "then clamped to range; a classic normal's z is sqrt(max(0, 1 - x^2 - y^2)). \"split\": "
+                          "both, mixed by lod (see split); a split normal's z is the decoder's from s = split on, "
+                          "else sqrt(max(0, 1 - x^2 - y^2)) of the mixed x and y.",
+    ("Output", "texture"): "Classic and split outputs: index into classic.",
     ("Output", "texel_channel"): "Classic outputs: the texture channel (0 = r).",
     ("Output", "texel_scale"): "Classic outputs: value = texel * texel_scale + texel_bias (normals: 2, -1).",
     ("Output", "texel_bias"): "Classic outputs: see texel_scale.",
@@ -332,7 +338,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
 
 ENUMS: dict[tuple[str, str], list] = {
     ("MaterialFile", "format"): [material.FORMAT],
-    ("MaterialFile", "format_version"): [material.FORMAT_VERSION],
+    ("MaterialFile", "format_version"): [material.NO_SPLIT_VERSION, material.FORMAT_VERSION],
     ("Manifest", "format"): [manifest.FORMAT],
     ("Manifest", "format_version"): [manifest.FORMAT_VERSION],
     ("Sampling", "addressing"): ["repeat", "clamp"],

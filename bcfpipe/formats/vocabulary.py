@@ -86,6 +86,7 @@ class Source(StrEnum):
 
     MLP = "mlp"
     CLASSIC = "classic"
+    SPLIT = "split"  # a classic texture below MaterialFile.split, the MLP from it on
 
 
 class Layout(StrEnum):

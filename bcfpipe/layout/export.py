@@ -79,6 +79,50 @@ def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wr
     return out
 
 
+def split_levels(split: int, resolution: int, reference_side: int) -> int:
+    """How many of BC@R's levels serve the reference mips below ``split``: level j serves mip j + d,
+    where d counts the reference mips larger than R (level 0 magnified for those), at least one."""
+    d = sum(1 for k in range(reference_side.bit_length()) if max(1, reference_side >> k) > resolution)
+    return max(1, split - d)
+
+
+def export_split(groups: list[EncodedGroup], neural_dir: str | os.PathLike, ts: TextureSet,
+                 out_dir: str | os.PathLike, split: int, resolution: int) -> Path:
+    """Write a mip-split layout of ``ts`` to ``out_dir``: every BC@R group as C_i.dds with the
+    levels that serve the reference mips below ``split`` only, the model of ``neural_dir`` (trained
+    for s >= split, ModelConfig.split) for the rest, and a material.json whose every output is
+    ``split``: the classic texture's value up to s = split - 1, the MLP's from s = split, linear in
+    s between. Returns the folder."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    keep = split_levels(split, resolution, max(ts.width, ts.height))
+    src = Path(neural_dir)
+    base = mf.read(src)
+    if base.mixed or not base.neural:
+        raise ValueError(f"{src}: a mip split takes an all-neural model")
+    for f in base.files:
+        shutil.copyfile(src / f, out / f)
+    classic, where = [], {}
+    for i, enc in enumerate(groups):
+        part = replace(enc, levels=enc.levels[:keep])
+        dds.write(out / mf.classic_file(i), part.levels, dxgi_format=DXGI[enc.group.format])
+        classic.append(classic_texture(i, part, ts.width))
+        for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.group.texel_map(ts))):
+            where[ts.channels[c].name] = (i, j, scale, bias)
+    outputs = []
+    for o in base.outputs:
+        name = f"{o.semantic}.y" if o.reconstructed else o.name  # normal z follows its x and y
+        t, j, scale, bias = where[name]
+        outputs.append(replace(o, source=Source.SPLIT.value, texture=t,
+                               texel_channel=None if o.reconstructed else j,
+                               texel_scale=None if o.reconstructed else scale,
+                               texel_bias=None if o.reconstructed else bias))
+    desc = replace(base, outputs=tuple(outputs), classic=tuple(classic), split=int(split), sha256=None)
+    desc = replace(desc, sha256={f: sha256_file(out / f) for f in desc.files})
+    mf.write(out, desc)
+    return out
+
+
 def write_decision(out_dir: str | os.PathLike, fit: LayoutFit) -> Path:
     """layout.json beside material.json: the candidates, the choice and why (informative)."""
     import json

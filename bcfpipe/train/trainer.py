@@ -157,15 +157,17 @@ class StratifiedScale:
     CPU schedules do not end with some scales under-trained. ``power`` 2 gives the two finest of
     12 mips 41 % of the steps instead of 18 %: they hold most of the texels (issue #9)."""
 
-    def __init__(self, s_max: float, gen: torch.Generator, strata: int = 16, power: float = 1.0):
-        self.s_max, self.gen, self.strata, self.power = s_max, gen, strata, power
+    def __init__(self, s_max: float, gen: torch.Generator, strata: int = 16, power: float = 1.0,
+                 s_min: float = 0.0):
+        self.s_max, self.gen, self.strata, self.power, self.s_min = s_max, gen, strata, power, min(s_min, s_max)
         self.order: list[int] = []
 
     def __call__(self) -> float:
         if not self.order:
             self.order = torch.randperm(self.strata, generator=self.gen).tolist()
         k = self.order.pop()
-        return ((k + float(torch.rand((), generator=self.gen))) / self.strata) ** self.power * self.s_max
+        u = ((k + float(torch.rand((), generator=self.gen))) / self.strata) ** self.power
+        return u * self.s_max if self.s_min == 0 else self.s_min + u * (self.s_max - self.s_min)
 
 
 def _flat(layers):
@@ -485,7 +487,7 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     mlp = M.init_mlp(mc.n_inputs, mc.hidden, c, gen, device, mean)
     clock = _Clock({"warmup": preset.warmup.steps, "constrained": preset.constrained.steps,
                     "finetune": preset.finetune.steps})
-    next_s = StratifiedScale(float(ref.num_levels - 1), gen, power=preset.lod_power)
+    next_s = StratifiedScale(float(ref.num_levels - 1), gen, power=preset.lod_power, s_min=float(mc.split))
     t0 = time.perf_counter()
     masks = None
     if coverage is not None:

@@ -10,7 +10,7 @@ For every material (one exported folder, or every material of a build) the check
                buffer at the material's offset) holds exactly the values of decoder.onnx.
 ``openimageio`` OpenImageIO reads every mip of every DDS to the same fp16 bits as bcfpipe.bc6h.decode.
 ``classic``    a layout's classic textures (--layout auto): each DDS agrees with material.json (format,
-               size, full mip chain); texture2ddecoder decodes every mip to the same 8-bit values as
+               size, full mip chain, or in a mip split the levels that serve s < split); texture2ddecoder decodes every mip to the same 8-bit values as
                bcfpipe (quicktex), and OpenImageIO to within 2 (BC1) or 1 (BC4/BC5) 8-bit steps (its
                palettes round differently). A material with classic outputs only has no other check but
                ``integrity``.
@@ -259,8 +259,11 @@ def check_classic(m: MaterialDesc) -> Check:
             bad.append(f"{c.file}: {tex.format_name} {tex.width}x{tex.height}, {tex.mip_count} mips; material.json "
                        f"says {c.format} {c.width}x{c.height}, {c.mip_count} mips")
             continue
-        if tex.mip_count != dds.max_mip_count(tex.width, tex.height):
-            bad.append(f"{c.file}: {tex.mip_count} mips, not the full chain")
+        full = dds.max_mip_count(tex.width, tex.height)
+        want = full if m.file.split is None else min(full, max(1, m.file.split + round(c.lod_bias)))
+        if tex.mip_count != want:  # a mip split keeps the levels that serve s < split (s + lod_bias)
+            bad.append(f"{c.file}: {tex.mip_count} mips, not the " + (f"{want} that serve s < {m.file.split}"
+                                                                      if m.file.split is not None else "full chain"))
         fmt = fmt_of[tex.dxgi_format]
         ours = decode_levels(fmt, tex.levels)
         inp = oiio.ImageInput.open(str(path))

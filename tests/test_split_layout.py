@@ -1,0 +1,166 @@
+"""The mip-split layout (issue 31): BC@R's own levels below a reference mip, neural features from it
+on. Features trained for s >= split only, the folder's material.json (format 4), its decode by
+bcfpipe and by an independent reader (OpenImageIO, onnxruntime, the contract in the schema), and
+verify's classic check."""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from bcfpipe.config import TrainingOptions
+from bcfpipe.formats.record import FormatError
+from bcfpipe.export import writer as E
+from bcfpipe.export.fit import fit_material, make_config
+from bcfpipe.formats import material as mf
+from bcfpipe.layout.classic import encode
+from bcfpipe.layout.export import export_split, split_levels
+from bcfpipe.texset.texture_set import build_mip_chain
+from bcfpipe.train.trainer import StratifiedScale
+from test_classic_layout import SCHEMA, _oiio_levels, _set, _trilinear  # noqa: E402
+
+SPLIT, R = 3, 32  # a 64² set: reference mips 64 .. 1, BC@R at 32², the features from mip 3 (8²)
+
+
+def test_split_levels_count_the_bc_levels_below_the_split():
+    assert split_levels(3, 1024, 2048) == 2  # mip 0 magnified from level 0, mips 1 and 2: levels 0 and 1
+    assert split_levels(3, 1024, 1024) == 3
+    assert split_levels(1, 1024, 2048) == 1
+    assert split_levels(1, 512, 2048) == 1  # never fewer than one level
+
+
+def test_a_split_model_draws_its_scales_from_the_split_on():
+    s_max = 11.0
+    for power in (1.0, 2.0):
+        draw = StratifiedScale(s_max, torch.Generator().manual_seed(0), power=power, s_min=3.0)
+        s = np.array([draw() for _ in range(512)])
+        assert s.min() >= 3.0 and s.max() <= s_max
+        # stratified over [3, 11] as the full draw is over [0, 11]: every sixteenth of u is visited
+        u = ((s - 3.0) / (s_max - 3.0)) ** (1 / power)
+        assert len(np.unique(np.floor(u * 16).astype(int))) == 16
+    full = StratifiedScale(s_max, torch.Generator().manual_seed(0), power=2.0)
+    same = StratifiedScale(s_max, torch.Generator().manual_seed(0), power=2.0, s_min=0.0)
+    assert [full() for _ in range(40)] == [same() for _ in range(40)]  # s_min 0: today's draw, bit for bit
+
+
+@pytest.fixture(scope="module")
+def split(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("split")
+    ts = _set()
+    ref = build_mip_chain(ts.data)
+    enc = encode(ts, R, ref)
+    _, cfg = make_config(ts, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
+    cfg = cfg.with_(model=replace(cfg.model, resolutions=(4, 4, 4, 4), split=SPLIT))
+    fit_material(ts, tmp / "neural", cfg, "split", image_metrics=False)
+    out = export_split(enc, tmp / "neural", ts, tmp / "material", SPLIT, R)
+    return ts, ref, enc, tmp / "neural", out
+
+
+def test_split_material_json_says_both_sources_of_every_output(split):
+    import jsonschema
+
+    ts, ref, enc, _, out = split
+    d = json.loads((out / "material.json").read_text())
+    jsonschema.validate(d, json.loads(SCHEMA.read_text()))
+    assert d["format_version"] == 4 and d["split"] == SPLIT
+    assert {o["source"] for o in d["outputs"]} == {"split"}
+    keep = split_levels(SPLIT, R, 64)
+    assert [c["mip_count"] for c in d["classic"]] == [keep] * len(enc) == [2, 2, 2]
+    assert [c["lod_bias"] for c in d["classic"]] == [-1.0] * 3
+    desc = mf.read(out)
+    assert desc.mixed and desc.neural and len(desc.mlp_outputs) == len(desc.outputs)
+    assert sorted(desc.files) == sorted(["T0.dds", "T1.dds", "T2.dds", "T3.dds", "weights.bin", "decoder.onnx",
+                                         "C0.dds", "C1.dds", "C2.dds"])
+    with pytest.raises(FormatError, match="split"):
+        replace(desc, split=None)
+    with pytest.raises(FormatError, match="split"):
+        replace(desc, split=0)
+
+
+def test_split_decodes_to_bc_below_the_split_and_to_the_model_from_it(split):
+    """At the reference mips, the folder decodes exactly as BC@R's blocks below the split and as
+    the neural model alone from it on: the figures of both parts carry over unchanged."""
+    ts, ref, enc, neural, out = split
+    shapes = [m.shape[:2] for m in ref]
+    ours = E.decode_mips(E.load(out), shapes)
+    model = E.decode_mips(E.load(neural), shapes)
+    cols = {c: (g, j) for g in enc for j, c in enumerate(g.group.channels)}
+    for k in range(len(ref)):
+        if k < SPLIT:
+            bc = np.stack([enc_g.decoded[k][..., j] for c, (enc_g, j) in sorted(cols.items())], -1)
+            np.testing.assert_allclose(ours[k], bc, atol=1e-6, err_msg=f"mip {k}")
+        else:
+            np.testing.assert_array_equal(ours[k], model[k], err_msg=f"mip {k}")
+
+
+def test_split_material_rebuilt_from_material_json_alone(split):
+    """An independent reader, at reference mips and between them: OpenImageIO reads the DDS files
+    (the truncated BC chains too), numpy samples them as GL would with the lod clamped to the
+    stored mips, onnxruntime runs the decoder, and the schema's mixing rule joins the two."""
+    import onnxruntime as ort
+
+    ts, ref, enc, _, out = split
+    em = E.load(out)
+    d = json.loads((out / "material.json").read_text())
+    wrap = d["sampling"]["addressing"]
+    layers = [_oiio_levels(out / l["file"], l["channels"]) for l in d["layers"]]
+    classic = [_oiio_levels(out / c["file"], c["channels"]) for c in d["classic"]]
+    assert [len(c) for c in classic] == [c["mip_count"] for c in d["classic"]]
+    sess = ort.InferenceSession(str(out / d["onnx"]["file"]), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(1)
+    uv = rng.random((2000, 2))
+    for s in (0.0, 1.0, 1.5, 2.0, 2.25, 2.5, 2.75, 3.0, 4.5):
+        w = min(1.0, max(0.0, s - d["split"] + 1))
+        feats = np.concatenate([_trilinear(lv, uv, s + l["lod_bias"], wrap) for lv, l in zip(layers, d["layers"])], 1)
+        y_mlp = sess.run([d["onnx"]["output"]], {d["onnx"]["input"]: feats.astype(np.float32)})[0]
+        texels = [_trilinear(lv, uv, s + c["lod_bias"], wrap) for lv, c in zip(classic, d["classic"])]
+        theirs = []
+        for j, o in enumerate(d["outputs"]):
+            if o["reconstructed"]:
+                x, y = theirs[-2], theirs[-1]
+                z = np.sqrt(np.maximum(0.0, 1.0 - x * x - y * y))
+                theirs.append(y_mlp[:, j] if w == 1.0 else z)
+                continue
+            v = np.clip(texels[o["texture"]][:, o["texel_channel"]] * o["texel_scale"] + o["texel_bias"], *o["range"])
+            theirs.append((1 - w) * v + w * y_mlp[:, j])
+        theirs = np.stack(theirs, 1)
+        mine = np.empty_like(theirs, dtype=np.float32)
+        mine[:] = sess.run([E.ONNX_OUTPUT], {E.ONNX_INPUT: E.sample_exported_features(em, uv.astype(np.float32), s)})[0]
+        E.classic_outputs(em, uv.astype(np.float32), s, mine)
+        # OpenImageIO's BC palettes round differently from quicktex (verify's classic check): a step
+        step = 2 * max(abs(o.get("texel_scale") or 0) for o in d["outputs"]) / 255 * (1 - w) + 2e-4
+        np.testing.assert_allclose(mine, theirs, atol=step, err_msg=f"s = {s}")
+
+
+def test_verify_accepts_the_truncated_chains_and_refuses_a_wrong_count(split, tmp_path):
+    import shutil
+
+    from bcfpipe.verify.checks import check_classic
+    from bcfpipe.verify.glsl import read_material
+
+    ts, ref, enc, _, out = split
+    check = check_classic(read_material(out))
+    assert check.passed, check.detail
+    bad = tmp_path / "m"
+    shutil.copytree(out, bad)
+    d = json.loads((bad / "material.json").read_text())
+    d["split"] = SPLIT + 1  # now the chains hold one level fewer than material.json's split needs
+    (bad / "material.json").write_text(json.dumps(d))
+    check = check_classic(read_material(bad))
+    assert not check.passed and "serve s < 4" in check.detail
+
+
+@pytest.mark.gl
+def test_verify_passes_a_split_material(split):
+    """The decoder's outputs GLSL against ONNX (every output is the MLP's from the split on), the
+    classic textures against independent decoders."""
+    from bcfpipe.verify.checks import verify
+
+    rep = verify(split[-1])
+    assert rep.exit_code == 0, rep.to_dict()
+    assert {c.name for c in rep.materials[0].checks} == {"files", "integrity", "weights", "openimageio", "classic",
+                                                          "glsl"}
