@@ -6,6 +6,9 @@
 //   pixel, at the lod s from the uv derivatives (bcfDecodeGrad, paper sec. 5.2).
 //   A component the decoder does not drive (a --layout auto material's classic group) reads
 //   its UsdUVTexture as below, from texture units 4 and up: its source is 1024 + unit * 4 + slot.
+//   A mip-split material (BCF_SPLIT = k > 0, the material's bcf:split) reads each component the
+//   decoder drives from its original network (BCF_BELOW*: a UsdUVTexture or a constant) up to
+//   s = k - 1 and from the decoder from s = k, mixed linearly in s between (material.json "split").
 // BCF_NEURAL 0: they come from up to 8 UsdUVTexture files (trilinear, each with its own
 //   UsdTransform2d), or are constants.
 // Both then shade with the same model (shade() below): Lambert diffuse plus GGX specular
@@ -33,6 +36,15 @@
 #define BCF_BIAS float[](0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0.)
 #define BCF_SRGB int[](0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
 #define BCF_TEXTURES 0
+#endif
+#ifndef BCF_SPLIT
+#define BCF_SPLIT 0
+#endif
+#if BCF_SPLIT > 0
+const int kBelow[N_COMPONENTS] = BCF_BELOW;
+const float kBelowScale[N_COMPONENTS] = BCF_BELOW_SCALE;
+const float kBelowBias[N_COMPONENTS] = BCF_BELOW_BIAS;
+const int kBelowSrgb[N_COMPONENTS] = BCF_BELOW_SRGB;
 #endif
 const int kSource[N_COMPONENTS] = BCF_SOURCE;
 const float kScale[N_COMPONENTS] = BCF_SCALE;
@@ -89,6 +101,13 @@ float component(int k, float texel) {
     return (kSrgb[k] != 0 ? srgbToLinear(texel) : texel) * kScale[k] + kBias[k];
 }
 
+#if BCF_SPLIT > 0
+float below(int k, float texel) {  // a mip split's value below the split (texel: its texture's, if any)
+    if (kBelow[k] < 0) return kBelowBias[k];
+    return (kBelowSrgb[k] != 0 ? srgbToLinear(texel) : texel) * kBelowScale[k] + kBelowBias[k];
+}
+#endif
+
 // Tangent frame from screen-space derivatives (Schueler, "Normal Mapping Without Precomputed
 // Tangents", 2013): T and B follow +s and +t of st on the surface.
 vec3 perturb(vec3 n, vec3 tangentNormal, vec2 st) {
@@ -132,6 +151,10 @@ void main() {
         fragColor = vec4(1.0, 0.0, 1.0, 1.0);
         return;
     }
+#if BCF_SPLIT > 0
+    float sLod = bcfLodFromGrad(dFdx(uv), dFdy(uv), uRefSize) - float(BCF_SPLIT - 1);
+    float wSplit = sLod >= 1.0 ? 1.0 : (sLod > 0.0 ? sLod : 0.0);  // NaN: the original network
+#endif
     vec4 texel[MAX_TEXTURES];
     for (int t = 0; t < BCF_TEXTURES; ++t) {
         vec2 tst = stTransform(t, vSt);
@@ -148,6 +171,12 @@ void main() {
         c[k] = component(k, s < 0 ? 0.0 : ch[s]);
 #else
         c[k] = component(k, s < 0 ? 0.0 : ch[min(s, n - 1)]);
+#endif
+#if BCF_SPLIT > 0
+        if (s >= 0 && wSplit < 1.0) {
+            int b = max(kBelow[k] - TEXTURE_SOURCE, 0);
+            c[k] = mix(below(k, texel[b >> 2][b & 3]), c[k], wSplit);
+        }
 #endif
     }
 #else

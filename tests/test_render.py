@@ -404,3 +404,45 @@ def test_mixed_material_samples_its_classic_textures_beside_the_decoder(smooth, 
     d_mixed, _ = C.difference(mixed[NEURAL].image, mixed[ORIGINAL].image)
     assert d_mixed.psnr > d_full.psnr + 5, (d_full, d_mixed)
     assert np.isfinite(mixed[NEURAL].image).all()
+
+
+def set_split(overrides: Path, material: str, split: int) -> None:
+    """Author bcf:split = ``split`` on ``material`` and its BcfNeuralMaterial shader, as a build of
+    a mip-split material does."""
+    from bcfpipe.builder.usd_layer import SURFACE_SHADER
+
+    layer = Sdf.Layer.FindOrOpen(str(overrides))
+    for prim, name in ((material, "bcf:split"), (f"{material}/{SURFACE_SHADER}", "inputs:split")):
+        spec = layer.GetPrimAtPath(prim)
+        attr = spec.attributes.get(name) or Sdf.AttributeSpec(spec, name, Sdf.ValueTypeNames.Int)
+        attr.default = split
+    layer.Save()
+
+
+def test_mip_split_material_reads_its_original_network_below_the_split(smooth, rt, tmp_path) -> None:
+    """A mip split whose every drawn lod lies below its split shows the material's own network,
+    whatever the decoder says: with a scrambled record the fully neural frame is far off, the
+    split one equals the original frame. At split 1 the decoder takes over where s >= 1."""
+    from bcfpipe.render.surfaces import TEXTURE_SOURCE, read_surface
+
+    out = tmp_path / "out"
+    shutil.copytree(smooth.parent, out)
+    for p in smooth.parent.parent.iterdir():
+        if p != smooth.parent:
+            (tmp_path / p.name).symlink_to(p)
+    scramble_record(out / smooth.name, "/World/Looks/Smooth")
+    full = frames_of(out / smooth.name, rt, camera="/World/Cam")[1]
+    set_split(out / "overrides.usda", "/World/Looks/Smooth", 64)
+    surf = read_surface(Usd.Stage.Open(str(out / smooth.name)), "/World/Looks/Smooth", True)
+    assert surf.neural.split == 64
+    driven = [c for c in surf.components if 0 <= c.source < TEXTURE_SOURCE]
+    assert driven and all(c.below >= TEXTURE_SOURCE for c in driven[:3])  # diffuse: its UsdUVTexture
+    below = frames_of(out / smooth.name, rt, camera="/World/Cam")[1]
+    d_full, _ = C.difference(full[NEURAL].image, full[ORIGINAL].image)
+    d_below, _ = C.difference(below[NEURAL].image, below[ORIGINAL].image)
+    assert d_full.max_abs > 10 and d_below.max_abs <= 1.0, (d_full, d_below)
+    set_split(out / "overrides.usda", "/World/Looks/Smooth", 1)
+    _, one = frames_of(out / smooth.name, rt, zoom=0.25)  # framed small: s >= 1 over most of the quad
+    d_one, _ = C.difference(one[NEURAL].image, one[ORIGINAL].image)
+    assert np.isfinite(one[NEURAL].image).all()
+    assert d_one.max_abs > 10, d_one  # the scrambled decoder shows again

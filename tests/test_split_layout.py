@@ -55,15 +55,15 @@ def split(tmp_path_factory):
     enc = encode(ts, R, ref)
     _, cfg = make_config(ts, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
     cfg = cfg.with_(model=replace(cfg.model, resolutions=(4, 4, 4, 4), split=SPLIT))
-    fit_material(ts, tmp / "neural", cfg, "split", image_metrics=False)
+    res, _ = fit_material(ts, tmp / "neural", cfg, "split", image_metrics=False)
     out = export_split(enc, tmp / "neural", ts, tmp / "material", SPLIT, R)
-    return ts, ref, enc, tmp / "neural", out
+    return ts, ref, enc, tmp / "neural", out, res
 
 
 def test_split_material_json_says_both_sources_of_every_output(split):
     import jsonschema
 
-    ts, ref, enc, _, out = split
+    ts, ref, enc, _, out, _ = split
     d = json.loads((out / "material.json").read_text())
     jsonschema.validate(d, json.loads(SCHEMA.read_text()))
     assert d["format_version"] == 4 and d["split"] == SPLIT
@@ -84,7 +84,7 @@ def test_split_material_json_says_both_sources_of_every_output(split):
 def test_split_decodes_to_bc_below_the_split_and_to_the_model_from_it(split):
     """At the reference mips, the folder decodes exactly as BC@R's blocks below the split and as
     the neural model alone from it on: the figures of both parts carry over unchanged."""
-    ts, ref, enc, neural, out = split
+    ts, ref, enc, neural, out, res = split
     shapes = [m.shape[:2] for m in ref]
     ours = E.decode_mips(E.load(out), shapes)
     model = E.decode_mips(E.load(neural), shapes)
@@ -103,7 +103,7 @@ def test_split_material_rebuilt_from_material_json_alone(split):
     stored mips, onnxruntime runs the decoder, and the schema's mixing rule joins the two."""
     import onnxruntime as ort
 
-    ts, ref, enc, _, out = split
+    ts, ref, enc, _, out, _ = split
     em = E.load(out)
     d = json.loads((out / "material.json").read_text())
     wrap = d["sampling"]["addressing"]
@@ -142,7 +142,7 @@ def test_verify_accepts_the_truncated_chains_and_refuses_a_wrong_count(split, tm
     from bcfpipe.verify.checks import check_classic
     from bcfpipe.verify.glsl import read_material
 
-    ts, ref, enc, _, out = split
+    ts, ref, enc, _, out, _ = split
     check = check_classic(read_material(out))
     assert check.passed, check.detail
     bad = tmp_path / "m"
@@ -160,7 +160,56 @@ def test_verify_passes_a_split_material(split):
     classic textures against independent decoders."""
     from bcfpipe.verify.checks import verify
 
-    rep = verify(split[-1])
+    rep = verify(split[4])
     assert rep.exit_code == 0, rep.to_dict()
     assert {c.name for c in rep.materials[0].checks} == {"files", "integrity", "weights", "openimageio", "classic",
                                                           "glsl"}
+
+
+def test_split_candidates_fit_bc_bytes_and_hold_the_predicted_floor():
+    """Every predicted split stays within BC@R's bytes, with the largest features that do; one whose
+    probe falls below the floor from its split on is not offered."""
+    from bcfpipe.layout import choose as C
+    from bcfpipe.layout.classic import channel_errors
+    from bcfpipe.formats.dds import HEADER_BYTES
+    from bcfpipe.layout.fit import neural_bytes, split_bytes, split_candidates
+
+    ts, r = _set(256), 128  # a 64² set's BC@R is too small for any features beside it
+    ref = build_mip_chain(ts.data)
+    enc = encode(ts, r, ref)
+
+    e_bc = channel_errors(ts, enc, ref)
+    use = tuple(k for k, m in enumerate(ref) if min(m.shape[:2]) >= 4)
+    bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
+                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
+    better = e_bc * 0.25  # a probe 6 dB better than BC@R at every mip: every split holds the floor
+    cands = split_candidates(ts, enc, e_bc, better, bc, use, r, (12, 16))
+    assert cands and all(c.split >= 1 and c.size_bytes <= bc.size_bytes and c.basis == "predicted" for c in cands)
+    for c in cands:
+        t = c.resolutions[0]
+        assert c.resolutions == (t, t, t, t // 2) and t <= 256 >> c.split
+        assert c.size_bytes >= split_bytes(enc, split_levels(c.split, r, 256))
+        bigger = neural_bytes((2 * t, 2 * t, 2 * t, t), 12, 16, ts.num_channels) + 4 * HEADER_BYTES
+        assert 2 * t > 256 >> c.split or split_bytes(enc, split_levels(c.split, r, 256)) + bigger > bc.size_bytes
+        np.testing.assert_allclose(c.mse_per_mip[:c.split], bc.mse_per_mip[:c.split])
+    worse = e_bc * 4.0  # 6 dB worse everywhere: no split holds the floor past its split
+    assert split_candidates(ts, enc, e_bc, worse, bc, use, r, (12, 16)) == []
+
+
+def test_a_chosen_split_is_exported_as_one_folder(split, tmp_path):
+    """export_layout writes a LayoutFit whose choice is a split as export_split does."""
+    from bcfpipe.layout import choose as C
+    from bcfpipe.layout.export import export_layout
+    from bcfpipe.layout.fit import LayoutFit
+
+    ts, ref, enc, neural, out, res = split
+    use = tuple(range(len(ref)))
+    bc = C.Candidate(tuple(g.group.name for g in enc), None, 1, (1.0,) * len(ref), "measured", use)
+    ch = C.Candidate(bc.classic, "4/4/4/4", 1, (1.0,) * len(ref), "measured", use, split=SPLIT, resolutions=(4, 4, 4, 4))
+    assert ch.label == "BC@R below mip 3 + neural 4/4/4/4 from it" and ch.to_json()["split"] == SPLIT
+    d = C.Decision(bc, (bc, ch), ch, "test", "quality")
+    fit = LayoutFit(d, d, enc, res, tuple(range(ts.num_channels)), None, 0.0, 0.0)
+    again = export_layout(fit, ts, tmp_path / "m", "repeat")
+    assert (again / "material.json").read_text() == (out / "material.json").read_text()
+    for f in mf.read(out).files:
+        assert (again / f).read_bytes() == (out / f).read_bytes(), f

@@ -102,7 +102,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
             bias=tuple(t.bias + t.scale * outs[t.channel].value_bias if t.channel >= 0 else t.bias
                        for t in targets),
             color_spaces=tuple(t.color_space for t in targets),
-            fallback_surface=mp_.fallback_surface, version=__version__,
+            fallback_surface=mp_.fallback_surface, version=__version__, split=desc.split or 0,
         ))
     scene_rel = usdout.relative_asset(bplan.scene, final_out)
     stamp = f"Written by bcfpipe {__version__} build from {scene_rel}"

@@ -97,6 +97,7 @@ class NeuralMaterialOverride:
     color_spaces: tuple[str, ...]
     fallback_surface: str | None
     version: str
+    split: int = 0  # material.json "split": the first reference mip the decoder serves (0: every mip)
 
     def attributes(self) -> list[tuple[str, Sdf.ValueTypeName, object]]:
         """(name, type, value) of every attribute, in schema order."""
@@ -109,6 +110,7 @@ class NeuralMaterialOverride:
             ("bcf:featureSigned", _T.Bool, bool(self.feature_signed)),
             ("bcf:addressing", _T.Token, self.addressing),
             ("bcf:referenceResolution", _T.Int2, Gf.Vec2i(*(int(v) for v in self.reference_resolution))),
+            *([("bcf:split", _T.Int, int(self.split))] if self.split else []),
             ("bcf:st:primvar", _T.Token, self.st_primvar),
             ("bcf:st:scale", _T.Float2, Gf.Vec2f(*(float(v) for v in self.st_scale))),
             ("bcf:st:rotation", _T.Float, float(self.st_rotation)),
@@ -231,6 +233,8 @@ def _author_surface(layer: Sdf.Layer, material: Sdf.PrimSpec, ov: NeuralMaterial
     _input(sh, "addressing", _T.Token, ov.addressing)
     _input(sh, "weights", _T.Asset, Sdf.AssetPath(ov.weights))
     _input(sh, "weightsOffset", _T.Int, int(ov.weights_offset))
+    if ov.split:
+        _input(sh, "split", _T.Int, int(ov.split))
     Sdf.AttributeSpec(sh, "outputs:surface", _T.Token)
     out = Sdf.AttributeSpec(material, "outputs:bcf:surface", _T.Token)
     out.connectionPathList.explicitItems = [Sdf.Path(f"{base}/{SURFACE_SHADER}.outputs:surface")]

@@ -46,9 +46,13 @@ class Candidate:
     mse_per_mip: tuple[float, ...]
     basis: Basis
     use: tuple[int, ...] = field(repr=False, default=())  # the mips the all-mip PSNR averages
+    split: int = 0  # a mip split: every group's BC@R levels below reference mip ``split``, the features from it on
+    resolutions: tuple[int, ...] = ()  # a split's feature sizes T_0..T_3 (``profile`` names them)
 
     @property
     def label(self) -> str:
+        if self.split:
+            return f"BC@R below mip {self.split} + neural {self.profile} from it"
         if self.profile is None:
             return ALL_CLASSIC
         if not self.classic:
@@ -72,6 +76,8 @@ class Candidate:
         d = {"layout": self.label, "classic": list(self.classic), "profile": self.profile,
              "size_bytes": self.size_bytes, "psnr": round(self.psnr, 3),
              "psnr_per_mip": [round(v, 3) for v in self.psnr_per_mip], "basis": self.basis}
+        if self.split:
+            d["split"] = self.split
         if bc is not None:
             d["margin_per_mip_db"] = [round(v, 3) for v in self.margins(bc)]
         return d

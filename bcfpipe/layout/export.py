@@ -35,6 +35,10 @@ def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wr
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     chosen = fit.decision.chosen
+    if chosen.split:
+        resolution = max(max(g.levels[0][1], g.levels[0][2]) for g in fit.classic)
+        export_split(fit.classic, fit.neural.out_dir, ts, out, chosen.split, resolution)
+        return out
     shipped = [g for g in fit.classic if g.group.name in chosen.classic]
     classic = []
     where: dict[int, tuple[int, int, float, float]] = {}  # set channel -> (texture, channel, scale, bias)
@@ -72,11 +76,16 @@ def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wr
                                outputs=tuple(outputs), training=mf.Training((), "none", 0, "cpu"),
                                classic=tuple(classic))
     desc = replace(desc, sha256={f: sha256_file(out / f) for f in desc.files})
-    for stale in (*out.glob("T[0-9].dds"), *out.glob("C[0-9]*.dds"), out / mf.WEIGHTS, out / mf.ONNX):
-        if stale.name not in desc.files and stale.is_file():  # an earlier export's (train --force)
-            stale.unlink()
+    _drop_stale(out, desc)
     mf.write(out, desc)
     return out
+
+
+def _drop_stale(out: Path, desc: mf.MaterialFile) -> None:
+    """Remove an earlier export's files (train --force) that ``desc`` does not list."""
+    for stale in (*out.glob("T[0-9].dds"), *out.glob("C[0-9]*.dds"), out / mf.WEIGHTS, out / mf.ONNX):
+        if stale.name not in desc.files and stale.is_file():
+            stale.unlink()
 
 
 def split_levels(split: int, resolution: int, reference_side: int) -> int:
@@ -119,6 +128,7 @@ def export_split(groups: list[EncodedGroup], neural_dir: str | os.PathLike, ts: 
                                texel_bias=None if o.reconstructed else bias))
     desc = replace(base, outputs=tuple(outputs), classic=tuple(classic), split=int(split), sha256=None)
     desc = replace(desc, sha256={f: sha256_file(out / f) for f in desc.files})
+    _drop_stale(out, desc)
     mf.write(out, desc)
     return out
 

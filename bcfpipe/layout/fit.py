@@ -9,11 +9,18 @@
    The rule picks one; when it picks BC@R or the probe, the mixed candidate closest to qualifying
    (`choose.most_promising`) is picked for training instead.
 4. If that needs a model the probe is not (fewer channels, or another profile), the model is
-   trained on its channels alone and measured. The final choice is made among measured layouts
-   only: BC@R, the probe, and that model with its classic groups.
+   trained on its channels alone and measured.
+5. A mip split (`split_candidates`): BC@R's own levels below a reference mip k, features for
+   s >= k at the largest size that keeps the whole within BC@R's bytes. Predicted from BC@R's
+   errors below k and the probe's from k on; when the best split that holds the floor on that
+   prediction beats the measured choice of step 4, it is trained (s drawn in [k, s_max],
+   ModelConfig.split) and measured.
+   The final choice is made among measured layouts only: BC@R, the probe, the model of step 4
+   with its classic groups, and the split.
 
-Cost: the probe plus at most one training, each at a profile no larger than the one asked for,
-so at most twice a `--layout neural` training.
+Cost: the probe plus at most two trainings, each at a profile no larger than the one asked for
+(a split's features are at most a quarter of BC@R's bytes at R; docs/layout.md has the measured
+ratio to `--layout neural`).
 
 ``--classic`` names groups that stay classic: with ``auto`` every candidate keeps them; with
 ``neural`` the one layout they make is trained (the other channels at the profile asked), no probe.
@@ -163,9 +170,82 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         train_s += res.train_seconds
         final_pool.append(m)
         models[m.label] = (res, keep)
+    measured = C.choose(final_pool, bc, match_bc).chosen
+    splits = split_candidates(ts, groups, e_bc, e0, bc, use, resolution, dims, match_bc)
+    first = replace(first, candidates=first.candidates + tuple(splits))
+    sp = max(splits, key=lambda c: (c.psnr, -c.size_bytes), default=None)
+    if sp is not None and (sp.size_bytes < measured.size_bytes if match_bc else sp.psnr > measured.psnr):
+        log(f"training the features of a mip split for: {sp.label} (predicted {sp.psnr:.2f} dB over all mips)")
+        res, m = _train_split(ts, out, options, wrap, groups, e_bc, sp, resolution, progress, coverage)
+        train_s += res.train_seconds
+        final_pool.append(m)
+        models[m.label] = (res, tuple(range(ts.num_channels)))
     decision = C.choose(final_pool, bc, match_bc)
     neural, channels = models.get(decision.chosen.label, (None, ()))
     return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start)
+
+
+def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
+    """Bytes of BC@R's groups cut to their first ``keep`` levels (headers included)."""
+    from bcfpipe.formats.dds import HEADER_BYTES
+
+    return sum(HEADER_BYTES + sum(b.nbytes for b, _, _ in g.levels[:keep]) for g in groups)
+
+
+def split_candidates(ts: TextureSet, groups: Sequence[EncodedGroup], e_bc: np.ndarray, e_probe: np.ndarray,
+                     bc: C.Candidate, use: tuple[int, ...], resolution: int, dims: tuple[int, int],
+                     match_bc: bool = False) -> list[C.Candidate]:
+    """The mip splits worth training, ``predicted``: for each reference mip k >= 1, BC@R's levels
+    that serve the mips below k and features T = (t, t, t, t/2) for s >= k, t the largest power of
+    two no larger than mip k's side whose bytes (with the DDS headers) keep the whole within BC@R's
+    size, t >= 8. Errors: BC@R's below k, the probe's from k on. Only those that hold the floor on
+    that prediction, and only where BC@R has more than one level to cut."""
+    from bcfpipe.formats.dds import HEADER_BYTES
+    from bcfpipe.layout.export import split_levels
+
+    side = max(ts.width, ts.height)
+    out = []
+    n_mips = e_bc.shape[0]
+    for k in range(1, n_mips):
+        keep = split_levels(k, resolution, side)
+        if keep >= min(len(g.levels) for g in groups):
+            break
+        budget = bc.size_bytes - split_bytes(groups, keep)
+        t = 1 << (max(1, side >> k).bit_length() - 1)
+        res = None
+        while t >= 8:
+            r = (t, t, t, t // 2)
+            size = neural_bytes(r, *dims, ts.num_channels) + 4 * HEADER_BYTES
+            if size <= budget:
+                res = r
+                break
+            t //= 2
+        if res is None:
+            continue
+        err = e_probe.copy()
+        err[:k] = e_bc[:k]
+        c = C.Candidate(bc.classic, "/".join(map(str, res)), bc.size_bytes - budget + size,
+                        tuple(float(v) for v in err.mean(1)), "predicted", use, split=k, resolutions=res)
+        if C.deficit(c, bc, match_bc) <= 0:
+            out.append(c)
+    return out
+
+
+def _train_split(ts, out, options, wrap, groups, e_bc, cand: C.Candidate, resolution, progress, coverage):
+    """Train ``cand``'s features (all channels, s >= its split) and measure the split layout:
+    (result, measured candidate). Below the split the layout decodes to BC@R exactly, from it on
+    to the model (tests/test_split_layout.py)."""
+    from bcfpipe.layout.export import split_levels
+
+    cfg = make_config(ts, options, wrap)[1]
+    cfg = cfg.with_(model=replace(cfg.model, resolutions=cand.resolutions, split=cand.split))
+    res, _ = fit_material(ts, out / "split", cfg, cand.profile, progress=progress, coverage=coverage,
+                          image_metrics=False)
+    err = res.mse_per_channel.copy()
+    err[:cand.split] = e_bc[:cand.split]
+    keep = split_levels(cand.split, resolution, max(ts.width, ts.height))
+    return res, replace(cand, size_bytes=res.size_bytes + split_bytes(groups, keep),
+                        mse_per_mip=tuple(float(v) for v in err.mean(1)), basis="measured")
 
 
 def _train_subset(ts, out, options, wrap, groups, e_bc, classic, profile, name, use, progress, coverage):

@@ -68,12 +68,24 @@ def _routing_defines(surface: Surface, srgb_units: tuple[bool, ...],
         return (c.source - (TEXTURE_SOURCE if surface.kind == "neural" else 0)) >> 2
 
     srgb = [int(c.srgb and (unit(c) is None or srgb_units[unit(c)])) for c in comps]
+    split = surface.neural.split if surface.kind == "neural" and surface.neural else 0
+    below = {}
+    if split > 0:  # a mip split: the original network's value below it (bcf_render.frag)
+        def below_unit(c):
+            return None if c.below < 0 else (c.below - TEXTURE_SOURCE) >> 2
+
+        below = {"BCF_SPLIT": split,
+                 "BCF_BELOW": _glsl_array("int", [c.below for c in comps]),
+                 "BCF_BELOW_SCALE": _glsl_array("float", [np.nan_to_num(c.below_scale) for c in comps]),
+                 "BCF_BELOW_BIAS": _glsl_array("float", [np.nan_to_num(c.below_bias) for c in comps]),
+                 "BCF_BELOW_SRGB": _glsl_array("int", [int(c.below_srgb and below_unit(c) is not None
+                                                           and srgb_units[below_unit(c)]) for c in comps])}
     return {"BCF_NEURAL": int(surface.kind == "neural"),
             "BCF_SOURCE": _glsl_array("int", [c.source for c in comps]),
             "BCF_SCALE": _glsl_array("float", [np.nan_to_num(c.scale) for c in comps]),
             "BCF_BIAS": _glsl_array("float", [np.nan_to_num(c.bias) for c in comps]),
             "BCF_SRGB": _glsl_array("int", srgb),
-            "BCF_TEXTURES": len(surface.textures), **net}
+            "BCF_TEXTURES": len(surface.textures), **net, **below}
 
 
 def _st_uniform(t: Transform2d) -> tuple[tuple[float, float, float, float], tuple[float, float]]:

@@ -53,6 +53,12 @@ class Component:
     scale: float = 0.0
     bias: float = 0.0
     srgb: bool = False
+    # A mip-split material's decoder channel below its split reads the original network instead:
+    # its texture source (TEXTURE_SOURCE + unit * 4 + slot; -1: the constant ``below_bias``)
+    below: int = -1
+    below_scale: float = 0.0
+    below_bias: float = 0.0
+    below_srgb: bool = False
 
 
 @dataclass(frozen=True)
@@ -77,6 +83,7 @@ class NeuralFeatures:
     weights: str
     weights_offset: int
     normal_index: int  # decoder channel of normal.x, -1 without a normal
+    split: int = 0  # a mip split's first reference mip the decoder serves (bcf:split); 0: none
 
 
 @dataclass(frozen=True)
@@ -215,9 +222,14 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
         for n in names:
             comps[COMPONENTS.index(n)] = Component(int(c), float(s), float(b), cs == ColorSpace.SRGB)
             driven.add(n)
-    for k, name in enumerate(COMPONENTS):  # what the decoder does not drive keeps its texture
-        if name not in driven and comps[k].source >= 0:
-            comps[k] = replace(comps[k], source=comps[k].source + TEXTURE_SOURCE)
+    split = int(_input(shader, "split", 0))
+    for k, name in enumerate(COMPONENTS):
+        o = base.components[k]
+        if name not in driven and o.source >= 0:  # what the decoder does not drive keeps its texture
+            comps[k] = replace(o, source=o.source + TEXTURE_SOURCE)
+        elif name in driven and split > 0:  # below the split, the original network's value
+            comps[k] = replace(comps[k], below=o.source + TEXTURE_SOURCE if o.source >= 0 else -1,
+                               below_scale=o.scale, below_bias=o.bias, below_srgb=o.srgb)
     st = st_source(shader)
     res = _input(shader, "referenceResolution", (0, 0))
     feats = NeuralFeatures(
@@ -228,7 +240,8 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
         repeat=str(_input(shader, "addressing", Wrap.REPEAT)) == Wrap.REPEAT,
         weights=_asset(shader, "weights", path),
         weights_offset=int(_input(shader, "weightsOffset", 0)),
-        normal_index=int(channels[targets.index("normal.x")]) if "normal.x" in targets else -1)
+        normal_index=int(channels[targets.index("normal.x")]) if "normal.x" in targets else -1,
+        split=split)
     modelled = {t.split(".")[0] for t in targets}
     notes = [n for n in base.notes if n.split(":")[0] not in modelled]
     if st.kind not in ("primvar", "transform2d"):
