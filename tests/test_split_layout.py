@@ -192,6 +192,11 @@ def test_split_candidates_fit_bc_bytes_and_hold_the_predicted_floor():
         bigger = neural_bytes((2 * t, 2 * t, 2 * t, t), 12, 16, ts.num_channels) + 4 * HEADER_BYTES
         assert 2 * t > 256 >> c.split or split_bytes(enc, split_levels(c.split, r, 256)) + bigger > bc.size_bytes
         np.testing.assert_allclose(c.mse_per_mip[:c.split], bc.mse_per_mip[:c.split])
+    # the probe's features 2^5+ times larger than any split's: 5+ halvings at 3 dB each lose the floor
+    assert split_candidates(ts, enc, e_bc, better, bc, use, r, (12, 16), probe_t0=4096, halving_db=3.0) == []
+    same = split_candidates(ts, enc, e_bc, better, bc, use, r, (12, 16), probe_t0=min(c.resolutions[0] for c in cands),
+                            halving_db=3.0)
+    assert same and same[-1] == cands[-1]  # the smallest features: no halving from a probe of their size
     worse = e_bc * 4.0  # 6 dB worse everywhere: no split holds the floor past its split
     assert split_candidates(ts, enc, e_bc, worse, bc, use, r, (12, 16)) == []
 
@@ -213,3 +218,31 @@ def test_a_chosen_split_is_exported_as_one_folder(split, tmp_path):
     assert (again / "material.json").read_text() == (out / "material.json").read_text()
     for f in mf.read(out).files:
         assert (again / f).read_bytes() == (out / f).read_bytes(), f
+
+
+def test_a_builds_usd_layer_says_the_split(split, tmp_path):
+    """assemble keeps every target on the decoder (a split's outputs are all the MLP's) and the
+    overrides layer authors bcf:split and the shader's split input, only for a split."""
+    from pxr import Usd
+
+    from bcfpipe.builder.assemble import _neural_targets
+    from bcfpipe.builder.plan import TargetMap
+    from bcfpipe.builder.usd_layer import SURFACE_SHADER, NeuralMaterialOverride, write_overrides_layer
+
+    desc = mf.read(split[4])
+    names = ["diffuseColor.r", "diffuseColor.g", "diffuseColor.b", "normal.x", "normal.y", "normal.z", "roughness"]
+    targets = [TargetMap(n, n.split(".")[0], i, 1.0, 0.0, "raw", "f.png", "r") for i, n in enumerate(names)]
+    assert [(t.target, t.channel) for t in _neural_targets(targets, desc)] == [(n, i) for i, n in enumerate(names)]
+
+    def override(path, k):
+        return NeuralMaterialOverride(
+            path, tuple(f"T{i}.dds" for i in range(4)), (4,) * 4, (1,) * 4, (0.0,) * 4, False, "repeat", (64, 64),
+            "st", (1.0, 1.0), 0.0, (0.0, 0.0), "weights.bin", 0, 10, 0, desc.mlp, "decoder.onnx", ("roughness",),
+            (5,), (1.0,), (0.0,), ("raw",), None, "test", split=k)
+
+    write_overrides_layer(tmp_path / "o.usda", [override("/A", SPLIT), override("/B", 0)])
+    stage = Usd.Stage.Open(str(tmp_path / "o.usda"))
+    a, b = stage.GetPrimAtPath("/A"), stage.GetPrimAtPath("/B")
+    assert a.GetAttribute("bcf:split").Get() == SPLIT and not b.HasAttribute("bcf:split")
+    assert stage.GetPrimAtPath(f"/A/{SURFACE_SHADER}").GetAttribute("inputs:split").Get() == SPLIT
+    assert not stage.GetPrimAtPath(f"/B/{SURFACE_SHADER}").HasAttribute("inputs:split")

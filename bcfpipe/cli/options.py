@@ -54,10 +54,11 @@ TRAINING_OPTIONS = (
                       "training (or --bench-data) predicts; a miss climbs to the next setting. docs/rate_control.md."),
     click.option("--layout", type=click.Choice([v.value for v in Layout]), default=None,
                  help="auto (the default; neural with --target-psnr): per material, keep as classic BC textures "
-                      "the channel groups the features lose, and pick the profile, by the highest PSNR over all "
-                      "mips within the size of the BC set you would ship (BC@R) and 0.5 dB of it at every mip; "
-                      "never worse than BC@R, which it ships when nothing neural qualifies. A probe training and "
-                      "at most one more (docs/layout.md). neural: every output from the MLP."),
+                      "the channel groups the features lose, or BC@R's own levels for the closest mips (a mip split), "
+                      "and pick the profile, by the highest PSNR over all mips within the size of the BC set you "
+                      "would ship (BC@R) and 0.5 dB of it at every mip; never worse than BC@R, which it ships when "
+                      "nothing neural qualifies. A probe training and at most two more (docs/layout.md). neural: "
+                      "every output from the MLP."),
     click.option("--match-bc", "match_bc", is_flag=True,
                  help="With --layout auto: the smallest layout whose every mip reaches BC@R instead."),
     click.option("--classic", "classic", multiple=True, default=(), metavar="SEMANTICS",

@@ -28,6 +28,7 @@ ratio to `--layout neural`).
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -171,7 +172,9 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         final_pool.append(m)
         models[m.label] = (res, keep)
     measured = C.choose(final_pool, bc, match_bc).chosen
-    splits = split_candidates(ts, groups, e_bc, e0, bc, use, resolution, dims, match_bc)
+    halving = max(0.0, _gain("1k", options.preset) - _gain("0.5k", options.preset))  # one halving of T_0
+    splits = split_candidates(ts, groups, e_bc, e0, bc, use, resolution, dims, match_bc,
+                              probe_t0=probe.resolutions[0], halving_db=halving)
     first = replace(first, candidates=first.candidates + tuple(splits))
     sp = max(splits, key=lambda c: (c.psnr, -c.size_bytes), default=None)
     if sp is not None and (sp.size_bytes < measured.size_bytes if match_bc else sp.psnr > measured.psnr):
@@ -194,12 +197,14 @@ def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
 
 def split_candidates(ts: TextureSet, groups: Sequence[EncodedGroup], e_bc: np.ndarray, e_probe: np.ndarray,
                      bc: C.Candidate, use: tuple[int, ...], resolution: int, dims: tuple[int, int],
-                     match_bc: bool = False) -> list[C.Candidate]:
+                     match_bc: bool = False, probe_t0: int = 0, halving_db: float = 0.0) -> list[C.Candidate]:
     """The mip splits worth training, ``predicted``: for each reference mip k >= 1, BC@R's levels
     that serve the mips below k and features T = (t, t, t, t/2) for s >= k, t the largest power of
     two no larger than mip k's side whose bytes (with the DDS headers) keep the whole within BC@R's
-    size, t >= 8. Errors: BC@R's below k, the probe's from k on. Only those that hold the floor on
-    that prediction, and only where BC@R has more than one level to cut."""
+    size, t >= 8. Errors: BC@R's below k; from k on the probe's (T_0 = ``probe_t0``), worse by
+    ``halving_db`` for every halving from probe_t0 to t (the measured gain between profiles, as
+    rate control predicts). Only those that hold the floor on that prediction, and only where BC@R
+    has more than one level to cut."""
     from bcfpipe.formats.dds import HEADER_BYTES
     from bcfpipe.layout.export import split_levels
 
@@ -222,7 +227,8 @@ def split_candidates(ts: TextureSet, groups: Sequence[EncodedGroup], e_bc: np.nd
             t //= 2
         if res is None:
             continue
-        err = e_probe.copy()
+        halvings = max(0.0, math.log2(probe_t0 / res[0])) if probe_t0 else 0.0
+        err = e_probe * 10.0 ** (halvings * halving_db / 10.0)
         err[:k] = e_bc[:k]
         c = C.Candidate(bc.classic, "/".join(map(str, res)), bc.size_bytes - budget + size,
                         tuple(float(v) for v in err.mean(1)), "predicted", use, split=k, resolutions=res)
