@@ -187,18 +187,24 @@ def _oiio_levels(path, channels):
     return levels
 
 
-def test_mixed_material_rebuilt_from_material_json_alone(mixed):
-    """An independent consumer: OpenImageIO reads every DDS (BC6H features, BC5 normals), numpy
-    samples them as GL would, onnxruntime runs the decoder, material.json says the rest."""
+def read_independently(out: Path):
+    """material.json as JSON, every layer's and classic texture's mips through OpenImageIO (as many
+    as material.json says), and the decoder in onnxruntime: what an independent reader starts from."""
     import onnxruntime as ort
 
-    ts, ref, out, _ = mixed
     d = json.loads((out / "material.json").read_text())
-    wrap = d["sampling"]["addressing"]
     layers = [_oiio_levels(out / l["file"], l["channels"]) for l in d["layers"]]
     classic = [_oiio_levels(out / c["file"], c["channels"]) for c in d["classic"]]
     assert [len(c) for c in classic] == [c["mip_count"] for c in d["classic"]]
-    sess = ort.InferenceSession(str(out / d["onnx"]["file"]), providers=["CPUExecutionProvider"])
+    return d, layers, classic, ort.InferenceSession(str(out / d["onnx"]["file"]), providers=["CPUExecutionProvider"])
+
+
+def test_mixed_material_rebuilt_from_material_json_alone(mixed):
+    """An independent consumer: OpenImageIO reads every DDS (BC6H features, BC5 normals), numpy
+    samples them as GL would, onnxruntime runs the decoder, material.json says the rest."""
+    ts, ref, out, _ = mixed
+    d, layers, classic, sess = read_independently(out)
+    wrap = d["sampling"]["addressing"]
     ours = E.decode_mips(E.load(out), [m.shape[:2] for m in ref], drop_normal_z=False)
     for k in (0, 1, 3):
         h, w = ref[k].shape[:2]

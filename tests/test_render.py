@@ -382,19 +382,24 @@ def keep_only_targets(overrides: Path, material: str, keep: set[str]) -> None:
     layer.Save()
 
 
-def test_mixed_material_samples_its_classic_textures_beside_the_decoder(smooth, rt, tmp_path) -> None:
-    """A material whose decoder drives roughness only: diffuse comes from its UsdUVTexture in the
-    same program. With a scrambled record the fully neural frame is far off; the mixed one keeps
-    the textured diffuse and stays close to the original."""
-    from bcfpipe.render.surfaces import TEXTURE_SOURCE, read_surface
-
+def scrambled_copy(smooth: Path, rt, tmp_path: Path) -> tuple[Path, dict]:
+    """A copy of the smooth quad's build whose weight record is scrambled, and its frames."""
     out = tmp_path / "out"
     shutil.copytree(smooth.parent, out)
     for p in smooth.parent.parent.iterdir():
         if p != smooth.parent:
             (tmp_path / p.name).symlink_to(p)
     scramble_record(out / smooth.name, "/World/Looks/Smooth")
-    full = frames_of(out / smooth.name, rt, camera="/World/Cam")[1]
+    return out, frames_of(out / smooth.name, rt, camera="/World/Cam")[1]
+
+
+def test_mixed_material_samples_its_classic_textures_beside_the_decoder(smooth, rt, tmp_path) -> None:
+    """A material whose decoder drives roughness only: diffuse comes from its UsdUVTexture in the
+    same program. With a scrambled record the fully neural frame is far off; the mixed one keeps
+    the textured diffuse and stays close to the original."""
+    from bcfpipe.render.surfaces import TEXTURE_SOURCE, read_surface
+
+    out, full = scrambled_copy(smooth, rt, tmp_path)
     keep_only_targets(out / "overrides.usda", "/World/Looks/Smooth", {"roughness"})
     surf = read_surface(Usd.Stage.Open(str(out / smooth.name)), "/World/Looks/Smooth", True)
     comps = dict(zip(["r", "g", "b"], surf.components[:3]))
@@ -425,13 +430,7 @@ def test_mip_split_material_reads_its_original_network_below_the_split(smooth, r
     split one equals the original frame. At split 1 the decoder takes over where s >= 1."""
     from bcfpipe.render.surfaces import TEXTURE_SOURCE, read_surface
 
-    out = tmp_path / "out"
-    shutil.copytree(smooth.parent, out)
-    for p in smooth.parent.parent.iterdir():
-        if p != smooth.parent:
-            (tmp_path / p.name).symlink_to(p)
-    scramble_record(out / smooth.name, "/World/Looks/Smooth")
-    full = frames_of(out / smooth.name, rt, camera="/World/Cam")[1]
+    out, full = scrambled_copy(smooth, rt, tmp_path)
     set_split(out / "overrides.usda", "/World/Looks/Smooth", 64)
     surf = read_surface(Usd.Stage.Open(str(out / smooth.name)), "/World/Looks/Smooth", True)
     assert surf.neural.split == 64

@@ -21,7 +21,7 @@ from bcfpipe.layout.classic import encode
 from bcfpipe.layout.export import export_split, split_levels
 from bcfpipe.texset.texture_set import build_mip_chain
 from bcfpipe.train.trainer import StratifiedScale
-from test_classic_layout import SCHEMA, _oiio_levels, _set, _trilinear  # noqa: E402
+from test_classic_layout import SCHEMA, _set, _trilinear, read_independently  # noqa: E402
 
 SPLIT, R = 3, 32  # a 64² set: reference mips 64 .. 1, BC@R at 32², the features from mip 3 (8²)
 
@@ -101,16 +101,10 @@ def test_split_material_rebuilt_from_material_json_alone(split):
     """An independent reader, at reference mips and between them: OpenImageIO reads the DDS files
     (the truncated BC chains too), numpy samples them as GL would with the lod clamped to the
     stored mips, onnxruntime runs the decoder, and the schema's mixing rule joins the two."""
-    import onnxruntime as ort
-
     ts, ref, enc, _, out, _ = split
     em = E.load(out)
-    d = json.loads((out / "material.json").read_text())
+    d, layers, classic, sess = read_independently(out)
     wrap = d["sampling"]["addressing"]
-    layers = [_oiio_levels(out / l["file"], l["channels"]) for l in d["layers"]]
-    classic = [_oiio_levels(out / c["file"], c["channels"]) for c in d["classic"]]
-    assert [len(c) for c in classic] == [c["mip_count"] for c in d["classic"]]
-    sess = ort.InferenceSession(str(out / d["onnx"]["file"]), providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(1)
     uv = rng.random((2000, 2))
     for s in (0.0, 1.0, 1.5, 2.0, 2.25, 2.5, 2.75, 3.0, 4.5):
