@@ -17,8 +17,8 @@ construction. This script measures both parts from their own files:
 
 then prints the split layout's per-mip PSNR, all mips (MSE averaged over the mips >= 4 texels, as
 everywhere), its size against BC@R's, and its worst margin against BC@R (the floor is -0.5 dB).
-`--layout auto` does not choose this layout yet: the renderer, the USD layer and verify do not
-follow it.
+`--layout auto` weighs such splits itself (bcfpipe.layout.fit.split_candidates); this script
+measures any one split and feature size by hand.
 
   python benchmarks/bound_mip_split.py --set teapot --resolution 1024 --split 3 --t0 256 [--resolutions 128,128,128,64] [--hidden H] [--preset standard]
                                        [--features bc6h]
@@ -55,8 +55,8 @@ def main() -> None:
     from bcfpipe.config import TrainingOptions, scaled_profile
     from bcfpipe.export import writer as E
     from bcfpipe.export.fit import exported_size, fit_material, make_config
-    from bcfpipe.layout.classic import channel_errors, encode
-    from bcfpipe.layout.export import export_split, split_levels
+    from bcfpipe.layout.classic import channel_errors, encode, split_levels
+    from bcfpipe.layout.export import export_split
     from bcfpipe.texset.metrics import mse_per_channel, psnr_from_mse
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 

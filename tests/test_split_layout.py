@@ -18,7 +18,8 @@ from bcfpipe.export import writer as E
 from bcfpipe.export.fit import fit_material, make_config
 from bcfpipe.formats import material as mf
 from bcfpipe.layout.classic import encode
-from bcfpipe.layout.export import export_split, split_levels
+from bcfpipe.layout.classic import split_levels
+from bcfpipe.layout.export import export_split
 from bcfpipe.texset.texture_set import build_mip_chain
 from bcfpipe.train.trainer import StratifiedScale
 from test_classic_layout import SCHEMA, _set, _trilinear, read_independently  # noqa: E402

@@ -119,3 +119,9 @@ def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Seq
                                     [ts.channels[c]], None, masks)
     return out
 
+
+def split_levels(split: int, resolution: int, reference_side: int) -> int:
+    """How many of BC@R's levels serve the reference mips below ``split``: level j serves mip j + d,
+    where d counts the reference mips larger than R (level 0 magnified for those), at least one."""
+    d = sum(1 for k in range(reference_side.bit_length()) if max(1, reference_side >> k) > resolution)
+    return max(1, split - d)

@@ -18,7 +18,7 @@ from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.formats.vocabulary import Source
 from bcfpipe.formats.bcn import DXGI
-from bcfpipe.layout.classic import EncodedGroup
+from bcfpipe.layout.classic import EncodedGroup, split_levels
 from bcfpipe.layout.fit import LayoutFit
 from bcfpipe.texset.texture_set import TextureSet
 
@@ -86,13 +86,6 @@ def _drop_stale(out: Path, desc: mf.MaterialFile) -> None:
     for stale in (*out.glob("T[0-9].dds"), *out.glob("C[0-9]*.dds"), out / mf.WEIGHTS, out / mf.ONNX):
         if stale.name not in desc.files and stale.is_file():
             stale.unlink()
-
-
-def split_levels(split: int, resolution: int, reference_side: int) -> int:
-    """How many of BC@R's levels serve the reference mips below ``split``: level j serves mip j + d,
-    where d counts the reference mips larger than R (level 0 magnified for those), at least one."""
-    d = sum(1 for k in range(reference_side.bit_length()) if max(1, reference_side >> k) > resolution)
-    return max(1, split - d)
 
 
 def export_split(groups: list[EncodedGroup], neural_dir: str | os.PathLike, ts: TextureSet,

@@ -19,8 +19,8 @@
    with its classic groups, and the split.
 
 Cost: the probe plus at most two trainings, each at a profile no larger than the one asked for
-(a split's features are at most a quarter of BC@R's bytes at R; docs/layout.md has the measured
-ratio to `--layout neural`).
+(a split's features fit beside BC@R's close levels within BC@R's bytes; docs/layout.md has the
+measured ratio to `--layout neural`). Splits are not weighed when ``--classic`` fixes groups.
 
 ``--classic`` names groups that stay classic: with ``auto`` every candidate keeps them; with
 ``neural`` the one layout they make is trained (the other channels at the profile asked), no probe.
@@ -40,7 +40,7 @@ from bcfpipe.config import PROFILES, TrainingOptions
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import EncodedGroup, channel_errors, encode
+from bcfpipe.layout.classic import EncodedGroup, channel_errors, encode, split_levels
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn
 
@@ -172,6 +172,10 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         final_pool.append(m)
         models[m.label] = (res, keep)
     measured = C.choose(final_pool, bc, match_bc).chosen
+    if forced:  # --classic keeps those groups classic at every mip: no split
+        decision = C.choose(final_pool, bc, match_bc)
+        neural, channels = models.get(decision.chosen.label, (None, ()))
+        return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start)
     halving = max(0.0, _gain("1k", options.preset) - _gain("0.5k", options.preset))  # one halving of T_0
     splits = split_candidates(ts, groups, e_bc, e0, bc, use, resolution, dims, match_bc,
                               probe_t0=probe.resolutions[0], halving_db=halving)
@@ -206,7 +210,6 @@ def split_candidates(ts: TextureSet, groups: Sequence[EncodedGroup], e_bc: np.nd
     rate control predicts). Only those that hold the floor on that prediction, and only where BC@R
     has more than one level to cut."""
     from bcfpipe.formats.dds import HEADER_BYTES
-    from bcfpipe.layout.export import split_levels
 
     side = max(ts.width, ts.height)
     out = []
@@ -241,8 +244,6 @@ def _train_split(ts, out, options, wrap, groups, e_bc, cand: C.Candidate, resolu
     """Train ``cand``'s features (all channels, s >= its split) and measure the split layout:
     (result, measured candidate). Below the split the layout decodes to BC@R exactly, from it on
     to the model (tests/test_split_layout.py)."""
-    from bcfpipe.layout.export import split_levels
-
     cfg = make_config(ts, options, wrap)[1]
     cfg = cfg.with_(model=replace(cfg.model, resolutions=cand.resolutions, split=cand.split))
     res, _ = fit_material(ts, out / "split", cfg, cand.profile, progress=progress, coverage=coverage,
