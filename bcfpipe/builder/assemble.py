@@ -200,7 +200,8 @@ def _layout_choice(d: dict | None) -> mfst.LayoutChoice | None:
         return None
     ch, bc = d["chosen"], d["bc"]
     return mfst.LayoutChoice(ch["layout"], tuple(ch["classic"]), ch["profile"], d["reason"], ch["size_bytes"],
-                             bc["size_bytes"], ch["psnr"], bc["psnr"], tuple(ch["margin_per_mip_db"]))
+                             bc["size_bytes"], ch["psnr"], bc["psnr"], tuple(ch["margin_per_mip_db"]),
+                             ch.get("worst_margin_db"))
 
 
 def _constant_inputs(bplan: BuildPlan) -> list:

@@ -228,7 +228,8 @@ def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...
             notes.append(f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)")
         if m.layout is not None:
             lay = m.layout
-            worst = min(lay.margin_per_mip_db) if lay.margin_per_mip_db else 0.0
+            worst = (lay.worst_margin_db if lay.worst_margin_db is not None  # the mips the rule counts
+                     else min(lay.margin_per_mip_db) if lay.margin_per_mip_db else 0.0)
             notes.append("layout: BC@R, nothing neural held it at every mip" if lay.profile is None else
                          f"layout {lay.chosen}: {lay.psnr - lay.bc_psnr:+.1f} dB all mips, worst mip "
                          f"{worst:+.1f} dB against BC@R")

@@ -117,7 +117,8 @@ def _table(res) -> "object":
         ch, bc = res.layout["chosen"], res.layout["bc"]
         t.add_row("layout", ch["layout"])
         t.add_row("  against BC@R", f"{ch['psnr'] - bc['psnr']:+.2f} dB all mips, worst mip "
-                                    f"{min(ch['margin_per_mip_db']):+.2f} dB, {bc['size_bytes'] / 2**20:.2f} MiB")
+                                    f"{ch.get('worst_margin_db', min(ch['margin_per_mip_db'])):+.2f} dB, "
+                                    f"{bc['size_bytes'] / 2**20:.2f} MiB")
     t.add_row("train time", f"{res.train_seconds:.1f} s")
     return t
 

@@ -146,6 +146,7 @@ class LayoutChoice(Record):
     psnr: float
     bc_psnr: float
     margin_per_mip_db: tuple[float, ...]
+    worst_margin_db: float | None = optional()  # over the mips the rule counts (>= 4 texels a side)
 
 
 @dataclass(frozen=True)

@@ -141,6 +141,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("LayoutChoice", "psnr"): "PSNR over all mips of the chosen layout, dB.",
     ("LayoutChoice", "bc_psnr"): "PSNR over all mips of BC@R, dB.",
     ("LayoutChoice", "margin_per_mip_db"): "Per reference mip: the layout's PSNR minus BC@R's, dB.",
+    ("LayoutChoice", "worst_margin_db"): "The smallest of margin_per_mip_db over the mips the rule counts (at least 4 texels a side), dB; the floor is -0.5.",
     ("Manifest", "overrides_layer"): "The USD layer with the neural-material overrides.",
     ("Manifest", "weights"): "The combined weight buffer (bcfpipe.formats.weights).",
     ("Manifest", "variants"): "Variant selections given on the command line, as [set, value].",

@@ -80,6 +80,7 @@ class Candidate:
             d["split"] = self.split
         if bc is not None:
             d["margin_per_mip_db"] = [round(v, 3) for v in self.margins(bc)]
+            d["worst_margin_db"] = round(min(self.margins(bc)[k] for k in bc.use), 3) if bc.use else None
         return d
 
 
