@@ -57,7 +57,7 @@ TRAINING_OPTIONS = (
                       "the channel groups the features lose, or BC@R's own levels for the closest mips (a mip split), "
                       "and pick the profile, by the highest PSNR over all mips within the size of the BC set you "
                       "would ship (BC@R) and 0.5 dB of it at every mip; never worse than BC@R, which it ships when "
-                      "nothing neural qualifies. A probe training and at most two more (docs/layout.md). neural: "
+                      "nothing neural qualifies. A probe training and at most one more (docs/layout.md). neural: "
                       "every output from the MLP."),
     click.option("--match-bc", "match_bc", is_flag=True,
                  help="With --layout auto: the smallest layout whose every mip reaches BC@R instead."),

@@ -76,7 +76,7 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
             held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
             if layout_of(j.options) == "auto":
                 say(f"    layout auto: against BC@{r}{held}; a probe at the largest profile within its bytes, at most "
-                    f"two more trainings (a mixed layout, a mip split), decided when trained (docs/layout.md)")
+                    f"one more training (a mixed layout or a mip split), decided when trained (docs/layout.md)")
             else:
                 say(f"    layout: against BC@{r}{held}; the rest neural at {prof}")
         for m in j.materials:

@@ -10,17 +10,17 @@
    (`choose.most_promising`) is picked for training instead.
 4. If that needs a model the probe is not (fewer channels, or another profile), the model is
    trained on its channels alone and measured.
-5. A mip split (`split_candidates`): BC@R's own levels below a reference mip k, features for
-   s >= k at the largest size that keeps the whole within BC@R's bytes. Predicted from BC@R's
-   errors below k and the probe's from k on; when the best split that holds the floor on that
-   prediction beats the measured choice of step 4, it is trained (s drawn in [k, s_max],
-   ModelConfig.split) and measured.
-   The final choice is made among measured layouts only: BC@R, the probe, the model of step 4
-   with its classic groups, and the split.
+   Mip splits (`split_candidates`) are candidates of step 3 too: BC@R's own levels below a
+   reference mip k, features for s >= k at the largest size that keeps the whole within BC@R's
+   bytes, predicted from BC@R's errors below k and the probe's from k on (moved by the measured
+   loss per halving of T_0). One that the rule picks is trained (s drawn in [k, s_max],
+   ModelConfig.split) and measured instead, when it beats what is measured already; a split
+   that holds the floor on its prediction goes before exploring a mixed one that does not.
+   The final choice is made among measured layouts only: BC@R, the probe, and that one model.
 
-Cost: the probe plus at most two trainings, each at a profile no larger than the one asked for
-(a split's features fit beside BC@R's close levels within BC@R's bytes; docs/layout.md has the
-measured ratio to `--layout neural`). Splits are not weighed when ``--classic`` fixes groups.
+Cost: the probe plus at most one training, each at a profile no larger than the one asked for,
+so at most twice a `--layout neural` training. Splits are not weighed when ``--classic`` fixes
+groups.
 
 ``--classic`` names groups that stay classic: with ``auto`` every candidate keeps them; with
 ``neural`` the one layout they make is trained (the other channels at the profile asked), no probe.
@@ -152,41 +152,40 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
                 basis = "measured" if (p == p0 and not chosen) else "bound" if p == p0 else "predicted"
                 cands.append(C.Candidate(tuple(names[i] for i in chosen), p, size_of[p] + classic_bytes,
                                          C.combine(e, e_bc, cols), basis, use))
-    first = C.choose(cands, bc, match_bc)
+    final_pool = [bc] + [c for c in cands if c.profile == p0 and not c.classic]
+    models = {final_pool[-1].label: (probe, tuple(range(ts.num_channels)))} if len(final_pool) > 1 else {}
+    splits: list[C.Candidate] = []
+    if not forced:  # --classic keeps its groups classic at every mip: no split
+        halving = max(0.0, _gain("1k", options.preset) - _gain("0.5k", options.preset))  # one halving of T_0
+        splits = split_candidates(ts, groups, e_bc, e0, bc, use, resolution, dims, match_bc,
+                                  probe_t0=probe.resolutions[0], halving_db=halving)
+    first = C.choose(cands + splits, bc, match_bc)
     log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
 
-    ch = first.chosen
+    ch = first.chosen  # one more training at most: the first choice if it needs its own model
+    held = C.choose(final_pool, bc, match_bc).chosen
+    if ch.split and not (ch.size_bytes < held.size_bytes if match_bc else ch.psnr > held.psnr):
+        ch = held
     if ch.profile is None or (not ch.classic and ch.profile == p0):  # nothing new is certain: explore
         alt = C.most_promising(cands, bc, match_bc)
         if alt is not None:
             log(f"no candidate clears the floor on its bound; training the closest: {alt.label} "
                 f"({C.deficit(alt, bc, match_bc):.1f} dB short)")
             ch = alt
-    final_pool = [bc] + [c for c in cands if c.profile == p0 and not c.classic]
-    models = {final_pool[-1].label: (probe, tuple(range(ts.num_channels)))} if len(final_pool) > 1 else {}
-    if ch.profile is not None and (ch.classic or ch.profile != p0):
+    if ch.split:
+        log(f"training the features of a mip split for: {ch.label} (predicted {ch.psnr:.2f} dB over all mips)")
+        res, m = _train_split(ts, out, options, wrap, groups, e_bc, ch, resolution, progress, coverage)
+        keep = tuple(range(ts.num_channels))
+    elif ch.profile is not None and (ch.classic or ch.profile != p0):
         log(f"training the channels outside the classic groups at {ch.profile} for: {ch.label}")
         res, keep, m = _train_subset(ts, out, options, wrap, groups, e_bc, ch.classic, own[ch.profile], ch.profile,
                                      use, progress, coverage)
+    else:
+        res = None
+    if res is not None:
         train_s += res.train_seconds
         final_pool.append(m)
         models[m.label] = (res, keep)
-    measured = C.choose(final_pool, bc, match_bc).chosen
-    if forced:  # --classic keeps those groups classic at every mip: no split
-        decision = C.choose(final_pool, bc, match_bc)
-        neural, channels = models.get(decision.chosen.label, (None, ()))
-        return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start)
-    halving = max(0.0, _gain("1k", options.preset) - _gain("0.5k", options.preset))  # one halving of T_0
-    splits = split_candidates(ts, groups, e_bc, e0, bc, use, resolution, dims, match_bc,
-                              probe_t0=probe.resolutions[0], halving_db=halving)
-    first = replace(first, candidates=first.candidates + tuple(splits))
-    sp = max(splits, key=lambda c: (c.psnr, -c.size_bytes), default=None)
-    if sp is not None and (sp.size_bytes < measured.size_bytes if match_bc else sp.psnr > measured.psnr):
-        log(f"training the features of a mip split for: {sp.label} (predicted {sp.psnr:.2f} dB over all mips)")
-        res, m = _train_split(ts, out, options, wrap, groups, e_bc, sp, resolution, progress, coverage)
-        train_s += res.train_seconds
-        final_pool.append(m)
-        models[m.label] = (res, tuple(range(ts.num_channels)))
     decision = C.choose(final_pool, bc, match_bc)
     neural, channels = models.get(decision.chosen.label, (None, ()))
     return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start)
