@@ -175,12 +175,12 @@ def test_shader_definition_in_sdr(case):
 
 def test_version_2_material_reads_as_every_output_from_the_mlp(tmp_path):
     """material.json format 2 (before layouts) still reads: no classic textures, every output the
-    decoder's; it is upgraded to the current version's record."""
+    decoder's; it is upgraded to the record of version 3 (4 is for mip splits only)."""
     data = _material().to_json()
     data["format_version"] = 2
     (tmp_path / mf.FILE).write_text(json.dumps(data))
     d = mf.read(tmp_path)
-    assert d.format_version == mf.FORMAT_VERSION and d.neural and not d.mixed and not d.classic
+    assert d.format_version == mf.NO_SPLIT_VERSION == 3 and d.neural and not d.mixed and not d.classic
     assert [o.name for o in d.mlp_outputs] == ["roughness.r", "metallic.r"]
 
 

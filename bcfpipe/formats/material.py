@@ -7,7 +7,7 @@ only writer is :func:`bcfpipe.export.writer.export`; every reader goes through :
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from bcfpipe.formats.atomic import atomic_write
@@ -190,6 +190,8 @@ class MaterialFile(Record):
               "outputs", "onnx", "training")
 
     def __post_init__(self) -> None:
+        # the version this record is written as: 4 only with a mip split (NO_SPLIT_VERSION's note)
+        object.__setattr__(self, "format_version", FORMAT_VERSION if self.split is not None else NO_SPLIT_VERSION)
         neural = any(o.source != Source.CLASSIC for o in self.outputs)
         if neural and (self.bc6h is None) == (self.bc7 is None):
             raise FormatError("material.json needs exactly one of 'bc6h' and 'bc7' (the feature format)")
@@ -267,13 +269,13 @@ def _version() -> str:
 
 def read(folder: str | os.PathLike) -> MaterialFile:
     """``folder/material.json``; a missing, foreign or malformed file raises FormatError."""
+    # v2 (all from the MLP) reads as v3; v3, a material without a split, stays v3 as written
     return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3),
-                       upgrade=lambda data: dict(data, format_version=FORMAT_VERSION))  # v2: all from the MLP
+                       upgrade=lambda data: dict(data, format_version=NO_SPLIT_VERSION))
 
 
 def write(folder: str | os.PathLike, desc: MaterialFile) -> Path:
     """``folder/material.json``: version 4 with a mip split, else 3 (NO_SPLIT_VERSION)."""
-    desc = replace(desc, format_version=FORMAT_VERSION if desc.split is not None else NO_SPLIT_VERSION)
     path = Path(folder) / FILE
     atomic_write(path, desc.dumps().encode())
     return path
