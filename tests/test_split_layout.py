@@ -254,3 +254,18 @@ def test_the_reported_worst_margin_counts_the_mips_the_rule_counts():
     d = c.to_json(bc)
     assert min(d["margin_per_mip_db"]) == -10.0 and d["worst_margin_db"] == 0.0
     assert C.admissible(c, bc) is None
+
+
+@pytest.mark.parametrize("backend", ["onnx", pytest.param("glsl", marks=pytest.mark.gl)])
+def test_decode_cli_shows_what_the_split_material_shows(split, backend):
+    """`bcfpipe decode` of a split material: below the split its classic textures, from the split
+    on the decoder, as decode_mips (material.json's rule) has them at each reference mip."""
+    from bcfpipe.cli.decode import decode_material, select_target
+
+    ts, ref, _, _, out, _ = split
+    ours = E.decode_mips(E.load(out), [m.shape[:2] for m in ref], drop_normal_z=False)
+    for k in (0, SPLIT - 1, SPLIT):
+        h, w = ref[k].shape[:2]
+        img, used = decode_material(select_target(str(out), None), (w, h), float(k), backend)
+        assert used == backend
+        np.testing.assert_allclose(img, ours[k], atol=2e-3 if backend == "glsl" else 1e-5, err_msg=f"mip {k}")

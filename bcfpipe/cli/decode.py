@@ -62,8 +62,32 @@ def select_target(out: str, prim: str | None):
     return hits[0]
 
 
+def _grid_uv(w: int, ys: np.ndarray) -> np.ndarray:
+    """Texel-centre uvs of the rows ``ys`` (v values) of a ``w``-wide grid, row-major."""
+    xs = (np.arange(w, dtype=np.float64) + 0.5) / w
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    return np.stack([xx.ravel(), yy.ravel()], 1).astype(np.float32)
+
+
 def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
-    """(H, W, c_out) float32 decoded at the grid's texel centres; returns the backend used."""
+    """(H, W, c_out) float32 decoded at the grid's texel centres; returns the backend used. A
+    mip-split material's outputs below its split mix in its classic textures, as material.json says."""
+    img, used = _decode_network(target, size, lod, backend)
+    split = target.desc.file.split
+    if split is not None and lod < split:
+        from bcfpipe.export import writer as E
+
+        em, (w, h) = E.load(target.desc.folder), size
+        flat = img.reshape(h * w, -1)  # a split's outputs are all the decoder's, in material.json's order
+        rows = max(1, (1 << 18) // w)
+        for y0 in range(0, h, rows):
+            ys = (np.arange(y0, min(h, y0 + rows), dtype=np.float64) + 0.5) / h
+            part = flat[y0 * w:(y0 + len(ys)) * w]
+            E.classic_outputs(em, _grid_uv(w, ys), float(lod), part)
+    return img, used
+
+
+def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
     from bcfpipe.verify import glsl as G
 
     w, h = size
@@ -88,12 +112,10 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
     em = E.load(target.desc.folder)
     sess = E.onnx_session(em)
     out = np.empty((h, w, target.desc.c_out), np.float32)
-    xs = (np.arange(w, dtype=np.float64) + 0.5) / w
     rows = max(1, (1 << 18) // w)
     for y0 in range(0, h, rows):
         ys = (np.arange(y0, min(h, y0 + rows), dtype=np.float64) + 0.5) / h
-        yy, xx = np.meshgrid(ys, xs, indexing="ij")
-        uv = np.stack([xx.ravel(), yy.ravel()], 1).astype(np.float32)
+        uv = _grid_uv(w, ys)
         feats = E.sample_exported_features(em, uv, float(lod))
         out[y0:y0 + len(ys)] = sess.run([ONNX_OUTPUT], {ONNX_INPUT: feats})[0].reshape(len(ys), w, -1)
     return out, "onnx"
@@ -156,7 +178,9 @@ def decode(out: str, prim: str | None, lod: float, size: str | None, backend: st
     """Write the texture set a neural material in OUT reconstructs, as images in a folder.
 
     PNG for semantics whose source files were 8-bit, EXR otherwise; normals as a normal map
-    (rgb = 0.5 * xyz + 0.5). Exit codes: 0 ok, 2 bad input or no OpenGL with --backend glsl.
+    (rgb = 0.5 * xyz + 0.5). A mip-split material (--layout auto) shows its classic textures
+    below its split, mixed in as material.json says. Exit codes: 0 ok, 2 bad input or no OpenGL
+    with --backend glsl.
     """
     target = select_target(out, prim)
     wh = parse_size(size)

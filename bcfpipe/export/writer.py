@@ -200,19 +200,22 @@ def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarra
     texel_scale + texel_bias clamped to the output's range; a normal's z from its x and y. A split
     output's column, which holds the MLP's value, becomes the two mixed by `split_weight`."""
     desc = em.desc
+    w = split_weight(desc.split, s) if desc.split is not None else 1.0
+    # the outputs this fills: every classic one; a split one unless the MLP's value stands alone
+    mine = [o.source == mf.Source.CLASSIC or (o.source == mf.Source.SPLIT and w < 1.0) for o in desc.outputs]
+    if not any(mine):  # a split material from its split on: no texture to sample
+        return
     levels = [[torch.from_numpy(np.ascontiguousarray(np.moveaxis(m, -1, 0))) for m in tex] for tex in em.classic]
     lvl = M.cached_level_fn(levels)
     with torch.no_grad():
         t = M.sample_features(lvl, [len(tex) for tex in levels], tuple(c.lod_bias for c in desc.classic),
                               torch.from_numpy(uv), s, desc.wrap).numpy()
     first = np.cumsum([0] + [c.channels for c in desc.classic])
-    w = split_weight(desc.split, s) if desc.split is not None else 1.0
     for i, o in enumerate(desc.outputs):
-        if o.source not in (mf.Source.CLASSIC, mf.Source.SPLIT) or o.reconstructed or w == 1.0 and o.source == mf.Source.SPLIT:
-            continue
-        v = np.clip(t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias, o.range[0], o.range[1])
-        y[:, i] = v if o.source == mf.Source.CLASSIC else (1.0 - w) * v + w * y[:, i]
+        if mine[i] and not o.reconstructed:
+            v = np.clip(t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias, *o.range)
+            y[:, i] = v if o.source == mf.Source.CLASSIC else (1.0 - w) * v + w * y[:, i]
     for i, o in enumerate(desc.outputs):
-        if o.source in (mf.Source.CLASSIC, mf.Source.SPLIT) and o.reconstructed and (o.source == mf.Source.CLASSIC or w < 1.0):
-            x, yy = y[:, i - 2], y[:, i - 1]  # normal z after its x and y (a split one's: of the mixed x and y)
+        if mine[i] and o.reconstructed:  # normal z after its x and y (a split one's: of the mixed x and y)
+            x, yy = y[:, i - 2], y[:, i - 1]
             y[:, i] = np.sqrt(np.maximum(0.0, 1.0 - x * x - yy * yy))
