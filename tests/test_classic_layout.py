@@ -479,3 +479,24 @@ def test_build_classic_applies_to_the_materials_that_have_it(tmp_path):
     r = CliRunner().invoke(main, ["plan", str(SAMPLE / "sample_scene.usda"), "--classic", "normal,normals"])
     assert r.exit_code == 0 and "--classic normals: no modelled material has such a channel" in r.output
     assert "--classic normal:" not in r.output
+
+
+def test_decode_cli_writes_every_output_of_a_mixed_or_all_classic_material(mixed, tmp_path):
+    """`bcfpipe decode` of a layout: the decoder's outputs and the classic ones, as decode_mips has
+    them; a material kept as BC@R (no decoder at all) decodes from its BC textures alone."""
+    from bcfpipe.cli.decode import decode_material, select_target
+
+    ts, ref, out, _ = mixed
+    enc = encode(ts, 32, ref)
+    use = tuple(range(len(ref)))
+    bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
+                     C.combine(None, channel_errors(ts, enc, ref), range(6)), "measured", use)
+    d = C.Decision(bc, (bc,), bc, "test", "quality")
+    classic = export_layout(LayoutFit(d, d, enc, None, (), None, 0.0, 0.0), ts, tmp_path / "bc", "repeat")
+    for folder, used in ((out, "onnx and classic textures"), (classic, "classic textures")):
+        ours = E.decode_mips(E.load(folder), [m.shape[:2] for m in ref], drop_normal_z=False)
+        for k in (0, 1):
+            h, w = ref[k].shape[:2]
+            img, how = decode_material(select_target(str(folder), None), (w, h), float(k), "onnx")
+            assert how == used and img.shape == (h, w, len(mf.read(folder).outputs))
+            np.testing.assert_allclose(img, ours[k], atol=1e-5, err_msg=f"{folder.name} mip {k}")

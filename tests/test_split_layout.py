@@ -267,5 +267,5 @@ def test_decode_cli_shows_what_the_split_material_shows(split, backend):
     for k in (0, SPLIT - 1, SPLIT):
         h, w = ref[k].shape[:2]
         img, used = decode_material(select_target(str(out), None), (w, h), float(k), backend)
-        assert used == backend
+        assert used == f"{backend} and classic textures"
         np.testing.assert_allclose(img, ours[k], atol=2e-3 if backend == "glsl" else 1e-5, err_msg=f"mip {k}")

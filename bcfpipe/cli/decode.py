@@ -70,21 +70,28 @@ def _grid_uv(w: int, ys: np.ndarray) -> np.ndarray:
 
 
 def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
-    """(H, W, c_out) float32 decoded at the grid's texel centres; returns the backend used. A
-    mip-split material's outputs below its split mix in its classic textures, as material.json says."""
-    img, used = _decode_network(target, size, lod, backend)
-    split = target.desc.file.split
-    if split is not None and lod < split:
-        from bcfpipe.export import writer as E
+    """(H, W, outputs) float32 at the grid's texel centres, every output of material.json: the
+    decoder's (through ``backend``), a layout's classic ones from their BC textures, and a mip
+    split's mixed below its split, as material.json says. Returns it and what decoded it."""
+    file = target.desc.file
+    w, h = size
+    img, used = _decode_network(target, size, lod, backend) if file.neural else (None, "classic textures")
+    if not file.mixed:
+        return img, used
+    from bcfpipe.export import writer as E
+    from bcfpipe.formats import material as mf
 
-        em, (w, h) = E.load(target.desc.folder), size
-        flat = img.reshape(h * w, -1)  # a split's outputs are all the decoder's, in material.json's order
-        rows = max(1, (1 << 18) // w)
-        for y0 in range(0, h, rows):
-            ys = (np.arange(y0, min(h, y0 + rows), dtype=np.float64) + 0.5) / h
-            part = flat[y0 * w:(y0 + len(ys)) * w]
-            E.classic_outputs(em, _grid_uv(w, ys), float(lod), part)
-    return img, used
+    em = E.load(target.desc.folder)
+    full = np.empty((h * w, len(file.outputs)), np.float32)
+    if img is not None:
+        full[:, [i for i, o in enumerate(file.outputs) if o.source != mf.Source.CLASSIC]] = img.reshape(h * w, -1)
+        used += " and classic textures"
+    rows = max(1, (1 << 18) // w)
+    for y0 in range(0, h, rows):
+        ys = (np.arange(y0, min(h, y0 + rows), dtype=np.float64) + 0.5) / h
+        part = full[y0 * w:(y0 + len(ys)) * w]
+        E.classic_outputs(em, _grid_uv(w, ys), float(lod), part)
+    return full.reshape(h, w, -1), used
 
 
 def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
@@ -178,9 +185,9 @@ def decode(out: str, prim: str | None, lod: float, size: str | None, backend: st
     """Write the texture set a neural material in OUT reconstructs, as images in a folder.
 
     PNG for semantics whose source files were 8-bit, EXR otherwise; normals as a normal map
-    (rgb = 0.5 * xyz + 0.5). A mip-split material (--layout auto) shows its classic textures
-    below its split, mixed in as material.json says. Exit codes: 0 ok, 2 bad input or no OpenGL
-    with --backend glsl.
+    (rgb = 0.5 * xyz + 0.5). A --layout auto material's classic textures are decoded too (its
+    classic groups, BC@R kept whole, or a mip split's levels below its split, mixed as
+    material.json says). Exit codes: 0 ok, 2 bad input or no OpenGL with --backend glsl.
     """
     target = select_target(out, prim)
     wh = parse_size(size)
@@ -189,7 +196,7 @@ def decode(out: str, prim: str | None, lod: float, size: str | None, backend: st
         rw, rh = target.desc.ref_size
         wh = (max(1, rw >> k), max(1, rh >> k))
     img, used = decode_material(target, wh, lod, backend)
-    files = write_images(img, target.desc.outputs, Path(out_dir))
+    files = write_images(img, target.desc.file.outputs, Path(out_dir))
     click.echo(f"{target.desc.name}: decoded {wh[0]}x{wh[1]} at s={lod:g} with {used}")
     for f in files:
         click.echo(f"  {f}")
