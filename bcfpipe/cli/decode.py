@@ -62,11 +62,15 @@ def select_target(out: str, prim: str | None):
     return hits[0]
 
 
-def _grid_uv(w: int, ys: np.ndarray) -> np.ndarray:
-    """Texel-centre uvs of the rows ``ys`` (v values) of a ``w``-wide grid, row-major."""
+def _grid_rows(w: int, h: int):
+    """(first row, row count, texel-centre uvs row-major) of a w x h grid, about 2^18 texels at a
+    time: O(chunk) scratch whatever the size."""
     xs = (np.arange(w, dtype=np.float64) + 0.5) / w
-    yy, xx = np.meshgrid(ys, xs, indexing="ij")
-    return np.stack([xx.ravel(), yy.ravel()], 1).astype(np.float32)
+    rows = max(1, (1 << 18) // w)
+    for y0 in range(0, h, rows):
+        ys = (np.arange(y0, min(h, y0 + rows), dtype=np.float64) + 0.5) / h
+        yy, xx = np.meshgrid(ys, xs, indexing="ij")
+        yield y0, len(ys), np.stack([xx.ravel(), yy.ravel()], 1).astype(np.float32)
 
 
 def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
@@ -86,11 +90,8 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
     if img is not None:
         full[:, [i for i, o in enumerate(file.outputs) if o.source != mf.Source.CLASSIC]] = img.reshape(h * w, -1)
         used += " and classic textures"
-    rows = max(1, (1 << 18) // w)
-    for y0 in range(0, h, rows):
-        ys = (np.arange(y0, min(h, y0 + rows), dtype=np.float64) + 0.5) / h
-        part = full[y0 * w:(y0 + len(ys)) * w]
-        E.classic_outputs(em, _grid_uv(w, ys), float(lod), part)
+    for y0, n, uv in _grid_rows(w, h):
+        E.classic_outputs(em, uv, float(lod), full[y0 * w:(y0 + n) * w])
     return full.reshape(h, w, -1), used
 
 
@@ -119,12 +120,9 @@ def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> 
     em = E.load(target.desc.folder)
     sess = E.onnx_session(em)
     out = np.empty((h, w, target.desc.c_out), np.float32)
-    rows = max(1, (1 << 18) // w)
-    for y0 in range(0, h, rows):
-        ys = (np.arange(y0, min(h, y0 + rows), dtype=np.float64) + 0.5) / h
-        uv = _grid_uv(w, ys)
+    for y0, n, uv in _grid_rows(w, h):
         feats = E.sample_exported_features(em, uv, float(lod))
-        out[y0:y0 + len(ys)] = sess.run([ONNX_OUTPUT], {ONNX_INPUT: feats})[0].reshape(len(ys), w, -1)
+        out[y0:y0 + n] = sess.run([ONNX_OUTPUT], {ONNX_INPUT: feats})[0].reshape(n, w, -1)
     return out, "onnx"
 
 
