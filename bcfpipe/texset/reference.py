@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from bcfpipe.formats.vocabulary import Wrap
+from bcfpipe.texset import hostmem
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["ReferencePyramid", "CentreTargets", "keys_weights", "sample_reference", "random_batch", "WRAP_MODES"]
@@ -206,7 +207,7 @@ class CentreTargets:
                 continue
             nxt = pyr.mips[k + 1]
             rows = interleave and 2 * c * h * w * m.element_size() <= INTERLEAVE_MAX_BYTES
-            up = torch.empty((h * w, 2 * c) if rows else (c, h * w), dtype=nxt.dtype, device=m.device)
+            up = hostmem.empty((h * w, 2 * c) if rows else (c, h * w), nxt.dtype, m.device)
             if rows:
                 up[:, :c] = m.reshape(c, -1).t()
             for a in range(0, h * w, chunk):  # in chunks: no 2x peak at 8K

@@ -13,6 +13,7 @@ from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat, Wrap
 from bcfpipe.model.features import BlockParams, codec_of
 from bcfpipe.model.sampling import level_weights
+from bcfpipe.texset import hostmem
 
 
 def default_backend() -> str:
@@ -115,7 +116,7 @@ class FusedStep:
         tensors = [[(b.endpoints, b.x) if blocks else (b,) for b in layer] for layer in self.levels]
         n_p = sum(ts[0].numel() for layer in tensors for ts in layer)
         n_x = sum(ts[1].numel() for layer in tensors for ts in layer) if blocks else 0
-        P, X = torch.empty(n_p), torch.empty(max(n_x, 1))
+        P, X = hostmem.empty((n_p,), torch.float32), hostmem.empty((max(n_x, 1),), torch.float32)
         M = np.zeros(max(n_x, 1), np.uint8)
         po = xo = 0
         self.slot = []

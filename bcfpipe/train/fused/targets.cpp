@@ -62,7 +62,15 @@ void bcf_bicubic(const float* tex, int c, int h, int w, const float* uv, int64_t
 void bcf_centres(const float* mip, const float* up, int c, int h, int w, const int64_t* ids, int64_t n, float t,
                  float* uv, float* target) {
     const int64_t plane = int64_t(h) * w;
+    constexpr int64_t AHEAD = 16;  // as bcf_centre_rows, one line per plane
     for (int64_t k = 0; k < n; ++k) {
+        if (k + AHEAD < n) {
+            const int64_t next = ids[k + AHEAD];
+            for (int ch = 0; ch < c; ++ch) {
+                __builtin_prefetch(mip + ch * plane + next);
+                if (t > 0.0f) __builtin_prefetch(up + ch * plane + next);
+            }
+        }
         const int64_t id = ids[k];
         uv[2 * k] = (float(id % w) + 0.5f) / float(w);
         uv[2 * k + 1] = (float(id / w) + 0.5f) / float(h);
@@ -80,7 +88,14 @@ void bcf_centres(const float* mip, const float* up, int c, int h, int w, const i
 // The same from a level kept texel by texel (CentreTargets.texels): rows (h w, 2 c) = [mip | up].
 void bcf_centre_rows(const float* rows, int c, int h, int w, const int64_t* ids, int64_t n, float t, float* uv,
                      float* target) {
+    // the ids are sorted but sparse: each row misses the caches, so it is requested AHEAD rows early
+    constexpr int64_t AHEAD = 16;
     for (int64_t k = 0; k < n; ++k) {
+        if (k + AHEAD < n) {
+            const float* next = rows + ids[k + AHEAD] * 2 * c;
+            __builtin_prefetch(next);
+            __builtin_prefetch(next + 2 * c - 1);
+        }
         const int64_t id = ids[k];
         const float* r = rows + id * 2 * c;
         uv[2 * k] = (float(id % w) + 0.5f) / float(w);
