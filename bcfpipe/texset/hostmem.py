@@ -4,7 +4,8 @@ torch's CPU allocator maps a large tensor in 4 KiB pages; numpy's allocator asks
 transparent huge pages (``madvise(MADV_HUGEPAGE)``, which this kernel's default ``madvise`` mode
 requires). A centre batch reads 16,384 random texels of a 2048² level kept texel by texel (about
 200 MB): in 4 KiB pages almost every read also walks the page table. In 2 MiB pages the teapot's
-centre batches at 1k took 1.3 ms instead of 1.9 ms per step (docs/benchmarks.md).
+centre batches at 1k took 1.3 ms instead of 1.9 ms per step, before the rows were also
+prefetched (docs/benchmarks.md, "The repeat modulo, and the targets' cache misses").
 """
 from __future__ import annotations
 
