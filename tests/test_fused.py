@@ -263,3 +263,18 @@ def test_without_a_compiler_the_numba_kernel_runs_and_says_why(monkeypatch, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["bcfpipe: no C++ compiler (/nonexistent/g++) found; scripts/setup.sh installs one; "
                    "the fused kernel runs in numba (slower)"]
+
+
+def test_a_source_the_compiler_refuses_is_reported_by_its_first_error(monkeypatch, tmp_path):
+    """A failed build names the compiler's first error (file:line: error: ...), not the caret
+    line GCC ends with."""
+    from bcfpipe.train.fused import native
+
+    bad = tmp_path / "bad.cpp"
+    bad.write_text("int f() {\n    return 1\n}\n")
+    monkeypatch.setattr(native, "SOURCES", (bad,))
+    with pytest.raises(native.NativeUnavailable) as e:
+        native._build(native._compiler(), tmp_path / "out.so")
+    message = str(e.value)
+    assert message.startswith("building the fused kernel failed: ") and "bad.cpp:2" in message and "error" in message
+    assert not (tmp_path / "out.so").exists() and [p.name for p in tmp_path.iterdir()] == ["bad.cpp"]

@@ -75,6 +75,16 @@ def library_path() -> Path:
     return Path(kernels_dir()) / f"bcf_step-{key}.so"
 
 
+def _first_error(stderr: str) -> str:
+    """The compiler's first error line (file:line: error: ...), else its last line: GCC ends its
+    report with the source line and a caret, which say nothing alone."""
+    lines = [ln.strip() for ln in stderr.strip().splitlines() if ln.strip()]
+    for ln in lines:
+        if "error" in ln.lower():
+            return ln
+    return lines[-1] if lines else "no message"
+
+
 def _build(cxx: str, path: Path) -> None:
     """Compile the sources into ``path`` through a temporary file beside it (renamed when whole)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -83,8 +93,7 @@ def _build(cxx: str, path: Path) -> None:
     try:
         r = subprocess.run([cxx, *FLAGS, "-o", tmp, *map(str, SOURCES)], capture_output=True, text=True)
         if r.returncode != 0:
-            last = (r.stderr.strip().splitlines() or ["?"])[-1]
-            raise NativeUnavailable(f"building the fused kernel failed: {last}")
+            raise NativeUnavailable(f"building the fused kernel failed: {_first_error(r.stderr)}")
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
