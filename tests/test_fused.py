@@ -278,3 +278,16 @@ def test_a_source_the_compiler_refuses_is_reported_by_its_first_error(monkeypatc
     message = str(e.value)
     assert message.startswith("building the fused kernel failed: ") and "bad.cpp:2" in message and "error" in message
     assert not (tmp_path / "out.so").exists() and [p.name for p in tmp_path.iterdir()] == ["bad.cpp"]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64, torch.float16, torch.bfloat16, torch.int64])
+def test_host_tensors_come_from_numpys_allocator_where_numpy_has_the_type(dtype):
+    """texset.hostmem.empty: numpy's allocator (transparent huge pages) for the types numpy has,
+    torch's for the others (bfloat16 has no numpy type); the tensor is the shape and type asked,
+    and writable."""
+    from bcfpipe.texset import hostmem
+
+    t = hostmem.empty((3, 1000), dtype)
+    assert t.shape == (3, 1000) and t.dtype == dtype and t.device.type == "cpu"
+    t.fill_(2)
+    assert bool((t == 2).all())

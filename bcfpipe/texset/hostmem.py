@@ -17,6 +17,10 @@ __all__ = ["empty"]
 
 def empty(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device | str = "cpu") -> torch.Tensor:
     """``torch.empty(shape, dtype=dtype, device=device)``, from numpy's allocator on the CPU."""
-    if torch.device(device).type != "cpu":
+    if torch.device(device).type != "cpu" or dtype not in _NUMPY:
         return torch.empty(shape, dtype=dtype, device=device)
-    return torch.from_numpy(np.empty(shape, dtype=torch.empty((), dtype=dtype).numpy().dtype))
+    return torch.from_numpy(np.empty(shape, dtype=_NUMPY[dtype]))
+
+
+_NUMPY = {torch.float16: np.float16, torch.float32: np.float32, torch.float64: np.float64, torch.int32: np.int32,
+          torch.int64: np.int64, torch.uint8: np.uint8}
