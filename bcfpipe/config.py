@@ -128,14 +128,14 @@ PRESETS: dict[str, Preset] = {
 }
 DEFAULT_PRESET = "standard"
 
-# A 2048² T_0 costs about 1.6x per step on the CPU: Adam streams every parameter of each level a step
+# A 2048² T_0 costs about 2x per step on the CPU: Adam streams every parameter of each level a step
 # samples, and the finest level holds 4x the blocks (docs/benchmarks.md, "Presets re-tuned"). To keep
 # issue 30's limits for a 2K material on a quiet 2-core machine (standard 5 min, fast 2 min, draft
-# 30 s), `fast` and `standard` take fewer steps there; CUDA and smaller profiles train PRESETS as is.
+# 30 s), `standard` takes fewer steps there (the teapot: 255 s; `fast` at full steps: 99 s); CUDA and
+# smaller profiles train PRESETS as is.
 LARGE_T0 = 2048
 CPU_PRESETS_LARGE: dict[str, Preset] = {
-    "fast": _cpu_preset(800, 4400, 200, 128 * 128),
-    "standard": _cpu_preset(2000, 11000, 300, 128 * 128),
+    "standard": _cpu_preset(2600, 13500, 300, 128 * 128),
 }
 
 

@@ -441,13 +441,13 @@ def test_a_kernel_named_keys_what_it_runs(tmp_path: Path) -> None:
 
 
 def test_cpu_presets_take_fewer_steps_at_2k_and_the_key_follows(tmp_path: Path, monkeypatch) -> None:
-    """Issue 30's limits for a 2K material: on a CPU, fast and standard train CPU_PRESETS_LARGE at a
-    2048² T_0; CUDA, smaller profiles and the other presets train PRESETS. The cache key holds the
-    schedule a job trains."""
+    """Issue 30's limits for a 2K material: on a CPU, standard trains CPU_PRESETS_LARGE at a 2048²
+    T_0; CUDA, smaller profiles and the other presets (fast fits at full steps) train PRESETS. The
+    cache key holds the schedule a job trains."""
     from bcfpipe import config
 
     assert config.preset_for("standard", 2048, "cpu") is config.CPU_PRESETS_LARGE["standard"]
-    assert config.preset_for("fast", 2048, "cpu") is config.CPU_PRESETS_LARGE["fast"]
+    assert config.preset_for("fast", 2048, "cpu") is config.PRESETS["fast"]
     assert config.preset_for("standard", 1024, "cpu") is config.PRESETS["standard"]
     assert config.preset_for("standard", 2048, "cuda:0") is config.PRESETS["standard"]
     assert config.preset_for("draft", 2048, "cpu") is config.PRESETS["draft"]

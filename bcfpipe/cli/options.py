@@ -20,7 +20,7 @@ TRAINING_OPTIONS = (
                  show_default=True, help="Training preset (steps, batch, learning rates): draft is the fastest worth "
                                          "looking at; smoke only checks a pipeline end to end (about 1 s of "
                                          "training a material); 'paper' is the paper's 206k-step schedule (for a GPU). On a "
-                                         "CPU, fast and standard take fewer steps at a 2048² T_0 (docs/training.md)."),
+                                         "CPU, standard takes fewer steps at a 2048² T_0 (docs/training.md)."),
     click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
                  help="Hidden units of the decoder MLP."),
     click.option("--features", type=click.Choice([f.value for f in FeatureFormat]), default=DEFAULT_FEATURES.value,
