@@ -94,9 +94,11 @@ inline bool any(vi m) { return _mm256_movemask_ps((__m256)m) != 0; }
 inline bool any(vi m) { for (int l = 0; l < W; ++l) if (m[l]) return true; return false; }
 #endif
 
-// Texel i of n along an axis: wrapped (Python's modulo) or clamped to the edge. Every caller's i
-// lies in [-n, 2n), where the modulo is one conditional add or subtract; a vector modulo has no
-// instruction (it became 16 integer divisions per call, a sixth of the decode's time).
+// Texel i of n along an axis: wrapped (Python's modulo) or clamped to the edge. A training's i lies
+// in [-n, 2n) (the decode wraps uv into [0, 1] first; the bicubic's taps of uv in [0, 1) reach one
+// texel further), where the modulo is one conditional add or subtract. A vector modulo has no
+// instruction: it became 16 integer divisions per call, about a sixth of the decode's time. When
+// any lane lies outside, all take the modulo.
 inline vi address(vi i, int n, bool repeat) {
     if (repeat) {
         if (__builtin_expect(any((i < -n) | (i >= 2 * n)), 0)) {
