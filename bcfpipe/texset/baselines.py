@@ -30,7 +30,7 @@ import numpy as np
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline", "astcenc_path",
-           "pack_texture_set", "CODECS", "BC1_LEVEL"]
+           "pack_texture_set", "CODECS", "BC1_LEVEL", "bc7_mips"]
 
 CODECS = ("bc", "astc")
 BC1_LEVEL = 18  # quicktex presets run 0..18
@@ -110,6 +110,65 @@ def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL,
     _check_mips(mips_rgb, 3, "bc1")
     return _quicktex_roundtrip(mips_rgb, BC1Encoder(level), BC1Decoder(), BC1Texture, f"bc1 level {level}", 3, 8,
                                blocks)
+
+
+# ISPC's ``alpha_slow`` profile (ispc_texcomp_kernel: GetProfile_alpha_slow): every mode group
+# (0/2, 1/3/7, 4/5, 6), 2 + 2 refinement iterations, no fast skips, mode 4/5 channel rotation searched
+BC7_SETTINGS = dict(modes=(True, True, True, True), refine=4, skip_mode2=False, fast_skip=64)
+
+
+def _ispc_bc7_levels(mips_rgba: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """(H, W, 4) [0, 1] mips -> each level's BC7 blocks, (n, 16) uint8, row-major, by ISPC."""
+    import ispc_texcomp as ispc
+
+    s = BC7_SETTINGS
+    settings = ispc.BC7EncSettings(list(s["modes"]), [s["refine"]] * 8, s["skip_mode2"], s["fast_skip"],
+                                   s["fast_skip"], s["fast_skip"], 0, s["refine"], 4)
+    out = []
+    for m in mips_rgba:
+        px = _pad4(_to_u8_rgba(np.asarray(m)))
+        ph, pw = px.shape[:2]
+        raw = ispc.compress_blocks_bc7(ispc.RGBASurface(px.tobytes(), pw, ph), settings)
+        out.append(np.frombuffer(raw, np.uint8).reshape(-1, 16).copy())
+    return out
+
+
+def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
+    """BC7-encode (ISPC, every mode: `BC7_SETTINGS`) and decode (texture2ddecoder) every (H, W, 4)
+    mip; returns (decoded mips, bytes). With ``blocks``, each level's (blocks, w, h) is appended. In
+    a build with a cache the blocks are kept as BC1/BC4/BC5's are."""
+    import ispc_texcomp as ispc
+    import texture2ddecoder
+    import xxhash
+
+    from bcfpipe.texset.blocks import store as blocks_store
+
+    _check_mips(mips_rgba, 4, "bc7")
+    cache, key, levels = blocks_store(), "", None
+    if cache is not None:
+        digest = xxhash.xxh3_128(f"bc7 ispc {ispc.version() if callable(getattr(ispc, 'version', None)) else ''}"
+                                 f"|{sorted(BC7_SETTINGS.items())}".encode())
+        for m in mips_rgba:
+            px = _pad4(_to_u8_rgba(np.asarray(m)))
+            digest.update(repr(px.shape).encode())
+            digest.update(px.tobytes())
+        key = digest.hexdigest()
+        levels = cache.get(key, len(mips_rgba))
+    fresh = levels is None
+    if fresh:
+        levels = _ispc_bc7_levels(mips_rgba)
+    decoded, size = [], 0
+    for m, b in zip(mips_rgba, levels):
+        h, w = m.shape[:2]
+        ph, pw = h + (-h % 4), w + (-w % 4)
+        size += b.nbytes
+        if blocks is not None:
+            blocks.append((b, w, h))
+        px = np.frombuffer(texture2ddecoder.decode_bc7(b.tobytes(), pw, ph), np.uint8).reshape(ph, pw, 4)
+        decoded.append(px[:h, :w, [2, 1, 0, 3]].astype(np.float32) / 255.0)  # BGRA -> RGBA
+    if cache is not None and fresh:
+        cache.put(key, levels)
+    return decoded, size
 
 
 def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
