@@ -113,7 +113,7 @@ class ExportedMaterial:
 def load(folder: str | os.PathLike) -> ExportedMaterial:
     """Read an exported material folder back (DDS through bcfpipe.bc6h or bcfpipe.bc7's decoder,
     fp16 weights)."""
-    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
+    from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
 
     folder = Path(folder)
     desc = mf.read(folder)
@@ -127,13 +127,11 @@ def load(folder: str | os.PathLike) -> ExportedMaterial:
         else:
             levels.append([bc6h_decode(b, w, h, signed=tex.signed).astype(np.float32) for b, w, h in tex.levels])
     classic = []
-    fmt_of = {dds.DXGI_FORMAT_BC1_UNORM: ClassicFormat.BC1, dds.DXGI_FORMAT_BC4_UNORM: ClassicFormat.BC4,
-              dds.DXGI_FORMAT_BC5_UNORM: ClassicFormat.BC5}
     for c in desc.classic:
         tex = dds.read(folder / c.file)
-        if tex.dxgi_format not in fmt_of or tex.dxgi_format != c.dxgi_format:
+        if tex.dxgi_format not in FORMAT_OF or tex.dxgi_format != c.dxgi_format:
             raise dds.DdsError(f"{folder / c.file}: {tex.format_name}, where material.json says {c.format}")
-        classic.append(decode_levels(fmt_of[tex.dxgi_format], tex.levels))
+        classic.append([t[..., :c.channels] for t in decode_levels(FORMAT_OF[tex.dxgi_format], tex.levels)])
     if desc.mlp is None:
         return ExportedMaterial(desc, levels, None, None, classic)
     weights, _ = from_bytes((folder / desc.mlp.weights).read_bytes(), desc.mlp.offset)

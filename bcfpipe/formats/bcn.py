@@ -1,6 +1,7 @@
-"""The classic BC formats a layout ships beside the feature textures (issue 31): BC1, BC4 and BC5,
-their DXGI codes, and a decoder (quicktex; texture2ddecoder decodes identically, `bcfpipe verify`
-checks it). Texels are UNORM in [0, 1]; BC1 in four-colour mode, as bcfpipe encodes it.
+"""The classic BC formats a layout ships beside the feature textures (issue 31): BC1, BC4 and BC5
+as BC@R has them, and BC7 for groups repacked at equal bytes; their DXGI codes, and a decoder
+(quicktex for BC1/BC4/BC5, texture2ddecoder for BC7; `bcfpipe verify` checks both against
+OpenImageIO). Texels are UNORM in [0, 1]; BC1 in four-colour mode, as bcfpipe encodes it.
 """
 from __future__ import annotations
 
@@ -17,14 +18,20 @@ class ClassicFormat(StrEnum):
     BC1 = "bc1"
     BC4 = "bc4"
     BC5 = "bc5"
+    BC7 = "bc7"
 
 
 # DXGI_FORMAT values (dxgiformat.h); bcfpipe.formats.dds names them and knows their block sizes
-DXGI = {ClassicFormat.BC1: 71, ClassicFormat.BC4: 80, ClassicFormat.BC5: 83}
+DXGI = {ClassicFormat.BC1: 71, ClassicFormat.BC4: 80, ClassicFormat.BC5: 83, ClassicFormat.BC7: 98}
+FORMAT_OF = {code: fmt for fmt, code in DXGI.items()}
+CHANNELS = {ClassicFormat.BC1: 3, ClassicFormat.BC4: 1, ClassicFormat.BC5: 2, ClassicFormat.BC7: 4}
 
 
 def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, int]]) -> list[np.ndarray]:
-    """Blocks -> stored texels t in [0, 1], (h, w, channels) per level, through quicktex's decoders."""
+    """Blocks -> stored texels t in [0, 1], (h, w, channels) per level, through quicktex's decoders
+    (BC7: texture2ddecoder's)."""
+    if fmt == ClassicFormat.BC7:
+        return [_decode_bc7(blocks, w, h) for blocks, w, h in levels]
     import quicktex
     from quicktex.s3tc.bc1 import BC1Decoder
     from quicktex.s3tc.bc4 import BC4Decoder
@@ -40,3 +47,12 @@ def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, in
         px = np.frombuffer(dec.decode(tex).tobytes(), np.uint8).reshape(ph, pw, 4)
         out.append(px[:h, :w, :n].astype(np.float32) / 255.0)
     return out
+
+
+def _decode_bc7(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
+    import texture2ddecoder
+
+    pw, ph = (width + 3) // 4 * 4, (height + 3) // 4 * 4
+    px = np.frombuffer(texture2ddecoder.decode_bc7(np.ascontiguousarray(blocks).tobytes(), pw, ph),
+                       np.uint8).reshape(ph, pw, 4)
+    return px[:height, :width, [2, 1, 0, 3]].astype(np.float32) / 255.0  # BGRA -> RGBA

@@ -45,7 +45,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                                "s = split, and (1 - w) * classic + w * MLP between, w = clamp(s - split + 1, 0, 1).",
     ("MaterialFile", "sha256"): "SHA-256 (hex) of every other file of the material, by file name.",
     ("ClassicTexture", "file"): "DDS file name, relative to the material folder.",
-    ("ClassicTexture", "dxgi_format"): "71 (BC1_UNORM), 80 (BC4_UNORM) or 83 (BC5_UNORM).",
+    ("ClassicTexture", "dxgi_format"): "71 (BC1_UNORM), 80 (BC4_UNORM), 83 (BC5_UNORM) or 98 (BC7_UNORM: a group repacked at equal bytes).",
     ("ClassicTexture", "format"): "The DXGI format's name.",
     ("ClassicTexture", "width"): "Width of mip 0 in texels.",
     ("ClassicTexture", "height"): "Height of mip 0 in texels.",

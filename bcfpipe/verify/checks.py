@@ -10,9 +10,11 @@ For every material (one exported folder, or every material of a build) the check
                buffer at the material's offset) holds exactly the values of decoder.onnx.
 ``openimageio`` OpenImageIO reads every mip of every DDS to the same fp16 bits as bcfpipe.bc6h.decode.
 ``classic``    a layout's classic textures (--layout auto): each DDS agrees with material.json (format,
-               size, full mip chain, or in a mip split the levels that serve s < split); texture2ddecoder decodes every mip to the same 8-bit values as
-               bcfpipe (quicktex), and OpenImageIO to within 2 (BC1) or 1 (BC4/BC5) 8-bit steps (its
-               palettes round differently). A material with classic outputs only has no other check but
+               size, full mip chain, or in a mip split the levels that serve s < split); texture2ddecoder
+               decodes every BC1/BC4/BC5 mip to the same 8-bit values as bcfpipe (quicktex), and
+               OpenImageIO to within 2 (BC1) or 1 (BC4/BC5) 8-bit steps (its palettes round
+               differently); a BC7 texture (a repacked group) OpenImageIO decodes bit for bit as
+               bcfpipe (texture2ddecoder) does. A material with classic outputs only has no other check but
                ``integrity``.
 ``glsl``       glsl/bcf_decode.comp, run through OpenGL (moderngl on EGL: the GPU driver, or Mesa
                llvmpipe), against an independent path: features sampled in numpy/torch from the DDS
@@ -233,17 +235,15 @@ def check_openimageio(texs: Sequence[dds.DdsTexture], files: Sequence[Path]) -> 
 # OpenImageIO (bcdec) rounds the interpolated BC palettes differently from quicktex and
 # texture2ddecoder (which agree bit for bit): measured at most 2 8-bit steps for BC1's 565 colours
 # and 1 for BC4/BC5. Hardware decoders differ among themselves in the same way.
-OIIO_STEPS = {"bc1": 2, "bc4": 1, "bc5": 1}
+OIIO_STEPS = {"bc1": 2, "bc4": 1, "bc5": 1, "bc7": 0}  # BC7's interpolation is exact integer arithmetic
 
 
 def check_classic(m: MaterialDesc) -> Check:
     """A layout's classic textures: headers against material.json, and three decoders agreeing."""
     import OpenImageIO as oiio
 
-    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
+    from bcfpipe.formats.bcn import FORMAT_OF, ClassicFormat, decode_levels
 
-    fmt_of = {dds.DXGI_FORMAT_BC1_UNORM: ClassicFormat.BC1, dds.DXGI_FORMAT_BC4_UNORM: ClassicFormat.BC4,
-              dds.DXGI_FORMAT_BC5_UNORM: ClassicFormat.BC5}
     bad, n_levels, exact = [], 0, True
     try:
         import texture2ddecoder as t2d
@@ -264,8 +264,11 @@ def check_classic(m: MaterialDesc) -> Check:
         if tex.mip_count != want:  # a mip split keeps the levels that serve s < split (s + lod_bias)
             bad.append(f"{c.file}: {tex.mip_count} mips, not the " + (f"{want} that serve s < {m.file.split}"
                                                                       if m.file.split is not None else "full chain"))
-        fmt = fmt_of[tex.dxgi_format]
-        ours = decode_levels(fmt, tex.levels)
+        fmt = FORMAT_OF.get(tex.dxgi_format)
+        if fmt is None:
+            bad.append(f"{c.file}: {tex.format_name} is no classic format")
+            continue
+        ours = [t[..., :c.channels] for t in decode_levels(fmt, tex.levels)]
         inp = oiio.ImageInput.open(str(path))
         if inp is None:
             bad.append(f"{c.file}: OpenImageIO cannot open it ({oiio.geterror()})")
@@ -274,12 +277,12 @@ def check_classic(m: MaterialDesc) -> Check:
             for k, ((blocks, w, h), o) in enumerate(zip(tex.levels, ours)):
                 n_levels += 1
                 mine = np.rint(o * 255).astype(np.int32)
-                if t2d is not None:
+                if t2d is not None and fmt != ClassicFormat.BC7:  # BC7: t2d is bcfpipe's own decoder
                     pw, ph = (w + 3) // 4 * 4, (h + 3) // 4 * 4
                     dec = {ClassicFormat.BC1: t2d.decode_bc1, ClassicFormat.BC4: t2d.decode_bc4,
                            ClassicFormat.BC5: t2d.decode_bc5}[fmt]
                     bgra = np.frombuffer(dec(blocks.tobytes(), pw, ph), np.uint8).reshape(ph, pw, 4)[:h, :w]
-                    theirs = bgra[..., [2, 1, 0]][..., :c.channels].astype(np.int32)
+                    theirs = bgra[..., [2, 1, 0, 3]][..., :c.channels].astype(np.int32)
                     if (theirs != mine).any():
                         bad.append(f"{c.file} mip {k}: texture2ddecoder differs in {int((theirs != mine).sum())} value(s)")
                 if not inp.seek_subimage(0, k):
@@ -293,7 +296,7 @@ def check_classic(m: MaterialDesc) -> Check:
             inp.close()
     detail = (f"{len(m.file.classic)} classic texture(s), {n_levels} mip levels: texture2ddecoder "
               f"{'bit-identical' if exact else 'not installed'}, OpenImageIO within 2 (BC1) or 1 (BC4/BC5) "
-              "8-bit steps")
+              "8-bit steps, bit-identical for BC7")
     return Check("classic", not bad, "; ".join(bad) or detail)
 
 
