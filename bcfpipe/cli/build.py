@@ -205,6 +205,7 @@ _OTHER_COLUMNS_WIDTH = 80
 def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...]]:
     """One row per material, in `COLUMNS` order: what the end-of-run summary shows."""
     from bcfpipe.builder.report import headline_psnr
+    from bcfpipe.layout.choose import ALL_CLASSIC
 
     rows = []
     sharing = {j.name: len(j.materials) for j in manifest.jobs}
@@ -230,13 +231,13 @@ def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...
             lay = m.layout
             worst = (lay.worst_margin_db if lay.worst_margin_db is not None  # the mips the rule counts
                      else min(lay.margin_per_mip_db) if lay.margin_per_mip_db else 0.0)
-            notes.append("layout: BC@R, nothing neural held it at every mip" if lay.profile is None else
+            notes.append("layout: BC@R, nothing neural held it at every mip" if lay.chosen == ALL_CLASSIC else
                          f"layout {lay.chosen}: {lay.psnr - lay.bc_psnr:+.1f} dB all mips, worst mip "
                          f"{worst:+.1f} dB against BC@R")
         outputs = len({tg.channel for tg in m.targets if tg.channel >= 0})
         profile = (f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "")
         if m.layout is not None and m.layout.profile is None:
-            profile = "BC@R"
+            profile = "BC@R" if m.layout.chosen == ALL_CLASSIC else "BC7 repack"
         elif m.layout is not None and m.layout.classic:
             profile += " + BC"
         rows.append((m.path, m.status, str(outputs or ""), profile,

@@ -132,7 +132,9 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                             "classic BC textures, as BC@R has them; the rest is neural (or chosen by --layout auto).",
     ("MaterialReport", "layout"): "--layout auto (the default) or --classic only: what was chosen against BC@R and why (as manifest.json says).",
     ("Material", "layout"): "--layout auto (the default) or --classic only: what was chosen for this material and why.",
-    ("LayoutChoice", "chosen"): "The layout shipped: 'neural P', 'neural P + classic G, ...' or 'all classic (BC@R)'.",
+    ("LayoutChoice", "chosen"): "The layout shipped: 'neural P', 'neural P + classic G, ...', 'all classic (BC@R)', "
+                              "'BC@R with G as BC7' (groups repacked in the same bytes) or 'BC@R below mip k + "
+                              "neural T from it' (a mip split).",
     ("LayoutChoice", "classic"): "The channel groups shipped as classic BC textures.",
     ("LayoutChoice", "profile"): "The neural part's profile; null when every output is classic.",
     ("LayoutChoice", "reason"): "Why, in one line.",

@@ -3,7 +3,8 @@ profile the neural features carry the rest, chosen by rate and per-mip distortio
 
 BC@R is the classic set a user would ship at the material's resolution R (`bcfpipe.layout.classic`).
 Every candidate is a set of classic groups plus, for the other channels, a neural model at a
-profile. Its per-mip MSE is the mean over channels of each channel's own MSE (the metric is a
+profile; or BC@R with some groups repacked as BC7 in the same bytes (measured exactly); or a mip
+split. Its per-mip MSE is the mean over channels of each channel's own MSE (the metric is a
 plain mean over channels, `bcfpipe.texset.metrics`), so a candidate's figures follow from
 per-channel errors without decoding it:
 
@@ -48,9 +49,12 @@ class Candidate:
     use: tuple[int, ...] = field(repr=False, default=())  # the mips the all-mip PSNR averages
     split: int = 0  # a mip split: every group's BC@R levels below reference mip ``split``, the features from it on
     resolutions: tuple[int, ...] = ()  # a split's feature sizes T_0..T_3 (``profile`` names them)
+    repack: str = ""  # all classic, some of BC@R's groups merged into BC7 (`bcfpipe.layout.classic.Repack`)
 
     @property
     def label(self) -> str:
+        if self.repack:
+            return f"BC@R with {self.repack}"
         if self.split:
             return f"BC@R below mip {self.split} + neural {self.profile} from it"
         if self.profile is None:
@@ -78,6 +82,8 @@ class Candidate:
              "psnr_per_mip": [round(v, 3) for v in self.psnr_per_mip], "basis": self.basis}
         if self.split:
             d["split"] = self.split
+        if self.repack:
+            d["repack"] = self.repack
         if bc is not None:
             d["margin_per_mip_db"] = [round(v, 3) for v in self.margins(bc)]
             d["worst_margin_db"] = round(min(self.margins(bc)[k] for k in bc.use), 3) if bc.use else None

@@ -1,5 +1,5 @@
 """Classic channel groups: the BC textures an engine ships for a texture set, as candidates for
-the channels that neural features lose (issue 31).
+the channels that neural features lose (issue 31), and their BC7 repacks at the same bytes.
 
 A group is one texture of `bcfpipe.texset.baselines.pack_texture_set` (codec 'bc'): BC1 for a colour
 or a packed (ARM-style) file, BC4 for a lone scalar, BC5 for a normal map's x and y. Its texels
@@ -80,6 +80,61 @@ def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap
             e.decoded.append(decoded[k][..., list(e.group.channels)])
         decoded[k] = None
     return out
+
+
+BLOCK_BYTES = {ClassicFormat.BC1: 8, ClassicFormat.BC4: 8, ClassicFormat.BC5: 16, ClassicFormat.BC7: 16}
+MAX_REPACK_SIDE = 2048  # above this, encoding every repack's BC7 chain costs more than it is worth weighing
+
+
+@dataclass(frozen=True)
+class Repack:
+    """BC@R with some groups merged into BC7 textures in the same bytes or fewer: ``groups`` (BC7)
+    replace the BC@R groups named in ``replaces``."""
+
+    groups: tuple[Group, ...]
+    replaces: tuple[str, ...]
+    label: str  # e.g. "albedo+opacity as BC7", "all 8 channels in 2 BC7"
+
+
+def repacks(groups: Sequence[Group]) -> list[Repack]:
+    """The BC7 repacks of BC@R's ``groups`` worth weighing, at no more bytes: each BC1 group with
+    each BC4 group in one BC7 texture (RGB + A: 8 bits per texel, as theirs together), and every
+    channel in BC7 textures, four per texture in pack order, where that takes no more bytes. BC7
+    has 4-bit indices, 7-bit endpoints and partitions where BC1 has 2-bit indices and 5:6:5
+    endpoints (benchmarks/bound_classic_bc7.py measures what that buys)."""
+    out = [Repack((Group(ClassicFormat.BC7, a.channels + b.channels, f"{a.name}+{b.name}"),), (a.name, b.name),
+                  f"{a.name}+{b.name} as BC7")
+           for a in groups if a.format == ClassicFormat.BC1 for b in groups if b.format == ClassicFormat.BC4]
+    channels = [c for g in groups for c in g.channels]
+    n = -(-len(channels) // 4)
+    if len(groups) > 1 and 16 * n <= sum(BLOCK_BYTES[g.format] for g in groups):
+        packed = []
+        for i in range(n):
+            part = channels[4 * i:4 * i + 4]
+            name = "+".join(dict.fromkeys(g.name for g in groups for c in g.channels if c in part))
+            packed.append(Group(ClassicFormat.BC7, tuple(part), f"bc7 {i + 1}/{n}: {name}" if n > 1 else name))
+        if all(len(r.groups) != len(packed) or r.groups[0].channels != packed[0].channels for r in out):
+            out.append(Repack(tuple(packed), tuple(g.name for g in groups),
+                              f"all {len(channels)} channels in {n} BC7"))
+    return out
+
+
+def encode_bc7(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequence[np.ndarray],
+               wrap: str = "repeat") -> EncodedGroup:
+    """One BC7 group of ``ts`` at ``resolution`` with every mip, as `encode` does BC@R's groups."""
+    from bcfpipe.texset.baselines import bc7_mips
+
+    d = sum(1 for m in ref_mips if max(m.shape[:2]) > resolution)
+    cols = list(group.channels)
+    scale, bias = (np.array(v, np.float32) for v in zip(*group.texel_map(ts)))
+    pad = 4 - len(cols)
+    stored = [np.concatenate([(m[..., cols] - bias) / scale, np.zeros(m.shape[:2] + (pad,), np.float32)], -1)
+              if pad else (m[..., cols] - bias) / scale for m in ref_mips[d:]]
+    levels: list = []
+    out, _ = bc7_mips(stored, levels)
+    decoded = [o[..., :len(cols)] * scale + bias for o in out]
+    decoded = [magnify(decoded[0], *ref_mips[k].shape[:2], wrap) for k in range(d)] + decoded
+    return EncodedGroup(group, levels, decoded)
 
 
 def magnify(img: np.ndarray, height: int, width: int, wrap: str) -> np.ndarray:

@@ -40,6 +40,9 @@ def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wr
         export_split(fit.classic, fit.neural.out_dir, ts, out, chosen.split, resolution)
         return out
     shipped = [g for g in fit.classic if g.group.name in chosen.classic]
+    if chosen.repack:  # BC@R's groups that were not merged, then the BC7 textures that replace the rest
+        rp, enc = fit.repacked[chosen.repack]
+        shipped = [g for g in fit.classic if g.group.name not in rp.replaces] + list(enc)
     classic = []
     where: dict[int, tuple[int, int, float, float]] = {}  # set channel -> (texture, channel, scale, bias)
     for i, enc in enumerate(shipped):

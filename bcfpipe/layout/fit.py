@@ -30,7 +30,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -40,7 +40,8 @@ from bcfpipe.config import PROFILES, TrainingOptions
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import EncodedGroup, channel_errors, encode, split_levels
+from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Repack, channel_errors, encode, encode_bc7, repacks,
+                                    split_levels)
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn
 
@@ -57,6 +58,7 @@ class LayoutFit:
     probe: MaterialResult | None  # None when --classic fixed the layout
     train_seconds: float  # training of the probe and of the second model, if any
     seconds: float  # everything: BC@R, trainings, exports and measuring
+    repacked: dict[str, tuple[Repack, list[EncodedGroup]]] = field(default_factory=dict)  # by Repack.label
 
 
 def subset(ts: TextureSet, keep: Sequence[int]) -> TextureSet:
@@ -117,16 +119,20 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     e_bc = channel_errors(ts, groups, ref, masks)
     for g in groups:  # measured: from here on BC@R is its blocks and these errors. An 8192² set's
         g.decoded = []  # decoded mips and reference chain hold 2.7 GiB each, which training needs
-    del ref
     names = [g.group.name for g in groups]
     bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
                      C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
     log(f"BC@{resolution}: {bc.size_bytes / 2**20:.2f} MiB, {bc.psnr:.2f} dB over all mips")
+    repacked, packed = {}, []
+    if options.layout != Layout.NEURAL and resolution <= MAX_REPACK_SIDE:
+        repacked, packed = _repacks(ts, groups, e_bc, bc, ref, masks, resolution, wrap, log)
+    del ref
 
     asked, cfg = make_config(ts, options, wrap)
     forced = named_groups(groups, options.classic)
     if options.layout == Layout.NEURAL:
         return _fixed(ts, out, options, wrap, groups, e_bc, bc, forced, asked, use, log, progress, coverage, start)
+    packed = [c for c in packed if set(forced) <= {g for g in c.classic}]
     profiles = candidate_profiles(asked, cfg.device)
     own = {p: (p if p in PROFILES else options.profile) for p in profiles}  # auto-N trains as "auto"
     dims = (cfg.model.n_inputs, cfg.model.hidden)
@@ -152,14 +158,14 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
                 basis = "measured" if (p == p0 and not chosen) else "bound" if p == p0 else "predicted"
                 cands.append(C.Candidate(tuple(names[i] for i in chosen), p, size_of[p] + classic_bytes,
                                          C.combine(e, e_bc, cols), basis, use))
-    final_pool = [bc] + [c for c in cands if c.profile == p0 and not c.classic]
+    final_pool = [bc] + packed + [c for c in cands if c.profile == p0 and not c.classic]
     models = {final_pool[-1].label: (probe, tuple(range(ts.num_channels)))} if len(final_pool) > 1 else {}
     splits: list[C.Candidate] = []
     if not forced:  # --classic keeps its groups classic at every mip: no split
         halving = max(0.0, _gain("1k", options.preset) - _gain("0.5k", options.preset))  # one halving of T_0
         splits = split_candidates(ts, groups, e_bc, e0, bc, use, resolution, dims, match_bc,
                                   probe_t0=probe.resolutions[0], halving_db=halving)
-    first = C.choose(cands + splits, bc, match_bc)
+    first = C.choose(packed + cands + splits, bc, match_bc)
     log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
 
     ch = first.chosen  # one more training at most: the first choice if it needs its own model
@@ -188,7 +194,31 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         models[m.label] = (res, keep)
     decision = C.choose(final_pool, bc, match_bc)
     neural, channels = models.get(decision.chosen.label, (None, ()))
-    return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start)
+    return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start, repacked)
+
+
+def _repacks(ts, groups, e_bc, bc, ref, masks, resolution, wrap, log):
+    """Every BC7 repack of BC@R (`classic.repacks`), encoded and measured exactly:
+    ({label: (repack, encoded groups)}, candidates)."""
+    found, cands = {}, []
+    for rp in repacks([g.group for g in groups]):
+        t = time.perf_counter()
+        enc = [encode_bc7(ts, g, resolution, ref, wrap) for g in rp.groups]
+        cols = [c for g in rp.groups for c in g.channels]
+        e = e_bc.copy()
+        e[:, cols] = channel_errors(ts, enc, ref, masks)[:, cols]
+        for g in enc:
+            g.decoded = []
+        size = (bc.size_bytes - sum(g.size_bytes for g in groups if g.group.name in rp.replaces)
+                + sum(g.size_bytes for g in enc))
+        kept = tuple(g.group.name for g in groups if g.group.name not in rp.replaces)
+        c = C.Candidate(kept + tuple(g.name for g in rp.groups), None, size,
+                        C.combine(None, e, range(ts.num_channels)), "measured", bc.use, repack=rp.label)
+        log(f"BC@{resolution} with {rp.label}: {size / 2**20:.2f} MiB, {c.psnr:.2f} dB over all mips "
+            f"({time.perf_counter() - t:.1f} s)")
+        found[rp.label] = (rp, enc)
+        cands.append(c)
+    return found, cands
 
 
 def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
