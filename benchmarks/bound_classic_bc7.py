@@ -9,21 +9,19 @@ group into BC7 (ISPC, `bcfpipe.texset.baselines.BC7_SETTINGS`; texture2ddecoder 
 other groups as BC@R has them; "all BC7" packs every channel, four per texture, where that fits
 BC@R's bytes.
 
-Sets: ``teapot`` and ``brick`` at R = 1024 over every texel, and ``sample:NAME``: a texture set of
+Sets: ``teapot``, ``brick`` and ``wood`` (held out: MaterialX's wood colour and roughness) at R =
+1024 over every texel, and ``sample:NAME``: a texture set of
 samples/sample_scene.usda as a build with no option settles it (R = its source side, over the
 texels the meshes read).
 
-  python benchmarks/bound_classic_bc7.py [--sets teapot,brick,sample:Bricks,sample:Tiles,sample:Leaves]
+  python benchmarks/bound_classic_bc7.py [--sets teapot,brick,wood,sample:Bricks,sample:Tiles,sample:Leaves]
 """
 from __future__ import annotations
 
 import argparse
-import itertools
 import sys
 import time
 from pathlib import Path
-
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fidelity import specs  # noqa: E402
@@ -36,6 +34,12 @@ def load(name: str):
     """(texture set, R, level-0 coverage mask or None, addressing)."""
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
+    if name == "wood":  # held out: a colour and a lone scalar, BC1 + BC4 in BC@R
+        wood = ROOT.parent / "shared" / "scenes" / "materialx_texture_sets" / "wood"
+        if not wood.is_dir():
+            raise SystemExit(f"needs the shared scenes at {wood.parent.parent}")
+        return load_texture_set([TextureSpec.parse(f"albedo={wood / 'wood_color.jpg'}:rgb"),
+                                 TextureSpec.parse(f"roughness={wood / 'wood_roughness.jpg'}:r")]), 1024, None, "repeat"
     if not name.startswith("sample:"):
         return load_texture_set(specs(name)), 1024, None, "repeat"
     from bcfpipe.builder.plan import plan
@@ -48,39 +52,13 @@ def load(name: str):
     return ts, max(ts.width, ts.height), mask, job.wrap
 
 
-def bc7_errors(ts, channels, ref, resolution, masks, wrap):
-    """(mips, len(channels)) MSE of ``channels`` stored in BC7 textures, four per texture."""
-    from bcfpipe.formats.dds import HEADER_BYTES
-    from bcfpipe.layout.classic import magnify
-    from bcfpipe.texset.baselines import _from_storage, _to_storage, bc7_mips
-    from bcfpipe.texset.metrics import mse_per_mip
-
-    d = sum(1 for m in ref if max(m.shape[:2]) > resolution)
-    normal = np.array([ch.kind == "normal" for ch in ts.channels])
-    err = np.zeros((len(ref), len(channels)))
-    size = 0
-    for t in range(0, len(channels), 4):
-        idx = list(channels[t:t + 4])
-        stored = [_to_storage(m[..., idx], normal[idx]) for m in ref[d:]]
-        padded = [np.concatenate([s, np.zeros(s.shape[:2] + (4 - len(idx),), np.float32)], -1) if len(idx) < 4
-                  else s for s in stored]
-        out, nbytes = bc7_mips(padded)
-        size += nbytes + HEADER_BYTES
-        dec = [_from_storage(o[..., :len(idx)], normal[idx]) for o in out]
-        dec = [magnify(dec[0], *ref[k].shape[:2], wrap) for k in range(d)] + dec
-        for j, c in enumerate(idx):
-            err[:, t + j] = mse_per_mip([r[..., c:c + 1] for r in ref], [m[..., j:j + 1] for m in dec],
-                                        [ts.channels[c]], None, masks)
-    return err, size
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sets", default="teapot,brick,sample:Bricks,sample:Tiles,sample:Leaves")
+    ap.add_argument("--sets", default="teapot,brick,wood,sample:Bricks,sample:Tiles,sample:Leaves")
     args = ap.parse_args()
 
     from bcfpipe.layout import choose as C
-    from bcfpipe.layout.classic import channel_errors, encode
+    from bcfpipe.layout.classic import channel_errors, encode, encode_bc7, repacks
     from bcfpipe.scan.coverage import mask_mips
     from bcfpipe.texset.texture_set import build_mip_chain
 
@@ -96,19 +74,14 @@ def main() -> None:
         bc = C.Candidate(tuple(g.group.name for g in groups), None, sum(g.size_bytes for g in groups),
                          C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
         rows = [("BC@R: " + ", ".join(f"{g.group.name} {g.group.format.upper()}" for g in groups), bc)]
-        merges = [(a, b) for a, b in itertools.permutations(groups, 2)
-                  if a.group.format == "bc1" and b.group.format == "bc4"]
-        layouts = [([a, b], f"{a.group.name} + {b.group.name} as BC7") for a, b in merges]
-        n4 = -(-ts.num_channels // 4)
-        if n4 * r * r * 4 // 3 <= bc.size_bytes:  # BC7: a byte per texel, every mip
-            layouts.append((list(groups), f"all {ts.num_channels} channels in {n4} BC7"))
-        for merged, label in layouts:
-            cols = [c for g in merged for c in g.group.channels]
-            e7, size7 = bc7_errors(ts, cols, ref, r, masks, wrap)
+        for rp in repacks([g.group for g in groups]):
+            enc = [encode_bc7(ts, g, r, ref, wrap) for g in rp.groups]
+            cols = [c for g in rp.groups for c in g.channels]
             e = e_bc.copy()
-            e[:, cols] = e7
-            size = bc.size_bytes - sum(g.size_bytes for g in merged) + size7
-            rows.append((label, C.Candidate((), None, size, tuple(float(v) for v in e.mean(1)), "measured", use)))
+            e[:, cols] = channel_errors(ts, enc, ref, masks)[:, cols]
+            size = (bc.size_bytes - sum(g.size_bytes for g in groups if g.group.name in rp.replaces)
+                    + sum(g.size_bytes for g in enc))
+            rows.append((rp.label, C.Candidate((), None, size, tuple(float(v) for v in e.mean(1)), "measured", use)))
         print(f"\n### {name} (R = {r}, {ts.num_channels} channels{', over the texels read' if mask is not None else ''};"
               f" {time.perf_counter() - t0:.0f} s)\n")
         mips = " | ".join(f"mip {k}" for k in use)

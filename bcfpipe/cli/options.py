@@ -56,8 +56,9 @@ TRAINING_OPTIONS = (
                  help="auto (the default; neural with --target-psnr): per material, keep as classic BC textures "
                       "the channel groups the features lose, or BC@R's own levels for the closest mips (a mip split), "
                       "and pick the profile, by the highest PSNR over all mips within the size of the BC set you "
-                      "would ship (BC@R) and 0.5 dB of it at every mip; never worse than BC@R, which it ships when "
-                      "nothing neural qualifies. A probe training and at most one more (docs/layout.md). neural: "
+                      "would ship (BC@R) and 0.5 dB of it at every mip; BC@R's groups repacked as BC7 in the same "
+                      "bytes are weighed too. Never worse than BC@R, which it ships when nothing else qualifies. A "
+                      "probe training and at most one more (docs/layout.md). neural: "
                       "every output from the MLP."),
     click.option("--match-bc", "match_bc", is_flag=True,
                  help="With --layout auto: the smallest layout whose every mip reaches BC@R instead."),
