@@ -56,6 +56,15 @@ def test_classic_blocks_decode_to_what_bench_measured():
             np.testing.assert_allclose(t * scale_bias[:, 0] + scale_bias[:, 1], enc.decoded[k + 1], atol=1e-6)
 
 
+def bc_at(ts: TextureSet, ref, resolution: int = 32):
+    """BC@R of ``ts`` at ``resolution``: (its encoded groups, per-channel errors, its candidate)."""
+    enc = encode(ts, resolution, ref)
+    e_bc = channel_errors(ts, enc, ref)
+    bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
+                     C.combine(None, e_bc, range(ts.num_channels)), "measured", tuple(range(len(ref))))
+    return enc, e_bc, bc
+
+
 def _cand(classic, size, mse, basis="measured", profile="1k"):
     return C.Candidate(classic, profile, size, tuple(mse), basis, (0, 1, 2))
 
@@ -88,19 +97,16 @@ def mixed(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("mixed")
     ts = _set()
     ref = build_mip_chain(ts.data)
-    enc = encode(ts, 32, ref)
+    enc, e_bc, bc = bc_at(ts, ref)
     keep = [0, 1, 2, 5]
     sub = subset(ts, keep)
     _, cfg = make_config(sub, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
     res, _ = fit_material(sub, tmp / "neural", cfg, "tiny")
     err = np.zeros((len(ref), ts.num_channels))
     err[:, keep] = res.mse_per_channel
-    e_bc = channel_errors(ts, enc, ref)
     err[:, [3, 4]] = e_bc[:, [3, 4]]
-    use = tuple(range(len(ref)))
-    chosen = C.Candidate(("normal",), "tiny", res.size_bytes + enc[1].size_bytes, tuple(err.mean(1)), "measured", use)
-    bc = C.Candidate(("albedo", "normal", "roughness"), None, sum(g.size_bytes for g in enc),
-                     C.combine(None, e_bc, range(6)), "measured", use)
+    chosen = C.Candidate(("normal",), "tiny", res.size_bytes + enc[1].size_bytes, tuple(err.mean(1)), "measured",
+                         bc.use)
     d = C.Decision(bc, (bc, chosen), chosen, "test", "quality")
     fit = LayoutFit(d, d, enc, res, tuple(keep), res, 0.0, 0.0)
     out = export_layout(fit, ts, tmp / "material", "repeat")
@@ -487,10 +493,7 @@ def test_decode_cli_writes_every_output_of_a_mixed_or_all_classic_material(mixed
     from bcfpipe.cli.decode import decode_material, select_target
 
     ts, ref, out, _ = mixed
-    enc = encode(ts, 32, ref)
-    use = tuple(range(len(ref)))
-    bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
-                     C.combine(None, channel_errors(ts, enc, ref), range(6)), "measured", use)
+    enc, _, bc = bc_at(ts, ref)
     d = C.Decision(bc, (bc,), bc, "test", "quality")
     classic = export_layout(LayoutFit(d, d, enc, None, (), None, 0.0, 0.0), ts, tmp_path / "bc", "repeat")
     for folder, used in ((out, "onnx and classic textures"), (classic, "classic textures")):

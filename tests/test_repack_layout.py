@@ -14,14 +14,14 @@ from bcfpipe.export import writer as E
 from bcfpipe.formats import dds, material as mf
 from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import Group, channel_errors, encode, encode_bc7, groups, repacks
+from bcfpipe.layout.classic import Group, channel_errors, encode_bc7, groups, repacks
 from bcfpipe.layout.export import export_layout
 from bcfpipe.layout.fit import LayoutFit
 from bcfpipe.texset.metrics import mse_per_channel
 from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_classic_layout import SAMPLE, SCHEMA, _oiio_levels, _set, _trilinear  # noqa: E402
+from test_classic_layout import SAMPLE, SCHEMA, _oiio_levels, _set, _trilinear, bc_at  # noqa: E402
 
 
 def _two_colours() -> TextureSet:
@@ -62,18 +62,14 @@ def repacked(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("repack")
     ts = _set()
     ref = build_mip_chain(ts.data)
-    enc = encode(ts, 32, ref)
-    e_bc = channel_errors(ts, enc, ref)
-    use = tuple(range(len(ref)))
-    bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
-                     C.combine(None, e_bc, range(6)), "measured", use)
+    enc, e_bc, bc = bc_at(ts, ref)
     rp = repacks([g.group for g in enc])[0]
     new = [encode_bc7(ts, g, 32, ref) for g in rp.groups]
     e = e_bc.copy()
     e[:, [0, 1, 2, 5]] = channel_errors(ts, new, ref)[:, [0, 1, 2, 5]]
     size = enc[1].size_bytes + new[0].size_bytes
-    chosen = C.Candidate(("normal", "albedo+roughness"), None, size, C.combine(None, e, range(6)), "measured", use,
-                         repack=rp.label)
+    chosen = C.Candidate(("normal", "albedo+roughness"), None, size, C.combine(None, e, range(6)), "measured",
+                         bc.use, repack=rp.label)
     d = C.Decision(bc, (bc, chosen), chosen, "test", "quality")
     out = export_layout(LayoutFit(d, d, enc, None, (), None, 0.0, 0.0, {rp.label: (rp, new)}), ts, tmp / "m", "repeat")
     return ts, ref, out, chosen

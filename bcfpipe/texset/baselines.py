@@ -59,6 +59,25 @@ def _check_mips(mips: Sequence[np.ndarray], channels: int, what: str) -> None:
             raise ValueError(f"{what}: mip {k} has shape {np.shape(m)}, expected (H, W, {channels})")
 
 
+def _cached_levels(tag: str, mips: Sequence[np.ndarray]) -> tuple[object, str, list[np.ndarray] | None]:
+    """(the build's blocks cache or None, the key of ``mips``' 8-bit texels under encoder ``tag``,
+    the levels' blocks recorded under it or None)."""
+    import xxhash
+
+    from bcfpipe.texset.blocks import store as blocks_store
+
+    cache = blocks_store()
+    if cache is None:
+        return None, "", None
+    digest = xxhash.xxh3_128(tag.encode())
+    for m in mips:  # one mip's padded texels at a time, as the encode: no 8K chain held twice
+        px = _pad4(_to_u8_rgba(np.asarray(m)))
+        digest.update(repr(px.shape).encode())
+        digest.update(px.tobytes())
+    key = digest.hexdigest()
+    return cache, key, cache.get(key, len(mips))
+
+
 def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cls, tag: str, channels: int,
                         block_bytes: int, blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """Encode and decode each mip; with ``blocks`` also append each level's (block bytes as an
@@ -66,19 +85,8 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cl
     cache (bcfpipe.texset.blocks), blocks already encoded from the same texels by the same encoder
     (``tag`` names it and its settings) are read back instead of encoded again."""
     import quicktex
-    import xxhash
 
-    from bcfpipe.texset.blocks import store as blocks_store
-
-    cache, key, levels = blocks_store(), "", None
-    if cache is not None:  # one mip's padded texels at a time, as the encode below: no 8K chain held twice
-        digest = xxhash.xxh3_128(f"{tag}|quicktex {quicktex.__version__}|{block_bytes}".encode())
-        for m in mips:
-            px = _pad4(_to_u8_rgba(np.asarray(m)))
-            digest.update(repr(px.shape).encode())
-            digest.update(px.tobytes())
-        key = digest.hexdigest()
-        levels = cache.get(key, len(mips))
+    cache, key, levels = _cached_levels(f"{tag}|quicktex {quicktex.__version__}|{block_bytes}", mips)
     encoded = []
     decoded, size = [], 0
     for k, m in enumerate(mips):
@@ -150,34 +158,19 @@ def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None) -> tup
     mip; returns (decoded mips, bytes). With ``blocks``, each level's (blocks, w, h) is appended. In
     a build with a cache the blocks are kept as BC1/BC4/BC5's are."""
     import ispc_texcomp as ispc
-    import texture2ddecoder
-    import xxhash
 
-    from bcfpipe.texset.blocks import store as blocks_store
+    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 
     _check_mips(mips_rgba, 4, "bc7")
-    cache, key, levels = blocks_store(), "", None
-    if cache is not None:
-        digest = xxhash.xxh3_128(f"bc7 ispc {ispc.version() if callable(getattr(ispc, 'version', None)) else ''}"
-                                 f"|{sorted(BC7_SETTINGS.items())}".encode())
-        for m in mips_rgba:
-            px = _pad4(_to_u8_rgba(np.asarray(m)))
-            digest.update(repr(px.shape).encode())
-            digest.update(px.tobytes())
-        key = digest.hexdigest()
-        levels = cache.get(key, len(mips_rgba))
+    cache, key, levels = _cached_levels(f"bc7 ispc {ispc.version}|{sorted(BC7_SETTINGS.items())}", mips_rgba)
     fresh = levels is None
     if fresh:
         levels = _ispc_bc7_levels(mips_rgba)
-    decoded, size = [], 0
-    for m, b in zip(mips_rgba, levels):
-        h, w = m.shape[:2]
-        ph, pw = h + (-h % 4), w + (-w % 4)
-        size += b.nbytes
-        if blocks is not None:
-            blocks.append((b, w, h))
-        px = np.frombuffer(texture2ddecoder.decode_bc7(b.tobytes(), pw, ph), np.uint8).reshape(ph, pw, 4)
-        decoded.append(px[:h, :w, [2, 1, 0, 3]].astype(np.float32) / 255.0)  # BGRA -> RGBA
+    shipped = [(b, m.shape[1], m.shape[0]) for m, b in zip(mips_rgba, levels)]
+    if blocks is not None:
+        blocks.extend(shipped)
+    decoded = decode_levels(ClassicFormat.BC7, shipped)
+    size = sum(b.nbytes for b in levels)
     if cache is not None and fresh:
         cache.put(key, levels)
     return decoded, size
