@@ -67,6 +67,7 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
         say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
             f"content hash {j.content_hash[:16]}")
         from bcfpipe.config import layout_of
+        from bcfpipe.layout.classic import MAX_REPACK_SIDE
         from bcfpipe.layout.material import bc_resolution, uses_layout
 
         if uses_layout(j.options, [sem for sem, _, _ in j.specs]):
@@ -75,8 +76,9 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
             kept = list(dict.fromkeys(sem for sem, f, _ in j.specs if f in files))  # a packed file goes whole
             held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
             if layout_of(j.options) == "auto":
-                say(f"    layout auto: against BC@{r}{held}; a probe at the largest profile within its bytes, at most "
-                    f"one more training (a mixed layout or a mip split), decided when trained (docs/layout.md)")
+                repack = " and its BC7 repacks (encoded, not trained)" if r <= MAX_REPACK_SIDE else ""
+                say(f"    layout auto: against BC@{r}{repack}{held}; a probe at the largest profile within its bytes, "
+                    f"at most one more training (a mixed layout or a mip split), decided when trained (docs/layout.md)")
             else:
                 say(f"    layout: against BC@{r}{held}; the rest neural at {prof}")
         for m in j.materials:
