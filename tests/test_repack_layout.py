@@ -165,3 +165,29 @@ def test_train_ships_a_bc7_repack_where_it_beats_bc_at_every_mip(tmp_path):
     assert abs(d["psnr"] - lay["chosen"]["psnr"]) < 0.01
     assert [c.dxgi_format for c in mf.read(out).classic] == [dds.DXGI_FORMAT_BC7_UNORM]
     assert verify(out, glsl=False).exit_code == 0
+
+
+def test_classic_keeps_its_group_as_bc_at_r_has_it_and_a_repack_of_the_rest_ships_alone(tmp_path):
+    """`--classic normal` with the default layout: repacks that would merge the named group are not
+    weighed, those that keep it are; the one shipped is all classic (no probe's files beside it)."""
+    from click.testing import CliRunner
+
+    from bcfpipe.cli import main
+    from bcfpipe.verify.checks import verify
+
+    t = SAMPLE / "textures"
+    out = tmp_path / "m"
+    r = CliRunner().invoke(main, ["train", f"albedo={t / 'bricks_albedo.png'}:rgb", f"normal={t / 'bricks_normal.png'}:xy",
+                                  f"roughness={t / 'bricks_roughness.png'}:r",
+                                  f"displacement={t / 'bricks_height.png'}:r", "--classic", "normal",
+                                  "--quality", "smoke", "--threads", "1", "-o", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    lay = json.loads(r.stdout.strip().splitlines()[-1])["layout"]
+    weighed = {c["layout"] for c in lay["candidates"] if c.get("repack")}
+    assert weighed == {"BC@R with albedo+roughness as BC7", "BC@R with albedo+displacement as BC7"}
+    assert lay["chosen"].get("repack") and "normal" in lay["chosen"]["classic"]
+    desc = mf.read(out)
+    assert not desc.neural and not desc.layers
+    assert sorted(p.name for p in out.iterdir()) == ["C0.dds", "C1.dds", "C2.dds", "layout.json", "material.json"]
+    assert [c.dxgi_format for c in desc.classic].count(dds.DXGI_FORMAT_BC7_UNORM) == 1
+    assert verify(out, glsl=False).exit_code == 0

@@ -158,8 +158,9 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
                 basis = "measured" if (p == p0 and not chosen) else "bound" if p == p0 else "predicted"
                 cands.append(C.Candidate(tuple(names[i] for i in chosen), p, size_of[p] + classic_bytes,
                                          C.combine(e, e_bc, cols), basis, use))
-    final_pool = [bc] + packed + [c for c in cands if c.profile == p0 and not c.classic]
-    models = {final_pool[-1].label: (probe, tuple(range(ts.num_channels)))} if len(final_pool) > 1 else {}
+    probed = [c for c in cands if c.profile == p0 and not c.classic]  # the probe itself (none when --classic)
+    final_pool = [bc] + packed + probed
+    models = {c.label: (probe, tuple(range(ts.num_channels))) for c in probed}
     splits: list[C.Candidate] = []
     if not forced:  # --classic keeps its groups classic at every mip: no split
         halving = max(0.0, _gain("1k", options.preset) - _gain("0.5k", options.preset))  # one halving of T_0
