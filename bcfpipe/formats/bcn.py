@@ -24,7 +24,6 @@ class ClassicFormat(StrEnum):
 # DXGI_FORMAT values (dxgiformat.h); bcfpipe.formats.dds names them and knows their block sizes
 DXGI = {ClassicFormat.BC1: 71, ClassicFormat.BC4: 80, ClassicFormat.BC5: 83, ClassicFormat.BC7: 98}
 FORMAT_OF = {code: fmt for fmt, code in DXGI.items()}
-CHANNELS = {ClassicFormat.BC1: 3, ClassicFormat.BC4: 1, ClassicFormat.BC5: 2, ClassicFormat.BC7: 4}
 
 
 def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, int]]) -> list[np.ndarray]:

@@ -282,7 +282,7 @@ def check_classic(m: MaterialDesc) -> Check:
                     dec = {ClassicFormat.BC1: t2d.decode_bc1, ClassicFormat.BC4: t2d.decode_bc4,
                            ClassicFormat.BC5: t2d.decode_bc5}[fmt]
                     bgra = np.frombuffer(dec(blocks.tobytes(), pw, ph), np.uint8).reshape(ph, pw, 4)[:h, :w]
-                    theirs = bgra[..., [2, 1, 0, 3]][..., :c.channels].astype(np.int32)
+                    theirs = bgra[..., [2, 1, 0]][..., :c.channels].astype(np.int32)
                     if (theirs != mine).any():
                         bad.append(f"{c.file} mip {k}: texture2ddecoder differs in {int((theirs != mine).sum())} value(s)")
                 if not inp.seek_subimage(0, k):
