@@ -34,9 +34,9 @@ def _why_nothing_neural(scene: str) -> str:
     except FormatError:  # not a build folder
         return "no material has a bcf render context (not a bcfpipe build?)"
     if built and all(m.layout is not None and m.layout.profile is None for m in built):
-        return ("every built material kept its BC textures (--layout auto found nothing neural within BC@R's "
-                "size and 0.5 dB of it at every mip; manifest.json says why); build with --layout neural to "
-                "compare neural frames")
+        return ("every built material kept its BC textures (BC@R, or BC@R repacked as BC7: --layout auto found "
+                "nothing neural better within BC@R's size and 0.5 dB of it at every mip; manifest.json says why); "
+                "build with --layout neural to compare neural frames")
     return "no material has a bcf render context"
 
 
