@@ -102,7 +102,7 @@ def repacks(groups: Sequence[Group]) -> list[Repack]:
     """The BC7 repacks of BC@R's ``groups`` worth weighing, at no more bytes: each BC1 group with
     each BC4 group in one BC7 texture (RGB + A: 8 bits per texel, as theirs together), and every
     channel in BC7 textures, four per texture in pack order, where that takes no more bytes. BC7
-    has 4-bit indices, 7-bit endpoints and partitions where BC1 has 2-bit indices and 5:6:5
+    has up to 4-bit indices, 7-bit endpoints and partitions where BC1 has 2-bit indices and 5:6:5
     endpoints (benchmarks/bound_classic_bc7.py measures what that buys)."""
     out = [Repack((Group(ClassicFormat.BC7, a.channels + b.channels, f"{a.name}+{b.name}"),), (a.name, b.name),
                   f"{a.name}+{b.name} as BC7")
