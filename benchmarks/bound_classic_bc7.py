@@ -58,7 +58,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from bcfpipe.layout import choose as C
-    from bcfpipe.layout.classic import channel_errors, encode, encode_bc7, repacks
+    from bcfpipe.layout.classic import channel_errors, encode, measure_repack, repacks
     from bcfpipe.scan.coverage import mask_mips
     from bcfpipe.texset.texture_set import build_mip_chain
 
@@ -75,12 +75,7 @@ def main() -> None:
                          C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
         rows = [("BC@R: " + ", ".join(f"{g.group.name} {g.group.format.upper()}" for g in groups), bc)]
         for rp in repacks([g.group for g in groups]):
-            enc = [encode_bc7(ts, g, r, ref, wrap) for g in rp.groups]
-            cols = [c for g in rp.groups for c in g.channels]
-            e = e_bc.copy()
-            e[:, cols] = channel_errors(ts, enc, ref, masks)[:, cols]
-            size = (bc.size_bytes - sum(g.size_bytes for g in groups if g.group.name in rp.replaces)
-                    + sum(g.size_bytes for g in enc))
+            _, e, size = measure_repack(ts, groups, e_bc, rp, r, ref, masks, wrap)
             rows.append((rp.label, C.Candidate((), None, size, tuple(float(v) for v in e.mean(1)), "measured", use)))
         print(f"\n### {name} (R = {r}, {ts.num_channels} channels{', over the texels read' if mask is not None else ''};"
               f" {time.perf_counter() - t0:.0f} s)\n")

@@ -1,7 +1,8 @@
 """docs/layout_repack.png: BC@R against its BC7 repack in the same bytes, close up, on the two sets
 where the repack gains most: usdwg_texture_file_formats' RGBA colour chart (albedo BC1 + opacity BC4
 in BC@R; mip 0) and the sample scene's Tiles (its ORM file in BC1; mip 1, where BC@R loses most),
-each panel's PSNR over the crop: the 64² window where BC@R's error exceeds the repack's most. The blocks are the ones a build ships (`bcfpipe.layout.classic.encode` and `encode_bc7`, which
+each panel's PSNR over the crop: the 64² window where BC@R's error exceeds the repack's most. The
+blocks are the ones a build ships (`bcfpipe.layout.classic.encode` and `measure_repack`, which
 tests/test_repack_layout.py checks against the exported files).
 
   python benchmarks/make_repack_figure.py [--png docs/layout_repack.png]
@@ -33,7 +34,7 @@ def job_set(scene: Path, material: str):
 def panels(ts, r, wrap, channels, mip):
     """Mip ``mip`` of ``channels``: the reference, BC@R and the best repack (by all-mip PSNR)."""
     from bcfpipe.layout import choose as C
-    from bcfpipe.layout.classic import channel_errors, encode, encode_bc7, repacks
+    from bcfpipe.layout.classic import channel_errors, encode, measure_repack, repacks
     from bcfpipe.texset.texture_set import build_mip_chain
 
     ref = build_mip_chain(ts.data)
@@ -44,10 +45,7 @@ def panels(ts, r, wrap, channels, mip):
         bc0[..., list(g.group.channels)] = g.decoded[mip]
     best, best_psnr = None, -1.0
     for rp in repacks([g.group for g in groups]):
-        enc = [encode_bc7(ts, g, r, ref, wrap) for g in rp.groups]
-        cols = [c for g in rp.groups for c in g.channels]
-        e = e_bc.copy()
-        e[:, cols] = channel_errors(ts, enc, ref)[:, cols]
+        enc, e, _ = measure_repack(ts, groups, e_bc, rp, r, ref, wrap=wrap)
         psnr = C.Candidate((), None, 0, C.combine(None, e, range(ts.num_channels)), "measured").psnr
         if psnr > best_psnr:
             out = bc0.copy()

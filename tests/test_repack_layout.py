@@ -14,7 +14,7 @@ from bcfpipe.export import writer as E
 from bcfpipe.formats import dds, material as mf
 from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import Group, channel_errors, encode_bc7, groups, repacks
+from bcfpipe.layout.classic import Group, encode_bc7, groups, measure_repack, repacks
 from bcfpipe.layout.export import export_layout
 from bcfpipe.layout.fit import LayoutFit
 from bcfpipe.texset.metrics import mse_per_channel
@@ -64,10 +64,8 @@ def repacked(tmp_path_factory):
     ref = build_mip_chain(ts.data)
     enc, e_bc, bc = bc_at(ts, ref)
     rp = repacks([g.group for g in enc])[0]
-    new = [encode_bc7(ts, g, 32, ref) for g in rp.groups]
-    e = e_bc.copy()
-    e[:, [0, 1, 2, 5]] = channel_errors(ts, new, ref)[:, [0, 1, 2, 5]]
-    size = enc[1].size_bytes + new[0].size_bytes
+    new, e, size = measure_repack(ts, enc, e_bc, rp, 32, ref)
+    assert size == enc[1].size_bytes + new[0].size_bytes
     chosen = C.Candidate(("normal", "albedo+roughness"), None, size, C.combine(None, e, range(6)), "measured",
                          bc.use, repack=rp.label)
     d = C.Decision(bc, (bc, chosen), chosen, "test", "quality")

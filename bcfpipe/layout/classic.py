@@ -139,6 +139,19 @@ def encode_bc7(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequence
     return EncodedGroup(group, levels, decoded)
 
 
+def measure_repack(ts: TextureSet, bc: Sequence[EncodedGroup], e_bc: np.ndarray, rp: Repack, resolution: int,
+                   ref_mips: Sequence[np.ndarray], masks: Sequence[np.ndarray] | None = None,
+                   wrap: str = "repeat") -> tuple[list[EncodedGroup], np.ndarray, int]:
+    """BC@R (its groups ``bc``, errors ``e_bc``) with ``rp`` applied, measured exactly: (the BC7
+    groups, decoded mips kept; (mips, channels) errors of the whole set; its bytes)."""
+    enc = [encode_bc7(ts, g, resolution, ref_mips, wrap) for g in rp.groups]
+    cols = [c for g in rp.groups for c in g.channels]
+    e = e_bc.copy()
+    e[:, cols] = channel_errors(ts, enc, ref_mips, masks)[:, cols]
+    size = (sum(g.size_bytes for g in bc if g.group.name not in rp.replaces) + sum(g.size_bytes for g in enc))
+    return enc, e, size
+
+
 def magnify(img: np.ndarray, height: int, width: int, wrap: str) -> np.ndarray:
     """Bilinear magnification at the target's texel centres (GL's LINEAR filter), with ``wrap``."""
     h, w = img.shape[:2]

@@ -40,8 +40,8 @@ from bcfpipe.config import PROFILES, TrainingOptions
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Repack, channel_errors, encode, encode_bc7, repacks,
-                                    split_levels)
+from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Repack, channel_errors, encode, measure_repack,
+                                    repacks, split_levels)
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn
 
@@ -204,14 +204,9 @@ def _repacks(ts, groups, e_bc, bc, ref, masks, resolution, wrap, log):
     found, cands = {}, []
     for rp in repacks([g.group for g in groups]):
         t = time.perf_counter()
-        enc = [encode_bc7(ts, g, resolution, ref, wrap) for g in rp.groups]
-        cols = [c for g in rp.groups for c in g.channels]
-        e = e_bc.copy()
-        e[:, cols] = channel_errors(ts, enc, ref, masks)[:, cols]
+        enc, e, size = measure_repack(ts, groups, e_bc, rp, resolution, ref, masks, wrap)
         for g in enc:
             g.decoded = []
-        size = (bc.size_bytes - sum(g.size_bytes for g in groups if g.group.name in rp.replaces)
-                + sum(g.size_bytes for g in enc))
         kept = tuple(g.group.name for g in groups if g.group.name not in rp.replaces)
         c = C.Candidate(kept + tuple(g.name for g in rp.groups), None, size,
                         C.combine(None, e, range(ts.num_channels)), "measured", bc.use, repack=rp.label)
