@@ -84,7 +84,7 @@ def test_bad_mode7_parameters_are_refused():
     b = random_mode7(2, 3)
     b[1, 0] = 0x02  # mode 1
     with pytest.raises(ValueError, match="block 1 uses mode 1"):
-        decode_to_u8(b)
+        modes.unpack(b)
     with pytest.raises(ValueError, match="needs 4 blocks"):
         decode(random_mode7(3, 0), 8, 8)
 

@@ -1,23 +1,23 @@
-"""Bit-exact BC7 decoder for modes 6 and 7 (vectorized numpy): bcfpipe's feature textures are mode 6,
-and mode 7 is issue 29's measured alternative (:mod:`bcfpipe.bc7.modes`).
+"""Bit-exact BC7 decoder (vectorized numpy) of every mode: bcfpipe's trained feature levels are
+mode 6, and a T_0 that holds the set's principal components is encoded in any mode by ISPC
+(:mod:`bcfpipe.bc7.anymode`, issue 29).
 
 Follows the BPTC decoding of the Khronos Data Format specification (§"BC7"): mode from the lowest
-set bit of byte 0, then :mod:`bcfpipe.bc7.mode6`'s or :mod:`bcfpipe.bc7.mode7`'s field layout and
-interpolation. A block of any other mode is refused with ValueError naming it: such a file was not
-written by bcfpipe.
+set bit of byte 0, then that mode's field layout and interpolation; the reserved mode 8 decodes to
+zero, as D3D11 and Mesa do.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from . import modes
+from . import anymode
 
 __all__ = ["decode", "decode_to_u8"]
 
 
 def decode_to_u8(blocks: np.ndarray) -> np.ndarray:
     """(n, 16) uint8 blocks -> (n, 16, 4) uint8 texels (row-major within each block)."""
-    return modes.interpolate(*modes.unpack(blocks))
+    return anymode.decode_to_u8(blocks)
 
 
 def decode(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
