@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterator
 
-from bcfpipe.formats.vocabulary import FeatureFormat, Kernel, Layout
+from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout
 
 N_LAYERS = 4
 MIN_LEVEL = 4  # the smallest mip is one 4x4 BC6H block
@@ -162,6 +162,10 @@ DEFAULT_SEED = 0
 DEFAULT_DEVICE = "auto"  # cuda when torch sees a GPU, else cpu
 DEFAULT_INIT = "random"
 DEFAULT_FEATURES = FeatureFormat.BC6H
+# What T_0 holds, per feature format when --t0 is not given: with BC7 the set's principal components,
+# encoded once in every mode (teapot and brick at 1k beat trained mode-6 features at every close mip;
+# docs/benchmarks.md, "A fixed T_0 of principal components"); BC6H trains it, as the paper does.
+DEFAULT_T0 = {FeatureFormat.BC6H: T0.TRAINED, FeatureFormat.BC7: T0.PCA}
 DEFAULT_KERNEL = Kernel.AUTO  # fused on the CPU: 6-10x the torch path's samples/s (docs/benchmarks.md)
 # Per material, the best layout within BC@R's size and 0.5 dB of it at every mip, BC@R itself
 # included: a default build is never worse than the BC set a user would ship (issue 31). It costs a
@@ -185,11 +189,12 @@ LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 10  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
+MODEL_FORMAT = 11  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
 # (BC6H and BC7); 7: the BC6H first encode compiled (bc6h/quick.cpp: a few blocks in a thousand differ);
 # 8: --layout auto the default (a record without a layout meant neural before); fast and standard take
 # fewer steps at a 2048² T_0 on a CPU (CPU_PRESETS_LARGE); 9: --layout auto weighs mip splits (material.json
-# format 4); 10: --layout auto weighs BC7 repacks of BC@R (classic BC7_UNORM textures)
+# format 4); 10: --layout auto weighs BC7 repacks of BC@R (classic BC7_UNORM textures); 11: --t0 pca, the
+# bc7 default: a fixed T_0 of principal components in any BC7 mode
 
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/train/feature_init.py: sharper fine mips, weaker
@@ -239,6 +244,7 @@ class TrainConfig:
     tap_decode: bool = False
     feature_init: str = DEFAULT_INIT  # see FEATURE_INITS
     kernel: Kernel = DEFAULT_KERNEL  # phases 1-2 through torch's ops or the fused kernel; see Kernel.on
+    t0: T0 = T0.TRAINED  # what T_0 holds (bcfpipe.train.fixed_t0)
 
     def with_(self, **kw) -> "TrainConfig":
         return replace(self, **kw)
@@ -271,6 +277,7 @@ class TrainingOptions:
     layout: Layout | None = None  # None: default_layout(target_psnr)
     match_bc: bool = False  # with layout auto: the smallest layout whose every mip reaches BC@R
     classic: tuple[str, ...] = ()  # semantics whose channel groups stay classic BC textures (BC@R)
+    t0: T0 | None = None  # None: DEFAULT_T0 of the feature format
 
     def __post_init__(self) -> None:
         from bcfpipe.errors import InputError
@@ -279,6 +286,8 @@ class TrainingOptions:
             object.__setattr__(self, "features", FeatureFormat(self.features))  # "bc7" from a command line
         if self.kernel in tuple(Kernel) and not isinstance(self.kernel, Kernel):
             object.__setattr__(self, "kernel", Kernel(self.kernel))
+        if self.t0 in tuple(T0) and not isinstance(self.t0, T0):
+            object.__setattr__(self, "t0", T0(self.t0))
         if self.layout is None:
             object.__setattr__(self, "layout", default_layout(self.target_psnr))
         elif self.layout in tuple(Layout) and not isinstance(self.layout, Layout):
@@ -312,6 +321,10 @@ class TrainingOptions:
                        f"{', '.join(f.value for f in FeatureFormat)}")
         elif self.signed and FeatureFormat(self.features) != FeatureFormat.BC6H:
             out.append("--signed is a BC6H choice (BC6H_SF16); BC7 features are unsigned")
+        if self.t0 is not None and self.t0 not in tuple(T0):
+            out.append(f"unknown --t0 {self.t0!r}; choose from {', '.join(v.value for v in T0)}")
+        elif self.t0 == T0.PCA and self.features == FeatureFormat.BC6H:
+            out.append("--t0 pca keeps T_0 as BC7 blocks of any mode: use it with --features bc7")
         if self.layout not in tuple(Layout):
             out.append(f"unknown layout {self.layout!r}; choose from {', '.join(v.value for v in Layout)}")
         elif self.match_bc and self.target_psnr is not None:
@@ -334,6 +347,11 @@ class TrainingOptions:
     def with_(self, **kw) -> "TrainingOptions":
         return replace(self, **kw)
 
+    @property
+    def t0_resolved(self) -> T0:
+        """What T_0 holds: --t0, else the feature format's default (DEFAULT_T0)."""
+        return T0(self.t0) if self.t0 is not None else DEFAULT_T0[FeatureFormat(self.features)]
+
     def train_config(self, source_size: int, wrap: str, device: str) -> tuple[str, TrainConfig]:
         """The `TrainConfig` of these choices for a texture set whose larger side is
         ``source_size``, addressed with ``wrap``, on the resolved ``device``; and the profile's
@@ -346,7 +364,7 @@ class TrainingOptions:
         return name, TrainConfig(model=mc, preset=preset_for(self.preset, res[0], device), preset_name=self.preset,
                                  seed=self.seed,
                                  device=device, threads=self.threads, feature_init=self.init,
-                                 kernel=Kernel(self.kernel).on(device))
+                                 kernel=Kernel(self.kernel).on(device), t0=self.t0_resolved)
 
 
 CACHE_ENV = "BCFPIPE_CACHE"

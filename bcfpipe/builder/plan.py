@@ -13,7 +13,7 @@ from bcfpipe.config import (CPU_PRESETS_LARGE, DEFAULT_FEATURES, DEFAULT_INIT, D
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
-from bcfpipe.formats.vocabulary import ColorSpace, Decision
+from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import group_materials
@@ -77,7 +77,7 @@ class MaterialJob:
         the job's record that `TrainingOptions` has, by name."""
         shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
                   if hasattr(self.options, f.name)}
-        for name in ("features", "kernel", "match_bc", "classic"):  # absent from the record: the default
+        for name in ("features", "kernel", "match_bc", "classic", "t0"):  # absent from the record: the default
             if shared.get(name) is None:
                 shared.pop(name, None)
         shared["layout"] = layout_of(self.options)
@@ -274,7 +274,8 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
                          "kernel": _kernel_option(training.kernel, _resolve_device_name(training.device)),
                          "layout": training.layout.value,
                          "match_bc": True if training.match_bc else None,
-                         "classic": tuple(training.classic) or None})
+                         "classic": tuple(training.classic) or None,
+                         "t0": None if training.t0 is None else T0(training.t0).value})
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 

@@ -6,7 +6,7 @@ import click
 
 from dataclasses import fields
 
-from bcfpipe.formats.vocabulary import FeatureFormat, Kernel, Layout
+from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
                             DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
 
@@ -27,6 +27,11 @@ TRAINING_OPTIONS = (
                  show_default=True,
                  help="Feature texture format: bc6h (the paper's: BC6H mode 11110, 3 channels per layer) or bc7 "
                       "(BC7 mode 6, 4 channels per layer in the same bytes; the MLP takes 16 inputs)."),
+    click.option("--t0", "t0", type=click.Choice([v.value for v in T0]), default=None,
+                 help="What the finest feature layer T_0 holds: 'pca' (the default with bc7) the texture set's "
+                      "principal components, BC7-encoded once in every mode and kept while the other layers and "
+                      "the MLP train around them (sharper close-ups); 'trained' (bc6h's, and the paper's) features "
+                      "trained like the others."),
     click.option("--signed", is_flag=True, help="Store features as BC6H_SF16 instead of BC6H_UF16 (bc6h only)."),
     click.option("--init", "init", type=click.Choice(list(FEATURE_INITS)), default=DEFAULT_INIT, show_default=True,
                  help="How training starts: 'random' as in the paper, or 'pca' from the texture set's principal "

@@ -261,6 +261,7 @@ class Options(Record):
     layout: str | None = optional()  # --layout, auto or neural (issue 31); absent before MODEL_FORMAT 8: neural
     match_bc: bool | None = optional()  # --match-bc (with --layout auto); absent when not given
     classic: tuple[str, ...] | None = optional()  # --classic: semantics whose groups stay BC textures
+    t0: str | None = optional()  # --t0 when given: what T_0 holds ("pca" or "trained"; issue 29)
 
 
 @dataclass(frozen=True)

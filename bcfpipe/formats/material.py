@@ -15,10 +15,13 @@ from bcfpipe.formats.vocabulary import Source
 from bcfpipe.formats.record import FormatError, Record, optional, read as read_record
 
 FORMAT = "bcfpipe-material"
-FORMAT_VERSION = 4  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
-# versions 2 and 3 read as before. A material without a split is written as version 3, byte for byte as
-# before, so that cached and rebuilt materials stay identical and readers of version 3 read them.
+FORMAT_VERSION = 5  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
+# 5: a layer's "blocks" (a T_0 of principal components in any BC7 mode, issue 29); versions 2-4 read as before.
+# A material with neither is written as version 3, byte for byte as before, so that cached and rebuilt
+# materials stay identical and readers of version 3 read them; with a split alone, as version 4.
 NO_SPLIT_VERSION = 3
+SPLIT_VERSION = 4
+ANY_BC7_MODE = "any BC7 mode"  # Layer.blocks of a layer encoded once by a full BC7 encoder
 FILE = "material.json"
 WEIGHTS = "weights.bin"
 ONNX = "decoder.onnx"
@@ -44,6 +47,9 @@ class Layer(Record):
     mip_count: int
     lod_bias: float
     channels: int = 3
+    # ANY_BC7_MODE: this layer's blocks may use every BC7 mode (encoded once, not trained: a T_0 of
+    # principal components); absent: every block is in the format record's block_mode
+    blocks: str | None = optional()
 
 
 @dataclass(frozen=True)
@@ -190,8 +196,10 @@ class MaterialFile(Record):
               "outputs", "onnx", "training")
 
     def __post_init__(self) -> None:
-        # the version this record is written as: 4 only with a mip split (NO_SPLIT_VERSION's note)
-        object.__setattr__(self, "format_version", FORMAT_VERSION if self.split is not None else NO_SPLIT_VERSION)
+        # the version this record is written as (FORMAT_VERSION's note)
+        any_mode = any(layer.blocks is not None for layer in self.layers)
+        object.__setattr__(self, "format_version", FORMAT_VERSION if any_mode else
+                           SPLIT_VERSION if self.split is not None else NO_SPLIT_VERSION)
         neural = any(o.source != Source.CLASSIC for o in self.outputs)
         if neural and (self.bc6h is None) == (self.bc7 is None):
             raise FormatError("material.json needs exactly one of 'bc6h' and 'bc7' (the feature format)")
@@ -270,12 +278,12 @@ def _version() -> str:
 def read(folder: str | os.PathLike) -> MaterialFile:
     """``folder/material.json``; a missing, foreign or malformed file raises FormatError."""
     # v2 (all from the MLP) reads as v3; v3, a material without a split, stays v3 as written
-    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3),
+    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3, 4),
                        upgrade=lambda data: dict(data, format_version=NO_SPLIT_VERSION))
 
 
 def write(folder: str | os.PathLike, desc: MaterialFile) -> Path:
-    """``folder/material.json``: version 4 with a mip split, else 3 (NO_SPLIT_VERSION)."""
+    """``folder/material.json``, as the version its contents need (FORMAT_VERSION's note)."""
     path = Path(folder) / FILE
     atomic_write(path, desc.dumps().encode())
     return path

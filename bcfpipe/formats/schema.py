@@ -58,6 +58,9 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Layer", "mip_count"): "Number of mips stored (down to 4x4, the BC6H block size).",
     ("Layer", "lod_bias"): "Added to the level of detail s before sampling this layer: s_i = s + lod_bias.",
     ("Layer", "channels"): "Feature channels: 3 (BC6H, RGB) or 4 (BC7, RGBA); the MLP reads them in order.",
+    ("Layer", "blocks"): "\"any BC7 mode\" when this layer's blocks may use every BC7 mode (a T_0 of the set's "
+                         "principal components, encoded once); absent: every block is in the bc7 or bc6h record's "
+                         "mode. A decoder samples both alike (material.json version 5).",
     ("BC7", "dxgi_format"): "98 (BC7_UNORM).",
     ("BC7", "block_mode"): "The one BC7 mode every block uses (bcfpipe.bc7.mode6); a texel is its 8-bit value / 255.",
     ("BC6H", "dxgi_format"): "95 (BC6H_UF16) or 96 (BC6H_SF16).",
@@ -170,6 +173,9 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Options", "coverage"): "Whether training draws its samples from the texels the bound meshes read (false: --no-coverage).",
     ("Options", "target_psnr"): "--target-psnr in dB: rate control chose each job's profile and preset (absent: not used).",
     ("Options", "features"): "Feature texture format when not the default bc6h: \"bc7\" (--features).",
+    ("Options", "t0"): "--t0 when given: what the finest feature layer T_0 holds, \"pca\" (the set's principal "
+                       "components in BC7 blocks of any mode, fixed) or \"trained\"; absent: bc7's default pca, "
+                       "bc6h's trained.",
     ("Options", "kernel"): "How training steps ran when not what the default (auto: fused on the CPU, torch on "
                            "CUDA) runs on that device: \"torch\" or \"fused\" (--kernel).",
     ("Stage", "up_axis"): "The scene's upAxis.",

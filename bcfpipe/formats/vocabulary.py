@@ -15,7 +15,7 @@ except ImportError:  # Python 3.10
         def __str__(self) -> str:
             return str(self.value)
 
-__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace", "FeatureFormat", "Kernel", "Source", "Layout"]
+__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace", "FeatureFormat", "T0", "Kernel", "Source", "Layout"]
 
 
 class Status(StrEnum):
@@ -63,6 +63,15 @@ class FeatureFormat(StrEnum):
 
     BC6H = "bc6h"
     BC7 = "bc7"
+
+
+class T0(StrEnum):
+    """What the finest feature layer T_0 holds: features trained like the others (the paper's), or
+    the texture set's principal components, BC7-encoded once in every mode and kept fixed while the
+    other layers and the MLP train around them (BC7 only; issue 29, bcfpipe.train.fixed_t0)."""
+
+    TRAINED = "trained"
+    PCA = "pca"
 
 
 class Kernel(StrEnum):

@@ -20,7 +20,7 @@ import torch
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
 
-__all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "codec_of"]
+__all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "FixedLevel", "codec_of"]
 
 
 @dataclass
@@ -43,6 +43,17 @@ class QuantizedLevel:
     endpoints: np.ndarray
     indices: np.ndarray
     partition: np.ndarray | None
+    size: int
+
+
+@dataclass(frozen=True)
+class FixedLevel:
+    """One mip of one layer written as it was encoded once, never trained: ``blocks`` (n, 16) uint8
+    as written (BC7, any mode) and ``values`` (C, size, size) float32, their decoded UNORM8 values
+    (0..255), which training samples without a gradient (issue 29: a T_0 of principal components)."""
+
+    blocks: np.ndarray
+    values: torch.Tensor
     size: int
 
 
@@ -233,15 +244,15 @@ class _BC7(FeatureCodec):
         return QuantizedLevel(e, idx, None, size)
 
     def exact(self, q, mc, device):
-        from bcfpipe.bc7 import mode6
+        from bcfpipe.bc7 import decode_to_u8, mode6
 
-        texels = mode6.interpolate(q.endpoints, q.indices).astype(np.float32) / np.float32(255.0)
-        return torch.as_tensor(texels, device=device)
+        u8 = decode_to_u8(q.blocks) if isinstance(q, FixedLevel) else mode6.interpolate(q.endpoints, q.indices)
+        return torch.as_tensor(u8.astype(np.float32) / np.float32(255.0), device=device)
 
     def pack(self, q, mc):
         from bcfpipe.bc7 import mode6
 
-        return mode6.pack(q.endpoints, q.indices)
+        return q.blocks if isinstance(q, FixedLevel) else mode6.pack(q.endpoints, q.indices)
 
     def dxgi_format(self, mc):
         from bcfpipe.formats import dds

@@ -24,7 +24,7 @@ import torch
 from bcfpipe.bc6h import emulate
 from bcfpipe.config import ModelConfig, mip_count
 from bcfpipe.model.decoder import mlp_raw
-from bcfpipe.model.features import BlockParams, codec_of
+from bcfpipe.model.features import BlockParams, FixedLevel, codec_of
 from bcfpipe.model.sampling import level_weights, sample_bilinear, sample_bilinear_fn, sample_trilinear
 
 LevelFn = Callable[[int, int], torch.Tensor]  # (layer, mip) -> (3, H, W) texel values
@@ -112,9 +112,16 @@ def free_tap_fn(free: list[list[torch.Tensor]], cfg: ModelConfig) -> TapFn:
 
     def fn(i: int, k: int):
         p = free[i][k]
+        if isinstance(p, FixedLevel):
+            return _fixed_taps(p)
         flat = p.reshape(p.shape[0], -1)
         return lambda ids: codec.value(flat[:, ids].t().clamp(lo, hi), cfg)
     return fn
+
+
+def _fixed_taps(lv: FixedLevel):
+    flat = lv.values.reshape(lv.values.shape[0], -1)
+    return lambda ids: flat[:, ids].t() / 255.0
 
 
 def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
@@ -127,6 +134,8 @@ def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
     def fn(i: int, k: int):
         b = blocks[i][k]
         r = max(4, cfg.resolutions[i] >> k)
+        if isinstance(b, FixedLevel):
+            return _fixed_taps(b)
 
         def texels(ids: torch.Tensor) -> torch.Tensor:
             y, xx = ids // r, ids % r
@@ -140,7 +149,13 @@ def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
 def free_level_fn(free: list[list[torch.Tensor]], cfg: ModelConfig) -> LevelFn:
     codec = codec_of(cfg)
     lo, hi = codec.param_range(cfg)
-    return lambda i, k: codec.value(free[i][k].clamp(lo, hi), cfg)
+    return lambda i, k: (fixed_value(free[i][k]) if isinstance(free[i][k], FixedLevel)
+                         else codec.value(free[i][k].clamp(lo, hi), cfg))
+
+
+def fixed_value(lv: FixedLevel) -> torch.Tensor:
+    """A fixed level's (C, H, W) texel values: its UNORM8 values / 255, as the BC7 codec decodes."""
+    return lv.values / 255.0
 
 
 def block_level_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
@@ -150,6 +165,8 @@ def block_level_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
 
     def fn(i: int, k: int) -> torch.Tensor:
         b = blocks[i][k]
+        if isinstance(b, FixedLevel):
+            return fixed_value(b)
         r = max(4, cfg.resolutions[i] >> k)
         return blocks_to_image(codec.decode_blocks(b, cfg, q()), r, r)
     return fn

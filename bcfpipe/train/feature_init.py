@@ -75,11 +75,12 @@ def _components(mips, lod: float, size: int, mean, axes) -> torch.Tensor:
 
 
 def pca_init(cfg: ModelConfig, mips: Sequence[torch.Tensor], biases: Sequence[float],
-             free: list[list[torch.Tensor]], mlp: dict[str, torch.Tensor]) -> int:
+             free: list[list[torch.Tensor]], mlp: dict[str, torch.Tensor], layers: Sequence[int] = LAYERS) -> int:
     """Overwrite ``free`` (phase-1 parameters) and ``mlp`` in place with the PCA start.
 
     ``mips`` are the reference's (c, H, W) levels on the parameters' device. Returns the number
-    of components used (at most 6). Unsigned features only; signed models keep the random start."""
+    of components used (at most 2 layers' channels). ``layers``: which layers hold them, the first
+    the leading ones. Unsigned features only; signed models keep the random start."""
     if cfg.signed or len(free) < 4:
         return 0
     per_layer = codec_of(cfg).channels
@@ -90,10 +91,10 @@ def pca_init(cfg: ModelConfig, mips: Sequence[torch.Tensor], biases: Sequence[fl
     c = mips[0].shape[0]
     mean, axes = principal_axes(mips)
     mean, axes = mean.to(dev), axes.to(dev)
-    n_comp = min(c, 2 * per_layer)
+    n_comp = min(c, len(layers) * per_layer)
     content: dict[int, list[torch.Tensor]] = {}  # layer -> per-mip component images
     comps_of: dict[int, list[int]] = {}
-    for g, i in enumerate(LAYERS):
+    for g, i in enumerate(layers):
         comps = list(range(per_layer * g, min(n_comp, per_layer * (g + 1))))
         if comps:
             content[i] = [_components(mips, k - biases[i], p.shape[-1], mean, axes[comps]) for k, p in enumerate(free[i])]

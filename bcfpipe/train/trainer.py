@@ -25,10 +25,11 @@ import torch
 
 from bcfpipe.model import neural as M
 from bcfpipe.config import ModelConfig, TrainConfig
-from bcfpipe.formats.vocabulary import Kernel
-from bcfpipe.model.features import QuantizedLevel, codec_of
+from bcfpipe.formats.vocabulary import T0, Kernel
+from bcfpipe.model.features import FixedLevel, QuantizedLevel, codec_of
 from bcfpipe.model.decoder import MlpWeights
 from bcfpipe.train.feature_init import pca_init
+from bcfpipe.train.fixed_t0 import pca_t0
 from bcfpipe.train.pace import Pace, Pacer
 from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_batch, sample_reference
 from bcfpipe.texset import encoding
@@ -52,7 +53,7 @@ class Progress:
 ProgressFn = Callable[[Progress], None]
 
 
-BlockLevel = QuantizedLevel  # one mip of one layer as the exact block parameters that are written
+BlockLevel = QuantizedLevel | FixedLevel  # one mip of one layer as the exact blocks that are written
 
 
 @dataclass
@@ -172,6 +173,11 @@ class StratifiedScale:
 
 def _flat(layers):
     return [t for mips in layers for t in mips]
+
+
+def _trained(levels):
+    """The levels training moves: all but the fixed ones (a T_0 of principal components)."""
+    return [t for t in levels if not isinstance(t, FixedLevel)]
 
 
 def evaluate_levels(level_fn: M.LevelFn, mlp: dict[str, torch.Tensor], mc, kinds: tuple[str, ...], biases,
@@ -355,12 +361,16 @@ def _warmup(run: _Run) -> list[list[torch.Tensor]]:
     """Phase 1: unconstrained features (from noise, or the PCA start) and the MLP."""
     mc = run.cfg.model
     free = M.init_free(mc, run.gen, run.device)
-    if run.cfg.feature_init == "pca":
+    if run.cfg.t0 == T0.PCA:
+        t0 = time.perf_counter()
+        free[0] = pca_t0(mc, run.ref.mips, run.biases, free, run.mlp)
+        run.seconds["t0"] = time.perf_counter() - t0
+    elif run.cfg.feature_init == "pca":
         pca_init(mc, run.ref.mips, run.biases, free, run.mlp)
     codec = codec_of(mc)
     lo, hi = codec.param_range(mc)
     fused = _fused_step(run, free)
-    params = _flat(free)
+    params = _trained(_flat(free))
     first = [True]
 
     def project() -> None:
@@ -406,6 +416,9 @@ def _encode(run: _Run, free: list[list[torch.Tensor]]) -> list[list[M.BlockParam
         for mips in free:
             layer = []
             for p in mips:
+                if isinstance(p, FixedLevel):
+                    layer.append(p)
+                    continue
                 texels = codec.value(p.clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy()
                 layer.append(codec.encode(texels, mc, run.device, lib))
                 done += 1
@@ -438,7 +451,7 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
     lo, hi = codec.param_range(mc)
     qat = _QuantizationAware(sched.steps, run.cfg.preset.qat_fraction)
     fused = _fused_step(run, blocks, qat)
-    feat = [t for layer in blocks for b in layer for t in (b.endpoints, b.x)]
+    feat = [t for layer in blocks for b in _trained(layer) for t in (b.endpoints, b.x)]
 
     first = [True]
 
@@ -461,7 +474,8 @@ def _quantize(run: _Run, blocks: list[list[M.BlockParams]]) -> tuple[list[list[B
     layers: list[list[BlockLevel]] = []
     with torch.no_grad():
         for i, layer in enumerate(blocks):
-            layers.append([codec.quantize(b, mc, max(4, mc.resolutions[i] >> k)) for k, b in enumerate(layer)])
+            layers.append([b if isinstance(b, FixedLevel) else codec.quantize(b, mc, max(4, mc.resolutions[i] >> k))
+                           for k, b in enumerate(layer)])
         exact = [[exact_level(bl, mc, run.device) for bl in layer] for layer in layers]
     run.seconds["quantize"] = time.perf_counter() - t0
     return layers, exact

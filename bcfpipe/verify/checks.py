@@ -37,8 +37,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from bcfpipe.bc6h import mode10
-from bcfpipe.bc7 import mode6
+from bcfpipe.bc7 import anymode, mode6
 from bcfpipe.formats import dds
+from bcfpipe.formats import material as mf
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes
@@ -115,10 +116,12 @@ def check_files(m: MaterialDesc) -> tuple[Check, list[dds.DdsTexture]]:
             problems.append(f"{path.name}: {t.format_name}, material.json says "
                             f"{'bc7' if m.bc7 else 'signed=' + str(m.signed)}")
         if m.bc7:
+            any_mode = layer.blocks == mf.ANY_BC7_MODE
             for k, (blocks, w, h) in enumerate(t.levels):
-                bad = int((~mode6.is_mode6(blocks)).sum())
+                bad = int((anymode.block_modes(blocks) == 8).sum() if any_mode else (~mode6.is_mode6(blocks)).sum())
                 if bad:
-                    problems.append(f"{path.name} mip {k}: {bad} block(s) not in the declared BC7 mode 6")
+                    problems.append(f"{path.name} mip {k}: {bad} block(s) " +
+                                    ("in the reserved BC7 mode 8" if any_mode else "not in the declared BC7 mode 6"))
         elif m.file.bc6h.block_mode == mode10.DESCRIPTION:
             for k, (blocks, w, h) in enumerate(t.levels):
                 bad = int((~mode10.is_mode10(blocks)).sum())

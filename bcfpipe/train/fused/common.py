@@ -6,6 +6,10 @@ import os
 from pathlib import Path
 
 FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3  # free texels (warm-up) or blocks, per format
+# A slot's first field: not sampled, a trained level, or a fixed one: a level written as it was
+# encoded (a T_0 of principal components, BC7 in any mode), its UNORM8 values stored like free
+# texels, sampled with no gradient.
+INACTIVE, TRAINED, FIXED = 0, 1, 2
 
 
 KERNELS_ENV = "BCFPIPE_KERNELS"  # set by a build for its workers: the kernels of the build's cache

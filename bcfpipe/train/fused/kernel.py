@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from bcfpipe.texset.reference import KEYS_A
-from bcfpipe.train.fused.common import BLOCK_BC6H, BLOCK_BC7, FREE_BC6H, FREE_BC7, kernels_dir
+from bcfpipe.train.fused.common import BLOCK_BC6H, BLOCK_BC7, FIXED, FREE_BC6H, FREE_BC7, TRAINED, kernels_dir
 
 
 import numba.core.config  # noqa: E402
@@ -287,10 +287,11 @@ def _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, p
             xb = _address(int(x0) + 1, r, repeat)
             ya = _address(int(y0), r, repeat)
             yb = _address(int(y0) + 1, r, repeat)
+            fixed = slots[j, 0] == FIXED
             for t in range(4):
                 ty = ya if t < 2 else yb
                 tx = xa if t % 2 == 0 else xb
-                if free:
+                if free or fixed:
                     blk = ty * r + tx
                     pos = 0
                 else:
@@ -298,8 +299,12 @@ def _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, p
                     pos = (ty % 4) * 4 + tx % 4
                 blks[i, lv, t] = blk
                 poss[i, lv, t] = pos
-                _texel(fmt, quantized, signed, P, X, M, po, xo, mo, plane, blk, pos, C, plo, phi, utab, uslope, w3, w3s,
-                       scratch, val, t, deriv, i, lv)
+                if fixed:  # a level written as encoded (UNORM8 values): no parameters, no gradient
+                    for c in range(C):
+                        val[t, c] = P[po + c * plane + blk] / _F32(255.0)
+                else:
+                    _texel(fmt, quantized, signed, P, X, M, po, xo, mo, plane, blk, pos, C, plo, phi, utab, uslope,
+                           w3, w3s, scratch, val, t, deriv, i, lv)
             for c in range(C):
                 top = val[0, c] + (val[1, c] - val[0, c]) * fx
                 bot = val[2, c] + (val[3, c] - val[2, c]) * fx
@@ -398,7 +403,7 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
         for i in range(4):
             for lv in range(2):
                 j = 2 * i + lv
-                if slots[j, 0] == 0:
+                if slots[j, 0] != TRAINED:
                     continue
                 tb = blend[i]
                 for c in range(C):

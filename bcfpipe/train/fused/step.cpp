@@ -18,6 +18,8 @@ using namespace bcf;
 namespace {
 
 constexpr int FREE_BC6H = 0, FREE_BC7 = 1, BLOCK_BC6H = 2, BLOCK_BC7 = 3;
+// A slot's first field: inactive, a trained level, or a fixed level (UNORM8 texel values, BC7 only).
+constexpr int64_t INACTIVE = 0, TRAINED = 1, FIXED = 2;
 constexpr int ND = 15;  // decode derivatives kept per tap (kernel.py's deriv layout)
 const float SNAP6 = float(7.0 * 1e-4);  // bc6h.emulate's snap, as kernel.py's np.float32(7.0 * 1e-4)
 const float SNAP7 = float(1e-4 * 15);   // bc7.emulate's
@@ -248,16 +250,21 @@ void features(const Args& A, vi idx, Taps& T, vf* feats) {
             T.fy[j] = yf - y0;
             vi xa = address(toi(x0), r, repeat), xb = address(toi(x0) + 1, r, repeat);
             vi ya = address(toi(y0), r, repeat), yb = address(toi(y0) + 1, r, repeat);
+            const bool fixed = s[0] == FIXED;
             for (int t = 0; t < 4; ++t) {
                 vi ty = t < 2 ? ya : yb, tx = (t & 1) ? xb : xa;
-                if constexpr (free_) {
+                if (free_ || fixed) {
                     T.blk[j][t] = ty * r + tx;
                     T.pos[j][t] = Si(0);
                 } else {
                     T.blk[j][t] = (ty >> 2) * (r >> 2) + (tx >> 2);
                     T.pos[j][t] = (ty & 3) * 4 + (tx & 3);
                 }
-                texel<F, q, sgn>(A, j, t, T, val[t]);
+                if (fixed) {  // a level written as encoded (UNORM8 values): no parameters, no gradient
+                    for (int c = 0; c < C; ++c) val[t][c] = gather(A.P + s[2] + c * s[5], T.blk[j][t]) / 255.0f;
+                } else {
+                    texel<F, q, sgn>(A, j, t, T, val[t]);
+                }
             }
             const vf fx = T.fx[j], fy = T.fy[j];
             for (int c = 0; c < C; ++c) {
@@ -395,7 +402,7 @@ double step(const Args& A) {
             const float tb = A.blend[i];
             for (int lv = 0; lv < 2; ++lv) {
                 const int j = 2 * i + lv;
-                if (A.slots[6 * j] == 0) continue;
+                if (A.slots[6 * j] != TRAINED) continue;
                 vf gl[4], g[4];
                 for (int c = 0; c < C; ++c) {
                     vf gc = dfe[C * i + c];

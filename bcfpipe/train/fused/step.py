@@ -11,9 +11,10 @@ import torch
 
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat, Wrap
-from bcfpipe.model.features import BlockParams, codec_of
+from bcfpipe.model.features import BlockParams, FixedLevel, codec_of
 from bcfpipe.model.sampling import level_weights
 from bcfpipe.texset import hostmem
+from bcfpipe.train.fused.common import FIXED, TRAINED
 
 
 def default_backend() -> str:
@@ -65,11 +66,14 @@ class FusedStep:
                  own_adam: bool = False):
         from bcfpipe.train.fused import common
 
+        if any(isinstance(lv, FixedLevel) for layer in levels for lv in layer) and \
+                FeatureFormat(mc.features) != FeatureFormat.BC7:
+            raise ValueError("fixed levels are BC7 UNORM8 values; the format is " + str(mc.features))
         self.backend = backend or default_backend()
         self.mc, self.biases, self.mlp, self.levels = mc, biases, mlp, levels
         self.quantized, self.chunks = quantized, max(1, int(chunks))
         codec = codec_of(mc)
-        blocks = isinstance(levels[0][0], BlockParams)
+        blocks = any(isinstance(lv, BlockParams) for layer in levels for lv in layer)
         bc7 = FeatureFormat(mc.features) == FeatureFormat.BC7
         self.fmt = ((common.BLOCK_BC7 if bc7 else common.BLOCK_BC6H) if blocks
                     else (common.FREE_BC7 if bc7 else common.FREE_BC6H))
@@ -113,9 +117,12 @@ class FusedStep:
     def _rehome(self, blocks: bool) -> None:
         """One flat float32 storage for the levels' parameters (P) and indices (X), one uint8 for the
         BC6H subset masks (M); ``self.slot[i][k]`` = (po, np, xo, nx, mo, plane)."""
-        tensors = [[(b.endpoints, b.x) if blocks else (b,) for b in layer] for layer in self.levels]
+        self.fixed = {(i, k) for i, layer in enumerate(self.levels) for k, b in enumerate(layer)
+                      if isinstance(b, FixedLevel)}
+        tensors = [[(b.values,) if isinstance(b, FixedLevel) else (b.endpoints, b.x) if blocks else (b,)
+                    for b in layer] for layer in self.levels]
         n_p = sum(ts[0].numel() for layer in tensors for ts in layer)
-        n_x = sum(ts[1].numel() for layer in tensors for ts in layer) if blocks else 0
+        n_x = sum(ts[1].numel() for layer in tensors for ts in layer if len(ts) > 1)
         P, X = hostmem.empty((n_p,), torch.float32), hostmem.empty((max(n_x, 1),), torch.float32)
         M = np.zeros(max(n_x, 1), np.uint8)
         po = xo = 0
@@ -126,8 +133,11 @@ class FusedStep:
                 p = ts[0]
                 view = P[po:po + p.numel()].view(p.shape)
                 view.copy_(p.detach())
-                plane = p.shape[1] * p.shape[2] if not blocks else 0
-                if blocks:
+                fixed = (i, k) in self.fixed
+                plane = p.shape[1] * p.shape[2] if fixed or not blocks else 0
+                if fixed:
+                    row.append((po, p.numel(), 0, 0, 0, plane))
+                elif blocks:
                     b = layer[k]
                     xv = X[xo:xo + b.x.numel()].view(b.x.shape)
                     xv.copy_(b.x.detach())
@@ -160,8 +170,10 @@ class FusedStep:
             for j, (k, on) in enumerate(((lo, True), (hi, use_hi))):
                 if on:
                     po, _, xo, _, mo, plane = self.slot[i][k]
-                    slots[2 * i + j] = (1, max(4, mc.resolutions[i] >> k), po, xo, mo, plane)
-                    touched.append((i, k))
+                    fixed = (i, k) in self.fixed
+                    slots[2 * i + j] = (FIXED if fixed else TRAINED, max(4, mc.resolutions[i] >> k), po, xo, mo, plane)
+                    if not fixed:
+                        touched.append((i, k))
         return slots, blend, touched
 
     def features(self, uv: torch.Tensor, s: float) -> torch.Tensor:

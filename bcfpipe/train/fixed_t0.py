@@ -1,0 +1,50 @@
+"""A T_0 that holds the texture set's principal components, BC7-encoded once in every mode and
+never trained (``--t0 pca``, the default with ``--features bc7``; issue 29).
+
+The oracle of benchmarks/bound_t0.py says what one BC7 texture at T_0 can hold: the set's four
+leading principal components, encoded by a full BC7 encoder (Intel's ISPC, every mode), keep more of
+the closest mips than trained mode-6 features do (brick, mip 1: 32.0 dB against 28.0). Trained
+features lose that: free features from noise are not block-friendly (their ISPC encode costs 3 dB at
+mip 1), and mode 6, the one mode the trainer emulates, holds one line per block.
+
+So T_0 is encoded first and kept: each of its mips holds the components at the lod the sampler
+reads it at (:func:`bcfpipe.train.feature_init.pca_init`, layer 0 only), ISPC encodes them (the
+settings of the classic BC7 textures, `bcfpipe.texset.baselines.BC7_SETTINGS`), and training
+samples the exact decoded values (`FixedLevel`) from its first step. T_1..T_3 and the MLP train as
+the paper's do (random start, warm-up, mode-6 constrained phase, fine-tune), around it; the MLP
+starts as the components' linear decoder. Measured in docs/benchmarks.md ("A fixed T_0 of
+principal components").
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from bcfpipe.config import ModelConfig
+from bcfpipe.model import neural as M
+from bcfpipe.model.features import FixedLevel, codec_of
+from bcfpipe.train.feature_init import pca_init
+
+__all__ = ["pca_t0"]
+
+
+def pca_t0(mc: ModelConfig, ref_mips, biases, free: list[list[torch.Tensor]],
+           mlp: dict[str, torch.Tensor]) -> list[FixedLevel]:
+    """T_0's levels as `FixedLevel` (components, ISPC's BC7 blocks, their decoded values); sets
+    ``mlp`` to the components' linear decoder (in place). ``free[0]`` is overwritten on the way."""
+    from bcfpipe.bc7 import decode_to_u8
+    from bcfpipe.texset.baselines import bc7_mips
+
+    pca_init(mc, ref_mips, biases, free, mlp, layers=(0,))
+    codec = codec_of(mc)
+    lo, hi = codec.param_range(mc)
+    with torch.no_grad():
+        levels = [codec.value(p.detach().clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy() for p in free[0]]
+    shipped: list = []
+    bc7_mips(levels, shipped)
+    out = []
+    for blocks, w, h in shipped:
+        b = np.ascontiguousarray(np.asarray(blocks, np.uint8).reshape(-1, 16))
+        u8 = torch.as_tensor(decode_to_u8(b).astype(np.float32))
+        out.append(FixedLevel(b, M.blocks_to_image(u8, w, h).contiguous().to(free[0][0].device), w))
+    return out
