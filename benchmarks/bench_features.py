@@ -4,7 +4,9 @@ For each set and profile, trains `--features bc6h` and `--features bc7` side by 
 processes, one torch thread each, started together so both see the same load), then reports from
 each exported folder: PSNR at every reference mip and over all mips (`bcfpipe train --json`, which
 decodes the exported DDS and weights through onnxruntime), SSIM, the files' size and the training
-time. BC@1024 (bcfpipe bench's BC set at 1024²) is given per mip for comparison.
+time. BC@1024 (bcfpipe bench's BC set at 1024²) is given per mip for comparison. Every material is
+all-neural (`--layout neural`): the formats are compared, not the layouts a build would choose.
+`bc7` trains what `--features bc7` trains by default (`--t0 pca` since MODEL_FORMAT 11).
 
   python benchmarks/bench_features.py [--sets teapot,brick] [--profiles 1k,0.5k] [--preset standard]
 """
@@ -34,7 +36,7 @@ def run_pair(name: str, profile: str, preset: str, seed: int, root: Path) -> dic
         out = root / f"{name}-{profile}-{f}"
         procs[f] = subprocess.Popen([sys.executable, "-m", "bcfpipe", "train", *_spec_args(name), "-o", str(out),
                                      "--profile", profile, "--quality", preset, "--seed", str(seed), "--features", f,
-                                     "--threads", "1", "--json"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                     "--threads", "1", "--layout", "neural", "--json"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                     text=True)
     res = {}
     for f, p in procs.items():

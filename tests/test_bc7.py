@@ -273,7 +273,7 @@ def test_weight_table_in_closed_form():
 
 
 def test_bc7_train_exports_verifies_and_refuses_signed(tmp_path):
-    """`bcfpipe train --features bc7`: BC7_UNORM mode-6 layers with 4 channels, a 16-input decoder,
+    """`bcfpipe train --features bc7 --t0 trained`: BC7_UNORM mode-6 layers with 4 channels, a 16-input decoder,
     material.json's bc7 record; `bcfpipe verify` passes (GLSL against ONNX where GL runs);
     --signed with bc7 is refused in one line."""
     import json
@@ -284,7 +284,7 @@ def test_bc7_train_exports_verifies_and_refuses_signed(tmp_path):
     src = Path(__file__).resolve().parents[1] / "samples" / "textures"
     base = [sys.executable, "-m", "bcfpipe", "train", f"albedo={src / 'bricks_albedo.png'}:rgb",
             f"roughness={src / 'bricks_roughness.png'}:r", "--profile", "tiny", "--quality", "smoke", "--features", "bc7",
-            "--layout", "neural"]
+            "--t0", "trained", "--layout", "neural"]
     r = subprocess.run(base + ["-o", str(tmp_path / "m"), "--json"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     desc = mf.read(tmp_path / "m")

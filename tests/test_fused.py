@@ -13,7 +13,7 @@ pytest.importorskip("numba")
 from bcfpipe.config import ModelConfig, PRESETS, TrainConfig  # noqa: E402
 from bcfpipe.formats.vocabulary import FeatureFormat, Kernel  # noqa: E402
 from bcfpipe.model import neural as M  # noqa: E402
-from bcfpipe.model.features import codec_of  # noqa: E402
+from bcfpipe.model.features import FixedLevel, codec_of  # noqa: E402
 from bcfpipe.train.fused.step import FusedStep  # noqa: E402
 
 TEXTURES = Path(__file__).resolve().parent.parent / "samples" / "textures"
@@ -68,7 +68,25 @@ def _model(fmt: str, phase: str, real: bool, signed: bool = False, wrap: str = "
 
 
 def _params(levels):
-    return [t for layer in levels for b in layer for t in ((b.endpoints, b.x) if hasattr(b, "x") else (b,))]
+    return [t for layer in levels for b in layer if not isinstance(b, FixedLevel)
+            for t in ((b.endpoints, b.x) if hasattr(b, "x") else (b,))]
+
+
+def _fix_t0(levels):
+    """T_0's levels replaced by fixed ones (--t0 pca): ISPC's BC7 blocks of a real image, any mode."""
+    from bcfpipe.bc7 import decode_to_u8
+    from bcfpipe.texset.baselines import bc7_mips
+
+    shipped: list = []
+    sizes = [64 >> k for k in range(len(levels[0]))]
+    bc7_mips([_image(r, 4) for r in sizes], shipped)
+    fixed = []
+    for blocks, w, h in shipped:
+        b = np.asarray(blocks, np.uint8).reshape(-1, 16)
+        u8 = torch.as_tensor(decode_to_u8(b).astype(np.float32))
+        fixed.append(FixedLevel(b, M.blocks_to_image(u8, w, h).contiguous(), w))
+    levels[0] = fixed
+    return levels
 
 
 # (format, phase, real blocks, quantization-aware): the warm-up has no quantization-aware decoding
@@ -291,3 +309,33 @@ def test_host_tensors_come_from_numpys_allocator_where_numpy_has_the_type(dtype)
     assert t.shape == (3, 1000) and t.dtype == dtype and t.device.type == "cpu"
     t.fill_(2)
     assert bool((t == 2).all())
+
+
+# a fixed T_0 (--t0 pca): sampled from its decoded values, no gradient, in both phases
+FIXED_CASES = [("free", False), ("blocks", False), ("blocks", True)]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("phase,quantized", FIXED_CASES)
+def test_a_fixed_t0_is_sampled_bit_identically_and_gets_no_gradient(phase, quantized, backend):
+    mc, levels, level_fn, mlp, biases, gen = _model("bc7", phase, True)
+    _fix_t0(levels)
+    fs = FusedStep(mc, biases, mlp, levels, lambda: quantized, backend=backend)
+    params = _params(levels) + [mlp[k] for k in ("w1", "b1", "w2", "b2")]
+    for s in SCALES:
+        uv = torch.rand((2048, 2), generator=gen) * 3 - 1
+        with torch.no_grad():
+            ref = M.sample_features(level_fn(quantized), mc.mip_counts, biases, uv, s, mc.wrap)
+        assert torch.equal(fs.features(uv, s).view(torch.int32), ref.view(torch.int32)), f"s={s}"
+        target = torch.rand((2048, 5), generator=gen)
+        loss, grads = _torch_step(mc, level_fn(quantized), mlp, biases, params, uv, target, None, s)
+        for p in params:
+            p.grad = None
+        assert fs(uv, target, None, s) == pytest.approx(loss, rel=1e-5)
+        for p in params:
+            r = grads[id(p)]
+            if r is None:
+                assert p.grad is None
+                continue
+            assert float((p.grad - r).abs().max()) <= 1e-5 * max(float(r.abs().max()), 1e-30), f"s={s}"
+    assert fs.fixed == {(0, k) for k in range(len(levels[0]))}
