@@ -53,7 +53,8 @@ class Progress:
 ProgressFn = Callable[[Progress], None]
 
 
-BlockLevel = QuantizedLevel | FixedLevel  # one mip of one layer as the exact blocks that are written
+BlockLevel = QuantizedLevel  # one mip of one layer as the exact block parameters that are written
+# (a FixedLevel where a layer was encoded once: a T_0 of principal components)
 
 
 @dataclass
