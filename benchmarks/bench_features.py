@@ -72,16 +72,18 @@ def main() -> None:
             bc = bc_per_mip(name)
             n = len(bc)
             print(f"\n### {name}\n")
-            print("| method | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | SSIM mip 0 | size | train |")
-            print("|---|" + "---:|" * (n + 4))
-            print("| BC@1024 | " + " | ".join(f"{v:.1f}" for v in bc) + " | | | | |")
+            print("| method | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | SSIM mip 0 | quantization "
+                  "loss | size | train |")
+            print("|---|" + "---:|" * (n + 5))
+            print("| BC@1024 | " + " | ".join(f"{v:.1f}" for v in bc) + " | | | | | |")
             for profile in args.profiles.split(","):
                 res = run_pair(name, profile, args.preset, args.seed, Path(tmp))
                 for f in FORMATS:
                     r = res[f]
                     per = r["metrics"]["psnr_per_mip"]
                     print(f"| {profile} {f} | " + " | ".join(f"{v:.1f}" for v in per) +
-                          f" | **{r['psnr']:.2f}** | {r['ssim']:.3f} | {r['size_bytes'] / 2**20:.2f} MiB "
+                          f" | **{r['psnr']:.2f}** | {r['ssim']:.3f} | {r.get('quantization_loss_db', float('nan')):.2f} dB "
+                          f"| {r['size_bytes'] / 2**20:.2f} MiB "
                           f"| {r['train_seconds']:.0f} s |", flush=True)
 
 
