@@ -406,12 +406,12 @@ def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("name,default,other,refused,why", [
-    ("features", "bc6h", "bc7", {"features": "bc9"}, "unknown feature format"),
+    ("t0", None, "trained", {"t0": "pca", "features": "bc6h"}, "use it with --features bc7"),
     ("kernel", "auto", "torch", {"kernel": "fused", "device": "cuda"}, "runs on the CPU"),
 ])
 def test_a_newer_option_keys_the_cache_and_the_manifest_only_when_not_its_default(tmp_path: Path, name, default,
                                                                                   other, refused, why) -> None:
-    """--features bc7 and --kernel torch change what trains, so every key changes and the job's
+    """--t0 trained and --kernel torch change what trains, so every key changes and the job's
     options record them; their defaults leave keys and records as they were (no key, no field), so
     existing caches and files stand. A bad value is refused with one line."""
     a = copy_samples(tmp_path / "a")
@@ -424,6 +424,23 @@ def test_a_newer_option_keys_the_cache_and_the_manifest_only_when_not_its_defaul
     assert getattr(p0.jobs[0].training("cpu", 1), name) == default
     with pytest.raises(InputError, match=why):
         TrainingOptions(**refused)
+
+
+def test_the_feature_format_is_always_recorded_and_an_older_record_meant_bc6h(tmp_path: Path) -> None:
+    """Since bc7 became the default (MODEL_FORMAT 11) every job records its format; a record from
+    before, which left out the then-default bc6h, trains as bc6h. A bad value is refused."""
+    from dataclasses import replace as dc_replace
+
+    a = copy_samples(tmp_path / "a")
+    opts = TrainingOptions(profile="tiny", preset="smoke", seed=0)
+    p7, p6 = plan(a, opts), plan(a, opts.with_(features="bc6h"))
+    assert not {j.content_hash for j in p7.jobs} & {j.content_hash for j in p6.jobs}
+    assert p7.jobs[0].options.features == "bc7" and p6.jobs[0].options.features == "bc6h"
+    assert p7.jobs[0].training("cpu", 1).t0_resolved == "pca" and p6.jobs[0].training("cpu", 1).t0_resolved == "trained"
+    old = dc_replace(p6.jobs[0], options=dc_replace(p6.jobs[0].options, features=None))
+    assert old.training("cpu", 1).features == "bc6h"
+    with pytest.raises(InputError, match="unknown feature format"):
+        TrainingOptions(features="bc9")
 
 
 def test_a_kernel_named_keys_what_it_runs(tmp_path: Path) -> None:
@@ -787,7 +804,7 @@ def test_size_estimate_equals_a_real_build(sample) -> None:
         written = sum((folder / layer.file).stat().st_size for layer in desc.layers)
         written += (folder / desc.mlp.weights).stat().st_size
         assert estimated_bytes(tuple(layer.resolution for layer in desc.layers), desc.mlp.n_out,
-                               desc.mlp.n_hidden) == written, job["name"]
+                               desc.mlp.n_hidden, desc.mlp.n_in) == written, job["name"]
 
 
 @pytest.mark.parametrize("width", [160, 40])

@@ -67,7 +67,7 @@ def test_split_material_json_says_both_sources_of_every_output(split):
     ts, ref, enc, _, out, _ = split
     d = json.loads((out / "material.json").read_text())
     jsonschema.validate(d, json.loads(SCHEMA.read_text()))
-    assert d["format_version"] == 4 and d["split"] == SPLIT
+    assert d["format_version"] == (5 if any("blocks" in layer for layer in d["layers"]) else 4) and d["split"] == SPLIT
     assert {o["source"] for o in d["outputs"]} == {"split"}
     keep = split_levels(SPLIT, R, 64)
     assert [c["mip_count"] for c in d["classic"]] == [keep] * len(enc) == [2, 2, 2]
@@ -268,4 +268,6 @@ def test_decode_cli_shows_what_the_split_material_shows(split, backend):
         h, w = ref[k].shape[:2]
         img, used = decode_material(select_target(str(out), None), (w, h), float(k), backend)
         assert used == f"{backend} and classic textures"
-        np.testing.assert_allclose(img, ours[k], atol=2e-3 if backend == "glsl" else 1e-5, err_msg=f"mip {k}")
+        # GL filters BC7's UNORM8 texels with 8-bit weights (llvmpipe: fixed point), bcfpipe in float:
+        # the features differ by up to 2^-8 of a texel step, times the MLP's gain (verify derives it per point)
+        np.testing.assert_allclose(img, ours[k], atol=5e-3 if backend == "glsl" else 1e-5, err_msg=f"mip {k}")

@@ -8,12 +8,12 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import (CPU_PRESETS_LARGE, DEFAULT_FEATURES, DEFAULT_INIT, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS,
+from bcfpipe.config import (CPU_PRESETS_LARGE, DEFAULT_INIT, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS,
                             QUALITY_PRESETS, TrainingOptions, layout_of, preset_for, resolve_profile)
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
-from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision
+from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, FeatureFormat
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import group_materials
@@ -77,9 +77,11 @@ class MaterialJob:
         the job's record that `TrainingOptions` has, by name."""
         shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
                   if hasattr(self.options, f.name)}
-        for name in ("features", "kernel", "match_bc", "classic", "t0"):  # absent from the record: the default
+        for name in ("kernel", "match_bc", "classic", "t0"):  # absent from the record: the default
             if shared.get(name) is None:
                 shared.pop(name, None)
+        if shared.get("features") is None:  # a record from before MODEL_FORMAT 11 left out its bc6h
+            shared["features"] = FeatureFormat.BC6H
         shared["layout"] = layout_of(self.options)
         return TrainingOptions(**{**shared, "device": device, "threads": threads})
 
@@ -270,7 +272,7 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
     options = Options(**{**shared, "device": _resolve_device_name(training.device),
                          "texel_density": float(texel_density) if texel_density is not None else None,
                          "coverage": bool(coverage),
-                         "features": None if training.features == DEFAULT_FEATURES else training.features.value,
+                         "features": FeatureFormat(training.features).value,
                          "kernel": _kernel_option(training.kernel, _resolve_device_name(training.device)),
                          "layout": training.layout.value,
                          "match_bc": True if training.match_bc else None,

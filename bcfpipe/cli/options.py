@@ -25,8 +25,10 @@ TRAINING_OPTIONS = (
                  help="Hidden units of the decoder MLP."),
     click.option("--features", type=click.Choice([f.value for f in FeatureFormat]), default=DEFAULT_FEATURES.value,
                  show_default=True,
-                 help="Feature texture format: bc6h (the paper's: BC6H mode 11110, 3 channels per layer) or bc7 "
-                      "(BC7 mode 6, 4 channels per layer in the same bytes; the MLP takes 16 inputs)."),
+                 help="Feature texture format: bc7 (4 channels per layer, 16 MLP inputs; T_0 holds the set's principal "
+                      "components in any BC7 mode, see --t0; trained layers are mode 6) or bc6h (the paper's: BC6H "
+                      "mode 11110, 3 channels per layer, the same bytes). bc7 measured better on every set "
+                      "(docs/training.md)."),
     click.option("--t0", "t0", type=click.Choice([v.value for v in T0]), default=None,
                  help="What the finest feature layer T_0 holds: 'pca' (the default with bc7) the texture set's "
                       "principal components, BC7-encoded once in every mode and kept while the other layers and "

@@ -256,7 +256,7 @@ class Options(Record):
     resolution: int | None = optional()  # the texture set resampled to this larger side (a density cap)
     coverage: bool = True  # training draws from the texels the bound meshes read
     target_psnr: float | None = optional()  # --target-psnr: rate control chose each job's profile and preset
-    features: str | None = optional()  # --features when not the default bc6h: "bc7" (issue 29)
+    features: str | None = optional()  # "bc7" or "bc6h"; absent (bc6h) before MODEL_FORMAT 11 (issue 29)
     kernel: str | None = optional()  # --kernel when it differs from what the default runs on the device (issue 30)
     layout: str | None = optional()  # --layout, auto or neural (issue 31); absent before MODEL_FORMAT 8: neural
     match_bc: bool | None = optional()  # --match-bc (with --layout auto); absent when not given

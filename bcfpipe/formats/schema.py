@@ -172,7 +172,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Options", "resolution"): "For a job: the larger side its texture set was resampled to, to meet texel_density; absent when not capped.",
     ("Options", "coverage"): "Whether training draws its samples from the texels the bound meshes read (false: --no-coverage).",
     ("Options", "target_psnr"): "--target-psnr in dB: rate control chose each job's profile and preset (absent: not used).",
-    ("Options", "features"): "Feature texture format when not the default bc6h: \"bc7\" (--features).",
+    ("Options", "features"): "Feature texture format (--features): \"bc7\" (the default) or \"bc6h\"; absent in "
+                             "builds from before MODEL_FORMAT 11, where it meant bc6h.",
     ("Options", "t0"): "--t0 when given: what the finest feature layer T_0 holds, \"pca\" (the set's principal "
                        "components in BC7 blocks of any mode, fixed) or \"trained\"; absent: bc7's default pca, "
                        "bc6h's trained.",

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from bcfpipe.formats.vocabulary import Decision
-from bcfpipe.config import DEFAULT_HIDDEN, DEFAULT_PROFILE, mip_count, resolve_profile
+from bcfpipe.formats.vocabulary import Decision, FeatureFormat
+from bcfpipe.config import DEFAULT_FEATURES, DEFAULT_HIDDEN, DEFAULT_PROFILE, LAYER_CHANNELS_OF, N_LAYERS, mip_count, resolve_profile
 from bcfpipe.formats import dds, weights
 from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.coverage import job_coverage
@@ -15,12 +15,13 @@ from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import Grouping
 from bcfpipe.scan.texture_sets import MaterialModel, decoder_index
 
-def estimated_bytes(resolutions, n_out: int, hidden: int) -> int:
-    """Bytes of a built material as the manifest counts them: the four BC6H DDS files (one byte a
-    texel, every mip down to 4x4) and its fp16 weight record (version 1: an HDR channel adds
-    n_out values, which a scan cannot know before decoding)."""
+def estimated_bytes(resolutions, n_out: int, hidden: int, n_in: int) -> int:
+    """Bytes of a built material as the manifest counts them: the four BC6H or BC7 DDS files (one
+    byte a texel, every mip down to 4x4) and its fp16 weight record with ``n_in`` MLP inputs (12
+    for BC6H, 16 for BC7; version 1: an HDR channel adds n_out values, which a scan cannot know
+    before decoding)."""
     features = sum(dds.HEADER_BYTES + sum(max(4, r >> k) ** 2 for k in range(mip_count(r))) for r in resolutions)
-    return features + weights.record_size(weights.record_halves(12, hidden, n_out))
+    return features + weights.record_size(weights.record_halves(n_in, hidden, n_out))
 
 
 def _job(mm: MaterialModel, members, options: Options) -> dict:
@@ -41,7 +42,8 @@ def _job(mm: MaterialModel, members, options: Options) -> dict:
                                                  for m in members) else covered
     return {"resolution": side, "profile": profile, "capped": o.resolution is not None,
             "texel_density_reached": reached, "covered_fraction": covered,
-            "estimated_bytes": estimated_bytes(res, n_out, o.hidden) if res and n_out else 0}
+            "estimated_bytes": estimated_bytes(res, n_out, o.hidden, N_LAYERS * LAYER_CHANNELS_OF[
+                FeatureFormat(o.features or FeatureFormat.BC6H)]) if res and n_out else 0}
 
 
 def requirements(grouping: Grouping, everything: Grouping, profile: str = DEFAULT_PROFILE,
@@ -49,7 +51,7 @@ def requirements(grouping: Grouping, everything: Grouping, profile: str = DEFAUL
     """{"materials": {path: ...}, "totals": ...} for ``grouping`` (folded) against ``everything``
     (the same scan grouped without folding)."""
     options = Options(profile=profile, preset="standard", seed=0, device="cpu", hidden=hidden, signed=False,
-                      init="random", texel_density=texel_density)
+                      init="random", texel_density=texel_density, features=DEFAULT_FEATURES.value)
     out: dict[str, dict] = {}
     total = 0
     for g in grouping.groups:

@@ -91,7 +91,7 @@ def pca_init(cfg: ModelConfig, mips: Sequence[torch.Tensor], biases: Sequence[fl
     c = mips[0].shape[0]
     mean, axes = principal_axes(mips)
     mean, axes = mean.to(dev), axes.to(dev)
-    n_comp = min(c, len(layers) * per_layer)
+    n_comp = min(c, len(layers) * per_layer, axes.shape[0])  # a set of fewer texels than channels has fewer axes
     content: dict[int, list[torch.Tensor]] = {}  # layer -> per-mip component images
     comps_of: dict[int, list[int]] = {}
     for g, i in enumerate(layers):
