@@ -59,7 +59,8 @@ class ColorSpace(StrEnum):
 
 class FeatureFormat(StrEnum):
     """How the feature textures T_i are block-compressed: BC6H mode 11110, three channels each
-    (the paper's), or BC7 mode 6, four channels each in the same bytes (issue 29)."""
+    (the paper's), or BC7, four channels each in the same bytes (issue 29; the default): trained
+    layers in mode 6, a fixed T_0 in any mode (`T0`)."""
 
     BC6H = "bc6h"
     BC7 = "bc7"

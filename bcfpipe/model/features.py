@@ -8,7 +8,8 @@ those blocks are packed into a DDS. Two formats:
 * `bc6h`: BC6H mode 11110 (the paper's), 3 channels, parameters in the 6-bit endpoint domain
   (bcfpipe.bc6h);
 * `bc7`: BC7 mode 6, 4 channels in the same bytes, parameters in the 8-bit endpoint domain
-  (bcfpipe.bc7; issue 29).
+  (bcfpipe.bc7; issue 29). A layer encoded once and not trained (`FixedLevel`: a T_0 of principal
+  components, any BC7 mode) packs and decodes through the same codec.
 """
 from __future__ import annotations
 
