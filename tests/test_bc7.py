@@ -80,6 +80,15 @@ def _against_oracles(blocks: np.ndarray, tmp_path: Path, gl: bool = True) -> dic
     return out
 
 
+def assert_three_decoders_agree(blocks: np.ndarray, tmp_path: Path, label: str, record_property=None) -> None:
+    """bcfpipe's decode of ``blocks`` equals OpenImageIO's, texture2ddecoder's and Mesa's, byte for byte."""
+    mism = _against_oracles(blocks, tmp_path)
+    if record_property is not None:
+        record_property("mismatches", mism)
+    print(f"\n[{label}] {len(blocks)} blocks, mismatching bytes: {mism}")
+    assert mism == {"openimageio": 0, "texture2ddecoder": 0, "mesa": 0}
+
+
 # --------------------------------------------------------------------------- layout
 
 
@@ -125,19 +134,14 @@ def test_bad_arguments_are_refused_and_the_reserved_mode_is_zero():
 @pytest.mark.gl
 def test_random_blocks_match_three_decoders(tmp_path, record_property):
     blocks = np.concatenate([random_mode6(N_DEFAULT // 2, 10), random_mode6(N_DEFAULT // 2, 11, extreme=True)])
-    mism = _against_oracles(blocks, tmp_path)
-    record_property("mismatches", mism)
-    print(f"\n[BC7 mode 6] {len(blocks)} blocks, mismatching bytes: {mism}; {gl_oracle.renderer()}")
-    assert mism == {"openimageio": 0, "texture2ddecoder": 0, "mesa": 0}
+    assert_three_decoders_agree(blocks, tmp_path, f"BC7 mode 6; {gl_oracle.renderer()}", record_property)
 
 
 @pytest.mark.slow
 @pytest.mark.gl
 def test_million_blocks_match_three_decoders(tmp_path):
     blocks = np.concatenate([random_mode6(N_SLOW // 2, 20), random_mode6(N_SLOW // 2, 21, extreme=True)])
-    mism = _against_oracles(blocks, tmp_path)
-    print(f"\n[BC7 mode 6, 1M] {len(blocks)} blocks, mismatching bytes: {mism}")
-    assert mism == {"openimageio": 0, "texture2ddecoder": 0, "mesa": 0}
+    assert_three_decoders_agree(blocks, tmp_path, "BC7 mode 6, 1M")
 
 
 @pytest.mark.gl

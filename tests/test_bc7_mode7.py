@@ -15,7 +15,7 @@ from bcfpipe.bc7.decode import decode, decode_to_u8
 from bcfpipe.bc7.partitions import ANCHOR2, PARTITIONS2
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_bc7 import N_DEFAULT, N_SLOW, _against_oracles, random_mode6  # noqa: E402
+from test_bc7 import N_DEFAULT, N_SLOW, assert_three_decoders_agree, random_mode6  # noqa: E402
 
 
 def random_mode7(n: int, seed: int, extreme: bool = False) -> np.ndarray:
@@ -94,20 +94,13 @@ def test_bad_mode7_parameters_are_refused():
 
 @pytest.mark.gl
 def test_random_mixed_blocks_match_three_decoders(tmp_path, record_property):
-    blocks = random_mixed(N_DEFAULT, 10)
-    mism = _against_oracles(blocks, tmp_path)
-    record_property("mismatches", mism)
-    print(f"\n[BC7 modes 6+7] {len(blocks)} blocks, mismatching bytes: {mism}")
-    assert mism == {"openimageio": 0, "texture2ddecoder": 0, "mesa": 0}
+    assert_three_decoders_agree(random_mixed(N_DEFAULT, 10), tmp_path, "BC7 modes 6+7", record_property)
 
 
 @pytest.mark.slow
 @pytest.mark.gl
 def test_million_mixed_blocks_match_three_decoders(tmp_path):
-    blocks = random_mixed(N_SLOW, 20)
-    mism = _against_oracles(blocks, tmp_path)
-    print(f"\n[BC7 modes 6+7, 1M] {len(blocks)} blocks, mismatching bytes: {mism}")
-    assert mism == {"openimageio": 0, "texture2ddecoder": 0, "mesa": 0}
+    assert_three_decoders_agree(random_mixed(N_SLOW, 20), tmp_path, "BC7 modes 6+7, 1M")
 
 
 # --------------------------------------------------------------------------- encoder
