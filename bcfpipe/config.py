@@ -139,10 +139,24 @@ CPU_PRESETS_LARGE: dict[str, Preset] = {
 }
 
 
-def preset_for(name: str, t0: int, device: str) -> Preset:
-    """The schedule that preset ``name`` trains with a T_0 of ``t0`` texels on ``device``."""
-    if t0 >= LARGE_T0 and not str(device).startswith("cuda") and name in CPU_PRESETS_LARGE:
+# With a fixed T_0 (--t0 pca, bc7's default) the close mips come from the components at once and a
+# step trains T_1..T_3 alone, so `draft` spends 3x the steps on them and draws coarse lods as often as
+# fine ones (lod_power 1): teapot 1k 38.1 dB in 23 s, within 1.5 dB of standard's 39.3 (it was 35.7 in
+# 16 s; issue 30, docs/benchmarks.md "Presets with the fixed T_0"). A 2048² T_0 on a CPU keeps the
+# PRESETS draft, within 30 s.
+FIXED_T0_PRESETS: dict[str, Preset] = {
+    "draft": replace(_cpu_preset(600, 1800, 100, 128 * 128), lod_power=1.0),
+}
+
+
+def preset_for(name: str, t0: int, device: str, fixed_t0: bool = False) -> Preset:
+    """The schedule that preset ``name`` trains with a T_0 of ``t0`` texels on ``device``;
+    ``fixed_t0``: T_0 holds fixed principal components (FIXED_T0_PRESETS)."""
+    large_on_cpu = t0 >= LARGE_T0 and not str(device).startswith("cuda")
+    if large_on_cpu and name in CPU_PRESETS_LARGE:
         return CPU_PRESETS_LARGE[name]
+    if fixed_t0 and not large_on_cpu and name in FIXED_T0_PRESETS:
+        return FIXED_T0_PRESETS[name]
     return PRESETS[name]
 # `smoke` checks that a scene and a pipeline (build system, cache, shards, Ray) work end to end, in
 # about a second of training per material; its quality is not meant to be looked at. Rate control
@@ -180,6 +194,14 @@ DEFAULT_LAYOUT = Layout.AUTO
 def default_layout(target_psnr: float | None) -> Layout:
     """The layout when --layout is not given: auto, or neural with --target-psnr."""
     return Layout.NEURAL if target_psnr is not None else DEFAULT_LAYOUT
+
+
+def t0_of(options) -> T0:
+    """What T_0 holds for ``options`` (`TrainingOptions`, or a job's recorded manifest.Options): --t0,
+    else its format's default (DEFAULT_T0); a record without a format (before MODEL_FORMAT 11) was bc6h."""
+    if options.t0 is not None:
+        return T0(options.t0)
+    return DEFAULT_T0[FeatureFormat(options.features or FeatureFormat.BC6H)]
 
 
 def layout_of(options) -> Layout:
@@ -353,7 +375,7 @@ class TrainingOptions:
     @property
     def t0_resolved(self) -> T0:
         """What T_0 holds: --t0, else the feature format's default (DEFAULT_T0)."""
-        return T0(self.t0) if self.t0 is not None else DEFAULT_T0[FeatureFormat(self.features)]
+        return t0_of(self)
 
     def train_config(self, source_size: int, wrap: str, device: str) -> tuple[str, TrainConfig]:
         """The `TrainConfig` of these choices for a texture set whose larger side is
@@ -364,7 +386,8 @@ class TrainingOptions:
         name, res = resolve_profile(self.profile, source_size)
         mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap,
                          features=FeatureFormat(self.features))
-        return name, TrainConfig(model=mc, preset=preset_for(self.preset, res[0], device), preset_name=self.preset,
+        fixed = self.t0_resolved == T0.PCA
+        return name, TrainConfig(model=mc, preset=preset_for(self.preset, res[0], device, fixed), preset_name=self.preset,
                                  seed=self.seed,
                                  device=device, threads=self.threads, feature_init=self.init,
                                  kernel=Kernel(self.kernel).on(device), t0=self.t0_resolved)

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from bcfpipe.formats.vocabulary import CacheUse, Status
+from bcfpipe.formats.vocabulary import T0, CacheUse, Status
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import one_line
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
@@ -201,7 +201,7 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
                 n, c = make_config(ts, training.with_(profile=st.profile, preset=st.preset), mj.wrap)
                 return fit_material(ts, folder, c, n, progress, coverage=mask)[0]
 
-            res, outcome = rate.fit_to_target(o.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device),
+            res, outcome = rate.fit_to_target(o.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA),
                                               train_one, out_dir, {(p, q): v for p, q, v in mj.anchors},
                                               progress.phase if progress else None)
         d = res.to_dict()

@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import (CPU_PRESETS_LARGE, DEFAULT_INIT, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS,
-                            QUALITY_PRESETS, TrainingOptions, layout_of, preset_for, resolve_profile)
+from bcfpipe.config import (CPU_PRESETS_LARGE, DEFAULT_INIT, FIXED_T0_PRESETS, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS,
+                            QUALITY_PRESETS, TrainingOptions, layout_of, preset_for, resolve_profile, t0_of)
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
@@ -191,7 +191,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         "wrap": wrap,
         "profile": options.profile,
         "preset": options.preset,
-        "schedule": asdict(preset_for(options.preset, _t0(sources, options), options.device)),
+        "schedule": asdict(preset_for(options.preset, _t0(sources, options), options.device,
+                                      t0_of(options) == T0.PCA)),
         "seed": options.seed,
         "device": options.device,
         "hidden": options.hidden,
@@ -211,6 +212,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
         payload["target_psnr"] = options.target_psnr
         payload["schedules"] = {name: asdict(PRESETS[name]) for name in QUALITY_PRESETS}
         payload["schedules_large"] = {name: asdict(p) for name, p in CPU_PRESETS_LARGE.items()}
+        if t0_of(options) == T0.PCA:
+            payload["schedules_fixed_t0"] = {name: asdict(p) for name, p in FIXED_T0_PRESETS.items()}
         payload["anchors"] = [list(a) for a in anchors]
     for f in fields(options):  # a newer option: in the key when it is not its default (old keys stand)
         if f.name not in _KEYED_ABOVE and getattr(options, f.name) != f.default:

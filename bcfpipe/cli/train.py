@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from bcfpipe.formats.vocabulary import Wrap
+from bcfpipe.formats.vocabulary import T0, Wrap
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
 from bcfpipe.cli.options import training_options
@@ -201,7 +201,7 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
                     if not quiet:
                         rep.console.print(f"rate control: training {text}", highlight=False)
 
-                res, outcome = rate.fit_to_target(options.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device),
+                res, outcome = rate.fit_to_target(options.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA),
                                                   train_one, out, anchors, said)
                 if not quiet or not outcome.met:
                     click.echo(f"bcfpipe train: {outcome.summary()}", err=True)

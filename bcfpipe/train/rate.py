@@ -82,8 +82,9 @@ def _feature_bytes(resolutions: Sequence[int]) -> int:
     return total
 
 
-def candidates(source_side: int, device: str = "cpu") -> list[Setting]:
-    """Every setting rate control may choose for a set whose larger side is ``source_side``."""
+def candidates(source_side: int, device: str = "cpu", fixed_t0: bool = False) -> list[Setting]:
+    """Every setting rate control may choose for a set whose larger side is ``source_side``
+    (``fixed_t0``: a T_0 of principal components, whose draft trains longer: config.preset_for)."""
     cuda = device.startswith("cuda")
     profiles = [p for p in (GPU_PROFILES if cuda else CPU_PROFILES) if PROFILES[p][0] <= source_side] or ["auto"]
     presets = [p for p in QUALITY_PRESETS if cuda or p != "paper"]
@@ -91,7 +92,7 @@ def candidates(source_side: int, device: str = "cpu") -> list[Setting]:
     for prof in profiles:
         res = resolve_profile(prof, source_side)[1]
         for pre in presets:
-            p = preset_for(pre, res[0], device)
+            p = preset_for(pre, res[0], device, fixed_t0)
             out.append(Setting(prof, pre, tuple(res), _feature_bytes(res), float(p.total_steps * p.batch)))
     return sorted(out, key=lambda s: (s.feature_bytes, s.cost))
 
