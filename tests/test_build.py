@@ -457,6 +457,20 @@ def test_a_kernel_named_keys_what_it_runs(tmp_path: Path) -> None:
     assert opts.with_(kernel="torch").train_config(64, "repeat", "cpu")[1].kernel == Kernel.TORCH
 
 
+def test_a_fixed_t0_trains_a_longer_draft_except_at_2k_on_a_cpu() -> None:
+    """bc7's fixed T_0 trains FIXED_T0_PRESETS' draft (T_1..T_3 only, 3x the steps); bc6h, a 2048² T_0
+    on a CPU (30 s for a 2K material) and the other presets train PRESETS."""
+    from bcfpipe import config
+
+    draft = TrainingOptions(preset="draft", device="cpu", layout="neural")
+    assert draft.train_config(1024, "repeat", "cpu")[1].preset is config.FIXED_T0_PRESETS["draft"]
+    assert draft.with_(features="bc6h").train_config(1024, "repeat", "cpu")[1].preset is config.PRESETS["draft"]
+    assert draft.with_(t0="trained").train_config(1024, "repeat", "cpu")[1].preset is config.PRESETS["draft"]
+    assert draft.with_(profile="2k").train_config(2048, "repeat", "cpu")[1].preset is config.PRESETS["draft"]
+    assert draft.with_(profile="2k").train_config(2048, "repeat", "cuda:0")[1].preset is config.FIXED_T0_PRESETS["draft"]
+    assert config.preset_for("fast", 1024, "cpu", True) is config.PRESETS["fast"]
+
+
 def test_cpu_presets_take_fewer_steps_at_2k_and_the_key_follows(tmp_path: Path, monkeypatch) -> None:
     """Issue 30's limits for a 2K material: on a CPU, standard trains CPU_PRESETS_LARGE at a 2048²
     T_0; CUDA, smaller profiles and the other presets (fast fits at full steps) train PRESETS. The
