@@ -1,5 +1,7 @@
 """Training schedule (paper §5.1, §6.1): warm-up, BC init + constrained, quantize, MLP fine-tune.
 
+  (T_0)    with --t0 pca (bc7's default) T_0 is the set's principal components, BC7-encoded once
+           and fixed through every phase (bcfpipe.train.fixed_t0); the phases train the rest
   phase 1  warmup       free features + MLP, Adam (lr_f, lr_m), exponential decay
   phase 2  constrained  features re-initialised by encoding the warm features (BC6H: this picks
                         every block's partition), then endpoints/indices trained through the
