@@ -387,7 +387,8 @@ class TrainingOptions:
         mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap,
                          features=FeatureFormat(self.features))
         fixed = self.t0_resolved == T0.PCA
-        return name, TrainConfig(model=mc, preset=preset_for(self.preset, res[0], device, fixed), preset_name=self.preset,
+        return name, TrainConfig(model=mc, preset=preset_for(self.preset, res[0], device, fixed),
+                                 preset_name=self.preset,
                                  seed=self.seed,
                                  device=device, threads=self.threads, feature_init=self.init,
                                  kernel=Kernel(self.kernel).on(device), t0=self.t0_resolved)

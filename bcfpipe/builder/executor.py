@@ -201,7 +201,8 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
                 n, c = make_config(ts, training.with_(profile=st.profile, preset=st.preset), mj.wrap)
                 return fit_material(ts, folder, c, n, progress, coverage=mask)[0]
 
-            res, outcome = rate.fit_to_target(o.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA),
+            settings = rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
+            res, outcome = rate.fit_to_target(o.target_psnr, settings,
                                               train_one, out_dir, {(p, q): v for p, q, v in mj.anchors},
                                               progress.phase if progress else None)
         d = res.to_dict()

@@ -201,7 +201,8 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
                     if not quiet:
                         rep.console.print(f"rate control: training {text}", highlight=False)
 
-                res, outcome = rate.fit_to_target(options.target_psnr, rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA),
+                settings = rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
+                res, outcome = rate.fit_to_target(options.target_psnr, settings,
                                                   train_one, out, anchors, said)
                 if not quiet or not outcome.met:
                     click.echo(f"bcfpipe train: {outcome.summary()}", err=True)

@@ -7,7 +7,8 @@ from __future__ import annotations
 from dataclasses import replace
 
 from bcfpipe.formats.vocabulary import Decision, FeatureFormat
-from bcfpipe.config import DEFAULT_FEATURES, DEFAULT_HIDDEN, DEFAULT_PROFILE, LAYER_CHANNELS_OF, N_LAYERS, mip_count, resolve_profile
+from bcfpipe.config import (DEFAULT_FEATURES, DEFAULT_HIDDEN, DEFAULT_PROFILE, LAYER_CHANNELS_OF, N_LAYERS, mip_count,
+                            resolve_profile)
 from bcfpipe.formats import dds, weights
 from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.coverage import job_coverage
