@@ -74,18 +74,9 @@ def _params(levels):
 
 def _fix_t0(levels):
     """T_0's levels replaced by fixed ones (--t0 pca): ISPC's BC7 blocks of a real image, any mode."""
-    from bcfpipe.bc7 import decode_to_u8
-    from bcfpipe.texset.baselines import bc7_mips
+    from bcfpipe.train.fixed_t0 import encoded_levels
 
-    shipped: list = []
-    sizes = [64 >> k for k in range(len(levels[0]))]
-    bc7_mips([_image(r, 4) for r in sizes], shipped)
-    fixed = []
-    for blocks, w, h in shipped:
-        b = np.asarray(blocks, np.uint8).reshape(-1, 16)
-        u8 = torch.as_tensor(decode_to_u8(b).astype(np.float32))
-        fixed.append(FixedLevel(b, M.blocks_to_image(u8, w, h).contiguous(), w))
-    levels[0] = fixed
+    levels[0] = encoded_levels([_image(64 >> k, 4) for k in range(len(levels[0]))])
     return levels
 
 

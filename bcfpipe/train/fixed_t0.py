@@ -25,26 +25,32 @@ from bcfpipe.model import neural as M
 from bcfpipe.model.features import FixedLevel, codec_of
 from bcfpipe.train.feature_init import pca_init
 
-__all__ = ["pca_t0"]
+__all__ = ["pca_t0", "encoded_levels"]
 
 
 def pca_t0(mc: ModelConfig, ref_mips, biases, free: list[list[torch.Tensor]],
            mlp: dict[str, torch.Tensor]) -> list[FixedLevel]:
     """T_0's levels as `FixedLevel` (components, ISPC's BC7 blocks, their decoded values); sets
     ``mlp`` to the components' linear decoder (in place). ``free[0]`` is overwritten on the way."""
-    from bcfpipe.bc7 import decode_to_u8
-    from bcfpipe.texset.baselines import bc7_mips
-
     pca_init(mc, ref_mips, biases, free, mlp, layers=(0,))
     codec = codec_of(mc)
     lo, hi = codec.param_range(mc)
     with torch.no_grad():
         levels = [codec.value(p.detach().clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy() for p in free[0]]
+    return encoded_levels(levels, free[0][0].device)
+
+
+def encoded_levels(levels, device="cpu") -> list[FixedLevel]:
+    """(H, W, 4) [0, 1] levels encoded once by ISPC (every BC7 mode), as `FixedLevel`s whose values
+    are bcfpipe's decode of the blocks."""
+    from bcfpipe.bc7 import decode_to_u8
+    from bcfpipe.texset.baselines import bc7_mips
+
     shipped: list = []
     bc7_mips(levels, shipped)
     out = []
     for blocks, w, h in shipped:
         b = np.ascontiguousarray(np.asarray(blocks, np.uint8).reshape(-1, 16))
         u8 = torch.as_tensor(decode_to_u8(b).astype(np.float32))
-        out.append(FixedLevel(b, M.blocks_to_image(u8, w, h).contiguous().to(free[0][0].device), w))
+        out.append(FixedLevel(b, M.blocks_to_image(u8, w, h).contiguous().to(device), w))
     return out
