@@ -3,7 +3,7 @@ never trained (``--t0 pca``, the default with ``--features bc7``; issue 29).
 
 The oracle of benchmarks/bound_t0.py says what one BC7 texture at T_0 can hold: the set's four
 leading principal components, encoded by a full BC7 encoder (Intel's ISPC, every mode), keep more of
-the closest mips than trained mode-6 features do (brick, mip 1: 32.0 dB against 28.0). Trained
+the closest mips than trained mode-6 features do (brick, mip 1: 31.4 dB against 28.0). Trained
 features lose that: free features from noise are not block-friendly (their ISPC encode costs 3 dB at
 mip 1), and mode 6, the one mode the trainer emulates, holds one line per block.
 
