@@ -516,6 +516,7 @@ EXPECTED: dict[str, dict[str, int]] = {
     _UDIMS + "usdUdimsScaleAndBias.usda": {"unresolvable-file": 1},
     _UDIMS + "usdUdimsSymlinked.usda": {"unresolvable-file": 1},
     _UDIMS + "usdUdimsTextureFallback.usda": {"unresolvable-file": 1},
+    "gltf_water_bottle/water_bottle.usda": {"model": 1},
     "pablode_cornell_box/display-color/cornell-box.usda": {},
     "pablode_cornell_box/mtlx-usdshade/cornell-box.usda": {"materialx-only": 4},
     "pablode_cornell_box/usdpreviewsurface/cornell-box.usda": {"no-textures": 4},
