@@ -14,7 +14,7 @@ from typing import Iterable, Mapping
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import TrainingOptions
-from bcfpipe.errors import EXIT_OK, WorkFailed
+from bcfpipe.errors import EXIT_OK, InputError, WorkFailed
 from bcfpipe.builder.assemble import assemble, default_out
 from bcfpipe.builder.depfile import dependencies, write as write_depfile
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
@@ -102,6 +102,10 @@ def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike],
     other = _built_scene(out)
     if scene is None or other is None or other == Path(scene).resolve():
         return None
+    if not force and not other.exists():
+        raise BuildError(f"output folder {out} holds a build whose scene ({other}, recorded relative to the folder) "
+                         "does not exist: the folder was moved, or its scene deleted; use --force to replace it, "
+                         "or choose another -o")
     if not force:
         raise BuildError(f"output folder {out} holds the build of another scene ({other}); "
                          "use --force to replace it, or choose another -o")
@@ -109,7 +113,12 @@ def check_out(out: Path, force: bool, inputs: Iterable[str | os.PathLike],
 
 
 class OutputError(WorkFailed):
-    """OUT (or its staging folder) could not be written: disk full, read-only, ... (exit code 1)."""
+    """OUT could not be written once the work ran: disk full while installing, ... (exit code 1)."""
+
+
+class OutputRefused(InputError):
+    """OUT cannot be created or written at all (read-only, under a file, no permission): refused
+    before any work, nothing written (exit code 2, as a refused OUT)."""
 
 
 def _why(exc: BaseException) -> str:
@@ -230,7 +239,7 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
         out_lock = _lock_out(out_path)
     except OSError as exc:
         _abandon(staging, out_path, created)
-        raise OutputError(f"cannot write {out_path}: {_why(exc)}") from None
+        raise OutputRefused(f"cannot write {out_path}: {_why(exc)}") from None
     try:
         # another build may have written OUT while this one waited: the rules again, under the lock
         replaced = check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
@@ -276,7 +285,7 @@ def _build_locked(bplan: BuildPlan, out_path: Path, out_given: Path, staging: Pa
         (staging / _PID).write_text(str(os.getpid()))
     except OSError as exc:
         _abandon(staging, out_path, created)
-        raise OutputError(f"cannot write {out_path}: {_why(exc)}") from None
+        raise OutputRefused(f"cannot write {out_path}: {_why(exc)}") from None
     if progress:  # every job is known from the start: progress counts "k of all"
         for job in bplan.jobs:
             progress(ProgressEvent(EventKind.QUEUED, job.name, job.materials))

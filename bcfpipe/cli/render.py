@@ -73,6 +73,10 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
 
     width, height = parse_size(size)
     scene = _stage_file(scene)
+    if scene.endswith(".bcf.usda") and os.path.isfile(scene):
+        from bcfpipe.verify.sources import check_sources
+
+        check_sources(scene)  # a moved OUT: say so, not "no visible mesh"
     if compare and original:
         raise InputError("--compare and --original exclude each other")
     if camera and zoom != 1.0:

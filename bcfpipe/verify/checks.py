@@ -45,6 +45,7 @@ from bcfpipe.export import writer as E
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes
 from bcfpipe.verify.glsl import GLRuntime, GLUnavailable, MaterialDesc
 from bcfpipe.verify.points import CATEGORIES, gradient_points, lod_from_grad, verification_points
+from bcfpipe.verify.sources import SourceNotFound, check_sources, root_layers
 from bcfpipe.verify.targets import Target, VerifyInputError, find_targets
 from bcfpipe.verify.tolerance import FILTER_BITS, TARGET, filter_error, output_tolerance
 
@@ -451,6 +452,11 @@ def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool =
     """Verify every material under ``path``; raises VerifyInputError when there is nothing to verify.
     ``progress`` hears `VerifyEvent`s as it goes (nothing when OpenGL is unavailable)."""
     targets = find_targets(path)
+    for root in root_layers(path):  # a build folder: its stage must still reach the scene it was built over
+        try:
+            check_sources(root)
+        except SourceNotFound as e:
+            raise VerifyInputError(str(e)) from None
     tol_info = {"mode": "derived" if tolerance is None else "fixed", "filter_bits": filter_bits,
                 "target": TARGET}
     if tolerance is not None:
