@@ -238,11 +238,11 @@ def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[s
         return {}
     if isinstance(variants, Mapping):
         return {str(k): str(v) for k, v in variants.items()}
-    from bcfpipe.scan.composition import parse_variant
+    from bcfpipe.scan.composition import parse_variants
     from bcfpipe.scan.results import ScanError
 
     try:
-        return dict(parse_variant(v) for v in variants)
+        return parse_variants(variants)
     except ScanError as exc:
         raise BuildError(str(exc)) from None
 

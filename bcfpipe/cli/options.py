@@ -109,15 +109,16 @@ def training_options(f):
 
 
 def _variants(_ctx: click.Context, _param: click.Parameter, values: tuple[str, ...]) -> dict[str, str]:
-    """Parse repeated ``--variant SET=VALUE`` into a dict (later wins); a malformed one exits 2."""
-    from bcfpipe.scan.composition import parse_variant
+    """Parse repeated ``--variant SET=VALUE`` into a dict; a malformed one, or two values for one
+    set, exits 2."""
+    from bcfpipe.scan.composition import parse_variants
 
-    return dict(parse_variant(v) for v in values)
+    return parse_variants(values)
 
 
 variant_option = click.option(
     "--variant", "variants", multiple=True, callback=_variants, metavar="SET=VALUE",
-    help="Select VALUE in variant set SET on every prim offering it (repeatable).")
+    help="Select VALUE in variant set SET on every prim offering it (repeatable, one value per set).")
 all_materials_option = click.option(
     "--all-materials", is_flag=True, help="Also model materials not bound to rendered geometry.")
 material_option = click.option(

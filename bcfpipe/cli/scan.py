@@ -1,7 +1,8 @@
 """`bcfpipe scan`: list a scene's materials and whether `build` would model them.
 
 Exit codes: 0 when the stage was scanned (skipped materials included),
-2 when the stage cannot be read or ``--variant`` is malformed or unknown.
+2 when the stage cannot be read, ``--variant`` is malformed, unknown or repeated for one set, or a
+texture a build would read cannot be read (empty, truncated, damaged: the build refuses it too).
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.text import Text
 
+from bcfpipe.errors import EXIT_USAGE
 from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import all_materials_option, material_option, texel_density_option, variant_option
@@ -115,6 +117,9 @@ def _conclusion(result: StageScan, grouping: Grouping) -> str:
     skips = Counter(r for d, r, _ in outcomes if d == Decision.SKIP)
     skipped = ", ".join(f"{n} {r}" for r, n in sorted(skips.items(), key=lambda kv: (-kv[1], kv[0])))
     mtlx = mtlx_documents(result.composition_errors)
+    if grouping.failed:
+        return (f"conclusion: a build stops before training (exit 2): {len(grouping.failed)} material(s) read "
+                "textures it cannot read (above)")
     if not result.materials and mtlx:
         return (f"conclusion: a build builds nothing: the stage's materials are in {len(mtlx)} MaterialX "
                 f"document(s) (.mtlx) that this USD cannot open, and bcfpipe reads UsdPreviewSurface only")
@@ -179,6 +184,10 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
     Also what the scene requires: channels folded (constant or duplicate), the source's texel
     density on the bound meshes, the resolution, profile and size a build would choose, and the
     total against modelling everything. JSON keys: docs/build.md.
+
+    \b
+    Exit codes: 0 scanned (skipped materials included); 2 the stage cannot be read, a bad or
+    repeated --variant, or a texture a build would read is unreadable (the build refuses it too).
     """
     from bcfpipe.scan.requirements import requirements
 
@@ -203,5 +212,7 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
         d["instanced"] = sorted(grouping.instanced)
         d["unreadable"] = dict(grouping.failed)
         click.echo(json.dumps(d, indent=2))
-        return
-    _print_human(result, grouping, reqs, Console())
+    else:
+        _print_human(result, grouping, reqs, Console())
+    if grouping.failed:  # as the build, which refuses an unreadable texture before training
+        click.get_current_context().exit(EXIT_USAGE)

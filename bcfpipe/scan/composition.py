@@ -26,6 +26,18 @@ def parse_variant(text: str) -> tuple[str, str]:
     return name, value
 
 
+def parse_variants(texts: Iterable[str]) -> dict[str, str]:
+    """Repeated ``SET=VALUE`` as {set: value}; two values for one set are refused (a stage
+    composes one selection per set, and the last would win unseen)."""
+    out: dict[str, str] = {}
+    for name, value in map(parse_variant, texts):
+        if out.get(name, value) != value:
+            raise ScanError(f"two values for variant set {name!r} ({out[name]!r} and {value!r}); "
+                            "a stage composes one: pass one --variant per set")
+        out[name] = value
+    return out
+
+
 def first_line(exc: BaseException) -> str:
     """The first non-empty line of an exception message (pxr errors are verbose)."""
     try:

@@ -343,6 +343,9 @@ def _add_targets(inp, tex, src: SourceFile, uses, keys: list[ModelChannel | None
     is_normal = inp.name == "normal" and tex.channel == "rgb"
     if tex.source_color_space not in (ColorSpace.AUTO, ColorSpace.RAW, ColorSpace.SRGB):
         m.warnings.append(f"{inp.name}: unknown sourceColorSpace {tex.source_color_space!r}, read as raw")
+    if is_normal and src.channels < 3:  # Hydra reads r, g and b of a grey file as the one channel
+        m.warnings.append(f"{inp.name}: {Path(src.path).name} is a single-channel (greyscale) image: the normal's "
+                          "x, y and z all read its one channel; is it the right file?")
     for i, (u, key) in enumerate(zip(uses, keys)):
         comp = "rgba".index(u.channel)
         s, b = float(tex.scale[comp]), float(tex.bias[comp])
