@@ -28,10 +28,11 @@ from bcfpipe.config import TrainingOptions
 from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.builder import (MANIFEST, BuildError, MaterialJob, build, plan, root_layer_name)
 from bcfpipe.cli.build import BuildDisplay
+from bcfpipe.resources import SCHEMA_DIR
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "samples"
-SCHEMAS = REPO / "schemas"
+SCHEMAS = SCHEMA_DIR  # bcfpipe/schemas: the package ships them
 SCENES = REPO.parent / "shared" / "scenes"
 FAST = {"training": TrainingOptions(profile="tiny", preset="smoke", seed=0, layout="neural")}  # the neural path
 

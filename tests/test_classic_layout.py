@@ -18,10 +18,11 @@ from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 from bcfpipe.layout.classic import channel_errors, encode, groups
 from bcfpipe.layout.export import export_layout
 from bcfpipe.layout.fit import LayoutFit, subset
+from bcfpipe.resources import SCHEMA_DIR
 from bcfpipe.texset.metrics import mse_per_channel
 from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
 
-SCHEMA = Path(__file__).resolve().parents[1] / "schemas" / "material.schema.json"
+SCHEMA = SCHEMA_DIR / "material.schema.json"
 
 
 def _set(size=64, seed=0) -> TextureSet:

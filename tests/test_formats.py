@@ -11,8 +11,8 @@ from bcfpipe.formats import manifest as mfst
 from bcfpipe.formats import material as mf
 from bcfpipe.formats import schema
 from bcfpipe.formats.record import FormatError
+from bcfpipe.resources import GLSL_DIR, SCHEMA_DIR
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 def _material() -> mf.MaterialFile:
@@ -31,12 +31,12 @@ def _material() -> mf.MaterialFile:
 
 @pytest.mark.parametrize("name", sorted(schema.SCHEMAS))
 def test_published_schemas_are_generated(name):
-    """schemas/*.schema.json are exactly what the records generate (regenerate with
+    """bcfpipe/schemas/*.schema.json (what the package ships) are exactly what the records generate (regenerate with
     `python -m bcfpipe.formats.schema`), every key has a description, and they are valid schemas."""
     import jsonschema
 
-    text = (REPO / "schemas" / name).read_text()
-    assert text == schema.render(name), f"schemas/{name} is stale: run python -m bcfpipe.formats.schema"
+    text = (SCHEMA_DIR / name).read_text()
+    assert text == schema.render(name), f"bcfpipe/schemas/{name} is stale: run python -m bcfpipe.formats.schema"
     s = json.loads(text)
     jsonschema.Draft202012Validator.check_schema(s)
     for obj in [s, *s["$defs"].values()]:
@@ -144,9 +144,9 @@ print(json.dumps({"node": bool(node and node.IsValid()),
 
 @pytest.mark.parametrize("case", ["register", "env", "both", "none", "wrong-type"])
 def test_shader_definition_in_sdr(case):
-    """The BcfNeuralMaterial node of schemas/shaders/BcfNeuralMaterial.usda: registered in-process
+    """The BcfNeuralMaterial node of bcfpipe/schemas/shaders/BcfNeuralMaterial.usda: registered in-process
     (register), through the environment alone by Sdr's filesystem discovery (env), or both, it is a
-    valid Sdr node whose implementation is glsl/bcf_decode.glsl, and a material's bcf
+    valid Sdr node whose implementation is the package's glsl/bcf_decode.glsl, and a material's bcf
     render-context output connected to it passes UsdValidation, which checks input types against it
     (an int lod bias is an error); unregistered, UsdValidation reports the unknown shader."""
     import os
@@ -164,7 +164,7 @@ def test_shader_definition_in_sdr(case):
     assert p.returncode == 0, p.stderr[-3000:]
     r = json.loads(p.stdout.strip().splitlines()[-1])
     if register:
-        assert r["node"] and r["impl"].endswith("glsl/bcf_decode.glsl") and Path(r["impl"]).is_file()
+        assert r["node"] and Path(r["impl"]).resolve() == GLSL_DIR / "bcf_decode.glsl"
         assert {"surface", "diffuseColor", "normal", "roughness", "metallic", "occlusion"} <= set(r["outputs"])
         assert r["errors"] == [], r["errors"]
     elif case == "none":

@@ -2,8 +2,6 @@
 through the sampler, ONNX vs torch, and the fp16 weight record."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -12,6 +10,7 @@ from bcfpipe.export import writer as E
 from bcfpipe.model import neural as M
 from bcfpipe.bc6h import emulate
 from bcfpipe.config import ModelConfig, TrainConfig
+from bcfpipe.resources import SCHEMA_DIR
 from bcfpipe.model.decoder import MlpWeights, decode_numpy, from_bytes, mlp_raw, postprocess, to_bytes
 from bcfpipe.texset.texture_set import Channel, TextureSet
 from bcfpipe.train.trainer import BlockLevel, TrainedMaterial, exact_level
@@ -159,8 +158,7 @@ def test_description_is_self_contained(tmp_path):
     assert [o["usd_target"] for o in d["outputs"]] == ["diffuseColor.r", "diffuseColor.g", "diffuseColor.b",
                                                        "normal.x", "normal.y", "normal.z", "roughness"]
     assert d["onnx"]["input"] == "features" and d["mlp"]["n_in"] == 12 and d["sampling"]["addressing"] == "repeat"
-    jsonschema.validate(d, json.loads((Path(__file__).resolve().parents[1] / "schemas" /
-                                       "material.schema.json").read_text()))
+    jsonschema.validate(d, json.loads((SCHEMA_DIR / "material.schema.json").read_text()))
 
 
 @pytest.mark.parametrize("profile, ref", [("0.5k", 2048), ("1k", 2048), ("2k", 2048), ("2k++", 2048),

@@ -15,6 +15,7 @@ from test_build import add_material, new_stage, pattern, write_png  # noqa: E402
 
 from bcfpipe.config import TrainingOptions  # noqa: E402
 from bcfpipe.train import rate  # noqa: E402
+from bcfpipe.resources import SCHEMA_DIR  # noqa: E402
 
 
 def test_candidates_smallest_first_then_quickest() -> None:
@@ -150,8 +151,7 @@ def test_build_target_psnr_records_the_choice(tmp_path: Path) -> None:
     r = build(tmp_path / "scene.usda", tmp_path / "out", training=TrainingOptions(target_psnr=12.0), jobs=1)
     assert r.exit_code == 0
     mf = json.loads((tmp_path / "out" / "manifest.json").read_text())
-    jsonschema.validate(mf, json.loads((Path(__file__).resolve().parents[1] / "schemas" /
-                                        "manifest.schema.json").read_text()))
+    jsonschema.validate(mf, json.loads((SCHEMA_DIR / "manifest.schema.json").read_text()))
     (m,) = [m for m in mf["materials"] if m["status"] == "built"]
     assert m["target"]["met"] and m["target"]["target_psnr"] == 12.0 and m["preset"] == "draft"
     assert mf["options"]["target_psnr"] == 12.0

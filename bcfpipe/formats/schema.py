@@ -2,7 +2,7 @@
 
 The records (:mod:`bcfpipe.formats.material`, :mod:`bcfpipe.formats.manifest`) give the keys and
 types; :data:`DESCRIPTIONS` says what each key means. ``python -m bcfpipe.formats.schema`` writes
-schemas/material.schema.json and schemas/manifest.schema.json; a test checks that the committed
+them into bcfpipe/schemas/ (material, manifest and report .schema.json); a test checks that the committed
 files are what this module generates, and that every file bcfpipe writes validates against them.
 """
 from __future__ import annotations
@@ -18,8 +18,8 @@ from typing import Any
 from bcfpipe.formats import manifest, material, report
 from bcfpipe.formats.record import _hints, key_order
 from bcfpipe.formats.vocabulary import Status
+from bcfpipe.resources import SCHEMA_DIR
 
-SCHEMA_DIR = Path(__file__).resolve().parents[2] / "schemas"
 BASE_URI = "https://bcfpipe.dev/schemas/"
 
 # (record, key) -> meaning. Every key of every record has one (a test checks).

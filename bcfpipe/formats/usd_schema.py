@@ -15,8 +15,8 @@ material's ``bcf`` render context uses is registered with Sdr either through the
 by Sdr's own filesystem discovery (`shader_discovery_env`: any USD tool, no code), or
 in-process by `register_shader_defs`.
 
-``schemas/`` is found next to the ``bcfpipe`` package (a source checkout or an editable install),
-or wherever ``BCFPIPE_SCHEMAS`` points.
+``schemas/`` ships inside the package (``bcfpipe/schemas``, :mod:`bcfpipe.resources`): an installed
+wheel and a checkout alike; ``BCFPIPE_SCHEMAS`` points elsewhere.
 """
 from __future__ import annotations
 
@@ -32,13 +32,9 @@ SHADER_ID = "BcfNeuralMaterial"  # the Sdr node of schemas/shaders/BcfNeuralMate
 
 def schema_dir() -> Path:
     """The folder holding plugInfo.json, generatedSchema.usda and schema.usda."""
-    env = os.environ.get("BCFPIPE_SCHEMAS")
-    candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[2] / "schemas")
-    for c in candidates:
-        if (c / "plugInfo.json").is_file():
-            return c
-    raise FileNotFoundError("bcfpipe schemas/ not found (set BCFPIPE_SCHEMAS to the folder with plugInfo.json)")
+    from bcfpipe.resources import SCHEMA_DIR, data_dir
+
+    return data_dir(SCHEMA_DIR, "BCFPIPE_SCHEMAS", "plugInfo.json")
 
 
 def plugin_path_env(existing: str | None = None) -> str:

@@ -45,13 +45,10 @@ class GLUnavailable(Unavailable):
 
 
 def glsl_dir() -> Path:
-    """The folder with the shader sources (``BCFPIPE_GLSL_DIR`` overrides the repository's glsl/)."""
-    env = os.environ.get("BCFPIPE_GLSL_DIR")
-    for d in ([Path(env)] if env else []) + [Path(__file__).resolve().parents[2] / "glsl",
-                                             Path(__file__).resolve().parent / "glsl"]:
-        if (d / LIBRARY).is_file():
-            return d
-    raise FileNotFoundError(f"cannot find the GLSL sources ({LIBRARY}); set BCFPIPE_GLSL_DIR")
+    """The folder with the shader sources: the package's glsl/ (``BCFPIPE_GLSL_DIR`` overrides it)."""
+    from bcfpipe.resources import GLSL_DIR, data_dir
+
+    return data_dir(GLSL_DIR, "BCFPIPE_GLSL_DIR", LIBRARY)
 
 
 def read_source(name: str) -> str:
@@ -188,7 +185,7 @@ class GLRuntime:
         try:
             import moderngl
         except ImportError as e:
-            raise GLUnavailable(f"moderngl is not installed ({e}); pip install 'bcfpipe[gl]'") from None
+            raise GLUnavailable(f"moderngl is not installed ({e}): pip install moderngl PyOpenGL") from None
         try:
             self.ctx = moderngl.create_standalone_context(backend="egl", require=require)
         except Exception as e:  # noqa: BLE001 - any EGL/driver failure means "no GL here"
