@@ -106,8 +106,9 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
         ))
     scene_rel = usdout.relative_asset(bplan.scene, final_out)
     stamp = f"Written by bcfpipe {__version__} build from {scene_rel}"
+    classic, source_stage = _classic_wiring(bplan, descs)
     usdout.write_overrides_layer(staging / OVERRIDES, overrides, bplan.variant_selections, comment=stamp,
-                                 constants=_constant_inputs(bplan))
+                                 constants=_constant_inputs(bplan), classic=classic, source_stage=source_stage)
     root_name = root_layer_name(bplan.scene)
     usdout.write_root_layer(staging / root_name, [f"./{OVERRIDES}", scene_rel], bplan.up_axis,
                             bplan.meters_per_unit, bplan.default_prim, bplan.root_layer, comment=stamp)
@@ -202,6 +203,25 @@ def _layout_choice(d: dict | None) -> mfst.LayoutChoice | None:
     return mfst.LayoutChoice(ch["layout"], tuple(ch["classic"]), ch["profile"], d["reason"], ch["size_bytes"],
                              bc["size_bytes"], ch["psnr"], bc["psnr"], tuple(ch["margin_per_mip_db"]),
                              ch.get("worst_margin_db"))
+
+
+def _classic_wiring(bplan: BuildPlan, descs: Mapping[str, mf.MaterialFile]) -> tuple[list, object]:
+    """Each built material with classic outputs and how its UsdUVTexture nodes read them (from the
+    input stage with the build's variant selections), and that stage; ([], None) when none has."""
+    todo = [mp_ for mp_ in bplan.materials if mp_.job in descs and mp_.fallback_surface
+            and any(o.source == mf.Source.CLASSIC for o in descs[mp_.job].outputs)]
+    if not todo:
+        return [], None
+    from bcfpipe.builder import usd_classic
+
+    stage = usd_classic.open_source_stage(bplan.scene, bplan.variant_selections)
+    out = []
+    for mp_ in todo:
+        cm = usd_classic.wire_material(stage, mp_.path, mp_.fallback_surface, mp_.targets, descs[mp_.job],
+                                       f"./{MATERIALS_DIR}/{mp_.job}")
+        if cm is not None:
+            out.append(cm)
+    return out, stage
 
 
 def _constant_inputs(bplan: BuildPlan) -> list:

@@ -25,6 +25,9 @@ with (so the output composes the variant that was modelled), and per modelled Ma
 Every attribute is authored with its schema type and variability, so the layers read back
 identically with or without the schema plugin registered. The input stage is never written.
 
+A layout's classic textures (BC@R, a repack, a mixed layout's classic groups) reach the universal
+context too: bcfpipe.builder.usd_classic points their UsdUVTexture nodes at the shipped DDS.
+
 A UsdPreviewSurface input whose texture is constant (issue #18) gets its value instead, and its
 connection is blocked, in the same layer::
 
@@ -242,9 +245,12 @@ def _author_surface(layer: Sdf.Layer, material: Sdf.PrimSpec, ov: NeuralMaterial
 
 def write_overrides_layer(path: str | os.PathLike, overrides: Iterable[NeuralMaterialOverride],
                           variant_selections: Sequence[tuple[str, str, str]] = (), comment: str = "",
-                          constants: Iterable[ConstantInput] = ()) -> Path:
+                          constants: Iterable[ConstantInput] = (), classic: Sequence = (),
+                          source_stage: Usd.Stage | None = None) -> Path:
     """Write the overrides layer: variant selections (prim, set, value), then one API-schema
-    ``over`` per material (in the order given), then the constant inputs."""
+    ``over`` per material (in the order given), then the constant inputs, then the UsdUVTexture
+    nodes of the classic textures (``classic``: bcfpipe.builder.usd_classic.ClassicMaterial, read
+    from ``source_stage``)."""
     path = Path(path)
     layer = Sdf.Layer.CreateAnonymous(".usda")
     if comment:
@@ -255,6 +261,10 @@ def write_overrides_layer(path: str | os.PathLike, overrides: Iterable[NeuralMat
         _author(layer, ov)
     for c in constants:
         _author_constant(layer, c)
+    if classic:
+        from bcfpipe.builder.usd_classic import author_classic
+
+        author_classic(layer, source_stage, classic)
     layer.Export(str(path))
     return path
 

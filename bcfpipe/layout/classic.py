@@ -2,8 +2,12 @@
 the channels that neural features lose (issue 31), and their BC7 repacks at the same bytes.
 
 A group is one texture of `bcfpipe.texset.baselines.pack_texture_set` (codec 'bc'): BC1 for a colour
-or a packed (ARM-style) file, BC4 for a lone scalar, BC5 for a normal map's x and y. Its texels
-store set values v as t in [0, 1], with v = t * texel_scale + texel_bias (normals: 2t - 1). Every
+or a packed (ARM-style) file, BC4 for a lone scalar, BC5 for a normal map's x and y, BC6H_UF16 for
+a colour beyond 1 from a float file (HDR). Its texels store set values v as t, with
+v = t * texel_scale + texel_bias: t in [0, 1] (normals: v = 2t - 1), or for BC6H the source's
+linear value itself (v = t / value_scale - value_bias / value_scale), so that every map from texel
+to source value is affine, as a UsdUVTexture's scale and bias apply it; no classic texture stores
+a log curve. Every
 mip down to 1×1 is encoded, at the resolution R the material settles on; when R is below the
 set's, reference mips above R see level 0 magnified bilinearly, as a GPU samples it.
 """
@@ -14,7 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
-from bcfpipe.formats.bcn import ClassicFormat
+from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
 from bcfpipe.texset.texture_set import TextureSet
 
 
@@ -27,7 +31,11 @@ class Group:
     name: str  # the semantics it holds, e.g. "albedo" or "occlusion+roughness+metallic"
 
     def texel_map(self, ts: TextureSet) -> tuple[tuple[float, float], ...]:
-        """(texel_scale, texel_bias) per stored channel: set value = t * scale + bias."""
+        """(texel_scale, texel_bias) per stored channel: set value = t * scale + bias (BC6H: t is
+        the source value, set value (t - value_bias) / value_scale)."""
+        if self.format == ClassicFormat.BC6H:
+            return tuple((1.0 / ts.channels[i].value_scale, 0.0 - ts.channels[i].value_bias / ts.channels[i].value_scale)
+                         for i in self.channels)
         return tuple((2.0, -1.0) if ts.channels[i].kind == "normal" else (1.0, 0.0) for i in self.channels)
 
 
@@ -82,7 +90,6 @@ def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap
     return out
 
 
-BLOCK_BYTES = {ClassicFormat.BC1: 8, ClassicFormat.BC4: 8, ClassicFormat.BC5: 16, ClassicFormat.BC7: 16}
 # Above this, every repack's BC7 chain takes minutes to encode (one 4096² texture with its mips: 43 s on
 # one thread, quicktex's BC1 of BC@R about twice that; 8192²: about 3 minutes each)
 MAX_REPACK_SIDE = 4096
@@ -103,22 +110,45 @@ def repacks(groups: Sequence[Group]) -> list[Repack]:
     each BC4 group in one BC7 texture (RGB + A: 8 bits per texel, as theirs together), and every
     channel in BC7 textures, four per texture in pack order, where that takes no more bytes. BC7
     has up to 4-bit indices, 7-bit endpoints and partitions where BC1 has 2-bit indices and 5:6:5
-    endpoints (benchmarks/bound_classic_bc7.py measures what that buys)."""
+    endpoints (benchmarks/bound_classic_bc7.py measures what that buys). A BC6H (HDR) group is
+    never repacked: BC7 is UNORM, and stays as it is beside any repack."""
+    groups = [g for g in groups if g.format != ClassicFormat.BC6H]
     out = [Repack((Group(ClassicFormat.BC7, a.channels + b.channels, f"{a.name}+{b.name}"),), (a.name, b.name),
                   f"{a.name}+{b.name} as BC7")
            for a in groups if a.format == ClassicFormat.BC1 for b in groups if b.format == ClassicFormat.BC4]
     channels = [c for g in groups for c in g.channels]
     n = -(-len(channels) // 4)
-    if len(groups) > 1 and 16 * n <= sum(BLOCK_BYTES[g.format] for g in groups):
+    bins = _whole_inputs(groups, n)
+    if len(groups) > 1 and 16 * n <= sum(BLOCK_BYTES[g.format] for g in groups) and bins is not None:
         packed = []
-        for i in range(n):
-            part = channels[4 * i:4 * i + 4]
+        for i, part in enumerate(bins):
             name = "+".join(dict.fromkeys(g.name for g in groups for c in g.channels if c in part))
             packed.append(Group(ClassicFormat.BC7, tuple(part), f"bc7 {i + 1}/{n}: {name}" if n > 1 else name))
         if all(len(r.groups) != len(packed) or r.groups[0].channels != packed[0].channels for r in out):
             out.append(Repack(tuple(packed), tuple(g.name for g in groups),
                               f"all {len(channels)} channels in {n} BC7"))
     return out
+
+
+def _vector(g: Group) -> bool:
+    """A group one vector input reads through a UsdUVTexture's rgb: a normal (BC5) or a colour (BC1
+    of one semantic; a packed ARM-style BC1 holds scalars, each its own input)."""
+    return g.format == ClassicFormat.BC5 or (g.format == ClassicFormat.BC1 and "+" not in g.name)
+
+
+def _whole_inputs(groups: Sequence[Group], n: int) -> list[tuple[int, ...]] | None:
+    """Every channel of ``groups`` in ``n`` textures of four: each vector group alone at slots r, g(, b)
+    of its own texture (in pack order), the scalars after them in order; None when they do not fit."""
+    vectors = [g for g in groups if _vector(g)]
+    if len(vectors) > n:
+        return None
+    bins = [list(g.channels) for g in vectors] + [[] for _ in range(n - len(vectors))]
+    for c in (c for g in groups if not _vector(g) for c in g.channels):
+        free = next((b for b in bins if len(b) < 4), None)
+        if free is None:
+            return None
+        free.append(c)
+    return [tuple(b) for b in bins if b]
 
 
 def encode_bc7(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequence[np.ndarray],
@@ -178,14 +208,17 @@ def magnify(img: np.ndarray, height: int, width: int, wrap: str) -> np.ndarray:
 def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Sequence[np.ndarray],
                    masks: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """(mips, channels) MSE of BC@R, every channel from its group (over ``masks``' texels if given),
-    as `mse_per_channel` gives it; channel by channel on views, with no decoded set assembled (2.7 GiB
-    at 8192² × 8 channels)."""
+    as `mse_per_channel` gives it (an HDR channel in its learnt log domain); channel by channel on
+    views, with no decoded set assembled (2.7 GiB at 8192² × 8 channels)."""
+    from bcfpipe.texset import encoding
     from bcfpipe.texset.metrics import mse_per_mip
 
     out = np.zeros((len(ref_mips), ts.num_channels))
     for g in groups:
         for j, c in enumerate(g.group.channels):
-            out[:, c] = mse_per_mip([r[..., c:c + 1] for r in ref_mips], [m[..., j:j + 1] for m in g.decoded],
+            gain = np.array([ts.channels[c].log_gain], np.float32)
+            out[:, c] = mse_per_mip(encoding.encode_levels([r[..., c:c + 1] for r in ref_mips], gain),
+                                    encoding.encode_levels([m[..., j:j + 1] for m in g.decoded], gain),
                                     [ts.channels[c]], None, masks)
     return out
 
