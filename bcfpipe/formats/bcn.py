@@ -1,7 +1,9 @@
 """The classic BC formats a layout ships beside the feature textures (issue 31): BC1, BC4 and BC5
-as BC@R has them, and BC7 for groups repacked at equal bytes; their DXGI codes, and a decoder
-(quicktex for BC1/BC4/BC5, texture2ddecoder for BC7; `bcfpipe verify` checks both against
-OpenImageIO). Texels are UNORM in [0, 1]; BC1 in four-colour mode, as bcfpipe encodes it.
+as BC@R has them, BC6H (UF16) for an HDR colour group, and BC7 for groups repacked at equal bytes;
+their DXGI codes, block sizes, and a decoder (quicktex for BC1/BC4/BC5, texture2ddecoder for BC7,
+bcfpipe.bc6h for BC6H; `bcfpipe verify` checks them against OpenImageIO). BC1/BC4/BC5/BC7 texels
+are UNORM in [0, 1], BC1 in four-colour mode as bcfpipe encodes it; BC6H texels are unsigned half
+floats, the source's linear values as they are (what a UsdUVTexture reads from a float texture).
 """
 from __future__ import annotations
 
@@ -18,19 +20,27 @@ class ClassicFormat(StrEnum):
     BC1 = "bc1"
     BC4 = "bc4"
     BC5 = "bc5"
+    BC6H = "bc6h"  # BC6H_UF16: a float colour beyond 1, linear
     BC7 = "bc7"
 
 
 # DXGI_FORMAT values (dxgiformat.h); bcfpipe.formats.dds names them and knows their block sizes
-DXGI = {ClassicFormat.BC1: 71, ClassicFormat.BC4: 80, ClassicFormat.BC5: 83, ClassicFormat.BC7: 98}
+DXGI = {ClassicFormat.BC1: 71, ClassicFormat.BC4: 80, ClassicFormat.BC5: 83, ClassicFormat.BC6H: 95,
+        ClassicFormat.BC7: 98}
 FORMAT_OF = {code: fmt for fmt, code in DXGI.items()}
+BLOCK_BYTES = {ClassicFormat.BC1: 8, ClassicFormat.BC4: 8, ClassicFormat.BC5: 16, ClassicFormat.BC6H: 16,
+               ClassicFormat.BC7: 16}
 
 
 def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, int]]) -> list[np.ndarray]:
-    """Blocks -> stored texels t in [0, 1], (h, w, channels) per level, through quicktex's decoders
-    (BC7: texture2ddecoder's)."""
+    """Blocks -> stored texels, (h, w, channels) float32 per level: UNORM in [0, 1] through
+    quicktex's decoders (BC7: texture2ddecoder's), BC6H's half floats through bcfpipe.bc6h's."""
     if fmt == ClassicFormat.BC7:
         return [_decode_bc7(blocks, w, h) for blocks, w, h in levels]
+    if fmt == ClassicFormat.BC6H:
+        from bcfpipe.bc6h import decode
+
+        return [decode(blocks, w, h, signed=False).astype(np.float32) for blocks, w, h in levels]
     import quicktex
     from quicktex.s3tc.bc1 import BC1Decoder
     from quicktex.s3tc.bc4 import BC4Decoder

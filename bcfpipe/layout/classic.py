@@ -108,7 +108,9 @@ class Repack:
 def repacks(groups: Sequence[Group]) -> list[Repack]:
     """The BC7 repacks of BC@R's ``groups`` worth weighing, at no more bytes: each BC1 group with
     each BC4 group in one BC7 texture (RGB + A: 8 bits per texel, as theirs together), and every
-    channel in BC7 textures, four per texture in pack order, where that takes no more bytes. BC7
+    channel in BC7 textures, four per texture, where that takes no more bytes and keeps every colour
+    and normal whole at one texture's r, g(, b) (`_whole_inputs`: one UsdUVTexture output then feeds
+    its UsdPreviewSurface input, bcfpipe.builder.usd_classic). BC7
     has up to 4-bit indices, 7-bit endpoints and partitions where BC1 has 2-bit indices and 5:6:5
     endpoints (benchmarks/bound_classic_bc7.py measures what that buys). A BC6H (HDR) group is
     never repacked: BC7 is UNORM, and stays as it is beside any repack."""

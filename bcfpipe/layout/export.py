@@ -65,7 +65,8 @@ def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wr
             c = names[f"{o.semantic}.y"] if f"{o.semantic}.y" in names else None
         if c in where:
             t, j, scale, bias = where[c]
-            outputs.append(replace(o, source=Source.CLASSIC.value, texture=t,
+            # a classic texture holds linear values: the decoder's log curve is no part of its output
+            outputs.append(replace(o, source=Source.CLASSIC.value, texture=t, log_gain=None,
                                    texel_channel=None if o.reconstructed else j,
                                    texel_scale=None if o.reconstructed else scale,
                                    texel_bias=None if o.reconstructed else bias))

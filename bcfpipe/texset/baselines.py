@@ -5,6 +5,9 @@ quantises to 8 bits as a texture exporter would, encodes and decodes every mip, 
 decoded mips (float32, same shapes) with the compressed size in bytes (block payload only, no
 container headers).
 
+* BC6H (UF16, for a colour group beyond 1 whose source is float): ISPC's encoder (`BC6H_PROFILE`),
+  decoded by bcfpipe.bc6h; it stores the source's linear values as half floats (an HDR set's
+  normalised values times its value_scale), not [0, 1]. 16 bytes / block.
 * BC1 / BC4 / BC5: quicktex (``BC1Encoder(18)``, its slowest and best preset, four-colour mode;
   ``BC4Encoder``, ``BC5Encoder``). Levels whose sides are not multiples of 4 (including 2x2, 1x1) are padded to
   whole 4x4 blocks by edge replication and cropped after decoding. BC1 = BC4 = 8 bytes / block,
@@ -30,7 +33,7 @@ import numpy as np
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline", "astcenc_path",
-           "pack_texture_set", "CODECS", "BC1_LEVEL", "bc7_mips"]
+           "pack_texture_set", "CODECS", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
 
 CODECS = ("bc", "astc")
 BC1_LEVEL = 18  # quicktex presets run 0..18
@@ -59,9 +62,10 @@ def _check_mips(mips: Sequence[np.ndarray], channels: int, what: str) -> None:
             raise ValueError(f"{what}: mip {k} has shape {np.shape(m)}, expected (H, W, {channels})")
 
 
-def _cached_levels(tag: str, mips: Sequence[np.ndarray]) -> tuple[object, str, list[np.ndarray] | None]:
-    """(the build's blocks cache or None, the key of ``mips``' 8-bit texels under encoder ``tag``,
-    the levels' blocks recorded under it or None)."""
+def _cached_levels(tag: str, mips: Sequence[np.ndarray], texels=None) -> tuple[object, str, list[np.ndarray] | None]:
+    """(the build's blocks cache or None, the key of ``mips``' texels under encoder ``tag``, the
+    levels' blocks recorded under it or None). The texels keyed are what the encoder reads:
+    ``texels(mip)``, by default the padded 8-bit RGBA."""
     import xxhash
 
     from bcfpipe.texset.blocks import store as blocks_store
@@ -71,7 +75,7 @@ def _cached_levels(tag: str, mips: Sequence[np.ndarray]) -> tuple[object, str, l
         return None, "", None
     digest = xxhash.xxh3_128(tag.encode())
     for m in mips:  # one mip's padded texels at a time, as the encode: no 8K chain held twice
-        px = _pad4(_to_u8_rgba(np.asarray(m)))
+        px = texels(m) if texels is not None else _pad4(_to_u8_rgba(np.asarray(m)))
         digest.update(repr(px.shape).encode())
         digest.update(px.tobytes())
     key = digest.hexdigest()
@@ -176,6 +180,72 @@ def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None) -> tup
     return decoded, size
 
 
+# ISPC's ``basic`` BC6H profile (ispc_texcomp.h, GetProfile_bc6h_basic): every mode, 2 refinements, no slow
+# search. On the HDR ramp (benchmarks/bench_hdr.py) it is within 0.0003 of ``veryslow`` in mean
+# |log1p error| at a ninth of the time (a 2048² chain: about 5 s on one thread).
+BC6H_PROFILE = "basic"
+
+
+def _to_half_rgba(img: np.ndarray) -> np.ndarray:
+    """(H, W, c<=3) non-negative floats -> (H, W, 4) float16 padded to whole blocks, missing channels 0,
+    alpha 1: what ISPC's BC6H encoder reads. Values are clipped to [0, 65504] (UF16 holds no less)."""
+    h, w, c = img.shape
+    out = np.zeros((h, w, 4), np.float16)
+    out[..., 3] = 1.0
+    out[..., :c] = np.clip(img, 0.0, 65504.0).astype(np.float16)
+    return _pad4(out)
+
+
+def _ispc_bc6h_levels(mips: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """(H, W, c<=3) mips of linear values -> each level's BC6H_UF16 blocks, (n, 16) uint8, row-major,
+    by ISPC, in bands over torch's thread count (the encoder releases the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import ispc_texcomp as ispc
+    import torch
+
+    settings = ispc.BC6HEncSettings.from_profile(BC6H_PROFILE)
+
+    def band(px: np.ndarray) -> bytes:
+        px = np.ascontiguousarray(px)
+        return ispc.compress_blocks_bc6h(ispc.RGBASurface(px.tobytes(), px.shape[1], px.shape[0], px.shape[1] * 8),
+                                         settings)
+
+    out = []
+    with ThreadPoolExecutor(max(1, torch.get_num_threads())) as pool:
+        for m in mips:
+            px = _to_half_rgba(np.asarray(m))
+            raw = b"".join(pool.map(band, [px[y:y + BC7_BAND] for y in range(0, px.shape[0], BC7_BAND)]))
+            out.append(np.frombuffer(raw, np.uint8).reshape(-1, 16).copy())
+    return out
+
+
+def bc6h_mips(mips_rgb: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
+    """BC6H_UF16-encode (ISPC, `BC6H_PROFILE`) and decode (bcfpipe.bc6h) every (H, W, c<=3) mip of
+    linear non-negative values (not [0, 1]: HDR as it is); returns (decoded mips with c channels,
+    bytes). With ``blocks``, each level's (blocks, w, h) is appended; in a build with a cache the
+    blocks are kept, keyed by the half-float texels the encoder reads."""
+    import ispc_texcomp as ispc
+
+    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
+
+    if not mips_rgb or any(np.ndim(m) != 3 or not 1 <= np.shape(m)[2] <= 3 for m in mips_rgb):
+        raise ValueError(f"bc6h: mips must be (H, W, 1..3), got {[np.shape(m) for m in mips_rgb]}")
+    c = mips_rgb[0].shape[2]
+    cache, key, levels = _cached_levels(f"bc6h uf16 ispc {ispc.version} {BC6H_PROFILE}", mips_rgb,
+                                        lambda m: _to_half_rgba(np.asarray(m)))
+    fresh = levels is None
+    if fresh:
+        levels = _ispc_bc6h_levels(mips_rgb)
+    shipped = [(b, m.shape[1], m.shape[0]) for m, b in zip(mips_rgb, levels)]
+    if blocks is not None:
+        blocks.extend(shipped)
+    decoded = [d[..., :c] for d in decode_levels(ClassicFormat.BC6H, shipped)]
+    if cache is not None and fresh:
+        cache.put(key, levels)
+    return decoded, sum(b.nbytes for b in levels)
+
+
 def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC5-encode and decode every (H, W, 2) mip of [0, 1] data; returns (decoded mips, bytes)."""
     from quicktex.s3tc.bc5 import BC5Decoder, BC5Encoder, BC5Texture
@@ -254,7 +324,9 @@ def astc_mips(mips_rgb: Sequence[np.ndarray], block: str = "12x12", preset: str 
 def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
     """How an engine would pack the set's channels into textures: [(format, channel indices)].
 
-    Colour groups (albedo, emissiveColor): one 3-channel texture each. Normal x, y: one BC5
+    Colour groups (albedo, emissiveColor): one 3-channel texture each; with 'bc', a colour group
+    beyond 1 from a float file (`is_hdr_color`) is BC6H_UF16 of its linear values, as engines ship
+    HDR (never BC1 or a repack: 8 bits of a 0..3,000 range lose every value below 12). Normal x, y: one BC5
     texture ('bc') or an ASTC texture with b = 0 ('astc'). Scalar and generic channels ('bc'):
     those that share a source file with other scalars stay packed as that file packs them
     (ARM-style, BC1), a scalar alone in its file gets its own BC4 texture. ('astc'): all of them,
@@ -268,7 +340,9 @@ def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
     scalars: list[int] = []
     for sem, idx in ts.groups().items():
         kind = ts.kind_of(sem)
-        if kind == "color" and len(idx) == 3:
+        if codec == "bc" and is_hdr_color(ts, idx):
+            textures.append(("bc6h", idx))
+        elif kind == "color" and len(idx) == 3:
             textures.append((rgb, idx))
         elif kind == "normal":
             textures.append(("bc5" if codec == "bc" else "astc", idx))
@@ -287,6 +361,19 @@ def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
     for i in range(0, len(scalars), 3):
         textures.append((rgb, scalars[i:i + 3]))
     return textures
+
+
+def is_hdr_color(ts: TextureSet, idx: Sequence[int]) -> bool:
+    """Whether channels ``idx`` are a colour group with a channel beyond 1 from a float file: those
+    learnt in a log domain (``Channel.log_gain`` > 0, bcfpipe.texset.encoding), non-negative."""
+    return all(ts.channels[i].kind == "color" for i in idx) and any(ts.channels[i].log_gain > 0 for i in idx)
+
+
+def hdr_value_map(ts: TextureSet, idx: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """(value_scale, value_bias) of channels ``idx``: source value = set value * scale + bias, what
+    a BC6H group stores."""
+    return (np.array([ts.channels[i].value_scale for i in idx], np.float32),
+            np.array([ts.channels[i].value_bias for i in idx], np.float32))
 
 
 def _to_storage(x: np.ndarray, normal: np.ndarray) -> np.ndarray:
@@ -315,7 +402,7 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
     """Compress `ts` with a classic codec; returns (decoded mips in the reference's shapes, bytes).
 
     `codec` 'bc': BC1 for colour and packed scalar textures, BC4 for a lone scalar, BC5 for
-    normals (the paper's BC setup); 'astc': ASTC `astc_block` for every texture. Packing: `pack_texture_set`.
+    normals (the paper's BC setup), BC6H_UF16 for an HDR colour group; 'astc': ASTC `astc_block` for every texture. Packing: `pack_texture_set`.
 
     Resolution: `resolution` (a power of two, default the set's larger side) caps the larger side
     of the shipped textures. When it is smaller than the set by 2^d, the baseline's level 0 is the
@@ -342,9 +429,13 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
     dec_low = [np.zeros_like(m, dtype=np.float32) for m in src]
     total = 0
     for fmt, idx in pack_texture_set(ts, codec):
-        stored = [_to_storage(m[..., idx], normal[idx]) for m in src]
+        stored = [] if fmt == "bc6h" else [_to_storage(m[..., idx], normal[idx]) for m in src]
         levels: list | None = [] if textures is not None and fmt != "astc" else None
-        if fmt == "bc5":
+        if fmt == "bc6h":  # linear source values, as the source file held them
+            scale, bias = hdr_value_map(ts, idx)
+            out, size = bc6h_mips([m[..., idx] * scale + bias for m in src], levels)
+            out = [(o - bias) / scale for o in out]
+        elif fmt == "bc5":
             out, size = bc5_mips(stored, levels)
         elif fmt == "bc4":
             out, size = bc4_mips(stored, levels)

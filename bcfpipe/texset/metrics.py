@@ -96,9 +96,20 @@ def mse_per_mip(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
 
 def mse_per_channel(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
                     channels: Sequence[Channel], masks: Sequence[np.ndarray] | None = None) -> np.ndarray:
-    """(mips, channels) peak-normalised MSE (over the ``masks``' texels when given): the terms whose
-    mean over channels is `mse_per_mip` (a layout's figures follow from them, bcfpipe.layout)."""
-    return np.array([mse_per_mip(ref_mips, dec_mips, channels, [c], masks) for c in range(len(channels))]).T
+    """(mips, channels) peak-normalised MSE (over the ``masks``' texels when given), an HDR channel
+    in its log domain as `compute_metrics` measures it: the terms whose mean over channels is
+    compute_metrics' per-mip MSE, so a layout's figures (bcfpipe.layout) are the ones its export
+    measures. One HDR channel is encoded at a time (no second copy of the whole chain)."""
+    cols = []
+    for c, ch in enumerate(channels):
+        if ch.log_gain > 0:
+            g = np.array([ch.log_gain], np.float32)
+            r = encoding.encode_levels([np.asarray(m)[..., c:c + 1] for m in ref_mips], g)
+            d = encoding.encode_levels([np.asarray(m)[..., c:c + 1] for m in dec_mips], g)
+            cols.append(mse_per_mip(r, d, [ch], None, masks))
+        else:
+            cols.append(mse_per_mip(ref_mips, dec_mips, channels, [c], masks))
+    return np.array(cols).T
 
 
 def _mean_psnr(mses: Sequence[float], use: Sequence[int]) -> float:
