@@ -14,7 +14,9 @@ For every material (one exported folder, or every material of a build) the check
                decodes every BC1/BC4/BC5 mip to the same 8-bit values as bcfpipe (quicktex), and
                OpenImageIO to within 2 (BC1) or 1 (BC4/BC5) 8-bit steps (its palettes round
                differently); a BC7 texture (a repacked group) OpenImageIO decodes bit for bit as
-               bcfpipe (texture2ddecoder) does. A material with classic outputs only has no other check but
+               bcfpipe (texture2ddecoder) does; a BC6H_UF16 one (an HDR colour group) OpenImageIO
+               to the same fp16 bits as bcfpipe.bc6h, and texture2ddecoder (8-bit, clamped to
+               [0, 1]) to the same values. A material with classic outputs only has no other check but
                ``integrity``.
 ``glsl``       glsl/bcf_decode.comp, run through OpenGL (moderngl on EGL: the GPU driver, or Mesa
                llvmpipe), against an independent path: features sampled in numpy/torch from the DDS
@@ -280,11 +282,11 @@ def check_classic(m: MaterialDesc) -> Check:
         try:
             for k, ((blocks, w, h), o) in enumerate(zip(tex.levels, ours)):
                 n_levels += 1
-                mine = np.rint(o * 255).astype(np.int32)
+                mine = np.rint(np.clip(o, 0.0, 1.0) * 255).astype(np.int32)  # BC6H: t2d's clamped 8 bits
                 if t2d is not None and fmt != ClassicFormat.BC7:  # BC7: t2d is bcfpipe's own decoder
                     pw, ph = (w + 3) // 4 * 4, (h + 3) // 4 * 4
                     dec = {ClassicFormat.BC1: t2d.decode_bc1, ClassicFormat.BC4: t2d.decode_bc4,
-                           ClassicFormat.BC5: t2d.decode_bc5}[fmt]
+                           ClassicFormat.BC5: t2d.decode_bc5, ClassicFormat.BC6H: t2d.decode_bc6}[fmt]
                     bgra = np.frombuffer(dec(blocks.tobytes(), pw, ph), np.uint8).reshape(ph, pw, 4)[:h, :w]
                     theirs = bgra[..., [2, 1, 0]][..., :c.channels].astype(np.int32)
                     if (theirs != mine).any():
@@ -292,6 +294,12 @@ def check_classic(m: MaterialDesc) -> Check:
                 if not inp.seek_subimage(0, k):
                     bad.append(f"{c.file}: OpenImageIO has no mip {k}")
                     break
+                if fmt == ClassicFormat.BC6H:  # half floats: bit for bit, as the feature layers
+                    img = np.asarray(inp.read_image(format="half")).reshape(h, w, -1)[..., :c.channels]
+                    differ = int((img.view(np.uint16) != o.astype(np.float16).view(np.uint16)).sum())
+                    if differ:
+                        bad.append(f"{c.file} mip {k}: OpenImageIO differs in {differ} fp16 value(s)")
+                    continue
                 img = np.asarray(inp.read_image(format="float")).reshape(h, w, -1)[..., :c.channels]
                 step = np.abs(np.rint(img * 255).astype(np.int32) - mine).max()
                 if step > OIIO_STEPS[fmt]:
@@ -300,7 +308,7 @@ def check_classic(m: MaterialDesc) -> Check:
             inp.close()
     detail = (f"{len(m.file.classic)} classic texture(s), {n_levels} mip levels: texture2ddecoder "
               f"{'bit-identical' if exact else 'not installed'}, OpenImageIO within 2 (BC1) or 1 (BC4/BC5) "
-              "8-bit steps, bit-identical for BC7")
+              "8-bit steps, bit-identical for BC7 and BC6H")
     return Check("classic", not bad, "; ".join(bad) or detail)
 
 
