@@ -139,7 +139,8 @@ class ClassicTexture(Record):
     """A classic BC texture that outputs read directly (a layout's classic group, issue 31): a DDS
     (DX10 header) of ``width`` × ``height`` with ``mip_count`` mips (every mip down to 1×1, or in a
     mip-split layout those that serve s < split), sampled like the feature layers (trilinear, the
-    material's addressing) at s + ``lod_bias``, the lod clamped to its mips; texels are UNORM in [0, 1]."""
+    material's addressing) at s + ``lod_bias``, the lod clamped to its mips; texels are UNORM in [0, 1],
+    or a BC6H_UF16 texture's half floats (an HDR colour's linear values)."""
 
     file: str
     dxgi_format: int

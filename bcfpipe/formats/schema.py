@@ -45,14 +45,16 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                                "s = split, and (1 - w) * classic + w * MLP between, w = clamp(s - split + 1, 0, 1).",
     ("MaterialFile", "sha256"): "SHA-256 (hex) of every other file of the material, by file name.",
     ("ClassicTexture", "file"): "DDS file name, relative to the material folder.",
-    ("ClassicTexture", "dxgi_format"): "71 (BC1_UNORM), 80 (BC4_UNORM), 83 (BC5_UNORM) or 98 (BC7_UNORM: a group repacked at equal bytes).",
+    ("ClassicTexture", "dxgi_format"): "71 (BC1_UNORM), 80 (BC4_UNORM), 83 (BC5_UNORM), 95 (BC6H_UF16: a float colour "
+                                       "beyond 1, linear) or 98 (BC7_UNORM: a group repacked at equal bytes).",
     ("ClassicTexture", "format"): "The DXGI format's name.",
     ("ClassicTexture", "width"): "Width of mip 0 in texels.",
     ("ClassicTexture", "height"): "Height of mip 0 in texels.",
     ("ClassicTexture", "mip_count"): "Mips stored: down to 1x1, or in a mip-split layout those that serve s < split "
                                      "(the lod clamps to the last).",
     ("ClassicTexture", "lod_bias"): "Added to s before sampling: log2 of this texture's width over the reference's.",
-    ("ClassicTexture", "channels"): "Channels the outputs read (BC1: 3, BC4: 1, BC5: 2); texels are UNORM in [0, 1].",
+    ("ClassicTexture", "channels"): "Channels the outputs read (BC1: 3, BC4: 1, BC5: 2, BC6H: 3); texels are UNORM in "
+                                    "[0, 1], BC6H's unsigned half floats (the source's linear values).",
     ("Layer", "file"): "DDS file name, relative to the material folder.",
     ("Layer", "resolution"): "Width and height of mip 0 in texels (square, a power of two).",
     ("Layer", "mip_count"): "Number of mips stored (down to 4x4, the BC6H block size).",
@@ -103,7 +105,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Output", "log_gain"): "Present for HDR channels only (non-negative float colour beyond 1): the MLP "
                             "learns t = log2(1 + v (2^g - 1)) / g of the normalised value v, and the "
                             "decoder returns v = (2^(g t) - 1) / (2^g - 1) after the clamp (weight record "
-                            "BCFW v2). Absent: linear.",
+                            "BCFW v2). Absent: linear, and on every classic output (a classic texture stores "
+                            "linear values: HDR colour as BC6H_UF16).",
     ("Output", "source"): "Absent: the decoder's (MLP and post-processing) output; the decoder's outputs are the "
                           "outputs without a source or with source \"split\", in order. \"classic\": read from "
                           "classic texture `texture`, channel `texel_channel`, as texel * texel_scale + texel_bias, "
@@ -112,7 +115,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                           "else sqrt(max(0, 1 - x^2 - y^2)) of the mixed x and y.",
     ("Output", "texture"): "Classic and split outputs: index into classic.",
     ("Output", "texel_channel"): "Classic outputs: the texture channel (0 = r).",
-    ("Output", "texel_scale"): "Classic outputs: value = texel * texel_scale + texel_bias (normals: 2, -1).",
+    ("Output", "texel_scale"): "Classic outputs: value = texel * texel_scale + texel_bias (normals: 2, -1; BC6H: "
+                               "1 / value_scale, -value_bias / value_scale, so the source value is the texel).",
     ("Output", "texel_bias"): "Classic outputs: see texel_scale.",
     ("Onnx", "file"): "ONNX file name, relative to the material folder.",
     ("Onnx", "input"): "Input tensor name: float32 (N, n_in) features.",
