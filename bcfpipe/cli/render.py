@@ -23,23 +23,6 @@ def _stage_file(path: str) -> str:
     return os.path.join(path, roots[0])
 
 
-def _why_nothing_neural(scene: str) -> str:
-    """Why a stage has no material with a bcf render context: a build whose materials all kept BC@R
-    under --layout auto says so in the manifest.json beside it."""
-    from bcfpipe.formats import manifest as mfst
-    from bcfpipe.formats.record import FormatError
-
-    try:
-        built = mfst.read(os.path.dirname(os.path.abspath(scene))).built()
-    except FormatError:  # not a build folder
-        return "no material has a bcf render context (not a bcfpipe build?)"
-    if built and all(m.layout is not None and m.layout.profile is None for m in built):
-        return ("every built material kept its BC textures (BC@R, or BC@R repacked as BC7: --layout auto found "
-                "nothing neural better within BC@R's size and 0.5 dB of it at every mip; manifest.json says why); "
-                "build with --layout neural to compare neural frames")
-    return "no material has a bcf render context"
-
-
 @click.command("render", cls=Command)
 @click.argument("scene", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), metavar="PNG",
@@ -50,9 +33,11 @@ def _why_nothing_neural(scene: str) -> str:
 @click.option("--zoom", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
               help="Without --camera: narrow the default camera's field of view by this factor "
                    "(4 = a 4x close-up of the scene's centre, 0.25 = far away).")
-@click.option("--compare", is_flag=True, help="Also draw the original UsdPreviewSurface textures and write "
-              "[original | neural | difference heat map] side by side, with the numbers.")
-@click.option("--original", is_flag=True, help="Draw the original materials only (ignore the bcf render context).")
+@click.option("--compare", is_flag=True, help="Also draw the source scene a build was made from (its original "
+              "textures) and write [original | built | difference heat map] side by side, with the numbers; "
+              "any layout (neural, classic, mixed, untouched).")
+@click.option("--original", is_flag=True, help="Draw the source scene a build was made from only (the input "
+              "stage with the build's variant selections).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON report (stable keys) instead of text.")
 @click.option("--force", is_flag=True, help="Overwrite an existing output image.")
 def render(scene: str, output: str, camera: str | None, size: str, zoom: float, compare: bool, original: bool,
@@ -62,8 +47,9 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
 
     A reference and a test tool: it reads only the USD stage and the files it names. Materials
     with a bcf render context are decoded by glsl/bcf_decode.glsl at the lod from the uv
-    derivatives; the others use their UsdPreviewSurface textures. Shading: Lambert + GGX under
-    one directional light and an ambient term (docs/render.md).
+    derivatives; the others use their UsdPreviewSurface textures (a layout's classic DDS textures
+    included); --compare and --original draw the source scene the build was made from. Shading:
+    Lambert + GGX under one directional light and an ambient term (docs/render.md).
 
     \b
     Exit codes: 0 written; 2 bad input, no OpenGL, or the output exists (use --force).
@@ -90,8 +76,6 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
     kinds = (ORIGINAL,) if original else ((NEURAL, ORIGINAL) if compare else (NEURAL,))
     sc = load_scene(scene, width, height, camera=camera, zoom=zoom, kinds=kinds)
     neural = sc.neural_materials() if NEURAL in kinds else []
-    if compare and not neural:
-        raise InputError(f"{scene}: {_why_nothing_neural(scene)}; nothing to compare")
     frames = render_frames(sc, width, height)
     report = {"output": output, "width": width, "height": height, "camera": sc.view.source,
               "triangles": sc.triangles, "neural_materials": neural,
@@ -114,6 +98,6 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
     if compare:
         d = report["difference"]
         psnr = "identical" if d["psnr_db"] is None else f"PSNR {d['psnr_db']:.2f} dB"
-        click.echo(f"  [original | neural | difference]; neural vs original over {d['pixels']:,} pixels: {psnr}, "
+        click.echo(f"  [original | built | difference]; built vs original over {d['pixels']:,} pixels: {psnr}, "
                    f"mean |diff| {d['mean_abs_8bit']:.2f}, p99 {d['p99_abs_8bit']:.1f}, max {d['max_abs_8bit']:.0f}")
         click.echo(f"  {HEAT_LEGEND}")

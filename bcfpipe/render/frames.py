@@ -1,11 +1,13 @@
 """One call from a USD file to rendered frames: open the stage, read its meshes and the view,
-read each bound material's surface, draw (neural and/or original), read back."""
+read each bound material's surface, draw (neural and/or original), read back. The neural (built)
+frame reads the stage as built; the original frame reads its source (`source_stage`)."""
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
 
 import numpy as np
+from pxr import Sdf, Usd
 
 from bcfpipe.errors import InputError
 from bcfpipe.render.raster import Lighting, Renderer
@@ -64,9 +66,40 @@ def load_scene(path: str | os.PathLike, width: int, height: int, camera: str | N
         else:
             view = framing_view(stage, batches, aspect, zoom)
         colours = {b.material: b.display_color for b in batches}
-        surfaces = {kind: {m: read_surface(stage, m, kind == NEURAL, c) for m, c in colours.items()} for kind in kinds}
+        source = source_stage(stage) if ORIGINAL in kinds else stage
+        surfaces = {kind: {m: read_surface(stage if kind == NEURAL else source, m, kind == NEURAL, c)
+                           for m, c in colours.items()} for kind in kinds}
     errors = composition_errors(stage)
     return Scene(str(path), batches, view, surfaces, skipped, [*errors, *new_diagnostics(found, errors)])
+
+
+OVERRIDES_LAYER = "overrides.usda"  # bcfpipe.builder.plan.OVERRIDES: a build's root layer sublayers it first
+
+
+def source_stage(stage: Usd.Stage) -> Usd.Stage:
+    """What a build was made from: the layers its root layer sublayers after ``overrides.usda``,
+    composed with only the overrides layer's variant selections (the variant that was modelled).
+    Any other stage is its own source. The original frame draws this, so that it shows the input
+    scene whatever the build changed (the bcf context, constant inputs, the UsdUVTexture nodes of a
+    layout's classic textures)."""
+    root = stage.GetRootLayer()
+    subs = list(root.subLayerPaths)
+    if len(subs) < 2 or subs[0].replace("\\", "/").rsplit("/", 1)[-1] != OVERRIDES_LAYER:
+        return stage
+    overrides = Sdf.Layer.FindOrOpenRelativeToLayer(root, subs[0])
+    session = Sdf.Layer.CreateAnonymous("bcfpipe-variants.usda")
+    if overrides is not None:
+        def copy(path: Sdf.Path) -> None:
+            spec = overrides.GetPrimAtPath(path) if path.IsPrimPath() else None
+            if spec is not None and spec.variantSelections:
+                dst = Sdf.CreatePrimInLayer(session, path)
+                for vset, value in spec.variantSelections.items():
+                    dst.variantSelections[vset] = value
+
+        overrides.Traverse(Sdf.Path.absoluteRootPath, copy)
+    src_root = Sdf.Layer.CreateAnonymous("bcfpipe-source.usda")
+    src_root.subLayerPaths = [root.ComputeAbsolutePath(p) for p in subs[1:]]
+    return Usd.Stage.Open(src_root, session, Usd.Stage.LoadAll)
 
 
 def renderer_for(runtime, scene: Scene, kind: str, width: int, height: int,

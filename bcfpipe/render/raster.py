@@ -2,7 +2,8 @@
 framebuffer, one sample per pixel, with a depth buffer and no culling.
 
 Resources are uploaded once per renderer: BC6H feature mip chains as stored in the DDS files,
-weight buffers as shader storage, original texture files at their own resolution with GL's
+weight buffers as shader storage, a layout's classic DDS textures with their stored mips
+(bcfpipe.render.dds_texture), original texture files at their own resolution with GL's
 mip generation (8-bit files as RGBA8, others as RGBA16F; colour as stored, not premultiplied by
 alpha, as training reads it), trilinear, no anisotropy, so both paths filter alike. Colour
 decoding (sRGB) happens after filtering in both, as in the decoder.
@@ -170,6 +171,10 @@ class Renderer:
         key = (path, wrap, color_space)
         if key in self._originals:
             return self._originals[key]
+        from bcfpipe.render.dds_texture import is_dds
+
+        if is_dds(path):
+            return self._dds_texture(key)
         from bcfpipe.formats import images
         from bcfpipe.formats.images import channel_index as source_channel_index
 
@@ -197,6 +202,43 @@ class Renderer:
             GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA16F, px.shape[1], px.shape[0], 0, GL.GL_RGBA,
                             GL.GL_HALF_FLOAT, data)
         GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
+        self._sampling(wrap)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+        self._originals[key] = (tex, srgb)
+        return tex, srgb
+
+    def _dds_texture(self, key: tuple[str, tuple[str, str], str]) -> tuple[int, bool]:
+        """A DDS (a layout's classic texture): its stored mips decoded by bcfpipe's decoders and
+        uploaded as they are (RGBA8 for UNORM formats, exact; RGBA16F for BC6H), no mips generated;
+        the lod clamps to the mips it has (a mip split's DDS stops at its split)."""
+        from bcfpipe.render.dds_texture import read_dds
+
+        path, wrap, color_space = key
+        dec = read_dds(local_file(path, self._tmp.name))
+        srgb = resolved_color_space(color_space, dec.channels, "uint8" if dec.unorm else "half") == ColorSpace.SRGB
+        GL = self.GL
+        tex = int(GL.glGenTextures(1))
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
+        for k, lv in enumerate(dec.levels):
+            h, w = lv.shape[:2]
+            if dec.unorm:
+                data = np.ascontiguousarray(np.clip(np.rint(lv * 255), 0, 255).astype(np.uint8))
+                GL.glTexImage2D(GL.GL_TEXTURE_2D, k, GL.GL_RGBA8, w, h, 0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, data)
+            else:
+                data = np.ascontiguousarray(np.clip(lv, -65504, 65504).astype(np.float16))
+                GL.glTexImage2D(GL.GL_TEXTURE_2D, k, GL.GL_RGBA16F, w, h, 0, GL.GL_RGBA, GL.GL_HALF_FLOAT, data)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_BASE_LEVEL, 0)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAX_LEVEL, len(dec.levels) - 1)
+        self._sampling(wrap)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+        self._originals[key] = (tex, srgb)
+        return tex, srgb
+
+    def _sampling(self, wrap: tuple[str, str]) -> None:
+        """Wrap modes and trilinear filtering of the bound original texture."""
+        GL = self.GL
         modes = {Wrap.REPEAT: GL.GL_REPEAT, Wrap.CLAMP: GL.GL_CLAMP_TO_EDGE, "mirror": GL.GL_MIRRORED_REPEAT,
                  "black": GL.GL_CLAMP_TO_BORDER}
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, modes.get(wrap[0], GL.GL_REPEAT))
@@ -204,9 +246,6 @@ class Renderer:
         GL.glTexParameterfv(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_BORDER_COLOR, [0.0, 0.0, 0.0, 0.0])
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR_MIPMAP_LINEAR)
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
-        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
-        self._originals[key] = (tex, srgb)
-        return tex, srgb
 
     # ------------------------------------------------------------------ scene
     def add(self, batch: Batch, surface: Surface) -> None:
