@@ -36,7 +36,7 @@ from bcfpipe.formats import material as mf
 from bcfpipe.formats.vocabulary import ColorSpace, Source
 
 __all__ = ["Wiring", "ClassicMaterial", "wire_material", "author_classic", "open_source_stage", "usd_notes",
-           "NOTE_KEY"]
+           "NOTE_KEY", "UNTOUCHED"]
 
 _T = Sdf.ValueTypeNames
 _U = Sdf.VariabilityUniform
@@ -276,7 +276,7 @@ def _note(cm: ClassicMaterial, nodes: Sequence[_Node]) -> str:
     if cm.kept:
         parts.append("kept on sources: " + ", ".join(f"{n} ({why})" for n, why in cm.kept))
     if not nodes and not cm.neural:
-        parts.insert(0, "untouched sources")
+        parts.insert(0, UNTOUCHED.removeprefix("USD: "))
     return "USD: " + "; ".join(parts)
 
 
@@ -296,13 +296,21 @@ def author_classic(layer: Sdf.Layer, stage: Usd.Stage, materials: Iterable[Class
         Sdf.CreatePrimInLayer(layer, Sdf.Path(cm.material)).customData[NOTE_KEY] = _note(cm, nodes)
 
 
-def usd_notes(overrides_layer: str) -> dict[str, str]:
+UNTOUCHED = "USD: untouched sources"
+
+
+def usd_notes(overrides_layer: str) -> dict[str, str] | None:
     """What the overrides layer did per material path: its ``bcfpipeUsd`` note, else "USD: neural
-    (bcf context)" for a material with the BcfNeuralMaterialAPI; read back from the layer itself."""
+    (bcf context)" for a material with the BcfNeuralMaterialAPI; read back from the layer itself
+    (a built material it does not name kept its sources: `UNTOUCHED`). None when it cannot be read."""
+    import os
+
+    if not os.path.isfile(str(overrides_layer)):
+        return None
     layer = Sdf.Layer.FindOrOpen(str(overrides_layer))
     out: dict[str, str] = {}
     if layer is None:
-        return out
+        return None
 
     def visit(path: Sdf.Path) -> None:
         spec = layer.GetPrimAtPath(path)

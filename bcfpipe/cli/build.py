@@ -207,8 +207,11 @@ def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...
     from bcfpipe.builder.report import headline_psnr
     from bcfpipe.layout.choose import ALL_CLASSIC
 
+    from bcfpipe.builder.usd_classic import UNTOUCHED, usd_notes
+
     rows = []
     sharing = {j.name: len(j.materials) for j in manifest.jobs}
+    usd = usd_notes(os.path.join(report.out, manifest.overrides_layer))  # what the USD layer changed
     for m, r in zip(manifest.materials, report.materials):
         notes = [m.reason] if m.reason else []
         if m.status == Status.CONSTANT:
@@ -234,6 +237,8 @@ def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...
             notes.append("layout: BC@R, nothing neural held it at every mip" if lay.chosen == ALL_CLASSIC else
                          f"layout {lay.chosen}: {lay.psnr - lay.bc_psnr:+.1f} dB all mips, worst mip "
                          f"{worst:+.1f} dB against BC@R")
+        if m.status == Status.BUILT and usd is not None:
+            notes.append(usd.get(m.path, UNTOUCHED))
         outputs = len({tg.channel for tg in m.targets if tg.channel >= 0})
         profile = (f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "")
         if m.layout is not None and m.layout.profile is None:
