@@ -25,7 +25,8 @@ from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, BcfError  # noqa: F
 @click.pass_context
 def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
     """Turn the PBR materials of a USD scene into real-time neural materials
-    with BC6H block-compressed features (Weinreich et al., EG 2024).
+    with block-compressed features (Weinreich et al., EG 2024): BC7 by default, or
+    the paper's BC6H.
 
     \b
     Exit codes: 0 ok, 1 work failed, 2 usage error or bad input, 130 interrupted.

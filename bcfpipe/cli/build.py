@@ -430,6 +430,9 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     if nothing and not quiet:
         click.echo(nothing, err=True)
     if not quiet:
+        for mp in result.plan.materials:  # suspect input, e.g. a greyscale normal map: said, not refused
+            for w in mp.warnings:
+                click.echo(f"bcfpipe: warning: {mp.path}: {w}", err=True)
         for sem in result.plan.unused_classic:
             click.echo(f"bcfpipe: warning: --classic {sem}: no modelled material has such a channel", err=True)
     ctx.exit(code)

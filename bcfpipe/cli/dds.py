@@ -1,4 +1,4 @@
-"""`bcfpipe dds`: look inside BC6H and BC7 feature textures."""
+"""`bcfpipe dds`: look inside the DDS textures bcfpipe writes (features, and classic layouts' textures)."""
 from __future__ import annotations
 
 import json
@@ -20,8 +20,13 @@ def _load(path: str) -> ddsmod.DdsTexture:
 
 
 def _decode_level(tex: ddsmod.DdsTexture, k: int) -> np.ndarray:
-    """Mip ``k`` as (h, w, channels): 3 half-float channels for BC6H, 4 in [0, 1] for BC7."""
+    """Mip ``k`` as (h, w, channels): 3 half-float channels for BC6H, 4 in [0, 1] for BC7, and
+    a classic texture's stored channels in [0, 1] (BC1: 3, BC4: 1, BC5: 2)."""
+    from bcfpipe.formats.bcn import FORMAT_OF, ClassicFormat, decode_levels
+
     blocks, w, h = tex.levels[k]
+    if FORMAT_OF.get(tex.dxgi_format) in (ClassicFormat.BC1, ClassicFormat.BC4, ClassicFormat.BC5):
+        return decode_levels(FORMAT_OF[tex.dxgi_format], [tex.levels[k]])[0]
     if tex.is_bc7:
         from bcfpipe.bc7 import decode as bc7_decode
 
@@ -36,7 +41,8 @@ def _decode_level(tex: ddsmod.DdsTexture, k: int) -> np.ndarray:
 
 @click.group(cls=Group)
 def dds() -> None:
-    """Inspect and decode BC6H and BC7 (mode 6; mode 7 read too) DDS feature textures."""
+    """Inspect and decode the DDS files bcfpipe writes: BC7 (any mode) and BC6H feature textures,
+    and a classic layout's BC1, BC4, BC5, BC6H and BC7 textures (C*.dds)."""
 
 
 @dds.command("info")
@@ -62,7 +68,7 @@ def info(file: str, as_json: bool) -> None:
     from rich.table import Table
 
     table = Table(title=f"{file}: {tex.format_name} {tex.width}x{tex.height}, {tex.mip_count} mips, {size} bytes")
-    rgb = "r g b a" if tex.is_bc7 else "r g b"
+    rgb = " ".join("rgba"[:len(mips[0]["min"])]) if mips else "r g b"
     for col in ("mip", "size", "blocks", f"min ({rgb})", f"max ({rgb})"):
         table.add_column(col, justify="right")
     fmt = lambda v: " ".join(f"{x:.4g}" for x in v)  # noqa: E731
@@ -78,8 +84,8 @@ def info(file: str, as_json: bool) -> None:
 @click.option("--mip", default=0, show_default=True, help="Mip level to decode.")
 @click.option("-f", "--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
 def decode_cmd(file: str, output: str, mip: int, force: bool) -> None:
-    """Decode one mip of FILE through OpenImageIO: half floats for BC6H, 32-bit floats (value / 255)
-    for BC7."""
+    """Decode one mip of FILE: half floats for BC6H, 32-bit floats (value / 255) for BC1, BC4, BC5
+    and BC7."""
     import OpenImageIO as oiio
 
     tex = _load(file)
@@ -89,7 +95,7 @@ def decode_cmd(file: str, output: str, mip: int, force: bool) -> None:
     if out.exists() and not force:
         raise InputError(f"{out} exists; pass --force to overwrite")
     img = _decode_level(tex, mip)
-    spec = oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], oiio.FLOAT if tex.is_bc7 else oiio.HALF)
+    spec = oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], oiio.HALF if tex.dxgi_format in (ddsmod.DXGI_FORMAT_BC6H_UF16, ddsmod.DXGI_FORMAT_BC6H_SF16) else oiio.FLOAT)
     buf = oiio.ImageBuf(spec)
     buf.set_pixels(oiio.ROI(), img)
     tmp = out.with_name(out.name + ".tmp" + out.suffix)

@@ -18,8 +18,9 @@ TRAINING_OPTIONS = (
                       "above the source textures."),
     click.option("--quality", "--preset", "preset", type=click.Choice(list(PRESETS)), default=DEFAULT_PRESET,
                  show_default=True, help="Training preset (steps, batch, learning rates): draft is the fastest worth "
-                                         "looking at; smoke only checks a pipeline end to end (about 1 s of "
-                                         "training a material); 'paper' is the paper's 206k-step schedule (for a GPU). On a "
+                                         "looking at; smoke only checks a pipeline end to end (the "
+                                         "fewest steps; reading, T_0's encode, export and measuring remain: about "
+                                         "a minute for a 2048² set on 2 CPU cores); 'paper' is the paper's 206k-step schedule (for a GPU). On a "
                                          "CPU, standard takes fewer steps at a 2048² T_0 (docs/training.md)."),
     click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
                  help="Hidden units of the decoder MLP."),

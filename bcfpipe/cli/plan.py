@@ -58,6 +58,9 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
     say(f"bcfpipe plan: {bplan.scene}")
     for line in counted(bplan.diagnostics):
         say(f"[yellow]usd:[/yellow] {escape(line)}")
+    for m in bplan.materials:
+        for w in m.warnings:
+            say(f"[yellow]warning:[/yellow] {m.path}: {escape(w)}")
     for sem in bplan.unused_classic:
         say(f"[yellow]warning:[/yellow] --classic {escape(sem)}: no modelled material has such a channel")
     for j in bplan.jobs:
