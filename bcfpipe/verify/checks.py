@@ -15,9 +15,9 @@ For every material (one exported folder, or every material of a build) the check
                OpenImageIO to within 2 (BC1) or 1 (BC4/BC5) 8-bit steps (its palettes round
                differently); a BC7 texture (a repacked group) OpenImageIO decodes bit for bit as
                bcfpipe (texture2ddecoder) does; a BC6H_UF16 one (an HDR colour group) OpenImageIO
-               to the same fp16 bits as bcfpipe.bc6h, and texture2ddecoder (8-bit, clamped to
-               [0, 1]) to the same values. A material with classic outputs only has no other check but
-               ``integrity``.
+               (bcdec) to the same fp16 bits as bcfpipe.bc6h, as Mesa does (texture2ddecoder 1.0.6
+               misreads BC6H mode 2's endpoints, so it is not asked). A material with classic
+               outputs only has no other check but ``integrity``.
 ``glsl``       glsl/bcf_decode.comp, run through OpenGL (moderngl on EGL: the GPU driver, or Mesa
                llvmpipe), against an independent path: features sampled in numpy/torch from the DDS
                decoded by bcfpipe.bc6h.decode (bcfpipe.model.sampling conventions) fed to decoder.onnx
@@ -282,11 +282,12 @@ def check_classic(m: MaterialDesc) -> Check:
         try:
             for k, ((blocks, w, h), o) in enumerate(zip(tex.levels, ours)):
                 n_levels += 1
-                mine = np.rint(np.clip(o, 0.0, 1.0) * 255).astype(np.int32)  # BC6H: t2d's clamped 8 bits
-                if t2d is not None and fmt != ClassicFormat.BC7:  # BC7: t2d is bcfpipe's own decoder
+                mine = np.rint(o * 255).astype(np.int32)
+                # BC7: t2d is bcfpipe's own decoder; BC6H: t2d misreads mode 2 (OpenImageIO's is exact)
+                if t2d is not None and fmt not in (ClassicFormat.BC7, ClassicFormat.BC6H):
                     pw, ph = (w + 3) // 4 * 4, (h + 3) // 4 * 4
                     dec = {ClassicFormat.BC1: t2d.decode_bc1, ClassicFormat.BC4: t2d.decode_bc4,
-                           ClassicFormat.BC5: t2d.decode_bc5, ClassicFormat.BC6H: t2d.decode_bc6}[fmt]
+                           ClassicFormat.BC5: t2d.decode_bc5}[fmt]
                     bgra = np.frombuffer(dec(blocks.tobytes(), pw, ph), np.uint8).reshape(ph, pw, 4)[:h, :w]
                     theirs = bgra[..., [2, 1, 0]][..., :c.channels].astype(np.int32)
                     if (theirs != mine).any():
