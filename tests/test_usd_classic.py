@@ -1,0 +1,202 @@
+"""What is built is what USD sees (issue 50): a default-layout build of the sample scene ships its
+sets as classic BC textures (BC7 repacks at smoke), and the USD layer points every UsdUVTexture a
+UsdPreviewSurface of those materials draws at the shipped DDS, with the channel, scale, bias and
+colour space that make its value the one `bcfpipe decode` gives.
+
+The values are read from the USD alone: the file the composed UsdUVTexture names, decoded by
+OpenImageIO (the reader Hio uses, not bcfpipe's decoders), sampled trilinearly as a GPU does (texel
+centres, lod clamped to the stored mips, the node's wrap), the output's slot, sRGB decoded when
+sourceColorSpace says so, then scale and bias. They are compared with `bcfpipe decode`'s library
+function (bcfpipe.export.writer.classic_outputs, which decode_material calls) mapped by the build's
+targets (the source network's scale, bias and colour space).
+
+Tolerance, the DDS palette rounding: two conforming BC decoders may give a texel one 8-bit level
+apart (BC1's 1/3 and 2/3 interpolants round differently; BC7's are exact), so a filtered texel,
+a convex mix of texels, differs by at most 1/255; the input then differs by at most
+1/255 * |scale| (2 for normals), times 2.28 for an sRGB slot (the sRGB-to-linear curve's largest
+slope, 2.4 / 1.055), plus float32 rounding.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from pxr import Usd, UsdShade
+
+from bcfpipe.cli import main
+from bcfpipe.formats import manifest as mfst
+from bcfpipe.formats import material as mf
+
+SAMPLE = Path(__file__).resolve().parent.parent / "samples" / "sample_scene.usda"
+POINTS = 1000
+SRGB_SLOPE = 2.4 / 1.055  # d/dx ((x + 0.055) / 1.055) ** 2.4 at x = 1, the curve's largest slope
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> Path:
+    """The sample scene built with the default layout at smoke (every set a classic BC7 repack)."""
+    out = tmp_path_factory.mktemp("usd_classic") / "out"
+    r = CliRunner().invoke(main, ["build", str(SAMPLE), "-o", str(out), "--quality", "smoke", "--jobs", "1",
+                                  "--threads", "1"])
+    assert r.exit_code == 0, r.output
+    assert "USD: " in r.output and "UsdUVTexture" in r.output  # the table says what the layer changed
+    return out
+
+
+def _srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    return np.where(x <= 0.04045, x / 12.92, ((np.maximum(x, 0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+def _oiio_mips(path: str) -> list[np.ndarray]:
+    """Every mip of a DDS as OpenImageIO decodes it, (h, w, 4) float rgba (missing g, b: 0; a: 1)."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(path)
+    assert inp is not None, oiio.geterror()
+    levels = []
+    try:
+        k = 0
+        while inp.seek_subimage(0, k):
+            px = np.asarray(inp.read_image("float"), np.float64)  # the level seek_subimage chose
+            px = px.reshape(*px.shape[:2], -1)
+            rgba = np.zeros((*px.shape[:2], 4))
+            rgba[..., 3] = 1.0
+            rgba[..., :px.shape[-1]] = px[..., :4]
+            levels.append(rgba)
+            k += 1
+    finally:
+        inp.close()
+    return levels
+
+
+def _bilinear(img: np.ndarray, u: float, v: float, wrap: tuple[str, str]) -> np.ndarray:
+    h, w = img.shape[:2]
+    x, y = u * w - 0.5, v * h - 0.5
+    x0, y0 = int(np.floor(x)), int(np.floor(y))
+    fx, fy = x - x0, y - y0
+
+    def addr(i: int, n: int, mode: str) -> int:
+        return i % n if mode == "repeat" else min(max(i, 0), n - 1)
+
+    xa, xb = addr(x0, w, wrap[0]), addr(x0 + 1, w, wrap[0])
+    ya, yb = addr(y0, h, wrap[1]), addr(y0 + 1, h, wrap[1])
+    top = img[ya, xa] + (img[ya, xb] - img[ya, xa]) * fx
+    bot = img[yb, xa] + (img[yb, xb] - img[yb, xa]) * fx
+    return top + (bot - top) * fy
+
+
+def _trilinear(levels: list[np.ndarray], u: float, v: float, lod: float, wrap: tuple[str, str]) -> np.ndarray:
+    lod = min(max(lod, 0.0), len(levels) - 1)
+    lo = int(lod)
+    hi, t = min(lo + 1, len(levels) - 1), lod - lo
+    a = _bilinear(levels[lo], u, v, wrap)
+    return a if hi == lo else a + (_bilinear(levels[hi], u, v, wrap) - a) * t
+
+
+def _drawn_textures(stage: Usd.Stage, material: str):
+    """(input name, UsdUVTexture shader, output name) for each input of the material's
+    UsdPreviewSurface that a UsdUVTexture feeds, as the composed stage says."""
+    surface, _, _ = UsdShade.Material(stage.GetPrimAtPath(material)).ComputeSurfaceSource("")
+    out = []
+    for inp in surface.GetInputs():
+        if not inp.HasConnectedSource():
+            continue
+        src, name, _ = inp.GetConnectedSource()
+        node = UsdShade.Shader(src.GetPrim())
+        if node.GetIdAttr().Get() == "UsdUVTexture":
+            out.append((inp.GetBaseName(), node, name))
+    return out
+
+
+def _components(name: str, output: str) -> list[tuple[str, int]]:
+    """(target, rgba slot) of an input read through a UsdUVTexture output."""
+    if output == "rgb":
+        names = ("normal.x", "normal.y", "normal.z") if name == "normal" else tuple(f"{name}.{c}" for c in "rgb")
+        return [(t, k) for k, t in enumerate(names)]
+    return [(name, "rgba".index(output))]
+
+
+def test_every_classic_texture_usd_draws_is_the_shipped_dds_and_yields_decodes_values(built):
+    from bcfpipe.export import writer as E
+
+    man = mfst.read(built)
+    stage = Usd.Stage.Open(str(built / man.root_layer))
+    out_dir = built.resolve()
+    rng = np.random.default_rng(50)
+    pts = np.column_stack([rng.random(POINTS), rng.random(POINTS), rng.uniform(-1.0, 10.5, POINTS)])
+    checked = 0
+    classic = [m for m in man.built() if m.layout is not None and m.layout.profile is None]
+    assert len(classic) == 4  # Bricks, Tiles, TilesWorn, Leaves: every built material is all classic
+    for m in classic:
+        folder = built / m.outputs.folder
+        desc = mf.read(folder)
+        assert all(o.source == mf.Source.CLASSIC for o in desc.outputs)
+        em = E.load(folder)
+        targets = {t.target: t for t in m.targets}
+        drawn = _drawn_textures(stage, m.path)
+        assert {n for n, _, _ in drawn} == {t.input for t in m.targets}, m.path  # every modelled input drawn
+        # the decoded value of every output at every point: bcfpipe decode's library function
+        want = np.empty((POINTS, len(desc.outputs)), np.float32)
+        for i, (u, v, lod) in enumerate(pts):
+            E.classic_outputs(em, np.array([[u, v]], np.float32), float(lod), want[i:i + 1])
+        for name, node, output in drawn:
+            asset = node.GetInput("file").Get()
+            path = Path(asset.resolvedPath)
+            assert path.suffix == ".dds" and path.resolve().is_relative_to(out_dir), (m.path, name, asset)
+            assert path.name in {c.file for c in desc.classic}
+            levels = _oiio_mips(str(path))
+            scale = np.array(node.GetInput("scale").Get(), np.float64)
+            bias = np.array(node.GetInput("bias").Get(), np.float64)
+            srgb = node.GetInput("sourceColorSpace").Get() == "sRGB"
+            wrap = (node.GetInput("wrapS").Get() or "useMetadata", node.GetInput("wrapT").Get() or "useMetadata")
+            assert wrap == (desc.wrap, desc.wrap)
+            for target, slot in _components(name, output):
+                t = targets[target]
+                o = desc.outputs[t.channel] if t.channel >= 0 else None
+                for i, (u, v, lod) in enumerate(pts):
+                    x = _trilinear(levels, u, v, lod, wrap)[slot]
+                    got = (_srgb_to_linear(x) if srgb and slot < 3 else x) * scale[slot] + bias[slot]
+                    if o is not None and o.reconstructed:
+                        # normal z: not stored (BC5/BC7 hold x, y); the layer authors 1 (usd_classic's note)
+                        assert got == 1.0
+                        continue
+                    if o is None:  # a constant component
+                        expect = t.bias
+                    else:
+                        f = float(want[i, t.channel]) * o.value_scale + o.value_bias
+                        expect = (_srgb_to_linear(f) if t.color_space == "sRGB" else f) * t.scale + t.bias
+                    tol = abs(scale[slot]) / 255.0 * (SRGB_SLOPE if srgb and slot < 3 else 1.0) + 1e-5
+                    assert abs(got - expect) <= tol, (m.path, target, (u, v, lod), got, expect, tol)
+                    checked += 1
+    assert checked >= POINTS * 20  # every component of every drawn input at every point
+
+
+def test_the_table_and_the_layer_agree(built):
+    """The note the build table shows is the layer's own, read back from overrides.usda."""
+    from bcfpipe.builder.usd_classic import usd_notes
+
+    notes = usd_notes(str(built / "overrides.usda"))
+    assert notes["/World/Looks/Leaves"] == "USD: 1 UsdUVTexture → C0.dds"
+    assert notes["/World/Looks/Bricks"].startswith("USD: 4 UsdUVTexture → C0.dds, C1.dds, C2.dds")
+    assert "kept on sources" not in " ".join(notes.values())
+
+
+@pytest.mark.gl
+def test_render_compare_of_the_default_build(built, tmp_path, rt):
+    """`render --compare` of an all-classic build: exit 0, three panels, the source scene drawn
+    against the build (no refusal), and the two close: they differ by BC7 rounding only."""
+    import OpenImageIO as oiio
+
+    from bcfpipe.render import compare as C
+
+    png = tmp_path / "cmp.png"
+    r = CliRunner().invoke(main, ["render", str(built), "-o", str(png), "--compare", "--size", "320x180"])
+    assert r.exit_code == 0, r.output
+    assert "[original | built | difference]" in r.output
+    spec = oiio.ImageInput.open(str(png)).spec()
+    assert (spec.width, spec.height) == (3 * 320 + 2 * C.GAP, 180)
+    psnr = float(r.output.split("PSNR ")[1].split(" dB")[0])
+    assert 35.0 <= psnr < 80.0, r.output  # the DDS is drawn (not the sources again), and it is close
