@@ -2,7 +2,10 @@
 cache folder their compiled code lives in (neither needs numba or a compiler to import)."""
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
+import uuid
 from pathlib import Path
 
 FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3  # free texels (warm-up) or blocks, per format
@@ -13,6 +16,7 @@ INACTIVE, TRAINED, FIXED = 0, 1, 2
 
 
 KERNELS_ENV = "BCFPIPE_KERNELS"  # set by a build for its workers: the kernels of the build's cache
+SAID_ENV = "BCFPIPE_KERNEL_SAID"  # set by a build for its workers: the file whose creator says a fallback
 
 
 def kernels_dir() -> str:
@@ -25,9 +29,33 @@ def kernels_dir() -> str:
             or str(default_cache_root() / "kernels"))
 
 
+@contextlib.contextmanager
 def kernels_in(cache_root: str | os.PathLike | None):
-    """Within the block (a context manager), this process and the workers it starts keep compiled
-    kernels under ``cache_root/kernels`` (a build's --cache); None changes nothing."""
+    """Within the block, this process and the workers it starts keep compiled kernels under
+    ``cache_root/kernels`` (a build's --cache; None keeps the default), and a fallback from the
+    compiled kernel is said once for them all (`say_once`), not once per worker."""
     from bcfpipe.config import environment
 
-    return environment(KERNELS_ENV, None if cache_root is None else str(Path(cache_root) / "kernels"))
+    with environment(KERNELS_ENV, None if cache_root is None else str(Path(cache_root) / "kernels")):
+        said = Path(kernels_dir()) / f".said-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        try:
+            with environment(SAID_ENV, str(said)):
+                yield
+        finally:
+            with contextlib.suppress(OSError):
+                said.unlink()
+
+
+def say_once(line: str) -> None:
+    """Print ``line`` on stderr: once per build, where `kernels_in` set one up (the worker that
+    creates its file first says it), else once per call."""
+    said = os.environ.get(SAID_ENV)
+    if said:
+        try:
+            Path(said).parent.mkdir(parents=True, exist_ok=True)
+            os.close(os.open(said, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            return
+        except OSError:
+            pass  # no folder to agree in: every worker says it
+    print(line, file=sys.stderr, flush=True)

@@ -6,7 +6,9 @@ run either.
 
 The library's name hashes the source, the compiler's version and its flags; a build writes a
 temporary file and renames it, so concurrent first uses never load half a library. Without a C++
-compiler, :func:`load` says why in one line and the numba kernel runs instead."""
+compiler, or where the build or the load fails (a missing header, a broken install), :func:`load`
+raises `NativeUnavailable` with one line saying why, and the numba kernel runs instead
+(`bcfpipe.train.fused.step.default_backend`)."""
 from __future__ import annotations
 
 import ctypes
@@ -70,7 +72,10 @@ def library_path() -> Path:
 
     cxx = _compiler()
     version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout.splitlines()[:1]
-    text = b"".join(p.read_bytes() for p in SOURCES + HEADERS)
+    try:
+        text = b"".join(p.read_bytes() for p in SOURCES + HEADERS)
+    except OSError as e:  # the package lacks a source (an install that did not ship it)
+        raise NativeUnavailable(f"the fused kernel's source {e.filename} is missing (reinstall bcfpipe)") from None
     key = hashlib.sha256(text + repr((cxx, version, FLAGS)).encode()).hexdigest()[:16]
     return Path(kernels_dir()) / f"bcf_step-{key}.so"
 
@@ -100,25 +105,34 @@ def _build(cxx: str, path: Path) -> None:
             os.unlink(tmp)
 
 
+def _open() -> ctypes.CDLL:
+    """The library from the cache, built there first if needed. Where the cache cannot take it
+    (full, read-only), it is built in a temporary folder, loaded, and the folder removed."""
+    cxx, path = _compiler(), library_path()
+    if path.exists():
+        return ctypes.CDLL(str(path))
+    try:
+        _build(cxx, path)
+        return ctypes.CDLL(str(path))
+    except (OSError, NativeUnavailable):
+        with tempfile.TemporaryDirectory(prefix="bcfpipe-kernel-") as d:
+            _build(cxx, Path(d) / path.name)  # a compiler error is raised from here
+            return ctypes.CDLL(str(Path(d) / path.name))  # stays mapped once the folder is gone
+
+
 def load() -> ctypes.CDLL:
-    """The compiled kernel, built into the cache on first use (a few seconds). Where the cache
-    cannot take it (full, read-only), it is built in a temporary folder, loaded, and the folder
-    removed: the training goes on, and the next one builds again."""
+    """The compiled kernel, built into the cache on first use (a few seconds); the training goes
+    on where the cache cannot take it, and the next one builds again. `NativeUnavailable` (one
+    line) for anything that keeps it from running here: no compiler, a failed build, a library
+    that does not load."""
     global _lib
     with _lock:
         if _lib is not None:
             return _lib
-        cxx, path = _compiler(), library_path()
-        if path.exists():
-            lib = ctypes.CDLL(str(path))
-        else:
-            try:
-                _build(cxx, path)
-                lib = ctypes.CDLL(str(path))
-            except (OSError, NativeUnavailable):
-                with tempfile.TemporaryDirectory(prefix="bcfpipe-kernel-") as d:
-                    _build(cxx, Path(d) / path.name)  # a compiler error is raised from here
-                    lib = ctypes.CDLL(str(Path(d) / path.name))  # stays mapped once the folder is gone
+        try:
+            lib = _open()
+        except OSError as e:  # a compiler that cannot run, a library the loader refuses
+            raise NativeUnavailable(f"the fused kernel cannot be built or loaded: {' '.join(str(e).split())}") from None
         lib.bcf_step.argtypes = [ctypes.POINTER(Args)]
         lib.bcf_step.restype = ctypes.c_double
         lib.bcf_features.argtypes = [ctypes.POINTER(Args)]

@@ -19,18 +19,18 @@ from bcfpipe.train.fused.common import FIXED, TRAINED
 
 def default_backend() -> str:
     """``native`` (step.cpp, vectorised) where a C++ compiler builds it, else ``numba`` (kernel.py),
-    with one line on stderr saying why."""
+    with one line on stderr saying why (once per build: `common.say_once`). Without it the first
+    encode runs in torch too (bcfpipe.model.features)."""
     global _BACKEND
     if _BACKEND is None:
         from bcfpipe.train.fused import native
+        from bcfpipe.train.fused.common import say_once
 
         try:
             native.load()
             _BACKEND = "native"
         except native.NativeUnavailable as e:
-            import sys
-
-            print(f"bcfpipe: {e}; the fused kernel runs in numba (slower)", file=sys.stderr)
+            say_once(f"bcfpipe: {e}; the fused kernel runs in numba and the first encode in torch (slower)")
             _BACKEND = "numba"
     return _BACKEND
 
