@@ -357,8 +357,8 @@ def test_layout_defaults_to_auto_and_to_neural_with_a_target_psnr():
 
 def test_build_layout_auto_records_each_choice_and_verifies(tmp_path):
     """A real build with the default layout (auto): every built material says what was chosen
-    against BC@R; one kept as BC@R gets no neural override (its UsdUVTexture network stays), and
-    verify passes. When every material kept BC@R, `render --compare` says so in one line."""
+    against BC@R; one kept as BC@R gets no neural override (its UsdUVTexture nodes read its DDS
+    instead, test_usd_classic), and verify passes."""
     from click.testing import CliRunner
 
     from bcfpipe.cli import main
@@ -378,16 +378,22 @@ def test_build_layout_auto_records_each_choice_and_verifies(tmp_path):
     for m in built:
         assert m.layout.size_bytes <= m.layout.bc_size_bytes
         assert min(m.layout.margin_per_mip_db) >= -0.5 - 1e-6
-        if m.layout.profile is None:
+        if m.layout.profile is None:  # no bcf context; its UsdUVTexture nodes read the DDS (test_usd_classic)
             assert m.outputs.weights_index is None and m.sizes.classic_bytes > 0
-            assert m.path not in (out / "overrides.usda").read_text()
+            assert "BcfNeuralMaterialAPI" not in _material_spec(out / "overrides.usda", m.path)
     assert verify(out, glsl=False).exit_code == 0
     from bcfpipe.cache.store import Cache  # BC@R's blocks were kept in the build's cache
 
     assert Cache(os.environ["BCFPIPE_CACHE"]).blocks.files()
-    if all(m.layout.profile is None for m in built):
-        r = CliRunner().invoke(main, ["render", str(out), "-o", str(tmp_path / "c.png"), "--compare"])
-        assert r.exit_code == 2 and "every built material kept its BC textures" in r.output, r.output
+
+
+def _material_spec(layer: Path, path: str) -> str:
+    """The apiSchemas the overrides layer gives one material prim (empty when none)."""
+    from pxr import Sdf
+
+    opened = Sdf.Layer.FindOrOpen(str(layer))  # held: a spec of a released layer is expired
+    spec = opened.GetPrimAtPath(Sdf.Path(path))
+    return str(spec.GetInfo("apiSchemas")) if spec is not None and "apiSchemas" in spec.ListInfoKeys() else ""
 
 
 def test_a_builds_usd_override_drives_only_the_decoders_outputs(mixed):

@@ -319,8 +319,8 @@ def usd_notes(overrides_layer: str) -> dict[str, str] | None:
         note = spec.customData.get(NOTE_KEY)
         if note:
             out[str(path)] = str(note)
-        elif "BcfNeuralMaterialAPI" in (spec.GetInfo("apiSchemas").GetAddedOrExplicitItems()
-                                        if spec.HasInfo("apiSchemas") else []):
+        elif "apiSchemas" in spec.ListInfoKeys() and "BcfNeuralMaterialAPI" in \
+                spec.GetInfo("apiSchemas").GetAddedOrExplicitItems():
             out[str(path)] = "USD: neural (bcf context)"
 
     layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: visit(p) if p.IsPrimPath() else None)
