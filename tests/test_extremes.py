@@ -69,6 +69,46 @@ def test_hdr_emissive_ramp_keeps_relative_precision(tmp_path):
     assert v.returncode == 0, v.stdout + v.stderr
 
 
+def test_hdr_emissive_ramp_keeps_relative_precision_under_the_default_layout(tmp_path):
+    """Issue 50: the same ramp trained with no layout option (the default, auto) ships BC@R as
+    BC6H_UF16 of its linear values at every mip, with no log curve on any classic output (a
+    UsdUVTexture applies scale and bias only), and holds the same floor, measured from its exported
+    files through `bcfpipe decode` (BC1 with a log curve, before: 0.45 and 100 %). The JSON's
+    ``psnr`` is the shipped layout's figure, as its ``layout`` block states it."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_hdr import hdr_ramp
+
+    import OpenImageIO as oiio
+
+    src = write_exr(tmp_path / "hdr.exr", hdr_ramp(256))
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", "bcfpipe", "train", f"emissiveColor={src}:rgb", "-o", str(out),
+                        "--profile", "tiny", "--quality", "draft", "--wrap", "clamp", "--json"],
+                       capture_output=True, text=True, timeout=900)
+    assert p.returncode == 0, p.stderr
+    res = json.loads(p.stdout)
+    desc = json.loads((out / "material.json").read_text())
+    assert [(c["format"], c["mip_count"]) for c in desc["classic"]] == [("BC6H_UF16", 7)]  # R = 64: 64² to 1²
+    for o in desc["outputs"]:
+        assert o["source"] == "classic" and o.get("log_gain") is None
+        # the texel is the source value: the USD scale (texel_scale * value_scale) is 1, the bias 0
+        assert o["texel_scale"] * o["value_scale"] == pytest.approx(1.0) and o["texel_bias"] == 0.0
+    assert res["layout"]["chosen"]["layout"] == "all classic (BC@R)"
+    assert res["psnr"] == pytest.approx(res["layout"]["chosen"]["psnr"], abs=1e-3)  # one figure, not two
+    d = subprocess.run([sys.executable, "-m", "bcfpipe", "decode", str(out), "-o", str(tmp_path / "dec")],
+                       capture_output=True, text=True, timeout=600)
+    assert d.returncode == 0, d.stderr
+    stored = np.asarray(oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)).reshape(256, 256, 3)
+    dec = np.asarray(oiio.ImageBuf(str(tmp_path / "dec" / "emissiveColor.exr")).get_pixels(oiio.FLOAT)).reshape(
+        256, 256, 3)
+    assert np.abs(np.log1p(np.maximum(dec, 0)) - np.log1p(stored)).mean() <= 0.05
+    band = (stored >= 1) & (stored <= 10)
+    assert band.sum() > 10000 and np.median(np.abs(dec[band] - stored[band]) / stored[band]) <= 0.05
+    v = subprocess.run([sys.executable, "-m", "bcfpipe", "verify", str(out)], capture_output=True, text=True,
+                       timeout=600)
+    assert v.returncode == 0, v.stdout + v.stderr
+
+
 def test_ldr_and_signed_channels_stay_linear(tmp_path):
     """Only non-negative float colour beyond 1 is log-encoded: [0, 1] data, normals, signed and
     scalar (displacement) channels keep the linear encoding and a version 1 weight record."""
@@ -218,11 +258,9 @@ def test_8k_set_trains_within_memory():
     assert peak < 14.0 and psnr > 15.0, (peak, psnr)
 
 
-def test_hdr_through_build_usd_verify_decode_and_render(tmp_path):
-    """The HDR encoding end to end in a scene: the build's USD layer, `verify` (GLSL against
-    ONNX), `decode` (source values back, both backends) and `render` (the Sdr node's GLSL decode
-    with the USD scale and bias, against the original EXR drawn as a half-float texture)."""
-    import OpenImageIO as oiio
+def hdr_quad(tmp_path: Path) -> tuple[Path, Path, str]:
+    """A quad whose emissiveColor reads a 128² 0..3,000 ramp (half EXR, clamp) through a
+    UsdUVTexture scaled by 1/3000: (the stage, the EXR, the material's path)."""
     from pxr import Usd
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -255,10 +293,21 @@ def test_hdr_through_build_usd_verify_decode_and_render(tmp_path):
         tex.ConnectableAPI(), "rgb")
     UsdShade.Shader(surf).CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set((0.0, 0.0, 0.0))
     stage.GetRootLayer().Save()
+    return quad, src, looks
 
-    def cli(*args):
-        return subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True, timeout=900)
 
+def cli(*args):
+    return subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True, timeout=900)
+
+
+def test_hdr_through_build_usd_verify_decode_and_render(tmp_path):
+    """The HDR encoding end to end in a scene: the build's USD layer, `verify` (GLSL against
+    ONNX), `decode` (source values back, both backends) and `render` (the Sdr node's GLSL decode
+    with the USD scale and bias, against the original EXR drawn as a half-float texture)."""
+    import OpenImageIO as oiio
+    from pxr import Usd
+
+    quad, src, looks = hdr_quad(tmp_path)
     out = tmp_path / "out"
     b = cli("build", str(quad), "-o", str(out), "--profile", "tiny", "--quality", "draft", "--layout", "neural",
             "--no-cache")
@@ -277,6 +326,45 @@ def test_hdr_through_build_usd_verify_decode_and_render(tmp_path):
         (exr,) = (tmp_path / backend).glob("emissiveColor*.exr")
         dec = np.asarray(oiio.ImageBuf(str(exr)).get_pixels(oiio.FLOAT)).reshape(128, 128, 3)
         assert np.abs(np.log1p(np.maximum(dec, 0)) - np.log1p(stored)).mean() <= 0.08  # relative precision
+    r = cli("render", str(out), "-o", str(tmp_path / "cmp.png"), "--camera", "/World/Cam", "--compare", "--json",
+            "--size", "320x240")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["difference"]["psnr_db"] >= 30.0, r.stdout
+
+
+def test_hdr_default_build_ships_bc6h_that_usd_reads_as_is(tmp_path):
+    """Issue 50: the same scene built with no layout option ships the ramp as BC6H_UF16 (BC@R),
+    and the USD layer's UsdUVTexture reads that DDS with the authored scale (1/3000) as it is, no
+    curve: `decode` of the build holds the robustness floor, `verify` passes, and `render
+    --compare` draws the shipped texture as the source EXR is drawn."""
+    import OpenImageIO as oiio
+    from pxr import Usd, UsdShade
+
+    quad, src, looks = hdr_quad(tmp_path)
+    out = tmp_path / "out"
+    b = cli("build", str(quad), "-o", str(out), "--profile", "tiny", "--quality", "draft", "--no-cache")
+    assert b.returncode == 0, b.stderr
+    folder = out / "materials" / "Smooth"
+    desc = json.loads((folder / "material.json").read_text())
+    assert [c["format"] for c in desc["classic"]] == ["BC6H_UF16"]
+    assert all(o["source"] == "classic" and o.get("log_gain") is None for o in desc["outputs"])
+    built = Usd.Stage.Open(str(out / "quad.bcf.usda"))
+    readers = [UsdShade.Shader(p) for p in built.Traverse() if p.IsA(UsdShade.Shader)
+               and UsdShade.Shader(p).GetIdAttr().Get() == "UsdUVTexture"
+               and str(UsdShade.Shader(p).GetInput("file").Get().path).endswith("C0.dds")]
+    assert readers, "no UsdUVTexture reads the shipped BC6H texture"
+    scale = readers[0].GetInput("scale").Get()
+    assert list(scale)[:3] == pytest.approx([1 / 3000] * 3, rel=1e-4)  # the authored scale, times 1
+    v = cli("verify", str(out))
+    assert v.returncode == 0, v.stdout[-3000:] + v.stderr
+    d = cli("decode", str(out), "--material", looks, "-o", str(tmp_path / "dec"))
+    assert d.returncode == 0, d.stderr
+    stored = np.asarray(oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)).reshape(128, 128, 3)
+    dec = np.asarray(oiio.ImageBuf(str(tmp_path / "dec" / "emissiveColor.exr")).get_pixels(oiio.FLOAT)).reshape(
+        128, 128, 3)
+    assert np.abs(np.log1p(np.maximum(dec, 0)) - np.log1p(stored)).mean() <= 0.05
+    band = (stored >= 1) & (stored <= 10)
+    assert np.median(np.abs(dec[band] - stored[band]) / stored[band]) <= 0.05
     r = cli("render", str(out), "-o", str(tmp_path / "cmp.png"), "--camera", "/World/Cam", "--compare", "--json",
             "--size", "320x240")
     assert r.returncode == 0, r.stderr
