@@ -348,6 +348,11 @@ def test_hdr_default_build_ships_bc6h_that_usd_reads_as_is(tmp_path):
     desc = json.loads((folder / "material.json").read_text())
     assert [c["format"] for c in desc["classic"]] == ["BC6H_UF16"]
     assert all(o["source"] == "classic" and o.get("log_gain") is None for o in desc["outputs"])
+    # one PSNR: the manifest's (the table's column) is the shipped layout's, as layout.json states it
+    (mat,) = json.loads((out / "manifest.json").read_text())["materials"]
+    chosen = json.loads((folder / "layout.json").read_text())["chosen"]["psnr"]
+    assert mat["metrics"]["psnr"] == pytest.approx(chosen, abs=1e-3) == mat["layout"]["psnr"]
+    assert f" {mat['metrics']['psnr']:.2f} " in b.stdout, b.stdout
     built = Usd.Stage.Open(str(out / "quad.bcf.usda"))
     readers = [UsdShade.Shader(p) for p in built.Traverse() if p.IsA(UsdShade.Shader)
                and UsdShade.Shader(p).GetIdAttr().Get() == "UsdUVTexture"
