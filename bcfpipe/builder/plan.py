@@ -26,8 +26,9 @@ if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
 OVERRIDES = "overrides.usda"
 MATERIALS_DIR = "materials"
 
-#: revision of the HDR output encoding (bcfpipe.texset.encoding), in the key of jobs with float sources
-HDR_ENCODING = 1
+#: revision of the HDR output encoding (bcfpipe.texset.encoding), in the key of jobs with float sources;
+#: 2: an HDR colour's classic group is BC6H_UF16 of its linear values, not BC1 (issue 50)
+HDR_ENCODING = 2
 
 
 class BuildError(InputError):
@@ -181,7 +182,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: O
     In it: the bytes of each source file (its XXH3-128) with the semantic and channels read from
     it, the addressing, profile, preset (and its schedule), seed, hidden size, signedness, feature
     start, --fix-nonfinite, the device class (cpu / cuda train differently), config.MODEL_FORMAT, and
-    for float sources the HDR encoding's revision (entries trained before it kept linear HDR). Not in it:
+    for float sources the HDR encoding's revision (entries trained before it kept linear HDR, or
+    shipped an HDR colour's classic group as BC1). Not in it:
     paths, times, meshes and transforms, and the UsdUVTexture scale, bias and colour space, which
     the USD layer applies to the decoded values (the model learns the stored texels).
     """
