@@ -3,7 +3,7 @@ PY := .venv/bin/python
 BCF := .venv/bin/bcfpipe
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test test-all clean
+.PHONY: setup demo test test-install test-all clean
 setup:
 	@bash scripts/setup.sh
 
@@ -14,6 +14,11 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
+
+# the package as a user installs it (tests/test_install.py, slow: about 4 min): the sdist and the wheel,
+# the wheel in a new venv with only torch beside it, build --verify and render run outside the repository
+test-install: setup
+	$(PY) -m pytest -p no:xdist -m slow tests/test_install.py $(PYTEST_ARGS)
 
 test-all: setup
 	$(PY) -m pytest -n 2 -m "" $(PYTEST_ARGS)

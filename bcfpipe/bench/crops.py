@@ -83,9 +83,9 @@ def crop_figure(path: Path, title: str, channels: Sequence[Channel], ref: np.nda
     """Write the crop figure to ``path``: one row per channel group, columns reference, each
     method, then each method's error |dec - ref| / peak on one colour scale per row. Returns
     each method's PSNR over the crop."""
-    import matplotlib
+    from bcfpipe.extras import require
 
-    matplotlib.use("Agg")
+    require("matplotlib", "bench", "bcfpipe bench's figures").use("Agg")
     import matplotlib.pyplot as plt
 
     rows = _rows(channels)

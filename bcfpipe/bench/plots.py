@@ -17,9 +17,9 @@ TITLES = {"rd": "Rate-distortion", "time": "PSNR over training time", "per_mip":
 
 
 def _plt():
-    import matplotlib
+    from bcfpipe.extras import require
 
-    matplotlib.use("Agg")
+    require("matplotlib", "bench", "bcfpipe bench's figures").use("Agg")
     import matplotlib.pyplot as plt
 
     return plt

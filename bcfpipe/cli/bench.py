@@ -89,7 +89,9 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
     Exit codes: 0 ok, 1 a measurement failed, 2 bad arguments or unreadable input.
     """
     from bcfpipe.bench import report as R
+    from bcfpipe.extras import require
 
+    require("matplotlib", "bench", "bcfpipe bench")  # before any measuring: its figures need it
     if output is None:
         raise InputError("missing -o/--output REPORT_DIR")
     if redraw:
