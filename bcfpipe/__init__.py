@@ -1,4 +1,4 @@
-"""bcfpipe: neural materials with block-compressed (BC6H) features for USD scenes."""
+"""bcfpipe: neural materials with block-compressed features (BC7 by default, or BC6H) for USD scenes."""
 import os as _os
 
 __version__ = "0.1.0"

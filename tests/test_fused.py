@@ -270,8 +270,8 @@ def test_without_a_compiler_the_numba_kernel_runs_and_says_why(monkeypatch, caps
     monkeypatch.setattr(fused_step, "_BACKEND", None)
     assert fused_step.default_backend() == "numba"
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["bcfpipe: no C++ compiler (/nonexistent/g++) found; scripts/setup.sh installs one; "
-                   "the fused kernel runs in numba (slower)"]
+    assert err == ["bcfpipe: no C++ compiler (/nonexistent/g++) found (install g++, or set CXX); "
+                   "the fused kernel runs in numba and the first encode in torch (slower)"]
 
 
 def test_a_source_the_compiler_refuses_is_reported_by_its_first_error(monkeypatch, tmp_path):

@@ -62,7 +62,7 @@ def _compiler() -> str:
     named = os.environ.get("CXX")
     cxx = shutil.which(named) if named else (shutil.which("g++") or shutil.which("c++") or shutil.which("clang++"))
     if not cxx:
-        raise NativeUnavailable(f"no C++ compiler ({named or 'g++'}) found; scripts/setup.sh installs one")
+        raise NativeUnavailable(f"no C++ compiler ({named or 'g++'}) found (install g++, or set CXX)")
     return cxx
 
 
