@@ -113,8 +113,8 @@ def dist(tmp_path_factory) -> dict:
               "print(b.build_sdist(sys.argv[1]))", out], env=env, cwd=src, timeout=600)
     assert p.returncode == 0, p.stderr[-3000:]
     sdist = out / p.stdout.strip().splitlines()[-1]
-    p = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", sdist, "-w", out],
-             env=env, cwd=root, timeout=600)
+    p = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-cache-dir", "-q",
+              sdist, "-w", out], env=env, cwd=root, timeout=600)
     assert p.returncode == 0, p.stderr[-3000:]
     (wheel,) = out.glob("bcfpipe-*.whl")
     print(f"sdist and wheel in {time.perf_counter() - t0:.1f} s")
