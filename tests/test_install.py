@@ -20,8 +20,9 @@ the venv. The extras the base install lacks say so in one line (exit 2): ``bench
 and ``ray``.
 
 It took 3 min 45 s here (2 shared cores; pip's cache cold, so the install's 80 s include the
-downloads), so it is marked slow and CI runs it once per submission as its own step after
-``make test``: ``make test-install`` in .ci/run.
+downloads), so the two are marked slow and CI runs them once per submission as its own step after
+``make test``: ``make test-install`` in .ci/run. The first two tests (the data folders' lookup, a
+missing extra's message) are quick and run with the default suite.
 """
 from __future__ import annotations
 
@@ -38,8 +39,6 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 TORCH = "torch==2.13.0"
-
-pytestmark = pytest.mark.slow
 
 AUDIT = r'''
 """Logs (to $BCF_AUDIT_LOG) every file opened, folder listed, library loaded or subprocess
@@ -98,6 +97,40 @@ def _work_tree_files() -> list[str]:
     return [f for f in out.split("\0") if f and (REPO / f).exists()]
 
 
+def test_the_data_folders_ship_inside_the_package(tmp_path, monkeypatch) -> None:
+    """glsl/ and schemas/ are found beside the package's modules (the repository's top-level glsl and
+    schemas are links to them); BCFPIPE_GLSL_DIR and BCFPIPE_SCHEMAS still override them, and a
+    folder found nowhere is one line naming the variable (exit 2)."""
+    import bcfpipe
+    from bcfpipe import resources
+    from bcfpipe.formats import usd_schema
+    from bcfpipe.verify import glsl
+
+    package = Path(bcfpipe.__file__).resolve().parent
+    assert resources.GLSL_DIR == package / "glsl" and resources.SCHEMA_DIR == package / "schemas"
+    assert glsl.glsl_dir() == resources.GLSL_DIR and usd_schema.schema_dir() == resources.SCHEMA_DIR
+    assert (REPO / "glsl").resolve() == resources.GLSL_DIR and (REPO / "schemas").resolve() == resources.SCHEMA_DIR
+    mine = tmp_path / "my-glsl"
+    shutil.copytree(resources.GLSL_DIR, mine)
+    monkeypatch.setenv("BCFPIPE_GLSL_DIR", str(mine))
+    assert glsl.glsl_dir() == mine
+    monkeypatch.setenv("BCFPIPE_SCHEMAS", str(tmp_path / "nothing"))
+    monkeypatch.setattr(resources, "SCHEMA_DIR", tmp_path / "not-installed")
+    with pytest.raises(resources.MissingData) as e:
+        usd_schema.schema_dir()
+    assert e.value.exit_code == 2 and "BCFPIPE_SCHEMAS" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_missing_extra_is_one_line_naming_it(monkeypatch) -> None:
+    from bcfpipe.extras import MissingExtra, require
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # what an import of an absent package raises
+    with pytest.raises(MissingExtra) as e:
+        require("matplotlib", "bench", "bcfpipe bench")
+    assert e.value.exit_code == 2 and str(e.value).startswith("bcfpipe bench needs matplotlib")
+    assert str(e.value).endswith("pip install 'bcfpipe[bench]'")
+
+
 @pytest.fixture(scope="module")
 def dist(tmp_path_factory) -> dict:
     """The sdist built from a copy of the work tree, and the wheel built from that sdist."""
@@ -122,6 +155,7 @@ def dist(tmp_path_factory) -> dict:
     return {"root": root, "sdist": sdist, "wheel": wheel, "runs": runs}
 
 
+@pytest.mark.slow
 def test_sdist_and_wheel_carry_every_file_that_runs(dist) -> None:
     runs = dist["runs"]
     for must in ("bcfpipe/bc6h/quick.cpp", "bcfpipe/train/fused/step.cpp", "bcfpipe/train/fused/lanes.h",
@@ -153,6 +187,7 @@ def _venv(root: Path) -> tuple[Path, dict]:
     return venv, env
 
 
+@pytest.mark.slow
 def test_the_wheel_builds_verifies_and_renders_from_a_new_venv(dist) -> None:
     root = dist["root"]
     venv, env = _venv(root)
