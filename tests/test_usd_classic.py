@@ -18,7 +18,6 @@ slope, 2.4 / 1.055), plus float32 rounding.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -119,59 +118,122 @@ def _components(name: str, output: str) -> list[tuple[str, int]]:
     return [(name, "rgba".index(output))]
 
 
-def test_every_classic_texture_usd_draws_is_the_shipped_dds_and_yields_decodes_values(built):
+def _check_values(out: Path, m: mfst.Material, stage: Usd.Stage, drawn, pts: np.ndarray) -> int:
+    """Assert that each drawn (input, UsdUVTexture, output) reads a DDS of ``m`` in ``out`` and yields,
+    at every point (u, v, lod: the texture's own lod), decode's value within the palette rounding;
+    returns the comparisons."""
     from bcfpipe.export import writer as E
 
+    folder = out / m.outputs.folder
+    desc = mf.read(folder)
+    em = E.load(folder)
+    targets = {t.target: t for t in m.targets}
+    wants: dict[float, np.ndarray] = {}
+
+    def decoded(lod_bias: float) -> np.ndarray:
+        """Every output at every point, from bcfpipe decode's library function, at the reference lod
+        s = lod - lod_bias that the texture's own lod stands for (a GPU's lod of a texture smaller
+        than the reference is smaller by log2 of the ratio: material.json's lod_bias)."""
+        if lod_bias not in wants:
+            want = np.zeros((len(pts), len(desc.outputs)), np.float32)
+            for i, (u, v, lod) in enumerate(pts):
+                E.classic_outputs(em, np.array([[u, v]], np.float32), float(lod - lod_bias), want[i:i + 1])
+            wants[lod_bias] = want
+        return wants[lod_bias]
+
+    checked = 0
+    for name, node, output in drawn:
+        asset = node.GetInput("file").Get()
+        path = Path(asset.resolvedPath)
+        assert path.suffix == ".dds" and path.resolve().is_relative_to(out.resolve()), (m.path, name, asset)
+        assert path.name in {c.file for c in desc.classic}
+        want = decoded(next(c.lod_bias for c in desc.classic if c.file == path.name))
+        levels = _oiio_mips(str(path))
+        scale = np.array(node.GetInput("scale").Get(), np.float64)
+        bias = np.array(node.GetInput("bias").Get(), np.float64)
+        srgb = node.GetInput("sourceColorSpace").Get() == "sRGB"
+        wrap = (node.GetInput("wrapS").Get() or "useMetadata", node.GetInput("wrapT").Get() or "useMetadata")
+        assert wrap == (desc.wrap, desc.wrap)
+        for target, slot in _components(name, output):
+            t = targets[target]
+            o = desc.outputs[t.channel] if t.channel >= 0 else None
+            assert o is None or o.source == mf.Source.CLASSIC, (m.path, target)
+            for i, (u, v, lod) in enumerate(pts):
+                x = _trilinear(levels, u, v, lod, wrap)[slot]
+                got = (_srgb_to_linear(x) if srgb and slot < 3 else x) * scale[slot] + bias[slot]
+                if o is not None and o.reconstructed:
+                    # normal z: not stored (BC5/BC7 hold x, y); the layer authors 1 (usd_classic's note)
+                    assert got == 1.0
+                    continue
+                if o is None:  # a constant component
+                    expect = t.bias
+                else:
+                    f = float(want[i, t.channel]) * o.value_scale + o.value_bias
+                    expect = (_srgb_to_linear(f) if t.color_space == "sRGB" else f) * t.scale + t.bias
+                tol = abs(scale[slot]) / 255.0 * (SRGB_SLOPE if srgb and slot < 3 else 1.0) + 1e-5
+                assert abs(got - expect) <= tol, (m.path, target, (u, v, lod), got, expect, tol)
+                checked += 1
+    return checked
+
+
+def _points(n: int = POINTS) -> np.ndarray:
+    """``n`` random (u, v, lod): lods from magnified (-1) to past the coarsest mip."""
+    rng = np.random.default_rng(50)
+    return np.column_stack([rng.random(n), rng.random(n), rng.uniform(-1.0, 10.5, n)])
+
+
+def test_every_classic_texture_usd_draws_is_the_shipped_dds_and_yields_decodes_values(built):
     man = mfst.read(built)
     stage = Usd.Stage.Open(str(built / man.root_layer))
-    out_dir = built.resolve()
-    rng = np.random.default_rng(50)
-    pts = np.column_stack([rng.random(POINTS), rng.random(POINTS), rng.uniform(-1.0, 10.5, POINTS)])
-    checked = 0
+    pts = _points()
     classic = [m for m in man.built() if m.layout is not None and m.layout.profile is None]
     assert len(classic) == 4  # Bricks, Tiles, TilesWorn, Leaves: every built material is all classic
+    checked = 0
     for m in classic:
-        folder = built / m.outputs.folder
-        desc = mf.read(folder)
-        assert all(o.source == mf.Source.CLASSIC for o in desc.outputs)
-        em = E.load(folder)
-        targets = {t.target: t for t in m.targets}
+        assert all(o.source == mf.Source.CLASSIC for o in mf.read(built / m.outputs.folder).outputs)
         drawn = _drawn_textures(stage, m.path)
         assert {n for n, _, _ in drawn} == {t.input for t in m.targets}, m.path  # every modelled input drawn
-        # the decoded value of every output at every point: bcfpipe decode's library function
-        want = np.empty((POINTS, len(desc.outputs)), np.float32)
-        for i, (u, v, lod) in enumerate(pts):
-            E.classic_outputs(em, np.array([[u, v]], np.float32), float(lod), want[i:i + 1])
-        for name, node, output in drawn:
-            asset = node.GetInput("file").Get()
-            path = Path(asset.resolvedPath)
-            assert path.suffix == ".dds" and path.resolve().is_relative_to(out_dir), (m.path, name, asset)
-            assert path.name in {c.file for c in desc.classic}
-            levels = _oiio_mips(str(path))
-            scale = np.array(node.GetInput("scale").Get(), np.float64)
-            bias = np.array(node.GetInput("bias").Get(), np.float64)
-            srgb = node.GetInput("sourceColorSpace").Get() == "sRGB"
-            wrap = (node.GetInput("wrapS").Get() or "useMetadata", node.GetInput("wrapT").Get() or "useMetadata")
-            assert wrap == (desc.wrap, desc.wrap)
-            for target, slot in _components(name, output):
-                t = targets[target]
-                o = desc.outputs[t.channel] if t.channel >= 0 else None
-                for i, (u, v, lod) in enumerate(pts):
-                    x = _trilinear(levels, u, v, lod, wrap)[slot]
-                    got = (_srgb_to_linear(x) if srgb and slot < 3 else x) * scale[slot] + bias[slot]
-                    if o is not None and o.reconstructed:
-                        # normal z: not stored (BC5/BC7 hold x, y); the layer authors 1 (usd_classic's note)
-                        assert got == 1.0
-                        continue
-                    if o is None:  # a constant component
-                        expect = t.bias
-                    else:
-                        f = float(want[i, t.channel]) * o.value_scale + o.value_bias
-                        expect = (_srgb_to_linear(f) if t.color_space == "sRGB" else f) * t.scale + t.bias
-                    tol = abs(scale[slot]) / 255.0 * (SRGB_SLOPE if srgb and slot < 3 else 1.0) + 1e-5
-                    assert abs(got - expect) <= tol, (m.path, target, (u, v, lod), got, expect, tol)
-                    checked += 1
+        checked += _check_values(built, m, stage, drawn, pts)
     assert checked >= POINTS * 20  # every component of every drawn input at every point
+
+
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory) -> tuple[Path, str]:
+    """The sample scene built neural with its normal maps kept as BC5 (`--classic normal`)."""
+    out = tmp_path_factory.mktemp("usd_mixed") / "out"
+    r = CliRunner().invoke(main, ["build", str(SAMPLE), "-o", str(out), "--quality", "smoke", "--profile", "tiny",
+                                  "--layout", "neural", "--classic", "normal", "--jobs", "1", "--threads", "1"])
+    assert r.exit_code == 0, r.output
+    return out, r.output
+
+
+def test_a_mixed_layouts_classic_group_reaches_usd_and_the_rest_stays_neural(mixed):
+    """Bricks and Tiles: the normal reads its BC5 DDS (decode's values); every other input keeps its
+    source texture in the universal context, the decoder drives it in the bcf one."""
+    out, output = mixed
+    man = mfst.read(out)
+    stage = Usd.Stage.Open(str(out / man.root_layer))
+    src = Usd.Stage.Open(str(SAMPLE))
+    by_path = {m.path: m for m in man.built()}
+    for path in ("/World/Looks/Bricks", "/World/Looks/Tiles"):
+        m = by_path[path]
+        prim = stage.GetPrimAtPath(path)
+        assert "BcfNeuralMaterialAPI" in prim.GetAppliedSchemas() or prim.HasAttribute("bcf:featureTextures")
+        drawn = _drawn_textures(stage, path)
+        dds = [(n, node, o) for n, node, o in drawn if node.GetInput("file").Get().resolvedPath.endswith(".dds")]
+        assert [n for n, _, _ in dds] == ["normal"], drawn
+        assert _check_values(out, m, stage, dds, _points(200)) == 2 * 200
+        before = {n: node.GetInput("file").Get().resolvedPath for n, node, _ in _drawn_textures(src, path)}
+        for n, node, _ in drawn:
+            if n != "normal":
+                assert node.GetInput("file").Get().resolvedPath == before[n]
+    from bcfpipe.builder.usd_classic import usd_notes
+
+    notes = usd_notes(str(out / "overrides.usda"))
+    assert notes["/World/Looks/Bricks"] == "USD: neural (bcf context); 1 UsdUVTexture → C0.dds"
+    assert notes["/World/Looks/Leaves"] == "USD: neural (bcf context)"
+    table = " ".join(output.replace("│", " ").split())  # the note column's wrapped lines, joined
+    assert "USD: neural (bcf context); 1 UsdUVTexture → C0.dds" in table
 
 
 def test_the_table_and_the_layer_agree(built):

@@ -154,8 +154,9 @@ def _wire_input(name: str, ref, type_name: str, targets: dict, desc: mf.Material
                 return f"{o.name} is sRGB in an alpha slot"
             srgb = True
         slots.append((texel, *m))
-    if srgb and any(t.color_space != ColorSpace.SRGB and slot < 3 and t.channel >= 0 and not outs[t.channel].reconstructed
-                    for t, slot in used):
+    raw_rgb = [t for t, slot in used if slot < 3 and t.channel >= 0 and not outs[t.channel].reconstructed
+               and t.color_space != ColorSpace.SRGB]
+    if srgb and raw_rgb:
         return "sRGB and raw components in one node"
     output = "rgb" if vector else "rgba"[slots[0][0]]
     return Wiring(name, type_name, ref.shader, tex, f"{folder}/{desc.classic[tex].file}", output, tuple(slots), srgb)
@@ -256,15 +257,21 @@ def _author_node(layer: Sdf.Layer, stage: Usd.Stage, node: _Node) -> None:
             a = src.GetAttribute(f"inputs:{name}")
             if a and a.Get() is not None:
                 Sdf.AttributeSpec(spec, f"inputs:{name}", a.GetTypeName()).default = a.Get()
-    Sdf.AttributeSpec(spec, "inputs:file", _T.Asset).default = Sdf.AssetPath(node.file)
-    Sdf.AttributeSpec(spec, "inputs:sourceColorSpace", _T.Token).default = (
-        ColorSpace.SRGB.value if node.srgb else ColorSpace.RAW.value)
+    prim = stage.GetPrimAtPath(node.source) if node.reuse else None
+
+    def attr(name: str, type_name: Sdf.ValueTypeName) -> Sdf.AttributeSpec:
+        """A spec of ``name``, typed as the source node already declares it (one type across layers)."""
+        have = prim.GetAttribute(name) if prim is not None else None
+        return Sdf.AttributeSpec(spec, name, have.GetTypeName() if have else type_name)
+
+    attr("inputs:file", _T.Asset).default = Sdf.AssetPath(node.file)
+    attr("inputs:sourceColorSpace", _T.Token).default = ColorSpace.SRGB.value if node.srgb else ColorSpace.RAW.value
     scale = [node.slots.get(s, (1.0, 0.0))[0] for s in range(4)]
     bias = [node.slots.get(s, (1.0, 0.0))[1] for s in range(4)]
-    Sdf.AttributeSpec(spec, "inputs:scale", _T.Float4).default = Gf.Vec4f(*scale)
-    Sdf.AttributeSpec(spec, "inputs:bias", _T.Float4).default = Gf.Vec4f(*bias)
-    for out in dict.fromkeys(w.output for w in node.inputs):
-        if not spec.attributes.get(f"outputs:{out}"):
+    attr("inputs:scale", _T.Float4).default = Gf.Vec4f(*scale)
+    attr("inputs:bias", _T.Float4).default = Gf.Vec4f(*bias)
+    for out in dict.fromkeys(w.output for w in node.inputs):  # declared where the source does not
+        if not (prim is not None and prim.GetAttribute(f"outputs:{out}")):
             Sdf.AttributeSpec(spec, f"outputs:{out}", _T.Float3 if out == "rgb" else _T.Float)
 
 
