@@ -22,8 +22,8 @@ and ``ray``.
 The two that install took 3 min 45 s and 2 min 56 s in two runs here (2 cores shared with other
 work; pip keeps no download cache here, so the install's 69-80 s include the downloads; the smoke
 builds 58-73 s default and 30-49 s neural), so they are marked slow and CI runs them once per
-submission as its own step after ``make test``: ``make test-install`` in .ci/run. The first two tests (the data folders' lookup, a
-missing extra's message) are quick and run with the default suite.
+submission as its own step after ``make test``: ``make test-install`` in .ci/run. The first two
+tests (the data folders' lookup, a missing extra's message) are quick and run with the default suite.
 """
 from __future__ import annotations
 
