@@ -83,26 +83,28 @@ class _Throttle:
 
 
 def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue=None,
-            cache_root: str | None = None) -> dict:
+            cache_root: str | None = None, encode_workers: int | None = None) -> dict:
     """Train and export one job into ``out_dir`` (runs in a worker process; never raises).
 
     With ``cache_root`` the job holds its key's lock while it works: an entry that another build
     stored meanwhile is copied instead of trained (a hit), and a trained result is stored. Returns
-    a `JobResult` as a dict. Only this process's own thread settings are changed.
+    a `JobResult` as a dict. Only this process's own thread settings are changed. BC encodes use
+    ``encode_workers`` cores (default ``threads``: bcfpipe.texset.parallel).
     """
     try:
-        return _run_job(job, out_dir, threads, device, queue, cache_root)
+        return _run_job(job, out_dir, threads, device, queue, cache_root, encode_workers)
     finally:
         if queue is not None:
             with contextlib.suppress(Exception):
                 queue.put(ProgressEvent(EventKind.RETURNED, job.get("name", "?")))
 
 
-def _run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, cache_root: str | None) -> dict:
+def _run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, cache_root: str | None,
+             encode_workers: int | None = None) -> dict:
     t0 = time.perf_counter()
     name = job.get("name", "?")
     if cache_root is None:
-        return _train_job(job, out_dir, threads, device, queue, t0)
+        return _train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers)
     from bcfpipe.cache import Cache
 
     try:
@@ -114,7 +116,7 @@ def _run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, qu
                 found.entry.copy_to(out_dir)
                 return JobResult(name, Status.BUILT, None, time.perf_counter() - t0, device, threads,
                                  dict(found.entry.result), CacheUse.HIT).to_dict()
-            r = _train_job(job, out_dir, threads, device, queue, t0)
+            r = _train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers)
             if r["status"] == Status.BUILT:
                 store_entry(cache, key, out_dir, r["result"], name)
             return dict(r, cache=CacheUse.MISS)
@@ -136,10 +138,10 @@ def store_entry(cache, key: str, folder: str | os.PathLike, result: dict, name: 
 
 
 def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, t0: float,
-               sources: Mapping[str, bytes] | None = None) -> dict:
+               sources: Mapping[str, bytes] | None = None, encode_workers: int | None = None) -> dict:
     """Train one job into ``out_dir``. Its source files are read where the plan found them, or,
     given ``sources`` ({plan path: bytes}, a worker without the driver's filesystem), from those
-    bytes."""
+    bytes. Its BC encodes use ``encode_workers`` cores (default ``threads``)."""
     name = job.get("name", "?")
     try:
         if mp.parent_process() is not None:  # a worker process: keep the build's stdout clean (--json)
@@ -161,6 +163,9 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         import OpenImageIO as oiio
 
         oiio.attribute("threads", max(1, threads))
+        from bcfpipe.texset.parallel import set_encode_workers
+
+        set_encode_workers(encode_workers or threads)
         from bcfpipe.export.fit import fit_material, make_config
         from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
@@ -212,6 +217,10 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         return JobResult(mj.name, Status.BUILT, None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, Status.FAILED, one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
+    finally:
+        from bcfpipe.texset.parallel import release_workers
+
+        release_workers()
 
 
 def _local_name(k: int, path: str) -> str:
@@ -329,11 +338,15 @@ def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, th
     broken: list[MaterialJob] = []
     own = executor is None
     pool = executor or cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+    from bcfpipe.texset.parallel import job_encode_workers
+
+    encode = job_encode_workers(threads, min(workers, len(jobs)))  # the cores the parallel jobs leave each
     try:
         futures = {}
         for i, job in enumerate(jobs):
             dev = devices[i % len(devices)]
-            fut = pool.submit(run_job, job.to_dict(), str(materials_dir / job.name), threads, dev, queue, cache_root)
+            fut = pool.submit(run_job, job.to_dict(), str(materials_dir / job.name), threads, dev, queue, cache_root,
+                              encode)
             futures[fut] = (job, dev)
             _emit(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
         by_name = {job.name: fut for fut, (job, _) in futures.items()}

@@ -30,6 +30,13 @@ def headline_psnr(m: mfst.Material) -> float | None:
     return m.metrics.psnr if m.metrics else None
 
 
+def encode_seconds(result: Mapping | None) -> float | None:
+    """A job's BC encode time (BC@R and its repacks, measured: a layout fit's ``encode`` phase), or
+    None for a job that encoded none (all neural)."""
+    phases = (result or {}).get("phase_seconds") or {}
+    return phases.get("encode")
+
+
 def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResult], files: Sequence[str],
                 written: Sequence[str], cache_root: str | None, damaged: Sequence[str], wall_seconds: float,
                 depfile: str | None, executor: str = "local") -> rep.BuildReport:
@@ -38,6 +45,7 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
         r = results.get(m.job) if m.job else None
         q = m.metrics.detail if m.metrics else None
         train = r.result.get("train_seconds") if r is not None and r.status == Status.BUILT else None
+        encode = encode_seconds(r.result) if r is not None and r.status == Status.BUILT else None
         mats.append(rep.MaterialReport(
             path=m.path, status=m.status, reason=m.reason, job=m.job,
             cache=r.cache if r is not None and m.status == Status.BUILT else None,
@@ -46,7 +54,8 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
             seconds=round(r.seconds, 3) if r is not None else None,
             total_bytes=m.sizes.total_bytes if m.sizes else None,
             files=material_files(m, manifest, files), folded=m.folded,
-            attempts=r.attempts if r is not None and r.attempts > 1 else None, layout=m.layout))
+            attempts=r.attempts if r is not None and r.attempts > 1 else None, layout=m.layout,
+            encode_seconds=round(encode, 3) if encode is not None else None))
     built = [r for r in results.values() if r.status == Status.BUILT]
     hits = sum(1 for r in built if r.cache == CacheUse.HIT)
     trained = [r for r in built if r.cache != CacheUse.HIT]
@@ -60,6 +69,7 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
             materials=t.materials, built=t.built, constant=t.constant, failed=t.failed, skipped=t.skipped, jobs=t.jobs,
             trained=len(trained), cached=hits,
             train_seconds=round(sum(r.result.get("train_seconds") or 0.0 for r in trained), 3),
-            wall_seconds=round(wall_seconds, 3), total_bytes=t.total_bytes, written_files=len(written)),
+            wall_seconds=round(wall_seconds, 3), total_bytes=t.total_bytes, written_files=len(written),
+            encode_seconds=round(sum(encode_seconds(r.result) or 0.0 for r in trained), 3)),
         materials=tuple(mats), written=tuple(written), depfile=depfile,
         executor=executor if executor != "local" else None)

@@ -197,7 +197,7 @@ class BuildDisplay:
         return t
 
 
-COLUMNS = ("material", "status", "outputs", "profile", "PSNR", "size", "train", "note")
+COLUMNS = ("material", "status", "outputs", "profile", "PSNR", "size", "train", "encode", "note")
 #: what the columns after the material need at least, in characters, for the table form to be readable
 _OTHER_COLUMNS_WIDTH = 80
 
@@ -249,6 +249,7 @@ def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...
                      f"{head:.2f}" if head is not None else "",
                      _fmt_size(m.sizes.total_bytes) if m.sizes else "",
                      "cached" if r.cache == CacheUse.HIT else f"{r.train_seconds:.1f}s" if r.train_seconds else "",
+                     "" if r.cache == CacheUse.HIT or r.encode_seconds is None else f"{r.encode_seconds:.1f}s",
                      "; ".join(notes)))
     return rows
 
@@ -258,8 +259,9 @@ def summary_caption(manifest: Manifest, report: BuildReport) -> str:
     tot, rt = manifest.totals, report.totals
     cached = f", {rt.cached} from the cache" if rt.cached else ""
     wrote = f"; {rt.written_files} file(s) written" if rt.written_files else "; OUT unchanged"
+    encoded = f" (BC encodes {rt.encode_seconds:.1f}s of it, apart from training)" if rt.encode_seconds else ""
     return (f"{tot.built} built, {tot.constant} constant, {tot.failed} failed, {tot.skipped} skipped; "
-            f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall; "
+            f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall{encoded}; "
             f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}\n"
             "PSNR: dB, the exported files against the source textures, MSE averaged over every mip "
             "(over the texels the meshes read where the note says so)")
@@ -274,7 +276,7 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
               caption=summary_caption(manifest, report), caption_justify="left")
     for col in COLUMNS:
         t.add_column(col, overflow="fold", no_wrap=col == "material",
-                     justify="right" if col in ("outputs", "PSNR", "size", "train") else "left")
+                     justify="right" if col in ("outputs", "PSNR", "size", "train", "encode") else "left")
     for row in summary_rows(manifest, report):
         t.add_row(row[0], Text(row[1], style=_STYLE.get(row[1], "")), *row[2:])
     return t
@@ -292,10 +294,10 @@ def print_summary(console: Console, manifest: Manifest, report: BuildReport) -> 
     console.print(f"bcfpipe build: {manifest.root_layer}", highlight=False, soft_wrap=True)
     for row in rows:
         console.print(Text(row[0], style="bold"), soft_wrap=True)
-        figures = [f"{name} {value}" + (" dB" if name == "PSNR" else "") for name, value in zip(COLUMNS[2:7], row[2:7])
+        figures = [f"{name} {value}" + (" dB" if name == "PSNR" else "") for name, value in zip(COLUMNS[2:8], row[2:8])
                    if value]
         line = Text("    ").append(row[1], style=_STYLE.get(row[1], ""))
-        for part in figures + ([row[7]] if row[7] else []):
+        for part in figures + ([row[8]] if row[8] else []):
             line.append(f", {part}")
         console.print(line, highlight=False)
     console.print(summary_caption(manifest, report), highlight=False)

@@ -36,6 +36,7 @@ class MaterialReport(Record):
     folded: tuple[Folded, ...] = ()
     attempts: int | None = optional()  # only when its job ran more than once (a worker died)
     layout: LayoutChoice | None = optional()  # --layout auto: what was chosen against BC@R, and why
+    encode_seconds: float | None = None  # BC@R and its repacks encoded and measured (a layout fit), apart from train
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,7 @@ class ReportTotals(Record):
     wall_seconds: float
     total_bytes: int
     written_files: int
+    encode_seconds: float = 0.0  # BC@R and repacks encoded and measured in this run (sum over jobs)
 
 
 @dataclass(frozen=True)

@@ -40,8 +40,11 @@ from bcfpipe.config import PROFILES, TrainingOptions
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Repack, channel_errors, encode, measure_repack,
-                                    repacks, split_levels)
+from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Group, Repack, channel_errors, encode,
+                                    measure_repack, repacks, split_levels)
+from bcfpipe.layout.classic import groups as classic_groups
+from bcfpipe.layout.predict import LayoutPrediction, candidate_profiles, neural_bytes, predict  # noqa: F401
+from bcfpipe.texset.parallel import encode_workers, workers
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn
 
@@ -59,6 +62,7 @@ class LayoutFit:
     train_seconds: float  # training of the probe and of the second model, if any
     seconds: float  # everything: BC@R, trainings, exports and measuring
     repacked: dict[str, tuple[Repack, list[EncodedGroup]]] = field(default_factory=dict)  # by Repack.label
+    encode_seconds: float = 0.0  # BC@R's and its repacks' encodes and measuring (beside the probe: overlapping it)
 
 
 def subset(ts: TextureSet, keep: Sequence[int]) -> TextureSet:
@@ -68,29 +72,70 @@ def subset(ts: TextureSet, keep: Sequence[int]) -> TextureSet:
                       ts.width, ts.height)
 
 
-def neural_bytes(resolutions: Sequence[int], n_in: int, hidden: int, n_out: int) -> int:
-    """Feature textures (every mip down to 4×4) and the fp16 decoder record, about as exported."""
-    from bcfpipe.train.rate import _feature_bytes
-
-    return _feature_bytes(resolutions) + 2 * (n_in * hidden + hidden + hidden * n_out + 3 * n_out) + 64
-
-
-def candidate_profiles(asked: str, device: str) -> list[str]:
-    """Paper profiles no larger than ``asked``, largest first; a small source's own profile
-    (``auto-N``) alone."""
-    from bcfpipe.train.rate import CPU_PROFILES, GPU_PROFILES
-
-    if asked not in PROFILES:
-        return [asked]
-    pool = GPU_PROFILES if device.startswith("cuda") else CPU_PROFILES
-    top = PROFILES[asked][0]
-    return sorted((p for p in pool if PROFILES[p][0] <= top), key=lambda p: -PROFILES[p][0]) or [asked]
-
-
-def named_groups(groups: Sequence[EncodedGroup], semantics: Sequence[str]) -> tuple[str, ...]:
+def named_groups(groups: Sequence[Group | EncodedGroup], semantics: Sequence[str]) -> tuple[str, ...]:
     """The names of the groups that hold one of ``semantics`` (--classic): a packed group goes whole."""
     wanted = set(semantics)
-    return tuple(g.group.name for g in groups if wanted & set(g.group.name.split("+")))
+    names = [getattr(g, "group", g).name for g in groups]
+    return tuple(n for n in names if wanted & set(n.split("+")))
+
+
+def predict_for(ts: TextureSet, options: TrainingOptions, cfg, asked: str, resolution: int,
+                match_bc: bool = False) -> LayoutPrediction:
+    """`bcfpipe.layout.predict.predict` for a loaded set: what `scan` and `plan` say of it."""
+    groups = classic_groups(ts)
+    return predict(groups, ts.width, ts.height, ts.num_channels, ts.num_channels, asked,
+                   cfg.model.resolutions, resolution, cfg.device, (cfg.model.n_inputs, cfg.model.hidden),
+                   options.layout, match_bc, named_groups(groups, options.classic))
+
+
+@dataclass
+class ClassicFit:
+    """BC@R encoded and measured, and its repacks."""
+
+    groups: list[EncodedGroup]
+    e_bc: np.ndarray  # (mips, channels) errors
+    bc: C.Candidate
+    use: tuple[int, ...]  # the reference mips the all-mip figure averages
+    repacked: dict
+    packed: list[C.Candidate]
+    seconds: float
+
+
+def _measure_classic(ts: TextureSet, resolution: int, wrap: str, coverage: np.ndarray | None, with_repacks: bool,
+                     log: Callable[[str], None] | list[str] | None) -> ClassicFit:
+    """Encode BC@R (every group, every mip) and measure it per channel, then its BC7 repacks (up to
+    R = 4096, when ``with_repacks``). ``log``: a function, or a list that collects the lines (for a
+    thread beside the training)."""
+    say = log.append if isinstance(log, list) else log or (lambda s: None)
+    t = time.perf_counter()
+    if not isinstance(log, list):
+        say(f"BC@{resolution}: encoding every mip")
+    ref = build_mip_chain(ts.data)
+    use = tuple(k for k, m in enumerate(ref) if min(m.shape[:2]) >= 4) or tuple(range(len(ref)))
+    groups = encode(ts, resolution, ref, wrap)
+    masks = None
+    if coverage is not None:  # every figure over the texels the scene reads
+        from bcfpipe.scan.coverage import mask_mips
+
+        masks = mask_mips(coverage, len(ref), wrap)
+    e_bc = channel_errors(ts, groups, ref, masks)
+    for g in groups:  # measured: from here on BC@R is its blocks and these errors. An 8192² set's
+        g.decoded = []  # decoded mips and reference chain hold 2.7 GiB each, which training needs
+    names = [g.group.name for g in groups]
+    bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
+                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
+    say(f"BC@{resolution}: {bc.size_bytes / 2**20:.2f} MiB, {bc.psnr:.2f} dB over all mips "
+        f"({time.perf_counter() - t:.1f} s)")
+    repacked, packed = {}, []
+    if with_repacks and resolution <= MAX_REPACK_SIDE:
+        repacked, packed = _repacks(ts, groups, e_bc, bc, ref, masks, resolution, wrap, say)
+    return ClassicFit(groups, e_bc, bc, use, repacked, packed, time.perf_counter() - t)
+
+
+def _in_workers(n: int, fn, *args):
+    """``fn(*args)`` with this thread's encodes on ``n`` cores."""
+    with workers(n):
+        return fn(*args)
 
 
 def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
@@ -107,41 +152,48 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
 
     start = time.perf_counter()
     out = Path(out_dir)
-    log(f"BC@{resolution}: encoding every mip")
-    ref = build_mip_chain(ts.data)
-    use = tuple(k for k, m in enumerate(ref) if min(m.shape[:2]) >= 4) or tuple(range(len(ref)))
-    groups = encode(ts, resolution, ref, wrap)
-    masks = None
-    if coverage is not None:  # every figure over the texels the scene reads
-        from bcfpipe.scan.coverage import mask_mips
-
-        masks = mask_mips(coverage, len(ref), wrap)
-    e_bc = channel_errors(ts, groups, ref, masks)
-    for g in groups:  # measured: from here on BC@R is its blocks and these errors. An 8192² set's
-        g.decoded = []  # decoded mips and reference chain hold 2.7 GiB each, which training needs
-    names = [g.group.name for g in groups]
-    bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
-                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
-    log(f"BC@{resolution}: {bc.size_bytes / 2**20:.2f} MiB, {bc.psnr:.2f} dB over all mips")
-    repacked, packed = {}, []
-    if options.layout != Layout.NEURAL and resolution <= MAX_REPACK_SIDE:
-        repacked, packed = _repacks(ts, groups, e_bc, bc, ref, masks, resolution, wrap, log)
-    del ref
-
     asked, cfg = make_config(ts, options, wrap)
-    forced = named_groups(groups, options.classic)
+    pred = predict_for(ts, options, cfg, asked, resolution, match_bc)
+    forced = named_groups(classic_groups(ts), options.classic)
+    overlap = (options.layout != Layout.NEURAL and max(ts.width, ts.height) <= MAX_REPACK_SIDE
+               and encode_workers() > 1)
+    def classic_fit(say):
+        return _measure_classic(ts, resolution, wrap, coverage, options.layout != Layout.NEURAL, say)
+
     if options.layout == Layout.NEURAL:
-        return _fixed(ts, out, options, wrap, groups, e_bc, bc, forced, asked, use, log, progress, coverage, start)
-    packed = [c for c in packed if set(forced) <= {g for g in c.classic}]
-    profiles = candidate_profiles(asked, cfg.device)
+        m = classic_fit(log)
+        return _fixed(ts, out, options, wrap, m.groups, m.e_bc, m.bc, forced, asked, m.use, log, progress, coverage,
+                      start, m.seconds)
+    profiles = list(pred.profiles)
     own = {p: (p if p in PROFILES else options.profile) for p in profiles}  # auto-N trains as "auto"
     dims = (cfg.model.n_inputs, cfg.model.hidden)
     size_of = {p: neural_bytes(PROFILES[p] if p in PROFILES else cfg.model.resolutions, *dims, ts.num_channels)
                for p in profiles}
-    p0 = next((p for p in profiles if size_of[p] <= bc.size_bytes), profiles[-1])
-    log(f"probe: all {ts.num_channels} channels at {p0}")
-    probe, _ = fit_material(ts, out / "probe", make_config(ts, replace(options, profile=own[p0]), wrap)[1], p0,
-                            progress=progress, coverage=coverage, image_metrics=False)
+    p0 = pred.probe  # the largest profile within BC@R's bytes, known from block counts before encoding
+
+    def train_probe() -> MaterialResult:
+        log(f"probe: all {ts.num_channels} channels at {p0}")
+        return fit_material(ts, out / "probe", make_config(ts, replace(options, profile=own[p0]), wrap)[1], p0,
+                            progress=progress, coverage=coverage, image_metrics=False)[0]
+
+    if overlap:  # BC@R and its repacks encode on the cores the probe's training leaves (its --threads)
+        from concurrent.futures import ThreadPoolExecutor
+
+        lines: list[str] = []
+        with ThreadPoolExecutor(1) as pool:
+            log(f"BC@{resolution}: encoding every mip and its repacks beside the probe")
+            with_workers = max(1, encode_workers() - max(1, options.threads))
+            fut = pool.submit(lambda: _in_workers(with_workers, classic_fit, lines))
+            probe = train_probe()
+            m = fut.result()
+        for line in lines:
+            log(line)
+    else:
+        m = classic_fit(log)
+        probe = train_probe()
+    groups, e_bc, bc, use, repacked, packed = m.groups, m.e_bc, m.bc, m.use, m.repacked, m.packed
+    names = [g.group.name for g in groups]
+    packed = [c for c in packed if set(forced) <= {g for g in c.classic}]
     train_s = probe.train_seconds
     e0 = probe.mse_per_channel
     size_of[p0] = probe.size_bytes
@@ -195,7 +247,8 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         models[m.label] = (res, keep)
     decision = C.choose(final_pool, bc, match_bc)
     neural, channels = models.get(decision.chosen.label, (None, ()))
-    return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start, repacked)
+    return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start, repacked,
+                     m.seconds)
 
 
 def _repacks(ts, groups, e_bc, bc, ref, masks, resolution, wrap, log):
@@ -294,12 +347,14 @@ def _train_subset(ts, out, options, wrap, groups, e_bc, classic, profile, name, 
                                          tuple(float(v) for v in e.mean(1)), "measured", use)
 
 
-def _fixed(ts, out, options, wrap, groups, e_bc, bc, forced, asked, use, log, progress, coverage, start) -> LayoutFit:
+def _fixed(ts, out, options, wrap, groups, e_bc, bc, forced, asked, use, log, progress, coverage, start,
+           encode_s: float) -> LayoutFit:
     """``--classic`` with ``--layout neural``: the named groups classic, the rest at the profile asked."""
     if len(forced) == len(groups):
         decision = C.Decision(bc, (bc,), bc, f"--classic {','.join(options.classic)} names every group: shipping BC@R",
                               "quality")
-        return LayoutFit(decision, decision, groups, None, (), None, 0.0, time.perf_counter() - start)
+        return LayoutFit(decision, decision, groups, None, (), None, 0.0, time.perf_counter() - start,
+                         encode_seconds=encode_s)
     log(f"training the channels outside {', '.join(forced)} at {asked}")
     res, keep, m = _train_subset(ts, out, options, wrap, groups, e_bc, forced, options.profile, asked, use, progress,
                                  coverage)
@@ -307,4 +362,5 @@ def _fixed(ts, out, options, wrap, groups, e_bc, bc, forced, asked, use, log, pr
     kept = f"{', '.join(forced)} kept as BC textures" if forced else "no channel group of this set named"
     decision = C.Decision(bc, (bc, m), m, f"--classic {','.join(options.classic)}: {kept}, the rest neural at {asked} "
                           f"(worst mip {worst:+.1f} dB against BC@R)", "quality")
-    return LayoutFit(decision, decision, groups, res, keep, None, res.train_seconds, time.perf_counter() - start)
+    return LayoutFit(decision, decision, groups, res, keep, None, res.train_seconds, time.perf_counter() - start,
+                     encode_seconds=encode_s)

@@ -90,6 +90,8 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cl
     (``tag`` names it and its settings) are read back instead of encoded again."""
     import quicktex
 
+    from bcfpipe.texset.parallel import quicktex_level
+
     cache, key, levels = _cached_levels(f"{tag}|quicktex {quicktex.__version__}|{block_bytes}", mips)
     encoded = []
     decoded, size = [], 0
@@ -98,8 +100,7 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cl
         px = _pad4(_to_u8_rgba(np.asarray(m)))
         ph, pw = px.shape[:2]
         if levels is None:
-            enc = encoder.encode(quicktex.RawTexture.frombytes(px.tobytes(), pw, ph))
-            b = np.frombuffer(enc.tobytes(), np.uint8).reshape(-1, block_bytes).copy()
+            b = quicktex_level(tag, px, block_bytes)  # in bands over the job's cores: the same bytes
             encoded.append(b)
         else:
             b = levels[k]
@@ -129,16 +130,14 @@ def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL,
 # sample scene's sets it is within 0.03 dB of alpha_slow (every mode, more refinement) at a third of
 # the time (benchmarks/bound_classic_bc7.py).
 BC7_SETTINGS = dict(modes=(True, True, True, True), refine=2, skip_mode2=True, fast_skip=(12, 8, 8), mode45_channel0=0)
-BC7_BAND = 256  # rows per encoder call: blocks are independent, so bands in threads give the same bytes
 
 
 def _ispc_bc7_levels(mips_rgba: Sequence[np.ndarray]) -> list[np.ndarray]:
     """(H, W, 4) [0, 1] mips -> each level's BC7 blocks, (n, 16) uint8, row-major, by ISPC, in
-    bands over torch's thread count (the encoder releases the GIL)."""
-    from concurrent.futures import ThreadPoolExecutor
-
+    bands over the job's encode workers (the encoder releases the GIL: bcfpipe.texset.parallel)."""
     import ispc_texcomp as ispc
-    import torch
+
+    from bcfpipe.texset.parallel import threaded_bands
 
     s = BC7_SETTINGS
     settings = ispc.BC7EncSettings(list(s["modes"]), [s["refine"]] * 8, s["skip_mode2"], *s["fast_skip"],
@@ -148,13 +147,7 @@ def _ispc_bc7_levels(mips_rgba: Sequence[np.ndarray]) -> list[np.ndarray]:
         return ispc.compress_blocks_bc7(ispc.RGBASurface(np.ascontiguousarray(px).tobytes(), px.shape[1],
                                                          px.shape[0]), settings)
 
-    out = []
-    with ThreadPoolExecutor(max(1, torch.get_num_threads())) as pool:
-        for m in mips_rgba:
-            px = _pad4(_to_u8_rgba(np.asarray(m)))
-            raw = b"".join(pool.map(band, [px[y:y + BC7_BAND] for y in range(0, px.shape[0], BC7_BAND)]))
-            out.append(np.frombuffer(raw, np.uint8).reshape(-1, 16).copy())
-    return out
+    return [threaded_bands(band, _pad4(_to_u8_rgba(np.asarray(m))), 16) for m in mips_rgba]
 
 
 def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
@@ -198,11 +191,10 @@ def _to_half_rgba(img: np.ndarray) -> np.ndarray:
 
 def _ispc_bc6h_levels(mips: Sequence[np.ndarray]) -> list[np.ndarray]:
     """(H, W, c<=3) mips of linear values -> each level's BC6H_UF16 blocks, (n, 16) uint8, row-major,
-    by ISPC, in bands over torch's thread count (the encoder releases the GIL)."""
-    from concurrent.futures import ThreadPoolExecutor
-
+    by ISPC, in bands over the job's encode workers (the encoder releases the GIL)."""
     import ispc_texcomp as ispc
-    import torch
+
+    from bcfpipe.texset.parallel import threaded_bands
 
     settings = ispc.BC6HEncSettings.from_profile(BC6H_PROFILE)
 
@@ -211,13 +203,7 @@ def _ispc_bc6h_levels(mips: Sequence[np.ndarray]) -> list[np.ndarray]:
         return ispc.compress_blocks_bc6h(ispc.RGBASurface(px.tobytes(), px.shape[1], px.shape[0], px.shape[1] * 8),
                                          settings)
 
-    out = []
-    with ThreadPoolExecutor(max(1, torch.get_num_threads())) as pool:
-        for m in mips:
-            px = _to_half_rgba(np.asarray(m))
-            raw = b"".join(pool.map(band, [px[y:y + BC7_BAND] for y in range(0, px.shape[0], BC7_BAND)]))
-            out.append(np.frombuffer(raw, np.uint8).reshape(-1, 16).copy())
-    return out
+    return [threaded_bands(band, _to_half_rgba(np.asarray(m)), 16) for m in mips]
 
 
 def bc6h_mips(mips_rgb: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:

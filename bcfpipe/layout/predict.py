@@ -1,0 +1,229 @@
+"""What `--layout auto` will weigh for a texture set, known before anything is encoded or trained
+(issue 50): the resolution R, the profiles, the probe's, BC@R's bytes and its repacks' (exact, from
+block counts), and the sizes the build can ship. `fit_layout` takes its probe profile and BC@R's
+bytes from here, and `scan` and `plan` print the same figures, so the two cannot drift.
+
+What ships is decided by training, so a size is a range: under the default objective every
+candidate that may ship is at most BC@R's bytes (BC@R itself always qualifies) and at least the
+smallest candidate's files (a repack's bytes, or the feature textures of the smallest profile or
+mip split, which a model's files exceed). With ``--layout neural`` and no ``--classic`` the size
+is exact: the feature textures and the weight record (`neural_size`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+from bcfpipe.config import PROFILES
+from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
+from bcfpipe.formats.vocabulary import Layout
+
+
+def candidate_profiles(asked: str, device: str) -> list[str]:
+    """Paper profiles no larger than ``asked``, largest first; a small source's own profile
+    (``auto-N``) alone."""
+    from bcfpipe.train.rate import CPU_PROFILES, GPU_PROFILES
+
+    if asked not in PROFILES:
+        return [asked]
+    pool = GPU_PROFILES if device.startswith("cuda") else CPU_PROFILES
+    top = PROFILES[asked][0]
+    return sorted((p for p in pool if PROFILES[p][0] <= top), key=lambda p: -PROFILES[p][0]) or [asked]
+
+
+def feature_bytes(resolutions: Sequence[int]) -> int:
+    """Feature texture blocks (16 bytes per 4×4 block, every mip down to 4×4), without headers."""
+    from bcfpipe.train.rate import _feature_bytes
+
+    return _feature_bytes(resolutions)
+
+
+def neural_bytes(resolutions: Sequence[int], n_in: int, hidden: int, n_out: int) -> int:
+    """Feature textures (every mip down to 4×4) and the fp16 decoder record, about as exported: the
+    figure the layout rule sizes a profile by."""
+    return feature_bytes(resolutions) + 2 * (n_in * hidden + hidden + hidden * n_out + 3 * n_out) + 64
+
+
+def neural_size(resolutions: Sequence[int], n_out: int, hidden: int, n_in: int) -> int:
+    """A neural material's bytes as the manifest counts them (its DDS files with headers and its
+    weight record): `bcfpipe.scan.requirements.estimated_bytes`."""
+    from bcfpipe.scan.requirements import estimated_bytes
+
+    return estimated_bytes(resolutions, n_out, hidden, n_in)
+
+
+def bc_levels(width: int, height: int, resolution: int) -> list[tuple[int, int]]:
+    """(width, height) of BC@R's levels: the set's box mip whose larger side is R (the set itself
+    when it is no larger), then every mip down to 1×1 (`classic.encode`)."""
+    side = max(width, height)
+    d = 0
+    while (side >> d) > resolution and (side >> d) > 1:
+        d += 1
+    w, h = max(1, width >> d), max(1, height >> d)
+    out = [(w, h)]
+    while (w, h) != (1, 1):
+        w, h = max(1, w // 2), max(1, h // 2)
+        out.append((w, h))
+    return out
+
+
+def texture_bytes(fmt: ClassicFormat | str, levels: Sequence[tuple[int, int]]) -> int:
+    """One classic DDS file's bytes: header and every level's 4×4 blocks."""
+    from bcfpipe.formats.dds import HEADER_BYTES
+
+    bb = BLOCK_BYTES[ClassicFormat(fmt)]
+    return HEADER_BYTES + sum(-(-w // 4) * -(-h // 4) * bb for w, h in levels)
+
+
+@dataclass(frozen=True)
+class LayoutPrediction:
+    """What a material's build will weigh and the bytes it can ship."""
+
+    layout: str  # auto | neural
+    resolution: int  # R: BC@R's level 0 side
+    profile: str  # the profile asked, resolved (what --layout neural trains)
+    profiles: tuple[str, ...]  # the profiles auto weighs, largest first
+    probe: str | None  # auto's probe profile p0: the largest whose bytes fit within BC@R's; None: no probe
+    bc_bytes: int  # BC@R, exact
+    repack_bytes: tuple[int, ...]  # its BC7 repacks, exact (weighed up to R = 4096)
+    min_bytes: int
+    max_bytes: int
+
+    @property
+    def exact(self) -> bool:
+        return self.min_bytes == self.max_bytes
+
+    def to_json(self) -> dict:
+        return {"layout": self.layout, "resolution": self.resolution, "profile": self.profile,
+                "profiles": list(self.profiles), "probe": self.probe, "bc_bytes": self.bc_bytes,
+                "repack_bytes": list(self.repack_bytes), "min_bytes": self.min_bytes, "max_bytes": self.max_bytes,
+                "exact": self.exact}
+
+    def size_text(self) -> str:
+        """``~X MiB`` when exact, else ``X–Y MiB``."""
+        lo, hi = self.min_bytes / 2**20, self.max_bytes / 2**20
+        return f"{hi:.2f} MiB" if self.exact else f"{lo:.2f}–{hi:.2f} MiB"
+
+
+def probe_profile(profiles: Sequence[str], sizes: dict[str, int], bc_bytes: int) -> str:
+    """p0: the largest profile whose bytes fit within BC@R's, else the smallest."""
+    return next((p for p in profiles if sizes[p] <= bc_bytes), profiles[-1])
+
+
+def predict(groups, width: int, height: int, n_channels: int, n_out: int, asked: str, asked_resolutions:
+            Sequence[int], resolution: int, device: str, dims: tuple[int, int], layout: str = Layout.AUTO,
+            match_bc: bool = False, classic: Sequence[str] = ()) -> LayoutPrediction:
+    """The prediction for a set of ``width``×``height`` with ``n_channels`` channels (``n_out``
+    decoder outputs) whose classic groups are ``groups`` (`classic.Group`), at BC resolution
+    ``resolution``, profile ``asked`` (resolved; its feature ``asked_resolutions``), on ``device``,
+    ``dims`` = (MLP inputs, hidden). ``classic``: the group names ``--classic`` keeps."""
+    from bcfpipe.formats.dds import HEADER_BYTES
+    from bcfpipe.layout.classic import MAX_REPACK_SIDE, repacks, split_levels
+
+    levels = bc_levels(width, height, resolution)
+    by_group = {g.name: texture_bytes(g.format, levels) for g in groups}
+    bc = sum(by_group.values())
+    n_in, hidden = dims
+    profiles = tuple(candidate_profiles(asked, device))
+    res_of = {p: (PROFILES[p] if p in PROFILES else tuple(asked_resolutions)) for p in profiles}
+    exact_neural = neural_size(asked_resolutions, n_out, hidden, n_in)
+    forced = set(classic)
+    forced_bytes = sum(b for name, b in by_group.items() if name in forced)
+    if layout == Layout.NEURAL:
+        if not forced:
+            return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (), exact_neural, exact_neural)
+        if forced >= set(by_group):
+            return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (), bc, bc)
+        return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (),
+                                forced_bytes + feature_bytes(asked_resolutions), forced_bytes + exact_neural)
+    sizes = {p: neural_bytes(res_of[p], n_in, hidden, n_channels) for p in profiles}
+    p0 = probe_profile(profiles, sizes, bc)
+    packs = []
+    if resolution <= MAX_REPACK_SIDE:
+        for rp in repacks(groups):
+            if forced & set(rp.replaces):
+                continue
+            packs.append(sum(b for name, b in by_group.items() if name not in rp.replaces)
+                         + sum(texture_bytes(g.format, levels) for g in rp.groups))
+    side = max(width, height)
+    split_floor = [texture_bytes(g.format, levels[:split_levels(1, resolution, side)]) for g in groups]
+    lows = [bc, *packs, forced_bytes + min(feature_bytes(res_of[p]) for p in profiles)]
+    if not forced:
+        lows.append(sum(split_floor) + feature_bytes((8, 8, 8, 4)) + 4 * HEADER_BYTES)
+    low = min(lows)
+    if match_bc:  # any size: a mixed layout may hold every group but one and the largest model
+        high = max(bc, *packs, bc + max(neural_size(res_of[p], n_out, hidden, n_in) for p in profiles))
+    else:
+        high = bc
+    return LayoutPrediction(str(layout), resolution, asked, profiles, p0, bc, tuple(packs), low, high)
+
+
+def spec_texture_set(specs: Sequence[tuple[str, str, str]], width: int, height: int,
+                     hdr_files: Sequence[str] = ()) -> "TextureSet":
+    """A texture set of ``specs`` ((semantic, file, channels)) with no texels (a broadcast zero):
+    enough for `classic.groups`. A colour read from one of ``hdr_files`` counts as HDR (BC6H)."""
+    import numpy as np
+
+    from bcfpipe.texset.texture_set import Channel, TextureSet, semantic_info
+
+    chans = []
+    for sem, path, letters in specs:
+        info = semantic_info(sem)
+        for i, letter in enumerate(letters):
+            comp = "rgb"[i] if info.kind == "color" else "xy"[i] if info.kind == "normal" else letter
+            hdr = info.kind == "color" and path in hdr_files
+            chans.append(Channel(info.name, comp, info.kind, path, i, log_gain=1.0 if hdr else 0.0))
+    data = np.broadcast_to(np.zeros((1, 1, len(chans)), np.float32), (height, width, len(chans)))
+    return TextureSet(data, tuple(chans), width, height)
+
+
+def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[str], width: int, height: int,
+                  options) -> LayoutPrediction | None:
+    """The prediction for a job of ``specs`` at ``width``×``height`` with ``options`` (a job's
+    manifest.Options or TrainingOptions): None under ``--target-psnr`` (rate control sizes it). A
+    colour from one of ``float_files`` may be HDR (BC6H, twice BC1's bytes) or not, which only its
+    texels say: the prediction then spans both."""
+    from bcfpipe.config import LAYER_CHANNELS_OF, N_LAYERS, layout_of, resolve_profile
+    from bcfpipe.formats.vocabulary import FeatureFormat
+    from bcfpipe.layout.classic import groups as classic_groups
+    from bcfpipe.layout.material import bc_resolution, uses_layout
+
+    if options.target_psnr is not None or not width:
+        return None
+    side = max(width, height)
+    asked, res = resolve_profile(options.profile, side)
+    dims = (N_LAYERS * LAYER_CHANNELS_OF[FeatureFormat(options.features or FeatureFormat.BC7)], options.hidden)
+    layout = layout_of(options) if uses_layout(options, [s for s, _, _ in specs]) else Layout.NEURAL
+    n = sum(len(ch) for _, _, ch in specs)
+    device = options.device or "cpu"
+    hdr_colours = [p for s, p, _ in specs if p in float_files]
+    from bcfpipe.layout.fit import named_groups
+
+    out = []
+    for hdr in ((), tuple(hdr_colours)) if hdr_colours else ((),):
+        groups = classic_groups(spec_texture_set(specs, width, height, hdr))
+        out.append(predict(groups, width, height, n, n, asked, res, bc_resolution(side, options.profile), device,
+                           dims, layout, bool(options.match_bc), named_groups(groups, options.classic or ())))
+    return merge(out)
+
+
+def merge(preds: Sequence[LayoutPrediction]) -> LayoutPrediction:
+    """One prediction spanning ``preds`` (the same set, a colour HDR or not)."""
+    a = preds[0]
+    if len(preds) == 1:
+        return a
+    probes = list(dict.fromkeys(p.probe for p in preds if p.probe))
+    return LayoutPrediction(a.layout, a.resolution, a.profile, a.profiles, " or ".join(probes) or None,
+                            max(p.bc_bytes for p in preds), tuple(sorted({b for p in preds for b in p.repack_bytes})),
+                            min(p.min_bytes for p in preds), max(p.max_bytes for p in preds))
+
+
+def build_range(preds: Sequence[LayoutPrediction]) -> tuple[int, int]:
+    """The bytes a build of these jobs writes, as its manifest totals them: every job's range and
+    weights.bin's header, table and record alignment (bcfpipe.formats.weights.pack)."""
+    from bcfpipe.formats import weights as W
+
+    n = len(preds)
+    low = sum(p.min_bytes for p in preds) + W._align(W.HEADER.size)
+    high = sum(p.max_bytes for p in preds) + W._align(W.HEADER.size + W.ENTRY.size * n) + n * (W.ALIGN - 1)
+    return low, high

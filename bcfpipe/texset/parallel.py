@@ -1,0 +1,149 @@
+"""Block encoding over the cores a job may use (issue 50: the default layout's BC encodes).
+
+BC1/BC4/BC5/BC7 blocks are independent: a level cut into bands of whole block rows encodes to the
+same bytes as the level at once, band by band in row order. ISPC's encoder releases the GIL, so
+its bands run in threads; quicktex holds it, so its bands run in worker processes (spawned: the
+callers hold torch's threads, which a fork would copy half-started).
+
+How many: `encode_workers()`, set per job by the build (the cores its parallel jobs leave to each,
+at least its ``--threads``) and by `train` (``--threads``, or every core), through
+`set_encode_workers`.
+"""
+from __future__ import annotations
+
+import atexit
+import contextlib
+import multiprocessing as mp
+import os
+import threading
+from concurrent.futures import ProcessPoolExecutor
+from typing import Callable, Sequence
+
+import numpy as np
+
+BAND_ROWS = 256  # texel rows per band: a multiple of 4, 2 MiB of RGBA at 2048 wide
+MIN_PARALLEL_TEXELS = 512 * 512  # below this a level encodes inline: a band's pickling costs more
+
+_workers: int | None = None
+_local = threading.local()  # a thread's own count (an encode beside a training: `workers`)
+_pool: ProcessPoolExecutor | None = None
+_pool_size = 0
+
+
+def set_encode_workers(n: int | None) -> None:
+    """Cores this process's encodes may use (None: every core of the machine)."""
+    global _workers
+    _workers = None if n is None else max(1, int(n))
+
+
+def encode_workers() -> int:
+    """Cores this thread's encodes may use: the thread's own count (`workers`), else the process's
+    as set, else every core."""
+    own = getattr(_local, "n", None)
+    if own is not None:
+        return own
+    return _workers if _workers is not None else max(1, os.cpu_count() or 1)
+
+
+@contextlib.contextmanager
+def workers(n: int):
+    """Encodes of this thread use ``n`` cores meanwhile (the others train)."""
+    before = getattr(_local, "n", None)
+    _local.n = max(1, int(n))
+    try:
+        yield
+    finally:
+        _local.n = before
+
+
+def _off_main_thread() -> bool:
+    """A thread beside the main one: quicktex, which holds the GIL, must not run in it, or the
+    main thread's training stalls."""
+    return threading.current_thread() is not threading.main_thread()
+
+
+def job_encode_workers(threads: int, parallel_jobs: int) -> int:
+    """A job's encode workers: the machine's cores shared among the ``parallel_jobs`` that run at
+    once, and never fewer than its own ``threads``."""
+    return max(1, int(threads), (os.cpu_count() or 1) // max(1, int(parallel_jobs)))
+
+
+def bands(px: np.ndarray, rows: int = BAND_ROWS) -> list[np.ndarray]:
+    """``px`` (H, W, 4) cut into bands of ``rows`` texel rows (H a multiple of 4)."""
+    return [px[y:y + rows] for y in range(0, px.shape[0], rows)]
+
+
+def release_workers() -> None:
+    """End the encode worker processes (a build's job calls it when done: a pool worker exits
+    without running atexit)."""
+    global _pool, _pool_size
+    if _pool is not None:
+        _pool.shutdown(wait=True, cancel_futures=True)
+    _pool, _pool_size = None, 0
+
+
+def _process_pool(n: int) -> ProcessPoolExecutor:
+    """A spawn pool of ``n`` workers, kept for the process's later encodes."""
+    global _pool, _pool_size
+    if _pool is None or _pool_size != n:
+        release_workers()
+        _pool, _pool_size = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn")), n
+        atexit.register(release_workers)
+    return _pool
+
+
+def _quicktex_band(codec: str, raw: bytes, width: int, height: int) -> bytes:
+    """One band's quicktex blocks (runs in a worker process)."""
+    import quicktex
+
+    return make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(raw, width, height)).tobytes()
+
+
+def make_quicktex_encoder(codec: str):
+    """quicktex's encoder for ``codec``: 'bc1 level N', 'bc4 channel 0' or 'bc5 channels 0 1'."""
+    if codec.startswith("bc1 level "):
+        from quicktex.s3tc.bc1 import BC1Encoder
+
+        return BC1Encoder(int(codec.rsplit(" ", 1)[1]))
+    if codec == "bc4 channel 0":
+        from quicktex.s3tc.bc4 import BC4Encoder
+
+        return BC4Encoder(0)
+    if codec == "bc5 channels 0 1":
+        from quicktex.s3tc.bc5 import BC5Encoder
+
+        return BC5Encoder(0, 1)
+    raise ValueError(f"unknown quicktex codec {codec!r}")
+
+
+def quicktex_level(codec: str, px: np.ndarray, block_bytes: int) -> np.ndarray:
+    """A padded (H, W, 4) uint8 level's blocks, (n, block_bytes) uint8 in row-major order, by
+    quicktex's ``codec``: a large level in bands over `encode_workers()` processes, and every level
+    in them off the main thread."""
+    import quicktex
+
+    n = encode_workers()
+    h, w = px.shape[:2]
+    if _off_main_thread() or (n > 1 and h * w >= MIN_PARALLEL_TEXELS and h > BAND_ROWS):
+        pool = _process_pool(n)
+        futures = [pool.submit(_quicktex_band, codec, np.ascontiguousarray(b).tobytes(), w, b.shape[0])
+                   for b in bands(px)]
+        raw = b"".join(f.result() for f in futures)
+    else:
+        raw = make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(px.tobytes(), w, h)).tobytes()
+    return np.frombuffer(raw, np.uint8).reshape(-1, block_bytes).copy()
+
+
+def threaded_bands(encode_band: Callable[[np.ndarray], bytes], px: np.ndarray, block_bytes: int) -> np.ndarray:
+    """A padded level's blocks by ``encode_band`` (an encoder that releases the GIL), its bands
+    over `encode_workers()` threads."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    parts = bands(px)
+    n = min(encode_workers(), len(parts))
+    if n > 1:
+        with ThreadPoolExecutor(n) as pool:
+            raw = b"".join(pool.map(encode_band, parts))
+    else:
+        raw = b"".join(map(encode_band, parts))
+    return np.frombuffer(raw, np.uint8).reshape(-1, block_bytes).copy()

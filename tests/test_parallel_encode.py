@@ -1,0 +1,57 @@
+"""BC encodes in bands over processes (quicktex) and threads (ISPC) give the bytes of one encode
+(bcfpipe.texset.parallel, issue 50)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bcfpipe.texset import parallel
+
+
+@pytest.fixture
+def two_workers():
+    parallel.set_encode_workers(2)
+    yield
+    parallel.set_encode_workers(None)
+    parallel.release_workers()
+
+
+def _texels(h: int, w: int, seed: int = 0) -> np.ndarray:
+    """Smooth gradients with noise: blocks whose endpoints differ from band to band."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w] / max(h, w)
+    base = np.stack([x, y, (x + y) / 2, 1 - x], -1) * 200
+    return np.clip(base + rng.normal(0, 20, base.shape), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("codec,block", [("bc1 level 18", 8), ("bc4 channel 0", 8), ("bc5 channels 0 1", 16)])
+def test_quicktex_bands_in_processes_equal_one_encode(two_workers, codec, block):
+    import quicktex
+
+    px = _texels(768, 512)
+    assert px.shape[0] > parallel.BAND_ROWS and px.shape[0] * px.shape[1] >= parallel.MIN_PARALLEL_TEXELS
+    whole = parallel.make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(px.tobytes(), 512, 768))
+    banded = parallel.quicktex_level(codec, px, block)
+    assert banded.shape == (768 * 512 // 16, block)
+    assert banded.tobytes() == whole.tobytes()
+
+
+def test_bc7_threads_equal_one_thread():
+    from bcfpipe.texset.baselines import _ispc_bc7_levels
+
+    m = _texels(520, 300, 1).astype(np.float32) / 255.0
+    parallel.set_encode_workers(1)
+    try:
+        one = _ispc_bc7_levels([m])[0]
+        parallel.set_encode_workers(2)
+        two = _ispc_bc7_levels([m])[0]
+    finally:
+        parallel.set_encode_workers(None)
+    assert two.tobytes() == one.tobytes() and one.shape == (130 * 75, 16)
+
+
+def test_job_encode_workers_share_the_cores(monkeypatch):
+    monkeypatch.setattr(parallel.os, "cpu_count", lambda: 2)
+    assert parallel.job_encode_workers(1, 1) == 2  # one material: both cores encode
+    assert parallel.job_encode_workers(1, 2) == 1  # two side by side: one each
+    assert parallel.job_encode_workers(3, 2) == 3  # never fewer than --threads
