@@ -22,11 +22,29 @@ __all__ = ["plan_cmd"]
 
 def plan_json(bplan) -> dict:
     """The plan as JSON: every job with its content hash, materials, sources (with hashes) and
-    options; the packed coverage mask is replaced by its covered fraction (already given)."""
+    options, and ``prediction``: the resolution R, the profiles and probe the build will use, BC@R's
+    bytes and the bytes it can ship (`bcfpipe.layout.predict`); the packed coverage mask is replaced
+    by its covered fraction (already given). ``predicted_bytes``: the build's range, every job summed."""
     d = bplan.to_dict()
-    for j in d["jobs"]:
+    preds = [job_prediction(j) for j in bplan.jobs]
+    for j, p in zip(d["jobs"], preds):
         j.pop("coverage", None)
+        j["prediction"] = p.to_json() if p is not None else None
+    known = [p for p in preds if p is not None]
+    from bcfpipe.layout.predict import build_range
+
+    lo, hi = build_range(known) if known and len(known) == len(preds) else (None, None)
+    d["predicted_bytes"] = {"min": lo, "max": hi} if lo is not None else None
     return d
+
+
+def job_prediction(job):
+    """What the build will weigh for ``job`` and the bytes it can ship (None under --target-psnr)."""
+    from bcfpipe.formats.images import FLOAT_TYPES
+    from bcfpipe.layout.predict import predict_specs
+
+    w, h = job.size
+    return predict_specs(job.specs, [s.path for s in job.sources if s.format in FLOAT_TYPES], w, h, job.options)
 
 
 @click.command("plan", cls=Command)
@@ -73,17 +91,26 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
         from bcfpipe.layout.classic import MAX_REPACK_SIDE
         from bcfpipe.layout.material import bc_resolution, uses_layout
 
+        pred = job_prediction(j)
         if uses_layout(j.options, [sem for sem, _, _ in j.specs]):
             r = bc_resolution(max(w, h), j.options.profile)
             files = {f for sem, f, _ in j.specs if sem in (j.options.classic or ())}
             kept = list(dict.fromkeys(sem for sem, f, _ in j.specs if f in files))  # a packed file goes whole
             held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
+            bc = f" ({pred.bc_bytes / 2**20:.2f} MiB)" if pred else ""
             if layout_of(j.options) == "auto":
-                repack = " and its BC7 repacks (encoded, not trained)" if r <= MAX_REPACK_SIDE else ""
-                say(f"    layout auto: against BC@{r}{repack}{held}; a probe at the largest profile within its bytes, "
-                    f"at most one more training (a mixed layout or a mip split), decided when trained (docs/layout.md)")
+                repack = (" and its BC7 repacks (encoded, not trained)" if pred is None or pred.repack_bytes else
+                          "; no BC7 repack fits its bytes") if r <= MAX_REPACK_SIDE else ""
+                probe = f"a probe at {pred.probe}" if pred else "a probe"
+                say(f"    layout auto: against BC@{r}{bc}{repack}{held}; {probe} (the largest profile within its "
+                    f"bytes), at most one more training (a mixed layout or a mip split), decided when trained "
+                    f"(docs/layout.md)")
             else:
-                say(f"    layout: against BC@{r}{held}; the rest neural at {prof}")
+                say(f"    layout: against BC@{r}{bc}{held}; the rest neural at {prof}")
+        if pred is not None:
+            say(f"    ships {pred.size_text()}" + ("" if pred.exact else
+                                                     f" (at most BC@{pred.resolution}'s bytes: what training decides)"
+                                                     if not j.options.match_bc else " (--match-bc: any size)"))
         for m in j.materials:
             say(f"    {m}")
     skipped = Counter(m.reason for m in bplan.materials if m.decision == Decision.SKIP)
@@ -96,6 +123,14 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
     reasons = ", ".join(f"{n} {r}" for r, n in sorted(skipped.items(), key=lambda kv: (-kv[1], kv[0])))
     say(f"{len(bplan.jobs)} job(s) for {counts['model']} modelled material(s); {counts['constant']} constant, "
         f"{counts['skip']} skipped" + (f" ({reasons})" if reasons else ""))
+    preds = [job_prediction(j) for j in bplan.jobs]
+    if preds and all(p is not None for p in preds):
+        from bcfpipe.layout.predict import build_range
+
+        lo, hi = build_range(preds)
+        exact = all(p.exact for p in preds)
+        say(f"the build ships {lo / 2**20:.2f}–{hi / 2**20:.2f} MiB" + ("" if exact else
+                                                                        " (each layout decided when trained)"))
 
 
 def _profile(job) -> str:

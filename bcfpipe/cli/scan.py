@@ -74,8 +74,17 @@ def _need_line(req: dict | None) -> Text:
         if req.get("covered_fraction") is not None:
             parts.append(f"{100 * req['covered_fraction']:.0f}% of texels read")
         cap = f" capped: {req['texel_density_reached']:.0f} px/m" if req["capped"] else ""
-        size = f"~{req['estimated_bytes'] / 2**20:.2f} MiB" if req["estimated_bytes"] else "shared"
-        parts.append(f"{req['resolution']}²{cap}, profile {req['profile']}, {size}")
+        lay = req.get("layout")
+        if not req["estimated_bytes"]:
+            parts.append(f"{req['resolution']}²{cap}, profile {req['profile']}, shared")
+        elif lay:  # what the default layout weighs (bcfpipe.layout.predict): R, the probe, BC@R, the range
+            lo, hi = req["estimated_min_bytes"] / 2**20, req["estimated_bytes"] / 2**20
+            parts.append(f"{req['resolution']}²{cap}, layout auto against BC@{lay['resolution']} "
+                         f"({lay['bc_bytes'] / 2**20:.2f} MiB), probe {lay['probe']}, profiles up to "
+                         f"{req['profile']}, ships {lo:.2f}–{hi:.2f} MiB")
+        else:
+            parts.append(f"{req['resolution']}²{cap}, profile {req['profile']}, "
+                         f"{req['estimated_bytes'] / 2**20:.2f} MiB")
     text = Text(", ".join(parts), style="dim")
     for note in d.get("notes", [])[:2]:
         text.append(f"; {note}" if text.plain else note, style="yellow")
@@ -164,8 +173,9 @@ def _print_human(result: StageScan, grouping: Grouping, reqs: dict, console: Con
     for path, message in grouping.failed.items():
         say(f"[red]unreadable:[/red] {path}: {escape(message)}")
     tot = reqs["totals"]
-    say(f"a build writes ~{tot['estimated_bytes'] / 2**20:.2f} MiB ({tot['texture_sets']} texture set(s)); "
-        f"modelling everything (no folding, no density cap): ~{tot['everything_estimated_bytes'] / 2**20:.2f} MiB "
+    say(f"a build writes {tot['estimated_min_bytes'] / 2**20:.2f}–{tot['estimated_bytes'] / 2**20:.2f} MiB "
+        f"({tot['texture_sets']} texture set(s), each layout decided when trained); "
+        f"modelling everything (no folding, no density cap): up to {tot['everything_estimated_bytes'] / 2**20:.2f} MiB "
         f"({tot['everything_texture_sets']} texture set(s))")
     say(f"[bold]{_conclusion(result, grouping)}[/bold]")
 
@@ -196,7 +206,9 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
     cache: dict = {}
     grouping = group_materials(scene, variants, result.materials, cache, digest=False)
     everything = group_materials(scene, variants, result.materials, cache, digest=False, fold=False)
-    reqs = requirements(grouping, everything, texel_density=texel_density)
+    from bcfpipe.layout.predict import predict_specs
+
+    reqs = requirements(grouping, everything, texel_density=texel_density, predict=predict_specs)
     if as_json:
         d = result.to_dict()
         for m, md in zip(result.materials, d["materials"]):

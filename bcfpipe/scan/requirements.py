@@ -6,10 +6,11 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from bcfpipe.formats.vocabulary import Decision, FeatureFormat
+from bcfpipe.formats.vocabulary import Decision, FeatureFormat, Layout
 from bcfpipe.config import (DEFAULT_FEATURES, DEFAULT_HIDDEN, DEFAULT_PROFILE, LAYER_CHANNELS_OF, N_LAYERS, mip_count,
                             resolve_profile)
 from bcfpipe.formats import dds, weights
+from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
@@ -25,7 +26,7 @@ def estimated_bytes(resolutions, n_out: int, hidden: int, n_in: int) -> int:
     return features + weights.record_size(weights.record_halves(n_in, hidden, n_out))
 
 
-def _job(mm: MaterialModel, members, options: Options) -> dict:
+def _job(mm: MaterialModel, members, options: Options, predict=None) -> dict:
     """What `bcfpipe build` would do with this texture set, by the rules `plan` applies."""
     o = density_options(options, members)
     spec_sources = [mm.sources[p] for p in dict.fromkeys(path for _, path, _ in mm.specs)]
@@ -41,37 +42,49 @@ def _job(mm: MaterialModel, members, options: Options) -> dict:
         _, covered, _ = job_coverage(members, (w, h), mm.wrap)
         covered = 1.0 if covered is None and all(m.density and m.density.meshes and not m.density.notes
                                                  for m in members) else covered
+    pred = None
+    if side and n_out and predict is not None:  # what the default layout weighs, the bytes it can ship
+        floats = [p for p, s in mm.sources.items() if s.format in FLOAT_TYPES]
+        pred = predict(tuple(mm.specs), floats, w, h, o)
+    neural = estimated_bytes(res, n_out, o.hidden, N_LAYERS * LAYER_CHANNELS_OF[
+        FeatureFormat(o.features or FeatureFormat.BC6H)]) if res and n_out else 0
     return {"resolution": side, "profile": profile, "capped": o.resolution is not None,
             "texel_density_reached": reached, "covered_fraction": covered,
-            "estimated_bytes": estimated_bytes(res, n_out, o.hidden, N_LAYERS * LAYER_CHANNELS_OF[
-                FeatureFormat(o.features or FeatureFormat.BC6H)]) if res and n_out else 0}
+            "layout": pred.to_json() if pred else None,
+            "estimated_min_bytes": pred.min_bytes if pred else neural,
+            "estimated_bytes": pred.max_bytes if pred else neural}
 
 
 def requirements(grouping: Grouping, everything: Grouping, profile: str = DEFAULT_PROFILE,
-                 hidden: int = DEFAULT_HIDDEN, texel_density: float | None = None) -> dict:
+                 hidden: int = DEFAULT_HIDDEN, texel_density: float | None = None, predict=None) -> dict:
     """{"materials": {path: ...}, "totals": ...} for ``grouping`` (folded) against ``everything``
-    (the same scan grouped without folding)."""
+    (the same scan grouped without folding). ``predict``: `bcfpipe.layout.predict.predict_specs`
+    (passed in: scan comes before layout), which sizes each set as the default layout ships it;
+    without it a set is sized all neural."""
     options = Options(profile=profile, preset="standard", seed=0, device="cpu", hidden=hidden, signed=False,
-                      init="random", texel_density=texel_density, features=DEFAULT_FEATURES.value)
+                      init="random", texel_density=texel_density, features=DEFAULT_FEATURES.value,
+                      layout=Layout.AUTO.value)  # the build's default
     out: dict[str, dict] = {}
-    total = 0
+    total = low = 0
     for g in grouping.groups:
-        job = _job(g.model, g.models, options)
+        job = _job(g.model, g.models, options, predict)
         total += job["estimated_bytes"]
+        low += job["estimated_min_bytes"]
         for path, mm in zip(g.materials, g.models):
             out[path] = {"decision": Decision.MODEL, "texture_set": g.name, "outputs": len(mm.channels),
                          "folded": [f.to_dict() for f in mm.folded],
                          "density": mm.density.to_dict() if mm.density else None, **job,
-                         "estimated_bytes": job["estimated_bytes"] if path == g.materials[0] else 0}
+                         "estimated_bytes": job["estimated_bytes"] if path == g.materials[0] else 0,
+                         "estimated_min_bytes": job["estimated_min_bytes"] if path == g.materials[0] else 0}
     for path, mm in grouping.constant.items():
         out[path] = {"decision": Decision.CONSTANT, "texture_set": None, "outputs": 0,
                      "folded": [f.to_dict() for f in mm.folded],
                      "density": mm.density.to_dict() if mm.density else None, "resolution": 0, "profile": None,
                      "capped": False, "texel_density_reached": None, "covered_fraction": None,
-                     "estimated_bytes": 0}
+                     "layout": None, "estimated_min_bytes": 0, "estimated_bytes": 0}
     plain = replace(options, texel_density=None)
-    every = sum(_job(g.model, g.models, plain)["estimated_bytes"] for g in everything.groups)
+    every = sum(_job(g.model, g.models, plain, predict)["estimated_bytes"] for g in everything.groups)
     return {"materials": out, "totals": {
         "texture_sets": len(grouping.groups), "constant_materials": len(grouping.constant),
-        "estimated_bytes": total, "everything_texture_sets": len(everything.groups),
+        "estimated_bytes": total, "estimated_min_bytes": low, "everything_texture_sets": len(everything.groups),
         "everything_estimated_bytes": every}}
