@@ -161,9 +161,9 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         return _measure_classic(ts, resolution, wrap, coverage, options.layout != Layout.NEURAL, say)
 
     if options.layout == Layout.NEURAL:
-        m = classic_fit(log)
-        return _fixed(ts, out, options, wrap, m.groups, m.e_bc, m.bc, forced, asked, m.use, log, progress, coverage,
-                      start, m.seconds)
+        cf = classic_fit(log)
+        return _fixed(ts, out, options, wrap, cf.groups, cf.e_bc, cf.bc, forced, asked, cf.use, log, progress, coverage,
+                      start, cf.seconds)
     profiles = list(pred.profiles)
     own = {p: (p if p in PROFILES else options.profile) for p in profiles}  # auto-N trains as "auto"
     dims = (cfg.model.n_inputs, cfg.model.hidden)
@@ -185,13 +185,13 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
             with_workers = max(1, encode_workers() - max(1, options.threads))
             fut = pool.submit(lambda: _in_workers(with_workers, classic_fit, lines))
             probe = train_probe()
-            m = fut.result()
+            cf = fut.result()
         for line in lines:
             log(line)
     else:
-        m = classic_fit(log)
+        cf = classic_fit(log)
         probe = train_probe()
-    groups, e_bc, bc, use, repacked, packed = m.groups, m.e_bc, m.bc, m.use, m.repacked, m.packed
+    groups, e_bc, bc, use, repacked, packed = cf.groups, cf.e_bc, cf.bc, cf.use, cf.repacked, cf.packed
     names = [g.group.name for g in groups]
     packed = [c for c in packed if set(forced) <= {g for g in c.classic}]
     train_s = probe.train_seconds
@@ -248,7 +248,7 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     decision = C.choose(final_pool, bc, match_bc)
     neural, channels = models.get(decision.chosen.label, (None, ()))
     return LayoutFit(decision, first, groups, neural, channels, probe, train_s, time.perf_counter() - start, repacked,
-                     m.seconds)
+                     cf.seconds)
 
 
 def _repacks(ts, groups, e_bc, bc, ref, masks, resolution, wrap, log):
