@@ -262,3 +262,13 @@ def test_render_compare_of_the_default_build(built, tmp_path, rt):
     assert (spec.width, spec.height) == (3 * 320 + 2 * C.GAP, 180)
     psnr = float(r.output.split("PSNR ")[1].split(" dB")[0])
     assert 35.0 <= psnr < 80.0, r.output  # the DDS is drawn (not the sources again), and it is close
+
+
+def test_the_built_stages_validate(built, mixed):
+    """0 UsdValidation errors (schema and Sdr node registered) with the new UsdUVTexture nodes and
+    re-pointed inputs, in an all-classic and a mixed build."""
+    from test_build import validate
+
+    for out in (built, mixed[0]):
+        n, text = validate(out / mfst.read(out).root_layer)
+        assert n == 0, text
