@@ -272,3 +272,131 @@ def test_the_built_stages_validate(built, mixed):
     for out in (built, mixed[0]):
         n, text = validate(out / mfst.read(out).root_layer)
         assert n == 0, text
+
+
+STAGE = """#usda 1.0
+def Material "M"
+{
+    token outputs:surface.connect = </M/S.outputs:surface>
+    def Shader "S"
+    {
+        uniform token info:id = "UsdPreviewSurface"
+        color3f inputs:diffuseColor.connect = </M/Col.outputs:rgb>
+        float inputs:roughness.connect = </M/Orm.outputs:g>
+        float inputs:metallic.connect = </M/Orm.outputs:b>
+        token outputs:surface
+    }
+    def Shader "Col"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @col.png@
+        token inputs:sourceColorSpace = "sRGB"
+        float2 inputs:st.connect = </M/St.outputs:result>
+        token inputs:wrapS = "repeat"
+        token inputs:wrapT = "repeat"
+        float3 outputs:rgb
+    }
+    def Shader "Orm"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @orm.png@
+        token inputs:sourceColorSpace = "raw"
+        float2 inputs:st.connect = </M/St.outputs:result>
+        token inputs:wrapS = "clamp"
+        token inputs:wrapT = "clamp"
+        float outputs:g
+        float outputs:b
+    }
+    def Shader "St"
+    {
+        uniform token info:id = "UsdPrimvarReader_float2"
+        string inputs:varname = "st"
+        float2 outputs:result
+    }
+}
+"""
+
+
+def _classic_desc(where: dict[str, tuple[int, int]]) -> mf.MaterialFile:
+    """An all-classic material.json: output name -> (texture, texel channel), two BC7 textures."""
+    outs = []
+    for name, target, kind in (("albedo.r", "diffuseColor.r", "color"), ("albedo.g", "diffuseColor.g", "color"),
+                               ("albedo.b", "diffuseColor.b", "color"), ("roughness.g", "roughness", "scalar"),
+                               ("metallic.b", "metallic", "scalar")):
+        tex, ch = where[name]
+        outs.append(mf.Output(name, name.split(".")[0], name.split(".")[1], kind, target, (0.0, 1.0), 0, "uint8",
+                              False, source=mf.Source.CLASSIC.value, texture=tex, texel_channel=ch, texel_scale=1.0,
+                              texel_bias=0.0))
+    tex = tuple(mf.ClassicTexture(f"C{i}.dds", 98, "BC7_UNORM", 4, 4, 3, 0.0, 4) for i in range(2))
+    return mf.MaterialFile(layers=(), sampling=mf.Sampling("repeat"), reference=mf.Reference(4, 4, 3),
+                           outputs=tuple(outs), training=mf.Training((), "none", 0, "cpu"), classic=tex)
+
+
+def _wired(where: dict[str, tuple[int, int]], tmp_path: Path) -> tuple[str, Usd.Stage]:
+    """The overrides layer usd_classic writes for STAGE's material with ``where``'s layout: its text,
+    and the source composed under it."""
+    from pxr import Sdf
+
+    from bcfpipe.builder.plan import TargetMap
+    from bcfpipe.builder.usd_classic import author_classic, wire_material
+
+    (tmp_path / "src.usda").write_text(STAGE)
+    stage = Usd.Stage.Open(str(tmp_path / "src.usda"))
+    targets = [TargetMap(t, t.split(".")[0], i, 1.0, 0.0, "sRGB" if t.startswith("diffuse") else "raw", None, None)
+               for i, t in enumerate(("diffuseColor.r", "diffuseColor.g", "diffuseColor.b", "roughness", "metallic"))]
+    cm = wire_material(stage, "/M", "/M/S", targets, _classic_desc(where), "./materials/M")
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    author_classic(layer, stage, [cm])
+    (tmp_path / "over.usda").write_text(layer.ExportToString())
+    root = Sdf.Layer.CreateAnonymous(".usda")
+    root.subLayerPaths = [str(tmp_path / "over.usda"), str(tmp_path / "src.usda")]
+    return layer.ExportToString(), Usd.Stage.Open(root)
+
+
+def test_a_node_whose_readers_move_to_two_dds_files_is_left_and_two_are_defined(tmp_path):
+    """Orm fed roughness and metallic; they now live in C0.a and C1.g: Orm stays as it is (nothing
+    reads it), OrmTex-like nodes Orm_C0 and Orm_C1 are defined with its st and wrap; Col moves whole."""
+    text, stage = _wired({"albedo.r": (0, 0), "albedo.g": (0, 1), "albedo.b": (0, 2), "roughness.g": (0, 3),
+                          "metallic.b": (1, 1)}, tmp_path)
+    got = {n: (str(node.GetPath()), o, node.GetInput("file").Get().path, node.GetInput("sourceColorSpace").Get())
+           for n, node, o in _drawn_textures(stage, "/M")}
+    assert got == {"diffuseColor": ("/M/Col", "rgb", "./materials/M/C0.dds", "sRGB"),
+                   "roughness": ("/M/Orm_C0", "a", "./materials/M/C0.dds", "raw"),
+                   "metallic": ("/M/Orm_C1", "g", "./materials/M/C1.dds", "raw")}
+    for path in ("/M/Orm_C0", "/M/Orm_C1"):
+        node = UsdShade.Shader(stage.GetPrimAtPath(path))
+        assert node.GetInput("wrapS").Get() == "clamp" and node.GetInput("st").GetConnectedSource()[0].GetPath() == "/M/St"
+    assert stage.GetPrimAtPath("/M/Orm").GetAttribute("inputs:file").Get().path == "orm.png"
+    assert "USD: 3 UsdUVTexture → C0.dds, C1.dds" in text
+
+
+def test_an_input_no_one_output_can_give_keeps_its_source(tmp_path):
+    """A colour across two DDS files, and one not at r, g, b, keep their source texture; the note says why."""
+    text, stage = _wired({"albedo.r": (0, 0), "albedo.g": (0, 1), "albedo.b": (1, 2), "roughness.g": (1, 0),
+                          "metallic.b": (1, 1)}, tmp_path)
+    files = {n: node.GetInput("file").Get().path for n, node, _ in _drawn_textures(stage, "/M")}
+    assert files == {"diffuseColor": "col.png", "roughness": "./materials/M/C1.dds", "metallic": "./materials/M/C1.dds"}
+    assert "kept on sources: diffuseColor (its channels lie in 2 DDS files)" in text
+    text, stage = _wired({"albedo.r": (0, 1), "albedo.g": (0, 2), "albedo.b": (0, 3), "roughness.g": (1, 0),
+                          "metallic.b": (1, 1)}, tmp_path)
+    assert "diffuseColor (albedo.r is in slot g of C0, not r)" in text
+    # Orm's two readers both move to C1: the source node itself is pointed there
+    assert {n: str(node.GetPath()) for n, node, _ in _drawn_textures(stage, "/M")}["roughness"] == "/M/Orm"
+
+
+def test_a_mip_split_keeps_its_universal_context_and_says_so(tmp_path):
+    from types import SimpleNamespace
+
+    from pxr import Sdf
+
+    from bcfpipe.builder.usd_classic import SPLIT_WHY, author_classic, usd_notes, wire_material
+
+    (tmp_path / "src.usda").write_text(STAGE)
+    stage = Usd.Stage.Open(str(tmp_path / "src.usda"))
+    cm = wire_material(stage, "/M", "/M/S", [], SimpleNamespace(split=2, neural=True, outputs=()), "./m")
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    author_classic(layer, stage, [cm])
+    layer.Export(str(tmp_path / "over.usda"))
+    assert usd_notes(str(tmp_path / "over.usda")) == {
+        "/M": f"USD: neural (bcf context); universal context on its sources ({SPLIT_WHY})"}
+    assert layer.GetPrimAtPath("/M/S") is None and layer.GetPrimAtPath("/M/Col") is None

@@ -209,7 +209,7 @@ def _classic_wiring(bplan: BuildPlan, descs: Mapping[str, mf.MaterialFile]) -> t
     """Each built material with classic outputs and how its UsdUVTexture nodes read them (from the
     input stage with the build's variant selections), and that stage; ([], None) when none has."""
     todo = [mp_ for mp_ in bplan.materials if mp_.job in descs and mp_.fallback_surface
-            and any(o.source == mf.Source.CLASSIC for o in descs[mp_.job].outputs)]
+            and any(o.source in (mf.Source.CLASSIC, mf.Source.SPLIT) for o in descs[mp_.job].outputs)]
     if not todo:
         return [], None
     from bcfpipe.builder import usd_classic

@@ -44,6 +44,8 @@ _SLOT = {"r": 0, "g": 1, "b": 2, "x": 0, "y": 1, "z": 2}
 _VECTOR_COMPONENTS = {"normal": ("normal.x", "normal.y", "normal.z")}
 NOTE_KEY = "bcfpipeUsd"  # customData on a material's over: what the layer did to its universal network
 _EPS = 1e-9
+ALL = "*"  # a ClassicMaterial.kept entry for the whole universal network
+SPLIT_WHY = "mip split: its DDS hold only the levels below the split"
 
 
 @dataclass(frozen=True)
@@ -169,11 +171,13 @@ def wire_material(stage: Usd.Stage, material: str, surface: str, targets: Iterab
     material folder relative to the overrides layer). None without classic outputs."""
     from bcfpipe.scan.network import scan_input
 
+    if desc.split is not None:  # see the module's note
+        return ClassicMaterial(material, surface, (), ((ALL, SPLIT_WHY),), desc.neural)
     if not any(o.source == Source.CLASSIC for o in desc.outputs):
         return None
     shader = UsdShade.Shader(stage.GetPrimAtPath(surface))
     if not shader:
-        return ClassicMaterial(material, surface, (), (("*", f"no UsdPreviewSurface at {surface}"),), desc.neural)
+        return ClassicMaterial(material, surface, (), ((ALL, f"no UsdPreviewSurface at {surface}"),), desc.neural)
     by_target = {t.target: t for t in targets}
     wired, kept = [], []
     for name in dict.fromkeys(t.input for t in targets):
@@ -280,8 +284,11 @@ def _note(cm: ClassicMaterial, nodes: Sequence[_Node]) -> str:
     parts = ["neural (bcf context)"] if cm.neural else []
     if nodes:
         parts.append(f"{len(nodes)} UsdUVTexture → {', '.join(files)}")
-    if cm.kept:
-        parts.append("kept on sources: " + ", ".join(f"{n} ({why})" for n, why in cm.kept))
+    every = [why for n, why in cm.kept if n == ALL]
+    if every:
+        parts.append(f"universal context on its sources ({'; '.join(every)})")
+    if len(every) < len(cm.kept):
+        parts.append("kept on sources: " + ", ".join(f"{n} ({why})" for n, why in cm.kept if n != ALL))
     if not nodes and not cm.neural:
         parts.insert(0, UNTOUCHED.removeprefix("USD: "))
     return "USD: " + "; ".join(parts)
@@ -292,14 +299,12 @@ def author_classic(layer: Sdf.Layer, stage: Usd.Stage, materials: Iterable[Class
     and a note on the material (customData ``bcfpipeUsd``) that the build table reads back."""
     for cm in materials:
         nodes = _nodes(stage, cm)
-        surface = Sdf.CreatePrimInLayer(layer, Sdf.Path(cm.surface))
         for node in nodes:
             _author_node(layer, stage, node)
+            surface = Sdf.CreatePrimInLayer(layer, Sdf.Path(cm.surface))
             for w in node.inputs:
                 attr = Sdf.AttributeSpec(surface, f"inputs:{w.input}", Sdf.ValueTypeNames.Find(w.type_name))
                 attr.connectionPathList.explicitItems = [Sdf.Path(f"{node.path}.outputs:{w.output}")]
-        if not nodes:
-            layer.RemovePrimIfInert(surface)
         Sdf.CreatePrimInLayer(layer, Sdf.Path(cm.material)).customData[NOTE_KEY] = _note(cm, nodes)
 
 
