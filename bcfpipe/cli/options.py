@@ -71,7 +71,7 @@ TRAINING_OPTIONS = (
     click.option("--match-bc", "match_bc", is_flag=True,
                  help="With --layout auto: the smallest layout whose every mip reaches BC@R instead."),
     click.option("--classic", "classic", multiple=True, default=(), metavar="SEMANTICS",
-                 help="Keep these channel groups as the classic BC textures BC@R has (BC1, BC4, BC5, every mip), "
+                 help="Keep these channel groups as the classic BC textures BC@R has (BC1, BC4, BC5, BC6H for HDR colour, every mip), "
                       "by semantic, comma-separated or repeated, e.g. normal or opacity; a packed file's group (ARM) goes whole "
                       "when one of its semantics is named. The rest is neural, or chosen by --layout auto. "
                       "Materials without such a channel train as they would without it."),
