@@ -3,13 +3,15 @@ measured from the exported files (BC6H DDS + fp16 weights through onnxruntime, i
 via material.json's value_scale/value_bias).
 
     .venv/bin/python benchmarks/bench_hdr.py [--size 256] [--profile tiny] [--quality draft] [--wrap clamp] [--kernel auto]
+        [--layout neural]
 
 Prints, per mip: mean |log1p(decoded) - log1p(source)| over every texel and channel, the median
 relative error of texels whose source value lies in [1, 10], and the PSNR against the peak.
 The ramp: R rises linearly along x (0..3000), G exponentially along y (expm1(y ln 3001)), B
 exponentially along the diagonal, so every decade from 0.1 to 3,000 holds many texels. A ramp
 does not tile: --wrap clamp is its addressing (with repeat, the 3,000 -> 0 seam costs the texels
-beside it).
+beside it). --layout neural (the default here) measures the log-domain decoder of issue 33;
+--layout auto, what `train` ships by default (issue 50: BC@R's BC6H_UF16 for this ramp).
 """
 from __future__ import annotations
 
@@ -71,6 +73,8 @@ def main() -> None:
     ap.add_argument("--quality", default="draft")
     ap.add_argument("--wrap", default="clamp", choices=("clamp", "repeat"))
     ap.add_argument("--kernel", default="auto", help="bcfpipe train --kernel (issue 30)")
+    ap.add_argument("--layout", default="neural", choices=("neural", "auto"),
+                    help="bcfpipe train --layout: neural (the decoder, issue 33) or auto (train's default)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -78,7 +82,8 @@ def main() -> None:
         ramp = hdr_ramp(a.size)
         src = write_exr(tmp / "hdr.exr", ramp)
         p = subprocess.run([sys.executable, "-m", "bcfpipe", "train", f"emissiveColor={src}:rgb", "-o", str(tmp / "out"),
-                            "--profile", a.profile, "--quality", a.quality, "--wrap", a.wrap, "--kernel", a.kernel, "--json"],
+                            "--profile", a.profile, "--quality", a.quality, "--wrap", a.wrap, "--kernel", a.kernel,
+                            "--layout", a.layout, "--json"],
                            capture_output=True, text=True)
         if p.returncode:
             raise SystemExit(p.stderr)
@@ -88,10 +93,12 @@ def main() -> None:
         rows = measure(tmp / "out", stored)
         enc = [o.get("log_gain") for o in json.loads((tmp / "out" / "material.json").read_text())["outputs"]]
     if a.json:
-        print(json.dumps({"size": a.size, "profile": a.profile, "quality": a.quality, "wrap": a.wrap, "log_gain": enc,
+        print(json.dumps({"size": a.size, "profile": a.profile, "quality": a.quality, "wrap": a.wrap, "layout": a.layout,
+                          "log_gain": enc,
                           "mips": rows}))
         return
-    print(f"HDR ramp 0..{PEAK:g}, {a.size}^2, --profile {a.profile} --quality {a.quality} --wrap {a.wrap}; "
+    print(f"HDR ramp 0..{PEAK:g}, {a.size}^2, --profile {a.profile} --quality {a.quality} --wrap {a.wrap} "
+          f"--layout {a.layout}; "
           f"log gain per output: {enc}")
     print(f"{'mip':>3} {'mean |log1p err|':>17} {'median rel err [1,10]':>22} {'texels':>7} {'PSNR/peak':>10}")
     for r in rows:
