@@ -2,6 +2,8 @@
 (bcfpipe.texset.parallel, issue 50)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -55,3 +57,30 @@ def test_job_encode_workers_share_the_cores(monkeypatch):
     assert parallel.job_encode_workers(1, 1) == 2  # one material: both cores encode
     assert parallel.job_encode_workers(1, 2) == 1  # two side by side: one each
     assert parallel.job_encode_workers(3, 2) == 3  # never fewer than --threads
+
+
+@pytest.mark.parametrize("layout", [("--layout", "auto"), ("--layout", "neural", "--classic", "normal")])
+def test_layout_fit_says_how_long_its_encodes_took(tmp_path, layout):
+    """`train` with a layout fit on two cores (auto: BC@R encodes in a thread beside the probe's
+    training; neural with --classic: before its one training): the result says how long the encodes
+    took apart from training; auto's folder holds BC@R's bytes or fewer."""
+    import json
+
+    from click.testing import CliRunner
+
+    from bcfpipe.cli import main
+
+    t = Path(__file__).resolve().parents[1] / "samples" / "textures"
+    parallel.set_encode_workers(2)
+    try:
+        r = CliRunner().invoke(main, ["train", f"albedo={t / 'bricks_albedo.png'}:rgb",
+                                      f"normal={t / 'bricks_normal.png'}:xy", *layout, "--profile", "tiny",
+                                      "--quality", "smoke", "--threads", "1", "-o", str(tmp_path / "m"), "--json"])
+    finally:
+        parallel.set_encode_workers(None)
+        parallel.release_workers()
+    assert r.exit_code == 0, r.output
+    d = json.loads(r.stdout.strip().splitlines()[-1])
+    assert d["phase_seconds"]["encode"] > 0
+    if "auto" in layout:  # the default objective: never more than BC@R's bytes
+        assert d["size_bytes"] <= d["layout"]["bc"]["size_bytes"]
