@@ -31,10 +31,11 @@ def headline_psnr(m: mfst.Material) -> float | None:
 
 
 def encode_seconds(result: Mapping | None) -> float | None:
-    """A job's BC encode time (BC@R and its repacks, measured: a layout fit's ``encode`` phase), or
-    None for a job that encoded none (all neural)."""
+    """A job's BC encode time (BC@R and its repacks, measured: a layout fit's ``classic_encode``
+    phase; a training's ``encode`` phase is its T_0's first encode, part of training), or None for a
+    job that encoded none (all neural)."""
     phases = (result or {}).get("phase_seconds") or {}
-    return phases.get("encode")
+    return phases.get("classic_encode")
 
 
 def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResult], files: Sequence[str],

@@ -132,6 +132,16 @@ def _measure_classic(ts: TextureSet, resolution: int, wrap: str, coverage: np.nd
     return ClassicFit(groups, e_bc, bc, use, repacked, packed, time.perf_counter() - t)
 
 
+def capped(cfg, cap):
+    """``cfg`` with the schedule ``cap`` (--layout neural's at the profile asked) where its own takes
+    more steps: on a CPU a 2048² T_0 trains draft's 900 steps where a smaller fixed T_0 trains 2,500
+    (config.FIXED_T0_PRESETS), so a probe at 1k cost 1.5× the neural build's training. Each of the
+    layout's at most two trainings then costs no more steps than the neural one (docs/layout.md)."""
+    if cap is None or cfg.preset.total_steps <= cap.total_steps:
+        return cfg
+    return cfg.with_(preset=cap)
+
+
 def _in_workers(n: int, fn, *args):
     """``fn(*args)`` with this thread's encodes on ``n`` cores."""
     with workers(n):
@@ -171,10 +181,12 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
                for p in profiles}
     p0 = pred.probe  # the largest profile within BC@R's bytes, known from block counts before encoding
 
+    cap = cfg.preset  # no training here takes more steps than --layout neural's (at the profile asked)
+
     def train_probe() -> MaterialResult:
         log(f"probe: all {ts.num_channels} channels at {p0}")
-        return fit_material(ts, out / "probe", make_config(ts, replace(options, profile=own[p0]), wrap)[1], p0,
-                            progress=progress, coverage=coverage, image_metrics=False)[0]
+        return fit_material(ts, out / "probe", capped(make_config(ts, replace(options, profile=own[p0]), wrap)[1], cap),
+                            p0, progress=progress, coverage=coverage, image_metrics=False)[0]
 
     if overlap:  # BC@R and its repacks encode on the cores the probe's training leaves (its --threads)
         from concurrent.futures import ThreadPoolExecutor
@@ -182,8 +194,8 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         lines: list[str] = []
         with ThreadPoolExecutor(1) as pool:
             log(f"BC@{resolution}: encoding every mip and its repacks beside the probe")
-            with_workers = max(1, encode_workers() - max(1, options.threads))
-            fut = pool.submit(lambda: _in_workers(with_workers, classic_fit, lines))
+            # every core the job has: no core idles while the other of the two still runs
+            fut = pool.submit(lambda: _in_workers(encode_workers(), classic_fit, lines))
             probe = train_probe()
             cf = fut.result()
         for line in lines:
@@ -233,12 +245,12 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
             ch = alt
     if ch.split:
         log(f"training the features of a mip split for: {ch.label} (predicted {ch.psnr:.2f} dB over all mips)")
-        res, m = _train_split(ts, out, options, wrap, groups, e_bc, ch, resolution, progress, coverage)
+        res, m = _train_split(ts, out, options, wrap, groups, e_bc, ch, resolution, progress, coverage, cap)
         keep = tuple(range(ts.num_channels))
     elif ch.profile is not None and (ch.classic or ch.profile != p0):
         log(f"training the channels outside the classic groups at {ch.profile} for: {ch.label}")
         res, keep, m = _train_subset(ts, out, options, wrap, groups, e_bc, ch.classic, own[ch.profile], ch.profile,
-                                     use, progress, coverage)
+                                     use, progress, coverage, cap)
     else:
         res = None
     if res is not None:
@@ -318,11 +330,11 @@ def split_candidates(ts: TextureSet, groups: Sequence[EncodedGroup], e_bc: np.nd
     return out
 
 
-def _train_split(ts, out, options, wrap, groups, e_bc, cand: C.Candidate, resolution, progress, coverage):
+def _train_split(ts, out, options, wrap, groups, e_bc, cand: C.Candidate, resolution, progress, coverage, cap=None):
     """Train ``cand``'s features (all channels, s >= its split) and measure the split layout:
     (result, measured candidate). Below the split the layout decodes to BC@R exactly, from it on
     to the model (tests/test_split_layout.py)."""
-    cfg = make_config(ts, options, wrap)[1]
+    cfg = capped(make_config(ts, options, wrap)[1], cap)
     cfg = cfg.with_(model=replace(cfg.model, resolutions=cand.resolutions, split=cand.split))
     res, _ = fit_material(ts, out / "split", cfg, cand.profile, progress=progress, coverage=coverage,
                           image_metrics=False)
@@ -333,12 +345,12 @@ def _train_split(ts, out, options, wrap, groups, e_bc, cand: C.Candidate, resolu
                         mse_per_mip=tuple(float(v) for v in err.mean(1)), basis="measured")
 
 
-def _train_subset(ts, out, options, wrap, groups, e_bc, classic, profile, name, use, progress, coverage):
+def _train_subset(ts, out, options, wrap, groups, e_bc, classic, profile, name, use, progress, coverage, cap=None):
     """Train the channels outside the ``classic`` groups at ``profile`` (reported as ``name``):
     (result, channels, measured candidate)."""
     keep = [c for c in range(ts.num_channels) if not any(c in g.group.channels for g in groups if g.group.name in classic)]
     sub = subset(ts, keep)
-    res, _ = fit_material(sub, out / "neural", make_config(sub, replace(options, profile=profile), wrap)[1],
+    res, _ = fit_material(sub, out / "neural", capped(make_config(sub, replace(options, profile=profile), wrap)[1], cap),
                           name, progress=progress, coverage=coverage, image_metrics=False)
     e = e_bc.copy()
     e[:, keep] = res.mse_per_channel

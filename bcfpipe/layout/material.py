@@ -63,6 +63,6 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
     return MaterialResult(out, ch.profile or "classic", res,
                           options.preset if n else "none", n.device if n else "cpu", metrics, None, exported_size(out),
                           fit.train_seconds, {"layout": round(time.perf_counter() - start, 3),
-                                              "encode": round(fit.encode_seconds, 3),
+                                              "classic_encode": round(fit.encode_seconds, 3),
                                               "evaluate": round(time.perf_counter() - t0, 3)},
                           None, per_channel, fit.decision.to_json())
