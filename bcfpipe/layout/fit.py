@@ -18,9 +18,11 @@
    that holds the floor on its prediction goes before exploring a mixed one that does not.
    The final choice is made among measured layouts only: BC@R, the probe, and that one model.
 
-Cost: the probe plus at most one training, each at a profile no larger than the one asked for,
-so at most twice a `--layout neural` training. Splits are not weighed when ``--classic`` fixes
-groups.
+Cost: the probe plus at most one training, each at a profile no larger than the one asked for and
+with no more steps than `--layout neural` trains there (`capped`), so at most twice its training.
+BC@R's bytes, hence p0, follow from block counts (`bcfpipe.layout.predict`), so BC@R and its
+repacks encode in a thread beside the probe's training, over the job's cores
+(`bcfpipe.texset.parallel`). Splits are not weighed when ``--classic`` fixes groups.
 
 ``--classic`` names groups that stay classic: with ``auto`` every candidate keeps them; with
 ``neural`` the one layout they make is trained (the other channels at the profile asked), no probe.
