@@ -120,6 +120,8 @@ def _table(res) -> "object":
                                     f"{ch.get('worst_margin_db', min(ch['margin_per_mip_db'])):+.2f} dB, "
                                     f"{bc['size_bytes'] / 2**20:.2f} MiB")
     t.add_row("train time", f"{res.train_seconds:.1f} s")
+    if "classic_encode" in (res.phase_seconds or {}):  # a layout fit: BC@R and its repacks, apart from training
+        t.add_row("BC encode time", f"{res.phase_seconds['classic_encode']:.1f} s")
     return t
 
 
