@@ -27,6 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import SHARED, machine, teapot_specs  # noqa: E402
 
 BRICK = SHARED / "materialx_texture_sets" / "brick"
+WOOD = SHARED / "materialx_texture_sets" / "wood"
+BOTTLE = SHARED / "gltf_water_bottle"
 
 
 def specs(name: str):
@@ -40,7 +42,21 @@ def specs(name: str):
         return [TextureSpec.parse(f"generic={BRICK / 'brick_base_gray.jpg'}:r"),
                 TextureSpec.parse(f"normal={BRICK / 'brick_normal.jpg'}:xy"),
                 TextureSpec.parse(f"roughness={BRICK / 'brick_roughness.jpg'}:r")]
-    raise SystemExit(f"unknown set {name!r}: teapot or brick")
+    if name == "wood":  # held out: a colour and a lone scalar (BC1 + BC4 in BC@R)
+        if not WOOD.is_dir():
+            raise SystemExit(f"needs the shared scenes at {SHARED}")
+        return [TextureSpec.parse(f"albedo={WOOD / 'wood_color.jpg'}:rgb"),
+                TextureSpec.parse(f"roughness={WOOD / 'wood_roughness.jpg'}:r")]
+    if name == "bottle":  # glTF's WaterBottle, 11 channels: base colour, normal, ORM, emissive
+        if not BOTTLE.is_dir():
+            raise SystemExit(f"needs the shared scenes at {SHARED}")
+        orm = BOTTLE / "WaterBottle_occlusionRoughnessMetallic.png"
+        return [TextureSpec.parse(f"albedo={BOTTLE / 'WaterBottle_baseColor.png'}:rgb"),
+                TextureSpec.parse(f"normal={BOTTLE / 'WaterBottle_normal.png'}:xy"),
+                TextureSpec.parse(f"occlusion={orm}:r"), TextureSpec.parse(f"roughness={orm}:g"),
+                TextureSpec.parse(f"metallic={orm}:b"),
+                TextureSpec.parse(f"emissiveColor={BOTTLE / 'WaterBottle_emissive.png'}:rgb")]
+    raise SystemExit(f"unknown set {name!r}: teapot, brick, wood or bottle")
 
 
 def variant_config(ts, variant: str, profile: str, seed: int):

@@ -25,11 +25,27 @@ same components unquantized: what the format loses is the gap between the two. T
 one more BC6H texture on every component.
 
   python benchmarks/bound_t0.py [--sets teapot,brick]
+
+Issue 52, ``--widths``: what a wider T_0 can hold. T_0's components as the shipped ``--t0 pca``
+computes them (`bcfpipe.train.feature_init.pca_init`: axes from a 256² mip, each T_0 mip holding
+the reference at the lod it is read at, 0.1-99.9 % range onto [0.02, 0.98]), widened to k = 4, 8
+and 12 components in ⌈k/4⌉ BC7 textures (ISPC, `bcfpipe.texset.baselines.BC7_SETTINGS`, every
+mode, as the shipped T_0 is encoded), or 4 in BC7 plus components 5-7 in one BC1 texture (the
+8th held at its mean), at T_0 = R and 2R (R = half the set's side: 1024² for a 2048² set).
+Reconstructed by pca_init's linear decoder (the exact inverse; no training) with the decoder's
+output clamp. Mip 0 reads T_0 at R magnified bilinearly, as BC@R's is. Against, at the same mips:
+BC@R (BC1/BC4/BC5, `encode_texture_set_baseline`) and the BC7 quality set at R (`bc7_quality_set`:
+BC@R's packing with BC7 for every colour or packed-file texture). Bytes are GPU bytes with every
+mip; a T_0 row counts T_0 only (a 1k model adds 0.44 MiB of T_1..T_3).
+
+  python benchmarks/bound_t0.py --widths [--sets teapot,brick,wood,bottle] [--crop 256] [--workers 1]
 """
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -160,10 +176,176 @@ def rows_for(c: int) -> list[tuple[str, int, str, str]]:
     ]
 
 
+def bc7_quality_set(ts, res: int, ref: list[np.ndarray]) -> tuple[list[np.ndarray], int]:
+    """The BC7 quality set at ``res``: BC@R's textures (`pack_texture_set` 'bc') with every BC1
+    texture, a colour or a packed file, in BC7 (ISPC, every mode; alpha 1); BC5 normals, BC4 lone
+    scalars and BC6H HDR colour as BC@R has them. Returns (decoded reference mips 0 and 1, GPU bytes
+    of every mip)."""
+    from bcfpipe.texset.baselines import (_bilinear_up, _from_storage, _to_storage, bc4_mips, bc5_mips,
+                                          bc6h_mips, bc7_mips, hdr_value_map, pack_texture_set)
+
+    d = int(round(math.log2(max(ts.width, ts.height) / res)))
+    src = ref[d:]
+    normal = np.array([ch.kind == "normal" for ch in ts.channels])
+    low = [np.zeros_like(m) for m in src]
+    total = 0
+    for fmt, idx in pack_texture_set(ts, "bc"):
+        stored = [_to_storage(m[..., idx], normal[idx]) for m in src]
+        if fmt == "bc6h":
+            scale, bias = hdr_value_map(ts, idx)
+            out, size = bc6h_mips([m[..., idx] * scale + bias for m in src])
+            out = [(o - bias) / scale for o in out]
+        elif fmt == "bc5":
+            out, size = bc5_mips(stored)
+        elif fmt == "bc4":
+            out, size = bc4_mips(stored)
+        else:  # bc1 -> bc7: RGB (a single channel replicated, two with b = 0), alpha 1
+            n = len(idx)
+            rgb = [np.repeat(x, 3, -1) if n == 1 else np.concatenate([x, np.zeros_like(x[..., :1])], -1)
+                   if n == 2 else x for x in stored]
+            out, size = bc7_mips([np.concatenate([x, np.ones_like(x[..., :1])], -1) for x in rgb])
+            out = [o[..., :n] for o in out]
+        total += size
+        for k, o in enumerate(out):
+            low[k][..., idx] = _from_storage(o, normal[idx])
+    dec = [_bilinear_up(low[0], *ref[k].shape[:2]) for k in range(d)] + low
+    return dec[:2], total
+
+
+def t0_layers(ts, ref: list[np.ndarray], res: int, n_comp: int):
+    """T_0 of ⌈n_comp/4⌉ layers of principal components at ``res``, as the shipped ``--t0 pca``
+    computes its one layer (`pca_init`): (per layer, its (H, W, 4) [0, 1] mips; the MLP dict holding
+    the components' exact linear decoder). Unused channels of a last layer hold 0."""
+    import torch
+
+    from bcfpipe.config import ModelConfig
+    from bcfpipe.formats.vocabulary import FeatureFormat
+    from bcfpipe.model import neural as M
+    from bcfpipe.texset import encoding
+    from bcfpipe.train.feature_init import pca_init
+
+    c = ts.num_channels
+    n_layers = -(-n_comp // 4)
+    mc = ModelConfig(resolutions=(res,) * 4, features=FeatureFormat.BC7)
+    enc = encoding.encode_levels(ref, encoding.gains(ts.channels))
+    mips = [torch.from_numpy(np.ascontiguousarray(m.transpose(2, 0, 1))) for m in enc]
+    bias = math.log2(res / max(ts.width, ts.height))  # the shipped T_0's (M.lod_biases, layer 0)
+    free = [[torch.zeros(4, res >> k, res >> k) for k in range(n)] for n in mc.mip_counts]
+    mean = torch.from_numpy(enc[0].reshape(-1, c).mean(0))
+    mlp = M.init_mlp(mc.n_inputs, mc.hidden, c, torch.Generator().manual_seed(0), torch.device("cpu"), mean)
+    used = pca_init(mc, mips, (bias,) * 4, free, mlp, layers=tuple(range(n_layers)))
+    assert used == min(n_comp, c), (used, n_comp, c)
+    layers = [[(p.clamp(0.0, 255.0) / 255.0).permute(1, 2, 0).numpy().astype(np.float32) for p in free[i]]
+              for i in range(n_layers)]
+    return layers, {k: v.detach() for k, v in mlp.items()}
+
+
+def t0_decode(ts, mlp, feats: list[np.ndarray]) -> np.ndarray:
+    """Channels (H, W, c) of one T_0 level from its layers' (H, W, 4) values, through the linear
+    decoder and the decoder's output clamp, back in the set's value domain."""
+    import torch
+
+    from bcfpipe.model.decoder import mlp_raw, output_ranges
+    from bcfpipe.texset import encoding
+
+    h, w = feats[0].shape[:2]
+    x = np.zeros((h * w, mlp["w1"].shape[1]), np.float32)
+    for i, f in enumerate(feats):
+        x[:, 4 * i:4 * i + 4] = f.reshape(-1, 4)
+    with torch.no_grad():
+        y = (mlp_raw(mlp, torch.from_numpy(x)) * mlp["out_scale"] + mlp["out_bias"]).numpy()
+    lo, hi = output_ranges(tuple(ch.kind for ch in ts.channels))
+    y = np.clip(y, lo, hi).reshape(h, w, -1)
+    return encoding.decode_levels([y], encoding.gains(ts.channels))[0]
+
+
+def t0_rows(ts, ref: list[np.ndarray], res: int):
+    """(label, GPU bytes, decoded reference mips 0 and 1, the same unencoded) per T_0 width at ``res``."""
+    from bcfpipe.texset.baselines import _bilinear_up, bc1_mips, bc7_mips
+
+    c = ts.num_channels
+    d = int(round(math.log2(max(ts.width, ts.height) / res)))
+    ks = sorted({min(k, c) for k in (4, 8, 12)})
+    plans = [(f"{k} PCs", k, ("bc7",) * -(-k // 4)) for k in ks]
+    if c > 4:
+        plans.insert(1, (f"{min(7, c)} PCs", 8, ("bc7", "bc1")))
+    for label, k, fmts in plans:
+        layers, mlp = t0_layers(ts, ref, res, k)
+        size, dec = 0, []
+        for fmt, lv in zip(fmts, layers):
+            if fmt == "bc7":
+                out, n = bc7_mips(lv)
+            else:  # components 5-7 in BC1; the 8th (if any) held at its level mean
+                out, n = bc1_mips([m[..., :3] for m in lv])
+                out = [np.concatenate([o, np.full_like(o[..., :1], m[..., 3].mean())], -1) for o, m in zip(out, lv)]
+            size += n
+            dec.append(out)
+        stored = " + ".join(f"{fmts.count(f)}×{f.upper()}" for f in dict.fromkeys(fmts))
+
+        def ref01(levels: list[list[np.ndarray]]) -> list[np.ndarray]:
+            top = t0_decode(ts, mlp, [lv[0] for lv in levels])
+            if d == 0:
+                return [top, t0_decode(ts, mlp, [lv[1] for lv in levels])]
+            return [_bilinear_up(top, *ref[0].shape[:2]), top]
+
+        yield f"{label} at {res}², {stored}", size, ref01(dec), ref01(layers)
+
+
+def widths(args) -> None:
+    """Issue 52's oracle table (module docstring)."""
+    from bcfpipe.texset.baselines import encode_texture_set_baseline
+    from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
+    from bcfpipe.texset.texture_set import TextureSet, build_mip_chain, load_texture_set
+
+    print(f"machine: {machine()}")
+    print("| set | stored as | GPU MiB | mip 0 | mip 1 | unencoded mip 0 / 1 |")
+    print("|---|---|---:|---:|---:|---|")
+    for name in args.sets.split(","):
+        t0 = time.perf_counter()
+        ts = load_texture_set(specs(name))
+        if args.crop:
+            n = args.crop
+            ts = TextureSet(np.ascontiguousarray(ts.data[:n, :n]), ts.channels, n, n)
+        ref = build_mip_chain(ts.data)
+        r = max(ts.width, ts.height) // 2
+        tag = f"{name} ({ts.num_channels} ch{f', {args.crop}² crop' if args.crop else ''})"
+
+        def psnr(dec: list[np.ndarray]) -> list[float]:
+            return [psnr_from_mse(m) for m in mse_per_mip(ref[:2], dec, ts.channels)]
+
+        def row(label: str, size: int, dec, raw=None) -> None:
+            p0, p1 = psnr(dec)
+            extra = "/".join(f"{v:.1f}" for v in psnr(raw)) if raw is not None else ""
+            print(f"| {tag} | {label} | {size / 2**20:.2f} | {p0:.1f} | {p1:.1f} | {extra} |", flush=True)
+
+        bc, size = encode_texture_set_baseline(ts, "bc", r, ref_mips=ref)
+        row(f"BC@R (R = {r})", size, bc[:2])
+        q, size = bc7_quality_set(ts, r, ref)
+        row(f"BC7 quality set at {r}", size, q)
+        for res in (r, 2 * r):
+            for label, size, dec, raw in t0_rows(ts, ref, res):
+                row(label, size, dec, raw)
+        print(f"<!-- {name}: {time.perf_counter() - t0:.0f} s -->", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sets", default="teapot,brick")
+    ap.add_argument("--sets", default=None, help="teapot,brick (default); with --widths teapot,brick,wood,bottle")
+    ap.add_argument("--widths", action="store_true", help="issue 52's table: T_0 of 4, 8, 12 components at R and 2R")
+    ap.add_argument("--crop", type=int, default=0, help="with --widths: the sets' top-left N² texels only")
+    ap.add_argument("--workers", type=int, default=None, help="cores for the encoders and torch (default all)")
     args = ap.parse_args()
+    if args.workers:
+        import torch
+
+        from bcfpipe.texset.parallel import set_encode_workers
+
+        torch.set_num_threads(args.workers)
+        set_encode_workers(args.workers)
+    if args.widths:
+        args.sets = args.sets or "teapot,brick,wood,bottle"
+        return widths(args)
+    args.sets = args.sets or "teapot,brick"
 
     from bcfpipe.texset.baselines import _bilinear_up, encode_texture_set_baseline
     from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
