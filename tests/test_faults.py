@@ -64,7 +64,9 @@ def test_read_only_out(tmp_path):
     scene = small_scene(tmp_path / "in")
     with tmpfs(tmp_path / "ro", "1m", readonly=True) as ro:
         p = bcf("build", str(scene), "-o", str(ro / "out"), "--no-cache", *CLI_FAST)
-        assert p.returncode == 1 and "Read-only file system" in one_clear_line(p)
+        # refused before any work, nothing written: a refused OUT is 2 (README's exit codes, issue 50)
+        assert p.returncode == 2 and "Read-only file system" in one_clear_line(p)
+        assert not any(ro.iterdir())
 
 
 def test_out_is_a_file(tmp_path):
