@@ -156,21 +156,31 @@ def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None) -> tup
     a build with a cache the blocks are kept as BC1/BC4/BC5's are."""
     import ispc_texcomp as ispc
 
-    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
+    from bcfpipe.formats.bcn import ClassicFormat
 
     _check_mips(mips_rgba, 4, "bc7")
-    cache, key, levels = _cached_levels(f"bc7 ispc {ispc.version}|{sorted(BC7_SETTINGS.items())}", mips_rgba)
+    return _ispc_round_trip(f"bc7 ispc {ispc.version}|{sorted(BC7_SETTINGS.items())}", mips_rgba, _ispc_bc7_levels,
+                            ClassicFormat.BC7, blocks)
+
+
+def _ispc_round_trip(tag: str, mips: Sequence[np.ndarray], encode_levels, fmt, blocks: list | None,
+                     texels=None) -> tuple[list[np.ndarray], int]:
+    """Encode ``mips`` with ``encode_levels`` (or take the blocks the build's cache holds under
+    ``tag``), decode them as ``fmt``; returns (decoded mips, bytes). With ``blocks``, each level's
+    (blocks, w, h) is appended."""
+    from bcfpipe.formats.bcn import decode_levels
+
+    cache, key, levels = _cached_levels(tag, mips, texels)
     fresh = levels is None
     if fresh:
-        levels = _ispc_bc7_levels(mips_rgba)
-    shipped = [(b, m.shape[1], m.shape[0]) for m, b in zip(mips_rgba, levels)]
+        levels = encode_levels(mips)
+    shipped = [(b, m.shape[1], m.shape[0]) for m, b in zip(mips, levels)]
     if blocks is not None:
         blocks.extend(shipped)
-    decoded = decode_levels(ClassicFormat.BC7, shipped)
-    size = sum(b.nbytes for b in levels)
+    decoded = decode_levels(fmt, shipped)
     if cache is not None and fresh:
         cache.put(key, levels)
-    return decoded, size
+    return decoded, sum(b.nbytes for b in levels)
 
 
 # ISPC's ``basic`` BC6H profile (ispc_texcomp.h, GetProfile_bc6h_basic): every mode, 2 refinements, no slow
@@ -214,23 +224,14 @@ def bc6h_mips(mips_rgb: Sequence[np.ndarray], blocks: list | None = None) -> tup
     blocks are kept, keyed by the half-float texels the encoder reads."""
     import ispc_texcomp as ispc
 
-    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
+    from bcfpipe.formats.bcn import ClassicFormat
 
     if not mips_rgb or any(np.ndim(m) != 3 or not 1 <= np.shape(m)[2] <= 3 for m in mips_rgb):
         raise ValueError(f"bc6h: mips must be (H, W, 1..3), got {[np.shape(m) for m in mips_rgb]}")
     c = mips_rgb[0].shape[2]
-    cache, key, levels = _cached_levels(f"bc6h uf16 ispc {ispc.version} {BC6H_PROFILE}", mips_rgb,
-                                        lambda m: _to_half_rgba(np.asarray(m)))
-    fresh = levels is None
-    if fresh:
-        levels = _ispc_bc6h_levels(mips_rgb)
-    shipped = [(b, m.shape[1], m.shape[0]) for m, b in zip(mips_rgb, levels)]
-    if blocks is not None:
-        blocks.extend(shipped)
-    decoded = [d[..., :c] for d in decode_levels(ClassicFormat.BC6H, shipped)]
-    if cache is not None and fresh:
-        cache.put(key, levels)
-    return decoded, sum(b.nbytes for b in levels)
+    decoded, size = _ispc_round_trip(f"bc6h uf16 ispc {ispc.version} {BC6H_PROFILE}", mips_rgb, _ispc_bc6h_levels,
+                                     ClassicFormat.BC6H, blocks, lambda m: _to_half_rgba(np.asarray(m)))
+    return [d[..., :c] for d in decoded], size
 
 
 def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
