@@ -27,7 +27,7 @@ from bcfpipe.builder.events import ProgressEvent
 from bcfpipe.config import TrainingOptions
 from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.builder import (MANIFEST, BuildError, MaterialJob, build, plan, root_layer_name)
-from bcfpipe.cli.build import BuildDisplay
+from bcfpipe.cli.build_display import BuildDisplay
 from bcfpipe.resources import SCHEMA_DIR
 
 REPO = Path(__file__).resolve().parents[1]
