@@ -237,7 +237,7 @@ class ModelConfig:
     hidden: int = DEFAULT_HIDDEN
     signed: bool = False  # BC6H_UF16 by default: finer endpoint steps over the positive range
     wrap: str = "repeat"
-    max_feature: float = 2.0  # decoded features are kept within +-max_feature (model.endpoint_range)
+    max_feature: float = 2.0  # decoded features are kept within +-max_feature (model.features.endpoint_range)
     features: FeatureFormat = FeatureFormat.BC6H  # the paper's; TrainingOptions holds the user-facing default
     # The first reference mip the features serve: 0 for a neural material; k > 0 in a mip-split
     # layout (issue 31), whose classic textures serve the mips below k, so steps draw s in [k, s_max].

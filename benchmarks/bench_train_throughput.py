@@ -28,6 +28,7 @@ from bcfpipe.bc6h import emulate  # noqa: E402
 from bcfpipe.bc6h.encode import encode_params  # noqa: E402
 from bcfpipe.config import PROFILES, ModelConfig  # noqa: E402
 from bcfpipe.model.decoder import mlp_raw  # noqa: E402
+from bcfpipe.model.features import endpoint_value  # noqa: E402
 from bcfpipe.texset.reference import ReferencePyramid, random_batch, sample_reference  # noqa: E402
 from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
 
@@ -44,7 +45,7 @@ def build_state(ts, mc, dev, gen):
         for mips in free:
             layer = []
             for p in mips:
-                e, idx, part = encode_params(M.endpoint_value(p, mc.signed).permute(1, 2, 0).cpu().numpy())
+                e, idx, part = encode_params(endpoint_value(p, mc.signed).permute(1, 2, 0).cpu().numpy())
                 layer.append({"endpoints": torch.as_tensor(e, dtype=torch.float32, device=dev).requires_grad_(True),
                               "x": (torch.as_tensor(idx, dtype=torch.float32, device=dev) / 7).requires_grad_(True),
                               "mask": emulate.partition_mask(part, device=dev), "partition": part})

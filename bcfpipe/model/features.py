@@ -21,7 +21,7 @@ import torch
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
 
-__all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "FixedLevel", "codec_of"]
+__all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "FixedLevel", "codec_of", "endpoint_value", "endpoint_range"]
 
 
 @dataclass
@@ -130,22 +130,38 @@ def _bc6h_start(texels, signed: bool, lib):
     return encode_params(texels, signed=signed, **_BC6H_START)
 
 
+def endpoint_value(p: torch.Tensor, signed: bool = False) -> torch.Tensor:
+    """Smooth texel value of a constant BC6H block with endpoint ``p`` (continuous 6-bit domain)."""
+    from bcfpipe.bc6h import emulate
+
+    u = emulate.unquantize(p, signed=signed)
+    return emulate.half_from_bits(u * (31.0 / 32.0 if signed else 31.0 / 64.0))
+
+
+def endpoint_range(signed: bool, max_feature: float | None = None) -> tuple[float, float]:
+    """Endpoint bounds used in training: the format's range, narrowed so decoded features stay
+    within +-``max_feature``. Large features make no better MLP inputs but make the 6-bit log-like
+    endpoint steps coarse in absolute terms and magnify hardware filtering error at decode time."""
+    lo, hi = (-32.0, 31.0) if signed else (0.0, 63.0)
+    if max_feature is None:
+        return lo, hi
+    e = torch.arange(0.0, hi + 1)
+    top = float(e[endpoint_value(e, signed) <= max_feature].max())
+    return (-top, top) if signed else (0.0, top)
+
+
 class _BC6H(FeatureCodec):
     format = FeatureFormat.BC6H
     channels = 3
     lr_scale = {"warmup": 1.0, "constrained": 1.0}
 
     def param_range(self, mc):
-        from bcfpipe.model.neural import endpoint_range
-
         return endpoint_range(mc.signed, mc.max_feature)
 
     def init_range(self, mc):
         return (-15.0, 15.0) if mc.signed else (20.0, 32.0)
 
     def value(self, p, mc):
-        from bcfpipe.model.neural import endpoint_value
-
         return endpoint_value(p, mc.signed)
 
     def encode(self, texels, mc, device, lib=None):

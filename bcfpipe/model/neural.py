@@ -21,7 +21,6 @@ from typing import Callable, Sequence
 
 import torch
 
-from bcfpipe.bc6h import emulate
 from bcfpipe.config import ModelConfig, mip_count
 from bcfpipe.model.decoder import mlp_raw
 from bcfpipe.model.features import BlockParams, FixedLevel, codec_of
@@ -47,24 +46,6 @@ def lod_biases(resolutions: Sequence[int], ref_width: int, ref_height: int) -> t
     last = max(mip_count(r) - 1 - b for r, b in zip(resolutions, natural))
     gap = max(0, int(math.floor(s_max - last)))
     return tuple(b - min(i, gap) for i, b in enumerate(natural))
-
-
-def endpoint_value(p: torch.Tensor, signed: bool = False) -> torch.Tensor:
-    """Smooth texel value of a constant BC6H block with endpoint ``p`` (continuous 6-bit domain)."""
-    u = emulate.unquantize(p, signed=signed)
-    return emulate.half_from_bits(u * (31.0 / 32.0 if signed else 31.0 / 64.0))
-
-
-def endpoint_range(signed: bool, max_feature: float | None = None) -> tuple[float, float]:
-    """Endpoint bounds used in training: the format's range, narrowed so decoded features stay
-    within +-``max_feature``. Large features make no better MLP inputs but make the 6-bit log-like
-    endpoint steps coarse in absolute terms and magnify hardware filtering error at decode time."""
-    lo, hi = (-32.0, 31.0) if signed else (0.0, 63.0)
-    if max_feature is None:
-        return lo, hi
-    e = torch.arange(0.0, hi + 1)
-    top = float(e[endpoint_value(e, signed) <= max_feature].max())
-    return (-top, top) if signed else (0.0, top)
 
 
 def blocks_to_image(texels: torch.Tensor, width: int, height: int) -> torch.Tensor:

@@ -17,7 +17,7 @@ start without warm-up measured worse on every mip and were dropped.
 
 Component values are mapped affinely onto the format's feature range per (layer, component),
 then onto the free parameters' domain: for BC6H ([0.25, 1.7]) the 6-bit endpoint domain through the
-inverse of :func:`bcfpipe.model.endpoint_value`; for BC7 ([0.02, 0.98]) the 8-bit one. A BC7 layer
+inverse of :func:`bcfpipe.model.features.endpoint_value`; for BC7 ([0.02, 0.98]) the 8-bit one. A BC7 layer
 holds four components, so T_0 starts as the oracle of benchmarks/bound_t0.py ("4 PCs, BC7").
 """
 from __future__ import annotations
@@ -28,10 +28,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from bcfpipe.model import neural as M
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
-from bcfpipe.model.features import codec_of
+from bcfpipe.model.features import codec_of, endpoint_value
 
 # feature range of the initial components, per format (decoded values)
 FEATURE_RANGE = {FeatureFormat.BC6H: (0.25, 1.7), FeatureFormat.BC7: (0.02, 0.98)}
@@ -52,7 +51,7 @@ def principal_axes(mips: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.Te
 def _inverse_endpoint_value(f: torch.Tensor, signed: bool) -> torch.Tensor:
     """Continuous endpoint p with endpoint_value(p) = f, by interpolation in a dense table."""
     p = torch.linspace(0.0, 40.0, 40 * 256 + 1)
-    v = M.endpoint_value(p, signed)
+    v = endpoint_value(p, signed)
     keep = torch.cat([torch.tensor([True]), v[1:] > v[:-1]])
     p, v = p[keep].numpy(), v[keep].numpy()
     return torch.as_tensor(np.interp(f.cpu().numpy(), v, p), dtype=torch.float32, device=f.device)

@@ -5,7 +5,7 @@ touched texels or blocks (issue 30).
 Every per-texel decode repeats, in float32 and in the same order, the operations of the torch
 emulation it stands for, so the decoded values are bit-identical:
 
-* ``FREE_BC6H``  :func:`bcfpipe.model.neural.endpoint_value` of a clamped free parameter;
+* ``FREE_BC6H``  :func:`bcfpipe.model.features.endpoint_value` of a clamped free parameter;
 * ``FREE_BC7``   a clamped free parameter / 255;
 * ``BLOCK_BC6H`` :func:`bcfpipe.bc6h.emulate.decode_blocks` (mode 11110, one of two subsets);
 * ``BLOCK_BC7``  :func:`bcfpipe.bc7.emulate.decode_blocks` (mode 6);
