@@ -76,7 +76,7 @@ def covered_psnr(scene: Path, out: Path, masks_from) -> tuple[float, list[float]
     from bcfpipe.export import writer as E
     from bcfpipe.formats import manifest as mfst
     from bcfpipe.scan.coverage import mask_mips, unpack
-    from bcfpipe.scan.texture_sets import local_file
+    from bcfpipe.scan.sources import local_file
     from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
     from bcfpipe.texset.metrics import compute_metrics
 

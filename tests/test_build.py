@@ -530,7 +530,7 @@ def test_plan_channel_mapping(tmp_path: Path) -> None:
 @pytest.mark.shared
 def test_plan_packaged_textures(tmp_path: Path) -> None:
     """Textures inside a usdz are hashed through Ar and copied out for the loader."""
-    from bcfpipe.scan.texture_sets import local_file
+    from bcfpipe.scan.sources import local_file
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
     scene = SCENES / "usdwg_roughness_test" / "RoughnessTest.usdz"

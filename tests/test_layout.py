@@ -141,3 +141,58 @@ def test_imports_point_down_the_flow():
             if not ok:
                 wrong.append(f"{path.relative_to(REPO)}:{lineno}: {me} imports {name}")
     assert not wrong, "\n".join(wrong)
+
+
+def _module_graph(*packages: str) -> dict[str, set[str]]:
+    """module -> the modules of `packages` it imports, read from the source (every import,
+    module-level and inside functions; `from pkg import mod` counts as importing mod)."""
+    modules = {}
+    for name in packages:
+        for path in sorted((REPO / "bcfpipe" / name).glob("*.py")):
+            dotted = f"bcfpipe.{name}" + ("" if path.stem == "__init__" else f".{path.stem}")
+            modules[dotted] = path
+    graph = {}
+    for dotted, path in modules.items():
+        module = dotted if path.stem != "__init__" else dotted + ".__init__"
+        edges = set()
+        for _, imported in _bcfpipe_imports(path, module):
+            edges.add(imported)
+        import ast
+
+        for node in ast.walk(ast.parse(path.read_text())):  # `from bcfpipe.scan import content`
+            if isinstance(node, ast.ImportFrom) and not node.level and node.module in modules:
+                edges.update(f"{node.module}.{a.name}" for a in node.names)
+        graph[dotted] = {e for e in edges if e in modules and e != dotted}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles of `graph`: each group of modules that reach one another (a strongly
+    connected component of more than one module), sorted."""
+    def reach(start):
+        seen, todo = set(), [start]
+        while todo:
+            for nxt in graph[todo.pop()] - seen:
+                seen.add(nxt)
+                todo.append(nxt)
+        return seen
+
+    reaches = {m: reach(m) for m in graph}
+    groups = {tuple(sorted(n for n in reaches[m] if m in reaches[n])) for m in graph if m in reaches[m]}
+    return sorted(list(g) for g in groups)
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": {"f"}, "f": {"e"}}) == [["a", "b", "c"],
+                                                                                               ["e", "f"]]
+    assert _cycles({"a": {"b", "c"}, "b": {"c"}, "c": set()}) == []
+
+
+def test_scan_and_model_have_no_import_cycle():
+    """Within scan/ and model/, modules import each other one way only (issue 51): a shared piece
+    sits in a module below both, so each module can be read, tested and moved on its own."""
+    graph = _module_graph("scan", "model")
+    assert {"bcfpipe.scan.texture_sets", "bcfpipe.model.neural"} <= set(graph)
+    assert graph["bcfpipe.scan.requirements"], "the graph sees imports"
+    cycles = _cycles(graph)
+    assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)

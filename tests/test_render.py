@@ -316,7 +316,7 @@ def straight_colour_stage(src: Path, root: Path) -> Path:
     OpenImageIO directly): the original drawn with nothing left to premultiply."""
     import OpenImageIO as oiio
 
-    from bcfpipe.scan.texture_sets import local_file
+    from bcfpipe.scan.sources import local_file
 
     stage = Usd.Stage.CreateNew(str(root / "straight.usda"))
     stage.GetRootLayer().subLayerPaths.append(str(src))

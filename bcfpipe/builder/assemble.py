@@ -15,7 +15,7 @@ from bcfpipe.errors import EXIT_FAILED, EXIT_OK
 from bcfpipe.builder.executor import JobResult
 from bcfpipe.builder.plan import BuildPlan, MATERIALS_DIR, OVERRIDES
 from bcfpipe.formats.manifest import WEIGHTS
-from bcfpipe.scan.texture_sets import package_split
+from bcfpipe.scan.sources import package_split
 
 
 def _scene_name(scene: str | os.PathLike) -> str:

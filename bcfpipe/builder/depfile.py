@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Iterable
 
 from bcfpipe.formats.atomic import atomic_write
-from bcfpipe.scan.texture_sets import package_split
+from bcfpipe.scan.sources import package_split
 
 
 def escape(path: str) -> str:

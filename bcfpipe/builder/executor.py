@@ -260,7 +260,7 @@ def copy_sources(job: MaterialJob, folder: str | os.PathLike) -> dict[str, str]:
     bytes the cache key names, in O(1 MiB) of memory whatever the size; {plan path: copy}."""
     import xxhash
 
-    from bcfpipe.scan.texture_sets import package_split, read_asset
+    from bcfpipe.scan.sources import package_split, read_asset
 
     out = {}
     for k, (path, planned) in enumerate(_planned(job)):
@@ -286,7 +286,7 @@ def read_sources(job: MaterialJob) -> dict[str, bytes]:
     a result that the cache stores under the old bytes' key."""
     import xxhash
 
-    from bcfpipe.scan.texture_sets import package_split, read_asset
+    from bcfpipe.scan.sources import package_split, read_asset
 
     out = {}
     for path, planned in _planned(job):

@@ -17,7 +17,8 @@ from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, FeatureFormat
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import group_materials
-from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, SourceFile, decoder_index
+from bcfpipe.scan.sources import SourceFile
+from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, decoder_index
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
     from bcfpipe.scan.results import StageScan

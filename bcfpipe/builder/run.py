@@ -25,7 +25,7 @@ from bcfpipe.cache import Cache, default_root
 from bcfpipe.formats.report import BuildReport
 from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
 from bcfpipe.builder.plan import BuildError, BuildPlan, MATERIALS_DIR, plan
-from bcfpipe.scan.texture_sets import package_split
+from bcfpipe.scan.sources import package_split
 
 
 log = logging.getLogger("bcfpipe.build")

@@ -22,7 +22,7 @@ from bcfpipe.formats import dds
 from bcfpipe.render.scene import Batch, View
 from bcfpipe.render.surfaces import COMPONENTS, MAX_TEXTURES, TEXTURE_SOURCE, Surface
 from bcfpipe.scan.results import Transform2d
-from bcfpipe.scan.texture_sets import local_file, read_asset, resolved_color_space
+from bcfpipe.scan.sources import local_file, read_asset, resolved_color_space
 from bcfpipe.verify import glsl
 
 __all__ = ["Lighting", "Renderer"]

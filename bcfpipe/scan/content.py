@@ -53,7 +53,7 @@ def read_stored(path: str) -> tuple[np.ndarray, tuple[str, ...]]:
     """The texels of a resolved path at their stored type, (H, W, C), and its channel names; colour
     as stored (unassociated alpha), as the training loader and Hydra read it."""
     from bcfpipe.formats import images
-    from bcfpipe.scan.texture_sets import local_file
+    from bcfpipe.scan.sources import local_file
 
     with tempfile.TemporaryDirectory() as tmp:
         im = images.read(local_file(path, tmp), unassociated_alpha=True, name=path)

@@ -24,7 +24,7 @@ from bcfpipe.scan.values import numbers
 
 if TYPE_CHECKING:
     from bcfpipe.formats.manifest import Options
-    from bcfpipe.scan.texture_sets import SourceFile
+    from bcfpipe.scan.sources import SourceFile
 
 __all__ = ["MeshDensity", "MaterialDensity", "mesh_areas", "material_density", "required_resolution"]
 
@@ -205,7 +205,7 @@ def material_bindings(stage, gprims) -> dict[str, list[tuple[object, np.ndarray 
 def job_size(sources: Iterable[SourceFile], resolution: int | None) -> tuple[int, int]:
     """(width, height) of a texture set: its sources' common size, or, under a density cap, that
     size scaled so that its larger side is ``resolution``."""
-    from bcfpipe.scan.texture_sets import common_resolution
+    from bcfpipe.scan.sources import common_resolution
 
     sizes = [(s.width, s.height) for s in sources]
     if not sizes or any(w < 1 or h < 1 for w, h in sizes):  # an unreadable header: training will say why

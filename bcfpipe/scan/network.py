@@ -29,6 +29,17 @@ _TEXTURE_CHANNELS = ("r", "g", "b", "a", "rgb")
 WRAP_MODES = frozenset({"black", Wrap.CLAMP, Wrap.REPEAT, "mirror", "useMetadata"})
 
 
+def texture_targets(name: str, channel: str) -> list[tuple[str, str]]:
+    """(texture channel, UsdPreviewSurface target) pairs for `name` read through `channel`."""
+    if channel == "rgb":
+        if name == "normal":
+            return [("r", "normal.x"), ("g", "normal.y")]
+        if name in COLOR_INPUTS:
+            return [(c, f"{name}.{c}") for c in "rgb"]
+        return [("r", name)]  # a scalar fed from rgb reads the first component
+    return [(channel, name)]
+
+
 def _as_f32(x: float) -> float:
     """`x` as float32, written with the fewest digits that round-trip (0.3, not 0.30000001192)."""
     bits = struct.pack("<f", x)

@@ -64,20 +64,9 @@ from bcfpipe.scan.composition import (apply_variants, binding_variants, bound_ma
                                       composition_errors, definition_path, first_line, mtlx_assets, new_diagnostics,
                                       open_stage, rendered_gprims)
 from bcfpipe.scan.density import MaterialDensity, material_bindings, material_density
-from bcfpipe.scan.network import COLOR_INPUTS, WRAP_MODES, scan_input, shader_id
+from bcfpipe.scan.network import COLOR_INPUTS, WRAP_MODES, scan_input, shader_id, texture_targets
 from bcfpipe.scan.results import (PREVIEW_SURFACE_INPUTS, ChannelUse, InputScan,
                                   MaterialScan, ScanError, StageScan)
-
-
-def texture_targets(name: str, channel: str) -> list[tuple[str, str]]:
-    """(texture channel, UsdPreviewSurface target) pairs for `name` read through `channel`."""
-    if channel == "rgb":
-        if name == "normal":
-            return [("r", "normal.x"), ("g", "normal.y")]
-        if name in COLOR_INPUTS:
-            return [(c, f"{name}.{c}") for c in "rgb"]
-        return [("r", name)]  # a scalar fed from rgb reads the first component
-    return [(channel, name)]
 
 
 def channel_uses(inputs: Iterable[InputScan]) -> tuple[ChannelUse, ...]:

@@ -50,7 +50,7 @@ import numpy as np
 
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import channel_index as source_channel_index
-from bcfpipe.scan.texture_sets import common_resolution
+from bcfpipe.scan.sources import common_resolution
 from bcfpipe.texset.encoding import log_gain_for
 
 __all__ = [

@@ -44,7 +44,7 @@ def check_usd_values(root: Path, manifest: mfst.Manifest, material: mfst.Materia
 def check_source_constancy(root: Path, material: mfst.Material) -> list[str]:
     """Every texel of each channel folded as constant lies within one step of its stored value."""
     from bcfpipe.formats import images
-    from bcfpipe.scan.texture_sets import local_file, package_split
+    from bcfpipe.scan.sources import local_file, package_split
     from bcfpipe.formats.images import channel_index as source_channel_index
 
     problems = []
