@@ -13,7 +13,7 @@ Every compressed row but the last spends **one byte per texel at 1024²**, the b
 * ``BC7 modes 1/3/7``: the partitioned modes only (two subsets; mode 7 carries alpha);
 * ``BC7 modes 1/3/7+6``: those and mode 6, the encoder's choice per block (ISPC picks mode 7 or 6
   for every block of a four-channel image, so this is modes 6 and 7);
-* ``bcfpipe modes 6+7``: bcfpipe's own encoder (bcfpipe.bc7.encode7), the blocks
+* ``bcfpipe modes 6+7``: bcfpipe's own encoder (benchmarks/bc7_mode7/encode7.py), the blocks
   ``--features bc7`` could write;
 * ``BC7 free``: every mode, the encoder's choice;
 * ``2×BC1``: 6 PCs in two BC1 textures (4 bits per texel each).
@@ -96,7 +96,7 @@ def _bc7(img: np.ndarray, modes: str) -> np.ndarray:
 
 def _bcfpipe_bc7(img: np.ndarray) -> np.ndarray:
     """BC7 modes 6 and 7 through bcfpipe's encoder and decoder, from the same 8-bit input."""
-    from bcfpipe.bc7 import encode7, modes
+    from bc7_mode7 import encode7, modes
 
     h, w = img.shape[:2]
     u8 = np.rint(np.clip(img, 0.0, 1.0) * 255.0) / 255.0

@@ -9,10 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bcfpipe.bc7 import anymode, mode6, mode7
+from bcfpipe.bc7 import anymode, mode6
 from bcfpipe.bc7.decode import decode_to_u8
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bc7_mode7 import mode7  # noqa: E402  (measured, not adopted: benchmarks/bc7_mode7/)
 from test_bc7 import N_DEFAULT, N_SLOW, assert_three_decoders_agree  # noqa: E402
 
 

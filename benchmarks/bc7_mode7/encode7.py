@@ -2,7 +2,7 @@
 measurement of the partitioned modes (benchmarks/bound_t0.py, docs/benchmarks.md); the feature
 textures bcfpipe trains are mode 6.
 
-Mode 7 (:mod:`bcfpipe.bc7.mode7`) splits a block into two subsets by one of 64 shapes. Shapes are
+Mode 7 (:mod:`bc7_mode7.mode7`) splits a block into two subsets by one of 64 shapes. Shapes are
 ranked by how well one line per subset fits the texels (the residual off each subset's principal
 axis, from masked second moments). The best :data:`SHAPES_TRIED` are encoded in full, as the
 mode-6 encoder does (principal-axis endpoints, then alternating nearest-index choice and
@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .encode import encode_params as _encode6, nearest_with_pbit, principal_endpoints, refit_endpoints
-from . import mode6, mode7
+from bcfpipe.bc7 import mode6
+from bcfpipe.bc7.encode import encode_params as _encode6, nearest_with_pbit, principal_endpoints, refit_endpoints
+from bcfpipe.bc7.partitions import PARTITIONS2
+
+from . import mode7
 from .modes import MODE6
-from .partitions import PARTITIONS2
 
 __all__ = ["encode_params", "quantize_endpoints", "shape_order"]
 
@@ -122,7 +124,7 @@ def _encode_chunk(x: np.ndarray, w: np.ndarray, shapes: int, margin: float) -> t
 
 def encode_params(texels: np.ndarray, weights: np.ndarray | None = None,
                   shapes: int = SHAPES_TRIED, margin: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(n, 16, 4) texels in [0, 1] -> :mod:`bcfpipe.bc7.modes` parameters (endpoints (n, 4, 4),
+    """(n, 16, 4) texels in [0, 1] -> :mod:`bc7_mode7.modes` parameters (endpoints (n, 4, 4),
     indices (n, 16), partition (n,)), before the anchor fix. ``weights`` (4,): per-channel error
     weights (default equal); ``shapes``: mode-7 shapes encoded in full per block (0: mode 6 only);
     ``margin``: mode 7 is taken below this fraction of the mode-6 error (default MODE7_MARGIN)."""

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .partitions import ANCHOR2, PARTITIONS2
+from bcfpipe.bc7.partitions import ANCHOR2, PARTITIONS2
 
 MODE_BITS = 0b10000000
 #: BC7 2-bit interpolation weights in 64ths (Khronos Data Format, BC7 "aWeight2").

@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import mode6, mode7
-from .partitions import PARTITIONS2
+from bcfpipe.bc7 import mode6
+from bcfpipe.bc7.partitions import PARTITIONS2
+
+from . import mode7
 
 __all__ = ["MODE6", "pack", "unpack", "interpolate", "subsets"]
 
@@ -30,7 +32,7 @@ def subsets(partition: np.ndarray) -> np.ndarray:
 
 
 def pack(endpoints: np.ndarray, indices: np.ndarray, partition: np.ndarray) -> np.ndarray:
-    """(n, 16) uint8 blocks; see :func:`bcfpipe.bc7.mode6.pack` and :func:`bcfpipe.bc7.mode7.pack`."""
+    """(n, 16) uint8 blocks; see :func:`bcfpipe.bc7.mode6.pack` and :func:`bc7_mode7.mode7.pack`."""
     e = np.asarray(endpoints, np.uint8).reshape(-1, 4, 4)
     idx = np.asarray(indices, np.uint8).reshape(-1, 16)
     p = np.asarray(partition, np.int64).reshape(-1)
