@@ -807,10 +807,10 @@ def test_verify_passes_on_the_sample_build(sample) -> None:
 
 
 def test_size_estimate_equals_a_real_build(sample) -> None:
-    """`bcfpipe scan`'s size estimate (scan/requirements.py, headers from formats/) is the bytes a
-    build writes per material: its four DDS files and its weight record."""
+    """The one byte estimator (formats/sizes.py: `scan`'s estimate, rate control's and the layout
+    rule's sizes) is the bytes a build writes per material: its four DDS files and its weight record."""
     from bcfpipe.formats import material as mf
-    from bcfpipe.scan.requirements import estimated_bytes
+    from bcfpipe.formats.sizes import neural_bytes
 
     _, result = sample
     for job in result.manifest.to_json()["jobs"]:
@@ -818,8 +818,8 @@ def test_size_estimate_equals_a_real_build(sample) -> None:
         desc = mf.read(folder)
         written = sum((folder / layer.file).stat().st_size for layer in desc.layers)
         written += (folder / desc.mlp.weights).stat().st_size
-        assert estimated_bytes(tuple(layer.resolution for layer in desc.layers), desc.mlp.n_out,
-                               desc.mlp.n_hidden, desc.mlp.n_in) == written, job["name"]
+        assert neural_bytes(tuple(layer.resolution for layer in desc.layers), desc.mlp.n_in,
+                            desc.mlp.n_hidden, desc.mlp.n_out) == written, job["name"]
 
 
 @pytest.mark.parametrize("width", [160, 40])

@@ -166,8 +166,8 @@ def test_split_candidates_fit_bc_bytes_and_hold_the_predicted_floor():
     probe falls below the floor from its split on is not offered."""
     from bcfpipe.layout import choose as C
     from bcfpipe.layout.classic import channel_errors
-    from bcfpipe.formats.dds import HEADER_BYTES
-    from bcfpipe.layout.fit import neural_bytes, split_bytes, split_candidates
+    from bcfpipe.formats.sizes import neural_bytes
+    from bcfpipe.layout.fit import split_bytes, split_candidates
 
     ts, r = _set(256), 128  # a 64² set's BC@R is too small for any features beside it
     ref = build_mip_chain(ts.data)
@@ -184,7 +184,7 @@ def test_split_candidates_fit_bc_bytes_and_hold_the_predicted_floor():
         t = c.resolutions[0]
         assert c.resolutions == (t, t, t, t // 2) and t <= 256 >> c.split
         assert c.size_bytes >= split_bytes(enc, split_levels(c.split, r, 256))
-        bigger = neural_bytes((2 * t, 2 * t, 2 * t, t), 12, 16, ts.num_channels) + 4 * HEADER_BYTES
+        bigger = neural_bytes((2 * t, 2 * t, 2 * t, t), 12, 16, ts.num_channels)
         assert 2 * t > 256 >> c.split or split_bytes(enc, split_levels(c.split, r, 256)) + bigger > bc.size_bytes
         np.testing.assert_allclose(c.mse_per_mip[:c.split], bc.mse_per_mip[:c.split])
     # the probe's features 2^5+ times larger than any split's: 5+ halvings at 3 dB each lose the floor

@@ -39,13 +39,14 @@ from typing import Callable, Sequence
 import numpy as np
 
 from bcfpipe.config import PROFILES, TrainingOptions
+from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Group, Repack, channel_errors, encode,
                                     measure_repack, repacks, split_levels)
 from bcfpipe.layout.classic import groups as classic_groups
-from bcfpipe.layout.predict import LayoutPrediction, candidate_profiles, neural_bytes, predict  # noqa: F401
+from bcfpipe.layout.predict import LayoutPrediction, candidate_profiles, predict  # noqa: F401
 from bcfpipe.texset.parallel import encode_workers, workers
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn
@@ -301,8 +302,6 @@ def split_candidates(ts: TextureSet, groups: Sequence[EncodedGroup], e_bc: np.nd
     ``halving_db`` for every halving from probe_t0 to t (the measured gain between profiles, as
     rate control predicts). Only those that hold the floor on that prediction, and only where BC@R
     has more than one level to cut."""
-    from bcfpipe.formats.dds import HEADER_BYTES
-
     side = max(ts.width, ts.height)
     out = []
     n_mips = e_bc.shape[0]
@@ -315,7 +314,7 @@ def split_candidates(ts: TextureSet, groups: Sequence[EncodedGroup], e_bc: np.nd
         res = None
         while t >= 8:
             r = (t, t, t, t // 2)
-            size = neural_bytes(r, *dims, ts.num_channels) + 4 * HEADER_BYTES
+            size = neural_bytes(r, *dims, ts.num_channels)  # its DDS files and weight record
             if size <= budget:
                 res = r
                 break

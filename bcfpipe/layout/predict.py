@@ -7,7 +7,8 @@ What ships is decided by training, so a size is a range: under the default objec
 candidate that may ship is at most BC@R's bytes (BC@R itself always qualifies) and at least the
 smallest candidate's files (a repack's bytes, or the feature textures of the smallest profile or
 mip split, which a model's files exceed). With ``--layout neural`` and no ``--classic`` the size
-is exact: the feature textures and the weight record (`neural_size`).
+is exact: the feature textures and the weight record (`formats.sizes.neural_bytes`, the one byte
+estimator, which also sizes the profiles the probe is chosen from).
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from typing import Sequence
 
 from bcfpipe.config import PROFILES
 from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
+from bcfpipe.formats.sizes import feature_bytes, neural_bytes
 from bcfpipe.formats.vocabulary import Layout
 
 
@@ -29,27 +31,6 @@ def candidate_profiles(asked: str, device: str) -> list[str]:
     pool = GPU_PROFILES if device.startswith("cuda") else CPU_PROFILES
     top = PROFILES[asked][0]
     return sorted((p for p in pool if PROFILES[p][0] <= top), key=lambda p: -PROFILES[p][0]) or [asked]
-
-
-def feature_bytes(resolutions: Sequence[int]) -> int:
-    """Feature texture blocks (16 bytes per 4×4 block, every mip down to 4×4), without headers."""
-    from bcfpipe.train.rate import _feature_bytes
-
-    return _feature_bytes(resolutions)
-
-
-def neural_bytes(resolutions: Sequence[int], n_in: int, hidden: int, n_out: int) -> int:
-    """Feature textures (every mip down to 4×4) and the fp16 decoder record, about as exported: the
-    figure the layout rule sizes a profile by."""
-    return feature_bytes(resolutions) + 2 * (n_in * hidden + hidden + hidden * n_out + 3 * n_out) + 64
-
-
-def neural_size(resolutions: Sequence[int], n_out: int, hidden: int, n_in: int) -> int:
-    """A neural material's bytes as the manifest counts them (its DDS files with headers and its
-    weight record): `bcfpipe.scan.requirements.estimated_bytes`."""
-    from bcfpipe.scan.requirements import estimated_bytes
-
-    return estimated_bytes(resolutions, n_out, hidden, n_in)
 
 
 def bc_levels(width: int, height: int, resolution: int) -> list[tuple[int, int]]:
@@ -117,7 +98,6 @@ def predict(groups, width: int, height: int, n_channels: int, n_out: int, asked:
     decoder outputs) whose classic groups are ``groups`` (`classic.Group`), at BC resolution
     ``resolution``, profile ``asked`` (resolved; its feature ``asked_resolutions``), on ``device``,
     ``dims`` = (MLP inputs, hidden). ``classic``: the group names ``--classic`` keeps."""
-    from bcfpipe.formats.dds import HEADER_BYTES
     from bcfpipe.layout.classic import MAX_REPACK_SIDE, repacks, split_levels
 
     levels = bc_levels(width, height, resolution)
@@ -126,7 +106,7 @@ def predict(groups, width: int, height: int, n_channels: int, n_out: int, asked:
     n_in, hidden = dims
     profiles = tuple(candidate_profiles(asked, device))
     res_of = {p: (PROFILES[p] if p in PROFILES else tuple(asked_resolutions)) for p in profiles}
-    exact_neural = neural_size(asked_resolutions, n_out, hidden, n_in)
+    exact_neural = neural_bytes(asked_resolutions, n_in, hidden, n_out)
     forced = set(classic)
     forced_bytes = sum(b for name, b in by_group.items() if name in forced)
     if layout == Layout.NEURAL:
@@ -149,10 +129,10 @@ def predict(groups, width: int, height: int, n_channels: int, n_out: int, asked:
     split_floor = [texture_bytes(g.format, levels[:split_levels(1, resolution, side)]) for g in groups]
     lows = [bc, *packs, forced_bytes + min(feature_bytes(res_of[p]) for p in profiles)]
     if not forced:
-        lows.append(sum(split_floor) + feature_bytes((8, 8, 8, 4)) + 4 * HEADER_BYTES)
+        lows.append(sum(split_floor) + feature_bytes((8, 8, 8, 4), headers=True))
     low = min(lows)
     if match_bc:  # any size: a mixed layout may hold every group but one and the largest model
-        high = max(bc, *packs, bc + max(neural_size(res_of[p], n_out, hidden, n_in) for p in profiles))
+        high = max(bc, *packs, bc + max(neural_bytes(res_of[p], n_in, hidden, n_out) for p in profiles))
     else:
         high = bc
     return LayoutPrediction(str(layout), resolution, asked, profiles, p0, bc, tuple(packs), low, high)

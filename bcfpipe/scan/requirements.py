@@ -7,24 +7,15 @@ from __future__ import annotations
 from dataclasses import replace
 
 from bcfpipe.formats.vocabulary import Decision, FeatureFormat, Layout
-from bcfpipe.config import (DEFAULT_FEATURES, DEFAULT_HIDDEN, DEFAULT_PROFILE, LAYER_CHANNELS_OF, N_LAYERS, mip_count,
+from bcfpipe.config import (DEFAULT_FEATURES, DEFAULT_HIDDEN, DEFAULT_PROFILE, LAYER_CHANNELS_OF, N_LAYERS,
                             resolve_profile)
-from bcfpipe.formats import dds, weights
+from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import Grouping
 from bcfpipe.scan.texture_sets import MaterialModel, decoder_index
-
-def estimated_bytes(resolutions, n_out: int, hidden: int, n_in: int) -> int:
-    """Bytes of a built material as the manifest counts them: the four BC6H or BC7 DDS files (one
-    byte a texel, every mip down to 4x4) and its fp16 weight record with ``n_in`` MLP inputs (12
-    for BC6H, 16 for BC7; version 1: an HDR channel adds n_out values, which a scan cannot know
-    before decoding)."""
-    features = sum(dds.HEADER_BYTES + sum(max(4, r >> k) ** 2 for k in range(mip_count(r))) for r in resolutions)
-    return features + weights.record_size(weights.record_halves(n_in, hidden, n_out))
-
 
 def _job(mm: MaterialModel, members, options: Options, predict=None) -> dict:
     """What `bcfpipe build` would do with this texture set, by the rules `plan` applies."""
@@ -46,8 +37,8 @@ def _job(mm: MaterialModel, members, options: Options, predict=None) -> dict:
     if side and n_out and predict is not None:  # what the default layout weighs, the bytes it can ship
         floats = [p for p, s in mm.sources.items() if s.format in FLOAT_TYPES]
         pred = predict(tuple(mm.specs), floats, w, h, o)
-    neural = estimated_bytes(res, n_out, o.hidden, N_LAYERS * LAYER_CHANNELS_OF[
-        FeatureFormat(o.features or FeatureFormat.BC6H)]) if res and n_out else 0
+    neural = neural_bytes(res, N_LAYERS * LAYER_CHANNELS_OF[FeatureFormat(o.features or FeatureFormat.BC6H)], o.hidden,
+                          n_out) if res and n_out else 0
     return {"resolution": side, "profile": profile, "capped": o.resolution is not None,
             "texel_density_reached": reached, "covered_fraction": covered,
             "layout": pred.to_json() if pred else None,

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 from bcfpipe.config import PROFILES, QUALITY_PRESETS, preset_for, resolve_profile
+from bcfpipe.formats.sizes import feature_bytes
 
 __all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_to_target", "anchors_from_bench",
            "GAINS_DB", "MARGIN_DB"]
@@ -66,20 +67,11 @@ class Setting:
     profile: str
     preset: str
     resolutions: tuple[int, ...]
-    feature_bytes: int  # four BC6H layers with their mips down to 4x4
+    feature_bytes: int  # the four layers' blocks with their mips down to 4x4 (formats.sizes.feature_bytes)
     cost: float  # training samples x steps, the order of training time
 
     def to_json(self) -> dict:
         return asdict(self)
-
-
-def _feature_bytes(resolutions: Sequence[int]) -> int:
-    total = 0
-    for r in resolutions:
-        while r >= 4:
-            total += (r // 4) ** 2 * 16
-            r //= 2
-    return total
 
 
 def candidates(source_side: int, device: str = "cpu", fixed_t0: bool = False) -> list[Setting]:
@@ -93,7 +85,7 @@ def candidates(source_side: int, device: str = "cpu", fixed_t0: bool = False) ->
         res = resolve_profile(prof, source_side)[1]
         for pre in presets:
             p = preset_for(pre, res[0], device, fixed_t0)
-            out.append(Setting(prof, pre, tuple(res), _feature_bytes(res), float(p.total_steps * p.batch)))
+            out.append(Setting(prof, pre, tuple(res), feature_bytes(res), float(p.total_steps * p.batch)))
     return sorted(out, key=lambda s: (s.feature_bytes, s.cost))
 
 

@@ -1,0 +1,43 @@
+"""The bytes of a neural material's files, known before they are written: its four feature
+textures (DDS files of 16-byte 4×4 blocks, every mip down to 4×4: `dds`) and its fp16 weight
+record (`weights.record_size`). The one byte estimator (issue 51): `scan` reports it, rate control
+orders its settings by the feature blocks, and the layout rule sizes profiles and mip splits by
+it. `neural_bytes` is what the export writes, byte for byte (tests/test_sizes.py checks a build).
+
+Feature sides are powers of two, at least 4 (every profile's, `config.scaled_profile`'s and a mip
+split's), so a level of side s holds s² bytes.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+from bcfpipe.formats import dds, weights
+
+__all__ = ["MIN_SIDE", "feature_levels", "feature_bytes", "neural_bytes"]
+
+MIN_SIDE = 4  # the smallest feature mip: one block (config.MIN_LEVEL)
+
+
+def feature_levels(side: int) -> tuple[int, ...]:
+    """The mip sides of a feature texture whose level 0 is ``side``: halved down to 4
+    (`config.mip_count` levels; one for a side of 4)."""
+    out = [side]
+    while out[-1] // 2 >= MIN_SIDE:
+        out.append(out[-1] // 2)
+    return tuple(out)
+
+
+def feature_bytes(resolutions: Sequence[int], headers: bool = False) -> int:
+    """Bytes of the feature textures of sides ``resolutions`` (T_0..T_3): every mip's blocks, with
+    each file's DDS header when ``headers``."""
+    blocks = sum(dds.block_count(s, s) * dds.BLOCK_BYTES for r in resolutions for s in feature_levels(r))
+    return blocks + (dds.HEADER_BYTES * len(resolutions) if headers else 0)
+
+
+def neural_bytes(resolutions: Sequence[int], n_in: int, hidden: int, n_out: int,
+                 version: int = weights.RECORD_VERSION) -> int:
+    """A neural material's bytes as the export writes them and the manifest counts them: its DDS
+    files and its ``n_in``-``hidden``-``n_out`` weight record (n_in 12 for BC6H features, 16 for
+    BC7; ``version`` 2 when a channel is HDR, which a scan cannot know before decoding)."""
+    halves = weights.record_halves(n_in, hidden, n_out, version)
+    return feature_bytes(resolutions, headers=True) + weights.record_size(halves)
