@@ -1,6 +1,6 @@
 """The bytes of a neural material's files, known before they are written: its four feature
 textures (DDS files of 16-byte 4×4 blocks, every mip down to 4×4: `dds`) and its fp16 weight
-record (`weights.record_size`). The one byte estimator (issue 51): `scan` reports it, rate control
+record (`weights.record_size`), and a classic texture's (`texture_bytes`). The one byte estimator (issue 51): `scan` reports it, rate control
 orders its settings by the feature blocks, and the layout rule sizes profiles and mip splits by
 it. `neural_bytes` is what the export writes, byte for byte (tests/test_sizes.py checks a build).
 
@@ -12,8 +12,9 @@ from __future__ import annotations
 from typing import Sequence
 
 from bcfpipe.formats import dds, weights
+from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
 
-__all__ = ["MIN_SIDE", "feature_levels", "feature_bytes", "neural_bytes"]
+__all__ = ["MIN_SIDE", "feature_levels", "feature_bytes", "neural_bytes", "texture_bytes"]
 
 MIN_SIDE = 4  # the smallest feature mip: one block (config.MIN_LEVEL)
 
@@ -41,3 +42,10 @@ def neural_bytes(resolutions: Sequence[int], n_in: int, hidden: int, n_out: int,
     BC7; ``version`` 2 when a channel is HDR, which a scan cannot know before decoding)."""
     halves = weights.record_halves(n_in, hidden, n_out, version)
     return feature_bytes(resolutions, headers=True) + weights.record_size(halves)
+
+
+def texture_bytes(fmt, levels: Sequence[tuple[int, int]]) -> int:
+    """One classic DDS file's bytes (a `bcn.ClassicFormat` or its name): header and every level's
+    4×4 blocks, ``levels`` as (width, height)."""
+    bb = BLOCK_BYTES[ClassicFormat(fmt)]
+    return dds.HEADER_BYTES + sum(dds.block_count(w, h) * bb for w, h in levels)

@@ -16,8 +16,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from bcfpipe.config import PROFILES
-from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
-from bcfpipe.formats.sizes import feature_bytes, neural_bytes
+from bcfpipe.formats.sizes import feature_bytes, neural_bytes, texture_bytes
 from bcfpipe.formats.vocabulary import Layout
 
 
@@ -46,14 +45,6 @@ def bc_levels(width: int, height: int, resolution: int) -> list[tuple[int, int]]
         w, h = max(1, w // 2), max(1, h // 2)
         out.append((w, h))
     return out
-
-
-def texture_bytes(fmt: ClassicFormat | str, levels: Sequence[tuple[int, int]]) -> int:
-    """One classic DDS file's bytes: header and every level's 4×4 blocks."""
-    from bcfpipe.formats.dds import HEADER_BYTES
-
-    bb = BLOCK_BYTES[ClassicFormat(fmt)]
-    return HEADER_BYTES + sum(-(-w // 4) * -(-h // 4) * bb for w, h in levels)
 
 
 @dataclass(frozen=True)
