@@ -57,6 +57,8 @@ and 0.2-0.8 dB better on the textures of ``benchmarks/bench_encode.py``).
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -64,7 +66,7 @@ import torch
 from . import mode10
 from .tables import PARTITIONS2, WEIGHTS3
 
-__all__ = ["encode", "encode_params", "blocks_from_image", "image_from_blocks", "MAX_UNSIGNED", "MAX_SIGNED"]
+__all__ = ["encode", "encode_params", "Settings", "blocks_from_image", "image_from_blocks", "MAX_UNSIGNED", "MAX_SIGNED"]
 
 MAX_UNSIGNED = 65504.0  # half bits 0x7BFF = (0xFFFF * 31) >> 6
 MAX_SIGNED = 65504.0  # half bits 0x7BFF = (0x7FFF * 31) >> 5
@@ -309,20 +311,31 @@ def _bracket(ctx: _Ctx, ea, eb):
     return ia, ib
 
 
-def _refine(ctx: _Ctx, t, q, om, member, tau, seg, rounds: int, window: int, scales=_SCALES,
-            per_block: int = 1, keep: int = 1):
+class _Starts(NamedTuple):
+    """M (block, shape) candidates to refine: their targets ``t``, q values ``q`` and weights ``om``
+    (M,16,3); each texel's subset ``member`` and position ``tau`` along its subset's principal
+    segment (M,16); the segments' ends ``seg`` (ea, eb), each (M,2,3), in the q domain."""
+
+    t: torch.Tensor
+    q: torch.Tensor
+    om: torch.Tensor
+    member: torch.Tensor
+    tau: torch.Tensor
+    seg: tuple[torch.Tensor, torch.Tensor]
+
+
+def _refine(ctx: _Ctx, starts: _Starts, rounds: int, window: int, per_block: int = 1, keep: int = 1):
     """Refine M (block, shape) candidates, ``per_block`` consecutive ones per block.
 
-    ``tau`` (M,16): each texel's position along its subset's principal segment;
-    ``seg`` (ea, eb), each (M,2,3): the segments' ends in the q domain.  Starts:
-    one per entry of ``scales`` (index patterns from tau) plus one from the
+    Starts: one per entry of `_SCALES` (index patterns from tau) plus one from the
     outward-rounded segment ends.  After the first round only the ``keep`` best
     candidates of each block go on.  Returns (ia, ib (M',2,3), k (M',16),
     err (M',), items (M',)): the surviving candidates' results and positions.
     """
+    t, q, om, member, tau, seg = starts
     m = t.shape[0]
-    ns = len(scales) + 1
-    k = [torch.clamp(torch.round(3.5 + (tau - 0.5) * (7.0 * s)), 0.0, 7.0).long() for s in scales]
+    ns = len(_SCALES) + 1
+    k = [torch.clamp(torch.round(3.5 + (tau - 0.5) * (7.0 * s)), 0.0, 7.0).long() for s in _SCALES]
     ia0, ib0 = _bracket(ctx, *seg)
     k0, err0 = _assign(ctx, t, ia0, ib0, member)
     k = torch.stack(k + [k0], 1).reshape(m * ns, 16)
@@ -359,16 +372,22 @@ def _refine(ctx: _Ctx, t, q, om, member, tau, seg, rounds: int, window: int, sca
             t, qc, c, w, member, onehot, k = t[rows], qc[rows], c[rows], w[rows], member[rows], onehot[rows], k[rows]
             best_err, best_ia, best_ib, best_k = best_err[rows], best_ia[rows], best_ib[rows], best_k[rows]
             m = items.shape[0]
-    # best index pattern per subset, independently for the two subsets
-    err = best_err.reshape(m, ns, 2)
+    return (*_best_start(best_err.reshape(m, ns, 2), best_ia, best_ib, best_k, member.reshape(m, ns, 16)[:, 0]),
+            items)
+
+
+def _best_start(err, best_ia, best_ib, best_k, member0):
+    """Per candidate the best start of each subset, independently for the two subsets: (ia, ib
+    (m,2,3), k (m,16), err (m,)), from each start's results (``err`` (m,ns,2), the others by row
+    ``m * ns``) and the candidates' subsets ``member0`` (m,16)."""
+    m, ns, _ = err.shape
     j = err.argmin(1)  # (m, 2)
-    rows = torch.arange(m, device=t.device)[:, None] * ns + j  # (m, 2)
+    rows = torch.arange(m, device=err.device)[:, None] * ns + j  # (m, 2)
     ia = torch.stack([best_ia[rows[:, s], s] for s in range(2)], 1)
     ib = torch.stack([best_ib[rows[:, s], s] for s in range(2)], 1)
-    member0 = member.reshape(m, ns, 16)[:, 0]
     k_rows = torch.gather(rows, 1, member0)  # (m, 16): row of each texel's subset
-    kk = best_k[k_rows.reshape(-1), torch.arange(16, device=t.device).repeat(m)].reshape(m, 16)
-    return ia, ib, kk, torch.gather(err, 1, j[:, None, :]).squeeze(1).sum(1), items
+    kk = best_k[k_rows.reshape(-1), torch.arange(16, device=err.device).repeat(m)].reshape(m, 16)
+    return ia, ib, kk, torch.gather(err, 1, j[:, None, :]).squeeze(1).sum(1)
 
 
 # ---------------------------------------------------------------------------
@@ -376,30 +395,51 @@ def _refine(ctx: _Ctx, t, q, om, member, tau, seg, rounds: int, window: int, sca
 # ---------------------------------------------------------------------------
 
 
-def _encode_chunk(ctx: _Ctx, t: torch.Tensor, shapes, refine_top: int, rounds: int, window: int,
-                  scales=_SCALES, keep: int = 32):
-    b = t.shape[0]
-    lim = MAX_SIGNED if ctx.signed else MAX_UNSIGNED
-    t = t.clamp(-lim if ctx.signed else 0.0, lim)
-    q, om = _to_q(t, ctx.signed)
-    om = om / om.amax(dim=(1, 2), keepdim=True)  # per-block relative weights
-    centre, axis, proj, pmin, pmax, off_axis = _pca(ctx, q)
-    if shapes is None:
-        kk = max(1, min(int(refine_top), 32))
-        if kk == 32:
-            cand = torch.arange(32, device=t.device).repeat(b, 1)
-        else:
-            score, resid = _shape_scores(ctx, om, off_axis, pmin, pmax)
-            cand = torch.argsort(score, dim=1, stable=True)[:, :kk]  # (B, kk)
-            if kk > 1:  # make sure the shape closest to two exact segments is refined too
-                line = resid.argmin(1)
-                have = (cand == line[:, None]).any(1)
-                cand[:, -1] = torch.where(have, cand[:, -1], line)
-    else:
-        kk = 1
-        cand = shapes[:, None]
-    m = b * kk
-    shape_m = cand.reshape(m)
+@dataclass(frozen=True)
+class Settings:
+    """`encode_params`' keyword arguments: how hard it searches and where it runs.
+
+    ``refine_top``: how many of the best-scoring shapes of the screening are refined, ``keep`` of
+    them (per block) beyond the first round (``refine_top=32, keep=32``: every shape fully);
+    ``rounds``: endpoint/index alternations per start; ``window``: half-width of the endpoint-A
+    search window (clamped to [0, 31]); ``chunk``: blocks per vectorized step (small chunks stay in
+    cache); ``device``: torch device (default CPU); ``workers``: CPU threads working on chunks in
+    parallel (default ``torch.get_num_threads()``).
+    """
+
+    refine_top: int = 4
+    keep: int = 2
+    rounds: int = 2
+    window: int = 4
+    chunk: int = 512
+    device: str | torch.device | None = None
+    workers: int | None = None
+
+
+def _shortlist(ctx: _Ctx, om, pca, shapes, refine_top: int) -> torch.Tensor:
+    """The shapes to refine per block, (B, kk): the given ``shapes`` (kk = 1), every shape, or the
+    ``refine_top`` best-scoring ones, the shape closest to two exact segments always among them."""
+    if shapes is not None:
+        return shapes[:, None]
+    b = om.shape[0]
+    kk = max(1, min(int(refine_top), 32))
+    if kk == 32:
+        return torch.arange(32, device=om.device).repeat(b, 1)
+    _, _, _, pmin, pmax, off_axis = pca
+    score, resid = _shape_scores(ctx, om, off_axis, pmin, pmax)
+    cand = torch.argsort(score, dim=1, stable=True)[:, :kk]  # (B, kk)
+    if kk > 1:  # make sure the shape closest to two exact segments is refined too
+        line = resid.argmin(1)
+        have = (cand == line[:, None]).any(1)
+        cand[:, -1] = torch.where(have, cand[:, -1], line)
+    return cand
+
+
+def _starts(ctx: _Ctx, t, q, om, pca, cand) -> _Starts:
+    """The refinement's inputs for every (block, candidate shape) of ``cand`` (B, kk), block-major."""
+    b, kk = cand.shape
+    centre, axis, proj, pmin, pmax, _ = pca
+    shape_m = cand.reshape(b * kk)
     member = ctx.part[shape_m]  # (M, 16)
     blk = torch.arange(b, device=t.device).repeat_interleave(kk)
     rows = 2 * shape_m[:, None] + member  # (M, 16) subset row of each texel
@@ -411,8 +451,20 @@ def _encode_chunk(ctx: _Ctx, t: torch.Tensor, shapes, refine_top: int, rounds: i
     srow = 2 * shape_m[:, None] + torch.arange(2, device=t.device)  # (M, 2) subset rows
     cen, ax = centre[blk[:, None], srow], axis[blk[:, None], srow]  # (M, 2, 3)
     seg = (cen + pmin[blk[:, None], srow][..., None] * ax, cen + pmax[blk[:, None], srow][..., None] * ax)
-    keep = min(kk, max(1, int(keep)))
-    ia, ib, k, err, items = _refine(ctx, t[blk], q[blk], om[blk], member, tau, seg, rounds, window, scales, kk, keep)
+    return _Starts(t[blk], q[blk], om[blk], member, tau, seg)
+
+
+def _encode_chunk(ctx: _Ctx, t: torch.Tensor, shapes, s: Settings):
+    b = t.shape[0]
+    lim = MAX_SIGNED if ctx.signed else MAX_UNSIGNED
+    t = t.clamp(-lim if ctx.signed else 0.0, lim)
+    q, om = _to_q(t, ctx.signed)
+    om = om / om.amax(dim=(1, 2), keepdim=True)  # per-block relative weights
+    pca = _pca(ctx, q)
+    cand = _shortlist(ctx, om, pca, shapes, s.refine_top)
+    kk = cand.shape[1]
+    keep = min(kk, max(1, int(s.keep)))
+    ia, ib, k, err, items = _refine(ctx, _starts(ctx, t, q, om, pca, cand), s.rounds, s.window, kk, keep)
     kk = items.shape[0] // b
     cand = cand.reshape(-1)[items].reshape(b, kk)
     err = err.reshape(b, kk)
@@ -429,68 +481,26 @@ def _encode_chunk(ctx: _Ctx, t: torch.Tensor, shapes, refine_top: int, rounds: i
     return endpoints, k, best_shape
 
 
-def encode_params(
-    texels,
-    signed: bool = False,
-    partitions=None,
-    *,
-    refine_top: int = 4,
-    keep: int = 2,
-    rounds: int = 2,
-    window: int = 4,
-    chunk: int = 512,
-    device=None,
-    workers: int | None = None,
-):
-    """Fit mode-10 block parameters to an (H, W, 3) float image.
+def _fixed_shapes(partitions, n: int) -> np.ndarray | None:
+    """``partitions`` (None, an int or an int array (n,)) as one shape per block, or None."""
+    if partitions is None:
+        return None
+    pa = np.asarray(partitions)
+    if pa.dtype.kind not in "iu" or pa.ndim > 1:
+        raise ValueError("partitions must be an int or an int array of shape (n,)")
+    shapes = np.broadcast_to(pa.astype(np.int64), (n,)).copy()
+    if shapes.min() < 0 or shapes.max() > 31:
+        raise ValueError("partitions must lie in [0, 31]")
+    return shapes
 
-    Returns ``(endpoints int64 (n,4,3), indices int64 (n,16), partition int64 (n,))``,
-    ``n = H/4 * W/4`` blocks in row-major order, in the conventions of
-    :mod:`bcfpipe.bc6h.mode10` (endpoints in [-32, 31] when ``signed``).  Indices
-    are not anchor-canonicalized (:func:`mode10.pack` does that).
 
-    ``partitions``: None (choose per block by minimum decoded error), an int (that
-    shape everywhere) or an int array (n,).  ``refine_top``: how many of the
-    best-scoring shapes of the screening are refined, ``keep`` of them (per block)
-    beyond the first round (``refine_top=32, keep=32``: every shape fully);
-    ``rounds``: endpoint/index alternations per start; ``window``: half-width of
-    the endpoint-A search window; ``chunk``: blocks per vectorized step (small
-    chunks stay in cache);
-    ``device``: torch device (default CPU); ``workers``: CPU threads working on
-    chunks in parallel (default ``torch.get_num_threads()``; torch's intra-op
-    thread count is set to 1 for the duration of the call and restored after).
-    """
-    img = _validate(texels)
-    blocks = blocks_from_image(img)
-    n = blocks.shape[0]
-    dev = torch.device(device) if device is not None else torch.device("cpu")
-    shapes_all = None
-    if partitions is not None:
-        pa = np.asarray(partitions)
-        if pa.dtype.kind not in "iu" or pa.ndim > 1:
-            raise ValueError("partitions must be an int or an int array of shape (n,)")
-        shapes_all = np.broadcast_to(pa.astype(np.int64), (n,)).copy()
-        if shapes_all.min() < 0 or shapes_all.max() > 31:
-            raise ValueError("partitions must lie in [0, 31]")
-    window = int(min(max(window, 0), 31))
-    ctx = _Ctx(signed, dev)
-    out_e = np.empty((n, 4, 3), np.int64)
-    out_i = np.empty((n, 16), np.int64)
-    out_p = np.empty((n,), np.int64)
-
-    def run(s: int) -> None:
-        e = min(n, s + chunk)
-        with torch.no_grad():
-            t = torch.from_numpy(np.ascontiguousarray(blocks[s:e])).to(dev)
-            shp = None if shapes_all is None else torch.from_numpy(np.ascontiguousarray(shapes_all[s:e])).to(dev)
-            ep, ix, pt = _encode_chunk(ctx, t, shp, refine_top, rounds, window, keep=keep)
-            out_e[s:e], out_i[s:e], out_p[s:e] = ep.cpu().numpy(), ix.cpu().numpy(), pt.cpu().numpy()
-
-    starts = range(0, n, chunk)
-    if dev.type != "cpu":
+def _run_chunks(run, starts: range, device: torch.device, workers: int | None) -> None:
+    """``run(start)`` for every chunk: in turn on a GPU; on the CPU in ``workers`` threads, torch's
+    intra-op thread count set to 1 meanwhile and restored after."""
+    if device.type != "cpu":
         for s in starts:
             run(s)
-        return out_e, out_i, out_p
+        return
     if workers is None:
         workers = torch.get_num_threads()
     workers = max(1, min(int(workers), len(starts)))
@@ -509,6 +519,41 @@ def encode_params(
                 list(pool.map(run, starts))
     finally:
         torch.set_num_threads(prev)
+
+
+def encode_params(texels, signed: bool = False, partitions=None, **settings):
+    """Fit mode-10 block parameters to an (H, W, 3) float image.
+
+    Returns ``(endpoints int64 (n,4,3), indices int64 (n,16), partition int64 (n,))``,
+    ``n = H/4 * W/4`` blocks in row-major order, in the conventions of
+    :mod:`bcfpipe.bc6h.mode10` (endpoints in [-32, 31] when ``signed``).  Indices
+    are not anchor-canonicalized (:func:`mode10.pack` does that).
+
+    ``partitions``: None (choose per block by minimum decoded error), an int (that
+    shape everywhere) or an int array (n,).  ``settings``: the fields of `Settings`
+    (``refine_top``, ``keep``, ``rounds``, ``window``, ``chunk``, ``device``, ``workers``).
+    """
+    s = Settings(**settings)
+    img = _validate(texels)
+    blocks = blocks_from_image(img)
+    n = blocks.shape[0]
+    dev = torch.device(s.device) if s.device is not None else torch.device("cpu")
+    shapes_all = _fixed_shapes(partitions, n)
+    s = replace(s, window=int(min(max(s.window, 0), 31)))
+    ctx = _Ctx(signed, dev)
+    out_e = np.empty((n, 4, 3), np.int64)
+    out_i = np.empty((n, 16), np.int64)
+    out_p = np.empty((n,), np.int64)
+
+    def run(start: int) -> None:
+        e = min(n, start + s.chunk)
+        with torch.no_grad():
+            t = torch.from_numpy(np.ascontiguousarray(blocks[start:e])).to(dev)
+            shp = None if shapes_all is None else torch.from_numpy(np.ascontiguousarray(shapes_all[start:e])).to(dev)
+            ep, ix, pt = _encode_chunk(ctx, t, shp, s)
+            out_e[start:e], out_i[start:e], out_p[start:e] = ep.cpu().numpy(), ix.cpu().numpy(), pt.cpu().numpy()
+
+    _run_chunks(run, range(0, n, s.chunk), dev, s.workers)
     return out_e, out_i, out_p
 
 
@@ -516,7 +561,7 @@ def encode(texels, signed: bool = False, partitions=None, **kwargs) -> np.ndarra
     """Encode an (H, W, 3) float image (H, W multiples of 4) into mode-10 BC6H blocks.
 
     Returns uint8 (H/4 * W/4, 16), blocks in row-major order; decode with
-    ``bcfpipe.bc6h.decode(blocks, W, H, signed)``.  Keyword arguments: see
-    :func:`encode_params`.
+    ``bcfpipe.bc6h.decode(blocks, W, H, signed)``.  Keyword arguments: the fields of
+    `Settings`.
     """
     return mode10.pack(*encode_params(texels, signed=signed, partitions=partitions, **kwargs), signed=signed)
