@@ -1,10 +1,11 @@
 """Step 3 of a build: the combined weights.bin, the USD layers and manifest.json."""
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import replace
 from pathlib import Path
-from typing import Mapping
+from typing import Callable, Mapping, Sequence
 
 from bcfpipe.formats.vocabulary import Decision, Status
 from bcfpipe import __version__
@@ -13,7 +14,7 @@ from bcfpipe.formats import material as mf
 from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK
 from bcfpipe.builder.executor import JobResult
-from bcfpipe.builder.plan import BuildPlan, MATERIALS_DIR, OVERRIDES
+from bcfpipe.builder.plan import BuildPlan, MaterialJob, MaterialPlan, MATERIALS_DIR, OVERRIDES
 from bcfpipe.formats.manifest import WEIGHTS
 from bcfpipe.scan.sources import package_split
 
@@ -60,50 +61,50 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
              final_out: str | os.PathLike | None = None) -> mfst.Manifest:
     """Write weights.bin, the USD layers and manifest.json into ``staging`` (whose contents will
     live at ``final_out``; relative paths are computed from there). Returns the manifest."""
-    from bcfpipe.builder import usd_layer as usdout
-
     staging = Path(staging)
     final_out = Path(final_out) if final_out is not None else staging
     built = [j for j in bplan.jobs if results.get(j.name) and results[j.name].status == Status.BUILT]
     descs = {j.name: mf.read(staging / MATERIALS_DIR / j.name) for j in built}
     neural = [j for j in built if descs[j.name].neural]  # a --layout auto material may be all classic
+    entries = _write_weights(staging, neural)
+    entry_of = {j.name: e for j, e in zip(neural, entries)}
+    scene_rel, root_name = _write_layers(bplan, staging, final_out, descs, entry_of)
+    rel = functools.partial(_relative, final_out=final_out)
+    mats = tuple(_material(mp_, results.get(mp_.job) if mp_.job else None, bplan.sources, rel,
+                           staging / MATERIALS_DIR, entry_of.get(mp_.job)) for mp_ in bplan.materials)
+    totals = _totals(bplan, mats, built, staging)
+    manifest = mfst.Manifest(
+        scene=scene_rel, root_layer=root_name, overrides_layer=OVERRIDES, weights=WEIGHTS,
+        variants=tuple(tuple(v) for v in bplan.variants),
+        variant_selections=tuple(mfst.VariantSelection(p, s, v) for p, s, v in bplan.variant_selections),
+        all_materials=bplan.all_materials, options=bplan.options,
+        stage=mfst.Stage(bplan.up_axis, bplan.meters_per_unit, bplan.default_prim),
+        materials=mats, jobs=_job_entries(bplan, results, entry_of),
+        weights_table=tuple(mfst.WeightsRecord(e.index, e.offset, e.size, e.n_hidden, e.n_out, j.name)
+                            for j, e in zip(neural, entries)),
+        totals=totals, diagnostics=tuple(bplan.diagnostics),
+        exit_code=EXIT_FAILED if totals.failed else EXIT_OK)
+    mfst.write(staging, manifest)
+    _normalise_modes(staging)
+    return manifest
+
+
+def _write_weights(staging: Path, neural: Sequence[MaterialJob]) -> list:
+    """weights.bin: the ``neural`` jobs' weight records packed in order; their table entries."""
     records = [(staging / MATERIALS_DIR / j.name / WEIGHTS).read_bytes() for j in neural]
     buffer, entries = weightsbuf.pack(records)
     (staging / WEIGHTS).write_bytes(buffer)
-    entry_of = {j.name: e for j, e in zip(neural, entries)}
+    return entries
 
-    overrides: list[usdout.NeuralMaterialOverride] = []
-    for mp_ in bplan.materials:
-        if mp_.job is None or mp_.job not in entry_of:
-            continue
-        e, desc = entry_of[mp_.job], descs[mp_.job]
-        folder = f"./{MATERIALS_DIR}/{mp_.job}"
-        layers = desc.layers
-        targets = _neural_targets(mp_.targets, desc)
-        outs = desc.mlp_outputs
-        overrides.append(usdout.NeuralMaterialOverride(
-            material=mp_.path,
-            feature_textures=tuple(f"{folder}/{layer.file}" for layer in layers),
-            feature_resolutions=tuple(layer.resolution for layer in layers),
-            feature_mip_counts=desc.mip_counts,
-            feature_lod_biases=desc.lod_biases,
-            feature_signed=desc.signed,
-            addressing=desc.wrap,
-            reference_resolution=(desc.reference.width, desc.reference.height),
-            st_primvar=mp_.st_primvar, st_scale=mp_.st_scale, st_rotation=mp_.st_rotation,
-            st_translation=mp_.st_translation,
-            weights=f"./{WEIGHTS}", weights_offset=e.offset, weights_size=e.size, weights_index=e.index,
-            mlp=desc.mlp,
-            decoder=f"{folder}/{desc.onnx.file}",
-            targets=tuple(t.target for t in targets), channels=tuple(t.channel for t in targets),
-            # an HDR output's value map (material.json value_scale/value_bias) folds into the target's;
-            # channel -1 is a constant component (its value is the bias)
-            scale=tuple(t.scale * outs[t.channel].value_scale if t.channel >= 0 else 0.0 for t in targets),
-            bias=tuple(t.bias + t.scale * outs[t.channel].value_bias if t.channel >= 0 else t.bias
-                       for t in targets),
-            color_spaces=tuple(t.color_space for t in targets),
-            fallback_surface=mp_.fallback_surface, version=__version__, split=desc.split or 0,
-        ))
+
+def _write_layers(bplan: BuildPlan, staging: Path, final_out: Path, descs: Mapping[str, mf.MaterialFile],
+                  entry_of: Mapping) -> tuple[str, str]:
+    """The overrides layer (each neural material's override, the constant inputs, the classic
+    wiring) and the root layer over it and the scene; (the scene relative to OUT, the root layer)."""
+    from bcfpipe.builder import usd_layer as usdout
+
+    overrides = [_override(mp_, descs[mp_.job], entry_of[mp_.job]) for mp_ in bplan.materials
+                 if mp_.job is not None and mp_.job in entry_of]
     scene_rel = usdout.relative_asset(bplan.scene, final_out)
     stamp = f"Written by bcfpipe {__version__} build from {scene_rel}"
     classic, source_stage = _classic_wiring(bplan, descs)
@@ -112,87 +113,131 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
     root_name = root_layer_name(bplan.scene)
     usdout.write_root_layer(staging / root_name, [f"./{OVERRIDES}", scene_rel], bplan.up_axis,
                             bplan.meters_per_unit, bplan.default_prim, bplan.root_layer, comment=stamp)
+    return scene_rel, root_name
 
-    sources = bplan.sources
 
-    def rel(path: str | None) -> str | None:
-        return usdout.relative_asset(path, final_out) if path and package_split(path) is None else path
+def _override(mp_: MaterialPlan, desc: mf.MaterialFile, e):
+    """A neural material's override (usd_layer.NeuralMaterialOverride): its feature textures, its
+    record ``e`` in weights.bin, its decoder and the targets it drives."""
+    from bcfpipe.builder import usd_layer as usdout
 
-    mats: list[mfst.Material] = []
-    for mp_ in bplan.materials:
-        r = results.get(mp_.job) if mp_.job else None
-        if mp_.decision == Decision.SKIP:
-            status, reason = Status.SKIPPED, mp_.reason
-        elif mp_.decision == Decision.CONSTANT:
-            status, reason = Status.CONSTANT, None
-        elif mp_.reason == "failed" and mp_.job is None:
-            status, reason = Status.FAILED, mp_.message
-        elif r is None or r.status != Status.BUILT:
-            status, reason = Status.FAILED, r.reason if r else "not run"
-        else:
-            status, reason = Status.BUILT, None
-        common = dict(
-            path=mp_.path, aliases=tuple(mp_.aliases), job=mp_.job, status=status, reason=reason, message=mp_.message,
-            sources=tuple(mfst.Source(rel(s.path), s.asset_path, s.xxh3_128, s.size_bytes, s.width, s.height,
-                                      s.channels, s.format, s.color_space, s.resolved_color_space)
-                          for s in (sources[p] for p in mp_.sources if p in sources)),
-            targets=tuple(mfst.Target(t.target, t.input, t.channel, t.scale, t.bias, t.color_space, rel(t.file),
-                                      t.file_channel) for t in mp_.targets),
-            constants=tuple(mfst.Constant(c.target, c.input, c.value, rel(c.file), c.file_channel)
-                            for c in mp_.constants),
-            folded=tuple(mfst.Folded(rel(f.file), f.channel, f.reason, f.value,
-                                     rel(f.same_as.file) if f.same_as else None,
-                                     f.same_as.channel if f.same_as else None) for f in mp_.folded),
-            warnings=tuple(mp_.warnings))
-        if status == Status.BUILT:
-            e = entry_of.get(mp_.job)
-            feats = _features_bytes(staging / MATERIALS_DIR / mp_.job)
-            classic = _classic_bytes(staging / MATERIALS_DIR / mp_.job)
-            wsize = e.size if e else 0
-            res = r.result
-            mats.append(mfst.Material(
-                **common,
-                metrics=mfst.Metrics(res.get("psnr"), res.get("ssim"), res.get("flip"), res.get("float_psnr"),
-                                     mfst.Quality.from_json(res["metrics"], "metrics")),
-                sizes=mfst.Sizes(feats, wsize, feats + wsize + classic,
-                                 sum(sources[p].size_bytes for p in mp_.sources if p in sources), classic),
-                outputs=mfst.Outputs(f"{MATERIALS_DIR}/{mp_.job}", e.index if e else None, e.offset if e else None,
-                                     e.size if e else None),
-                layout=_layout_choice(res.get("layout")),
-                profile=res.get("profile"), resolutions=tuple(res.get("resolutions")), preset=res.get("preset"),
-                target=mfst.RateControl.from_json(res["target"], "target") if res.get("target") else None,
-                device=_device_class(res.get("device") or r.device)))
-        else:
-            mats.append(mfst.Material(**common, device=_device_class(r.device) if r else None))
+    folder = f"./{MATERIALS_DIR}/{mp_.job}"
+    layers = desc.layers
+    targets = _neural_targets(mp_.targets, desc)
+    outs = desc.mlp_outputs
+    return usdout.NeuralMaterialOverride(
+        material=mp_.path,
+        feature_textures=tuple(f"{folder}/{layer.file}" for layer in layers),
+        feature_resolutions=tuple(layer.resolution for layer in layers),
+        feature_mip_counts=desc.mip_counts,
+        feature_lod_biases=desc.lod_biases,
+        feature_signed=desc.signed,
+        addressing=desc.wrap,
+        reference_resolution=(desc.reference.width, desc.reference.height),
+        st_primvar=mp_.st_primvar, st_scale=mp_.st_scale, st_rotation=mp_.st_rotation,
+        st_translation=mp_.st_translation,
+        weights=f"./{WEIGHTS}", weights_offset=e.offset, weights_size=e.size, weights_index=e.index,
+        mlp=desc.mlp,
+        decoder=f"{folder}/{desc.onnx.file}",
+        targets=tuple(t.target for t in targets), channels=tuple(t.channel for t in targets),
+        # an HDR output's value map (material.json value_scale/value_bias) folds into the target's;
+        # channel -1 is a constant component (its value is the bias)
+        scale=tuple(t.scale * outs[t.channel].value_scale if t.channel >= 0 else 0.0 for t in targets),
+        bias=tuple(t.bias + t.scale * outs[t.channel].value_bias if t.channel >= 0 else t.bias
+                   for t in targets),
+        color_spaces=tuple(t.color_space for t in targets),
+        fallback_surface=mp_.fallback_surface, version=__version__, split=desc.split or 0,
+    )
 
-    job_entries = []
+
+def _relative(path: str | None, final_out: Path) -> str | None:
+    """A file path as the manifest records it: relative to OUT; a path inside a package as it is."""
+    from bcfpipe.builder import usd_layer as usdout
+
+    return usdout.relative_asset(path, final_out) if path and package_split(path) is None else path
+
+
+def _status(mp_: MaterialPlan, r: JobResult | None) -> tuple[Status, str | None]:
+    """A material's status and why: as planned (skipped, constant, failed to plan), else as its job ended."""
+    if mp_.decision == Decision.SKIP:
+        return Status.SKIPPED, mp_.reason
+    if mp_.decision == Decision.CONSTANT:
+        return Status.CONSTANT, None
+    if mp_.reason == "failed" and mp_.job is None:
+        return Status.FAILED, mp_.message
+    if r is None or r.status != Status.BUILT:
+        return Status.FAILED, r.reason if r else "not run"
+    return Status.BUILT, None
+
+
+def _material(mp_: MaterialPlan, r: JobResult | None, sources: Mapping, rel: Callable[[str | None], str | None],
+              materials_dir: Path, e) -> mfst.Material:
+    """A material's manifest record: what it was made from and, when built, its figures and files."""
+    status, reason = _status(mp_, r)
+    common = dict(path=mp_.path, aliases=tuple(mp_.aliases), job=mp_.job, status=status, reason=reason,
+                  message=mp_.message, **_inputs(mp_, sources, rel), warnings=tuple(mp_.warnings))
+    if status != Status.BUILT:
+        return mfst.Material(**common, device=_device_class(r.device) if r else None)
+    return mfst.Material(**common, **_built(mp_, r, e, materials_dir / mp_.job, sources))
+
+
+def _inputs(mp_: MaterialPlan, sources: Mapping, rel: Callable[[str | None], str | None]) -> dict:
+    """A material's sources, targets, constants and folded channels, paths as ``rel`` records them."""
+    return dict(
+        sources=tuple(mfst.Source(rel(s.path), s.asset_path, s.xxh3_128, s.size_bytes, s.width, s.height,
+                                  s.channels, s.format, s.color_space, s.resolved_color_space)
+                      for s in (sources[p] for p in mp_.sources if p in sources)),
+        targets=tuple(mfst.Target(t.target, t.input, t.channel, t.scale, t.bias, t.color_space, rel(t.file),
+                                  t.file_channel) for t in mp_.targets),
+        constants=tuple(mfst.Constant(c.target, c.input, c.value, rel(c.file), c.file_channel)
+                        for c in mp_.constants),
+        folded=tuple(mfst.Folded(rel(f.file), f.channel, f.reason, f.value,
+                                 rel(f.same_as.file) if f.same_as else None,
+                                 f.same_as.channel if f.same_as else None) for f in mp_.folded))
+
+
+def _built(mp_: MaterialPlan, r: JobResult, e, folder: Path, sources: Mapping) -> dict:
+    """A built material's figures (its job's result), sizes (its files in ``folder``, its record
+    ``e`` in weights.bin, or None when all classic) and outputs."""
+    feats = _features_bytes(folder)
+    classic = _classic_bytes(folder)
+    wsize = e.size if e else 0
+    res = r.result
+    return dict(
+        metrics=mfst.Metrics(res.get("psnr"), res.get("ssim"), res.get("flip"), res.get("float_psnr"),
+                             mfst.Quality.from_json(res["metrics"], "metrics")),
+        sizes=mfst.Sizes(feats, wsize, feats + wsize + classic,
+                         sum(sources[p].size_bytes for p in mp_.sources if p in sources), classic),
+        outputs=mfst.Outputs(f"{MATERIALS_DIR}/{mp_.job}", e.index if e else None, e.offset if e else None,
+                             e.size if e else None),
+        layout=_layout_choice(res.get("layout")),
+        profile=res.get("profile"), resolutions=tuple(res.get("resolutions")), preset=res.get("preset"),
+        target=mfst.RateControl.from_json(res["target"], "target") if res.get("target") else None,
+        device=_device_class(res.get("device") or r.device))
+
+
+def _job_entries(bplan: BuildPlan, results: Mapping[str, JobResult], entry_of: Mapping) -> tuple[mfst.Job, ...]:
+    """Every job as the manifest records it: its materials, key, how it ended, its weights record."""
+    out = []
     for j in bplan.jobs:
         r = results.get(j.name)
-        job_entries.append(mfst.Job(j.name, tuple(j.materials), j.content_hash, r.status if r else "not run",
-                                    r.reason if r else None, _device_class(r.device) if r else None,
-                                    entry_of[j.name].index if j.name in entry_of else None))
+        out.append(mfst.Job(j.name, tuple(j.materials), j.content_hash, r.status if r else "not run",
+                            r.reason if r else None, _device_class(r.device) if r else None,
+                            entry_of[j.name].index if j.name in entry_of else None))
+    return tuple(out)
+
+
+def _totals(bplan: BuildPlan, mats: Sequence[mfst.Material], built: Sequence[MaterialJob],
+            staging: Path) -> mfst.Totals:
+    """Materials by status, jobs, and the bytes the build ships and read."""
     counts = {s: sum(1 for m in mats if m.status == s) for s in mfst.STATUSES}
     feature_total = sum(_features_bytes(staging / MATERIALS_DIR / j.name) + _classic_bytes(staging / MATERIALS_DIR / j.name)
                         for j in built)
     weights_size = (staging / WEIGHTS).stat().st_size
-    manifest = mfst.Manifest(
-        scene=scene_rel, root_layer=root_name, overrides_layer=OVERRIDES, weights=WEIGHTS,
-        variants=tuple(tuple(v) for v in bplan.variants),
-        variant_selections=tuple(mfst.VariantSelection(p, s, v) for p, s, v in bplan.variant_selections),
-        all_materials=bplan.all_materials, options=bplan.options,
-        stage=mfst.Stage(bplan.up_axis, bplan.meters_per_unit, bplan.default_prim),
-        materials=tuple(mats), jobs=tuple(job_entries),
-        weights_table=tuple(mfst.WeightsRecord(e.index, e.offset, e.size, e.n_hidden, e.n_out, j.name)
-                            for j, e in zip(neural, entries)),
-        totals=mfst.Totals(
-            materials=len(mats), **counts, jobs=len(bplan.jobs), trained=len(built),
-            features_bytes=feature_total, weights_bytes=weights_size,
-            total_bytes=feature_total + weights_size, source_bytes=sum(s.size_bytes for s in sources.values())),
-        diagnostics=tuple(bplan.diagnostics),
-        exit_code=EXIT_FAILED if counts[Status.FAILED] else EXIT_OK)
-    mfst.write(staging, manifest)
-    _normalise_modes(staging)
-    return manifest
+    return mfst.Totals(
+        materials=len(mats), **counts, jobs=len(bplan.jobs), trained=len(built),
+        features_bytes=feature_total, weights_bytes=weights_size,
+        total_bytes=feature_total + weights_size, source_bytes=sum(s.size_bytes for s in bplan.sources.values()))
 
 
 def _layout_choice(d: dict | None) -> mfst.LayoutChoice | None:

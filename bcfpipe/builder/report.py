@@ -2,6 +2,7 @@
 what each job's worker or the cache reported."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -38,9 +39,26 @@ def encode_seconds(result: Mapping | None) -> float | None:
     return phases.get("classic_encode")
 
 
-def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResult], files: Sequence[str],
-                written: Sequence[str], cache_root: str | None, damaged: Sequence[str], wall_seconds: float,
-                depfile: str | None, executor: str = "local") -> rep.BuildReport:
+@dataclass(frozen=True)
+class BuildFacts:
+    """What a build did besides its manifest and its jobs' results, as the report states it: OUT
+    as given (``out``), every file in it (``files``) and those this build wrote (``written``), the
+    cache folder (None: no cache) and the damaged entries it skipped, the wall time, the depfile
+    written (or None) and the executor ("local" is left out of the report)."""
+
+    out: str
+    files: Sequence[str]
+    written: Sequence[str]
+    cache_root: str | None
+    damaged: Sequence[str]
+    wall_seconds: float
+    depfile: str | None
+    executor: str = "local"
+
+
+def make_report(manifest: mfst.Manifest, results: Mapping[str, JobResult], facts: BuildFacts) -> rep.BuildReport:
+    """The build report of ``manifest``, with each job's ``results`` and the run's ``facts``."""
+    out, files, written = facts.out, facts.files, facts.written
     mats = []
     for m in manifest.materials:
         r = results.get(m.job) if m.job else None
@@ -64,13 +82,13 @@ def make_report(out: str, manifest: mfst.Manifest, results: Mapping[str, JobResu
     return rep.BuildReport(
         out=out, root_layer=str(Path(out) / manifest.root_layer), manifest=str(Path(out) / mfst.FILE),
         exit_code=manifest.exit_code,
-        cache=rep.CacheReport(cache_root is not None, cache_root, hits,
-                              sum(1 for r in results.values() if r.cache == CacheUse.MISS), tuple(damaged)),
+        cache=rep.CacheReport(facts.cache_root is not None, facts.cache_root, hits,
+                              sum(1 for r in results.values() if r.cache == CacheUse.MISS), tuple(facts.damaged)),
         totals=rep.ReportTotals(
             materials=t.materials, built=t.built, constant=t.constant, failed=t.failed, skipped=t.skipped, jobs=t.jobs,
             trained=len(trained), cached=hits,
             train_seconds=round(sum(r.result.get("train_seconds") or 0.0 for r in trained), 3),
-            wall_seconds=round(wall_seconds, 3), total_bytes=t.total_bytes, written_files=len(written),
+            wall_seconds=round(facts.wall_seconds, 3), total_bytes=t.total_bytes, written_files=len(written),
             encode_seconds=round(sum(encode_seconds(r.result) or 0.0 for r in trained), 3)),
-        materials=tuple(mats), written=tuple(written), depfile=depfile,
-        executor=executor if executor != "local" else None)
+        materials=tuple(mats), written=tuple(written), depfile=facts.depfile,
+        executor=facts.executor if facts.executor != "local" else None)

@@ -74,6 +74,15 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
     con = Console()
     say = lambda text: con.print(text, highlight=False, soft_wrap=True)  # noqa: E731
     say(f"bcfpipe plan: {bplan.scene}")
+    _say_warnings(say, bplan)
+    for j in bplan.jobs:
+        _say_job(say, j)
+    _say_decisions(say, bplan)
+    _say_range(say, bplan)
+
+
+def _say_warnings(say, bplan) -> None:
+    """The stage's diagnostics, each material's warnings and unused --classic names."""
     for line in counted(bplan.diagnostics):
         say(f"[yellow]usd:[/yellow] {escape(line)}")
     for m in bplan.materials:
@@ -81,38 +90,46 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
             say(f"[yellow]warning:[/yellow] {m.path}: {escape(w)}")
     for sem in bplan.unused_classic:
         say(f"[yellow]warning:[/yellow] --classic {escape(sem)}: no modelled material has such a channel")
-    for j in bplan.jobs:
-        w, h = j.size
-        prof = _profile(j)
-        read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
-        say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
-            f"content hash {j.content_hash[:16]}")
-        from bcfpipe.config import layout_of
-        from bcfpipe.layout.classic import MAX_REPACK_SIDE
-        from bcfpipe.layout.material import bc_resolution, uses_layout
 
-        pred = job_prediction(j)
-        if uses_layout(j.options, [sem for sem, _, _ in j.specs]):
-            r = bc_resolution(max(w, h), j.options.profile)
-            files = {f for sem, f, _ in j.specs if sem in (j.options.classic or ())}
-            kept = list(dict.fromkeys(sem for sem, f, _ in j.specs if f in files))  # a packed file goes whole
-            held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
-            bc = f" ({pred.bc_bytes / 2**20:.2f} MiB)" if pred else ""
-            if layout_of(j.options) == "auto":
-                repack = (" and its BC7 repacks (encoded, not trained)" if pred is None or pred.repack_bytes else
-                          "; no BC7 repack fits its bytes") if r <= MAX_REPACK_SIDE else ""
-                probe = f"a probe at {pred.probe}" if pred else "a probe"
-                say(f"    layout auto: against BC@{r}{bc}{repack}{held}; {probe} (the largest profile within its "
-                    f"bytes), at most one more training (a mixed layout or a mip split), decided when trained "
-                    f"(docs/layout.md)")
-            else:
-                say(f"    layout: against BC@{r}{bc}{held}; the rest neural at {prof}")
-        if pred is not None:
-            say(f"    ships {pred.size_text()}" + ("" if pred.exact else
-                                                     f" (at most BC@{pred.resolution}'s bytes: what training decides)"
-                                                     if not j.options.match_bc else " (--match-bc: any size)"))
-        for m in j.materials:
-            say(f"    {m}")
+
+def _say_job(say, j) -> None:
+    """One job: its size, profile, outputs, coverage and key; how its layout is decided; what it
+    ships; its materials."""
+    w, h = j.size
+    prof = _profile(j)
+    read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
+    say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
+        f"content hash {j.content_hash[:16]}")
+    from bcfpipe.config import layout_of
+    from bcfpipe.layout.classic import MAX_REPACK_SIDE
+    from bcfpipe.layout.material import bc_resolution, uses_layout
+
+    pred = job_prediction(j)
+    if uses_layout(j.options, [sem for sem, _, _ in j.specs]):
+        r = bc_resolution(max(w, h), j.options.profile)
+        files = {f for sem, f, _ in j.specs if sem in (j.options.classic or ())}
+        kept = list(dict.fromkeys(sem for sem, f, _ in j.specs if f in files))  # a packed file goes whole
+        held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
+        bc = f" ({pred.bc_bytes / 2**20:.2f} MiB)" if pred else ""
+        if layout_of(j.options) == "auto":
+            repack = (" and its BC7 repacks (encoded, not trained)" if pred is None or pred.repack_bytes else
+                      "; no BC7 repack fits its bytes") if r <= MAX_REPACK_SIDE else ""
+            probe = f"a probe at {pred.probe}" if pred else "a probe"
+            say(f"    layout auto: against BC@{r}{bc}{repack}{held}; {probe} (the largest profile within its "
+                f"bytes), at most one more training (a mixed layout or a mip split), decided when trained "
+                f"(docs/layout.md)")
+        else:
+            say(f"    layout: against BC@{r}{bc}{held}; the rest neural at {prof}")
+    if pred is not None:
+        say(f"    ships {pred.size_text()}" + ("" if pred.exact else
+                                                 f" (at most BC@{pred.resolution}'s bytes: what training decides)"
+                                                 if not j.options.match_bc else " (--match-bc: any size)"))
+    for m in j.materials:
+        say(f"    {m}")
+
+
+def _say_decisions(say, bplan) -> None:
+    """The constant and skipped materials (those not selected aside), then the counts."""
     skipped = Counter(m.reason for m in bplan.materials if m.decision == Decision.SKIP)
     for m in bplan.materials:
         if m.decision == Decision.CONSTANT:
@@ -123,6 +140,10 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
     reasons = ", ".join(f"{n} {r}" for r, n in sorted(skipped.items(), key=lambda kv: (-kv[1], kv[0])))
     say(f"{len(bplan.jobs)} job(s) for {counts['model']} modelled material(s); {counts['constant']} constant, "
         f"{counts['skip']} skipped" + (f" ({reasons})" if reasons else ""))
+
+
+def _say_range(say, bplan) -> None:
+    """The bytes the whole build ships, when every job's can be predicted."""
     preds = [job_prediction(j) for j in bplan.jobs]
     if preds and all(p is not None for p in preds):
         from bcfpipe.layout.predict import build_range
