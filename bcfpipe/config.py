@@ -9,10 +9,11 @@ from __future__ import annotations
 import math
 import os
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Callable, Iterator
 
+from bcfpipe.formats.record import Record
 from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout
 
 N_LAYERS = 4
@@ -197,17 +198,10 @@ def default_layout(target_psnr: float | None) -> Layout:
 
 
 def t0_of(options) -> T0:
-    """What T_0 holds for ``options`` (`TrainingOptions`, or a job's recorded manifest.Options): --t0,
-    else its format's default (DEFAULT_T0); a record without a format (before MODEL_FORMAT 11) was bc6h."""
-    if options.t0 is not None:
-        return T0(options.t0)
-    return DEFAULT_T0[FeatureFormat(options.features or FeatureFormat.BC6H)]
+    """What T_0 holds for ``options``: --t0, else its feature format's default (DEFAULT_T0)."""
+    return T0(options.t0) if options.t0 is not None else DEFAULT_T0[FeatureFormat(options.features)]
 
 
-def layout_of(options) -> Layout:
-    """The layout of ``options`` (`TrainingOptions`, or a job's recorded manifest.Options): records
-    from before MODEL_FORMAT 8 leave it out, and then it was neural."""
-    return Layout(options.layout or Layout.NEURAL)
 # Channels per feature layer T_i, per format: BC6H holds RGB, BC7 RGBA in the same bytes.
 LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 
@@ -277,15 +271,20 @@ class TrainConfig:
         return replace(self, **kw)
 
 
+#: metadata of an option field that does not change what a job trains, and so is no part of its
+#: cache key (bcfpipe.builder.plan.content_hash); the value says where its effect goes instead
+UNKEYED = "unkeyed"
+
+
 @dataclass(frozen=True)
-class TrainingOptions:
+class TrainingOptions(Record):
     """What the user chooses for training, validated once, here, when it is made.
 
     One field per training option of `bcfpipe train`, `plan` and `build`: the command line adds one
-    click option per field, by name (bcfpipe.cli.options), and hands the record on whole, through
-    the plan (each job keeps its resolved form, bcfpipe.formats.manifest.Options), the executors
-    and the workers, to `bcfpipe.export.fit.make_config`, which makes the `TrainConfig`. A new
-    option is one field here and one click option.
+    click option per field, by name (bcfpipe.cli.options), and hands the record on whole. A build's
+    plan resolves it into each job's `JobOptions` (this record and what the scene fixes), which the
+    executors hand to the worker and `bcfpipe.fit.fit` whole; its JSON, bar the `UNKEYED` fields, is
+    the job's cache key. A new option is one field here, one click option and its use.
     """
 
     profile: str = DEFAULT_PROFILE
@@ -296,9 +295,9 @@ class TrainingOptions:
     fix_nonfinite: bool = False
     seed: int = DEFAULT_SEED
     device: str = DEFAULT_DEVICE
-    threads: int = DEFAULT_THREADS
+    threads: int = field(default=DEFAULT_THREADS, metadata={UNKEYED: "torch threads: how fast, not what"})
     target_psnr: float | None = None
-    bench_data: str | None = None  # a `bcfpipe bench` report to predict --target-psnr from
+    bench_data: str | None = field(default=None, metadata={UNKEYED: "read into the job's anchors, which are keyed"})
     features: FeatureFormat = DEFAULT_FEATURES
     kernel: Kernel = DEFAULT_KERNEL
     layout: Layout | None = None  # None: default_layout(target_psnr)
@@ -394,6 +393,28 @@ class TrainingOptions:
                                  seed=self.seed,
                                  device=device, threads=self.threads, feature_init=self.init,
                                  kernel=Kernel(self.kernel).on(device), t0=self.t0_resolved)
+
+
+@dataclass(frozen=True)
+class JobOptions(TrainingOptions):
+    """One build job's record: the user's `TrainingOptions` as the plan resolved them (``device``
+    the device class, ``kernel`` what runs there) and what the scene fixes for this texture set.
+    Being a `TrainingOptions`, every training option reaches the worker by construction."""
+
+    resolution: int | None = None  # the texture set resampled to this larger side (a density cap)
+    texel_density: float | None = field(default=None, metadata={UNKEYED: "acts through resolution"})  # px/m
+    coverage: bool = True  # training draws from the texels the bound meshes read (its mask is keyed)
+
+    @classmethod
+    def of(cls, training: TrainingOptions, device_class: str, **scene) -> "JobOptions":
+        """``training`` resolved on ``device_class``, with the scene's fields ``scene``."""
+        own = {f.name: getattr(training, f.name) for f in fields(TrainingOptions)}
+        return cls(**{**own, "device": device_class, "kernel": Kernel(training.kernel).on(device_class), **scene})
+
+    def keyed(self) -> dict:
+        """The record's canonical JSON without its `UNKEYED` fields: what the cache key states."""
+        skip = {f.name for f in fields(self) if UNKEYED in f.metadata}
+        return {k: v for k, v in self.to_json().items() if k not in skip}
 
 
 CACHE_ENV = "BCFPIPE_CACHE"

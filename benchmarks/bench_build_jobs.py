@@ -9,6 +9,7 @@ machine, one line per run and a Markdown table for docs/benchmarks.md. The machi
 average is printed before and after: on a shared machine, other work skews the numbers.
 """
 from __future__ import annotations
+from bcfpipe.builder import Execution
 
 import argparse
 import json
@@ -70,8 +71,7 @@ def main() -> None:
         for spec, (j, t) in configs.items():
             with tempfile.TemporaryDirectory(prefix="bcf-bench-") as tmp:
                 t0 = time.perf_counter()
-                res = build(args.scene, Path(tmp) / "out.bcf", jobs=j,
-                            training=TrainingOptions(threads=t, profile=args.profile, preset=args.preset))
+                res = build(args.scene, Path(tmp) / "out.bcf", execution=Execution(jobs=j), training=TrainingOptions(threads=t, profile=args.profile, preset=args.preset))
                 wall = time.perf_counter() - t0
             if res.exit_code != 0:
                 sys.exit(f"build failed: {res.failed}")

@@ -6,6 +6,7 @@ Checks that depend on process-wide USD plug-in state (schema registered or not) 
 subprocesses, as a user's tool would.
 """
 from __future__ import annotations
+from bcfpipe.builder import Execution, Selection
 
 import io
 import json
@@ -58,7 +59,7 @@ def sample(tmp_path_factory):
     """The sample scene (copied) built with the default OUT next to it."""
     root = tmp_path_factory.mktemp("sample")
     scene = copy_samples(root)
-    result = build(scene, jobs=2, **FAST)
+    result = build(scene, execution=Execution(jobs=2), **FAST)
     return scene, result
 
 
@@ -402,7 +403,7 @@ def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
     assert plan(a, TrainingOptions(profile="tiny", preset="draft", seed=1)).jobs[0].content_hash != \
         pa.jobs[0].content_hash
     # --all-materials adds the unbound material
-    names = [m.path for m in plan(a, all_materials=True, **FAST).materials if m.decision == "model"]
+    names = [m.path for m in plan(a, selection=Selection(all_materials=True), **FAST).materials if m.decision == "model"]
     assert "/World/Looks/Unused" in names
 
 
@@ -410,36 +411,28 @@ def test_plan_jobs_are_json_and_content_hashed(tmp_path: Path) -> None:
     ("t0", None, "trained", {"t0": "pca", "features": "bc6h"}, "use it with --features bc7"),
     ("kernel", "auto", "torch", {"kernel": "fused", "device": "cuda"}, "runs on the CPU"),
 ])
-def test_a_newer_option_keys_the_cache_and_the_manifest_only_when_not_its_default(tmp_path: Path, name, default,
-                                                                                  other, refused, why) -> None:
-    """--t0 trained and --kernel torch change what trains, so every key changes and the job's
-    options record them; their defaults leave keys and records as they were (no key, no field), so
-    existing caches and files stand. A bad value is refused with one line."""
+def test_an_option_keys_the_cache_and_reaches_the_job(tmp_path: Path, name, default, other, refused, why) -> None:
+    """--t0 trained and --kernel torch change what trains, so every key changes and each job's record
+    holds them; naming the default keys the same jobs. A bad value is refused with one line."""
     a = copy_samples(tmp_path / "a")
     opts = TrainingOptions(profile="tiny", preset="smoke", seed=0)
     p0, p0b, p1 = plan(a, opts), plan(a, opts.with_(**{name: default})), plan(a, opts.with_(**{name: other}))
     assert [j.content_hash for j in p0.jobs] == [j.content_hash for j in p0b.jobs]
     assert not {j.content_hash for j in p0.jobs} & {j.content_hash for j in p1.jobs}
-    assert getattr(p0.jobs[0].options, name) is None and getattr(p1.jobs[0].options, name) == other
-    assert getattr(p1.jobs[0].training("cpu", 1), name) == other
-    assert getattr(p0.jobs[0].training("cpu", 1), name) == default
+    assert getattr(p1.jobs[0].options, name) == other and getattr(p0.jobs[0].options, name) != other
     with pytest.raises(InputError, match=why):
         TrainingOptions(**refused)
 
 
-def test_the_feature_format_is_always_recorded_and_an_older_record_meant_bc6h(tmp_path: Path) -> None:
-    """Since bc7 became the default (MODEL_FORMAT 11) every job records its format; a record from
-    before, which left out the then-default bc6h, trains as bc6h. A bad value is refused."""
-    from dataclasses import replace as dc_replace
-
+def test_the_feature_format_keys_the_job_and_picks_t0(tmp_path: Path) -> None:
+    """Every job records its feature format; bc7's T_0 holds principal components, bc6h's is
+    trained. A bad value is refused."""
     a = copy_samples(tmp_path / "a")
     opts = TrainingOptions(profile="tiny", preset="smoke", seed=0)
     p7, p6 = plan(a, opts), plan(a, opts.with_(features="bc6h"))
     assert not {j.content_hash for j in p7.jobs} & {j.content_hash for j in p6.jobs}
     assert p7.jobs[0].options.features == "bc7" and p6.jobs[0].options.features == "bc6h"
-    assert p7.jobs[0].training("cpu", 1).t0_resolved == "pca" and p6.jobs[0].training("cpu", 1).t0_resolved == "trained"
-    old = dc_replace(p6.jobs[0], options=dc_replace(p6.jobs[0].options, features=None))
-    assert old.training("cpu", 1).features == "bc6h"
+    assert p7.jobs[0].options.t0_resolved == "pca" and p6.jobs[0].options.t0_resolved == "trained"
     with pytest.raises(InputError, match="unknown feature format"):
         TrainingOptions(features="bc9")
 
@@ -609,7 +602,7 @@ def test_refuses_foreign_out(tmp_path: Path) -> None:
         assert len(proc.stderr.strip().splitlines()) == 1
         assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     with pytest.raises(BuildError, match="even with --force"):
-        build(scene, out, force=True, **FAST)
+        build(scene, out, execution=Execution(force=True), **FAST)
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     out = tmp_path / "built"
     result = build(scene, out, **FAST)
@@ -630,7 +623,7 @@ def test_refuses_foreign_out(tmp_path: Path) -> None:
     assert json.loads((out / MANIFEST).read_text())["scene"].endswith("b.usda")
     # an OUT containing the input is refused even with --force
     with pytest.raises(BuildError, match="contains the input"):
-        build(scene, tmp_path, force=True, **FAST)
+        build(scene, tmp_path, execution=Execution(force=True), **FAST)
     assert scene.exists()
 
 
@@ -652,7 +645,7 @@ def test_bad_variant_and_missing_scene(tmp_path: Path) -> None:
         build(tmp_path / "nope.usda", **FAST)
     scene = constant_stage(tmp_path / "scene.usda")
     with pytest.raises(BuildError):
-        build(scene, variants=["novalue"], **FAST)
+        build(scene, selection=Selection(variants=["novalue"]), **FAST)
 
 
 def test_plain_progress_lines() -> None:
@@ -777,7 +770,7 @@ def test_teapot_fancy(tmp_path: Path) -> None:
     if not scene.exists():
         pytest.skip(f"needs {scene}")
     out = tmp_path / "Teapot.bcf"
-    result = build(scene, out, variants={"modelVariant": "Fancy"}, training=TrainingOptions(preset="draft"))
+    result = build(scene, out, selection=Selection(variants={"modelVariant": "Fancy"}), training=TrainingOptions(preset="draft"))
     assert result.exit_code == 0
     mats = {m["path"]: m for m in result.manifest.to_json()["materials"]}
     fancy = mats["/Teapot/Materials/PorcelainFlowers"]

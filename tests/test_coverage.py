@@ -1,5 +1,6 @@
 """Texels that no mesh reads (issue #18, item 4): the coverage mask, and training and quality on it."""
 from __future__ import annotations
+from bcfpipe.builder import Execution, Selection
 
 import sys
 from pathlib import Path
@@ -56,7 +57,7 @@ def quarter_scene(root: Path, n: int = 64) -> Path:
 
 def test_coverage_enters_the_job_and_its_key(tmp_path):
     scene = quarter_scene(tmp_path)
-    on, off = plan(scene, **FAST), plan(scene, coverage=False, **FAST)
+    on, off = plan(scene, **FAST), plan(scene, selection=Selection(coverage=False), **FAST)
     assert on.jobs[0].coverage is not None and 0.25 < on.jobs[0].covered_fraction < 0.32
     assert off.jobs[0].coverage is None and on.jobs[0].content_hash != off.jobs[0].content_hash
     # the sample scene's quads read every texel: no mask, keys as before
@@ -69,7 +70,7 @@ def test_build_reports_quality_over_covered_texels_and_keeps_the_rest_valid(tmp_
     from bcfpipe.formats import manifest as mfst
 
     scene = quarter_scene(tmp_path)
-    build(scene, out=tmp_path / "out", jobs=1, **FAST)
+    build(scene, execution=Execution(jobs=1), out=tmp_path / "out", **FAST)
     m = mfst.read(tmp_path / "out")
     (mat,) = m.built()
     q = mat.metrics.detail

@@ -1,6 +1,7 @@
 """Texel density from the meshes (issue #18, item 3), on generated scenes with known geometry and
 on the teapot."""
 from __future__ import annotations
+from bcfpipe.builder import Selection
 
 import math
 import sys
@@ -74,7 +75,7 @@ def test_meshes_without_figures_get_a_note_and_no_cap(tmp_path, kind, note):
     scene = quad_scene(tmp_path, st=kind != "no st", animated=kind == "animated")
     d = _density(scene)
     assert d.density() is None and any(note in n for n in d.notes), d.notes
-    p = plan(scene, texel_density=100.0, **FAST)
+    p = plan(scene, selection=Selection(texel_density=100.0), **FAST)
     assert p.jobs[0].options.resolution is None  # never an error, never a cap
 
 
@@ -83,9 +84,9 @@ def test_texel_density_caps_the_resolution_never_above_the_source(tmp_path):
     base = plan(scene, **FAST)
     assert base.jobs[0].options.resolution is None
     # 724 px/m at 1024²: 300 px/m needs 1024 * 300 / 724 = 424 -> 512
-    p = plan(scene, texel_density=300.0, **FAST)
+    p = plan(scene, selection=Selection(texel_density=300.0), **FAST)
     assert p.jobs[0].options.resolution == 512 and p.jobs[0].content_hash != base.jobs[0].content_hash
-    assert plan(scene, texel_density=5000.0, **FAST).jobs[0].options.resolution is None
+    assert plan(scene, selection=Selection(texel_density=5000.0), **FAST).jobs[0].options.resolution is None
     assert plan(scene, **FAST).jobs[0].content_hash == base.jobs[0].content_hash  # no option: unchanged
 
 

@@ -2,6 +2,7 @@
 empty files. Each case runs `bcfpipe train` as a user would (tiny profile; the smoke preset, or draft where a
 test measures precision)."""
 from __future__ import annotations
+from bcfpipe.builder import Execution
 
 import json
 import math
@@ -202,8 +203,7 @@ def test_hdr_value_map_folds_into_the_usd_targets(tmp_path):
     add_material(stage, "/World/Looks/Lamp", {"emissiveColor": ("./tex/hdr.exr", "rgb", {"scale": (2.0, 2.0, 2.0, 1.0)})},
                  mesh="/World/Lamp")
     stage.Save()
-    r = build(tmp_path / "scene.usda", tmp_path / "out", training=TrainingOptions(profile="tiny", preset="draft", layout="neural"),
-              cache=False)
+    r = build(tmp_path / "scene.usda", tmp_path / "out", execution=Execution(cache=False), training=TrainingOptions(profile="tiny", preset="draft", layout="neural"))
     assert r.exit_code == 0
     desc = mf.read(tmp_path / "out" / "materials" / "Lamp")
     s = desc.outputs[0].value_scale

@@ -1,6 +1,7 @@
 """Model only what the scene requires (issue #18): constant channels folded into USD values,
 duplicate channels merged into one decoder output."""
 from __future__ import annotations
+from bcfpipe.builder import Execution
 
 import json
 import subprocess
@@ -134,7 +135,7 @@ def test_duplicates_build_one_output_per_content_and_every_input_keeps_its_value
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 
     scene = _duplicate_scene(tmp_path)
-    res = build(scene, out=tmp_path / "out", jobs=1, **DRAFT)
+    res = build(scene, execution=Execution(jobs=1), out=tmp_path / "out", **DRAFT)
     m = mfst.read(tmp_path / "out")
     assert m.totals.trained == 1 and m.totals.built == 2
     mats = {x.path.rsplit("/", 1)[-1]: x for x in m.materials}
@@ -181,7 +182,7 @@ def test_a_constant_component_of_a_modelled_input_is_a_channel_minus_one_target(
     assert t["diffuseColor.r"].channel == -1 and t["diffuseColor.r"].scale == 0.0
     assert t["diffuseColor.r"].bias == pytest.approx(srgb_to_linear(round(0.4 * 255) / 255))
     assert (t["diffuseColor.g"].channel, t["diffuseColor.b"].channel) == (0, 1) and not m.constants
-    res = build(tmp_path / "scene.usda", out=tmp_path / "out", jobs=1, **FAST)
+    res = build(tmp_path / "scene.usda", execution=Execution(jobs=1), out=tmp_path / "out", **FAST)
     built = Usd.Stage.Open(str(res.root_layer))
     ov = read_override(built.GetPrimAtPath("/World/Looks/A"))
     i = list(ov["bcf:outputs:targets"]).index("diffuseColor.r")

@@ -6,6 +6,7 @@ never anything else, and never take more than 10 s.
 The default suite runs a few hundred cases per reader; ``-m slow`` runs 10,000
 (``BCFPIPE_FUZZ_N`` and ``BCFPIPE_FUZZ_SEED`` override). Each run prints its counts."""
 from __future__ import annotations
+from bcfpipe.builder import Execution
 
 import json
 import os
@@ -114,7 +115,7 @@ def real_files(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("fuzz")
     scene = copy_samples(root)
-    r = build(scene, root / "out", training=TrainingOptions(profile="tiny", preset="smoke", seed=0, layout="neural"), cache=False)
+    r = build(scene, root / "out", execution=Execution(cache=False), training=TrainingOptions(profile="tiny", preset="smoke", seed=0, layout="neural"))
     mat = root / "out" / "materials" / r.plan.jobs[0].name
     return {"dds": (mat / "T0.dds").read_bytes(), "dds2": (mat / "T3.dds").read_bytes(),
             "record": (mat / "weights.bin").read_bytes(), "buffer": (root / "out" / "weights.bin").read_bytes(),

@@ -2,6 +2,7 @@
 
 Every build here uses the tiny profile and the smoke preset, and a cache folder of its own."""
 from __future__ import annotations
+from bcfpipe.builder import Execution
 
 import json
 import os
@@ -62,11 +63,11 @@ def by_path(report) -> dict:
 def test_rebuild_hits_the_cache_and_writes_nothing(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
-    first = build(scene, tmp_path / "out", cache=cache, **FAST)
+    first = build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     assert first.exit_code == 0 and first.report.totals.trained == 2 and first.report.cache.misses == 2
     assert {m.cache for m in first.report.materials} == {"miss"}
     before = mtimes(tmp_path / "out")
-    again = build(scene, tmp_path / "out", cache=cache, **FAST)
+    again = build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     assert again.report.totals.trained == 0 and again.report.cache.hits == 2 and again.report.written == ()
     assert {m.cache for m in again.report.materials} == {"hit"}
     assert mtimes(tmp_path / "out") == before, "a no-op rebuild must not touch OUT"
@@ -76,7 +77,7 @@ def test_rebuild_hits_the_cache_and_writes_nothing(tmp_path):
     tex = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/B/Tex_diffuseColor"))
     tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((0.5, 0.5, 0.5, 1.0))
     stage.Save()
-    third = build(scene, tmp_path / "out", cache=cache, **FAST)
+    third = build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     assert third.report.totals.trained == 0
     assert set(third.report.written) == {"overrides.usda", "manifest.json"}
 
@@ -84,10 +85,10 @@ def test_rebuild_hits_the_cache_and_writes_nothing(tmp_path):
 def test_only_the_changed_texture_set_retrains(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
-    build(scene, tmp_path / "out", cache=cache, **FAST)
+    build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     before = mtimes(tmp_path / "out")
     write_png(tmp_path / "tex" / "b.png", pattern(seed=5))
-    r = build(scene, tmp_path / "out", cache=cache, **FAST)
+    r = build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     m = by_path(r.report)
     assert (m["A"].cache, m["B"].cache) == ("hit", "miss") and r.report.totals.trained == 1
     after = mtimes(tmp_path / "out")
@@ -102,9 +103,9 @@ def test_with_and_without_cache_outputs_are_byte_identical(tmp_path):
 
     scene = copy_samples(tmp_path / "s")
     cache = tmp_path / "cache"
-    a = build(scene, tmp_path / "a", cache=cache, jobs=2, **FAST)
-    b = build(scene, tmp_path / "b", cache=cache, jobs=2, **FAST)  # every job a cache hit
-    c = build(scene, tmp_path / "c", cache=False, jobs=2, **FAST)  # trained again
+    a = build(scene, tmp_path / "a", execution=Execution(cache=cache, jobs=2), **FAST)
+    b = build(scene, tmp_path / "b", execution=Execution(cache=cache, jobs=2), **FAST)  # every job a cache hit
+    c = build(scene, tmp_path / "c", execution=Execution(cache=False, jobs=2), **FAST)  # trained again
     assert a.exit_code == 0 and b.report.totals.cached == 3 and c.report.cache.enabled is False
     ta, tb, tc = tree(tmp_path / "a"), tree(tmp_path / "b"), tree(tmp_path / "c")
     assert len(ta) > 20 and ta == tb == tc
@@ -115,7 +116,7 @@ def test_with_and_without_cache_outputs_are_byte_identical(tmp_path):
 def test_damaged_entry_is_detected_and_retrained(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
-    first = build(scene, tmp_path / "out", cache=cache, **FAST)
+    first = build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     good = tree(tmp_path / "out")
     job = by_path(first.report)["B"].job
     key = next(j.content_hash for j in first.plan.jobs if j.name == job)
@@ -123,7 +124,7 @@ def test_damaged_entry_is_detected_and_retrained(tmp_path):
     data = bytearray((entry / "T0.dds").read_bytes())
     data[200] ^= 0x01
     (entry / "T0.dds").write_bytes(bytes(data))
-    r = build(scene, tmp_path / "out", cache=cache, **FAST)
+    r = build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     assert len(r.report.cache.damaged) == 1 and job in r.report.cache.damaged[0]
     m = by_path(r.report)
     assert (m["A"].cache, m["B"].cache) == ("hit", "miss")
@@ -136,7 +137,7 @@ def test_cache_hit_needs_no_training(tmp_path):
     unimportable. The same environment without the cache fails, so the hit is real."""
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
-    build(scene, tmp_path / "out", cache=cache, **FAST)
+    build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     broken = tmp_path / "no-torch"
     (broken / "torch").mkdir(parents=True)
     (broken / "torch" / "__init__.py").write_text("raise ImportError('torch is disabled for this test')\n")
@@ -173,7 +174,7 @@ def test_sigkill_at_random_moments_never_leaves_anything_used_corrupt(tmp_path):
     rebuild: every rebuild succeeds and gives exactly the bytes of an undisturbed build."""
     scene = small_scene(tmp_path)
     t0 = time.monotonic()
-    ref = build(scene, tmp_path / "ref", cache=False, **FAST)
+    ref = build(scene, tmp_path / "ref", execution=Execution(cache=False), **FAST)
     span = time.monotonic() - t0
     expected = tree(tmp_path / "ref")
     cache = tmp_path / "cache"
@@ -284,7 +285,7 @@ def test_outputs_grow_linearly_with_materials_sharing_a_set(tmp_path):
                          mesh=f"/World/G{k}")
         stage.Save()
         out = tmp_path / f"s{n}.bcf"
-        r = build(tmp_path / f"s{n}.usda", out, cache=tmp_path / "cache", **FAST)
+        r = build(tmp_path / f"s{n}.usda", out, execution=Execution(cache=tmp_path / "cache"), **FAST)
         assert r.exit_code == 0 and r.report.totals.trained == (1 if n == 10 else 0)
         sizes[n] = {f: (out / f).stat().st_size for f in ("manifest.json", "overrides.usda")}
     for f in ("manifest.json", "overrides.usda"):
@@ -329,7 +330,7 @@ def test_a_source_saved_during_the_build_fails_its_job_only(tmp_path):
 def test_cache_cli(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
-    build(scene, tmp_path / "out", cache=cache, **FAST)
+    build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     info = json.loads(cli("cache", "info", "--cache", str(cache), "--json").stdout)
     assert info["entries"] == 2 and info["size_bytes"] > 0
     rows = json.loads(cli("cache", "list", "--cache", str(cache), "--json").stdout)
@@ -343,7 +344,7 @@ def test_cache_cli(tmp_path):
         "entries"] == 0
     bad = cli("cache", "prune", "--cache", str(cache), "--max-size", "lots")
     assert bad.returncode == 2 and "500M" in bad.stderr and "Traceback" not in bad.stderr
-    build(scene, tmp_path / "out", cache=cache, **FAST)
+    build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
     assert "removed 2 entries" in cli("cache", "clear", "--cache", str(cache), "--yes").stdout
 
 

@@ -1,6 +1,7 @@
 """`--target-psnr` rate control (bcfpipe.train.rate): candidates, predictions, the climbing policy,
 and real trainings through `bcfpipe train` and `bcfpipe build`."""
 from __future__ import annotations
+from bcfpipe.builder import Execution
 
 import json
 import subprocess
@@ -148,7 +149,7 @@ def test_build_target_psnr_records_the_choice(tmp_path: Path) -> None:
     a = plan(tmp_path / "scene.usda", TrainingOptions(target_psnr=12.0)).jobs[0].content_hash
     assert a != plan(tmp_path / "scene.usda", TrainingOptions(target_psnr=13.0)).jobs[0].content_hash
     assert a != plan(tmp_path / "scene.usda").jobs[0].content_hash
-    r = build(tmp_path / "scene.usda", tmp_path / "out", training=TrainingOptions(target_psnr=12.0), jobs=1)
+    r = build(tmp_path / "scene.usda", tmp_path / "out", execution=Execution(jobs=1), training=TrainingOptions(target_psnr=12.0))
     assert r.exit_code == 0
     mf = json.loads((tmp_path / "out" / "manifest.json").read_text())
     jsonschema.validate(mf, json.loads((SCHEMA_DIR / "manifest.schema.json").read_text()))

@@ -5,6 +5,7 @@ Two built stages: a quad with a smooth, well-reproduced material seen through a 
 the sample scene. Training uses the tiny profile and the draft preset. Skipped without OpenGL.
 """
 from __future__ import annotations
+from bcfpipe.builder import Execution
 
 import json
 import shutil
@@ -97,7 +98,7 @@ def smooth_stage(root: Path) -> Path:
 @pytest.fixture(scope="module")
 def smooth(tmp_path_factory):
     root = tmp_path_factory.mktemp("smooth")
-    result = build(smooth_stage(root), jobs=1, **FAST)
+    result = build(smooth_stage(root), execution=Execution(jobs=1), **FAST)
     return result.root_layer
 
 
@@ -106,7 +107,7 @@ def sample(tmp_path_factory):
     root = tmp_path_factory.mktemp("render-sample")
     shutil.copytree(REPO / "samples" / "textures", root / "textures")
     shutil.copy2(REPO / "samples" / "sample_scene.usda", root / "sample_scene.usda")
-    result = build(root / "sample_scene.usda", jobs=2, **FAST)
+    result = build(root / "sample_scene.usda", execution=Execution(jobs=2), **FAST)
     return result.root_layer
 
 

@@ -94,19 +94,15 @@ def measure_baseline(ts: TextureSet, ref: Sequence[np.ndarray], b: Baseline, gri
     return Cell(b.label(side), b.codec, metrics, size, seconds, sweep, _crops(dec, windows), extra, textures)
 
 
-def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], profile: str, preset: str, out_dir: Path,
-               grid: L.LodGrid, windows: Windows, *, device: str = "auto", seed: int = 0, hidden: int | None = None,
-               threads: int = 1, wrap: str = Wrap.REPEAT, features: str = "bc6h",
-               progress: Callable[[float], None] | None = None) -> Cell:
-    """Train BCf at (profile, preset) with ``features`` (bc6h or bc7) into ``out_dir``; measure the
-    exported files. A bc7 cell's method name ends in " bc7"."""
-    from bcfpipe.config import DEFAULT_HIDDEN, TrainingOptions
+def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], options, out_dir: Path, grid: L.LodGrid,
+               windows: Windows, *, wrap: str = Wrap.REPEAT, progress: Callable[[float], None] | None = None) -> Cell:
+    """Train BCf as ``options`` (a `config.TrainingOptions` with its profile, preset and features;
+    all neural) ask into ``out_dir``; measure the exported files. A bc7 cell's method name ends in
+    " bc7"."""
     from bcfpipe.export import writer as E
-    from bcfpipe.export.fit import fit_material, make_config
+    from bcfpipe.fit import fit
 
-    name, cfg = make_config(ts, TrainingOptions(profile=profile, preset=preset, device=device, seed=seed,
-                                                hidden=hidden or DEFAULT_HIDDEN, threads=threads,
-                                                features=features), wrap)
+    preset, features = options.preset, options.features.value
     curve: list[tuple[float, float]] = []
 
     def on_progress(p) -> None:
@@ -115,7 +111,8 @@ def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], profile: str, preset: 
         if progress is not None and p.steps:
             progress(min(1.0, (p.elapsed / max(p.elapsed + p.eta, 1e-9))))
 
-    res, _ = fit_material(ts, out_dir, cfg, name, progress=on_progress)
+    res = fit(ts, options, out_dir, wrap=wrap, progress=on_progress).result
+    name = res.profile
     dec = E.decode_mips(E.load(out_dir), [m.shape[:2] for m in ref])
     crops = _crops(dec, windows)
     del dec

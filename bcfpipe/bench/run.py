@@ -125,6 +125,16 @@ def _similar_baseline(cell: C.Cell, baselines: Sequence[C.Cell]) -> C.Cell | Non
     return min(baselines, key=lambda b: abs(np.log(b.size_bytes / cell.size_bytes)), default=None)
 
 
+def _cell_options(opts: BenchOptions, profile: str, preset: str, features: str):
+    """A BCf cell's training options: all neural, at ``profile`` and ``preset`` with ``features``."""
+    from bcfpipe.config import DEFAULT_HIDDEN, TrainingOptions
+    from bcfpipe.formats.vocabulary import Layout
+
+    return TrainingOptions(profile=profile, preset=preset, device=opts.device, seed=opts.seed,
+                           hidden=opts.hidden or DEFAULT_HIDDEN, threads=opts.threads, features=features,
+                           layout=Layout.NEURAL)
+
+
 def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, progress: BenchProgress, rt) -> dict:
     """Everything the report shows for one texture set (``ts``, loaded from ``bset``)."""
     from bcfpipe.texset.reference import ReferencePyramid
@@ -151,9 +161,8 @@ def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, pro
                 progress.start(f"{bset.name}: BCf {prof} {preset}{suffix}", _cell_weight(preset))
                 folder = work / bset.slug / f"{prof}-{preset}{suffix.replace(' ', '-')}"
                 try:
-                    bcf.append(C.train_cell(ts, ref, prof, preset, folder, grid, windows, device=opts.device,
-                                            seed=opts.seed, hidden=opts.hidden, threads=opts.threads,
-                                            wrap=bset.wrap, features=feat, progress=progress.fraction))
+                    bcf.append(C.train_cell(ts, ref, _cell_options(opts, prof, preset, feat), folder, grid, windows,
+                                            wrap=bset.wrap, progress=progress.fraction))
                 except (FloatingPointError, RuntimeError, MemoryError) as exc:  # the other cells still count
                     from bcfpipe.errors import one_line
 

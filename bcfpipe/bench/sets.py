@@ -55,9 +55,9 @@ def from_scene(scene: str | os.PathLike, materials: Iterable[str] = (),
                variants: Mapping[str, str] | None = None) -> list[BenchSet]:
     """One set per training job the build would run (materials with the same textures share one);
     ``materials`` keeps the jobs that hold any of those prims (a path or its last component)."""
-    from bcfpipe.builder import plan
+    from bcfpipe.builder import Selection, plan
 
-    bplan = plan(scene, variants=variants, coverage=False)
+    bplan = plan(scene, selection=Selection(variants, coverage=False))
     want = list(materials)
     out = []
     for job in bplan.jobs:

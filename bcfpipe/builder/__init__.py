@@ -62,8 +62,8 @@ ones are reported, not errors); 1 at least one material failed; 2 bad input or r
 as `BuildError`, before any training).
 
 Determinism: the same inputs, options and seed give the same DDS, weights, ONNX and USD files on
-the same machine (CPU training with the same number of worker threads). ``manifest.json`` and
-``material.json`` also record times, which differ between runs.
+the same machine (CPU training with the same number of worker threads). ``manifest.json`` and ``material.json``
+hold no times; the build's timings are in its report (``--json``).
 """
 
 from __future__ import annotations
@@ -73,10 +73,11 @@ from bcfpipe.builder.executor import JobResult, cpu_count, default_jobs, execute
 from bcfpipe.formats.manifest import FILE as MANIFEST, FORMAT as BUILD_FORMAT, WEIGHTS
 from bcfpipe.builder.plan import (MATERIALS_DIR, OVERRIDES, BuildError, BuildPlan,
                                 MaterialJob, MaterialPlan, TargetMap, plan)
+from bcfpipe.builder.options import Execution, ExecutorName, Selection
 from bcfpipe.builder.run import BuildResult, build, check_out
 
 __all__ = [
     "BuildError", "TargetMap", "MaterialJob", "MaterialPlan", "BuildPlan", "JobResult", "BuildResult",
-    "plan", "execute", "assemble", "build", "check_out", "default_jobs", "default_out", "root_layer_name",
+    "Selection", "Execution", "ExecutorName", "plan", "execute", "assemble", "build", "check_out", "default_jobs", "default_out", "root_layer_name",
     "cpu_count", "run_job", "MANIFEST", "WEIGHTS", "OVERRIDES", "MATERIALS_DIR", "BUILD_FORMAT",
 ]

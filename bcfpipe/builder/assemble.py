@@ -14,7 +14,7 @@ from bcfpipe.formats import material as mf
 from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK
 from bcfpipe.builder.executor import JobResult
-from bcfpipe.builder.plan import BuildPlan, MaterialJob, MaterialPlan, MATERIALS_DIR, OVERRIDES
+from bcfpipe.builder.plan import BuildPlan, MaterialJob, MaterialPlan, MATERIALS_DIR, OVERRIDES, recorded_options
 from bcfpipe.formats.manifest import WEIGHTS
 from bcfpipe.scan.sources import package_split
 
@@ -77,7 +77,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
         scene=scene_rel, root_layer=root_name, overrides_layer=OVERRIDES, weights=WEIGHTS,
         variants=tuple(tuple(v) for v in bplan.variants),
         variant_selections=tuple(mfst.VariantSelection(p, s, v) for p, s, v in bplan.variant_selections),
-        all_materials=bplan.all_materials, options=bplan.options,
+        all_materials=bplan.all_materials, options=recorded_options(bplan.options),
         stage=mfst.Stage(bplan.up_axis, bplan.meters_per_unit, bplan.default_prim),
         materials=mats, jobs=_job_entries(bplan, results, entry_of),
         weights_table=tuple(mfst.WeightsRecord(e.index, e.offset, e.size, e.n_hidden, e.n_out, j.name)

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from bcfpipe.formats.vocabulary import T0, CacheUse, Status
+from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import one_line
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
@@ -166,61 +166,49 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         from bcfpipe.texset.parallel import set_encode_workers
 
         set_encode_workers(encode_workers or threads)
-        from bcfpipe.export.fit import fit_material, make_config
-        from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
-
         mj = MaterialJob.from_dict(job)
         progress = _Throttle(queue, mj.name) if queue is not None else None
         if progress:
             progress.phase("load")
-        with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
-            local = copy_sources(mj, tmp) if sources is None else write_sources(sources, tmp)
-            ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
-                                  resolution=mj.size if mj.options.resolution else None,
-                                  fix_nonfinite=mj.options.fix_nonfinite,
-                                  names={copy: path for path, copy in local.items()})
-        o = mj.options
-        training = mj.training(device, max(1, threads))
-        prof, cfg = make_config(ts, training, mj.wrap)
-        mask = None
-        if mj.coverage is not None:
-            from bcfpipe.scan.coverage import unpack
+        ts = _load(mj, sources)
+        options = mj.options.with_(device=device, threads=max(1, threads))
+        from bcfpipe.fit import fit
 
-            mask = unpack(mj.coverage, ts.width, ts.height)
-        from bcfpipe.layout.material import uses_layout
-
-        if uses_layout(o, [sem for sem, _, _ in mj.specs]):
-            from bcfpipe.layout.material import fit_material_layout
-
-            res = fit_material_layout(ts, out_dir, training, mj.wrap, progress=progress, coverage=mask,
-                                      log=(lambda text: progress.phase(f"layout: {text}")) if progress else
-                                      (lambda text: None))
-            outcome = None
-        elif o.target_psnr is None:
-            res, _ = fit_material(ts, out_dir, cfg, prof, progress, coverage=mask)
-            outcome = None
-        else:
-            from bcfpipe.train import rate
-
-            def train_one(st, folder):
-                n, c = make_config(ts, training.with_(profile=st.profile, preset=st.preset), mj.wrap)
-                return fit_material(ts, folder, c, n, progress, coverage=mask)[0]
-
-            settings = rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
-            res, outcome = rate.fit_to_target(o.target_psnr, settings,
-                                              train_one, out_dir, {(p, q): v for p, q, v in mj.anchors},
-                                              progress.phase if progress else None)
-        d = res.to_dict()
+        fitted = fit(ts, options, out_dir, wrap=mj.wrap, coverage=_mask(mj, ts), progress=progress,
+                     log=progress.phase if progress else None, anchors={(p, q): v for p, q, v in mj.anchors})
+        d = fitted.to_dict()
         d.pop("out", None)
-        if outcome is not None:
-            d["target"] = outcome.to_json()
-        return JobResult(mj.name, Status.BUILT, None, time.perf_counter() - t0, cfg.device, threads, d).to_dict()
+        from bcfpipe.train.trainer import resolve_device
+
+        return JobResult(mj.name, Status.BUILT, None, time.perf_counter() - t0, str(resolve_device(device)), threads,
+                         d).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, Status.FAILED, one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
     finally:
         from bcfpipe.texset.parallel import release_workers
 
         release_workers()
+
+
+def _load(mj: MaterialJob, sources: Mapping[str, bytes] | None):
+    """The job's texture set, read where the plan found its files or from their ``sources`` bytes."""
+    from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
+
+    with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
+        local = copy_sources(mj, tmp) if sources is None else write_sources(sources, tmp)
+        return load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
+                                resolution=mj.size if mj.options.resolution else None,
+                                fix_nonfinite=mj.options.fix_nonfinite,
+                                names={copy: path for path, copy in local.items()})
+
+
+def _mask(mj: MaterialJob, ts):
+    """The texels the job's meshes read, at the set's size (None: all)."""
+    if mj.coverage is None:
+        return None
+    from bcfpipe.scan.coverage import unpack
+
+    return unpack(mj.coverage, ts.width, ts.height)
 
 
 def _local_name(k: int, path: str) -> str:

@@ -3,17 +3,18 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import (CPU_PRESETS_LARGE, DEFAULT_INIT, FIXED_T0_PRESETS, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS,
-                            QUALITY_PRESETS, TrainingOptions, layout_of, preset_for, resolve_profile, t0_of)
+from bcfpipe.config import (CPU_PRESETS_LARGE, FIXED_T0_PRESETS, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS,
+                            QUALITY_PRESETS, JobOptions, TrainingOptions, preset_for, resolve_profile, t0_of)
+from bcfpipe.builder.options import Selection
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
-from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, FeatureFormat
+from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, Kernel
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import group_materials
@@ -54,9 +55,9 @@ class TargetMap:
 class MaterialJob:
     """One training run (a texture set), shared by every material in ``materials``.
 
-    Frozen and JSON-serialisable (`to_dict` / `from_dict`). ``content_hash`` covers everything the
-    result depends on: source bytes, specs, addressing, profile, preset (its schedule), seed,
-    device, architecture and the bcfpipe version; not paths, not the machine's thread count.
+    Frozen and JSON-serialisable (`to_dict` / `from_dict`). ``options`` is the one record a worker
+    trains from (`config.JobOptions`); ``content_hash`` covers everything the result depends on
+    (`content_hash`): not paths, not the machine's thread count.
     """
 
     name: str
@@ -65,27 +66,14 @@ class MaterialJob:
     channels: tuple[ModelChannel, ...]
     sources: tuple[SourceFile, ...]
     wrap: str
-    options: Options
+    options: JobOptions
     content_hash: str
     coverage: str | None = None  # packed level-0 mask at the job's size (bcfpipe.scan.coverage); None: all read
     covered_fraction: float | None = None
     anchors: tuple[tuple[str, str, float], ...] = ()  # --bench-data cells of this set: (profile, preset, psnr)
 
     def to_dict(self) -> dict:
-        return asdict(self)
-
-    def training(self, device: str, threads: int) -> TrainingOptions:
-        """The job's options as a worker trains them, on ``device`` with ``threads``: every field of
-        the job's record that `TrainingOptions` has, by name."""
-        shared = {f.name: getattr(self.options, f.name) for f in fields(TrainingOptions)
-                  if hasattr(self.options, f.name)}
-        for name in ("kernel", "match_bc", "classic", "t0"):  # absent from the record: the default
-            if shared.get(name) is None:
-                shared.pop(name, None)
-        if shared.get("features") is None:  # a record from before MODEL_FORMAT 11 left out its bc6h
-            shared["features"] = FeatureFormat.BC6H
-        shared["layout"] = layout_of(self.options)
-        return TrainingOptions(**{**shared, "device": device, "threads": threads})
+        return {**asdict(self), "options": self.options.to_json()}
 
     @property
     def size(self) -> tuple[int, int]:
@@ -99,7 +87,7 @@ class MaterialJob:
         d["specs"] = tuple(tuple(s) for s in d["specs"])
         d["channels"] = tuple(ModelChannel(**c) for c in d["channels"])
         d["sources"] = tuple(SourceFile(**s) for s in d["sources"])
-        d["options"] = Options.from_json(d["options"], "options")
+        d["options"] = JobOptions.from_json(d["options"], "options")
         d["anchors"] = tuple(tuple(a) for a in d.get("anchors", ()))
         return cls(**d)
 
@@ -143,7 +131,7 @@ class BuildPlan:
     default_prim: str | None
     materials: tuple[MaterialPlan, ...]
     jobs: tuple[MaterialJob, ...]
-    options: Options
+    options: JobOptions  # the build's, before any job's scene fields
     diagnostics: tuple[str, ...] = ()
     layers: tuple[str, ...] = ()  # every layer file the stage composed (for --depfile)
     folded_sources: tuple[SourceFile, ...] = ()  # files no job trains on: read for constants and duplicates
@@ -167,73 +155,63 @@ class BuildPlan:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["jobs"] = [j.to_dict() for j in self.jobs]
+        d["options"] = self.options.to_json()
         return d
 
 
-def _t0(sources: Mapping[str, SourceFile], options: Options) -> int:
+def recorded_options(options: JobOptions) -> Options:
+    """The build's options as manifest.json records them (its format, schemas/manifest.schema.json):
+    the kernel only where it is not what the device runs by default, match_bc, classic and t0 only
+    when given, no thread count."""
+    return Options(profile=options.profile, preset=options.preset, seed=options.seed, device=options.device,
+                   hidden=options.hidden, signed=options.signed, init=options.init,
+                   fix_nonfinite=options.fix_nonfinite, texel_density=options.texel_density,
+                   resolution=options.resolution, coverage=options.coverage, target_psnr=options.target_psnr,
+                   features=options.features.value, kernel=_kernel_option(options.kernel, options.device),
+                   layout=options.layout.value, match_bc=True if options.match_bc else None,
+                   classic=tuple(options.classic) or None, t0=None if options.t0 is None else T0(options.t0).value)
+
+
+def _t0(sources: Mapping[str, SourceFile], options: JobOptions) -> int:
     """The T_0 side a job trains at: its profile, resolved against the set's size."""
     w, h = job_size(sources.values(), options.resolution)
     return resolve_profile(options.profile, max(w, h))[1][0]
 
 
-def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: Options,
+def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: JobOptions,
                  coverage_digest: str | None = None, anchors: tuple = ()) -> str:
-    """The job's cache key: everything that changes the trained files and nothing else.
-
-    In it: the bytes of each source file (its XXH3-128) with the semantic and channels read from
-    it, the addressing, profile, preset (and its schedule), seed, hidden size, signedness, feature
-    start, --fix-nonfinite, the device class (cpu / cuda train differently), config.MODEL_FORMAT, and
-    for float sources the HDR encoding's revision (entries trained before it kept linear HDR, or
-    shipped an HDR colour's classic group as BC1). Not in it:
-    paths, times, meshes and transforms, and the UsdUVTexture scale, bias and colour space, which
+    """The job's cache key: `config.MODEL_FORMAT`, the job's record (``options.keyed()``: every
+    field but those that change nothing trained) and its inputs: the bytes of each source file
+    (its XXH3-128) with the semantic and channels read from it, the addressing, the coverage mask's
+    digest, the --bench-data anchors, the schedules the record's preset names (and with
+    --target-psnr every one it may pick), and for float sources the HDR encoding's revision. Not in
+    it: paths, times, meshes and transforms, and the UsdUVTexture scale, bias and colour space, which
     the USD layer applies to the decoded values (the model learns the stored texels).
     """
+    fixed = t0_of(options) == T0.PCA
     payload = {
         "model_format": MODEL_FORMAT,
+        "options": options.keyed(),
         "specs": [[sem, sources[path].xxh3_128, ch] for sem, path, ch in specs],
         "wrap": wrap,
-        "profile": options.profile,
-        "preset": options.preset,
-        "schedule": asdict(preset_for(options.preset, _t0(sources, options), options.device,
-                                      t0_of(options) == T0.PCA)),
-        "seed": options.seed,
-        "device": options.device,
-        "hidden": options.hidden,
-        "signed": options.signed,
+        "coverage": coverage_digest,
+        "anchors": [list(a) for a in anchors],
+        "schedule": asdict(preset_for(options.preset, _t0(sources, options), options.device, fixed)),
     }
     if any(sources[path].format in FLOAT_TYPES for _, path, _ in specs):
         payload["hdr_encoding"] = HDR_ENCODING  # float sources may hold HDR channels (texset/encoding.py)
-    if options.init != DEFAULT_INIT:  # absent for the default, so existing builds keep their names
-        payload["init"] = options.init
-    if options.fix_nonfinite:
-        payload["fix_nonfinite"] = True
-    if options.resolution is not None:  # a density cap; the density itself changes nothing else
-        payload["resolution"] = options.resolution
-    if coverage_digest is not None:  # texels no mesh reads weigh nothing in training
-        payload["coverage"] = coverage_digest
     if options.target_psnr is not None:  # rate control picks among every preset, from these predictions
-        payload["target_psnr"] = options.target_psnr
         payload["schedules"] = {name: asdict(PRESETS[name]) for name in QUALITY_PRESETS}
         payload["schedules_large"] = {name: asdict(p) for name, p in CPU_PRESETS_LARGE.items()}
-        if t0_of(options) == T0.PCA:
+        if fixed:
             payload["schedules_fixed_t0"] = {name: asdict(p) for name, p in FIXED_T0_PRESETS.items()}
-        payload["anchors"] = [list(a) for a in anchors]
-    for f in fields(options):  # a newer option: in the key when it is not its default (old keys stand)
-        if f.name not in _KEYED_ABOVE and getattr(options, f.name) != f.default:
-            payload[f.name] = getattr(options, f.name)
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
 
 
-def _kernel_option(kernel, device: str) -> str | None:
-    """The manifest's and key's kernel: None when it runs what the default runs on ``device``."""
-    ran = kernel.on(device)
+def _kernel_option(kernel: Kernel, device: str) -> str | None:
+    """The manifest's kernel: None when it runs what the default runs on ``device``."""
+    ran = Kernel(kernel).on(device)
     return None if ran == DEFAULT_KERNEL.on(device) else ran.value
-
-
-#: the Options fields content_hash states itself (texel_density and coverage act through the
-#: resolution and the coverage digest)
-_KEYED_ABOVE = frozenset({"profile", "preset", "seed", "device", "hidden", "signed", "init", "fix_nonfinite",
-                          "resolution", "target_psnr", "texel_density", "coverage"})
 
 
 def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[str, str]:
@@ -259,96 +237,40 @@ def _resolve_device_name(device: str) -> str:
         raise BuildError(str(exc)) from None
 
 
-def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions(), *,
-         variants: Mapping[str, str] | Iterable[str] | None = None, all_materials: bool = False,
-         materials: Iterable[str] = (), texel_density: float | None = None, coverage: bool = True, facts=None,
-         bench: Mapping | None = None) -> BuildPlan:
-    """Scan ``scene`` and list what to train with ``training``. Reads the source textures (to hash
-    them) but writes nothing. ``texel_density`` (px/m) caps each job's resolution at the smallest
-    power of two that meets it on every member's most demanding mesh (never above the source).
-    ``coverage``: train on the texels the bound meshes read (bcfpipe.scan.coverage). ``facts``: a
-    bcfpipe.cache.facts.FactsStore, so that only textures whose bytes changed are decoded. With
-    ``training.target_psnr`` rate control chooses each job's profile and preset
-    (bcfpipe.train.rate), from the cells of ``bench`` (a `bcfpipe bench` report) for the jobs whose
-    sources it measured. Raises `BuildError` for an unreadable stage, a damaged source or a bad
-    option."""
+def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions(),
+         selection: Selection = Selection(), *, facts=None) -> BuildPlan:
+    """Scan ``scene`` and list what to train with ``training`` for the materials ``selection``
+    picks. Reads the source textures (to hash them) but writes nothing. ``selection.texel_density``
+    (px/m) caps each job's resolution at the smallest power of two that meets it on every member's
+    most demanding mesh (never above the source); ``selection.coverage`` trains on the texels the
+    bound meshes read (bcfpipe.scan.coverage). ``facts``: a bcfpipe.cache.facts.FactsStore, so that
+    only textures whose bytes changed are decoded. With ``training.target_psnr`` rate control
+    chooses each job's profile and preset (bcfpipe.train.rate), from the cells of
+    ``selection.bench`` (a `bcfpipe bench` report) for the jobs whose sources it measured. Raises
+    `BuildError` for an unreadable stage, a damaged source or a bad option."""
+    texel_density, bench = selection.texel_density, selection.bench
     if texel_density is not None and not (texel_density > 0 and texel_density < float("inf")):
         raise BuildError(f"--texel-density must be a positive number of px/m, got {texel_density}")
-    shared = {f.name: getattr(training, f.name) for f in fields(Options) if hasattr(training, f.name)}
-    options = Options(**{**shared, "device": _resolve_device_name(training.device),
-                         "texel_density": float(texel_density) if texel_density is not None else None,
-                         "coverage": bool(coverage),
-                         "features": FeatureFormat(training.features).value,
-                         "kernel": _kernel_option(training.kernel, _resolve_device_name(training.device)),
-                         "layout": training.layout.value,
-                         "match_bc": True if training.match_bc else None,
-                         "classic": tuple(training.classic) or None,
-                         "t0": None if training.t0 is None else T0(training.t0).value})
+    options = JobOptions.of(training, _resolve_device_name(training.device),
+                            texel_density=float(texel_density) if texel_density is not None else None,
+                            coverage=bool(selection.coverage))
     from bcfpipe.scan.results import ScanError
     from bcfpipe.scan.stage import scan_stage
 
-    vdict = _variants_dict(variants)
+    vdict = _variants_dict(selection.variants)
+    all_materials = selection.all_materials
     try:
         scan: StageScan = scan_stage(scene, vdict or None, all_materials=all_materials,
-                                          materials=tuple(materials))
+                                     materials=tuple(selection.materials))
     except ScanError as exc:
         raise BuildError(str(exc)) from None
 
     file_cache: dict = {}
     grouping = group_materials(scene, vdict, scan.materials, file_cache, facts=facts)
     _refuse_bad_sources(grouping, file_cache, training.fix_nonfinite)
-    jobs: list[MaterialJob] = []
-    for g in grouping.groups:
-        rep = g.model
-        sources = {p: s for mm in g.models for p, s in mm.sources.items()}
-        rep_sources = {p: sources[p] for p in dict.fromkeys(path for _, path, _ in rep.specs)}
-        job_options = density_options(options, g.models)
-        packed = fraction = cov_digest = None
-        if options.coverage:
-            packed, fraction, cov_digest = job_coverage(g.models, job_size(rep_sources.values(),
-                                                                          job_options.resolution), rep.wrap)
-        anchors = _bench_anchors(bench, rep.specs) if options.target_psnr is not None and bench is not None else ()
-        jobs.append(MaterialJob(
-            name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
-            sources=tuple(rep_sources.values()), wrap=rep.wrap, options=job_options,
-            content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options, cov_digest, anchors),
-            coverage=packed, covered_fraction=fraction, anchors=anchors,
-        ))
+    jobs = [_job(g, options, bench) for g in grouping.groups]
     job_by_name = {j.name: j for j in jobs}
-
-    plans: list[MaterialPlan] = []
-    for ms in scan.materials:
-        decision, reason, message = grouping.outcome(ms)
-        if decision == Decision.SKIP or reason == "failed":
-            plans.append(MaterialPlan(ms.path, ms.aliases, decision, reason, message, warnings=tuple(ms.warnings)))
-            continue
-        if decision == Decision.CONSTANT:
-            mm = grouping.constant[ms.path]
-            plans.append(MaterialPlan(
-                ms.path, ms.aliases, Decision.CONSTANT, None, message,
-                fallback_surface=ms.surface_shader, sources=tuple(mm.sources), warnings=tuple(mm.warnings),
-                constants=tuple(mm.constants), folded=tuple(mm.folded)))
-            continue
-        group, mm = grouping.group_of(ms.path)
-        job = job_by_name[group.name]
-        index, z = decoder_index(job.channels)
-        targets: list[TargetMap] = []
-        for t in mm.targets:
-            targets.append(TargetMap(t.target, t.input, index[t.channel], t.scale, t.bias, t.color_space,
-                                     t.channel.file, t.channel.channel))
-            if t.target == "normal.y" and z is not None:
-                targets.append(TargetMap("normal.z", t.input, z, 1.0, 0.0, ColorSpace.RAW, None, None))
-        modelled_inputs = {t.input for t in targets}
-        # a constant component of an input that is otherwise modelled stays a target: channel -1
-        targets += [TargetMap(c.target, c.input, -1, 0.0, c.value, ColorSpace.RAW, c.file, c.file_channel)
-                    for c in mm.constants if c.input in modelled_inputs]
-        prim, scale, rot, trans = mm.st
-        plans.append(MaterialPlan(
-            ms.path, ms.aliases, Decision.MODEL, None, ms.message, job=job.name, targets=tuple(targets),
-            fallback_surface=ms.surface_shader, st_primvar=prim, st_scale=tuple(scale), st_rotation=float(rot),
-            st_translation=tuple(trans), sources=tuple(mm.sources), warnings=tuple(mm.warnings),
-            constants=tuple(c for c in mm.constants if c.input not in modelled_inputs), folded=tuple(mm.folded)))
-
+    plans = [_material_plan(ms, grouping, job_by_name) for ms in scan.materials]
     return BuildPlan(
         scene=scan.path, root_layer=scan.root_layer,
         variants=tuple(sorted(vdict.items())),
@@ -359,6 +281,59 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
         layers=scan.layers,
         folded_sources=_folded_sources(grouping, jobs),
     )
+
+
+def _job(g, options: JobOptions, bench: Mapping | None) -> MaterialJob:
+    """The job of one group of materials that share a texture set: its record (the density cap
+    applied), coverage mask and cache key."""
+    rep = g.model
+    sources = {p: s for mm in g.models for p, s in mm.sources.items()}
+    rep_sources = {p: sources[p] for p in dict.fromkeys(path for _, path, _ in rep.specs)}
+    job_options = density_options(options, g.models)
+    packed = fraction = cov_digest = None
+    if options.coverage:
+        packed, fraction, cov_digest = job_coverage(g.models, job_size(rep_sources.values(), job_options.resolution),
+                                                    rep.wrap)
+    anchors = _bench_anchors(bench, rep.specs) if options.target_psnr is not None and bench is not None else ()
+    return MaterialJob(
+        name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
+        sources=tuple(rep_sources.values()), wrap=rep.wrap, options=job_options,
+        content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options, cov_digest, anchors),
+        coverage=packed, covered_fraction=fraction, anchors=anchors,
+    )
+
+
+def _material_plan(ms, grouping, job_by_name: Mapping[str, MaterialJob]) -> MaterialPlan:
+    """What the build does with one scanned material: skip it, author its constants, or map its
+    inputs to its job's decoder outputs."""
+    decision, reason, message = grouping.outcome(ms)
+    if decision == Decision.SKIP or reason == "failed":
+        return MaterialPlan(ms.path, ms.aliases, decision, reason, message, warnings=tuple(ms.warnings))
+    if decision == Decision.CONSTANT:
+        mm = grouping.constant[ms.path]
+        return MaterialPlan(
+            ms.path, ms.aliases, Decision.CONSTANT, None, message,
+            fallback_surface=ms.surface_shader, sources=tuple(mm.sources), warnings=tuple(mm.warnings),
+            constants=tuple(mm.constants), folded=tuple(mm.folded))
+    group, mm = grouping.group_of(ms.path)
+    job = job_by_name[group.name]
+    index, z = decoder_index(job.channels)
+    targets: list[TargetMap] = []
+    for t in mm.targets:
+        targets.append(TargetMap(t.target, t.input, index[t.channel], t.scale, t.bias, t.color_space,
+                                 t.channel.file, t.channel.channel))
+        if t.target == "normal.y" and z is not None:
+            targets.append(TargetMap("normal.z", t.input, z, 1.0, 0.0, ColorSpace.RAW, None, None))
+    modelled_inputs = {t.input for t in targets}
+    # a constant component of an input that is otherwise modelled stays a target: channel -1
+    targets += [TargetMap(c.target, c.input, -1, 0.0, c.value, ColorSpace.RAW, c.file, c.file_channel)
+                for c in mm.constants if c.input in modelled_inputs]
+    prim, scale, rot, trans = mm.st
+    return MaterialPlan(
+        ms.path, ms.aliases, Decision.MODEL, None, ms.message, job=job.name, targets=tuple(targets),
+        fallback_surface=ms.surface_shader, st_primvar=prim, st_scale=tuple(scale), st_rotation=float(rot),
+        st_translation=tuple(trans), sources=tuple(mm.sources), warnings=tuple(mm.warnings),
+        constants=tuple(c for c in mm.constants if c.input not in modelled_inputs), folded=tuple(mm.folded))
 
 
 def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None:

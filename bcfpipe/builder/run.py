@@ -2,7 +2,6 @@
 install it as OUT, writing only the files that changed."""
 from __future__ import annotations
 
-import concurrent.futures as cf
 import logging
 import os
 import shutil
@@ -10,7 +9,7 @@ import time
 import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Iterable
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import TrainingOptions
@@ -19,12 +18,13 @@ from bcfpipe.builder.assemble import assemble, default_out
 from bcfpipe.builder.depfile import dependencies, write as write_depfile
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
 from bcfpipe.builder.executor import JobResult, execute
-from bcfpipe.builder.report import make_report
+from bcfpipe.builder.report import BuildFacts, make_report
 from bcfpipe.builder.sync import OUT_LOCK, STAGING_PREFIX, install, is_incomplete
 from bcfpipe.cache import Cache, default_root
 from bcfpipe.formats.report import BuildReport
 from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
 from bcfpipe.builder.plan import BuildError, BuildPlan, MATERIALS_DIR, plan
+from bcfpipe.builder.options import Execution, ExecutorName, Selection
 from bcfpipe.scan.sources import package_split
 
 
@@ -194,43 +194,30 @@ def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
 
 
 def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
-          training: TrainingOptions = TrainingOptions(),
-          variants: Mapping[str, str] | Iterable[str] | None = None, all_materials: bool = False,
-          materials: Iterable[str] = (),
-          jobs: int | None = None, force: bool = False, progress: ProgressCallback | None = None,
-          executor: cf.Executor | None = None,
-          cache: str | os.PathLike | bool | None = None, depfile: str | os.PathLike | None = None,
-          depfile_target: str | None = None, texel_density: float | None = None,
-          coverage: bool = True, bench: Mapping | None = None,
-          executor_name: str = "local", ray_address: str | None = None) -> BuildResult:
+          training: TrainingOptions = TrainingOptions(), selection: Selection = Selection(),
+          execution: Execution = Execution(), progress: ProgressCallback | None = None) -> BuildResult:
     """Build neural materials for ``scene`` into ``out`` (default ``<scene>.bcf/`` next to it); the
     Python twin of ``bcfpipe build``.
 
     ``training``: the training choices, whole (config.TrainingOptions; its ``threads`` are torch
-    threads per worker). ``variants``: {set: value} or ["set=value", ...]. ``texel_density``: px/m,
-    ``coverage`` (see `plan`). ``jobs``: worker processes (default: one per core, or per GPU, at
-    most one per job). ``cache``: a cache folder, True/None for the default one
-    (``BCFPIPE_CACHE`` or the user cache), False for none. ``depfile``: write the files the result
-    depends on there, for target ``depfile_target`` (default: the root layer under ``out`` as
-    given). ``progress``: a callable receiving event dicts (see `execute`). Raises `BuildError`
-    (exit code 2) before any training for bad input or a refused ``out``; per-material failures
-    are reported in the result (``exit_code`` 1), never raised.
+    threads per worker). ``selection``: which materials, and what the scene needs (`Selection`).
+    ``execution``: workers, executor, cache, depfile and --force (`Execution`). ``progress``: a
+    callable receiving `ProgressEvent`s (see `execute`). Raises `BuildError` (exit code 2) before
+    any training for bad input or a refused ``out``; per-material failures are reported in the
+    result (``exit_code`` 1), never raised.
     """
     t0 = time.perf_counter()
-    if jobs is not None and int(jobs) < 1:
+    if execution.jobs is not None and int(execution.jobs) < 1:
         raise BuildError("--jobs must be at least 1")
     scene_path = Path(scene)
     out_given = Path(out) if out is not None else default_out(scene_path, resolve=False)
     out_path = out_given.resolve()
     # Refuse early: before the scan reads every texture, and again once the sources are known.
-    check_out(out_path, force, [scene_path], scene_path)
-    store = None
-    if cache is not False:
-        store = Cache(default_root() if cache in (None, True) else cache)
-    bplan = plan(scene_path, training, variants=variants, all_materials=all_materials, materials=materials,
-                 texel_density=texel_density,
-                 coverage=coverage, facts=store.facts if store is not None else None, bench=bench)
-    check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
+    check_out(out_path, execution.force, [scene_path], scene_path)
+    cache = execution.cache
+    store = None if cache is False else Cache(default_root() if cache in (None, True) else cache)
+    bplan = plan(scene_path, training, selection, facts=store.facts if store is not None else None)
+    check_out(out_path, execution.force, [bplan.scene, *bplan.sources], scene_path)
     # staging lives inside OUT (nothing is written outside OUT and the cache) and on its filesystem,
     # so that installing a file is one rename
     staging = out_path / f"{STAGING_PREFIX}{uuid.uuid4().hex[:8]}"
@@ -242,13 +229,26 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
         raise OutputRefused(f"cannot write {out_path}: {_why(exc)}") from None
     try:
         # another build may have written OUT while this one waited: the rules again, under the lock
-        replaced = check_out(out_path, force, [bplan.scene, *bplan.sources], scene_path)
+        replaced = check_out(out_path, execution.force, [bplan.scene, *bplan.sources], scene_path)
         if replaced is not None:
             log.warning("replacing the build of %s in %s (--force)", replaced, out_path)
-        return _build_locked(bplan, out_path, out_given, staging, created, store, progress, executor_name,
-                             ray_address, jobs, executor, training.threads, depfile, depfile_target, t0)
+        run = _Run(bplan, out_path, out_given, staging, created, store, t0)
+        return _build_locked(run, execution, training.threads, progress)
     finally:
         out_lock.release()
+
+
+@dataclass(frozen=True)
+class _Run:
+    """One build under way: its plan, OUT (resolved and as given), staging folder and cache."""
+
+    bplan: BuildPlan
+    out: Path
+    out_given: Path
+    staging: Path
+    created: bool  # this build created OUT (a failure removes it again)
+    store: Cache | None
+    t0: float
 
 
 def _lock_out(out: Path):
@@ -274,53 +274,60 @@ def _lock_out(out: Path):
         lock.release()
 
 
-def _build_locked(bplan: BuildPlan, out_path: Path, out_given: Path, staging: Path, created: bool,
-                  store: Cache | None, progress: ProgressCallback | None, executor_name: str,
-                  ray_address: str | None, jobs: int | None, executor: cf.Executor | None,
-                  threads: int | None, depfile, depfile_target: str | None, t0: float) -> BuildResult:
+def _build_locked(run: _Run, execution: Execution, threads: int | None,
+                  progress: ProgressCallback | None) -> BuildResult:
     """The build proper, with OUT's lock held: stage, train what the cache lacks, assemble, install."""
+    bplan, staging, out_path = run.bplan, run.staging, run.out
     try:
         _stale_staging(out_path)
         staging.mkdir()
         (staging / _PID).write_text(str(os.getpid()))
     except OSError as exc:
-        _abandon(staging, out_path, created)
+        _abandon(staging, out_path, run.created)
         raise OutputRefused(f"cannot write {out_path}: {_why(exc)}") from None
     if progress:  # every job is known from the start: progress counts "k of all"
         for job in bplan.jobs:
             progress(ProgressEvent(EventKind.QUEUED, job.name, job.materials))
     try:
-        results, damaged = _cached(bplan, store, staging / MATERIALS_DIR, progress)
+        results, damaged = _cached(bplan, run.store, staging / MATERIALS_DIR, progress)
         todo = [j for j in bplan.jobs if j.name not in results]
-        if executor_name == "ray":
-            from bcfpipe.builder.ray_executor import execute_ray
-
-            done, attempts = execute_ray(todo, staging / MATERIALS_DIR, ray_address, threads=threads,
-                                         progress=progress, cache_root=store.root if store else None)
-            results.update({k: replace(r, attempts=attempts.get(k, 1)) for k, r in done.items()})
-        else:
-            from bcfpipe.texset.blocks import blocks_in
-            from bcfpipe.train.fused.common import kernels_in
-
-            # compiled kernels and BC@R's blocks in the build's cache
-            with kernels_in(store.root if store else None), blocks_in(store.base if store else None):
-                results.update(execute(todo, staging / MATERIALS_DIR, workers=jobs, executor=executor,
-                                       progress=progress, threads=threads, cache_root=store.root if store else None))
+        results.update(_train(todo, run, execution, threads, progress))
         (staging / _PID).unlink()
         manifest = assemble(bplan, results, staging, out_path)
         files = sorted(p.relative_to(staging).as_posix() for p in staging.rglob("*") if p.is_file())
         written = install(staging, out_path, manifest.root_layer)
     except BaseException as exc:
-        _abandon(staging, out_path, created)
+        _abandon(staging, out_path, run.created)
         if isinstance(exc, OSError) or type(exc).__name__ == "ErrorException":  # pxr's Tf errors too
             raise OutputError(f"cannot write {out_path}: {_why(exc)}; OUT was left as it was "
                               "(or, if this happened while files were replaced, is marked incomplete and is "
                               "repaired by the next build)") from None
         raise
     dep = None
-    if depfile is not None:
-        target = depfile_target or (out_given / manifest.root_layer).as_posix()
-        dep = str(write_depfile(depfile, target, dependencies(bplan.layers, bplan.sources)))
-    report = make_report(str(out_given), manifest, results, files, written, str(store.root) if store else None,
-                         damaged, time.perf_counter() - t0, dep, executor_name)
+    if execution.depfile is not None:
+        target = execution.depfile_target or (run.out_given / manifest.root_layer).as_posix()
+        dep = str(write_depfile(execution.depfile, target, dependencies(bplan.layers, bplan.sources)))
+    store = run.store
+    facts = BuildFacts(str(run.out_given), files, written, str(store.root) if store else None, damaged,
+                       time.perf_counter() - run.t0, dep, execution.executor)
+    report = make_report(manifest, results, facts)
     return BuildResult(out_path, out_path / manifest.root_layer, manifest, bplan, report)
+
+
+def _train(todo: list, run: _Run, execution: Execution, threads: int | None,
+           progress: ProgressCallback | None) -> dict[str, JobResult]:
+    """Train the jobs the cache lacks into the staging folder, on the executor ``execution`` names."""
+    root = run.store.root if run.store else None
+    if execution.executor == ExecutorName.RAY:
+        from bcfpipe.builder.ray_executor import execute_ray
+
+        done, attempts = execute_ray(todo, run.staging / MATERIALS_DIR, execution.ray_address, threads=threads,
+                                     progress=progress, cache_root=root)
+        return {k: replace(r, attempts=attempts.get(k, 1)) for k, r in done.items()}
+    from bcfpipe.texset.blocks import blocks_in
+    from bcfpipe.train.fused.common import kernels_in
+
+    # compiled kernels and BC@R's blocks in the build's cache
+    with kernels_in(root), blocks_in(run.store.base if run.store else None):
+        return execute(todo, run.staging / MATERIALS_DIR, workers=execution.jobs, executor=execution.pool,
+                       progress=progress, threads=threads, cache_root=root)

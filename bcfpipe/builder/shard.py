@@ -17,6 +17,7 @@ from typing import Any
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import TrainingOptions
+from bcfpipe.builder.options import Execution, Selection
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
 from bcfpipe.builder.executor import JobResult, execute
 from bcfpipe.builder.plan import BuildError, plan
@@ -60,14 +61,16 @@ class ShardResult:
                           "seconds": round(j.seconds, 3)} for j in self.jobs]}
 
 
-def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: TrainingOptions = TrainingOptions(), *,
-                cache: str | os.PathLike | None = None, jobs: int | None = None,
-                progress: ProgressCallback | None = None, **plan_options) -> ShardResult:
-    """Train the jobs of ``shard`` that the cache lacks; store them there. Writes only the cache
-    (its trainings run in a folder under the cache's tmp/)."""
+def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: TrainingOptions = TrainingOptions(),
+                selection: Selection = Selection(), execution: Execution = Execution(),
+                progress: ProgressCallback | None = None) -> ShardResult:
+    """Train the jobs of ``shard`` that the cache lacks; store them there, on ``execution``'s cache
+    with its worker count. Writes only the cache (its trainings run in a folder under the cache's
+    tmp/)."""
     t0 = time.perf_counter()
+    cache = execution.cache
     store = Cache(default_root() if cache in (None, True) else cache)
-    bplan = plan(scene, training, facts=store.facts, **plan_options)
+    bplan = plan(scene, training, selection, facts=store.facts)
     i, n = shard
     mine = [j for j in bplan.jobs if shard_of(j.content_hash, n) == i]
     results: dict[str, JobResult] = {}
@@ -87,7 +90,7 @@ def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: Trai
         from bcfpipe.train.fused.common import kernels_in
 
         with kernels_in(store.root), blocks_in(store.base):  # compiled kernels and BC@R's blocks in its cache
-            results.update(execute(todo, work, workers=jobs, progress=progress, threads=training.threads,
+            results.update(execute(todo, work, workers=execution.jobs, progress=progress, threads=training.threads,
                                    cache_root=store.root))
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -10,6 +10,7 @@ table, or with ``--json`` the manifest as one JSON object, goes to stdout.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 from collections import Counter
 from dataclasses import replace
@@ -218,7 +219,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     on the same device class give byte-identical outputs. See docs/build.md for make, ninja and
     CMake. Exit codes: 0 all built, 1 a material failed, 2 bad input or OUT refused, 130 interrupted.
     """
-    from bcfpipe.builder import build as run_build
+    from bcfpipe.builder import Execution, Selection, build as run_build
     from bcfpipe.cli.options import training_record
 
     training, bench = training_record(ctx)
@@ -226,28 +227,16 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     display = None if quiet else BuildDisplay(Console(stderr=True))
     if no_cache and cache_dir is not None:
         raise click.UsageError("--cache and --no-cache contradict each other")
-    from bcfpipe.builder.ray_executor import resolve_executor
-
-    executor_name = resolve_executor(executor_name, ray_address)
-    if executor_name == "ray":
-        from bcfpipe.builder.ray_executor import require_ray
-
-        require_ray()  # without the package: one line, exit 2
+    selection = Selection(variants, all_materials, tuple(materials), texel_density, not no_coverage, bench)
+    execution = Execution(jobs, _executor(executor_name, ray_address), ray_address,
+                          False if no_cache else cache_dir, force, depfile, depfile_target)
     if shard is not None:
-        _shard(ctx, scene, shard, display, quiet, as_json, training, out=out, no_cache=no_cache, depfile=depfile,
-               verify=run_verify_after, cache=cache_dir, jobs=jobs, variants=variants, all_materials=all_materials,
-               materials=materials, texel_density=texel_density, coverage=not no_coverage, bench=bench)
+        refused = ((out, "-o/--out"), (no_cache, "--no-cache"), (depfile, "--depfile"), (run_verify_after, "--verify"))
+        _shard(ctx, scene, shard, display, as_json, (training, selection, execution), refused)
         return
-    options = dict(training=training, variants=variants, all_materials=all_materials, materials=materials, jobs=jobs,
-                   force=force,
-                   texel_density=texel_density, coverage=not no_coverage, cache=False if no_cache else cache_dir,
-                   depfile=depfile, depfile_target=depfile_target, bench=bench, executor_name=executor_name,
-                   ray_address=ray_address)
-    if display is None:
-        result = run_build(scene, out, **options)
-    else:
-        with display:
-            result = run_build(scene, out, progress=display, **options)
+    with display or contextlib.nullcontext():
+        result = run_build(scene, out, training=training, selection=selection, execution=execution,
+                           progress=display)
     code = result.exit_code
     verify_code = None
     if run_verify_after:
@@ -261,41 +250,62 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     if as_json:
         click.echo(replace(result.report, verify_exit_code=verify_code).dumps(), nl=False)
     elif not quiet:
-        probe = Console()
-        out = probe if probe.is_terminal else Console(width=160)  # pipes/logs: do not wrap at 80 columns
-        print_summary(out, result.manifest, result.report)
-        shown = os.path.relpath(result.root_layer)
-        out.print(f"open {shown if not shown.startswith('..') else result.root_layer}", highlight=False,
-                  soft_wrap=True)
-    nothing = nothing_built(result.manifest)
-    if nothing and not quiet:
-        click.echo(nothing, err=True)
+        _summary(result)
     if not quiet:
-        for mp in result.plan.materials:  # suspect input, e.g. a greyscale normal map: said, not refused
-            for w in mp.warnings:
-                click.echo(f"bcfpipe: warning: {mp.path}: {w}", err=True)
-        for sem in result.plan.unused_classic:
-            click.echo(f"bcfpipe: warning: --classic {sem}: no modelled material has such a channel", err=True)
+        _warnings(result)
     ctx.exit(code)
 
 
-def _shard(ctx: click.Context, scene: Path, text: str, display, quiet: bool, as_json: bool, training, *, out,
-           no_cache, depfile, verify, cache, jobs, **plan_options) -> None:
-    """`build --shard I/N`: train one shard into the cache (bcfpipe.builder.shard)."""
+def _executor(name: str, ray_address: str | None):
+    """--executor resolved (auto: ray when a Ray address is given); ray without its package exits 2."""
+    from bcfpipe.builder import ExecutorName
+    from bcfpipe.builder.ray_executor import require_ray, resolve_executor
+
+    resolved = ExecutorName(resolve_executor(name, ray_address))
+    if resolved == ExecutorName.RAY:
+        require_ray()  # without the package: one line, exit 2
+    return resolved
+
+
+def _summary(result) -> None:
+    """The human summary on stdout, and where to open the result."""
+    probe = Console()
+    out = probe if probe.is_terminal else Console(width=160)  # pipes/logs: do not wrap at 80 columns
+    print_summary(out, result.manifest, result.report)
+    shown = os.path.relpath(result.root_layer)
+    out.print(f"open {shown if not shown.startswith('..') else result.root_layer}", highlight=False,
+              soft_wrap=True)
+
+
+def _warnings(result) -> None:
+    """On stderr: a build that made nothing, suspect input (e.g. a greyscale normal map: said, not
+    refused) and --classic semantics no material has."""
+    nothing = nothing_built(result.manifest)
+    if nothing:
+        click.echo(nothing, err=True)
+    for mp in result.plan.materials:
+        for w in mp.warnings:
+            click.echo(f"bcfpipe: warning: {mp.path}: {w}", err=True)
+    for sem in result.plan.unused_classic:
+        click.echo(f"bcfpipe: warning: --classic {sem}: no modelled material has such a channel", err=True)
+
+
+def _shard(ctx: click.Context, scene: Path, text: str, display, as_json: bool, records: tuple,
+           refused: tuple) -> None:
+    """`build --shard I/N`: train one shard into the cache (bcfpipe.builder.shard). ``records``:
+    (training, selection, execution); ``refused``: (given, flag) pairs a shard does not take."""
     import json
 
     from bcfpipe.builder.shard import parse_shard, train_shard
     from bcfpipe.errors import InputError
 
     shard = parse_shard(text)
-    for given, flag in ((out, "-o/--out"), (no_cache, "--no-cache"), (depfile, "--depfile"), (verify, "--verify")):
+    for given, flag in refused:
         if given:
             raise InputError(f"--shard trains into the cache and writes nothing else; drop {flag}")
-    if display is None:
-        res = train_shard(scene, shard, training, cache=cache, jobs=jobs, **plan_options)
-    else:
-        with display:
-            res = train_shard(scene, shard, training, cache=cache, jobs=jobs, progress=display, **plan_options)
+    with display or contextlib.nullcontext():
+        res = train_shard(scene, shard, *records, progress=display)
+    quiet = display is None
     if as_json:
         click.echo(json.dumps(res.to_json(), indent=2))
     elif not quiet:

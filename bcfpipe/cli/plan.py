@@ -65,9 +65,10 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
     from bcfpipe.cli.options import training_record
 
     training, bench = training_record(click.get_current_context())
-    bplan = plan(scene, training, variants=variants, all_materials=all_materials, materials=materials,
-                 texel_density=texel_density,
-                 coverage=not no_coverage, bench=bench)
+    from bcfpipe.builder import Selection
+
+    bplan = plan(scene, training, Selection(variants, all_materials, tuple(materials), texel_density,
+                                            not no_coverage, bench))
     if as_json:
         click.echo(json.dumps(plan_json(bplan), indent=2))
         return
@@ -100,7 +101,6 @@ def _say_job(say, j) -> None:
     read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
     say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
         f"content hash {j.content_hash[:16]}")
-    from bcfpipe.config import layout_of
     from bcfpipe.layout.classic import MAX_REPACK_SIDE
     from bcfpipe.layout.material import bc_resolution, uses_layout
 
@@ -111,7 +111,7 @@ def _say_job(say, j) -> None:
         kept = list(dict.fromkeys(sem for sem, f, _ in j.specs if f in files))  # a packed file goes whole
         held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
         bc = f" ({pred.bc_bytes / 2**20:.2f} MiB)" if pred else ""
-        if layout_of(j.options) == "auto":
+        if j.options.layout == "auto":
             repack = (" and its BC7 repacks (encoded, not trained)" if pred is None or pred.repack_bytes else
                       "; no BC7 repack fits its bytes") if r <= MAX_REPACK_SIDE else ""
             probe = f"a probe at {pred.probe}" if pred else "a probe"

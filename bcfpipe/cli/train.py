@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from bcfpipe.formats.vocabulary import T0, Wrap
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
 from bcfpipe.cli.options import training_options
@@ -125,6 +125,35 @@ def _table(res) -> "object":
     return t
 
 
+def _load(textures, resolution: int | None, options, wrap: str):
+    """The parsed specs and their texture set; a bad spec, file or option exits 2 in one line."""
+    from bcfpipe.export.fit import make_config
+    from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
+
+    try:
+        specs = [TextureSpec.parse(t) for t in textures]
+        ts = load_texture_set(specs, resolution=resolution, fix_nonfinite=options.fix_nonfinite)
+        make_config(ts, options, wrap)  # the profile, device and wrap against this set
+    except ValueError as e:
+        raise InputError(str(e)) from None
+    return specs, ts
+
+
+def _anchors(report: dict | None, specs, options):
+    """--bench-data's measured cells for this set (None without a report): a report without this
+    set's source files exits 2."""
+    if report is None:
+        return None
+    from bcfpipe.texset.texture_set import TextureSpec
+    from bcfpipe.train import rate
+
+    anchors = rate.anchors_from_bench(report, [str(TextureSpec(s.semantic, Path(s.path).name, s.channels))
+                                               for s in specs])
+    if not anchors:
+        raise InputError(f"{options.bench_data} has no texture set with these source files")
+    return anchors
+
+
 @click.command("train", cls=Command)
 @click.argument("textures", nargs=-1, required=True, metavar="SEMANTIC=FILE[:CHANNELS]...")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
@@ -155,69 +184,35 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
     failed, 2 bad arguments or unreadable input.
     """
     from bcfpipe.cli.options import training_record
-    from bcfpipe.export.fit import fit_material, make_config
-    from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
     options, report = training_record(ctx)
     out = Path(output)
     if out.exists() and any(out.iterdir()) and not force:
         raise InputError(f"{out} is not empty; pass --force to overwrite")
-    try:
-        specs = [TextureSpec.parse(t) for t in textures]
-        ts = load_texture_set(specs, resolution=resolution, fix_nonfinite=options.fix_nonfinite)
-        name, cfg = make_config(ts, options, wrap)
-    except ValueError as e:
-        raise InputError(str(e)) from None
+    specs, ts = _load(textures, resolution, options, wrap)
+    anchors = _anchors(report, specs, options)
     quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False
-    outcome = None
     try:
         with _Reporter(quiet) as rep:
-            from bcfpipe.layout.material import uses_layout
+            from bcfpipe.fit import FitMode, fit
 
-            if uses_layout(options, [s.semantic for s in specs]):
-                from bcfpipe.layout.material import fit_material_layout
+            def said(text: str) -> None:
+                if not quiet:
+                    rep.console.print(text, highlight=False)
 
-                def said_layout(text: str) -> None:
-                    if not quiet:
-                        rep.console.print(f"layout: {text}", highlight=False)
-
-                res = fit_material_layout(ts, out, options, wrap, said_layout, progress=rep)
-                click.echo(f"bcfpipe train: layout {res.layout['chosen']['layout']}: {res.layout['reason']}",
-                           err=True)
-            elif options.target_psnr is None:
-                res, _ = fit_material(ts, out, cfg, name, progress=rep)
-            else:
-                from bcfpipe.train import rate
-
-                anchors = rate.anchors_from_bench(report, [str(TextureSpec(s.semantic, Path(s.path).name,
-                                                                               s.channels)) for s in specs]) \
-                    if report is not None else None
-                if report is not None and not anchors:
-                    raise InputError(f"{options.bench_data} has no texture set with these source files")
-
-                def train_one(st, folder):
-                    n, c = make_config(ts, options.with_(profile=st.profile, preset=st.preset), wrap)
-                    return fit_material(ts, folder, c, n, progress=rep)[0]
-
-                def said(text: str) -> None:
-                    if not quiet:
-                        rep.console.print(f"rate control: training {text}", highlight=False)
-
-                settings = rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
-                res, outcome = rate.fit_to_target(options.target_psnr, settings,
-                                                  train_one, out, anchors, said)
-                if not quiet or not outcome.met:
-                    click.echo(f"bcfpipe train: {outcome.summary()}", err=True)
+            fitted = fit(ts, options, out, wrap=wrap, progress=rep, log=said, anchors=anchors)
     except ValueError as e:
         raise InputError(str(e)) from None
     except (FloatingPointError, RuntimeError, MemoryError) as e:
         click.echo(f"bcfpipe train: training failed: {e}", err=True)
         ctx.exit(EXIT_FAILED)
+    res = fitted.result
+    if fitted.mode == FitMode.LAYOUT:
+        click.echo(f"bcfpipe train: layout {res.layout['chosen']['layout']}: {res.layout['reason']}", err=True)
+    elif fitted.target is not None and (not quiet or not fitted.target.met):
+        click.echo(f"bcfpipe train: {fitted.target.summary()}", err=True)
     if as_json:
-        d = res.to_dict()
-        if outcome is not None:
-            d["target"] = outcome.to_json()
-        click.echo(json.dumps(d, default=float))
+        click.echo(json.dumps(fitted.to_dict(), default=float))
     else:
         from rich.console import Console
 

@@ -164,7 +164,7 @@ class Onnx(Record):
 
 @dataclass(frozen=True)
 class Training(Record):
-    """How the material was trained; informative, times vary between runs."""
+    """How the material was trained (informative; it holds no times: the same inputs give the same file)."""
 
     profile_resolutions: tuple[int, ...]
     preset: str

@@ -2,7 +2,7 @@
 
 A record's fields are its JSON keys, in order. Field types drive the reading: ``int``, ``float``
 (an int is accepted), ``str``, ``bool``, ``X | None``, ``tuple[X, ...]``, ``list[X]``,
-``dict[str, X]``, ``Any`` and nested records. A field whose metadata has ``omit_none`` is left
+``dict[str, X]``, ``Any``, enums (by value) and nested records. A field whose metadata has ``omit_none`` is left
 out of the JSON when it is None (keys that only some writers add); ``_ORDER`` (a class attribute)
 lists keys that lead the object. Unknown keys are refused, so a
 file that does not match the contract fails where it is read, naming the key.
@@ -88,6 +88,11 @@ def _load(tp: Any, v: Any, where: str) -> Any:
     args = typing.get_args(tp)
     if tp is Any:
         return v
+    if isinstance(tp, type) and issubclass(tp, Enum):  # a named value (formats.vocabulary), by its string
+        try:
+            return tp(v)
+        except ValueError:
+            raise _fail(where, f"unknown value {v!r}; choose from {', '.join(str(m.value) for m in tp)}") from None
     if origin in (typing.Union, types.UnionType):
         if v is None and type(None) in args:
             return None

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from typing import Callable
 
-from bcfpipe.config import PROFILES, TrainingOptions, layout_of
+from bcfpipe.config import PROFILES, TrainingOptions
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export import writer as E
 from bcfpipe.export.fit import MaterialResult, exported_size
@@ -24,7 +24,7 @@ WORK = ".layout-work"  # inside the output folder while the probe and the chosen
 def uses_layout(options, semantics) -> bool:
     """Whether a material is fitted here rather than trained all neural: ``--layout auto``, or
     ``--classic`` naming one of its ``semantics`` (``options``: TrainingOptions or a job's Options)."""
-    return layout_of(options) == Layout.AUTO or bool(set(options.classic or ()) & set(semantics))
+    return options.layout == Layout.AUTO or bool(set(options.classic or ()) & set(semantics))
 
 
 def bc_resolution(side: int, profile: str) -> int:

@@ -154,7 +154,7 @@ def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[s
     manifest.Options or TrainingOptions): None under ``--target-psnr`` (rate control sizes it). A
     colour from one of ``float_files`` may be HDR (BC6H, twice BC1's bytes) or not, which only its
     texels say: the prediction then spans both."""
-    from bcfpipe.config import LAYER_CHANNELS_OF, N_LAYERS, layout_of, resolve_profile
+    from bcfpipe.config import LAYER_CHANNELS_OF, N_LAYERS, resolve_profile
     from bcfpipe.formats.vocabulary import FeatureFormat
     from bcfpipe.layout.classic import groups as classic_groups
     from bcfpipe.layout.material import bc_resolution, uses_layout
@@ -164,7 +164,7 @@ def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[s
     side = max(width, height)
     asked, res = resolve_profile(options.profile, side)
     dims = (N_LAYERS * LAYER_CHANNELS_OF[FeatureFormat(options.features or FeatureFormat.BC7)], options.hidden)
-    layout = layout_of(options) if uses_layout(options, [s for s, _, _ in specs]) else Layout.NEURAL
+    layout = options.layout if uses_layout(options, [s for s, _, _ in specs]) else Layout.NEURAL
     n = sum(len(ch) for _, _, ch in specs)
     device = options.device or "cpu"
     hdr_colours = [p for s, p, _ in specs if p in float_files]

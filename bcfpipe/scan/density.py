@@ -23,7 +23,7 @@ import numpy as np
 from bcfpipe.scan.values import numbers
 
 if TYPE_CHECKING:
-    from bcfpipe.formats.manifest import Options
+    from bcfpipe.config import JobOptions as Options
     from bcfpipe.scan.sources import SourceFile
 
 __all__ = ["MeshDensity", "MaterialDensity", "mesh_areas", "material_density", "required_resolution"]
@@ -217,7 +217,7 @@ def job_size(sources: Iterable[SourceFile], resolution: int | None) -> tuple[int
     return max(1, int(w * f)), max(1, int(h * f))
 
 
-def density_options(options: Options, models) -> Options:
+def density_options(options: "Options", models) -> "Options":
     """The job's options under ``options.texel_density``: the largest resolution any member needs
     (no cap when a member has no density figure, or needs the source itself); the profile drops to
     what fits that resolution when it asked for more."""

@@ -7,17 +7,15 @@ from __future__ import annotations
 from dataclasses import replace
 
 from bcfpipe.formats.vocabulary import Decision, FeatureFormat, Layout
-from bcfpipe.config import (DEFAULT_FEATURES, DEFAULT_HIDDEN, DEFAULT_PROFILE, LAYER_CHANNELS_OF, N_LAYERS,
-                            resolve_profile)
+from bcfpipe.config import DEFAULT_HIDDEN, DEFAULT_PROFILE, LAYER_CHANNELS_OF, N_LAYERS, JobOptions, resolve_profile
 from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.formats.images import FLOAT_TYPES
-from bcfpipe.formats.manifest import Options
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import Grouping
 from bcfpipe.scan.texture_sets import MaterialModel, decoder_index
 
-def _job(mm: MaterialModel, members, options: Options, predict=None) -> dict:
+def _job(mm: MaterialModel, members, options: JobOptions, predict=None) -> dict:
     """What `bcfpipe build` would do with this texture set, by the rules `plan` applies."""
     o = density_options(options, members)
     spec_sources = [mm.sources[p] for p in dict.fromkeys(path for _, path, _ in mm.specs)]
@@ -37,7 +35,7 @@ def _job(mm: MaterialModel, members, options: Options, predict=None) -> dict:
     if side and n_out and predict is not None:  # what the default layout weighs, the bytes it can ship
         floats = [p for p, s in mm.sources.items() if s.format in FLOAT_TYPES]
         pred = predict(tuple(mm.specs), floats, w, h, o)
-    neural = neural_bytes(res, N_LAYERS * LAYER_CHANNELS_OF[FeatureFormat(o.features or FeatureFormat.BC6H)], o.hidden,
+    neural = neural_bytes(res, N_LAYERS * LAYER_CHANNELS_OF[FeatureFormat(o.features)], o.hidden,
                           n_out) if res and n_out else 0
     return {"resolution": side, "profile": profile, "capped": o.resolution is not None,
             "texel_density_reached": reached, "covered_fraction": covered,
@@ -52,9 +50,8 @@ def requirements(grouping: Grouping, everything: Grouping, profile: str = DEFAUL
     (the same scan grouped without folding). ``predict``: `bcfpipe.layout.predict.predict_specs`
     (passed in: scan comes before layout), which sizes each set as the default layout ships it;
     without it a set is sized all neural."""
-    options = Options(profile=profile, preset="standard", seed=0, device="cpu", hidden=hidden, signed=False,
-                      init="random", texel_density=texel_density, features=DEFAULT_FEATURES.value,
-                      layout=Layout.AUTO.value)  # the build's default
+    options = JobOptions(profile=profile, preset="standard", device="cpu", hidden=hidden,
+                         texel_density=texel_density, layout=Layout.AUTO)  # the build's default
     out: dict[str, dict] = {}
     total = low = 0
     for g in grouping.groups:

@@ -1,0 +1,87 @@
+"""`fit`: train, export and measure one material the way its options ask, chosen once here.
+
+Three fits share the texture set, the options record and the output folder:
+
+* ``layout`` (`--layout auto`, or `--classic` naming one of the set's semantics): per-channel
+  classic BC textures and neural features, chosen against BC@R (`bcfpipe.layout`);
+* ``rate`` (`--target-psnr`): the cheapest profile and preset predicted to reach the target
+  (`bcfpipe.train.rate`);
+* ``neural``: every output from the MLP at the profile and preset asked (`bcfpipe.export.fit`).
+
+`bcfpipe train`, both build executors and `bcfpipe bench` call only `fit`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Callable, Mapping
+
+import numpy as np
+
+from bcfpipe.config import TrainingOptions
+from bcfpipe.export.fit import MaterialResult, fit_material, make_config
+from bcfpipe.formats.vocabulary import T0
+from bcfpipe.layout.material import fit_material_layout, uses_layout
+from bcfpipe.texset.texture_set import TextureSet
+from bcfpipe.train.trainer import ProgressFn
+
+
+class FitMode(StrEnum):
+    """Which fit a material's options ask for."""
+
+    NEURAL = "neural"
+    LAYOUT = "layout"
+    RATE = "rate"
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """A fitted material: its measured result and, under --target-psnr, how the target went."""
+
+    result: MaterialResult
+    mode: FitMode
+    target: object | None = None  # bcfpipe.train.rate.TargetOutcome with --target-psnr
+
+    def to_dict(self) -> dict:
+        """The result's JSON (`MaterialResult.to_dict`), with ``target`` under --target-psnr."""
+        d = self.result.to_dict()
+        if self.target is not None:
+            d["target"] = self.target.to_json()
+        return d
+
+
+def fit_mode(options: TrainingOptions, semantics) -> FitMode:
+    """The fit ``options`` ask for, for a set of ``semantics``."""
+    if uses_layout(options, semantics):
+        return FitMode.LAYOUT
+    return FitMode.NEURAL if options.target_psnr is None else FitMode.RATE
+
+
+def fit(ts: TextureSet, options: TrainingOptions, out: str | Path, *, wrap: str,
+        coverage: np.ndarray | None = None, progress: ProgressFn | None = None,
+        log: Callable[[str], None] | None = None,
+        anchors: Mapping[tuple[str, str], float] | None = None) -> Fitted:
+    """Fit ``ts`` as ``options`` ask into ``out``, measured from the exported files. ``coverage``:
+    the texels the scene reads (training draws there, figures are over them). ``progress`` hears
+    the trainings; ``log`` one line per decision, prefixed by its fit ("layout: ...", "rate control:
+    training ..."). ``anchors``: measured (profile, preset) -> PSNR cells for rate control."""
+    say = log or (lambda text: None)
+    mode = fit_mode(options, sorted({c.semantic for c in ts.channels}))
+    if mode == FitMode.LAYOUT:
+        res = fit_material_layout(ts, out, options, wrap, lambda text: say(f"layout: {text}"),
+                                  progress=progress, coverage=coverage)
+        return Fitted(res, mode)
+    name, cfg = make_config(ts, options, wrap)
+    if mode == FitMode.NEURAL:
+        return Fitted(fit_material(ts, out, cfg, name, progress, coverage=coverage)[0], mode)
+    from bcfpipe.train import rate
+
+    def train_one(setting, folder):
+        n, c = make_config(ts, options.with_(profile=setting.profile, preset=setting.preset), wrap)
+        return fit_material(ts, folder, c, n, progress, coverage=coverage)[0]
+
+    settings = rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
+    res, outcome = rate.fit_to_target(options.target_psnr, settings, train_one, out, anchors,
+                                      lambda text: say(f"rate control: training {text}"))
+    return Fitted(res, mode, outcome)

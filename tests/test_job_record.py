@@ -1,0 +1,187 @@
+"""One record per job (issue 51): every field of `config.JobOptions` reaches the worker that trains
+it, in a local build and in a Ray build, and changes the job's cache key unless it is declared
+`UNKEYED` (with where its effect goes instead).
+
+The worker side is observed for real: the build runs in a subprocess whose Python processes (its
+local workers, or Ray's workers) load `sitecustomize` from a folder of this test, which wraps the
+real `bcfpipe.fit.fit` to write down the record and the `TrainConfig` it trains with, then trains.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+
+from bcfpipe.builder import Selection, plan
+from bcfpipe.builder.plan import content_hash
+from bcfpipe.config import UNKEYED, JobOptions, TrainingOptions
+
+from test_build import copy_samples
+
+#: a value other than the default for every field of the job record, and what it needs beside it
+NON_DEFAULT = {
+    "profile": ("0.5k", {}), "preset": ("draft", {}), "hidden": (8, {}), "signed": (True, {"features": "bc6h"}),
+    "init": ("pca", {}), "fix_nonfinite": (True, {}), "seed": (3, {}), "device": ("cuda", {"kernel": "torch"}),
+    "threads": (2, {}), "target_psnr": (30.0, {}), "bench_data": ("bench.json", {"target_psnr": 30.0}),
+    "features": ("bc6h", {}), "kernel": ("torch", {}), "layout": ("auto", {}),
+    "match_bc": (True, {"layout": "auto"}), "classic": (("normal",), {}), "t0": ("trained", {}),
+    "resolution": (32, {}), "texel_density": (100.0, {}), "coverage": (False, {}),
+}
+#: the fields that change nothing a job trains: their effect is keyed through another field or input
+UNKEYED_FIELDS = {"threads", "bench_data", "texel_density"}
+
+
+def test_every_field_is_covered_and_the_unkeyed_ones_are_declared() -> None:
+    """A new field of the record fails here until it has a non-default value above, and the
+    fields left out of the key are exactly the declared ones."""
+    assert set(NON_DEFAULT) == {f.name for f in fields(JobOptions)}
+    assert {f.name for f in fields(JobOptions) if UNKEYED in f.metadata} == UNKEYED_FIELDS
+    for f in fields(JobOptions):
+        assert NON_DEFAULT[f.name][0] != f.default, f.name
+
+
+def test_every_keyed_field_changes_the_cache_key(tmp_path: Path) -> None:
+    """From a real job of the sample scene: each field set to another value (with what it needs
+    beside it) changes the key, unless it is UNKEYED; the same record keys the same."""
+    scene = copy_samples(tmp_path)
+    job = plan(scene, TrainingOptions(profile="tiny", preset="smoke", layout="neural")).jobs[0]
+    sources = {s.path: s for s in job.sources}
+
+    def key(options: JobOptions) -> str:
+        return content_hash(job.specs, sources, job.wrap, options)
+
+    assert key(job.options) == key(JobOptions.from_json(json.loads(json.dumps(job.options.to_json()))))
+    for name, (value, needs) in NON_DEFAULT.items():
+        base = job.options.with_(**needs)
+        changed = base.with_(**{name: value})
+        assert getattr(changed, name) != getattr(base, name), name
+        assert (key(changed) != key(base)) == (name not in UNKEYED_FIELDS), name
+
+
+SITE = '''
+import json, os, sys
+import importlib.abc, importlib.util
+
+TRACE = os.environ.get("BCFPIPE_TEST_FIT_TRACE")
+
+
+class _WrapFit(importlib.abc.MetaPathFinder):
+    """Once bcfpipe.fit.entry loads, its fit writes down what it was given, then runs."""
+
+    def find_spec(self, name, path, target=None):
+        if name != "bcfpipe.fit.entry":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        run = spec.loader.exec_module
+
+        def exec_module(module):
+            run(module)
+            real = module.fit
+
+            def fit(ts, options, out, **kw):
+                from dataclasses import asdict
+                from bcfpipe.export.fit import make_config
+
+                _, cfg = make_config(ts, options, kw["wrap"])
+                mode = module.fit_mode(options, sorted({c.semantic for c in ts.channels}))
+                rec = {"out": str(out), "options": options.to_json(), "config": asdict(cfg), "mode": mode.value,
+                       "size": [ts.width, ts.height], "coverage": kw.get("coverage") is not None}
+                with open(TRACE, "a") as f:
+                    f.write(json.dumps(rec, default=str) + "\\n")
+                return real(ts, options, out, **kw)
+
+            module.fit = fit
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+if TRACE:
+    sys.meta_path.insert(0, _WrapFit())
+'''
+
+DRIVER = textwrap.dedent('''
+    import json, sys
+    from bcfpipe.builder import Execution, Selection, build
+    from bcfpipe.config import TrainingOptions
+
+    training = TrainingOptions.from_json(json.loads(sys.argv[1]))
+    selection = Selection(**json.loads(sys.argv[2]))
+    r = build(sys.argv[3], sys.argv[4], training=training, selection=selection,
+              execution=Execution(executor=sys.argv[5], cache=False, jobs=1))
+    print(json.dumps([j.options.to_json() for j in r.plan.jobs]))
+    sys.exit(r.exit_code)
+''')
+
+#: three builds give every field a non-default value (some exclude others: --target-psnr
+#: --classic, --match-bc --layout neural)
+BUILDS = [
+    ({"profile": "tiny", "preset": "smoke", "hidden": 8, "signed": True, "init": "pca", "fix_nonfinite": True,
+      "seed": 3, "device": "cpu", "threads": 2, "target_psnr": 10.0, "bench_data": "bench.json",
+      "features": "bc6h", "kernel": "torch", "t0": "trained"},
+     {"texel_density": 40.0, "coverage": False}, {"rate"}),
+    # --classic normal fits a layout for the sets with a normal map, the others train all neural
+    ({"profile": "tiny", "preset": "smoke", "layout": "neural", "classic": ["normal"]}, {}, {"layout", "neural"}),
+    ({"profile": "tiny", "preset": "smoke", "layout": "auto", "match_bc": True}, {}, {"layout"}),
+]
+
+
+def _build_traced(tmp_path: Path, executor: str) -> list[tuple[list[dict], list[dict], str]]:
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(SITE)
+    scene = copy_samples(tmp_path / "scene")
+    runs = []
+    for i, (training, selection, mode) in enumerate(BUILDS):
+        trace = tmp_path / f"trace{i}.jsonl"
+        env = dict(os.environ, BCFPIPE_TEST_FIT_TRACE=str(trace), RAY_USAGE_STATS_ENABLED="0",
+                   PYTHONPATH=os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])]))
+        p = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(training), json.dumps(selection), str(scene),
+                            str(tmp_path / f"out{i}"), executor], capture_output=True, text=True, env=env,
+                           timeout=900)
+        assert p.returncode == 0, p.stderr[-3000:]
+        planned = json.loads(p.stdout.strip().splitlines()[-1])
+        traced = [json.loads(line) for line in trace.read_text().splitlines()]
+        runs.append((planned, traced, mode))
+    return runs
+
+
+def _check(runs) -> None:
+    """Each worker trained its job's record, whole, into the TrainConfig its fields ask for."""
+    seen: dict[str, set] = {f.name: set() for f in fields(JobOptions)}
+    for planned, traced, modes in runs:
+        assert len(traced) == len(planned) and traced
+        assert {rec["mode"] for rec in traced} == modes
+        for rec in traced:
+            assert rec["options"] in planned  # the whole record, every field as the plan made it
+            o, cfg = rec["options"], rec["config"]
+            assert (cfg["model"]["hidden"], cfg["seed"], cfg["model"]["features"], cfg["kernel"],
+                    cfg["feature_init"], cfg["model"]["signed"], cfg["preset_name"], cfg["threads"]) == \
+                (o["hidden"], o["seed"], o["features"], o["kernel"], o["init"], o["signed"], o["preset"], o["threads"])
+            assert cfg["t0"] == (o["t0"] or ("pca" if o["features"] == "bc7" else "trained"))
+            assert cfg["device"] == o["device"] == "cpu"
+            assert o["coverage"] or not rec["coverage"]  # covered: a mask where the meshes leave texels unread
+            if o["resolution"] is not None:
+                assert max(rec["size"]) == o["resolution"]
+            for f in fields(JobOptions):
+                seen[f.name].add(json.dumps(o[f.name]))
+    for f in fields(JobOptions):  # every field took a value other than its default in some worker
+        default = json.dumps(JobOptions().to_json()[f.name])
+        assert seen[f.name] - {default}, f.name
+
+
+def test_every_field_reaches_the_local_workers_trainer(tmp_path: Path) -> None:
+    _check(_build_traced(tmp_path, "local"))
+
+
+@pytest.mark.slow
+def test_every_field_reaches_the_ray_workers_trainer(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    _check(_build_traced(tmp_path, "ray"))
