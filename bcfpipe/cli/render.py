@@ -67,12 +67,7 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
         raise InputError("--compare and --original exclude each other")
     if camera and zoom != 1.0:
         raise InputError("--zoom narrows the framing camera; it does not apply with --camera")
-    if not output.lower().endswith(".png"):
-        raise InputError(f"{output}: the output is a PNG; name it *.png")
-    if os.path.exists(output) and not force:
-        raise InputError(f"{output} exists; pass --force to overwrite it")
-    if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
-        raise InputError(f"{output}: its folder does not exist")
+    _check_output(output, force)
     kinds = (ORIGINAL,) if original else ((NEURAL, ORIGINAL) if compare else (NEURAL,))
     sc = load_scene(scene, width, height, camera=camera, zoom=zoom, kinds=kinds)
     neural = sc.neural_materials() if NEURAL in kinds else []
@@ -90,12 +85,28 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
         C.write_png(output, C.to_srgb8(frames[kinds[0]].image))
     if as_json:
         click.echo(json.dumps(report, indent=2))
-        return
+    else:
+        _echo_report(report)
+
+
+def _check_output(output: str, force: bool) -> None:
+    """Refuse an output that is not a *.png, exists (without --force) or has no folder."""
+    if not output.lower().endswith(".png"):
+        raise InputError(f"{output}: the output is a PNG; name it *.png")
+    if os.path.exists(output) and not force:
+        raise InputError(f"{output} exists; pass --force to overwrite it")
+    if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
+        raise InputError(f"{output}: its folder does not exist")
+
+
+def _echo_report(report: dict) -> None:
+    """The text report: the notes on stderr, the frame, and with --compare the difference."""
     for n in report["notes"]:
         click.echo(f"note: {n}", err=True)
-    click.echo(f"{output}: {width}x{height}, camera {sc.view.source}, {sc.triangles:,} triangles; "
-               f"{len(neural)} neural, {len(report['original_materials'])} original material(s)")
-    if compare:
+    click.echo(f"{report['output']}: {report['width']}x{report['height']}, camera {report['camera']}, "
+               f"{report['triangles']:,} triangles; {len(report['neural_materials'])} neural, "
+               f"{len(report['original_materials'])} original material(s)")
+    if "difference" in report:
         d = report["difference"]
         psnr = "identical" if d["psnr_db"] is None else f"PSNR {d['psnr_db']:.2f} dB"
         click.echo(f"  [original | built | difference]; built vs original over {d['pixels']:,} pixels: {psnr}, "

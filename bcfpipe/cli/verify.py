@@ -9,6 +9,7 @@ import contextlib
 import json
 import threading
 import time
+from dataclasses import dataclass
 
 import click
 
@@ -16,7 +17,7 @@ from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE
 from bcfpipe.train.pace import LINE_SECONDS, Ticker
 
-__all__ = ["verify", "run_verify", "print_report", "material_line", "VerifyOutput"]
+__all__ = ["verify", "run_verify", "CheckSettings", "print_report", "material_line", "VerifyOutput"]
 
 
 def _figures(ch: dict) -> str:
@@ -165,9 +166,20 @@ def print_report(report, console=None, verbose: bool = False) -> None:
     out.finish(report)
 
 
-def run_verify(path: str, tolerance: float | None = None, as_json: bool = False, glsl: bool = True,
-               filter_bits: int | None = None, seed: int = 0, echo=click.echo, to_stderr: bool = False,
-               verbose: bool = False, quiet: bool = False) -> int:
+@dataclass(frozen=True)
+class CheckSettings:
+    """What `run_verify` checks with: the fixed ``tolerance`` (None: the derived per-point bound),
+    whether to run the GLSL comparison, the texture unit's ``filter_bits`` (None: the default of
+    bcfpipe.verify.checks) and the ``seed`` of the random sample points."""
+
+    tolerance: float | None = None
+    glsl: bool = True
+    filter_bits: int | None = None
+    seed: int = 0
+
+
+def run_verify(path: str, checks: CheckSettings = CheckSettings(), as_json: bool = False, echo=click.echo,
+               to_stderr: bool = False, verbose: bool = False, quiet: bool = False) -> int:
     """Verify ``path`` and print the report as it goes, with a heartbeat on stderr unless
     ``quiet``; returns the exit code (what `bcfpipe build --verify` calls)."""
     from rich.console import Console
@@ -176,10 +188,11 @@ def run_verify(path: str, tolerance: float | None = None, as_json: bool = False,
 
     out = VerifyOutput(None if as_json else Console(stderr=to_stderr), verbose,
                        None if quiet else Console(stderr=True))
+    filter_bits = V.FILTER_BITS if checks.filter_bits is None else checks.filter_bits
     try:
         with contextlib.nullcontext() if quiet else Ticker(out.tick):
-            report = V.verify(path, tolerance=tolerance, glsl=glsl, seed=seed,
-                              filter_bits=V.FILTER_BITS if filter_bits is None else filter_bits, progress=out)
+            report = V.verify(path, tolerance=checks.tolerance, glsl=checks.glsl, seed=checks.seed,
+                              filter_bits=filter_bits, progress=out)
     except V.VerifyInputError as e:
         if as_json:
             echo(json.dumps({"path": str(path), "passed": False, "exit_code": EXIT_USAGE, "input_error": str(e)}))
@@ -222,6 +235,6 @@ def verify(ctx: click.Context, out: str, as_json: bool, tolerance: float | None,
     \b
     Exit codes: 0 passed, 1 a check failed, 2 bad input or no OpenGL.
     """
-    code = run_verify(out, tolerance=tolerance, as_json=as_json, glsl=not no_glsl, filter_bits=filter_bits, seed=seed,
-                      verbose=verbose, quiet=bool((ctx.obj or {}).get("quiet")))
+    code = run_verify(out, CheckSettings(tolerance, not no_glsl, filter_bits, seed), as_json=as_json, verbose=verbose,
+                      quiet=bool((ctx.obj or {}).get("quiet")))
     ctx.exit(code if code in (EXIT_OK, EXIT_FAILED, EXIT_USAGE) else EXIT_FAILED)
