@@ -6,6 +6,7 @@ import torch
 
 from bcfpipe.model import neural as M
 from bcfpipe.config import ModelConfig
+from bcfpipe.model.features import Layers
 from bcfpipe.train.feature_init import pca_init
 from bcfpipe.texset.reference import ReferencePyramid, sample_reference
 from bcfpipe.texset.texture_set import build_mip_chain
@@ -31,7 +32,7 @@ def test_pca_start_reproduces_a_low_rank_texture_set():
     free = M.init_free(mc, gen, "cpu")
     mlp = M.init_mlp(12, 16, 6, gen, "cpu", torch.as_tensor(data.reshape(-1, 6).mean(0)))
     uv = torch.rand(4096, 2, generator=gen)
-    level = M.free_level_fn(free, mc)
+    level = M.free_level_fn(Layers.of(free), mc)
     before = {s: _psnr(M.forward(level, mlp, mc, biases, uv, s), sample_reference(pyr, uv, s)) for s in (0.0, 1.0, 3.0)}
     with torch.no_grad():
         assert pca_init(mc, pyr.mips, biases, free, mlp) == 6

@@ -13,7 +13,7 @@ pytest.importorskip("numba")
 from bcfpipe.config import ModelConfig, PRESETS, TrainConfig  # noqa: E402
 from bcfpipe.formats.vocabulary import FeatureFormat, Kernel  # noqa: E402
 from bcfpipe.model import neural as M  # noqa: E402
-from bcfpipe.model.features import FixedLevel, codec_of  # noqa: E402
+from bcfpipe.model.features import Layers, codec_of  # noqa: E402
 from bcfpipe.train.fused.step import FusedStep  # noqa: E402
 
 TEXTURES = Path(__file__).resolve().parent.parent / "samples" / "textures"
@@ -32,8 +32,10 @@ def _image(size: int, channels: int) -> np.ndarray:
     return t.permute(1, 2, 0).numpy()
 
 
-def _model(fmt: str, phase: str, real: bool, signed: bool = False, wrap: str = "repeat", seed: int = 0):
-    """A small material in ``phase`` (free / blocks): its config, levels, level fn, MLP, biases."""
+def _model(fmt: str, phase: str, real: bool, signed: bool = False, wrap: str = "repeat", seed: int = 0,
+           fixed_t0: bool = False):
+    """A small material in ``phase`` (free / blocks): its config, levels, level fn, MLP, biases.
+    ``fixed_t0``: T_0 replaced by fixed levels (--t0 pca), ISPC's BC7 blocks of a real image, any mode."""
     mc = ModelConfig(resolutions=(64, 32, 16, 8), features=FeatureFormat(fmt), signed=signed, wrap=wrap)
     gen = torch.Generator().manual_seed(seed)
     free = M.init_free(mc, gen, "cpu")
@@ -48,6 +50,7 @@ def _model(fmt: str, phase: str, real: bool, signed: bool = False, wrap: str = "
         mlp["w2"].uniform_(-1, 1, generator=gen)
     biases = M.lod_biases(mc.resolutions, 128, 128)
     if phase == "free":
+        free = _fix_t0(free) if fixed_t0 else Layers.of(free)
         return mc, free, (lambda q: M.free_level_fn(free, mc)), mlp, biases, gen
     levels = []
     with torch.no_grad():
@@ -64,20 +67,19 @@ def _model(fmt: str, phase: str, real: bool, signed: bool = False, wrap: str = "
                     b.x.add_(torch.rand(b.x.shape, generator=gen) * 0.2 - 0.1)
                 layer.append(b)
             levels.append(layer)
+    levels = _fix_t0(levels) if fixed_t0 else Layers.of(levels)
     return mc, levels, (lambda q: M.block_level_fn(levels, mc, q)), mlp, biases, gen
 
 
 def _params(levels):
-    return [t for layer in levels for b in layer if not isinstance(b, FixedLevel)
-            for t in ((b.endpoints, b.x) if hasattr(b, "x") else (b,))]
+    return [t for b in levels.trained_levels() for t in ((b.endpoints, b.x) if hasattr(b, "x") else (b,))]
 
 
 def _fix_t0(levels):
     """T_0's levels replaced by fixed ones (--t0 pca): ISPC's BC7 blocks of a real image, any mode."""
     from bcfpipe.train.fixed_t0 import encoded_levels
 
-    levels[0] = encoded_levels([_image(64 >> k, 4) for k in range(len(levels[0]))])
-    return levels
+    return Layers.of(levels, {0: encoded_levels([_image(64 >> k, 4) for k in range(len(levels[0]))])})
 
 
 # (format, phase, real blocks, quantization-aware): the warm-up has no quantization-aware decoding
@@ -309,8 +311,7 @@ FIXED_CASES = [("free", False), ("blocks", False), ("blocks", True)]
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("phase,quantized", FIXED_CASES)
 def test_a_fixed_t0_is_sampled_bit_identically_and_gets_no_gradient(phase, quantized, backend):
-    mc, levels, level_fn, mlp, biases, gen = _model("bc7", phase, True)
-    _fix_t0(levels)
+    mc, levels, level_fn, mlp, biases, gen = _model("bc7", phase, True, fixed_t0=True)
     fs = FusedStep(mc, biases, mlp, levels, lambda: quantized, backend=backend)
     params = _params(levels) + [mlp[k] for k in ("w1", "b1", "w2", "b2")]
     for s in SCALES:

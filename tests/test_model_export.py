@@ -13,6 +13,7 @@ from bcfpipe.config import ModelConfig, TrainConfig
 from bcfpipe.resources import SCHEMA_DIR
 from bcfpipe.model.decoder import MlpWeights, decode_numpy, from_bytes, mlp_raw, postprocess, to_bytes
 from bcfpipe.texset.texture_set import Channel, TextureSet
+from bcfpipe.model.features import Layers
 from bcfpipe.train.trainer import BlockLevel, TrainedMaterial, exact_level
 
 MC = ModelConfig(resolutions=(32, 16, 8, 4))
@@ -50,7 +51,7 @@ def _trained(mc, signed=False, seed=0):
     mc = ModelConfig(resolutions=mc.resolutions, signed=signed, wrap=mc.wrap)
     ch = _channels()
     ts = TextureSet(np.zeros((64, 64, len(ch)), np.float32), ch, 64, 64)
-    return TrainedMaterial(TrainConfig(model=mc), ts, _random_blocks(mc, seed, signed), _weights(seed),
+    return TrainedMaterial(TrainConfig(model=mc), ts, Layers.of(_random_blocks(mc, seed, signed)), _weights(seed),
                            M.lod_biases(mc.resolutions, 64, 64), {"warmup": 0.0})
 
 
@@ -63,7 +64,7 @@ def _torch_blocks(layers, requires_grad=False):
             mips.append(M.BlockParams(e.requires_grad_(requires_grad), x.requires_grad_(requires_grad), mask,
                                       bl.partition))
         out.append(mips)
-    return out
+    return Layers.of(out)
 
 
 @pytest.mark.parametrize("signed", [False, True])
@@ -82,7 +83,7 @@ def test_tap_decode_equals_level_decode(signed):
         a = M.sample_features(M.block_level_fn(blocks, mc), mc.mip_counts, biases, uv, s, "repeat")
         b = M.sample_features_taps(M.block_tap_fn(blocks, mc), M.level_sizes(mc), biases, uv, s, "repeat")
         assert torch.equal(a, b)
-    free = M.init_free(mc, g, torch.device("cpu"))
+    free = Layers.of(M.init_free(mc, g, torch.device("cpu")))
     a = M.sample_features(M.free_level_fn(free, mc), mc.mip_counts, biases, uv, 1.3, "clamp")
     b = M.sample_features_taps(M.free_tap_fn(free, mc), M.level_sizes(mc), biases, uv, 1.3, "clamp")
     assert torch.equal(a, b)
@@ -236,7 +237,8 @@ def test_bc7_constrained_forward_equals_exported_dds_and_onnx(tmp_path):
     w = _weights(3)
     rng2 = np.random.default_rng(4)
     w = MlpWeights(rng2.normal(0, 0.5, (16, 16)).astype(np.float32), w.b1, w.w2, w.b2, w.out_scale, w.out_bias).to_fp16()
-    tm = TrainedMaterial(TrainConfig(model=mc), ts, layers, w, M.lod_biases(mc.resolutions, 64, 64), {"warmup": 0.0})
+    tm = TrainedMaterial(TrainConfig(model=mc), ts, Layers.of(layers), w, M.lod_biases(mc.resolutions, 64, 64),
+                         {"warmup": 0.0})
     E.export(tm, tmp_path)
     em = E.load(tmp_path)
     assert em.desc.features == "bc7" and em.desc.mlp.n_in == 16
@@ -244,8 +246,8 @@ def test_bc7_constrained_forward_equals_exported_dds_and_onnx(tmp_path):
     uv = torch.rand((3000, 2), generator=g) * 2 - 0.5
     s = torch.rand(3000, generator=g) * 9 - 2
     with torch.no_grad():
-        ours = M.sample_features(M.block_level_fn(blocks, mc, quantized=True), mc.mip_counts, tm.lod_biases, uv, s,
-                                 mc.wrap)
+        ours = M.sample_features(M.block_level_fn(Layers.of(blocks), mc, quantized=True), mc.mip_counts, tm.lod_biases,
+                                 uv, s, mc.wrap)
     exported = E.sample_exported_features(em, uv.numpy(), s.numpy())
     np.testing.assert_array_equal(ours.numpy(), exported)
     for i, layer in enumerate(tm.layers):

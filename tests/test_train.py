@@ -161,6 +161,7 @@ def test_float_model_measured_chunk_by_chunk_equals_the_held_mips(hdr):
     import torch
 
     from bcfpipe.model import neural as M
+    from bcfpipe.model.features import Layers
     from bcfpipe.texset import encoding
     from bcfpipe.texset.metrics import compute_metrics, metrics_from_mse
     from bcfpipe.texset.reference import ReferencePyramid
@@ -183,7 +184,7 @@ def test_float_model_measured_chunk_by_chunk_equals_the_held_mips(hdr):
     gains = encoding.gains(ts.channels)
     ref_mips = build_mip_chain(ts.data)
     ref = ReferencePyramid.from_mips(encoding.encode_levels(ref_mips, gains))
-    fn = M.free_level_fn(free, mc)
+    fn = M.free_level_fn(Layers.of(free), mc)
     got = metrics_from_mse(float_model_mse(fn, mlp, mc, kinds, biases, ref), chans, [m.shape[:2] for m in ref_mips])
     held = [np.empty((h * w, 4), np.float32) for h, w in (m.shape[:2] for m in ref_mips)]
     for k, a, y in evaluate_levels(fn, mlp, mc, kinds, biases, [m.shape[:2] for m in ref_mips], chunk=97):

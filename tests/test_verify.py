@@ -28,6 +28,7 @@ def make_material(folder: Path, signed: bool = False, wrap: str = "repeat", norm
     """Export a synthetic material: random smooth-ish BC6H features, a random fp16 decoder
     (``mlp_transform`` maps its MlpWeights to the ones exported)."""
     from bcfpipe.config import ModelConfig, TrainConfig, mip_count
+    from bcfpipe.model.features import Layers
     from bcfpipe.model.neural import lod_biases
     from bcfpipe.texset.texture_set import Channel, TextureSet
     from bcfpipe.train.trainer import BlockLevel
@@ -60,7 +61,7 @@ def make_material(folder: Path, signed: bool = False, wrap: str = "repeat", norm
         w = mlp_transform(w)
     cfg = TrainConfig(model=ModelConfig(resolutions=tuple(resolutions), hidden=hidden, signed=signed, wrap=wrap),
                       preset_name="synthetic")
-    tm = SimpleNamespace(config=cfg, texture_set=ts, layers=layers, mlp=w,
+    tm = SimpleNamespace(config=cfg, texture_set=ts, layers=Layers.of(layers), mlp=w,
                          lod_biases=lod_biases(resolutions, ref, ref), phase_seconds={},
                          kinds=tuple(c.kind for c in chans))
     out = folder / "mat"

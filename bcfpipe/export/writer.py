@@ -26,7 +26,7 @@ from bcfpipe.bc7 import decode as bc7_decode
 from bcfpipe.bc7.mode6 import DESCRIPTION as BC7_MODE
 from bcfpipe.config import N_LAYERS, ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
-from bcfpipe.model.features import FixedLevel, codec_of
+from bcfpipe.model.features import codec_of
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_bytes, to_bytes, to_onnx
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.texset.texture_set import Channel, semantic_info
@@ -58,12 +58,12 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
     ts = tm.texture_set
     codec = codec_of(mc)
     layers = []
-    for i, layer in enumerate(tm.layers):
-        levels = [(codec.pack(bl, mc), bl.size, bl.size) for bl in layer]
+    packed = tm.layers.each(lambda lv: (lv.blocks, lv.size, lv.size),  # a fixed level's blocks as encoded
+                            lambda q, i, k: (codec.pack(q, mc), q.size, q.size))
+    for i, levels in enumerate(packed):
         dds.write(out / mf.layer_file(i), levels, signed=mc.signed, dxgi_format=codec.dxgi_format(mc))
-        fixed = isinstance(layer[0], FixedLevel)
-        layers.append(mf.Layer(mf.layer_file(i), mc.resolutions[i], len(layer), tm.lod_biases[i], codec.channels,
-                               mf.ANY_BC7_MODE if fixed else None))
+        layers.append(mf.Layer(mf.layer_file(i), mc.resolutions[i], len(levels), tm.lod_biases[i], codec.channels,
+                               mf.ANY_BC7_MODE if i in tm.layers.fixed else None))  # a fixed T_0 is in any BC7 mode
     bc7 = FeatureFormat(mc.features) == FeatureFormat.BC7
     record = to_bytes(tm.mlp)
     atomic_write(out / mf.WEIGHTS, record)

@@ -9,11 +9,13 @@ those blocks are packed into a DDS. Two formats:
   (bcfpipe.bc6h);
 * `bc7`: BC7 mode 6, 4 channels in the same bytes, parameters in the 8-bit endpoint domain
   (bcfpipe.bc7; issue 29). A layer encoded once and not trained (`FixedLevel`: a T_0 of principal
-  components, any BC7 mode) packs and decodes through the same codec.
+  components, any BC7 mode) holds its blocks as written and decodes them itself; `Layers` keeps such
+  layers apart from the trained ones.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Generic, Iterator, Mapping, Sequence, TypeVar
 
 import numpy as np
 import torch
@@ -21,7 +23,8 @@ import torch
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
 
-__all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "FixedLevel", "codec_of", "endpoint_value", "endpoint_range"]
+__all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "FixedLevel", "Layers", "codec_of", "endpoint_value",
+           "endpoint_range"]
 
 
 @dataclass
@@ -56,6 +59,70 @@ class FixedLevel:
     blocks: np.ndarray
     values: torch.Tensor
     size: int
+
+    def texels(self, device) -> torch.Tensor:
+        """Every texel (n, 16, C) of its blocks in [0, 1], bit-exact as written (bcfpipe.bc7's decode)."""
+        from bcfpipe.bc7 import decode_to_u8
+
+        return torch.as_tensor(decode_to_u8(self.blocks).astype(np.float32) / np.float32(255.0), device=device)
+
+
+L = TypeVar("L")
+R = TypeVar("R")
+LevelOf = Callable[[L, int, int], R]  # (level, layer, mip) -> R
+
+
+@dataclass
+class Layers(Generic[L]):
+    """A material's feature layers, per layer, per mip, with the layers encoded once and never
+    trained (``fixed``: a T_0 of principal components) kept apart from those that training moves
+    (``trained``: free tensors, then `BlockParams`, then `QuantizedLevel`s). A layer's kind is
+    settled where the structure is built; the phases, the fused step and the export read the two
+    parts, and no level is asked what it is."""
+
+    fixed: dict[int, list[FixedLevel]]
+    trained: dict[int, list[L]]
+
+    @classmethod
+    def of(cls, layers: Sequence[list[L]], fixed: Mapping[int, list[FixedLevel]] | None = None) -> Layers[L]:
+        """Layer i from ``fixed`` where that has it, else ``layers[i]`` (its list, not a copy)."""
+        fixed = dict(fixed or {})
+        return cls(fixed, {i: mips for i, mips in enumerate(layers) if i not in fixed})
+
+    def __len__(self) -> int:
+        return len(self.fixed) + len(self.trained)
+
+    def __getitem__(self, i: int) -> list:
+        return self.fixed[i] if i in self.fixed else self.trained[i]
+
+    def __iter__(self) -> Iterator[list]:
+        return (self[i] for i in range(len(self)))
+
+    def trained_levels(self) -> list[L]:
+        """The trained levels, layer by layer: what the optimizer moves."""
+        return [lv for mips in self.trained.values() for lv in mips]
+
+    def map(self, fn: LevelOf) -> Layers:
+        """The trained levels through ``fn(level, layer, mip)``, in layer order; the fixed ones kept."""
+        return Layers(self.fixed, {i: [fn(lv, i, k) for k, lv in enumerate(mips)] for i, mips in self.trained.items()})
+
+    def lookup(self, fixed: Callable[[FixedLevel], R], trained: LevelOf) -> Callable[[int, int], R]:
+        """(layer, mip) -> ``fixed(level)`` or ``trained(level, layer, mip)``, the function picked
+        per layer here, once. The level is read at each call: one replaced in its layer's list (the
+        fused step rehomes them) is the one seen."""
+        def on_fixed(lv: FixedLevel, i: int, k: int) -> R:
+            return fixed(lv)
+        table = [(self.fixed[i], on_fixed) if i in self.fixed else (self.trained[i], trained) for i in range(len(self))]
+
+        def at(i: int, k: int) -> R:
+            mips, fn = table[i]
+            return fn(mips[k], i, k)
+        return at
+
+    def each(self, fixed: Callable[[FixedLevel], R], trained: LevelOf) -> list[list[R]]:
+        """Every level through its kind's function, as lists per layer, per mip."""
+        at = self.lookup(fixed, trained)
+        return [[at(i, k) for k in range(len(mips))] for i, mips in enumerate(self)]
 
 
 class FeatureCodec:
@@ -261,15 +328,15 @@ class _BC7(FeatureCodec):
         return QuantizedLevel(e, idx, None, size)
 
     def exact(self, q, mc, device):
-        from bcfpipe.bc7 import decode_to_u8, mode6
+        from bcfpipe.bc7 import mode6
 
-        u8 = decode_to_u8(q.blocks) if isinstance(q, FixedLevel) else mode6.interpolate(q.endpoints, q.indices)
+        u8 = mode6.interpolate(q.endpoints, q.indices)
         return torch.as_tensor(u8.astype(np.float32) / np.float32(255.0), device=device)
 
     def pack(self, q, mc):
         from bcfpipe.bc7 import mode6
 
-        return q.blocks if isinstance(q, FixedLevel) else mode6.pack(q.endpoints, q.indices)
+        return mode6.pack(q.endpoints, q.indices)
 
     def dxgi_format(self, mc):
         from bcfpipe.formats import dds

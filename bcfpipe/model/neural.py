@@ -8,6 +8,9 @@ Pure functions over tensors. A material's state is a dict of tensors:
                domain BC6H can represent; for BC7 value = p / 255.
 - ``blocks``   phases 2-4: per layer, per mip, a `bcfpipe.model.features.BlockParams`: continuous
                ``endpoints`` and indices ``x`` in [0, 1] (and BC6H's fixed partition ``mask``).
+
+Both are `bcfpipe.model.features.Layers`, which hold a fixed T_0 (`FixedLevel`s) apart from the
+trained layers; the level and tap functions pick each layer's decode once, from that structure.
 - ``mlp``      w1, b1, w2, b2 of the decoder, plus fixed out_scale / out_bias.
 
 Each layer i is sampled at lod s_i = s + b_i, where s is in the reference's mip units and
@@ -23,7 +26,7 @@ import torch
 
 from bcfpipe.config import ModelConfig, mip_count
 from bcfpipe.model.decoder import mlp_raw
-from bcfpipe.model.features import BlockParams, FixedLevel, codec_of
+from bcfpipe.model.features import BlockParams, FixedLevel, Layers, codec_of
 from bcfpipe.model.sampling import level_weights, sample_bilinear, sample_bilinear_fn, sample_trilinear
 
 LevelFn = Callable[[int, int], torch.Tensor]  # (layer, mip) -> (3, H, W) texel values
@@ -87,17 +90,14 @@ def init_mlp(n_in: int, hidden: int, n_out: int, gen: torch.Generator, device: t
     return p
 
 
-def free_tap_fn(free: list[list[torch.Tensor]], cfg: ModelConfig) -> TapFn:
+def free_tap_fn(free: Layers[torch.Tensor], cfg: ModelConfig) -> TapFn:
     codec = codec_of(cfg)
     lo, hi = codec.param_range(cfg)
 
-    def fn(i: int, k: int):
-        p = free[i][k]
-        if isinstance(p, FixedLevel):
-            return _fixed_taps(p)
+    def trained(p: torch.Tensor, i: int, k: int):
         flat = p.reshape(p.shape[0], -1)
         return lambda ids: codec.value(flat[:, ids].t().clamp(lo, hi), cfg)
-    return fn
+    return free.lookup(_fixed_taps, trained)
 
 
 def _fixed_taps(lv: FixedLevel):
@@ -105,18 +105,15 @@ def _fixed_taps(lv: FixedLevel):
     return lambda ids: flat[:, ids].t() / 255.0
 
 
-def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
+def block_tap_fn(blocks: Layers[BlockParams], cfg: ModelConfig,
                  quantized: Callable[[], bool] = lambda: False) -> TapFn:
     """Texel values straight from block parameters: texel (y, x) lives in block
     (y // 4) * (w // 4) + x // 4 at position (y % 4) * 4 + x % 4. ``quantized()`` is asked per
     call, so a schedule can switch quantization-aware decoding on mid-phase."""
     codec = codec_of(cfg)
 
-    def fn(i: int, k: int):
-        b = blocks[i][k]
+    def trained(b: BlockParams, i: int, k: int):
         r = max(4, cfg.resolutions[i] >> k)
-        if isinstance(b, FixedLevel):
-            return _fixed_taps(b)
 
         def texels(ids: torch.Tensor) -> torch.Tensor:
             y, xx = ids // r, ids % r
@@ -124,14 +121,13 @@ def block_tap_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
             pos = (y % 4) * 4 + xx % 4
             return codec.texels(b, blk, pos, cfg, quantized())
         return texels
-    return fn
+    return blocks.lookup(_fixed_taps, trained)
 
 
-def free_level_fn(free: list[list[torch.Tensor]], cfg: ModelConfig) -> LevelFn:
+def free_level_fn(free: Layers[torch.Tensor], cfg: ModelConfig) -> LevelFn:
     codec = codec_of(cfg)
     lo, hi = codec.param_range(cfg)
-    return lambda i, k: (fixed_value(free[i][k]) if isinstance(free[i][k], FixedLevel)
-                         else codec.value(free[i][k].clamp(lo, hi), cfg))
+    return free.lookup(fixed_value, lambda p, i, k: codec.value(p.clamp(lo, hi), cfg))
 
 
 def fixed_value(lv: FixedLevel) -> torch.Tensor:
@@ -139,18 +135,15 @@ def fixed_value(lv: FixedLevel) -> torch.Tensor:
     return lv.values / 255.0
 
 
-def block_level_fn(blocks: list[list[BlockParams]], cfg: ModelConfig,
+def block_level_fn(blocks: Layers[BlockParams], cfg: ModelConfig,
                    quantized: bool | Callable[[], bool] = False) -> LevelFn:
     q = quantized if callable(quantized) else (lambda: quantized)
     codec = codec_of(cfg)
 
-    def fn(i: int, k: int) -> torch.Tensor:
-        b = blocks[i][k]
-        if isinstance(b, FixedLevel):
-            return fixed_value(b)
+    def trained(b: BlockParams, i: int, k: int) -> torch.Tensor:
         r = max(4, cfg.resolutions[i] >> k)
         return blocks_to_image(codec.decode_blocks(b, cfg, q()), r, r)
-    return fn
+    return blocks.lookup(fixed_value, trained)
 
 
 def cached_level_fn(levels: list[list[torch.Tensor]]) -> LevelFn:

@@ -1,7 +1,8 @@
 """Training schedule (paper §5.1, §6.1): warm-up, BC init + constrained, quantize, MLP fine-tune.
 
   (T_0)    with --t0 pca (bc7's default) T_0 is the set's principal components, BC7-encoded once
-           and fixed through every phase (bcfpipe.train.fixed_t0); the phases train the rest
+           and fixed through every phase (bcfpipe.train.fixed_t0), kept apart from the layers the
+           phases train (`bcfpipe.model.features.Layers`)
   phase 1  warmup       free features + MLP, Adam (lr_f, lr_m), exponential decay
   phase 2  constrained  features re-initialised by encoding the warm features (BC6H: this picks
                         every block's partition), then endpoints/indices trained through the
@@ -9,8 +10,10 @@
   phase 3  quantize     endpoints and indices rounded to the format's bits, then frozen
   phase 4  finetune     MLP only, on the frozen exact features
 
-One call trains one material. It touches no global state except torch's thread count when
-``TrainConfig.threads`` is set (workers of a parallel build each own a process).
+Every step runs through the run's backend (bcfpipe.train.backend: torch's autograd or the fused
+kernel), chosen once where the run starts. One call trains one material. It touches no global
+state except torch's thread count when ``TrainConfig.threads`` is set (workers of a parallel build
+each own a process).
 """
 from __future__ import annotations
 
@@ -27,13 +30,14 @@ import torch
 
 from bcfpipe.model import neural as M
 from bcfpipe.config import ModelConfig, TrainConfig
-from bcfpipe.formats.vocabulary import T0, Kernel
-from bcfpipe.model.features import FixedLevel, QuantizedLevel, codec_of
+from bcfpipe.formats.vocabulary import T0
+from bcfpipe.model.features import BlockParams, FixedLevel, Layers, QuantizedLevel, codec_of
 from bcfpipe.model.decoder import MlpWeights
+from bcfpipe.train.backend import Step, StepBackend, make_backend
 from bcfpipe.train.feature_init import pca_init
 from bcfpipe.train.fixed_t0 import pca_t0
 from bcfpipe.train.pace import Pace, Pacer
-from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_batch, sample_reference
+from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_batch
 from bcfpipe.texset import encoding
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
@@ -56,7 +60,7 @@ ProgressFn = Callable[[Progress], None]
 
 
 BlockLevel = QuantizedLevel  # one mip of one layer as the exact block parameters that are written
-# (a FixedLevel where a layer was encoded once: a T_0 of principal components)
+# (a layer encoded once, a T_0 of principal components, is `Layers.fixed`: FixedLevels)
 
 
 @dataclass
@@ -65,7 +69,7 @@ class TrainedMaterial:
 
     config: TrainConfig
     texture_set: TextureSet
-    layers: list[list[BlockLevel]]
+    layers: Layers[BlockLevel]
     mlp: MlpWeights  # fp16-rounded
     lod_biases: tuple[float, ...]
     phase_seconds: dict[str, float]
@@ -154,6 +158,12 @@ def exact_level(bl: BlockLevel, mc: ModelConfig, device) -> torch.Tensor:
     return M.blocks_to_image(codec_of(mc).exact(bl, mc, device), bl.size, bl.size)
 
 
+def exact_levels(layers: Layers[BlockLevel], mc: ModelConfig, device) -> list[list[torch.Tensor]]:
+    """Every level's bit-exact decoded texels (C, H, W), fixed and quantized, per layer, per mip."""
+    return layers.each(lambda lv: M.blocks_to_image(lv.texels(device), lv.size, lv.size),
+                       lambda bl, i, k: exact_level(bl, mc, device))
+
+
 class StratifiedScale:
     """One random s per batch, stratified: every ``strata`` consecutive steps draw u from each of
     ``strata`` equal slices of [0, 1], in random order, and s = s_max * u**power. Each step still
@@ -172,15 +182,6 @@ class StratifiedScale:
         k = self.order.pop()
         u = ((k + float(torch.rand((), generator=self.gen))) / self.strata) ** self.power
         return u * self.s_max if self.s_min == 0 else self.s_min + u * (self.s_max - self.s_min)
-
-
-def _flat(layers):
-    return [t for mips in layers for t in mips]
-
-
-def _trained(levels):
-    """The levels training moves: all but the fixed ones (a T_0 of principal components)."""
-    return [t for t in levels if not isinstance(t, FixedLevel)]
 
 
 def evaluate_levels(level_fn: M.LevelFn, mlp: dict[str, torch.Tensor], mc, kinds: tuple[str, ...], biases,
@@ -221,6 +222,7 @@ class _Run:
 
     cfg: TrainConfig
     device: torch.device
+    backend: StepBackend
     gen: torch.Generator
     ref: ReferencePyramid
     biases: tuple[float, ...]
@@ -251,12 +253,7 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
     bicubic lookup, weighted by the coverage of mip floor(s)."""
     batch = run.cfg.preset.batch
     if run.centres is not None and run.centres.covers(s):
-        if run.cfg.kernel.on(run.device) == Kernel.FUSED:
-            from bcfpipe.train.fused import targets
-
-            return (*targets.centre_batch(run.centres, batch, s, run.gen), None)
-        uv, target = run.centres.batch(batch, s, run.gen)
-        return uv.to(run.device), target, None
+        return (*run.backend.centre_batch(run.centres, batch, s, run.gen), None)
     uv, _ = random_batch(batch, run.gen, run.device, run.s_max)
     w = None
     if run.mask_levels is not None:
@@ -265,90 +262,41 @@ def _batch_at(run: _Run, s: float) -> tuple[torch.Tensor, torch.Tensor, torch.Te
         x = torch.remainder(torch.floor(uv[:, 0] * wd), wd).long()
         y = torch.remainder(torch.floor(uv[:, 1] * h), h).long()
         w = m[y, x].to(uv.dtype)
-    if run.cfg.kernel.on(run.device) == Kernel.FUSED:
-        from bcfpipe.train.fused import targets
-
-        return uv, targets.sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
-    return uv, sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
+    return uv, run.backend.sample_reference(run.ref, uv, s, run.cfg.model.wrap), w
 
 
-def _native_library(cfg: TrainConfig, device):
-    """The fused kernel's compiled library where the run uses it natively, else None."""
-    if cfg.kernel.on(device) != Kernel.FUSED:
-        return None
-    from bcfpipe.train.fused.step import default_backend
-
-    if default_backend() != "native":
-        return None
-    from bcfpipe.train.fused import native
-
-    return native.load()
-
-
-def _centre_bicubic(cfg: TrainConfig, device):
-    """The lookup that precomputes the centre targets: the native one where the fused kernel runs
-    natively (targets.cpp; 3.4 s of torch at a 2048² source become 0.3), else the torch one."""
-    if _native_library(cfg, device) is None:
-        return None
-    from bcfpipe.train.fused import targets
-
-    return targets.bicubic
-
-
-def _fused_step(run: _Run, levels, quantized=lambda: False):
-    """The fused kernel's step over ``levels`` when the run uses it (they move into its flat
-    storage, in place: take the parameters for the optimizer after this), else None."""
-    if run.cfg.kernel.on(run.device) != Kernel.FUSED:
-        return None
-    from bcfpipe.train.fused.step import FusedStep
-
-    return FusedStep(run.cfg.model, run.biases, run.mlp, levels, quantized, chunks=run.cfg.threads or 1,
-                     own_adam=True)
-
-
-def _run_phase(run: _Run, name: str, level_fn, feature_params, sched, project=None, tap_fn=None,
-               on_step=None, fused=None) -> None:
-    """``sched.steps`` Adam steps of the MSE against the reference (paper §5.1), features then MLP;
-    with ``fused`` (bcfpipe.train.fused) the loss and gradients come from the fused kernel."""
+def _run_phase(run: _Run, name: str, step: Step, feature_params, sched, project=None, on_step=None) -> None:
+    """``sched.steps`` Adam steps of the MSE against the reference (paper §5.1), features then MLP,
+    each step's loss and gradients from ``step`` (the run's backend made it)."""
     t0 = time.perf_counter()
-    mc = run.cfg.model
-    own = fused is not None and fused.owns_adam  # the fused step's Adam updates the features
+    own = step.owns_adam  # the step's own Adam updates the features
     opt, lr = _optimizer([] if own else feature_params, run.mlp_params, sched, run.device)
     ema = None
-    for step in range(1, sched.steps + 1):
+    for i in range(1, sched.steps + 1):
         if on_step is not None:
-            on_step(step)
+            on_step(i)
         s = run.next_s()
         uv, target, weight = _batch_at(run, s)
         run.samples[name] = run.samples.get(name, 0) + uv.shape[0]
         opt.zero_grad(set_to_none=True)
-        if fused is not None:
-            loss = fused(uv, target, weight, s)
-        else:
-            pred = M.forward(level_fn, run.mlp, mc, run.biases, uv, s, tap_fn if run.cfg.tap_decode else None)
-            if weight is None:
-                loss = torch.mean((pred - target) ** 2)
-            else:
-                loss = torch.mean(weight[:, None] * (pred - target) ** 2) / weight.mean().clamp_min(1e-6)
-            loss.backward()
+        val = step(uv, target, weight, s)
         opt.step()
         if own:
-            fused.adam(sched.lr_features * sched.gamma_features ** (step - 1))  # LambdaLR's rate for this step
+            step.adam(sched.lr_features * sched.gamma_features ** (i - 1))  # LambdaLR's rate for this step
         lr.step()
         if project is not None:
             with torch.no_grad():
                 project()
-        val = loss if fused is not None else float(loss.detach())
         if not math.isfinite(val):
-            raise FloatingPointError(f"{name}: loss became {val} at step {step}")
+            raise FloatingPointError(f"{name}: loss became {val} at step {i}")
         ema = val if ema is None else 0.9 * ema + 0.1 * val
-        on_pace = step % run.pace.every == 0 or step == sched.steps
+        on_pace = i % run.pace.every == 0 or i == sched.steps
         if on_pace:
-            run.history.append((name, step, ema))
+            run.history.append((name, i, ema))
         if run.progress and (on_pace or run.pacer.due()):
             run.pacer.mark()
-            run.progress(Progress(name, step, sched.steps, ema, -10 * math.log10(max(ema, 1e-12)),
-                                  time.perf_counter() - run.clock.t0, run.clock.eta(name, step, t0)))
+            run.progress(Progress(name, i, sched.steps, ema, -10 * math.log10(max(ema, 1e-12)),
+                                  time.perf_counter() - run.clock.t0, run.clock.eta(name, i, t0)))
     run.seconds[name] = time.perf_counter() - t0
 
 
@@ -360,29 +308,30 @@ def _report(run: _Run, phase: str, step: int, steps: int, eta: float) -> None:
                               eta))
 
 
-def _warmup(run: _Run) -> list[list[torch.Tensor]]:
-    """Phase 1: unconstrained features (from noise, or the PCA start) and the MLP."""
+def _warmup(run: _Run) -> Layers[torch.Tensor]:
+    """Phase 1: unconstrained features (from noise, or the PCA start) and the MLP; a T_0 of
+    principal components (--t0 pca) is encoded here, once, and kept apart as a fixed layer."""
     mc = run.cfg.model
-    free = M.init_free(mc, run.gen, run.device)
+    layers = M.init_free(mc, run.gen, run.device)
+    fixed: dict[int, list[FixedLevel]] = {}
     if run.cfg.t0 == T0.PCA:
         t0 = time.perf_counter()
-        free[0] = pca_t0(mc, run.ref.mips, run.biases, free, run.mlp)
+        fixed[0] = pca_t0(mc, run.ref.mips, run.biases, layers, run.mlp)
         run.seconds["t0"] = time.perf_counter() - t0
     elif run.cfg.feature_init == "pca":
-        pca_init(mc, run.ref.mips, run.biases, free, run.mlp)
+        pca_init(mc, run.ref.mips, run.biases, layers, run.mlp)
+    free = Layers.of(layers, fixed)
     codec = codec_of(mc)
     lo, hi = codec.param_range(mc)
-    fused = _fused_step(run, free)
-    params = _trained(_flat(free))
+    step = run.backend.free_step(free)
+    params = free.trained_levels()
     first = [True]
 
     def project() -> None:
         for t in _sampled(params, first):
             t.clamp_(lo, hi)
 
-    _run_phase(run, "warmup", M.free_level_fn(free, mc), params, _scaled(run.cfg.preset.warmup, codec, "warmup"),
-               project=project,
-               tap_fn=M.free_tap_fn(free, mc), fused=fused)
+    _run_phase(run, "warmup", step, params, _scaled(run.cfg.preset.warmup, codec, "warmup"), project=project)
     return free
 
 
@@ -405,29 +354,28 @@ def _scaled(sched, codec, phase: str):
     return replace(sched, lr_features=sched.lr_features * scale)
 
 
-def _encode(run: _Run, free: list[list[torch.Tensor]]) -> list[list[M.BlockParams]]:
-    """Phase 2's start: encode the warm features (BC6H: this chooses each block's partition)."""
+def _encode(run: _Run, free: Layers[torch.Tensor]) -> Layers[BlockParams]:
+    """Phase 2's start: encode the warm features (BC6H: this chooses each block's partition); a
+    fixed layer stays as it is."""
     mc = run.cfg.model
     codec = codec_of(mc)
     lo, hi = codec.param_range(mc)
     t0 = time.perf_counter()
-    blocks = []
     levels, done = sum(len(mips) for mips in free), 0
-    lib = _native_library(run.cfg, run.device)  # its compiled encoder, where the fused kernel is native
+    lib = run.backend.library()  # the fused kernel's compiled encoder, where it runs natively
+
+    def encode(p: torch.Tensor, i: int, k: int) -> BlockParams:
+        nonlocal done
+        texels = codec.value(p.clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy()
+        b = codec.encode(texels, mc, run.device, lib)
+        done += 1
+        if done == levels or run.pacer.due():
+            _report(run, "encode", done, levels, run.clock.left("constrained"))
+        return b
+
     _report(run, "encode", 0, levels, run.clock.left("constrained"))
     with torch.no_grad():
-        for mips in free:
-            layer = []
-            for p in mips:
-                if isinstance(p, FixedLevel):
-                    layer.append(p)
-                    continue
-                texels = codec.value(p.clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy()
-                layer.append(codec.encode(texels, mc, run.device, lib))
-                done += 1
-                if done == levels or run.pacer.due():
-                    _report(run, "encode", done, levels, run.clock.left("constrained"))
-            blocks.append(layer)
+        blocks = free.map(encode)
     run.seconds["encode"] = time.perf_counter() - t0
     return blocks
 
@@ -446,15 +394,15 @@ class _QuantizationAware:
         return self.on
 
 
-def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
+def _constrained(run: _Run, blocks: Layers[BlockParams]) -> None:
     """Phase 2: the block parameters themselves, kept in the encodable range, with the QAT tail."""
     mc = run.cfg.model
     codec = codec_of(mc)
     sched = _scaled(run.cfg.preset.constrained, codec, "constrained")
     lo, hi = codec.param_range(mc)
     qat = _QuantizationAware(sched.steps, run.cfg.preset.qat_fraction)
-    fused = _fused_step(run, blocks, qat)
-    feat = [t for layer in blocks for b in _trained(layer) for t in (b.endpoints, b.x)]
+    step = run.backend.block_step(blocks, qat)
+    feat = [t for b in blocks.trained_levels() for t in (b.endpoints, b.x)]
 
     first = [True]
 
@@ -465,21 +413,17 @@ def _constrained(run: _Run, blocks: list[list[M.BlockParams]]) -> None:
             else:
                 t.clamp_(0.0, 1.0)
 
-    _run_phase(run, "constrained", M.block_level_fn(blocks, mc, qat), feat, sched, project=project,
-               tap_fn=M.block_tap_fn(blocks, mc, qat), on_step=qat.step, fused=fused)
+    _run_phase(run, "constrained", step, feat, sched, project=project, on_step=qat.step)
 
 
-def _quantize(run: _Run, blocks: list[list[M.BlockParams]]) -> tuple[list[list[BlockLevel]], list]:
+def _quantize(run: _Run, blocks: Layers[BlockParams]) -> tuple[Layers[BlockLevel], list]:
     """Phase 3: round to the format's blocks and freeze; returns them and their exact decoded levels."""
     mc = run.cfg.model
     codec = codec_of(mc)
     t0 = time.perf_counter()
-    layers: list[list[BlockLevel]] = []
     with torch.no_grad():
-        for i, layer in enumerate(blocks):
-            layers.append([b if isinstance(b, FixedLevel) else codec.quantize(b, mc, max(4, mc.resolutions[i] >> k))
-                           for k, b in enumerate(layer)])
-        exact = [[exact_level(bl, mc, run.device) for bl in layer] for layer in layers]
+        layers = blocks.map(lambda b, i, k: codec.quantize(b, mc, max(4, mc.resolutions[i] >> k)))
+        exact = exact_levels(layers, mc, run.device)
     run.seconds["quantize"] = time.perf_counter() - t0
     return layers, exact
 
@@ -502,6 +446,7 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     kinds = tuple(ch.kind for ch in ts.channels)
     mean = torch.as_tensor(encoding.encode_levels([ts.data], gains)[0].reshape(-1, c).mean(0))
     mlp = M.init_mlp(mc.n_inputs, mc.hidden, c, gen, device, mean)
+    backend = make_backend(cfg, device, mlp, biases)
     clock = _Clock({"warmup": preset.warmup.steps, "constrained": preset.constrained.steps,
                     "finetune": preset.finetune.steps})
     next_s = StratifiedScale(float(ref.num_levels - 1), gen, power=preset.lod_power, s_min=float(mc.split))
@@ -512,10 +457,10 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
 
         masks = mask_mips(coverage, ref.num_levels, mc.wrap)
     centres = (CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch, covered=masks,
-                             bicubic=_centre_bicubic(cfg, device), interleave=_native_library(cfg, device) is not None)
+                             bicubic=backend.bicubic(), interleave=backend.library() is not None)
                if preset.centre_targets else None)
     mask_levels = [torch.as_tensor(m, device=device) for m in masks] if masks is not None else None
-    run = _Run(cfg, device, gen, ref, biases, mlp, clock, next_s, centres, mask_levels, progress, pace,
+    run = _Run(cfg, device, backend, gen, ref, biases, mlp, clock, next_s, centres, mask_levels, progress, pace,
                Pacer(pace.seconds, pace.clock))
     if centres is not None:
         run.seconds["targets"] = time.perf_counter() - t0  # part of the training time, not hidden before it
@@ -527,7 +472,7 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     float_mse = float_model_mse(M.block_level_fn(blocks, mc), mlp, mc, kinds, biases, ref) if measure_float else None
     layers, exact = _quantize(run, blocks)
     del blocks
-    _run_phase(run, "finetune", M.cached_level_fn(exact), [], preset.finetune)  # phase 4
+    _run_phase(run, "finetune", backend.cached_step(exact), [], preset.finetune)  # phase 4
 
     w = MlpWeights(*(mlp[k].detach().cpu().numpy().astype(np.float32)
                      for k in ("w1", "b1", "w2", "b2", "out_scale", "out_bias")),

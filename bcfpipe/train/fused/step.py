@@ -11,7 +11,7 @@ import torch
 
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat, Wrap
-from bcfpipe.model.features import BlockParams, FixedLevel, codec_of
+from bcfpipe.model.features import BlockParams, Layers, codec_of
 from bcfpipe.model.sampling import level_weights
 from bcfpipe.texset import hostmem
 from bcfpipe.train.fused.common import FIXED, TRAINED
@@ -53,27 +53,28 @@ class FusedStep:
     """Loss and gradients of one step at scale ``s`` through the native kernel (native.py) or the
     numba one (kernel.py), ``backend`` (default: :func:`default_backend`).
 
-    ``levels[i][k]`` are layer i's mip-k parameters: free (C, H, W) tensors (phase 1) or
-    `BlockParams` (phase 2). They are moved, in place in ``levels``, into one flat storage (the
-    kernel then addresses every level by offset), so build the optimizer after this. ``quantized()``
-    is asked per step, as the torch path does. ``chunks``: sample ranges run in parallel, each with
-    its own gradient buffers (the result depends on the count, not on the scheduling). ``own_adam``
-    (native only; see ``owns_adam``): :meth:`adam` updates the feature parameters, their gradients
-    stay in the step's buffers, and the trainer's optimizer holds the MLP alone."""
+    ``levels.trained[i][k]`` are layer i's mip-k parameters: free (C, H, W) tensors (phase 1) or
+    `BlockParams` (phase 2); ``levels.fixed`` (a T_0 of principal components) are sampled from their
+    values, without a gradient. The trained ones are moved, in place in their layers' lists, into
+    one flat storage (the kernel then addresses every level by offset), so build the optimizer after
+    this. ``quantized()`` is asked per step, as the torch path does. ``chunks``: sample ranges run
+    in parallel, each with its own gradient buffers (the result depends on the count, not on the
+    scheduling). ``own_adam`` (native only; see ``owns_adam``): :meth:`adam` updates the feature
+    parameters, their gradients stay in the step's buffers, and the trainer's optimizer holds the
+    MLP alone."""
 
-    def __init__(self, mc: ModelConfig, biases: Sequence[float], mlp: dict[str, torch.Tensor], levels: list[list],
+    def __init__(self, mc: ModelConfig, biases: Sequence[float], mlp: dict[str, torch.Tensor], levels: Layers,
                  quantized: Callable[[], bool] = lambda: False, chunks: int = 1, backend: str | None = None,
                  own_adam: bool = False):
         from bcfpipe.train.fused import common
 
-        if any(isinstance(lv, FixedLevel) for layer in levels for lv in layer) and \
-                FeatureFormat(mc.features) != FeatureFormat.BC7:
+        if levels.fixed and FeatureFormat(mc.features) != FeatureFormat.BC7:
             raise ValueError("fixed levels are BC7 UNORM8 values; the format is " + str(mc.features))
         self.backend = backend or default_backend()
         self.mc, self.biases, self.mlp, self.levels = mc, biases, mlp, levels
         self.quantized, self.chunks = quantized, max(1, int(chunks))
         codec = codec_of(mc)
-        blocks = any(isinstance(lv, BlockParams) for layer in levels for lv in layer)
+        blocks = any(isinstance(lv, BlockParams) for lv in levels.trained_levels())  # phase 2's, else phase 1's
         bc7 = FeatureFormat(mc.features) == FeatureFormat.BC7
         self.fmt = ((common.BLOCK_BC7 if bc7 else common.BLOCK_BC6H) if blocks
                     else (common.FREE_BC7 if bc7 else common.FREE_BC6H))
@@ -117,20 +118,18 @@ class FusedStep:
     def _rehome(self, blocks: bool) -> None:
         """One flat float32 storage for the levels' parameters (P) and indices (X), one uint8 for the
         BC6H subset masks (M); ``self.slot[i][k]`` = (po, np, xo, nx, mo, plane)."""
-        self.fixed = {(i, k) for i, layer in enumerate(self.levels) for k, b in enumerate(layer)
-                      if isinstance(b, FixedLevel)}
-        tensors = [[(b.values,) if isinstance(b, FixedLevel) else (b.endpoints, b.x) if blocks else (b,)
-                    for b in layer] for layer in self.levels]
-        n_p = sum(ts[0].numel() for layer in tensors for ts in layer)
-        n_x = sum(ts[1].numel() for layer in tensors for ts in layer if len(ts) > 1)
+        levels = self.levels
+        self.fixed = {(i, k) for i, mips in levels.fixed.items() for k in range(len(mips))}
+        params = levels.each(lambda lv: lv.values, (lambda b, i, k: b.endpoints) if blocks else (lambda p, i, k: p))
+        n_p = sum(p.numel() for layer in params for p in layer)
+        n_x = sum(b.x.numel() for b in levels.trained_levels()) if blocks else 0
         P, X = hostmem.empty((n_p,), torch.float32), hostmem.empty((max(n_x, 1),), torch.float32)
         M = np.zeros(max(n_x, 1), np.uint8)
         po = xo = 0
         self.slot = []
-        for i, layer in enumerate(self.levels):
+        for i, layer in enumerate(params):
             row = []
-            for k, ts in enumerate(tensors[i]):
-                p = ts[0]
+            for k, p in enumerate(layer):
                 view = P[po:po + p.numel()].view(p.shape)
                 view.copy_(p.detach())
                 fixed = (i, k) in self.fixed
@@ -138,7 +137,7 @@ class FusedStep:
                 if fixed:
                     row.append((po, p.numel(), 0, 0, 0, plane))
                 elif blocks:
-                    b = layer[k]
+                    b = levels.trained[i][k]
                     xv = X[xo:xo + b.x.numel()].view(b.x.shape)
                     xv.copy_(b.x.detach())
                     if b.mask is not None:
@@ -147,7 +146,7 @@ class FusedStep:
                     row.append((po, p.numel(), xo, b.x.numel(), xo, plane))
                     xo += b.x.numel()
                 else:
-                    layer[k] = view.requires_grad_(True)
+                    levels.trained[i][k] = view.requires_grad_(True)
                     row.append((po, p.numel(), 0, 0, 0, plane))
                 po += p.numel()
             self.slot.append(row)
@@ -211,8 +210,8 @@ class FusedStep:
             for q in range(1, n):  # chunk order: deterministic for a given count
                 self.gP[0, po:po + np_] += self.gP[q, po:po + np_]
                 self.gX[0, xo:xo + nx] += self.gX[q, xo:xo + nx]
-            lvl = self.levels[i][k]
-            if isinstance(lvl, BlockParams):
+            lvl = self.levels.trained[i][k]
+            if self.blocks:
                 lvl.endpoints.grad = torch.from_numpy(self.gP[0, po:po + np_]).view(lvl.endpoints.shape)
                 lvl.x.grad = torch.from_numpy(self.gX[0, xo:xo + nx]).view(lvl.x.shape)
             else:
