@@ -66,7 +66,7 @@ def main() -> None:
         return one_layout(ts, opts, r, args.classic.split(","), args.layout_profile, args.lod_power)
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bcfpipe-layout-") as tmp:
-        fit = fit_layout(ts, tmp, opts, r, match_bc=args.match_bc, log=lambda s: print("  " + s, flush=True))
+        fit = fit_layout(ts, tmp, opts, r, log=lambda s: print("  " + s, flush=True))
     n = len(fit.decision.bc.mse_per_mip)
     head = "| layout | basis | MiB | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | admissible |"
     sep = "|---|---|---:|" + "---:|" * (n + 1) + "---|"

@@ -14,6 +14,7 @@ from bcfpipe.export import writer as E
 from bcfpipe.export.fit import fit_material, make_config
 from bcfpipe.formats import dds, material as mf
 from bcfpipe.layout import choose as C
+from bcfpipe.layout import kinds as K
 from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 from bcfpipe.layout.classic import channel_errors, encode, groups
 from bcfpipe.layout.export import export_layout
@@ -62,18 +63,18 @@ def bc_at(ts: TextureSet, ref, resolution: int = 32):
     enc = encode(ts, resolution, ref)
     e_bc = channel_errors(ts, enc, ref)
     bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
-                     C.combine(None, e_bc, range(ts.num_channels)), "measured", tuple(range(len(ref))))
+                     C.combine(None, e_bc, range(ts.num_channels)), "measured", tuple(range(len(ref))), kind=K.BC_AT_R)
     return enc, e_bc, bc
 
 
-def _cand(classic, size, mse, basis="measured", profile="1k"):
-    return C.Candidate(classic, profile, size, tuple(mse), basis, (0, 1, 2))
+def _cand(classic, size, mse, basis="measured", profile="1k", kind=K.MIXED):
+    return C.Candidate(classic, profile, size, tuple(mse), basis, (0, 1, 2), kind=kind)
 
 
 def test_rule_keeps_bc_when_nothing_else_qualifies_and_picks_the_best_that_does():
-    bc = _cand(("a", "b"), 1000, [1e-4, 1e-4, 1e-4], profile=None)
-    too_big = _cand((), 1001, [1e-6] * 3)
-    too_weak_at_mip0 = _cand((), 500, [1.2e-4, 1e-6, 1e-6])  # 0.79 dB below BC at mip 0
+    bc = _cand(("a", "b"), 1000, [1e-4, 1e-4, 1e-4], profile=None, kind=K.BC_AT_R)
+    too_big = _cand((), 1001, [1e-6] * 3, kind=K.NEURAL)
+    too_weak_at_mip0 = _cand((), 500, [1.2e-4, 1e-6, 1e-6], kind=K.NEURAL)  # 0.79 dB below BC at mip 0
     assert C.choose([too_big, too_weak_at_mip0], bc).chosen is bc
     assert "2.67" not in C.admissible(too_big, bc) and "MiB" in C.admissible(too_big, bc)
     assert C.admissible(too_weak_at_mip0, bc).startswith("mip 0")
@@ -107,7 +108,7 @@ def mixed(tmp_path_factory):
     err[:, keep] = res.mse_per_channel
     err[:, [3, 4]] = e_bc[:, [3, 4]]
     chosen = C.Candidate(("normal",), "tiny", res.size_bytes + enc[1].size_bytes, tuple(err.mean(1)), "measured",
-                         bc.use)
+                         bc.use, kind=K.MIXED)
     d = C.Decision(bc, (bc, chosen), chosen, "test", "quality")
     fit = LayoutFit(d, d, enc, res, tuple(keep), res, 0.0, 0.0)
     out = export_layout(fit, ts, tmp / "material", "repeat")
@@ -287,11 +288,11 @@ def test_verify_refuses_a_classic_texture_whose_bytes_changed(mixed, tmp_path):
 
 
 def test_the_closest_mixed_bound_is_explored_when_none_qualifies():
-    bc = _cand(("a", "b"), 1000, [1e-4, 1e-4, 1e-4], profile=None)
-    near = C.Candidate(("a",), "1k", 800, (2e-4, 5e-5, 5e-5), "bound", (0, 1, 2))  # 3.0 dB under at mip 0
-    nearer = C.Candidate(("b",), "1k", 900, (1.5e-4, 5e-5, 5e-5), "bound", (0, 1, 2))  # 1.3 dB under
-    too_big = C.Candidate(("b",), "2k", 1100, (1.2e-4, 5e-5, 5e-5), "bound", (0, 1, 2))
-    hopeless = C.Candidate(("a",), "0.5k", 500, (1e-3, 5e-5, 5e-5), "bound", (0, 1, 2))  # 9.5 dB under
+    bc = _cand(("a", "b"), 1000, [1e-4, 1e-4, 1e-4], profile=None, kind=K.BC_AT_R)
+    near = _cand(("a",), 800, (2e-4, 5e-5, 5e-5), "bound")  # 3.0 dB under at mip 0
+    nearer = _cand(("b",), 900, (1.5e-4, 5e-5, 5e-5), "bound")  # 1.3 dB under
+    too_big = _cand(("b",), 1100, (1.2e-4, 5e-5, 5e-5), "bound", profile="2k")
+    hopeless = _cand(("a",), 500, (1e-3, 5e-5, 5e-5), "bound", profile="0.5k")  # 9.5 dB under
     assert C.choose([near, nearer, too_big, hopeless], bc).chosen is bc
     assert C.most_promising([near, nearer, too_big, hopeless], bc) is nearer
     assert C.most_promising([hopeless], bc) is None
@@ -424,7 +425,7 @@ def test_a_layout_exported_over_an_earlier_one_leaves_none_of_its_files(mixed, t
     shutil.copytree(out, folder)
     (folder / "C1.dds").write_bytes((folder / "C0.dds").read_bytes())  # as if an earlier layout had two
     bc_only = C.Decision(chosen, (chosen,), C.Candidate(("albedo", "normal", "roughness"), None, 0, chosen.mse_per_mip,
-                                                        "measured", chosen.use), "test", "quality")
+                                                        "measured", chosen.use, kind=K.BC_AT_R), "test", "quality")
     fit = LayoutFit(bc_only, bc_only, encode(ts, 32, build_mip_chain(ts.data)), None, (), None, 0.0, 0.0)
     export_layout(fit, ts, folder, "repeat")
     assert sorted(p.name for p in folder.iterdir()) == ["C0.dds", "C1.dds", "C2.dds", "material.json"]

@@ -167,7 +167,7 @@ def test_split_candidates_fit_bc_bytes_and_hold_the_predicted_floor():
     from bcfpipe.layout import choose as C
     from bcfpipe.layout.classic import channel_errors
     from bcfpipe.formats.sizes import neural_bytes
-    from bcfpipe.layout.fit import split_bytes, split_candidates
+    from bcfpipe.layout.kinds import BC_AT_R, ClassicFit, split_bytes, split_candidates
 
     ts, r = _set(256), 128  # a 64² set's BC@R is too small for any features beside it
     ref = build_mip_chain(ts.data)
@@ -176,9 +176,10 @@ def test_split_candidates_fit_bc_bytes_and_hold_the_predicted_floor():
     e_bc = channel_errors(ts, enc, ref)
     use = tuple(k for k, m in enumerate(ref) if min(m.shape[:2]) >= 4)
     bc = C.Candidate(tuple(g.group.name for g in enc), None, sum(g.size_bytes for g in enc),
-                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use)
+                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use, kind=BC_AT_R)
+    cf = ClassicFit(enc, e_bc, bc, use)
     better = e_bc * 0.25  # a probe 6 dB better than BC@R at every mip: every split holds the floor
-    cands = split_candidates(ts, enc, e_bc, better, bc, use, r, (12, 16))
+    cands = split_candidates(ts, cf, better, r, (12, 16))
     assert cands and all(c.split >= 1 and c.size_bytes <= bc.size_bytes and c.basis == "predicted" for c in cands)
     for c in cands:
         t = c.resolutions[0]
@@ -188,12 +189,12 @@ def test_split_candidates_fit_bc_bytes_and_hold_the_predicted_floor():
         assert 2 * t > 256 >> c.split or split_bytes(enc, split_levels(c.split, r, 256)) + bigger > bc.size_bytes
         np.testing.assert_allclose(c.mse_per_mip[:c.split], bc.mse_per_mip[:c.split])
     # the probe's features 2^5+ times larger than any split's: 5+ halvings at 3 dB each lose the floor
-    assert split_candidates(ts, enc, e_bc, better, bc, use, r, (12, 16), probe_t0=4096, halving_db=3.0) == []
-    same = split_candidates(ts, enc, e_bc, better, bc, use, r, (12, 16), probe_t0=min(c.resolutions[0] for c in cands),
+    assert split_candidates(ts, cf, better, r, (12, 16), probe_t0=4096, halving_db=3.0) == []
+    same = split_candidates(ts, cf, better, r, (12, 16), probe_t0=min(c.resolutions[0] for c in cands),
                             halving_db=3.0)
     assert same and same[-1] == cands[-1]  # the smallest features: no halving from a probe of their size
     worse = e_bc * 4.0  # 6 dB worse everywhere: no split holds the floor past its split
-    assert split_candidates(ts, enc, e_bc, worse, bc, use, r, (12, 16)) == []
+    assert split_candidates(ts, cf, worse, r, (12, 16)) == []
 
 
 def test_a_chosen_split_is_exported_as_one_folder(split, tmp_path):
@@ -201,11 +202,13 @@ def test_a_chosen_split_is_exported_as_one_folder(split, tmp_path):
     from bcfpipe.layout import choose as C
     from bcfpipe.layout.export import export_layout
     from bcfpipe.layout.fit import LayoutFit
+    from bcfpipe.layout.kinds import BC_AT_R, SPLIT as MIP_SPLIT
 
     ts, ref, enc, neural, out, res = split
     use = tuple(range(len(ref)))
-    bc = C.Candidate(tuple(g.group.name for g in enc), None, 1, (1.0,) * len(ref), "measured", use)
-    ch = C.Candidate(bc.classic, "4/4/4/4", 1, (1.0,) * len(ref), "measured", use, split=SPLIT, resolutions=(4, 4, 4, 4))
+    bc = C.Candidate(tuple(g.group.name for g in enc), None, 1, (1.0,) * len(ref), "measured", use, kind=BC_AT_R)
+    ch = C.Candidate(bc.classic, "4/4/4/4", 1, (1.0,) * len(ref), "measured", use, split=SPLIT, resolutions=(4, 4, 4, 4),
+                     kind=MIP_SPLIT)
     assert ch.label == "BC@R below mip 3 + neural 4/4/4/4 from it" and ch.to_json()["split"] == SPLIT
     d = C.Decision(bc, (bc, ch), ch, "test", "quality")
     fit = LayoutFit(d, d, enc, res, tuple(range(ts.num_channels)), None, 0.0, 0.0)
@@ -247,10 +250,12 @@ def test_the_reported_worst_margin_counts_the_mips_the_rule_counts():
     """A split's 1×1 mip may fall below BC@R (the teapot scene's did, by 1.2 dB); the rule does not
     count mips under 4 texels a side, and neither does the worst margin the reports print."""
     from bcfpipe.layout import choose as C
+    from bcfpipe.layout.kinds import BC_AT_R, SPLIT as MIP_SPLIT
 
     use = (0, 1, 2)
-    bc = C.Candidate(("a",), None, 10, (1e-4, 1e-4, 1e-4, 1e-4), "measured", use)
-    c = C.Candidate(("a",), "8/8/8/4", 9, (1e-4, 5e-5, 5e-5, 1e-3), "measured", use, split=1, resolutions=(8, 8, 8, 4))
+    bc = C.Candidate(("a",), None, 10, (1e-4, 1e-4, 1e-4, 1e-4), "measured", use, kind=BC_AT_R)
+    c = C.Candidate(("a",), "8/8/8/4", 9, (1e-4, 5e-5, 5e-5, 1e-3), "measured", use, split=1, resolutions=(8, 8, 8, 4),
+                    kind=MIP_SPLIT)
     d = c.to_json(bc)
     assert min(d["margin_per_mip_db"]) == -10.0 and d["worst_margin_db"] == 0.0
     assert C.admissible(c, bc) is None

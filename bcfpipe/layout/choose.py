@@ -4,9 +4,10 @@ profile the neural features carry the rest, chosen by rate and per-mip distortio
 BC@R is the classic set a user would ship at the material's resolution R (`bcfpipe.layout.classic`).
 Every candidate is a set of classic groups plus, for the other channels, a neural model at a
 profile; or BC@R with some groups repacked as BC7 in the same bytes (measured exactly); or a mip
-split. Its per-mip MSE is the mean over channels of each channel's own MSE (the metric is a
-plain mean over channels, `bcfpipe.texset.metrics`), so a candidate's figures follow from
-per-channel errors without decoding it:
+split: each of a kind (`bcfpipe.layout.kinds`), which labels, trains and exports it. Its per-mip
+MSE is the mean over channels of each channel's own MSE (the metric is a plain mean over channels,
+`bcfpipe.texset.metrics`), so a candidate's figures follow from per-channel errors without
+decoding it:
 
 * classic channels: exact, from the encoded blocks;
 * neural channels, ``bound``: from a model trained on *all* channels at that profile. A model
@@ -25,11 +26,14 @@ within `EXPLORE_DB`) is trained anyway: its own model may clear the floor where 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import TYPE_CHECKING, Literal, Sequence
 
 import numpy as np
 
 from bcfpipe.texset.metrics import psnr_from_mse
+
+if TYPE_CHECKING:
+    from bcfpipe.layout.kinds import Kind
 
 SLACK_DB = 0.5
 EXPLORE_DB = 3.0  # a bound this far below the floor may still be reached by its own training
@@ -39,7 +43,8 @@ ALL_CLASSIC = "all classic (BC@R)"
 
 @dataclass(frozen=True)
 class Candidate:
-    """One layout: the classic groups (by name), the neural profile (None: no neural part)."""
+    """One layout: the classic groups (by name), the neural profile (None: no neural part), and
+    its ``kind``, which labels, trains and exports it."""
 
     classic: tuple[str, ...]
     profile: str | None
@@ -50,18 +55,11 @@ class Candidate:
     split: int = 0  # a mip split: every group's BC@R levels below reference mip ``split``, the features from it on
     resolutions: tuple[int, ...] = ()  # a split's feature sizes T_0..T_3 (``profile`` names them)
     repack: str = ""  # all classic, some of BC@R's groups merged into BC7 (`bcfpipe.layout.classic.Repack`)
+    kind: "Kind | None" = field(repr=False, compare=False, default=None)  # what it is (`bcfpipe.layout.kinds`); not in to_json
 
     @property
     def label(self) -> str:
-        if self.repack:
-            return f"BC@R with {self.repack}"
-        if self.split:
-            return f"BC@R below mip {self.split} + neural {self.profile} from it"
-        if self.profile is None:
-            return ALL_CLASSIC
-        if not self.classic:
-            return f"neural {self.profile}"
-        return f"neural {self.profile} + classic {', '.join(self.classic)}"
+        return self.kind.label(self)
 
     @property
     def psnr_per_mip(self) -> tuple[float, ...]:

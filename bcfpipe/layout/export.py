@@ -11,6 +11,7 @@ import os
 import shutil
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Sequence
 
 from bcfpipe.export.writer import output_channels
 from bcfpipe.formats import dds, material as mf
@@ -19,8 +20,10 @@ from bcfpipe.formats.digest import sha256_file
 from bcfpipe.formats.vocabulary import Source
 from bcfpipe.formats.bcn import DXGI
 from bcfpipe.layout.classic import EncodedGroup, split_levels
-from bcfpipe.layout.fit import LayoutFit
 from bcfpipe.texset.texture_set import TextureSet
+
+if TYPE_CHECKING:
+    from bcfpipe.layout.fit import LayoutFit
 
 
 def classic_texture(i: int, enc: EncodedGroup, reference_width: int) -> mf.ClassicTexture:
@@ -31,18 +34,17 @@ def classic_texture(i: int, enc: EncodedGroup, reference_width: int) -> mf.Class
 
 
 def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wrap: str) -> Path:
-    """Write ``fit``'s chosen layout of ``ts`` to ``out_dir``; returns it."""
+    """Write ``fit``'s chosen layout of ``ts`` to ``out_dir``, as its kind writes it; returns it."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     chosen = fit.decision.chosen
-    if chosen.split:
-        resolution = max(max(g.levels[0][1], g.levels[0][2]) for g in fit.classic)
-        export_split(fit.classic, fit.neural.out_dir, ts, out, chosen.split, resolution)
-        return out
-    shipped = [g for g in fit.classic if g.group.name in chosen.classic]
-    if chosen.repack:  # BC@R's groups that were not merged, then the BC7 textures that replace the rest
-        rp, enc = fit.repacked[chosen.repack]
-        shipped = [g for g in fit.classic if g.group.name not in rp.replaces] + list(enc)
+    chosen.kind.export(fit, chosen, ts, out, wrap)
+    return out
+
+
+def export_groups(fit: LayoutFit, shipped: Sequence[EncodedGroup], ts: TextureSet, out: Path, wrap: str) -> Path:
+    """Write the classic textures ``shipped`` as C_i.dds and ``fit``'s model (if any) for the other
+    channels to ``out``, with the material.json that says where each output comes from."""
     classic = []
     where: dict[int, tuple[int, int, float, float]] = {}  # set channel -> (texture, channel, scale, bias)
     for i, enc in enumerate(shipped):

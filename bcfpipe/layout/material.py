@@ -43,7 +43,7 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
     start = time.perf_counter()
     try:
         fit = fit_layout(ts, work, options, bc_resolution(max(ts.width, ts.height), options.profile), wrap=wrap,
-                         match_bc=options.match_bc, log=log, progress=progress, coverage=coverage)
+                         log=log, progress=progress, coverage=coverage)
         export_layout(fit, ts, out, wrap)
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -82,23 +82,41 @@ def probe_profile(profiles: Sequence[str], sizes: dict[str, int], bc_bytes: int)
     return next((p for p in profiles if sizes[p] <= bc_bytes), profiles[-1])
 
 
-def predict(groups, width: int, height: int, n_channels: int, n_out: int, asked: str, asked_resolutions:
-            Sequence[int], resolution: int, device: str, dims: tuple[int, int], layout: str = Layout.AUTO,
-            match_bc: bool = False, classic: Sequence[str] = ()) -> LayoutPrediction:
-    """The prediction for a set of ``width``×``height`` with ``n_channels`` channels (``n_out``
+@dataclass(frozen=True)
+class Query:
+    """What `predict` reads: a set of ``width``×``height`` with ``n_channels`` channels (``n_out``
     decoder outputs) whose classic groups are ``groups`` (`classic.Group`), at BC resolution
     ``resolution``, profile ``asked`` (resolved; its feature ``asked_resolutions``), on ``device``,
     ``dims`` = (MLP inputs, hidden). ``classic``: the group names ``--classic`` keeps."""
+
+    groups: tuple
+    width: int
+    height: int
+    n_channels: int
+    n_out: int
+    asked: str
+    asked_resolutions: tuple[int, ...]
+    resolution: int
+    device: str
+    dims: tuple[int, int]
+    layout: str = Layout.AUTO
+    match_bc: bool = False
+    classic: tuple[str, ...] = ()
+
+
+def predict(q: Query) -> LayoutPrediction:
+    """The prediction for the set and job ``q`` describes."""
     from bcfpipe.layout.classic import MAX_REPACK_SIDE, repacks, split_levels
 
-    levels = bc_levels(width, height, resolution)
+    groups, asked, asked_resolutions, resolution, layout = q.groups, q.asked, q.asked_resolutions, q.resolution, q.layout
+    levels = bc_levels(q.width, q.height, resolution)
     by_group = {g.name: texture_bytes(g.format, levels) for g in groups}
     bc = sum(by_group.values())
-    n_in, hidden = dims
-    profiles = tuple(candidate_profiles(asked, device))
+    n_in, hidden = q.dims
+    profiles = tuple(candidate_profiles(asked, q.device))
     res_of = {p: (PROFILES[p] if p in PROFILES else tuple(asked_resolutions)) for p in profiles}
-    exact_neural = neural_bytes(asked_resolutions, n_in, hidden, n_out)
-    forced = set(classic)
+    exact_neural = neural_bytes(asked_resolutions, n_in, hidden, q.n_out)
+    forced = set(q.classic)
     forced_bytes = sum(b for name, b in by_group.items() if name in forced)
     if layout == Layout.NEURAL:
         if not forced:
@@ -107,7 +125,7 @@ def predict(groups, width: int, height: int, n_channels: int, n_out: int, asked:
             return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (), bc, bc)
         return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (),
                                 forced_bytes + feature_bytes(asked_resolutions), forced_bytes + exact_neural)
-    sizes = {p: neural_bytes(res_of[p], n_in, hidden, n_channels) for p in profiles}
+    sizes = {p: neural_bytes(res_of[p], n_in, hidden, q.n_channels) for p in profiles}
     p0 = probe_profile(profiles, sizes, bc)
     packs = []
     if resolution <= MAX_REPACK_SIDE:
@@ -116,14 +134,14 @@ def predict(groups, width: int, height: int, n_channels: int, n_out: int, asked:
                 continue
             packs.append(sum(b for name, b in by_group.items() if name not in rp.replaces)
                          + sum(texture_bytes(g.format, levels) for g in rp.groups))
-    side = max(width, height)
+    side = max(q.width, q.height)
     split_floor = [texture_bytes(g.format, levels[:split_levels(1, resolution, side)]) for g in groups]
     lows = [bc, *packs, forced_bytes + min(feature_bytes(res_of[p]) for p in profiles)]
     if not forced:
         lows.append(sum(split_floor) + feature_bytes((8, 8, 8, 4), headers=True))
     low = min(lows)
-    if match_bc:  # any size: a mixed layout may hold every group but one and the largest model
-        high = max(bc, *packs, bc + max(neural_bytes(res_of[p], n_in, hidden, n_out) for p in profiles))
+    if q.match_bc:  # any size: a mixed layout may hold every group but one and the largest model
+        high = max(bc, *packs, bc + max(neural_bytes(res_of[p], n_in, hidden, q.n_out) for p in profiles))
     else:
         high = bc
     return LayoutPrediction(str(layout), resolution, asked, profiles, p0, bc, tuple(packs), low, high)
@@ -173,8 +191,9 @@ def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[s
     out = []
     for hdr in ((), tuple(hdr_colours)) if hdr_colours else ((),):
         groups = classic_groups(spec_texture_set(specs, width, height, hdr))
-        out.append(predict(groups, width, height, n, n, asked, res, bc_resolution(side, options.profile), device,
-                           dims, layout, bool(options.match_bc), named_groups(groups, options.classic or ())))
+        out.append(predict(Query(groups, width, height, n, n, asked, tuple(res), bc_resolution(side, options.profile),
+                                 device, dims, layout, bool(options.match_bc),
+                                 named_groups(groups, options.classic or ()))))
     return merge(out)
 
 

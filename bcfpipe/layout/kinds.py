@@ -1,0 +1,355 @@
+"""The kinds of layout candidate (issue 51): each one class, weighed by `bcfpipe.layout.fit.fit_layout`.
+
+A kind generates its candidates from the shared fit context (`FitContext`: BC@R and its repacks
+measured, the probe, the profiles and their bytes), says how one of them reads, trains the one the
+rule picks when it needs a model of its own, and writes the chosen layout to the material folder.
+`REGISTRY` is the ordered tuple `fit_layout` weighs; its order is the order the candidates are
+weighed in (ties go to the first). A new kind is a subclass of `Kind` with an instance added there:
+`fit_layout` and `export_layout` read nothing of a kind but these methods (docs/architecture.md).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from bcfpipe.config import TrainingOptions
+from bcfpipe.export.fit import MaterialResult, fit_material, make_config
+from bcfpipe.formats.sizes import neural_bytes
+from bcfpipe.layout import choose as C
+from bcfpipe.layout.classic import EncodedGroup, Repack, split_levels
+from bcfpipe.layout.export import export_groups, export_split
+from bcfpipe.texset.texture_set import TextureSet
+from bcfpipe.train.trainer import ProgressFn
+
+if TYPE_CHECKING:
+    from bcfpipe.layout.fit import LayoutFit
+
+
+@dataclass(frozen=True)
+class ClassicFit:
+    """BC@R encoded and measured, and its repacks."""
+
+    groups: list[EncodedGroup]
+    e_bc: np.ndarray  # (mips, channels) errors
+    bc: C.Candidate
+    use: tuple[int, ...]  # the reference mips the all-mip figure averages
+    repacked: dict[str, tuple[Repack, list[EncodedGroup]]] = field(default_factory=dict)  # by Repack.label
+    packed: tuple[C.Candidate, ...] = ()  # the repacks' candidates, measured
+    seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class Weighed:
+    """A candidate and, once measured, what ships it: the model it decodes with (None: all classic)
+    on ``channels``, and ``parts``, whatever else its kind's `Kind.export` writes (`LayoutFit.parts`)."""
+
+    candidate: C.Candidate
+    model: MaterialResult | None = None
+    channels: tuple[int, ...] = ()
+    parts: Any = None
+
+
+@dataclass(frozen=True)
+class FitContext:
+    """What every kind reads: the set, the options, BC@R measured and the probe (None under
+    ``--layout neural``, which trains one layout without a probe)."""
+
+    ts: TextureSet
+    out: Path  # neural files go under out/probe, out/neural, out/split
+    options: TrainingOptions
+    wrap: str
+    resolution: int  # R
+    forced: tuple[str, ...] = ()  # the groups --classic keeps classic in every candidate
+    cap: Any = None  # the schedule no training here exceeds (`capped`); None: each config's own
+    progress: ProgressFn | None = None
+    coverage: np.ndarray | None = None
+    log: Callable[[str], None] = lambda s: None
+    classic: ClassicFit | None = None  # BC@R measured (every kind reads it)
+    probe: MaterialResult | None = None
+    p0: str | None = None  # the probe's profile
+    profiles: tuple[str, ...] = ()  # weighed, largest first
+    sizes: Mapping[str, int] = field(default_factory=dict)  # a neural part's bytes by profile (p0: the probe's files)
+    own: Mapping[str, str] = field(default_factory=dict)  # the profile each trains as (auto-N trains as "auto")
+    dims: tuple[int, int] = (0, 0)  # (MLP inputs, hidden)
+
+    @property
+    def match_bc(self) -> bool:
+        return bool(self.options.match_bc)
+
+    @property
+    def all_channels(self) -> tuple[int, ...]:
+        return tuple(range(self.ts.num_channels))
+
+    def gain(self, profile: str) -> float:
+        """The measured gain of ``profile`` (`train.rate`); smoke is no rate-control preset: draft's stand in."""
+        from bcfpipe.train.rate import _gain
+
+        preset = self.options.preset
+        return _gain(profile, preset if preset in ("draft", "fast", "standard", "paper") else "draft")
+
+    def neural_errors(self, profile: str) -> np.ndarray:
+        """(mips, channels) errors of all channels at ``profile``: the probe's, moved by the gain."""
+        e0 = self.probe.mse_per_channel
+        if profile == self.p0:
+            return e0
+        return e0 * 10 ** (-(self.gain(profile) - self.gain(self.p0)) / 10)
+
+
+class Kind(ABC):
+    """One kind of layout candidate. Subclass it, override `label` and `predict`; a kind whose
+    candidates need a model of their own overrides `trains` and `train`; one that writes anything
+    but some of BC@R's groups and the chosen model overrides `export`. Then add an instance to
+    `REGISTRY`. The final choice weighs every candidate whose basis is ``measured``."""
+
+    name = ""
+    explorable = False  # its ``bound`` candidates are trained when none qualifies (`choose.most_promising`)
+
+    @abstractmethod
+    def label(self, c: C.Candidate) -> str:
+        """How ``c`` reads in logs and layout.json (unique among the candidates of a fit)."""
+
+    @abstractmethod
+    def predict(self, ctx: FitContext) -> list[Weighed]:
+        """Its candidates, measured, bound or predicted, each with ``kind=self`` (a measured one with
+        its model and parts)."""
+
+    def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
+        """Whether shipping ``c`` needs a model trained for it (when not, the rule explores)."""
+        return False
+
+    def worth(self, ctx: FitContext, c: C.Candidate, held: C.Candidate) -> bool:
+        """Whether ``c``, the first choice, is worth its training against ``held``, the choice among
+        what is measured already."""
+        return True
+
+    def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
+        """Train and measure ``c`` (only when `trains`)."""
+        raise NotImplementedError(f"{type(self).__name__} trains nothing: its candidates are measured")
+
+    def export(self, fit: "LayoutFit", c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
+        """Write ``c``, ``fit``'s choice, to ``out``: by default the groups ``c.classic`` names and the
+        chosen model, if any."""
+        return export_groups(fit, [g for g in fit.classic if g.group.name in c.classic], ts, out, wrap)
+
+
+class BcAtR(Kind):
+    """BC@R: every group classic, as a user would ship the set (measured, never trained)."""
+
+    name = "bc@r"
+
+    def label(self, c: C.Candidate) -> str:
+        return C.ALL_CLASSIC
+
+    def predict(self, ctx: FitContext) -> list[Weighed]:
+        return [Weighed(ctx.classic.bc)]
+
+
+class BcRepack(Kind):
+    """BC@R with some groups merged into BC7 in the same bytes (`classic.repacks`), measured exactly
+    beside the probe's training."""
+
+    name = "repack"
+
+    def label(self, c: C.Candidate) -> str:
+        return f"BC@R with {c.repack}"
+
+    def predict(self, ctx: FitContext) -> list[Weighed]:
+        return [Weighed(c) for c in ctx.classic.packed if set(ctx.forced) <= set(c.classic)]
+
+    def export(self, fit: "LayoutFit", c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
+        """BC@R's groups that were not merged, then the BC7 textures that replace the rest."""
+        rp, enc = fit.repacked[c.repack]
+        return export_groups(fit, [g for g in fit.classic if g.group.name not in rp.replaces] + list(enc),
+                             ts, out, wrap)
+
+
+def at_profiles(ctx: FitContext, chosen: Sequence[int], kind: Kind, at_probe: C.Basis) -> list[Weighed]:
+    """The groups ``chosen`` (indices into BC@R's) classic and a model on the other channels, at every
+    profile: ``at_probe`` at p0 (the probe's errors on those channels; ``measured``: the probe itself,
+    which ships with its model), ``predicted`` elsewhere."""
+    groups = ctx.classic.groups
+    names = tuple(groups[i].group.name for i in chosen)
+    cols = [c for i in chosen for c in groups[i].group.channels]
+    classic_bytes = sum(groups[i].size_bytes for i in chosen)
+    out = []
+    for p in ctx.profiles:
+        c = C.Candidate(names, p, ctx.sizes[p] + classic_bytes, C.combine(ctx.neural_errors(p), ctx.classic.e_bc, cols),
+                        at_probe if p == ctx.p0 else "predicted", ctx.classic.use, kind=kind)
+        out.append(Weighed(c, ctx.probe, ctx.all_channels) if c.basis == "measured" else Weighed(c))
+    return out
+
+
+class NeuralAt(Kind):
+    """Every channel neural at a profile: at p0 the probe itself (measured), elsewhere predicted."""
+
+    name = "neural"
+
+    def label(self, c: C.Candidate) -> str:
+        return f"neural {c.profile}"
+
+    def predict(self, ctx: FitContext) -> list[Weighed]:
+        return [] if ctx.forced else at_profiles(ctx, (), self, "measured")
+
+    def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
+        return c.profile != ctx.p0
+
+    def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
+        ctx.log(f"training the channels outside the classic groups at {c.profile} for: {c.label}")
+        return train_outside(ctx, c.classic, c.profile, self)
+
+
+class Mixed(Kind):
+    """Some of BC@R's groups classic (every one --classic names among them), a model on the rest at
+    a profile: ``bound`` at p0 (a model on fewer channels fits them at least as well), else predicted."""
+
+    name = "mixed"
+    explorable = True
+
+    def label(self, c: C.Candidate) -> str:
+        return f"neural {c.profile} + classic {', '.join(c.classic)}"
+
+    def predict(self, ctx: FitContext) -> list[Weighed]:
+        n = len(ctx.classic.groups)
+        names = [g.group.name for g in ctx.classic.groups]
+        return [w for r in range(1, n) for chosen in itertools.combinations(range(n), r)
+                if set(ctx.forced) <= {names[i] for i in chosen} for w in at_profiles(ctx, chosen, self, "bound")]
+
+    def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
+        return True
+
+    def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
+        ctx.log(f"training the channels outside the classic groups at {c.profile} for: {c.label}")
+        return train_outside(ctx, c.classic, c.profile, self)
+
+
+class MipSplit(Kind):
+    """BC@R's levels below a reference mip k, features for s >= k (`split_candidates`); trained only
+    when its prediction beats what is measured already, and weighed only when --classic fixes no group."""
+
+    name = "split"
+
+    def label(self, c: C.Candidate) -> str:
+        return f"BC@R below mip {c.split} + neural {c.profile} from it"
+
+    def predict(self, ctx: FitContext) -> list[Weighed]:
+        if ctx.forced:  # --classic keeps its groups classic at every mip
+            return []
+        halving = max(0.0, ctx.gain("1k") - ctx.gain("0.5k"))  # one halving of T_0
+        return [Weighed(c) for c in split_candidates(ctx.ts, ctx.classic, ctx.probe.mse_per_channel, ctx.resolution,
+                                                     ctx.dims, ctx.match_bc, ctx.probe.resolutions[0], halving)]
+
+    def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
+        return True
+
+    def worth(self, ctx: FitContext, c: C.Candidate, held: C.Candidate) -> bool:
+        return c.size_bytes < held.size_bytes if ctx.match_bc else c.psnr > held.psnr
+
+    def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
+        ctx.log(f"training the features of a mip split for: {c.label} (predicted {c.psnr:.2f} dB over all mips)")
+        return train_split(ctx, c)
+
+    def export(self, fit: "LayoutFit", c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
+        resolution = max(max(g.levels[0][1], g.levels[0][2]) for g in fit.classic)
+        return export_split(fit.classic, fit.neural.out_dir, ts, out, c.split, resolution)
+
+
+BC_AT_R, REPACK, NEURAL, MIXED, SPLIT = BcAtR(), BcRepack(), NeuralAt(), Mixed(), MipSplit()
+REGISTRY: tuple[Kind, ...] = (BC_AT_R, REPACK, NEURAL, MIXED, SPLIT)
+
+
+def subset(ts: TextureSet, keep: Sequence[int]) -> TextureSet:
+    """``ts`` restricted to the channels ``keep`` (in that order)."""
+    keep = list(keep)
+    return TextureSet(np.ascontiguousarray(ts.data[..., keep]), tuple(ts.channels[i] for i in keep),
+                      ts.width, ts.height)
+
+
+def capped(cfg, cap):
+    """``cfg`` with the schedule ``cap`` (--layout neural's at the profile asked) where its own takes
+    more steps: on a CPU a 2048² T_0 trains draft's 900 steps where a smaller fixed T_0 trains 2,500
+    (config.FIXED_T0_PRESETS), so a probe at 1k cost 1.5× the neural build's training. Each of the
+    layout's at most two trainings then costs no more steps than the neural one (docs/layout.md)."""
+    if cap is None or cfg.preset.total_steps <= cap.total_steps:
+        return cfg
+    return cfg.with_(preset=cap)
+
+
+def train_outside(ctx: FitContext, classic: Sequence[str], name: str, kind: Kind,
+                  profile: str | None = None) -> Weighed:
+    """Train the channels outside the ``classic`` groups at ``name`` (trained as ``profile``, by
+    default ``ctx.own[name]``) and measure the layout they make with those groups."""
+    groups, e_bc = ctx.classic.groups, ctx.classic.e_bc
+    keep = [c for c in range(ctx.ts.num_channels)
+            if not any(c in g.group.channels for g in groups if g.group.name in classic)]
+    sub = subset(ctx.ts, keep)
+    options = replace(ctx.options, profile=profile or ctx.own[name])
+    res, _ = fit_material(sub, ctx.out / "neural", capped(make_config(sub, options, ctx.wrap)[1], ctx.cap), name,
+                          progress=ctx.progress, coverage=ctx.coverage, image_metrics=False)
+    e = e_bc.copy()
+    e[:, keep] = res.mse_per_channel
+    classic_bytes = sum(g.size_bytes for g in groups if g.group.name in classic)
+    return Weighed(C.Candidate(tuple(classic), name, res.size_bytes + classic_bytes, tuple(float(v) for v in e.mean(1)),
+                               "measured", ctx.classic.use, kind=kind), res, tuple(keep))
+
+
+def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
+    """Bytes of BC@R's groups cut to their first ``keep`` levels (headers included)."""
+    from bcfpipe.formats.dds import HEADER_BYTES
+
+    return sum(HEADER_BYTES + sum(b.nbytes for b, _, _ in g.levels[:keep]) for g in groups)
+
+
+def split_candidates(ts: TextureSet, classic: ClassicFit, e_probe: np.ndarray, resolution: int, dims: tuple[int, int],
+                     match_bc: bool = False, probe_t0: int = 0, halving_db: float = 0.0) -> list[C.Candidate]:
+    """The mip splits worth training, ``predicted``: for each reference mip k >= 1, BC@R's levels
+    that serve the mips below k and features T = (t, t, t, t/2) for s >= k, t the largest power of
+    two no larger than mip k's side whose bytes (with the DDS headers) keep the whole within BC@R's
+    size, t >= 8. Errors: BC@R's below k; from k on the probe's (T_0 = ``probe_t0``), worse by
+    ``halving_db`` for every halving from probe_t0 to t (the measured gain between profiles, as
+    rate control predicts). Only those that hold the floor on that prediction, and only where BC@R
+    has more than one level to cut."""
+    groups, e_bc, bc = classic.groups, classic.e_bc, classic.bc
+    side = max(ts.width, ts.height)
+    out = []
+    for k in range(1, e_bc.shape[0]):
+        keep = split_levels(k, resolution, side)
+        if keep >= min(len(g.levels) for g in groups):
+            break
+        budget = bc.size_bytes - split_bytes(groups, keep)
+        t = 1 << (max(1, side >> k).bit_length() - 1)
+        while t >= 8 and neural_bytes((t, t, t, t // 2), *dims, ts.num_channels) > budget:  # its files
+            t //= 2
+        if t < 8:
+            continue
+        res = (t, t, t, t // 2)
+        size = neural_bytes(res, *dims, ts.num_channels)
+        halvings = max(0.0, math.log2(probe_t0 / res[0])) if probe_t0 else 0.0
+        err = e_probe * 10.0 ** (halvings * halving_db / 10.0)
+        err[:k] = e_bc[:k]
+        c = C.Candidate(bc.classic, "/".join(map(str, res)), bc.size_bytes - budget + size,
+                        tuple(float(v) for v in err.mean(1)), "predicted", classic.use, split=k, resolutions=res,
+                        kind=SPLIT)
+        if C.deficit(c, bc, match_bc) <= 0:
+            out.append(c)
+    return out
+
+
+def train_split(ctx: FitContext, cand: C.Candidate) -> Weighed:
+    """Train ``cand``'s features (all channels, s >= its split) and measure the split layout. Below
+    the split the layout decodes to BC@R exactly, from it on to the model (tests/test_split_layout.py)."""
+    cfg = capped(make_config(ctx.ts, ctx.options, ctx.wrap)[1], ctx.cap)
+    cfg = cfg.with_(model=replace(cfg.model, resolutions=cand.resolutions, split=cand.split))
+    res, _ = fit_material(ctx.ts, ctx.out / "split", cfg, cand.profile, progress=ctx.progress, coverage=ctx.coverage,
+                          image_metrics=False)
+    err = res.mse_per_channel.copy()
+    err[:cand.split] = ctx.classic.e_bc[:cand.split]
+    keep = split_levels(cand.split, ctx.resolution, max(ctx.ts.width, ctx.ts.height))
+    m = replace(cand, size_bytes=res.size_bytes + split_bytes(ctx.classic.groups, keep),
+                mse_per_mip=tuple(float(v) for v in err.mean(1)), basis="measured")
+    return Weighed(m, res, ctx.all_channels)
