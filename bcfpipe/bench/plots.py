@@ -37,11 +37,14 @@ def _finite(v) -> float | None:
     return v if v is not None and v == v and abs(v) != float("inf") else None
 
 
-def _finish(plt, fig, ax, path: Path, xlabel: str, ylabel: str, title: str, legend: dict,
-            title_size: float | None = None, grid: str = "major") -> None:
+def _label(ax, xlabel: str, ylabel: str, title: str, title_size: float | None = None) -> None:
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=title_size)
+
+
+def _save(plt, fig, ax, path: Path, legend: dict, grid: str = "major") -> None:
+    """Grid and legend, then the figure written to ``path`` and closed."""
     ax.grid(alpha=0.3, which=grid)
     ax.legend(**legend)
     fig.tight_layout()
@@ -72,9 +75,9 @@ def draw_rd(s: dict, path: Path) -> None:
         for c in rows:
             ax.plot([c["size_mib"]], [c["psnr"]], "o", ms=7, label=f"BCf {prof} {c['preset']}")
     ax.set_xscale("log")
-    _finish(plt, fig, ax, path, "size (MiB, log scale; BCf: 4 BC6H feature textures + fp16 weights)",
-            "PSNR over all mips (dB)", f"{s['name']}: rate-distortion", {**SIDE_LEGEND, "ncol": 1, "fontsize": 7},
-            grid="both")
+    _label(ax, "size (MiB, log scale; BCf: 4 BC6H feature textures + fp16 weights)", "PSNR over all mips (dB)",
+           f"{s['name']}: rate-distortion")
+    _save(plt, fig, ax, path, {**SIDE_LEGEND, "ncol": 1, "fontsize": 7}, grid="both")
 
 
 def draw_time(s: dict, path: Path) -> None:
@@ -85,9 +88,9 @@ def draw_time(s: dict, path: Path) -> None:
         line = ax.plot([t for t, _ in curve], [p for _, p in curve], lw=1, alpha=0.6)[0]
         ax.plot([c["train_seconds"]], [c["psnr"]], "o", ms=7, color=line.get_color(),
                 label=f"{c['method']}: {c['psnr']:.2f} dB exported")
-    _finish(plt, fig, ax, path, "training wall time (s)", "PSNR (dB)",
-            f"{s['name']}: PSNR over training time\n(lines: training loss as PSNR, float model; "
-            f"dots: exported files, all mips)", {"fontsize": 7, "loc": "lower right"}, title_size=9)
+    _label(ax, "training wall time (s)", "PSNR (dB)", f"{s['name']}: PSNR over training time\n(lines: training "
+           f"loss as PSNR, float model; dots: exported files, all mips)", title_size=9)
+    _save(plt, fig, ax, path, {"fontsize": 7, "loc": "lower right"})
 
 
 def draw_per_mip(s: dict, path: Path) -> None:
@@ -100,8 +103,8 @@ def draw_per_mip(s: dict, path: Path) -> None:
                 else 1, label=row["method"], **_style(row, full))
     ax.set_xticks(range(len(s["mips"])))
     ax.set_xticklabels([f"{k}\n{w}" for k, (w, _) in enumerate(s["mips"])], fontsize=7)
-    _finish(plt, fig, ax, path, "mip (its width)", "PSNR (dB)",
-            f"{s['name']}: PSNR per mip (exported files; baselines decode every mip)", SIDE_LEGEND)
+    _label(ax, "mip (its width)", "PSNR (dB)", f"{s['name']}: PSNR per mip (exported files; baselines decode every mip)")
+    _save(plt, fig, ax, path, SIDE_LEGEND)
 
 
 def draw_lod(s: dict, path: Path) -> None:
@@ -116,9 +119,9 @@ def draw_lod(s: dict, path: Path) -> None:
         st = _style(row, full)
         ax.plot(sweep["s"], ys, lw=1.2 if row["kind"] == "bcf" else 0.9, ls=st["ls"], alpha=st["alpha"],
                 label=row["method"])
-    _finish(plt, fig, ax, path, "lod s (reference mip units)", "PSNR (dB)",
-            f"{s['name']}: PSNR over a continuous lod sweep\n({sweep['points']} random uv; target: "
-            f"bicubic in mips floor(s), floor(s)+1, lerped)", SIDE_LEGEND, title_size=9)
+    _label(ax, "lod s (reference mip units)", "PSNR (dB)", f"{s['name']}: PSNR over a continuous lod sweep\n"
+           f"({sweep['points']} random uv; target: bicubic in mips floor(s), floor(s)+1, lerped)", title_size=9)
+    _save(plt, fig, ax, path, SIDE_LEGEND)
 
 
 DRAW = {"rd": draw_rd, "time": draw_time, "per_mip": draw_per_mip, "lod": draw_lod}
