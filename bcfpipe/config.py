@@ -217,6 +217,10 @@ MODEL_FORMAT = 13  # 5: the fused kernel by default and the re-tuned presets (is
 # colour and normal whole at a texture's r, g(, b), so that a UsdUVTexture reads it (issue 50); 13: a layout's
 # probe and second model train no more steps than --layout neural at the profile asked (layout.fit.capped)
 
+# --pca-clip: the percentage of texels at each end of a principal component's range that the PCA
+# start and a fixed T_0 clip (0.1: the 0.1st..99.9th percentiles span the feature range)
+DEFAULT_PCA_CLIP = 0.1
+
 # How phase 1 starts: "random" as the paper does, or "pca" from the reference's principal
 # components with the matching linear decoder (bcfpipe/train/feature_init.py: sharper fine mips, weaker
 # coarse ones; issue #9).
@@ -236,6 +240,10 @@ class ModelConfig:
     # The first reference mip the features serve: 0 for a neural material; k > 0 in a mip-split
     # layout (issue 31), whose classic textures serve the mips below k, so steps draw s in [k, s_max].
     split: int = 0
+    # The fraction of texels clipped at each end of a principal component's range where the PCA
+    # start (or a fixed T_0) maps it onto the feature range: outliers then cost their own error,
+    # not every texel's precision (bcfpipe.train.feature_init.pca_init).
+    pca_clip: float = DEFAULT_PCA_CLIP / 100
 
     @property
     def layer_channels(self) -> int:
@@ -304,6 +312,7 @@ class TrainingOptions(Record):
     match_bc: bool = False  # with layout auto: the smallest layout whose every mip reaches BC@R
     classic: tuple[str, ...] = ()  # semantics whose channel groups stay classic BC textures (BC@R)
     t0: T0 | None = None  # None: DEFAULT_T0 of the feature format
+    pca_clip: float = DEFAULT_PCA_CLIP  # % of texels clipped at each end of a principal component's range
 
     def __post_init__(self) -> None:
         from bcfpipe.errors import InputError
@@ -364,6 +373,8 @@ class TrainingOptions(Record):
         if self.classic and self.target_psnr is not None:
             out.append("--classic fixes part of the layout against BC@R; --target-psnr sizes an all-neural "
                        "material against a PSNR: use one")
+        if not 0 <= self.pca_clip < 50:
+            out.append(f"--pca-clip must be a percentage in [0, 50), got {self.pca_clip}")
         if self.kernel not in tuple(Kernel):
             out.append(f"unknown kernel {self.kernel!r}; choose from {', '.join(k.value for k in Kernel)}")
         elif self.kernel == Kernel.FUSED and str(self.device).startswith("cuda"):
@@ -386,7 +397,7 @@ class TrainingOptions(Record):
             raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
         name, res = resolve_profile(self.profile, source_size)
         mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap,
-                         features=FeatureFormat(self.features))
+                         features=FeatureFormat(self.features), pca_clip=self.pca_clip / 100)
         fixed = self.t0_resolved == T0.PCA
         return name, TrainConfig(model=mc, preset=preset_for(self.preset, res[0], device, fixed),
                                  preset_name=self.preset,

@@ -31,7 +31,7 @@ NON_DEFAULT = {
     "threads": (2, {}), "target_psnr": (30.0, {}), "bench_data": ("bench.json", {"target_psnr": 30.0}),
     "features": ("bc6h", {}), "kernel": ("torch", {}), "layout": ("auto", {}),
     "match_bc": (True, {"layout": "auto"}), "classic": (("normal",), {}), "t0": ("trained", {}),
-    "resolution": (32, {}), "texel_density": (100.0, {}), "coverage": (False, {}),
+    "resolution": (32, {}), "texel_density": (100.0, {}), "coverage": (False, {}), "pca_clip": (0.0, {}),
 }
 #: the fields that change nothing a job trains: their effect is keyed through another field or input
 UNKEYED_FIELDS = {"threads", "bench_data", "texel_density"}
@@ -113,23 +113,25 @@ DRIVER = textwrap.dedent('''
     from bcfpipe.config import TrainingOptions
 
     training = TrainingOptions.from_json(json.loads(sys.argv[1]))
-    selection = Selection(**json.loads(sys.argv[2]))
+    selection = Selection(**{k: tuple(v) if k == "materials" else v for k, v in json.loads(sys.argv[2]).items()})
     r = build(sys.argv[3], sys.argv[4], training=training, selection=selection,
               execution=Execution(executor=sys.argv[5], cache=False, jobs=1))
     print(json.dumps([j.options.to_json() for j in r.plan.jobs]))
     sys.exit(r.exit_code)
 ''')
 
+BRICKS = "/World/Looks/Bricks"  # one material of the sample scene, with a normal map
 #: three builds give every field a non-default value (some exclude others: --target-psnr
 #: --classic, --match-bc --layout neural)
 BUILDS = [
     ({"profile": "tiny", "preset": "smoke", "hidden": 8, "signed": True, "init": "pca", "fix_nonfinite": True,
       "seed": 3, "device": "cpu", "threads": 2, "target_psnr": 10.0, "bench_data": "bench.json",
       "features": "bc6h", "kernel": "torch", "t0": "trained"},
-     {"texel_density": 40.0, "coverage": False}, {"rate"}),
-    # --classic normal fits a layout for the sets with a normal map, the others train all neural
-    ({"profile": "tiny", "preset": "smoke", "layout": "neural", "classic": ["normal"]}, {}, {"layout", "neural"}),
-    ({"profile": "tiny", "preset": "smoke", "layout": "auto", "match_bc": True}, {}, {"layout"}),
+     {"texel_density": 40.0, "coverage": False, "materials": [BRICKS]}, {"rate"}),
+    ({"profile": "tiny", "preset": "smoke", "layout": "neural", "classic": ["normal"]}, {"materials": [BRICKS], "texel_density": 40.0},
+     {"layout"}),
+    ({"profile": "tiny", "preset": "smoke", "layout": "auto", "match_bc": True, "pca_clip": 0.0},
+     {"materials": [BRICKS], "texel_density": 40.0}, {"layout"}),
 ]
 
 
@@ -167,6 +169,7 @@ def _check(runs) -> None:
                 (o["hidden"], o["seed"], o["features"], o["kernel"], o["init"], o["signed"], o["preset"], o["threads"])
             assert cfg["t0"] == (o["t0"] or ("pca" if o["features"] == "bc7" else "trained"))
             assert cfg["device"] == o["device"] == "cpu"
+            assert cfg["model"]["pca_clip"] == o["pca_clip"] / 100
             assert o["coverage"] or not rec["coverage"]  # covered: a mask where the meshes leave texels unread
             if o["resolution"] is not None:
                 assert max(rec["size"]) == o["resolution"]

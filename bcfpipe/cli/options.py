@@ -7,7 +7,7 @@ import click
 from dataclasses import fields
 
 from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout
-from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
+from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_PCA_CLIP, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
                             DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
 
 # The training options, in --help order: one per field of config.TrainingOptions, named as it (a
@@ -35,6 +35,11 @@ TRAINING_OPTIONS = (
                       "principal components, BC7-encoded once in every mode and kept while the other layers and "
                       "the MLP train around them (sharper close-ups); 'trained' (bc6h's, and the paper's) features "
                       "trained like the others."),
+    click.option("--pca-clip", "pca_clip", type=click.FloatRange(min=0, max=50, max_open=True),
+                 default=DEFAULT_PCA_CLIP, show_default=True, metavar="PERCENT",
+                 help="Where principal components start the features (--t0 pca, --init pca): the percentage of "
+                      "texels at each end of a component's range left outside the feature range (clipped). 0 "
+                      "keeps every texel's value, at a coarser step for all of them."),
     click.option("--signed", is_flag=True, help="Store features as BC6H_SF16 instead of BC6H_UF16 (bc6h only)."),
     click.option("--init", "init", type=click.Choice(list(FEATURE_INITS)), default=DEFAULT_INIT, show_default=True,
                  help="How training starts: 'random' as in the paper, or 'pca' from the texture set's principal "

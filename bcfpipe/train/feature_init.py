@@ -107,8 +107,8 @@ def pca_init(cfg: ModelConfig, mips: Sequence[torch.Tensor], biases: Sequence[fl
         for i in sorted(content):
             top = content[i][0].reshape(len(comps_of[i]), -1)
             sub = top[:, :: max(1, top.shape[1] // 65536)]
-            lo = torch.quantile(sub, 0.001, dim=1)
-            hi = torch.quantile(sub, 0.999, dim=1)
+            lo = torch.quantile(sub, cfg.pca_clip, dim=1)
+            hi = torch.quantile(sub, 1 - cfg.pca_clip, dim=1)
             scale = (F_HI - F_LO) / torch.where(hi - lo > 1e-6, hi - lo, torch.ones_like(hi))
             for k, p in enumerate(free[i]):
                 f = F_LO + (content[i][k] - lo[:, None, None]) * scale[:, None, None]
