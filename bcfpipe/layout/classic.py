@@ -71,11 +71,10 @@ def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap
     """Every group of ``ts`` encoded at ``resolution`` with its full mip chain (bench's BC@R).
     Reference mips above ``resolution`` see level 0 magnified with the material's addressing, as
     the runtime samples it (bench's baseline clamps at the edges)."""
-    from bcfpipe.texset.baselines import encode_texture_set_baseline
+    from bcfpipe.texset.baselines import encode_texture_set_shipped
 
     textures: list = []
-    decoded, _ = encode_texture_set_baseline(ts, "bc", resolution, ref_mips=ref_mips, textures=textures,
-                                             top_mips=False)
+    decoded, _ = encode_texture_set_shipped(ts, "bc", resolution, ref_mips=ref_mips, textures=textures)
     d = sum(1 for m in ref_mips if max(m.shape[:2]) > resolution)
     for k in range(d):
         decoded[k] = magnify(decoded[d], *ref_mips[k].shape[:2], wrap)

@@ -32,7 +32,8 @@ import numpy as np
 
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
-__all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline", "astcenc_path",
+__all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline",
+           "encode_texture_set_shipped", "astcenc_path",
            "pack_texture_set", "CODECS", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
 
 CODECS = ("bc", "astc")
@@ -384,9 +385,8 @@ def _bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
 
 def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | None = None, *,
                                 ref_mips: Sequence[np.ndarray] | None = None, astc_block: str = "12x12",
-                                astc_preset: str = "-thorough",
-                                textures: list | None = None,
-                                tmp_dir: str | None = None, top_mips: bool = True) -> tuple[list[np.ndarray], int]:
+                                astc_preset: str = "-thorough", textures: list | None = None,
+                                tmp_dir: str | None = None) -> tuple[list[np.ndarray], int]:
     """Compress `ts` with a classic codec; returns (decoded mips in the reference's shapes, bytes).
 
     `codec` 'bc': BC1 for colour and packed scalar textures, BC4 for a lone scalar, BC5 for
@@ -400,8 +400,21 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
     `ref_mips` may pass a precomputed `build_mip_chain(ts.data)`. With ``textures`` (codec 'bc'),
     each shipped texture is appended as (format, channel indices, [(blocks, w, h) per level]) so
     that a renderer can sample the very blocks that were measured (bcfpipe.bench.decode_cost).
-    ``top_mips=False`` leaves those d top mips None, for a caller that magnifies them itself.
     """
+    ref = list(ref_mips) if ref_mips is not None else build_mip_chain(ts.data)
+    shipped, total = encode_texture_set_shipped(ts, codec, resolution, ref_mips=ref, astc_block=astc_block,
+                                                astc_preset=astc_preset, textures=textures, tmp_dir=tmp_dir)
+    d = sum(m is None for m in shipped)
+    return [_bilinear_up(shipped[d], *ref[k].shape[:2]) for k in range(d)] + shipped[d:], total
+
+
+def encode_texture_set_shipped(ts: TextureSet, codec: str, resolution: int | None = None, *,
+                               ref_mips: Sequence[np.ndarray] | None = None, astc_block: str = "12x12",
+                               astc_preset: str = "-thorough", textures: list | None = None,
+                               tmp_dir: str | None = None) -> tuple[list[np.ndarray | None], int]:
+    """`encode_texture_set_baseline` without the magnification: the d reference mips above the
+    shipped resolution are None, for a caller that magnifies level 0 its own way
+    (bcfpipe.layout.classic, with the material's addressing)."""
     if codec not in CODECS:
         raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
     ref = list(ref_mips) if ref_mips is not None else build_mip_chain(ts.data)
@@ -440,7 +453,4 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
         for k, o in enumerate(out):
             dec_low[k][..., idx] = _from_storage(o, normal[idx])
 
-    if not top_mips:  # the caller magnifies them its own way (bcfpipe.layout.classic, with the addressing)
-        return [None] * d + dec_low, total
-    decoded = [_bilinear_up(dec_low[0], *ref[k].shape[:2]) for k in range(d)] + dec_low
-    return decoded, total
+    return [None] * d + dec_low, total
