@@ -317,11 +317,24 @@ def _stop(pool: cf.ProcessPoolExecutor) -> None:
         p.join(timeout=10)
 
 
-def _run_pool(jobs: Sequence[MaterialJob], materials_dir: Path, workers: int, threads: int,
-              devices: Sequence[str], executor: cf.Executor | None, queue,
-              progress: ProgressCallback | None,
-              cache_root: str | None) -> tuple[dict[str, JobResult], list[MaterialJob]]:
+@dataclass(frozen=True)
+class _Work:
+    """What every job of one `execute` shares: where results go, how its workers train, and where
+    they report."""
+
+    materials_dir: Path
+    threads: int
+    devices: Sequence[str]
+    queue: Any
+    progress: ProgressCallback | None
+    cache_root: str | None
+
+
+def _run_pool(jobs: Sequence[MaterialJob], work: _Work, workers: int,
+              executor: cf.Executor | None) -> tuple[dict[str, JobResult], list[MaterialJob]]:
     """Run ``jobs``; returns results and the jobs whose worker process died (to retry alone)."""
+    materials_dir, threads, devices, queue = work.materials_dir, work.threads, work.devices, work.queue
+    progress, cache_root = work.progress, work.cache_root
     results: dict[str, JobResult] = {}
     broken: list[MaterialJob] = []
     own = executor is None
@@ -403,9 +416,10 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
     try:
         queue = manager.Queue() if manager else None
         root = str(cache_root) if cache_root is not None else None
-        results, broken = _run_pool(jobs, materials_dir, workers, threads, devices, executor, queue, progress, root)
+        work = _Work(materials_dir, threads, devices, queue, progress, root)
+        results, broken = _run_pool(jobs, work, workers, executor)
         for job in broken:
-            retry, again = _run_pool([job], materials_dir, 1, threads, devices, None, queue, progress, root)
+            retry, again = _run_pool([job], work, 1, None)
             results.update(retry)
             if again:
                 results[job.name] = JobResult(job.name, Status.FAILED, "worker process died (out of memory?)",

@@ -25,8 +25,9 @@ import shutil
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.builder.executor import JobResult, _emit, _drain, _train_job, read_sources, store_entry
@@ -193,10 +194,68 @@ def _restore(saved: dict, tmp: str | None) -> None:
             time.sleep(0.2)
 
 
+def _slots(ray, device: str, threads: int, n_jobs: int) -> tuple[int, int]:
+    """(GPUs per task, tasks in flight at most) on this cluster; CUDA without GPUs is refused."""
+    gpus = 1 if device.startswith("cuda") else 0
+    resources = ray.cluster_resources()
+    if gpus and not resources.get("GPU"):  # Ray would wait for one forever
+        raise RayUnavailable("training on CUDA needs GPUs, and the Ray cluster has none; "
+                             "use --device cpu or add GPU nodes")
+    return gpus, in_flight_limit(resources, threads, gpus, n_jobs)
+
+
+@dataclass
+class _Flight:
+    """The Ray tasks of one build: each job submitted with its sources' bytes, collected when done."""
+
+    ray: Any
+    task: Any  # the remote train_task
+    queue: Any
+    device: str
+    threads: int
+    gpus: int
+    max_retries: int
+    progress: ProgressCallback | None
+    refs: dict = field(default_factory=dict)  # object ref -> job
+    results: dict = field(default_factory=dict)  # job name -> JobResult
+
+    def finish(self, job: MaterialJob, r: JobResult) -> None:
+        self.results[job.name] = r
+        _emit(self.progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
+              psnr=result_psnr(r.result), seconds=r.seconds, cache=r.cache)
+
+    def submit(self, job: MaterialJob):
+        """The job's task ref; None when its sources cannot be read (the job fails)."""
+        try:
+            src = read_sources(job)  # this job's bytes only: the driver holds at most `window` jobs' sources
+        except (OSError, WorkFailed) as exc:  # gone or saved again since the plan: this job fails
+            self.finish(job, JobResult(job.name, Status.FAILED, one_line(exc), 0.0, self.device, self.threads))
+            return None
+        paths = list(src)
+        blobs = [self.ray.put(src[p]) for p in paths]
+        ref = self.task.options(num_cpus=self.threads, num_gpus=self.gpus, max_retries=self.max_retries,
+                                retry_exceptions=False).remote(job.to_dict(), self.device, self.queue, paths, *blobs)
+        self.refs[ref] = job
+        return ref
+
+    def collect(self, ref, materials_dir, root: str | None) -> None:
+        job = self.refs[ref]
+        try:
+            raw, files = self.ray.get(ref)
+            r = _store(job, JobResult(**raw), files, materials_dir, root)
+        except Exception as exc:  # noqa: BLE001 - the task failed for good: its materials fail
+            r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, self.device, self.threads)
+        self.finish(job, r)
+
+    def cancel(self) -> None:
+        for ref, job in self.refs.items():
+            if job.name not in self.results:
+                self.ray.cancel(ref, force=True)
+
+
 def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries):
     from ray.util.queue import Queue
 
-    train_task = _remote_parts(ray)
     queue = Queue(actor_options={"num_cpus": 0})  # progress events, and one "attempt" per run of a task
     attempts: dict[str, int] = {}
 
@@ -206,33 +265,8 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
         elif progress:
             progress(ev)
     root = str(cache_root) if cache_root is not None else None
-    gpus = 1 if device.startswith("cuda") else 0
-    resources = ray.cluster_resources()
-    if gpus and not resources.get("GPU"):  # Ray would wait for one forever
-        raise RayUnavailable("training on CUDA needs GPUs, and the Ray cluster has none; "
-                             "use --device cpu or add GPU nodes")
-    window = in_flight_limit(resources, threads, gpus, len(jobs))
-    refs: dict = {}
-    results: dict[str, JobResult] = {}
-
-    def finish(job: MaterialJob, r: JobResult) -> None:
-        results[job.name] = r
-        _emit(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
-              psnr=result_psnr(r.result), seconds=r.seconds, cache=r.cache)
-
-    def submit(job: MaterialJob):
-        try:
-            src = read_sources(job)  # this job's bytes only: the driver holds at most `window` jobs' sources
-        except (OSError, WorkFailed) as exc:  # gone or saved again since the plan: this job fails
-            finish(job, JobResult(job.name, Status.FAILED, one_line(exc), 0.0, device, threads))
-            return None
-        paths = list(src)
-        blobs = [ray.put(src[p]) for p in paths]
-        ref = train_task.options(num_cpus=threads, num_gpus=gpus, max_retries=max_retries,
-                                 retry_exceptions=False).remote(job.to_dict(), device, queue, paths, *blobs)
-        refs[ref] = job
-        return ref
-
+    gpus, window = _slots(ray, device, threads, len(jobs))
+    flight = _Flight(ray, _remote_parts(ray), queue, device, threads, gpus, max_retries, progress)
     try:
         for job in jobs:
             _emit(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
@@ -241,7 +275,7 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
 
         def fill() -> None:
             while waiting and len(pending) < window:
-                ref = submit(waiting.popleft())
+                ref = flight.submit(waiting.popleft())
                 if ref is not None:
                     pending.append(ref)
 
@@ -250,19 +284,11 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
             ready, pending = ray.wait(pending, num_returns=1, timeout=0.2)
             _drain(queue, forward)
             for ref in ready:
-                job = refs[ref]
-                try:
-                    raw, files = ray.get(ref)
-                    r = _store(job, JobResult(**raw), files, materials_dir, root)
-                except Exception as exc:  # noqa: BLE001 - the task failed for good: its materials fail
-                    r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, device, threads)
-                finish(job, r)
+                flight.collect(ref, materials_dir, root)
             fill()
         _drain(queue, forward)
     except KeyboardInterrupt:  # cancel what is still queued or running; the build then stops cleanly
-        for ref, job in refs.items():
-            if job.name not in results:
-                ray.cancel(ref, force=True)
+        flight.cancel()
         raise
-    return {j.name: results[j.name] for j in jobs}, attempts
+    return {j.name: flight.results[j.name] for j in jobs}, attempts
 

@@ -8,7 +8,7 @@ import click
 
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import variant_option
-from bcfpipe.config import DEFAULT_DEVICE, DEFAULT_SEED, DEFAULT_THREADS
+from bcfpipe.config import DEFAULT_DEVICE, DEFAULT_SEED, DEFAULT_THREADS, PRESETS, PROFILE_NAMES
 from bcfpipe.errors import EXIT_FAILED, InputError
 
 __all__ = ["bench"]
@@ -37,6 +37,52 @@ def _size(text: str) -> tuple[int, int]:
     if w < 1 or h < 1:
         raise InputError(f"--decode-size must be positive, got {text!r}")
     return w, h
+
+
+def _codecs(baselines: str) -> tuple[str, ...]:
+    """--baselines, checked; astc without astcenc exits 2."""
+    from bcfpipe.texset.baselines import CODECS, astcenc_path
+
+    codecs = _list(baselines, "--baselines", CODECS)
+    if "astc" in codecs and astcenc_path() is None:
+        raise InputError("astcenc not found: install it (apt-get install astcenc), set $ASTCENC, "
+                         "or pass --baselines bc")
+    return codecs
+
+
+def _astc_blocks(text: str) -> tuple[str, ...]:
+    """--astc-blocks, each a block size astcenc takes."""
+    from bcfpipe.texset.baselines import parse_block
+
+    blocks = _list(text, "--astc-blocks")
+    for b in blocks:
+        try:
+            parse_block(b)
+        except ValueError as e:
+            raise InputError(f"--astc-blocks: {e}") from None
+    return blocks
+
+
+def _sets(inputs, materials, variants, name):
+    """The texture sets to measure: a scene's modelled materials, or one set of texture specs."""
+    from bcfpipe.bench.sets import from_scene, from_specs
+
+    if len(inputs) == 1 and inputs[0].lower().endswith(SCENE_SUFFIXES) and "=" not in inputs[0]:
+        return from_scene(inputs[0], materials, variants)
+    if materials:
+        raise InputError("--material needs a SCENE, not texture specs")
+    return [from_specs(inputs, name)]
+
+
+def _redraw(inputs, output: Path, as_json: bool) -> None:
+    """--redraw: the plots, HTML and markdown of ``output`` again, from its bench.json."""
+    from bcfpipe.bench import report as R
+
+    if inputs:
+        raise InputError("--redraw takes no inputs: it redraws OUTPUT from its bench.json")
+    data = R.read_report(output)
+    R.write_report(data, output)
+    click.echo(json.dumps(data, indent=1) if as_json else f"redrew {output / R.HTML_FILE}")
 
 
 @click.command("bench", cls=Command)
@@ -95,42 +141,21 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
     if output is None:
         raise InputError("missing -o/--output REPORT_DIR")
     if redraw:
-        if inputs:
-            raise InputError("--redraw takes no inputs: it redraws OUTPUT from its bench.json")
-        data = R.read_report(output)
-        R.write_report(data, output)
-        click.echo(json.dumps(data, indent=1) if as_json else f"redrew {output / R.HTML_FILE}")
+        _redraw(inputs, output, as_json)
         return
     if not inputs:
         raise InputError("give a SCENE or texture specs (SEMANTIC=FILE[:CHANNELS]); see --help")
     if output.exists() and any(output.iterdir()) and not force:
         raise InputError(f"{output} is not empty; pass --force to write into it")
-    from bcfpipe.texset.baselines import CODECS, astcenc_path, parse_block
     from bcfpipe.bench.run import BenchOptions, run_bench
-    from bcfpipe.bench.sets import from_scene, from_specs
-    from bcfpipe.config import PRESETS, PROFILE_NAMES
 
-    codecs = _list(baselines, "--baselines", CODECS)
-    if "astc" in codecs and astcenc_path() is None:
-        raise InputError("astcenc not found: install it (apt-get install astcenc), set $ASTCENC, "
-                         "or pass --baselines bc")
     opts = BenchOptions(profiles=_list(profiles, "--profiles", PROFILE_NAMES),
-                        presets=_list(presets, "--presets", tuple(PRESETS)), codecs=codecs,
+                        presets=_list(presets, "--presets", tuple(PRESETS)), codecs=_codecs(baselines),
                         features=_list(features, "--features", ("bc6h", "bc7")),
-                        astc_blocks=_list(astc_blocks, "--astc-blocks"), shifts=(0,) if no_half else (0, 1),
+                        astc_blocks=_astc_blocks(astc_blocks), shifts=(0,) if no_half else (0, 1),
                         seed=seed, device=device, threads=threads, decode_size=_size(decode_size),
                         decode_frames=decode_frames, keep_materials=keep_materials)
-    for b in opts.astc_blocks:
-        try:
-            parse_block(b)
-        except ValueError as e:
-            raise InputError(f"--astc-blocks: {e}") from None
-    if len(inputs) == 1 and inputs[0].lower().endswith(SCENE_SUFFIXES) and "=" not in inputs[0]:
-        sets = from_scene(inputs[0], materials, variants)
-    else:
-        if materials:
-            raise InputError("--material needs a SCENE, not texture specs")
-        sets = [from_specs(inputs, name)]
+    sets = _sets(inputs, materials, variants, name)
     quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
     try:
         data = run_bench(sets, opts, output, quiet=quiet)
