@@ -28,7 +28,7 @@ from bcfpipe.bc6h import emulate  # noqa: E402
 from bcfpipe.bc6h.encode import encode_params  # noqa: E402
 from bcfpipe.config import PROFILES, ModelConfig  # noqa: E402
 from bcfpipe.model.decoder import mlp_raw  # noqa: E402
-from bcfpipe.model.features import endpoint_value  # noqa: E402
+from bcfpipe.model.features import BlockParams, Layers, endpoint_value  # noqa: E402
 from bcfpipe.texset.reference import ReferencePyramid, random_batch, sample_reference  # noqa: E402
 from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
 
@@ -39,17 +39,18 @@ def _sync(dev):
 
 
 def build_state(ts, mc, dev, gen):
-    free = M.init_free(mc, gen, dev)
-    blocks = []
+    """Free features (noise), their BC6H blocks (bcfpipe's encoder at its default settings) and the
+    blocks' quantization-aware decoded levels: the three phases' states, as `bcfpipe.model.features.Layers`."""
+    free = Layers.of(M.init_free(mc, gen, dev))
+
+    def encode(p, i, k):
+        e, idx, part = encode_params(endpoint_value(p, mc.signed).permute(1, 2, 0).cpu().numpy())
+        return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=dev).requires_grad_(True),
+                           (torch.as_tensor(idx, dtype=torch.float32, device=dev) / 7).requires_grad_(True),
+                           emulate.partition_mask(part, device=dev), part)
+
     with torch.no_grad():
-        for mips in free:
-            layer = []
-            for p in mips:
-                e, idx, part = encode_params(endpoint_value(p, mc.signed).permute(1, 2, 0).cpu().numpy())
-                layer.append({"endpoints": torch.as_tensor(e, dtype=torch.float32, device=dev).requires_grad_(True),
-                              "x": (torch.as_tensor(idx, dtype=torch.float32, device=dev) / 7).requires_grad_(True),
-                              "mask": emulate.partition_mask(part, device=dev), "partition": part})
-            blocks.append(layer)
+        blocks = free.map(encode)
     levels = [[M.block_level_fn(blocks, mc, True)(i, k).detach() for k in range(n)] for i, n in enumerate(mc.mip_counts)]
     return free, blocks, levels
 
@@ -57,9 +58,9 @@ def build_state(ts, mc, dev, gen):
 def time_steps(phase, state, mlp, ref, mc, biases, batch, steps, taps, dev, gen):
     free, blocks, levels = state
     if phase == "warmup":
-        params, lvl, tap = [t for m in free for t in m], M.free_level_fn(free, mc), M.free_tap_fn(free, mc)
+        params, lvl, tap = free.trained_levels(), M.free_level_fn(free, mc), M.free_tap_fn(free, mc)
     elif phase == "constrained":
-        params = [t for l in blocks for b in l for t in (b["endpoints"], b["x"])]
+        params = [t for b in blocks.trained_levels() for t in (b.endpoints, b.x)]
         lvl, tap = M.block_level_fn(blocks, mc), M.block_tap_fn(blocks, mc)
     else:
         params, lvl, tap = [], M.cached_level_fn(levels), None
