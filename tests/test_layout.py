@@ -196,3 +196,42 @@ def test_scan_and_model_have_no_import_cycle():
     assert graph["bcfpipe.scan.requirements"], "the graph sees imports"
     cycles = _cycles(graph)
     assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
+
+
+#: the size limits issue 51 set: a function in these packages reads on one screen
+SHORT_PACKAGES, MAX_LINES, MAX_PARAMETERS = ("layout", "builder", "cli"), 60, 8
+
+
+def _is_click_command(fn) -> bool:
+    """Decorated by click (its parameters are the command's options, one per flag)."""
+    import ast
+
+    def name(d):
+        d = d.func if isinstance(d, ast.Call) else d
+        return d.attr if isinstance(d, ast.Attribute) else getattr(d, "id", "")
+    return any(name(d) in ("command", "option", "argument", "pass_context") or name(d).endswith("_options")
+               for d in fn.decorator_list)
+
+
+def _functions():
+    """(module path, function node, lines, parameters) for every function under bcfpipe/."""
+    import ast
+
+    for path in sorted((REPO / "bcfpipe").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                a = node.args
+                params = [*a.posonlyargs, *a.args, *a.kwonlyargs, *filter(None, (a.vararg, a.kwarg))]
+                n = len([p for p in params if p.arg not in ("self", "cls")])
+                yield path.relative_to(REPO / "bcfpipe"), node, node.end_lineno - node.lineno + 1, n
+
+
+def test_functions_stay_short_and_take_few_parameters():
+    """Every function in layout/, builder/ and cli/ is at most 60 lines; no function outside
+    train/fused/ (the kernels' argument lists) and the click commands takes more than 8
+    parameters: more travels as a record (issue 51)."""
+    long = [f"{p}:{fn.lineno} {fn.name} ({n} lines)" for p, fn, n, _ in _functions()
+            if p.parts[0] in SHORT_PACKAGES and n > MAX_LINES]
+    wide = [f"{p}:{fn.lineno} {fn.name} ({k} parameters)" for p, fn, _, k in _functions()
+            if k > MAX_PARAMETERS and p.parts[:2] != ("train", "fused") and not _is_click_command(fn)]
+    assert not long and not wide, "\n".join(long + wide)
