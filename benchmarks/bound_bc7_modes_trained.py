@@ -77,6 +77,10 @@ class _StraightThrough:
         self.fused.adam(lr)
 
 
+def _flat(layers):
+    return [t for mips in layers for t in mips]
+
+
 def ste(ts, cfg, keep, ispc_levels, every, T, M, codec_of):
     """The ``ISPC in the loop`` row: (label, (mips, channels) MSE, seconds)."""
     import torch
@@ -88,12 +92,12 @@ def ste(ts, cfg, keep, ispc_levels, every, T, M, codec_of):
         mc = run.cfg.model
         codec = codec_of(mc)
         lo, hi = codec.param_range(mc)
-        fused = T._fused_step(run, free)
-        params = T._flat(free)
+        fused = run.backend.free_step(free)
+        params = free.trained_levels()
 
         def offsets():
             dec = ispc_levels(run, free)
-            return [d.mul(255.0).sub_(p.detach().clamp(lo, hi)) for d, p in zip(T._flat(dec), params)]
+            return [d.mul(255.0).sub_(p.detach().clamp(lo, hi)) for d, p in zip(_flat(dec), params)]
 
         st = _StraightThrough(fused, params, offsets, every)
 
@@ -101,8 +105,8 @@ def ste(ts, cfg, keep, ispc_levels, every, T, M, codec_of):
             for t in params:
                 t.clamp_(lo, hi)
 
-        T._run_phase(run, "constrained", M.free_level_fn(free, mc), params,
-                     T._scaled(run.cfg.preset.constrained, codec, "constrained"), project=project, fused=st)
+        T._run_phase(run, "constrained", st, params, T._scaled(run.cfg.preset.constrained, codec, "constrained"),
+                     project=project)
         keep.update(ispc=ispc_levels(run, free), encodes=st.encodes)
         return free
 
@@ -148,7 +152,8 @@ def main() -> None:
     from bcfpipe.train import trainer as T
 
     ts = load_texture_set(specs(args.set))
-    opts = TrainingOptions(profile=args.profile, preset=args.preset, device="cpu", seed=0, threads=1, features="bc7")
+    opts = TrainingOptions(profile=args.profile, preset=args.preset, device="cpu", seed=0, threads=1, features="bc7",
+                           t0="trained")  # every layer trained from noise, as when this was measured (no fixed T_0)
     _, cfg = make_config(ts, opts)
     p = cfg.preset
     print(f"machine: {machine()}; {args.set}, {args.profile}, {args.preset}, bc7: warm-up {p.warmup.steps} + "
@@ -214,7 +219,7 @@ def main() -> None:
         for k, v in keep["mlp0"].items():
             run.mlp[k].copy_(v)
     t0 = time.perf_counter()
-    T._run_phase(run, "finetune", M.cached_level_fn(keep["exact6"]), [], fine)
+    T._run_phase(run, "finetune", run.backend.cached_step(keep["exact6"]), [], fine)
     rows.append(("free + mode 6 (bcfpipe's encoder)", T.float_model_mse(
         M.cached_level_fn(keep["exact6"]), run.mlp, cfg.model, kinds, run.biases, run.ref), time.perf_counter() - t0))
 
