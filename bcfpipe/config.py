@@ -16,7 +16,8 @@ from typing import Callable, Iterator
 from bcfpipe.formats.record import Record
 from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout
 
-N_LAYERS = 4
+N_LAYERS = 4  # the profile's layers T_0..T_3; a model has t0_layers - 1 more at T_0 (ModelConfig.n_layers)
+MAX_T0_LAYERS = 3  # layers of principal components a fixed T_0 may hold (ModelConfig.t0_layers)
 MIN_LEVEL = 4  # the smallest mip is one 4x4 BC6H block
 
 PAPER_PROFILES: dict[str, tuple[int, int, int, int]] = {
@@ -244,18 +245,41 @@ class ModelConfig:
     # start (or a fixed T_0) maps it onto the feature range: outliers then cost their own error,
     # not every texel's precision (bcfpipe.train.feature_init.pca_init).
     pca_clip: float = DEFAULT_PCA_CLIP / 100
+    # Layers at T_0's resolution and lod bias (issue 52): with a fixed T_0 (--t0 pca) layer j < t0_layers
+    # holds principal components 4j..4j+3; the model's layers are these, then T_1..T_3 (`profile_slots`).
+    t0_layers: int = 1
+
+    def __post_init__(self) -> None:
+        if not 1 <= int(self.t0_layers) <= MAX_T0_LAYERS:
+            raise ValueError(f"t0_layers must be 1..{MAX_T0_LAYERS}, got {self.t0_layers}")
 
     @property
     def layer_channels(self) -> int:
         return LAYER_CHANNELS_OF[self.features]
 
     @property
+    def profile_slots(self) -> tuple[int, ...]:
+        """Per model layer, the profile's layer it stands at (its resolution and lod bias): the
+        T_0 layers first, then T_1..T_3."""
+        return (0,) * self.t0_layers + tuple(range(1, len(self.resolutions)))
+
+    @property
+    def n_layers(self) -> int:
+        return len(self.profile_slots)
+
+    @property
+    def layer_resolutions(self) -> tuple[int, ...]:
+        """Each model layer's resolution (``resolutions`` is the profile's, T_0..T_3)."""
+        return tuple(self.resolutions[j] for j in self.profile_slots)
+
+    @property
     def n_inputs(self) -> int:
-        return N_LAYERS * self.layer_channels
+        return self.n_layers * self.layer_channels
 
     @property
     def mip_counts(self) -> tuple[int, ...]:
-        return tuple(mip_count(r) for r in self.resolutions)
+        """Each model layer's mip count."""
+        return tuple(mip_count(r) for r in self.layer_resolutions)
 
 
 @dataclass(frozen=True)

@@ -2,9 +2,14 @@
 
 Folder layout (``material.json`` describes it completely for consumers that do not use bcfpipe):
   T0.dds .. T3.dds   mipmapped feature layers, DX10 header: BC6H mode 11110 blocks (3 channels), or
-                     BC7 mode 6 blocks (4 channels) with --features bc7
+                     BC7 mode 6 blocks (4 channels) with --features bc7; a fixed T_0 (--t0 pca) in any
+                     BC7 mode. A T_0 of two or three layers of principal components (ModelConfig.t0_layers,
+                     issue 52) adds T0b.dds (components 4-7) and T0c.dds (8-11), at T_0's resolution and
+                     lod bias, before T1.dds: the MLP reads T0, T0b(, T0c), T1, T2, T3 in that order, as
+                     material.json's ``layers`` list them (its ``layers[i].file`` is authoritative; format 6)
   weights.bin        the decoder as one BCFW fp16 record (v1; v2 with HDR channels; bcfpipe.model.decoder)
-  decoder.onnx       the decoder with output post-processing: features (N, 12 or 16) -> channels (N, c_out)
+  decoder.onnx       the decoder with output post-processing: features (N, n_in) -> channels (N, c_out),
+                     n_in = 4 (BC7) or 3 (BC6H) per layer
   material.json      everything needed to decode (bcfpipe.formats.material, schemas/material.schema.json)
 """
 from __future__ import annotations
@@ -24,7 +29,7 @@ from bcfpipe.bc6h import decode as bc6h_decode
 from bcfpipe.bc6h import mode10
 from bcfpipe.bc7 import decode as bc7_decode
 from bcfpipe.bc7.mode6 import DESCRIPTION as BC7_MODE
-from bcfpipe.config import N_LAYERS, ModelConfig
+from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
 from bcfpipe.model.features import codec_of
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_bytes, to_bytes, to_onnx
@@ -61,8 +66,9 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
     packed = tm.layers.each(lambda lv: (lv.blocks, lv.size, lv.size),  # a fixed level's blocks as encoded
                             lambda q, i, k: (codec.pack(q, mc), q.size, q.size))
     for i, levels in enumerate(packed):
-        dds.write(out / mf.layer_file(i), levels, signed=mc.signed, dxgi_format=codec.dxgi_format(mc))
-        layers.append(mf.Layer(mf.layer_file(i), mc.resolutions[i], len(levels), tm.lod_biases[i], codec.channels,
+        name = mf.layer_file(i, mc.t0_layers)
+        dds.write(out / name, levels, signed=mc.signed, dxgi_format=codec.dxgi_format(mc))
+        layers.append(mf.Layer(name, mc.layer_resolutions[i], len(levels), tm.lod_biases[i], codec.channels,
                                mf.ANY_BC7_MODE if i in tm.layers.fixed else None))  # a fixed T_0 is in any BC7 mode
     bc7 = FeatureFormat(mc.features) == FeatureFormat.BC7
     record = to_bytes(tm.mlp)
@@ -76,7 +82,8 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
         sampling=mf.Sampling(mc.wrap),
         reference=mf.Reference(ts.width, ts.height, max(ts.width, ts.height).bit_length()),
         mlp=mf.Mlp(mf.WEIGHTS, 0, len(record), n_in, hidden, n_out, "relu", "fp16", f"BCFW v{tm.mlp.version}",
-                   tuple(f"T{i}.{c}" for i in range(N_LAYERS) for c in "rgba"[:codec.channels]),
+                   tuple(f"{mf.layer_name(i, mc.t0_layers)}.{c}" for i in range(mc.n_layers)
+                         for c in "rgba"[:codec.channels]),
                    tuple(tm.mlp.out_scale.tolist()), tuple(tm.mlp.out_bias.tolist())),
         outputs=output_channels(ts.channels),
         onnx=mf.Onnx(mf.ONNX, ONNX_INPUT, ONNX_OUTPUT, 17),
@@ -141,7 +148,8 @@ def load(folder: str | os.PathLike) -> ExportedMaterial:
 
 
 def sample_exported_features(em: ExportedMaterial, uv: np.ndarray, s: float | np.ndarray) -> np.ndarray:
-    """Feature vectors (N, 12 or 16) sampled from the decoded DDS levels with the hardware conventions."""
+    """Feature vectors (N, n_in) sampled from the decoded DDS levels with the hardware conventions:
+    every layer material.json lists, in its order (3 or 4 channels each)."""
     levels = [[torch.from_numpy(np.ascontiguousarray(np.moveaxis(l, -1, 0))) for l in layer] for layer in em.levels]
     lvl = M.cached_level_fn(levels)
     s_t = torch.as_tensor(s, dtype=torch.float32) if isinstance(s, np.ndarray) else float(s)

@@ -15,21 +15,34 @@ from bcfpipe.formats.vocabulary import Source
 from bcfpipe.formats.record import FormatError, Record, optional, read as read_record
 
 FORMAT = "bcfpipe-material"
-FORMAT_VERSION = 5  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
-# 5: a layer's "blocks" (a T_0 of principal components in any BC7 mode, issue 29); versions 2-4 read as before.
-# A material with neither is written as version 3, byte for byte as before, so that cached and rebuilt
-# materials stay identical and readers of version 3 read them; with a split alone, as version 4.
+FORMAT_VERSION = 6  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
+# 5: a layer's "blocks" (a T_0 of principal components in any BC7 mode, issue 29); 6: more than four layers
+# (a T_0 of two or three layers of components, issue 52: T0.dds, T0b.dds, T0c.dds, then T1..T3); versions 2-5
+# read as before. A material is written as the lowest version its contents need, byte for byte as before:
+# four layers none of which is in any mode, as version 3 (with a split, 4); four layers, one of them in any
+# mode, as version 5; so readers of those versions read what they read before.
 NO_SPLIT_VERSION = 3
 SPLIT_VERSION = 4
+ANY_MODE_VERSION = 5
+PROFILE_LAYERS = 4  # T_0..T_3: a material with more layers is written as FORMAT_VERSION
 ANY_BC7_MODE = "any BC7 mode"  # Layer.blocks of a layer encoded once by a full BC7 encoder
 FILE = "material.json"
 WEIGHTS = "weights.bin"
 ONNX = "decoder.onnx"
 
 
-def layer_file(i: int) -> str:
-    """File name of feature texture T_i."""
-    return f"T{i}.dds"
+def layer_name(i: int, t0_layers: int = 1) -> str:
+    """Name of the model's feature layer i when T_0 has ``t0_layers`` layers: T_0's are T0, T0b,
+    T0c, then the profile's T1..T3; with one T_0 layer, layer i is Ti. The MLP input order and the
+    DDS files use it; material.json's ``layers[i].file`` is what a reader goes by."""
+    if i < t0_layers:
+        return "T0" if i == 0 else f"T0{chr(ord('a') + i)}"
+    return f"T{i - t0_layers + 1}"
+
+
+def layer_file(i: int, t0_layers: int = 1) -> str:
+    """File name of the model's feature layer i (`layer_name`)."""
+    return f"{layer_name(i, t0_layers)}.dds"
 
 
 def classic_file(i: int) -> str:
@@ -39,8 +52,10 @@ def classic_file(i: int) -> str:
 
 @dataclass(frozen=True)
 class Layer(Record):
-    """Feature texture T_i: a mipmapped BC6H or BC7 DDS of ``resolution``², sampled at s +
-    ``lod_bias``; its first ``channels`` channels are features (3 for BC6H, 4 for BC7)."""
+    """One feature texture: a mipmapped BC6H or BC7 DDS of ``resolution``², sampled at s +
+    ``lod_bias``; its first ``channels`` channels are features (3 for BC6H, 4 for BC7), the next
+    ones in the MLP's input after the previous layers'. T_0..T_3, or with a T_0 of several layers
+    of principal components (version 6) T0, T0b(, T0c), T1..T3 (`layer_name`)."""
 
     file: str
     resolution: int
@@ -199,8 +214,9 @@ class MaterialFile(Record):
     def __post_init__(self) -> None:
         # the version this record is written as (FORMAT_VERSION's note)
         any_mode = any(layer.blocks is not None for layer in self.layers)
-        object.__setattr__(self, "format_version", FORMAT_VERSION if any_mode else
-                           SPLIT_VERSION if self.split is not None else NO_SPLIT_VERSION)
+        object.__setattr__(self, "format_version", FORMAT_VERSION if len(self.layers) > PROFILE_LAYERS else
+                           ANY_MODE_VERSION if any_mode else SPLIT_VERSION if self.split is not None else
+                           NO_SPLIT_VERSION)
         neural = any(o.source != Source.CLASSIC for o in self.outputs)
         if neural and (self.bc6h is None) == (self.bc7 is None):
             raise FormatError("material.json needs exactly one of 'bc6h' and 'bc7' (the feature format)")
@@ -279,7 +295,7 @@ def _version() -> str:
 def read(folder: str | os.PathLike) -> MaterialFile:
     """``folder/material.json``; a missing, foreign or malformed file raises FormatError."""
     # v2 (all from the MLP) reads as v3; v3, a material without a split, stays v3 as written
-    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3, 4),
+    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3, 4, 5),
                        upgrade=lambda data: dict(data, format_version=NO_SPLIT_VERSION))
 
 

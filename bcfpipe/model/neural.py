@@ -51,6 +51,13 @@ def lod_biases(resolutions: Sequence[int], ref_width: int, ref_height: int) -> t
     return tuple(b - min(i, gap) for i, b in enumerate(natural))
 
 
+def layer_lod_biases(cfg: ModelConfig, ref_width: int, ref_height: int) -> tuple[float, ...]:
+    """Each model layer's lod bias: its profile layer's (:func:`lod_biases`), so every T_0 layer
+    has T_0's (ModelConfig.profile_slots)."""
+    profile = lod_biases(cfg.resolutions, ref_width, ref_height)
+    return tuple(profile[j] for j in cfg.profile_slots)
+
+
 def blocks_to_image(texels: torch.Tensor, width: int, height: int) -> torch.Tensor:
     """(n, 16, C) block texels in row-major block order -> (C, H, W)."""
     by, bx, c = height // 4, width // 4, texels.shape[-1]
@@ -63,7 +70,7 @@ def init_free(cfg: ModelConfig, gen: torch.Generator, device: torch.device) -> l
     codec = codec_of(cfg)
     lo, hi = codec.init_range(cfg)
     layers = []
-    for res, n in zip(cfg.resolutions, cfg.mip_counts):
+    for res, n in zip(cfg.layer_resolutions, cfg.mip_counts):
         mips = []
         for k in range(n):
             r = res >> k
@@ -113,7 +120,7 @@ def block_tap_fn(blocks: Layers[BlockParams], cfg: ModelConfig,
     codec = codec_of(cfg)
 
     def trained(b: BlockParams, i: int, k: int):
-        r = max(4, cfg.resolutions[i] >> k)
+        r = max(4, cfg.layer_resolutions[i] >> k)
 
         def texels(ids: torch.Tensor) -> torch.Tensor:
             y, xx = ids // r, ids % r
@@ -141,7 +148,7 @@ def block_level_fn(blocks: Layers[BlockParams], cfg: ModelConfig,
     codec = codec_of(cfg)
 
     def trained(b: BlockParams, i: int, k: int) -> torch.Tensor:
-        r = max(4, cfg.resolutions[i] >> k)
+        r = max(4, cfg.layer_resolutions[i] >> k)
         return blocks_to_image(codec.decode_blocks(b, cfg, q()), r, r)
     return blocks.lookup(fixed_value, trained)
 
@@ -166,7 +173,7 @@ def sample_features_taps(tap_fn: TapFn, sizes: Sequence[Sequence[int]], biases: 
 
 
 def level_sizes(cfg: ModelConfig) -> list[list[int]]:
-    return [[max(4, r >> k) for k in range(n)] for r, n in zip(cfg.resolutions, cfg.mip_counts)]
+    return [[max(4, r >> k) for k in range(n)] for r, n in zip(cfg.layer_resolutions, cfg.mip_counts)]
 
 
 def sample_features(level_fn: LevelFn, mip_counts: Sequence[int], biases: Sequence[float],

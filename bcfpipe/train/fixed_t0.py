@@ -8,7 +8,7 @@ features lose that: free features from noise are not block-friendly (their ISPC 
 mip 1), and mode 6, the one mode the trainer emulates, holds one line per block.
 
 So T_0 is encoded first and kept: each of its mips holds the components at the lod the sampler
-reads it at (:func:`bcfpipe.train.feature_init.pca_init`, layer 0 only), ISPC encodes them (the
+reads it at (:func:`bcfpipe.train.feature_init.pca_init`, the T_0 layers only), ISPC encodes them (the
 settings of the classic BC7 textures, `bcfpipe.texset.baselines.BC7_SETTINGS`), and training
 samples the exact decoded values (`FixedLevel`) from its first step. T_1..T_3 and the MLP train as
 the paper's do (random start, warm-up, mode-6 constrained phase, fine-tune), around it; the MLP
@@ -21,23 +21,48 @@ import numpy as np
 import torch
 
 from bcfpipe.config import ModelConfig
+from bcfpipe.errors import InputError
 from bcfpipe.model import neural as M
 from bcfpipe.model.features import FixedLevel, codec_of
 from bcfpipe.train.feature_init import pca_init
 
-__all__ = ["pca_t0", "encoded_levels"]
+__all__ = ["pca_t0", "encoded_levels", "t0_layers_problem"]
 
 
 def pca_t0(mc: ModelConfig, ref_mips, biases, free: list[list[torch.Tensor]],
-           mlp: dict[str, torch.Tensor]) -> list[FixedLevel]:
-    """T_0's levels as `FixedLevel` (components, ISPC's BC7 blocks, their decoded values); sets
-    ``mlp`` to the components' linear decoder (in place). ``free[0]`` is overwritten on the way."""
-    pca_init(mc, ref_mips, biases, free, mlp, layers=(0,))
+           mlp: dict[str, torch.Tensor]) -> dict[int, list[FixedLevel]]:
+    """T_0's layers (the model's first ``mc.t0_layers``; layer j holds components 4j..4j+3) as
+    `FixedLevel`s (components, ISPC's BC7 blocks, their decoded values), by layer; sets ``mlp`` to
+    the components' linear decoder (in place). Their ``free`` layers are overwritten on the way.
+    A set whose components do not reach a layer is refused (`t0_layers_problem`)."""
+    problem = t0_layers_problem(mc.t0_layers, ref_mips[0].shape[0])
+    if problem:
+        raise InputError(problem)
+    layers = tuple(range(mc.t0_layers))
+    pca_init(mc, ref_mips, biases, free, mlp, layers=layers)
     codec = codec_of(mc)
     lo, hi = codec.param_range(mc)
-    with torch.no_grad():
-        levels = [codec.value(p.detach().clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy() for p in free[0]]
-    return encoded_levels(levels, free[0][0].device)
+    with torch.no_grad():  # a later layer's channels past the set's components: constant, not the random start
+        for i in layers[1:]:
+            for p in free[i]:
+                p[max(0, ref_mips[0].shape[0] - codec.channels * i):] = (lo + hi) / 2
+    out = {}
+    for i in layers:
+        with torch.no_grad():
+            levels = [codec.value(p.detach().clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy() for p in free[i]]
+        out[i] = encoded_levels(levels, free[i][0].device)
+    return out
+
+
+def t0_layers_problem(t0_layers: int, channels: int) -> str | None:
+    """Why a set of ``channels`` channels cannot fill ``t0_layers`` layers of principal components
+    (None when it can): layer j holds components 4j..4j+3, so each layer needs at least one of its
+    own; a layer of nothing but the constant start would cost its bytes for no feature."""
+    need = 4 * (t0_layers - 1) + 1
+    if channels < need:
+        return (f"a T_0 of {t0_layers} layers needs at least {need} channels (one principal component in its "
+                f"last layer); this set has {channels}")
+    return None
 
 
 def encoded_levels(levels, device="cpu") -> list[FixedLevel]:

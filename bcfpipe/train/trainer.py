@@ -30,6 +30,7 @@ import torch
 
 from bcfpipe.model import neural as M
 from bcfpipe.config import ModelConfig, TrainConfig
+from bcfpipe.errors import InputError
 from bcfpipe.formats.vocabulary import T0
 from bcfpipe.model.features import BlockParams, FixedLevel, Layers, QuantizedLevel, codec_of
 from bcfpipe.model.decoder import MlpWeights
@@ -310,13 +311,14 @@ def _report(run: _Run, phase: str, step: int, steps: int, eta: float) -> None:
 
 def _warmup(run: _Run) -> Layers[torch.Tensor]:
     """Phase 1: unconstrained features (from noise, or the PCA start) and the MLP; a T_0 of
-    principal components (--t0 pca) is encoded here, once, and kept apart as a fixed layer."""
+    principal components (--t0 pca, ``t0_layers`` layers) is encoded here, once, and kept apart as
+    fixed layers."""
     mc = run.cfg.model
     layers = M.init_free(mc, run.gen, run.device)
     fixed: dict[int, list[FixedLevel]] = {}
     if run.cfg.t0 == T0.PCA:
         t0 = time.perf_counter()
-        fixed[0] = pca_t0(mc, run.ref.mips, run.biases, layers, run.mlp)
+        fixed = pca_t0(mc, run.ref.mips, run.biases, layers, run.mlp)
         run.seconds["t0"] = time.perf_counter() - t0
     elif run.cfg.feature_init == "pca":
         pca_init(mc, run.ref.mips, run.biases, layers, run.mlp)
@@ -422,7 +424,7 @@ def _quantize(run: _Run, blocks: Layers[BlockParams]) -> tuple[Layers[BlockLevel
     codec = codec_of(mc)
     t0 = time.perf_counter()
     with torch.no_grad():
-        layers = blocks.map(lambda b, i, k: codec.quantize(b, mc, max(4, mc.resolutions[i] >> k)))
+        layers = blocks.map(lambda b, i, k: codec.quantize(b, mc, max(4, mc.layer_resolutions[i] >> k)))
         exact = exact_levels(layers, mc, run.device)
     run.seconds["quantize"] = time.perf_counter() - t0
     return layers, exact
@@ -434,6 +436,8 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     constrained, quantize, MLP fine-tune. ``coverage``: a (H, W) bool mask of the texels the
     scene reads (bcfpipe.scan.coverage); steps then draw their samples there only, which weights
     the loss by the mask. ``progress`` is called as ``pace`` says, and as each phase starts."""
+    if cfg.model.t0_layers > 1 and cfg.t0 != T0.PCA:
+        raise InputError(f"a T_0 of {cfg.model.t0_layers} layers holds fixed principal components: use it with --t0 pca")
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)
@@ -442,7 +446,7 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     gains = encoding.gains(ts.channels)
     ref = ReferencePyramid.from_mips(encoding.encode_levels(build_mip_chain(ts.data), gains), device)
     c = ts.num_channels
-    biases = M.lod_biases(mc.resolutions, ts.width, ts.height)
+    biases = M.layer_lod_biases(mc, ts.width, ts.height)
     kinds = tuple(ch.kind for ch in ts.channels)
     mean = torch.as_tensor(encoding.encode_levels([ts.data], gains)[0].reshape(-1, c).mean(0))
     mlp = M.init_mlp(mc.n_inputs, mc.hidden, c, gen, device, mean)

@@ -257,7 +257,7 @@ def _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, p
     """Sample n's features into ``feats``; its taps, their weights and their decode derivatives
     into ``blks``, ``poss``, ``fxy`` and ``deriv`` for the backward."""
     free = fmt == FREE_BC6H or fmt == FREE_BC7
-    for i in range(4):
+    for i in range(blend.shape[0]):
         for lv in range(2):
             j = 2 * i + lv
             if slots[j, 0] == 0:
@@ -315,19 +315,18 @@ def _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, p
                 f = f + (lvl[1, c] - f) * blend[i]
             feats[C * i + c] = f
 
-_SCRATCH_I = 64
-
-
 @nb.njit(cache=True)
 def scratch_size(n_in, hidden, n_out, C):
-    """Floats of scratch one chunk needs (see :func:`_split`)."""
-    return 2 * n_in + 3 * hidden + n_out + 4 * C + 4 * 2 * 4 * 16 + 16 + 16 + 2 * C + 2 * C + n_in
+    """Floats of scratch one chunk needs (see :func:`_split`); n_in // C layers."""
+    L = n_in // C
+    return 2 * n_in + 3 * hidden + n_out + 4 * C + L * 2 * 4 * 16 + L * 2 * 2 + 16 + 2 * C + 2 * C + n_in
 
 
 @nb.njit(inline="always", cache=True, _nrt=False)
 def _split(sf, n_in, hidden, n_out, C):
-    """Views of a chunk's float32 scratch: feats, pre, hid, draw, val (4, C), deriv (4, 2, 4, 16),
-    fxy (4, 2, 2), scratch (4, 4), lvl (2, C), g, gl, dfe."""
+    """Views of a chunk's float32 scratch: feats, pre, hid, draw, val (4, C), deriv (L, 2, 4, 16),
+    fxy (L, 2, 2), scratch (4, 4), lvl (2, C), g, gl, dfe, for L = n_in // C layers."""
+    L = n_in // C
     o = 0
     feats = sf[o:o + n_in]
     o += n_in
@@ -339,10 +338,10 @@ def _split(sf, n_in, hidden, n_out, C):
     o += n_out
     val = sf[o:o + 4 * C].reshape((4, C))
     o += 4 * C
-    deriv = sf[o:o + 512].reshape((4, 2, 4, 16))
-    o += 512
-    fxy = sf[o:o + 16].reshape((4, 2, 2))
-    o += 16
+    deriv = sf[o:o + L * 128].reshape((L, 2, 4, 16))
+    o += L * 128
+    fxy = sf[o:o + L * 4].reshape((L, 2, 2))
+    o += L * 4
     scratch = sf[o:o + 16].reshape((4, 4))
     o += 16
     lvl = sf[o:o + 2 * C].reshape((2, C))
@@ -368,8 +367,9 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
     n_out = w2.shape[0]
     feats, pre, hid, draw, val, deriv, fxy, scratch, lvl, g, gl, dfe = _split(sf, n_in, hidden, n_out, C)
     dh = pre[hidden:2 * hidden]
-    blks = si[0:32].reshape((4, 2, 4))
-    poss = si[32:64].reshape((4, 2, 4))
+    L = blend.shape[0]
+    blks = si[0:8 * L].reshape((L, 2, 4))
+    poss = si[8 * L:16 * L].reshape((L, 2, 4))
     sse = 0.0
     for n in range(a, b):
         _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
@@ -400,7 +400,7 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
                 dh[h] = 0.0
         _dense_backward(dh, feats, w1, gw1, gb1, q, dfe)
         # ---- back through the trilinear taps into the parameters
-        for i in range(4):
+        for i in range(L):
             for lv in range(2):
                 j = 2 * i + lv
                 if slots[j, 0] != TRAINED:
@@ -436,7 +436,7 @@ def _step_parallel(fmt, quantized, signed, repeat, n_chunks, uv, target, weight,
         a = N * q // n_chunks
         b = N * (q + 1) // n_chunks
         sf = np.zeros(scratch_size(w1.shape[1], w1.shape[0], w2.shape[0], C), np.float32)
-        si = np.zeros(_SCRATCH_I, np.int64)
+        si = np.zeros(16 * blend.shape[0], np.int64)
         sse[q] = _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M, slots, blend, C,
                         plo, phi, utab, uslope, w3, w3s, w1, w1t, b1, w2, b2, out_scale, out_bias, loss_scale,
                         gP, gX, gw1, gb1, gw2, gb2, sf, si)
@@ -449,7 +449,7 @@ def _step_serial(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P
                  gw2, gb2):
     sse = np.zeros(1, np.float64)
     sf = np.zeros(scratch_size(w1.shape[1], w1.shape[0], w2.shape[0], C), np.float32)
-    si = np.zeros(_SCRATCH_I, np.int64)
+    si = np.zeros(16 * blend.shape[0], np.int64)
     sse[0] = _chunk(fmt, quantized, signed, repeat, 0, 0, uv.shape[0], uv, target, weight, P, X, M, slots, blend, C,
                     plo, phi, utab, uslope, w3, w3s, w1, np.ascontiguousarray(w1.T), b1, w2, b2, out_scale, out_bias,
                     loss_scale, gP, gX, gw1, gb1, gw2, gb2, sf, si)
@@ -482,8 +482,9 @@ def step(fmt, quantized, signed, repeat, n_chunks, *args):
 def _features_all(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
                   out, sf, si):
     feats, pre, hid, draw, val, deriv, fxy, scratch, lvl, g, gl, dfe = _split(sf, out.shape[1], 1, 1, C)
-    blks = si[0:32].reshape((4, 2, 4))
-    poss = si[32:64].reshape((4, 2, 4))
+    L = blend.shape[0]
+    blks = si[0:8 * L].reshape((L, 2, 4))
+    poss = si[8 * L:16 * L].reshape((L, 2, 4))
     for n in range(uv.shape[0]):
         _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
                   w3, w3s, feats, val, deriv, blks, poss, fxy, scratch, lvl)
@@ -492,10 +493,10 @@ def _features_all(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, 
 
 
 def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s):
-    """The features (N, 4 C) the step feeds the MLP (for tests against the torch path)."""
-    out = np.zeros((uv.shape[0], 4 * C), np.float32)
+    """The features (N, layers C) the step feeds the MLP (for tests against the torch path)."""
+    out = np.zeros((uv.shape[0], len(blend) * C), np.float32)
     _features_all(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
-                  out, np.zeros(scratch_size(4 * C, 1, 1, C), np.float32), np.zeros(_SCRATCH_I, np.int64))
+                  out, np.zeros(scratch_size(out.shape[1], 1, 1, C), np.float32), np.zeros(16 * len(blend), np.int64))
     return out
 
 

@@ -210,11 +210,11 @@ def _pool(n: int) -> ThreadPoolExecutor:
 
 
 def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s):
-    """kernel.features' contract: the (N, 4 C) features the step feeds the MLP."""
+    """kernel.features' contract: the (N, layers C) features the step feeds the MLP."""
     lib = load()
-    out = np.zeros((uv.shape[0], 4 * C), np.float32)
+    out = np.zeros((uv.shape[0], len(blend) * C), np.float32)
     a = _args(fmt, quantized, signed, repeat, np.ascontiguousarray(uv), P, X, M, slots, blend, C, plo, phi, a=0,
-              b=uv.shape[0], feats_out=_p(out))
+              b=uv.shape[0], n_in=out.shape[1], feats_out=_p(out))
     lib.bcf_features(ctypes.byref(a))
     return out
 

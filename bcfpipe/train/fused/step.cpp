@@ -21,6 +21,8 @@ constexpr int FREE_BC6H = 0, FREE_BC7 = 1, BLOCK_BC6H = 2, BLOCK_BC7 = 3;
 // A slot's first field: inactive, a trained level, or a fixed level (UNORM8 texel values, BC7 only).
 constexpr int64_t INACTIVE = 0, TRAINED = 1, FIXED = 2;
 constexpr int ND = 15;  // decode derivatives kept per tap (kernel.py's deriv layout)
+// Layers a model may have (step.py's MAX_LAYERS): T_0's one to three, then T_1..T_3; two slots each.
+constexpr int MAX_LAYERS = 8, MAX_SLOTS = 2 * MAX_LAYERS;
 const float SNAP6 = float(7.0 * 1e-4);  // bc6h.emulate's snap, as kernel.py's np.float32(7.0 * 1e-4)
 const float SNAP7 = float(1e-4 * 15);   // bc7.emulate's
 
@@ -112,13 +114,13 @@ inline void q7(vf* e) {
 
 
 struct Args {  // mirrored by native.py's ctypes Structure
-    int32_t fmt, quantized, sgn, repeat, C, n_in, hidden, n_out;
+    int32_t fmt, quantized, sgn, repeat, C, n_in, hidden, n_out;  // n_in / C layers
     int64_t a, b;
     const float *uv, *target, *weight;  // weight: null when unweighted
     const float *P, *X;
     const int32_t* M;      // BC6H: each block's subset mask, bit p for texel p
-    const int64_t* slots;  // (8, 6): active, size, po, xo, mo, plane
-    const float* blend;    // (4,)
+    const int64_t* slots;  // (2 layers, 6): active, size, po, xo, mo, plane
+    const float* blend;    // (layers,)
     float plo, phi, loss_scale, pad_;
     const float *w1, *b1, *w2, *b2, *out_scale, *out_bias;  // w1 (hidden, n_in), w2 (n_out, hidden)
     float *gP, *gX, *gw1, *gb1, *gw2, *gb2;  // this chunk's gradient rows
@@ -127,9 +129,9 @@ struct Args {  // mirrored by native.py's ctypes Structure
 
 // One lane group's taps in every active slot (2 i + level), and what their backward needs.
 struct Taps {
-    vi blk[8][4], pos[8][4];
-    vf fx[8], fy[8];
-    vf deriv[8][4][ND];
+    vi blk[MAX_SLOTS][4], pos[MAX_SLOTS][4];
+    vf fx[MAX_SLOTS], fy[MAX_SLOTS];
+    vf deriv[MAX_SLOTS][4][ND];
 };
 
 // Decode tap t of slot j into val[c], keeping its derivatives (kernel.py _texel). The format F,
@@ -230,7 +232,8 @@ void features(const Args& A, vi idx, Taps& T, vf* feats) {
     constexpr bool free_ = F == FREE_BC6H || F == FREE_BC7;
     const vf u0 = gather(A.uv, idx * 2), v0 = gather(A.uv, idx * 2 + 1);
     vf val[4][4], lvl[2][4];
-    for (int i = 0; i < 4; ++i) {
+    const int layers = A.n_in / C;
+    for (int i = 0; i < layers; ++i) {
         for (int lv = 0; lv < 2; ++lv) {
             const int j = 2 * i + lv;
             const int64_t* s = A.slots + 6 * j;
@@ -397,7 +400,7 @@ double step(const Args& A) {
             dfe[k] = acc;
         }
         // back through the trilinear taps into the parameters
-        for (int i = 0; i < 4; ++i) {
+        for (int i = 0; i < NI / C; ++i) {
             const bool hi = A.slots[6 * (2 * i + 1)] != 0;
             const float tb = A.blend[i];
             for (int lv = 0; lv < 2; ++lv) {
@@ -429,12 +432,12 @@ double step(const Args& A) {
 template <int F, bool q, bool sgn>
 void features_out(const Args& A) {
     Taps T;
-    vf feats[16];
+    vf feats[4 * MAX_LAYERS];
     for (int64_t n0 = A.a; n0 < A.b; n0 += W) {
         const int live = int(std::min<int64_t>(W, A.b - n0));
         features<F, q, sgn>(A, lanes(n0, live), T, feats);
         for (int l = 0; l < live; ++l)
-            for (int k = 0; k < 4 * A.C; ++k) A.feats_out[(n0 - A.a + l) * 4 * A.C + k] = feats[k][l];
+            for (int k = 0; k < A.n_in; ++k) A.feats_out[(n0 - A.a + l) * A.n_in + k] = feats[k][l];
     }
 }
 

@@ -36,6 +36,7 @@ def default_backend() -> str:
 
 
 _BACKEND: str | None = None
+MAX_LAYERS = 8  # step.cpp's: the layers (two slots each) one step samples
 
 
 def _tables(signed: bool):
@@ -70,6 +71,8 @@ class FusedStep:
 
         if levels.fixed and FeatureFormat(mc.features) != FeatureFormat.BC7:
             raise ValueError("fixed levels are BC7 UNORM8 values; the format is " + str(mc.features))
+        if mc.n_layers > MAX_LAYERS:
+            raise ValueError(f"the fused kernel takes at most {MAX_LAYERS} layers; the model has {mc.n_layers}")
         self.backend = backend or default_backend()
         self.mc, self.biases, self.mlp, self.levels = mc, biases, mlp, levels
         self.quantized, self.chunks = quantized, max(1, int(chunks))
@@ -155,12 +158,12 @@ class FusedStep:
         self.gX = np.zeros((self.chunks, max(n_x, 1)), np.float32)
 
     def _slots(self, s: float):
-        """(slots (8, 6), blend (4,), touched (layer, mip) pairs) at scale s: slot 2 i is layer i's
-        lower level, 2 i + 1 its upper one (inactive when the blend does not reach it); a slot is
-        (active, size, po, xo, mo, plane)."""
+        """(slots (2 L, 6), blend (L,), touched (layer, mip) pairs) at scale s, for the model's L
+        layers: slot 2 i is layer i's lower level, 2 i + 1 its upper one (inactive when the blend
+        does not reach it); a slot is (active, size, po, xo, mo, plane)."""
         mc = self.mc
-        slots = np.zeros((8, 6), np.int64)
-        blend = np.zeros(4, np.float32)
+        slots = np.zeros((2 * mc.n_layers, 6), np.int64)
+        blend = np.zeros(mc.n_layers, np.float32)
         touched = []
         for i, (count, b) in enumerate(zip(mc.mip_counts, self.biases)):
             lo, hi, t = level_weights(s + b, count)
@@ -170,13 +173,13 @@ class FusedStep:
                 if on:
                     po, _, xo, _, mo, plane = self.slot[i][k]
                     fixed = (i, k) in self.fixed
-                    slots[2 * i + j] = (FIXED if fixed else TRAINED, max(4, mc.resolutions[i] >> k), po, xo, mo, plane)
+                    slots[2 * i + j] = (FIXED if fixed else TRAINED, max(4, mc.layer_resolutions[i] >> k), po, xo, mo, plane)
                     if not fixed:
                         touched.append((i, k))
         return slots, blend, touched
 
     def features(self, uv: torch.Tensor, s: float) -> torch.Tensor:
-        """The (N, 4 C) features the step feeds the MLP (tests compare them with the torch path's)."""
+        """The (N, L C) features the step feeds the MLP (tests compare them with the torch path's)."""
         slots, blend, _ = self._slots(s)
         mc = self.mc
         return torch.from_numpy(self.K.features(self.fmt, bool(self.quantized()), bool(mc.signed),
