@@ -64,6 +64,28 @@ def test_every_keyed_field_changes_the_cache_key(tmp_path: Path) -> None:
         assert (key(changed) != key(base)) == (name not in UNKEYED_FIELDS), name
 
 
+def test_every_field_survives_the_executors_transport(tmp_path: Path) -> None:
+    """A job whose every record field is non-default comes out of the local executor's pickle and
+    Ray's JSON-able dict whole, and the worker trains that record with only its device and thread
+    count set (builder.executor._train_job); the full builds below show it reaching the TrainConfig."""
+    import pickle
+
+    from bcfpipe.builder.plan import MaterialJob
+
+    scene = copy_samples(tmp_path)
+    job = plan(scene, TrainingOptions(profile="tiny", preset="smoke", layout="neural")).jobs[0]
+    auto_only = ("match_bc", "classic", "layout")  # with --target-psnr the layout is neural
+    record = JobOptions(**{name: v for name, (v, _) in NON_DEFAULT.items() if name not in auto_only})
+    for f in fields(JobOptions):
+        assert f.name in auto_only or getattr(record, f.name) != f.default, f.name
+    for options in (record, JobOptions(profile="tiny", layout="auto", match_bc=True, classic=("normal",))):
+        sent = MaterialJob(**{**job.__dict__, "options": options}).to_dict()
+        for arrived in (pickle.loads(pickle.dumps(sent)), json.loads(json.dumps(sent))):
+            assert MaterialJob.from_dict(arrived).options == options
+            assert MaterialJob.from_dict(arrived).options.with_(device="cpu", threads=1) == \
+                options.with_(device="cpu", threads=1)
+
+
 SITE = '''
 import json, os, sys
 import importlib.abc, importlib.util
@@ -178,6 +200,7 @@ def _check(runs) -> None:
         assert seen[f.name] - {default}, f.name
 
 
+@pytest.mark.slow
 def test_every_field_reaches_the_local_workers_trainer(tmp_path: Path) -> None:
     _check(_build_traced(tmp_path, "local"))
 
