@@ -26,9 +26,13 @@ BASE_URI = "https://bcfpipe.dev/schemas/"
 DESCRIPTIONS: dict[tuple[str, str], str] = {
     # ---------------------------------------------------------------- material.json
     ("MaterialFile", "format"): "Always \"bcfpipe-material\".",
-    ("MaterialFile", "format_version"): "4 for a mip-split layout (split), else 3. Version of this contract; a reader refuses versions it does not know.",
+    ("MaterialFile", "format_version"): "6 with more than four layers (a T_0 of two or three layers of principal "
+                                        "components), else 5 when a layer is in any BC7 mode, else 4 for a mip-split "
+                                        "layout (split), else 3. Version of this contract; a reader refuses versions "
+                                        "it does not know.",
     ("MaterialFile", "bcfpipe_version"): "The bcfpipe release that wrote the file.",
-    ("MaterialFile", "layers"): "The feature textures T_0..T_3, in MLP input order.",
+    ("MaterialFile", "layers"): "The feature textures T_0..T_3 (with a T_0 of several layers: T0, T0b, T0c, then "
+                                "T1..T3), in MLP input order.",
     ("MaterialFile", "bc6h"): "How the feature textures are compressed, when they are BC6H (the default).",
     ("MaterialFile", "bc7"): "How the feature textures are compressed, when they are BC7 (--features bc7); "
                              "exactly one of bc6h and bc7 is present.",
@@ -357,7 +361,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
 
 ENUMS: dict[tuple[str, str], list] = {
     ("MaterialFile", "format"): [material.FORMAT],
-    ("MaterialFile", "format_version"): [material.NO_SPLIT_VERSION, material.FORMAT_VERSION],
+    ("MaterialFile", "format_version"): [material.NO_SPLIT_VERSION, material.ANY_MODE_VERSION, material.FORMAT_VERSION],
     ("Manifest", "format"): [manifest.FORMAT],
     ("Manifest", "format_version"): [manifest.FORMAT_VERSION],
     ("Sampling", "addressing"): ["repeat", "clamp"],
