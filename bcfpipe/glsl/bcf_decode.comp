@@ -2,11 +2,11 @@
 // Batch decode: one invocation per sample, output = the decoded channels as float32.
 // The host inserts bcf_decode.glsl right after the #version line (glsl/README.md).
 //
-// Bindings: texture units 0..3 = T0..T3 (as in bcf_fullscreen.frag);
+// Bindings: texture units 0..N-1 = T0..T{N-1}, N = BCF_N_LAYERS (as in bcf_fullscreen.frag);
 //   shader storage block 0 = weight buffer (uint words), 1 = queries (below),
 //   2 = output float[count * uOutStride], sample i's channel c at i * uOutStride + c.
 // Uniforms:
-//   uint  uWeightOffset, vec4 uLodBias, vec2 uRefSize, int uNormalIndex, bool uRepeat
+//   uint  uWeightOffset, float uLodBias[N], vec2 uRefSize, int uNormalIndex, bool uRepeat
 //                      as in bcf_fullscreen.frag
 //   uint  uCount       number of samples
 //   bool  uGradQueries false: query i is vec4(u, v, s, unused) (bcfDecodeLod);
@@ -20,10 +20,7 @@
 
 layout(local_size_x = 64) in;
 
-layout(binding = 0) uniform sampler2D bcfT0;
-layout(binding = 1) uniform sampler2D bcfT1;
-layout(binding = 2) uniform sampler2D bcfT2;
-layout(binding = 3) uniform sampler2D bcfT3;
+layout(binding = 0) uniform sampler2D bcfT[BCF_N_LAYERS];  // units 0..BCF_N_LAYERS - 1
 
 layout(std430, binding = 0) readonly buffer BcfWeights { uint bcfWeights[]; };
 layout(std430, binding = 1) readonly buffer BcfQueries { vec4 bcfQueries[]; };
@@ -31,7 +28,7 @@ layout(std430, binding = 2) writeonly buffer BcfOutput { float bcfOut[]; };
 uint bcfWeightWord(uint wordIndex) { return bcfWeights[wordIndex]; }
 
 uniform uint uWeightOffset;
-uniform vec4 uLodBias;
+uniform float uLodBias[BCF_N_LAYERS];
 uniform vec2 uRefSize;
 uniform int uNormalIndex;
 uniform bool uRepeat;
@@ -49,13 +46,13 @@ void main() {
     int n;
     if (uGrid.x > 0u) {
         vec2 uv = (vec2(float(i % uGrid.x), float(i / uGrid.x)) + 0.5) / vec2(uGrid);
-        n = bcfDecodeLod(bcfT0, bcfT1, bcfT2, bcfT3, m, uv, uGridLod, ch);
+        n = bcfDecodeLod(bcfT, m, uv, uGridLod, ch);
     } else if (uGradQueries) {
         vec4 a = bcfQueries[2u * i], b = bcfQueries[2u * i + 1u];
-        n = bcfDecodeGrad(bcfT0, bcfT1, bcfT2, bcfT3, m, a.xy, a.zw, b.xy, ch);
+        n = bcfDecodeGrad(bcfT, m, a.xy, a.zw, b.xy, ch);
     } else {
         vec4 q = bcfQueries[i];
-        n = bcfDecodeLod(bcfT0, bcfT1, bcfT2, bcfT3, m, q.xy, q.z, ch);
+        n = bcfDecodeLod(bcfT, m, q.xy, q.z, ch);
     }
     uint o = i * uOutStride;
     if (n == 0) {

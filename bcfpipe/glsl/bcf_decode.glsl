@@ -2,15 +2,17 @@
 //
 // GLSL 4.50 core, no extensions, no #version and no bindings: the host inserts this file right
 // after the #version line of the shader that uses it (see glsl/README.md; ES 3.2 notes there).
-// Optional #defines placed before it: BCF_MAX_HIDDEN (default 64), BCF_MAX_OUT (default 16),
-// and BCF_N_HIDDEN / BCF_N_OUT to compile for one network shape (constant loop bounds the
-// compiler can unroll, hidden activations in registers; records of another shape are rejected).
+// Optional #defines placed before it: BCF_N_LAYERS (feature layers, 4 to 6; default 4: material.json's
+// len(layers)), BCF_MAX_HIDDEN (default 64), BCF_MAX_OUT (default 16), and BCF_N_HIDDEN / BCF_N_OUT to
+// compile for one network shape (constant loop bounds the compiler can unroll, hidden activations in
+// registers; records of another shape are rejected).
 //
 // The including shader must define the weight-buffer accessor (declared here, so the library
 // does not fix a binding or a buffer type):
 //     uint bcfWeightWord(uint wordIndex);   // 32-bit little-endian word wordIndex of the buffer
 //
-// G(u, v, s) = f(T0(u, v, s_0), ..., T3(u, v, s_3)),  s_i = s + b_i        (paper eq. 2, sec. 5.2)
+// G(u, v, s) = f(T0(u, v, s_0), ..., T{N-1}(u, v, s_{N-1})),  s_i = s + b_i,  N = BCF_N_LAYERS
+//   (paper eq. 2, sec. 5.2; a T_0 of one to three fixed layers of principal components gives N = 4..6)
 //   uv: u along the width, v along the height, v = 0 is the first stored row (GL's t = 0 row);
 //       texel i of a w-texel level has its centre at (i + 0.5) / w; wrapping is sampler state.
 //   s : lod in the reference material's mip units (0 = full-resolution reference texels).
@@ -20,8 +22,8 @@
 //   clamp(uv, -1, 2) for clamp-to-edge, and s_i clamped to [0, BCF_MAX_LOD]; hardware guarantees
 //   full sub-texel precision only for |uv| <= 10 (D3D11_COMMONSHADER_TEXCOORD_RANGE_REDUCTION_MAX).
 //   Precision limits (glsl/README.md): the fp32 uv itself resolves ulp(|uv|) * width texels.
-//   Features: BC6H layers give 3 channels (T_i.rgb, n_in 12), BC7 layers 4 (T_i.rgba, n_in 16; upload
-//   as GL_COMPRESSED_RGBA_BPTC_UNORM); the record's n_in says which.
+//   Features: BC6H layers give 3 channels (T_i.rgb, n_in 12, 4 layers only), BC7 layers 4 (T_i.rgba,
+//   n_in 4 N; upload as GL_COMPRESSED_RGBA_BPTC_UNORM); the record's n_in says which.
 //   f : relu MLP n_in -> n_hidden -> n_out in fp32 with fp16 weights, then per channel
 //       y = clamp(raw * out_scale + out_bias, lo, hi), lo = -1 for the normal x/y pair, else 0,
 //       then for an HDR channel (record v2, log_gain g > 0) y = (exp2(g y) - 1) * (1 / (exp2(g) - 1)),
@@ -36,24 +38,31 @@
 #ifndef BCF_MAX_LOD
 #define BCF_MAX_LOD 32.0
 #endif
+#ifndef BCF_N_LAYERS
+#define BCF_N_LAYERS 4
+#endif
+#if BCF_N_LAYERS < 4 || BCF_N_LAYERS > 6
+#error "BCF_N_LAYERS must be 4, 5 or 6"
+#endif
 #ifdef BCF_N_HIDDEN
 #undef BCF_MAX_HIDDEN
 #define BCF_MAX_HIDDEN BCF_N_HIDDEN
 #endif
 
 // Weight record "BCFW" v1 or v2 (bcfpipe/model/decoder.py), at a 4-byte aligned byte offset:
-//   word 0 magic 'BCFW' (0x57464342), 1 version (1 or 2), 2 n_in (12 or 16), 3 n_hidden, 4 n_out,
+//   word 0 magic 'BCFW' (0x57464342), 1 version (1 or 2), 2 n_in (12, or 4 N), 3 n_hidden, 4 n_out,
 //   5 n_halves, then fp16 values from word 6: W1[n_hidden][n_in], b1[n_hidden], W2[n_out][n_hidden],
 //   b2[n_out], out_scale[n_out], out_bias[n_out], and in v2 log_gain[n_out] (HDR channels).
 //   Value e sits in word 6 + e/2, low half if e even.
 const uint BCF_MAGIC = 0x57464342u;
 const uint BCF_HEADER_WORDS = 6u;
+const uint BCF_N_IN = uint(4 * BCF_N_LAYERS);  // BC7 layers; BC6H records have 12 (4 layers)
 
 uint bcfWeightWord(uint wordIndex);
 
 struct BcfMaterial {
     uint weightOffset;  // byte offset of the material's BCFW record in the weight buffer
-    vec4 lodBias;       // b_0..b_3 (material.json layers[i].lod_bias)
+    float lodBias[BCF_N_LAYERS];  // b_0..b_{N-1} (material.json layers[i].lod_bias)
     vec2 refSize;       // reference width, height (material.json reference; derivative path only)
     int normalIndex;    // index of normal x among the n_out model channels (y follows); -1: none
     bool repeat;        // sampling.addressing: true for repeat, false for clamp (the samplers' wrap mode)
@@ -74,7 +83,7 @@ int bcfChannelCount(BcfMaterial m) {
     uint w0 = m.weightOffset >> 2u;
     uint version = bcfWeightWord(w0 + 1u);
     uint ni = bcfWeightWord(w0 + 2u);
-    if (bcfWeightWord(w0) != BCF_MAGIC || (version != 1u && version != 2u) || (ni != 12u && ni != 16u))
+    if (bcfWeightWord(w0) != BCF_MAGIC || (version != 1u && version != 2u) || (ni != BCF_N_IN && (ni != 12u || BCF_N_LAYERS != 4)))
         return 0;
     uint nh = bcfWeightWord(w0 + 3u), no = bcfWeightWord(w0 + 4u);
     int extra = m.normalIndex >= 0 ? 1 : 0;
@@ -90,9 +99,9 @@ int bcfChannelCount(BcfMaterial m) {
     return int(no) + extra;
 }
 
-// The decoder MLP and post-processing on already sampled features (T_i.rgba; for BC6H layers only
-// .rgb is read); returns the channel count (see bcfChannelCount; 0 = invalid record, ch untouched).
-int bcfDecodeFeatures(BcfMaterial m, vec4 t0, vec4 t1, vec4 t2, vec4 t3, out float ch[BCF_MAX_OUT]) {
+// The decoder MLP and post-processing on already sampled features (t[i] = T_i.rgba; for BC6H layers
+// only .rgb is read); returns the channel count (see bcfChannelCount; 0 = invalid record, ch untouched).
+int bcfDecodeFeatures(BcfMaterial m, vec4 t[BCF_N_LAYERS], out float ch[BCF_MAX_OUT]) {
     int count = bcfChannelCount(m);
     if (count == 0) return 0;
     uint w0 = m.weightOffset >> 2u;
@@ -109,19 +118,26 @@ int bcfDecodeFeatures(BcfMaterial m, vec4 t0, vec4 t1, vec4 t2, vec4 t3, out flo
     uint base = w0 + BCF_HEADER_WORDS;
     float hid[BCF_MAX_HIDDEN];
     uint b1;
-    if (bcfWeightWord(w0 + 2u) == 16u) {
-        // BC7: input order T0.rgba .. T3.rgba; a W1 row is 16 halves = 8 whole words
-        b1 = nh * 16u;
+    if (bcfWeightWord(w0 + 2u) == BCF_N_IN) {
+        // BC7: input order T0.rgba .. T{N-1}.rgba; a W1 row is 4 N halves = 2 N whole words
+        b1 = nh * BCF_N_IN;
         for (uint j = 0u; j < nh; ++j) {
-            uint row = j * 8u;
+            uint row = j * (BCF_N_IN / 2u);
             float a = bcfHalf(base, b1 + j);
-            a += dot(bcfHalf4(base, row), t0) + dot(bcfHalf4(base, row + 2u), t1) +
-                 dot(bcfHalf4(base, row + 4u), t2) + dot(bcfHalf4(base, row + 6u), t3);
+            a += dot(bcfHalf4(base, row), t[0]) + dot(bcfHalf4(base, row + 2u), t[1]) +
+                 dot(bcfHalf4(base, row + 4u), t[2]) + dot(bcfHalf4(base, row + 6u), t[3])
+#if BCF_N_LAYERS > 4
+                 + dot(bcfHalf4(base, row + 8u), t[4])
+#endif
+#if BCF_N_LAYERS > 5
+                 + dot(bcfHalf4(base, row + 10u), t[5])
+#endif
+                 ;
             hid[j] = max(a, 0.0);
         }
     } else {
-        // BC6H: input order T0.rgb, T1.rgb, T2.rgb, T3.rgb; a W1 row is 12 halves = 6 whole words
-        vec4 fa = vec4(t0.rgb, t1.x), fb = vec4(t1.yz, t2.xy), fc = vec4(t2.z, t3.rgb);
+        // BC6H (4 layers): input order T0.rgb, T1.rgb, T2.rgb, T3.rgb; a W1 row is 12 halves = 6 whole words
+        vec4 fa = vec4(t[0].rgb, t[1].x), fb = vec4(t[1].yz, t[2].xy), fc = vec4(t[2].z, t[3].rgb);
         b1 = nh * 12u;
         for (uint j = 0u; j < nh; ++j) {
             uint row = j * 6u;
@@ -156,15 +172,11 @@ vec2 bcfReduceUv(vec2 uv, bool repeat) {
     return repeat ? uv - floor(uv) : clamp(uv, -1.0, 2.0);
 }
 
-// Hardware trilinear samples of the four layers at s_i = s + b_i (s = +-inf is fine; NaN is not).
-void bcfSampleFeatures(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, float s,
-                       out vec4 t0, out vec4 t1, out vec4 t2, out vec4 t3) {
+// Hardware trilinear samples of the N layers at s_i = s + b_i (s = +-inf is fine; NaN is not).
+void bcfSampleFeatures(sampler2D T[BCF_N_LAYERS], BcfMaterial m, vec2 uv, float s, out vec4 t[BCF_N_LAYERS]) {
     uv = bcfReduceUv(uv, m.repeat);
-    vec4 l = clamp(vec4(s) + m.lodBias, 0.0, BCF_MAX_LOD);
-    t0 = textureLod(T0, uv, l.x);
-    t1 = textureLod(T1, uv, l.y);
-    t2 = textureLod(T2, uv, l.z);
-    t3 = textureLod(T3, uv, l.w);
+    for (int i = 0; i < BCF_N_LAYERS; ++i)
+        t[i] = textureLod(T[i], uv, clamp(s + m.lodBias[i], 0.0, BCF_MAX_LOD));
 }
 
 // s from uv derivatives (paper sec. 5.2): log2 of the larger pixel footprint in reference texels.
@@ -177,15 +189,14 @@ float bcfLodFromGrad(vec2 duvdx, vec2 duvdy, vec2 refSize) {
 }
 
 // Decode at an explicit lod s (reference mip units). Returns the channel count, 0 if invalid.
-int bcfDecodeLod(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, float s,
-                 out float ch[BCF_MAX_OUT]) {
-    vec4 t0, t1, t2, t3;
-    bcfSampleFeatures(T0, T1, T2, T3, m, uv, s, t0, t1, t2, t3);
-    return bcfDecodeFeatures(m, t0, t1, t2, t3, ch);
+int bcfDecodeLod(sampler2D T[BCF_N_LAYERS], BcfMaterial m, vec2 uv, float s, out float ch[BCF_MAX_OUT]) {
+    vec4 t[BCF_N_LAYERS];
+    bcfSampleFeatures(T, m, uv, s, t);
+    return bcfDecodeFeatures(m, t, ch);
 }
 
 // Decode with the lod from uv derivatives (e.g. dFdx(uv), dFdy(uv) in a fragment shader).
-int bcfDecodeGrad(sampler2D T0, sampler2D T1, sampler2D T2, sampler2D T3, BcfMaterial m, vec2 uv, vec2 duvdx,
-                  vec2 duvdy, out float ch[BCF_MAX_OUT]) {
-    return bcfDecodeLod(T0, T1, T2, T3, m, uv, bcfLodFromGrad(duvdx, duvdy, m.refSize), ch);
+int bcfDecodeGrad(sampler2D T[BCF_N_LAYERS], BcfMaterial m, vec2 uv, vec2 duvdx, vec2 duvdy,
+                  out float ch[BCF_MAX_OUT]) {
+    return bcfDecodeLod(T, m, uv, bcfLodFromGrad(duvdx, duvdy, m.refSize), ch);
 }

@@ -2,11 +2,11 @@
 // Example fragment shader: decode one neural material per pixel and show three of its channels.
 // The host inserts bcf_decode.glsl right after the #version line (glsl/README.md).
 //
-// Bindings: texture units 0..3 = T0..T3 (BC6H, trilinear, GL_TEXTURE_MAX_LEVEL = mip_count - 1,
+// Bindings: texture units 0..N-1 = T0..T{N-1}, N = BCF_N_LAYERS (trilinear, GL_TEXTURE_MAX_LEVEL = mip_count - 1,
 // wrap per material.json); shader storage block 0 = the weight buffer (one or many BCFW records).
 // Uniforms:
 //   uint  uWeightOffset  byte offset of this material's record in the weight buffer
-//   vec4  uLodBias       b_0..b_3
+//   float uLodBias[N]    b_0..b_{N-1}
 //   vec2  uRefSize       reference width, height (for the lod from derivatives)
 //   int   uNormalIndex   normal x among the model outputs, -1 if none
 //   bool  uRepeat        true if the material repeats (sampling.addressing), false for clamp
@@ -15,16 +15,13 @@
 //   int   uView          first of the three channels written to rgb (normals stay in [-1, 1])
 // Output: location 0 = vec4(ch[uView], ch[uView+1], ch[uView+2], 1); magenta if the record is invalid.
 
-layout(binding = 0) uniform sampler2D bcfT0;
-layout(binding = 1) uniform sampler2D bcfT1;
-layout(binding = 2) uniform sampler2D bcfT2;
-layout(binding = 3) uniform sampler2D bcfT3;
+layout(binding = 0) uniform sampler2D bcfT[BCF_N_LAYERS];  // units 0..BCF_N_LAYERS - 1
 
 layout(std430, binding = 0) readonly buffer BcfWeights { uint bcfWeights[]; };
 uint bcfWeightWord(uint wordIndex) { return bcfWeights[wordIndex]; }
 
 uniform uint uWeightOffset;
-uniform vec4 uLodBias;
+uniform float uLodBias[BCF_N_LAYERS];
 uniform vec2 uRefSize;
 uniform int uNormalIndex;
 uniform bool uRepeat;
@@ -40,9 +37,9 @@ void main() {
     float ch[BCF_MAX_OUT];
     int n;
     if (uLodMode == 1)
-        n = bcfDecodeLod(bcfT0, bcfT1, bcfT2, bcfT3, m, vUv, uLod, ch);
+        n = bcfDecodeLod(bcfT, m, vUv, uLod, ch);
     else
-        n = bcfDecodeGrad(bcfT0, bcfT1, bcfT2, bcfT3, m, vUv, dFdx(vUv), dFdy(vUv), ch);
+        n = bcfDecodeGrad(bcfT, m, vUv, dFdx(vUv), dFdy(vUv), ch);
     if (n == 0) {
         fragColor = vec4(1.0, 0.0, 1.0, 1.0);
         return;

@@ -5,7 +5,8 @@
 // BCF_NEURAL 1: the UsdPreviewSurface components come from the neural decoder, one sample per
 //   pixel, at the lod s from the uv derivatives (bcfDecodeGrad, paper sec. 5.2).
 //   A component the decoder does not drive (a --layout auto material's classic group) reads
-//   its UsdUVTexture as below, from texture units 4 and up: its source is 1024 + unit * 4 + slot.
+//   its UsdUVTexture as below, from texture units BCF_N_LAYERS (4 to 6: the feature layers come
+//   first) and up: its source is 1024 + unit * 4 + slot, unit counted from there.
 //   A mip-split material (BCF_SPLIT = k > 0, the material's bcf:split) reads each component the
 //   decoder drives from its original network (BCF_BELOW*: a UsdUVTexture or a constant) up to
 //   s = k - 1 and from the decoder from s = k, mixed linearly in s between (material.json "split").
@@ -63,17 +64,14 @@ uniform int uUseSpecularWorkflow;
 uniform float uOpacityThreshold;
 
 #if BCF_NEURAL
-layout(binding = 0) uniform sampler2D bcfT0;
-layout(binding = 1) uniform sampler2D bcfT1;
-layout(binding = 2) uniform sampler2D bcfT2;
-layout(binding = 3) uniform sampler2D bcfT3;
+layout(binding = 0) uniform sampler2D bcfT[BCF_N_LAYERS];  // units 0..BCF_N_LAYERS - 1
 uniform uint uWeightOffset;
-uniform vec4 uLodBias;
+uniform float uLodBias[BCF_N_LAYERS];
 uniform vec2 uRefSize;
 uniform int uNormalIndex;
 uniform bool uRepeat;
 #define TEXTURE_SOURCE 1024  // bcfpipe/render/surfaces.py
-layout(binding = 4) uniform sampler2D uTexture[MAX_TEXTURES];
+layout(binding = BCF_N_LAYERS) uniform sampler2D uTexture[MAX_TEXTURES];
 #else
 layout(binding = 0) uniform sampler2D uTexture[MAX_TEXTURES];
 #endif
@@ -146,7 +144,7 @@ void main() {
     vec2 uv = vec2(st.x, 1.0 - st.y);
     BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uRepeat);
     float ch[BCF_MAX_OUT];
-    int n = bcfDecodeGrad(bcfT0, bcfT1, bcfT2, bcfT3, m, uv, dFdx(uv), dFdy(uv), ch);
+    int n = bcfDecodeGrad(bcfT, m, uv, dFdx(uv), dFdy(uv), ch);
     if (n == 0) {  // an invalid weight record
         fragColor = vec4(1.0, 0.0, 1.0, 1.0);
         return;

@@ -37,6 +37,7 @@ def gl_format(tex) -> int:
 LOCAL_SIZE = 64  # bcf_decode.comp's local_size_x
 MAX_GROUPS = 65535  # GL's guaranteed minimum of GL_MAX_COMPUTE_WORK_GROUP_COUNT[0]
 LIBRARY = "bcf_decode.glsl"
+DEFAULT_LAYERS = 4  # bcf_decode.glsl's BCF_N_LAYERS when undefined; a material may have 4 to 6
 STAGES = {"vert": "bcf_fullscreen.vert", "frag": "bcf_fullscreen.frag", "comp": "bcf_decode.comp"}
 
 
@@ -100,6 +101,13 @@ class MaterialDesc:
         return self.file.lod_biases
 
     @property
+    def defines(self) -> dict[str, int]:
+        """The #defines the decoder needs for this material's feature layers: BCF_N_LAYERS when
+        they are not the library's default 4 (a T_0 of several layers)."""
+        n = len(self.file.layers)
+        return {} if n == DEFAULT_LAYERS else {"BCF_N_LAYERS": n}
+
+    @property
     def mip_counts(self) -> tuple[int, ...]:
         return self.file.mip_counts
 
@@ -154,6 +162,10 @@ class GLMaterial:
     desc: MaterialDesc
     textures: list[int]
     weights: object  # moderngl.Buffer
+
+    def defines(self, extra: dict | None = None) -> dict[str, object]:
+        """The #defines this material's programs need, with ``extra``'s on top."""
+        return {**self.desc.defines, **(extra or {})}
 
     def uniforms(self) -> dict[str, object]:
         b = self.desc.lod_biases
@@ -290,7 +302,7 @@ class GLRuntime:
     # ------------------------------------------------------------------ materials
     @_current
     def load(self, m: MaterialDesc, weights: bytes | None = None) -> GLMaterial:
-        """Upload ``m``'s four feature layers (BC6H or BC7) and its weight buffer (``weights``
+        """Upload ``m``'s feature layers (four BC6H, or four to six BC7) and its weight buffer (``weights``
         overrides the file)."""
         textures: list[int] = []
         try:
@@ -316,7 +328,7 @@ class GLRuntime:
     @_current
     def _run(self, gm: GLMaterial, count: int, queries, grid: tuple[int, int], grid_lod: float,
              stride: int, defines: dict | None, grad: bool = False) -> np.ndarray:
-        prog = self.compute_program(defines)
+        prog = self.compute_program(gm.defines(defines))
         out = self.ctx.buffer(reserve=max(4, count * stride * 4))
         try:
             self.bind_textures(gm.textures)
@@ -392,7 +404,7 @@ class GLRuntime:
         """Draw bcf_fullscreen.vert/.frag into a width x height float framebuffer and read it back
         -> (height, width, 4); row 0 is the bottom row (v = 0.5 / height with the default transform).
         ``lod`` None: s from the uv derivatives (paper sec. 5.2), else the explicit lod."""
-        prog = self.render_program(defines)
+        prog = self.render_program(gm.defines(defines))
         fbo = self.framebuffer(width, height)
         vao = self.ctx.vertex_array(prog, [])
         try:

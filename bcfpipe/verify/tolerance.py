@@ -20,7 +20,7 @@ Tolerance (``glsl``), per sample point p and output channel c, derived from the 
     switch (|h_j| <= r_j = sum_i |W1_ji| e_i) add |out_scale| |W2_cj| r_j (ReLU is 1-Lipschitz). The
     clamp to the output range can only shrink the change; normal z = sqrt(1 - x^2 - y^2) changes by
     at most min(sqrt(D), D / (z + sqrt(max(0, z^2 - D)))) with D = 2|x|e_x + 2|y|e_y + e_x^2 + e_y^2.
-  * (b) fp32: the standard dot-product rounding bound (n_hidden + 16) * 2^-23 * (sum of |terms|)
+  * (b) fp32: the standard dot-product rounding bound (n_hidden + max(16, n_in)) * 2^-23 * (sum of |terms|)
     with the network's actual magnitudes, and 2^-20 of the largest feature for the filter arithmetic.
 
   * BC7 layers (UNORM8, ``--features bc7``) are filtered by many texture units, llvmpipe included,
@@ -208,7 +208,7 @@ def output_tolerance(weights, kinds: tuple[str, ...], feats: np.ndarray, fe: Fil
     # fp32 rounding of both evaluations (dot-product bound with the actual magnitudes)
     a1 = np.abs(f) @ np.abs(w1).T + np.abs(b1)
     mag = np.abs(sc) * (a1 @ np.abs(w2).T + np.abs(b2)) + np.abs(bi)
-    dy += (w1.shape[0] + 16) * FP32_ULP * mag + FP32_ULP
+    dy += (w1.shape[0] + max(16, w1.shape[1])) * FP32_ULP * mag + FP32_ULP  # n_hidden + n_in (at least 16)
     y = (np.maximum(h, 0) @ w2.T + b2) * sc + bi
     lo, hi = (np.asarray(a, np.float64) for a in output_ranges(kinds))
     cy = np.clip(y, lo, hi)
