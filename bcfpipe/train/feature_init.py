@@ -78,7 +78,8 @@ def pca_init(cfg: ModelConfig, mips: Sequence[torch.Tensor], biases: Sequence[fl
     """Overwrite ``free`` (phase-1 parameters) and ``mlp`` in place with the PCA start.
 
     ``mips`` are the reference's (c, H, W) levels on the parameters' device. Returns the number
-    of components used (at most 2 layers' channels). ``layers``: which layers hold them, the first
+    of components used (at most those ``layers``' channels): 2 layers for --init pca, a fixed T_0's one to
+    three (bcfpipe.train.fixed_t0). ``layers``: which layers hold them, the first
     the leading ones. Unsigned features only; signed models keep the random start."""
     if cfg.signed or len(free) < 4:
         return 0
