@@ -1,8 +1,8 @@
 """Decode cost of a neural material against classic BC textures: the paper's Table 3 protocol.
 
 Two full-screen passes draw into the same RGBA8 framebuffer: one decodes the neural material per
-pixel (glsl/bcf_fullscreen.frag: four BC6H layers, lod from the uv derivatives, the MLP from the
-weight SSBO), the other samples the material's classic BC textures (trilinear, full mip chains)
+pixel (glsl/bcf_fullscreen.frag: its four to six feature layers, lod from the uv derivatives, the MLP
+from the weight SSBO), the other samples the material's classic BC textures (trilinear, full mip chains)
 and writes three of their channels. The uv transform tiles the material so that one reference
 texel covers about one pixel (s ~ 0). Frames of the two passes alternate, so that the load of a
 shared machine falls on both alike; each time is the median over the frames.
@@ -152,8 +152,8 @@ def random_classic(m: G.MaterialDesc) -> list[tuple[str, list, list]]:
 
 
 def _net(m: G.MaterialDesc) -> dict[str, int]:
-    """The #defines that compile the decoder for ``m``'s network shape."""
-    return {"BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out, "BCF_MAX_OUT": m.c_out}
+    """The #defines that compile the decoder for ``m``'s network shape (and layer count)."""
+    return {**m.defines, "BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out, "BCF_MAX_OUT": m.c_out}
 
 
 def _medians(rt: G.GLRuntime, passes: Sequence[tuple], frames: int, warmup: int, timed) -> list[float]:

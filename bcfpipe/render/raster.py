@@ -20,7 +20,7 @@ from bcfpipe.formats.vocabulary import ColorSpace, Wrap
 from bcfpipe.errors import InputError
 from bcfpipe.formats import dds
 from bcfpipe.render.scene import Batch, View
-from bcfpipe.render.surfaces import COMPONENTS, MAX_TEXTURES, TEXTURE_SOURCE, Surface
+from bcfpipe.render.surfaces import COMPONENTS, MAX_TEXTURES, MIN_LAYERS, TEXTURE_SOURCE, Surface
 from bcfpipe.scan.results import Transform2d
 from bcfpipe.scan.sources import local_file, read_asset, resolved_color_space
 from bcfpipe.verify import glsl
@@ -63,6 +63,9 @@ def _routing_defines(surface: Surface, srgb_units: tuple[bool, ...],
     with a valid record, its network shape (n_hidden, n_out)) into bcf_render.frag."""
     comps = surface.components
     net = {"BCF_N_HIDDEN": shape[0], "BCF_N_OUT": shape[1]} if shape else {}
+    n_layers = len(surface.neural.textures) if surface.kind == "neural" and surface.neural else MIN_LAYERS
+    if n_layers != MIN_LAYERS:  # the feature layers take units 0..n-1, the original's textures follow
+        net["BCF_N_LAYERS"] = n_layers
     def unit(c):  # the original texture unit a component reads, or None (a constant or a decoder channel)
         if c.source < 0 or (surface.kind == "neural" and c.source < TEXTURE_SOURCE):
             return None
@@ -258,7 +261,7 @@ class Renderer:
         shape = None
         units = [self._original_texture(t.path, t.wrap, t.color_space) for t in surface.textures]
         textures, srgb_units, weights = [u[0] for u in units], tuple(u[1] for u in units), None
-        if surface.kind == "neural":  # the four feature layers first, then any classic group's textures
+        if surface.kind == "neural":  # the feature layers first, then any classic group's textures
             textures = self._feature_textures(surface) + textures
             weights = self._weight_buffer(surface.neural.weights)[0]
             shape = self._network_shape(surface)

@@ -26,6 +26,7 @@ __all__ = ["COMPONENTS", "Component", "NeuralFeatures", "OriginalTexture", "Surf
 
 NEURAL_SHADER_ID = "BcfNeuralMaterial"
 MAX_TEXTURES = 8  # texture units of the original program
+MIN_LAYERS, MAX_LAYERS = 4, 6  # feature layers of a neural material (bcf_decode.glsl's BCF_N_LAYERS)
 # In a neural surface, a component source at or above this reads an original texture (source -
 # TEXTURE_SOURCE = unit * 4 + slot): a --layout auto material's classic groups keep their
 # UsdUVTexture, which the same program samples beside the decoder.
@@ -75,8 +76,8 @@ class OriginalTexture:
 class NeuralFeatures:
     """The BcfNeuralMaterial shader's inputs (schemas/shaders/BcfNeuralMaterial.usda)."""
 
-    textures: tuple[str, str, str, str]
-    lod_biases: tuple[float, float, float, float]
+    textures: tuple[str, ...]  # T0..T{n-1}: material.json's layers in order, n = 4 to 6
+    lod_biases: tuple[float, ...]
     reference_size: tuple[int, int]
     signed: bool
     repeat: bool
@@ -187,6 +188,15 @@ def _input(shader: UsdShade.Shader, name: str, default=None):
     return default if v is None else v
 
 
+def feature_layer_count(shader: UsdShade.Shader) -> int:
+    """How many feature layers the BcfNeuralMaterial shader names: T0..T3 always (a missing one is
+    reported when read), and T4, T5 where authored (a T_0 of several layers, issue 52)."""
+    n = MIN_LAYERS
+    while n < MAX_LAYERS and shader.GetInput(f"T{n}"):
+        n += 1
+    return n
+
+
 def _asset(shader: UsdShade.Shader, name: str, material: str) -> str:
     v = _input(shader, name)
     resolved = v.resolvedPath if isinstance(v, Sdf.AssetPath) else ""
@@ -232,9 +242,10 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
                                below_scale=o.scale, below_bias=o.bias, below_srgb=o.srgb)
     st = st_source(shader)
     res = _input(shader, "referenceResolution", (0, 0))
+    n = feature_layer_count(shader)
     feats = NeuralFeatures(
-        textures=tuple(_asset(shader, f"T{i}", path) for i in range(4)),
-        lod_biases=tuple(float(_input(shader, f"lodBias{i}", 0.0)) for i in range(4)),
+        textures=tuple(_asset(shader, f"T{i}", path) for i in range(n)),
+        lod_biases=tuple(float(_input(shader, f"lodBias{i}", 0.0)) for i in range(n)),
         reference_size=(int(res[0]), int(res[1])),
         signed=bool(_input(shader, "featureSigned", 0)),
         repeat=str(_input(shader, "addressing", Wrap.REPEAT)) == Wrap.REPEAT,
