@@ -313,3 +313,30 @@ print(json.dumps({"node_inputs": list(node.GetShaderInputNames()), "errors": err
                   "authored": [x for x in names if x.startswith(("T", "lodBias"))],
                   "textures": list(s.neural.textures), "lod_biases": list(s.neural.lod_biases)}))
 """
+
+
+TRAINED_SPECS = ("albedo={}/bricks_albedo.png:rgb", "normal={}/bricks_normal.png:rg",
+                 "roughness={}/bricks_roughness.png:r", "height={}/bricks_height.png:r", "generic={}/tiles_orm.png:rgb")
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_verify_passes_on_a_trained_t0_of_k_layers(rt, tmp_path, k):
+    """A real material with a T_0 of k layers of principal components (10 channels, 64², tiny /
+    smoke; ~2 s to train): 3 + k BC7 layers, and verify's every check passes on it."""
+    from bcfpipe.config import PRESETS, PROFILES, ModelConfig, TrainConfig
+    from bcfpipe.export.fit import fit_material
+    from bcfpipe.formats.vocabulary import T0, FeatureFormat
+    from bcfpipe.texset.texture_set import load_texture_set
+    from bcfpipe.verify import checks as V
+
+    src = Path(__file__).resolve().parents[1] / "samples" / "textures"
+    ts = load_texture_set([s.format(src) for s in TRAINED_SPECS], resolution=64)
+    mc = ModelConfig(resolutions=PROFILES["tiny"], features=FeatureFormat.BC7, t0_layers=k)
+    fit_material(ts, tmp_path, TrainConfig(model=mc, preset=PRESETS["smoke"], preset_name="smoke", t0=T0.PCA),
+                 image_metrics=False)
+    desc = mf.read(tmp_path)
+    assert len(desc.layers) == 3 + k and desc.mlp.n_in == 4 * (3 + k)
+    rep = V.verify(tmp_path, runtime=rt)
+    m = rep.materials[0]
+    assert rep.exit_code == 0, [c.to_dict() for c in m.checks]
+    assert all(c.passed for c in m.checks), [c.to_dict() for c in m.checks]
