@@ -228,3 +228,13 @@ def test_torch_kernel_trains_a_two_layer_t0(ts, tmp_path):
 
     res, tm = fit_material(ts, tmp_path / "m", _config(2, Kernel.TORCH), image_metrics=False)
     assert sorted(tm.layers.fixed) == [0, 1] and res.metrics.psnr > 20
+
+
+def test_a_build_counts_every_feature_layer(tmp_path) -> None:
+    """The manifest's features_bytes counts T0b.dds and T0c.dds too, not T0..T3 alone."""
+    from bcfpipe.builder.assemble import _features_bytes
+
+    sizes = {"T0.dds": 10, "T0b.dds": 20, "T0c.dds": 40, "T1.dds": 80, "T2.dds": 160, "T3.dds": 320, "C0.dds": 640}
+    for name, n in sizes.items():
+        (tmp_path / name).write_bytes(b"x" * n)
+    assert _features_bytes(tmp_path) == 630

@@ -39,7 +39,8 @@ def _device_class(device: str) -> str:
 
 
 def _features_bytes(folder: Path) -> int:
-    return sum((folder / f"T{i}.dds").stat().st_size for i in range(4) if (folder / f"T{i}.dds").exists())
+    """The feature textures' bytes: T0..T3.dds, and a T_0 of several layers' T0b.dds, T0c.dds."""
+    return sum(p.stat().st_size for p in folder.glob("T[0-9]*.dds"))
 
 
 def _classic_bytes(folder: Path) -> int:
