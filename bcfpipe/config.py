@@ -53,6 +53,12 @@ def resolve_profile(name: str, source_size: int) -> tuple[str, tuple[int, int, i
     return f"auto-{t0}", scaled_profile(t0)
 
 
+def max_t0_layers(n_channels: int, features: FeatureFormat = FeatureFormat.BC7) -> int:
+    """The most layers of principal components a fixed T_0 holds usefully: one per ``features``
+    layer's channels of the set's ``n_channels`` components, at most MAX_T0_LAYERS."""
+    return max(1, min(MAX_T0_LAYERS, -(-int(n_channels) // LAYER_CHANNELS_OF[FeatureFormat(features)])))
+
+
 def mip_count(resolution: int) -> int:
     return max(1, int(math.log2(resolution)) - 1)
 
@@ -337,6 +343,7 @@ class TrainingOptions(Record):
     classic: tuple[str, ...] = ()  # semantics whose channel groups stay classic BC textures (BC@R)
     t0: T0 | None = None  # None: DEFAULT_T0 of the feature format
     pca_clip: float = DEFAULT_PCA_CLIP  # % of texels clipped at each end of a principal component's range
+    t0_layers: int | None = None  # BC7 layers of principal components in a fixed T_0; None: --layout auto weighs 1..3
 
     def __post_init__(self) -> None:
         from bcfpipe.errors import InputError
@@ -397,6 +404,10 @@ class TrainingOptions(Record):
         if self.classic and self.target_psnr is not None:
             out.append("--classic fixes part of the layout against BC@R; --target-psnr sizes an all-neural "
                        "material against a PSNR: use one")
+        if self.t0_layers is not None and not 1 <= int(self.t0_layers) <= MAX_T0_LAYERS:
+            out.append(f"--t0-layers must be 1..{MAX_T0_LAYERS}, got {self.t0_layers}")
+        elif (self.t0_layers or 1) > 1 and self.t0_resolved != T0.PCA:
+            out.append("--t0-layers widens a T_0 of principal components: use it with --t0 pca (bc7's default)")
         if not 0 <= self.pca_clip < 50:
             out.append(f"--pca-clip must be a percentage in [0, 50), got {self.pca_clip}")
         if self.kernel not in tuple(Kernel):
@@ -413,15 +424,25 @@ class TrainingOptions(Record):
         """What T_0 holds: --t0, else the feature format's default (DEFAULT_T0)."""
         return t0_of(self)
 
-    def train_config(self, source_size: int, wrap: str, device: str) -> tuple[str, TrainConfig]:
+    def t0_width(self, n_channels: int | None = None) -> int:
+        """The layers of components a fixed T_0 holds for a set of ``n_channels``: --t0-layers (1
+        when not given), no more than the components the set has (`max_t0_layers`)."""
+        if self.t0_resolved != T0.PCA:
+            return 1
+        asked = int(self.t0_layers or 1)
+        return asked if n_channels is None else min(asked, max_t0_layers(n_channels, FeatureFormat(self.features)))
+
+    def train_config(self, source_size: int, wrap: str, device: str,
+                     n_channels: int | None = None) -> tuple[str, TrainConfig]:
         """The `TrainConfig` of these choices for a texture set whose larger side is
-        ``source_size``, addressed with ``wrap``, on the resolved ``device``; and the profile's
-        resolved name (``auto`` picks from the size)."""
+        ``source_size`` (of ``n_channels``, which caps the T_0 layers), addressed with ``wrap``, on
+        the resolved ``device``; and the profile's resolved name (``auto`` picks from the size)."""
         if wrap not in ("repeat", "clamp"):
             raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
         name, res = resolve_profile(self.profile, source_size)
         mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap,
-                         features=FeatureFormat(self.features), pca_clip=self.pca_clip / 100)
+                         features=FeatureFormat(self.features), pca_clip=self.pca_clip / 100,
+                         t0_layers=self.t0_width(n_channels))
         fixed = self.t0_resolved == T0.PCA
         return name, TrainConfig(model=mc, preset=preset_for(self.preset, res[0], device, fixed),
                                  preset_name=self.preset,

@@ -32,6 +32,7 @@ NON_DEFAULT = {
     "features": ("bc6h", {}), "kernel": ("torch", {}), "layout": ("auto", {}),
     "match_bc": (True, {"layout": "auto"}), "classic": (("normal",), {}), "t0": ("trained", {}),
     "resolution": (32, {}), "texel_density": (100.0, {}), "coverage": (False, {}), "pca_clip": (0.0, {}),
+    "t0_layers": (2, {}),
 }
 #: the fields that change nothing a job trains: their effect is keyed through another field or input
 UNKEYED_FIELDS = {"threads", "bench_data", "texel_density"}
@@ -74,11 +75,13 @@ def test_every_field_survives_the_executors_transport(tmp_path: Path) -> None:
 
     scene = copy_samples(tmp_path)
     job = plan(scene, TrainingOptions(profile="tiny", preset="smoke", layout="neural")).jobs[0]
-    auto_only = ("match_bc", "classic", "layout")  # with --target-psnr the layout is neural
+    auto_only = ("match_bc", "classic", "layout", "t0_layers")  # with --target-psnr the layout is neural;
+    # a wider T_0 holds principal components, which the first record's trained bc6h T_0 does not
     record = JobOptions(**{name: v for name, (v, _) in NON_DEFAULT.items() if name not in auto_only})
     for f in fields(JobOptions):
         assert f.name in auto_only or getattr(record, f.name) != f.default, f.name
-    for options in (record, JobOptions(profile="tiny", layout="auto", match_bc=True, classic=("normal",))):
+    for options in (record, JobOptions(profile="tiny", layout="auto", match_bc=True, classic=("normal",),
+                                                     t0_layers=2)):
         sent = MaterialJob(**{**job.__dict__, "options": options}).to_dict()
         for arrived in (pickle.loads(pickle.dumps(sent)), json.loads(json.dumps(sent))):
             assert MaterialJob.from_dict(arrived).options == options
@@ -151,7 +154,7 @@ BUILDS = [
       "features": "bc6h", "kernel": "torch", "t0": "trained"},
      {"texel_density": 40.0, "coverage": False, "materials": [BRICKS]}, {"rate"}),
     ({"profile": "tiny", "preset": "smoke", "layout": "auto", "match_bc": True, "classic": ["normal"],
-      "pca_clip": 0.0}, {"materials": [BRICKS], "texel_density": 40.0}, {"layout"}),
+      "pca_clip": 0.0, "t0_layers": 2}, {"materials": [BRICKS], "texel_density": 40.0}, {"layout"}),
 ]
 
 
@@ -190,6 +193,7 @@ def _check(runs) -> None:
             assert cfg["t0"] == (o["t0"] or ("pca" if o["features"] == "bc7" else "trained"))
             assert cfg["device"] == o["device"] == "cpu"
             assert cfg["model"]["pca_clip"] == o["pca_clip"] / 100
+            assert 1 <= cfg["model"]["t0_layers"] <= (o["t0_layers"] or 1 if o["layout"] == "neural" else 3)
             assert o["coverage"] or not rec["coverage"]  # covered: a mask where the meshes leave texels unread
             if o["resolution"] is not None:
                 assert max(rec["size"]) == o["resolution"]

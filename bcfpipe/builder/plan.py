@@ -161,15 +161,16 @@ class BuildPlan:
 
 def recorded_options(options: JobOptions) -> Options:
     """The build's options as manifest.json records them (its format, schemas/manifest.schema.json):
-    the kernel only where it is not what the device runs by default, match_bc, classic and t0 only
-    when given, no thread count."""
+    the kernel only where it is not what the device runs by default, match_bc, classic, t0 and
+    t0_layers only when given, no thread count."""
     return Options(profile=options.profile, preset=options.preset, seed=options.seed, device=options.device,
                    hidden=options.hidden, signed=options.signed, init=options.init,
                    fix_nonfinite=options.fix_nonfinite, texel_density=options.texel_density,
                    resolution=options.resolution, coverage=options.coverage, target_psnr=options.target_psnr,
                    features=options.features.value, kernel=_kernel_option(options.kernel, options.device),
                    layout=options.layout.value, match_bc=True if options.match_bc else None,
-                   classic=tuple(options.classic) or None, t0=None if options.t0 is None else T0(options.t0).value)
+                   classic=tuple(options.classic) or None, t0=None if options.t0 is None else T0(options.t0).value,
+                   t0_layers=options.t0_layers)
 
 
 def _t0(sources: Mapping[str, SourceFile], options: JobOptions) -> int:

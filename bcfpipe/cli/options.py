@@ -8,7 +8,8 @@ from dataclasses import fields
 
 from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_PCA_CLIP, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
-                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, FEATURE_INITS, PRESETS, PROFILE_NAMES, TrainingOptions)
+                            DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, FEATURE_INITS, MAX_T0_LAYERS, PRESETS,
+                            PROFILE_NAMES, TrainingOptions)
 
 # The training options, in --help order: one per field of config.TrainingOptions, named as it (a
 # test checks); `train`, `plan` and `build` take exactly these.
@@ -35,6 +36,11 @@ TRAINING_OPTIONS = (
                       "principal components, BC7-encoded once in every mode and kept while the other layers and "
                       "the MLP train around them (sharper close-ups); 'trained' (bc6h's, and the paper's) features "
                       "trained like the others."),
+    click.option("--t0-layers", "t0_layers", type=click.IntRange(min=1, max=MAX_T0_LAYERS), default=None,
+                 metavar="N",
+                 help="BC7 layers of principal components in T_0 (--t0 pca): N holds 4N components, each layer "
+                      "T_0's bytes again, with 4 more decoder inputs; capped at the set's channels. Not given: "
+                      "--layout auto weighs every width that can help, --layout neural trains 1."),
     click.option("--pca-clip", "pca_clip", type=click.FloatRange(min=0, max=50, max_open=True),
                  default=DEFAULT_PCA_CLIP, show_default=True, metavar="PERCENT",
                  help="Where principal components start the features (--t0 pca, --init pca): the percentage of "

@@ -34,6 +34,7 @@ class MaterialResult:
     phase_samples: dict[str, int] | None = None
     mse_per_channel: np.ndarray | None = None  # (mips, channels) of the exported files (bcfpipe.layout)
     layout: dict | None = None  # --layout auto: the decision (bcfpipe.layout.choose.Decision.to_json)
+    t0_layers: int = 1  # layers of principal components its fixed T_0 holds (ModelConfig.t0_layers)
 
     def to_dict(self) -> dict:
         m = self.metrics
@@ -41,7 +42,7 @@ class MaterialResult:
              "size_mib": self.size_bytes / 2**20, "train_seconds": self.train_seconds,
              "out": str(self.out_dir), "profile": self.profile, "resolutions": list(self.resolutions),
              "preset": self.preset, "device": self.device, "phase_seconds": self.phase_seconds,
-             "phase_samples": self.phase_samples,
+             "phase_samples": self.phase_samples, "t0_layers": self.t0_layers,
              "metrics": m.to_json()}
         if self.float_metrics is not None:
             d["float_psnr"] = self.float_metrics.psnr
@@ -54,14 +55,19 @@ class MaterialResult:
 def make_config(ts: TextureSet, options: TrainingOptions, wrap: str = Wrap.REPEAT) -> tuple[str, TrainConfig]:
     """The TrainConfig of ``options`` (validated when it was made) for ``ts``, on the device it
     names resolved here; returns the resolved profile name too (``auto`` picks from the set's size)."""
-    return options.train_config(max(ts.width, ts.height), wrap, str(resolve_device(options.device)))
+    return options.train_config(max(ts.width, ts.height), wrap, str(resolve_device(options.device)), ts.num_channels)
+
+
+def shipped_files(out_dir: Path) -> list[Path]:
+    """The files a renderer loads: the feature textures, the weight record and any classic textures
+    (not the ONNX decoder or material.json)."""
+    desc = mf.read(out_dir)
+    return [Path(out_dir) / f for f in desc.files if f != (desc.onnx.file if desc.onnx else None)]
 
 
 def exported_size(out_dir: Path) -> int:
-    """Bytes a renderer loads: the feature textures, the weight record and any classic textures (not
-    the ONNX decoder or material.json)."""
-    desc = mf.read(out_dir)
-    return sum((out_dir / f).stat().st_size for f in desc.files if f != (desc.onnx.file if desc.onnx else None))
+    """Bytes a renderer loads (`shipped_files`)."""
+    return sum(p.stat().st_size for p in shipped_files(out_dir))
 
 
 def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
@@ -93,5 +99,5 @@ def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, p
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)
     res = MaterialResult(out, profile, cfg.model.resolutions, cfg.preset_name, cfg.device, metrics, float_metrics,
                          exported_size(out), tm.train_seconds, {k: round(v, 3) for k, v in phases.items()},
-                         dict(tm.phase_samples), per_channel)
+                         dict(tm.phase_samples), per_channel, t0_layers=cfg.model.t0_layers)
     return res, tm

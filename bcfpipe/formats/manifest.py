@@ -262,6 +262,7 @@ class Options(Record):
     match_bc: bool | None = optional()  # --match-bc (with --layout auto); absent when not given
     classic: tuple[str, ...] | None = optional()  # --classic: semantics whose groups stay BC textures
     t0: str | None = optional()  # --t0 when given: what T_0 holds ("pca" or "trained"; issue 29)
+    t0_layers: int | None = optional()  # --t0-layers when given: layers of components in a fixed T_0 (issue 52)
 
 
 @dataclass(frozen=True)

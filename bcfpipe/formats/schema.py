@@ -185,6 +185,9 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Options", "t0"): "--t0 when given: what the finest feature layer T_0 holds, \"pca\" (the set's principal "
                        "components in BC7 blocks of any mode, fixed) or \"trained\"; absent: bc7's default pca, "
                        "bc6h's trained.",
+    ("Options", "t0_layers"): "--t0-layers when given: the BC7 layers of principal components a fixed T_0 holds "
+                              "(1 to 3, capped at the set's channels); absent: --layout auto weighed the widths, "
+                              "--layout neural trained 1 (material.json's layers say what each material holds).",
     ("Options", "kernel"): "How training steps ran when not what the default (auto: fused on the CPU, torch on "
                            "CUDA) runs on that device: \"torch\" or \"fused\" (--kernel).",
     ("Stage", "up_axis"): "The scene's upAxis.",

@@ -14,9 +14,20 @@ from typing import Sequence
 from bcfpipe.formats import dds, weights
 from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
 
-__all__ = ["MIN_SIDE", "feature_levels", "feature_bytes", "neural_bytes", "texture_bytes"]
+__all__ = ["DISK_ZSTD_LEVEL", "disk_bytes", "MIN_SIDE", "feature_levels", "feature_bytes", "neural_bytes", "texture_bytes", "widened", "widened_inputs"]
 
 MIN_SIDE = 4  # the smallest feature mip: one block (config.MIN_LEVEL)
+DISK_ZSTD_LEVEL = 19  # how games ship BC textures on disk: the GPU's blocks, zstd-compressed
+
+
+def disk_bytes(blobs) -> int:
+    """Bytes on disk of files whose contents are ``blobs`` (bytes or buffers), each compressed on its
+    own by zstd at `DISK_ZSTD_LEVEL`, with no dictionary (issue 52: sizes are given twice, as GPU
+    bytes, which the layout rule judges, and as these)."""
+    import zstandard
+
+    z = zstandard.ZstdCompressor(level=DISK_ZSTD_LEVEL)
+    return sum(len(z.compress(bytes(memoryview(b).cast("B")))) for b in blobs)
 
 
 def feature_levels(side: int) -> tuple[int, ...]:
@@ -42,6 +53,18 @@ def neural_bytes(resolutions: Sequence[int], n_in: int, hidden: int, n_out: int,
     BC7; ``version`` 2 when a channel is HDR, which a scan cannot know before decoding)."""
     halves = weights.record_halves(n_in, hidden, n_out, version)
     return feature_bytes(resolutions, headers=True) + weights.record_size(halves)
+
+
+def widened(resolutions: Sequence[int], t0_layers: int = 1) -> tuple[int, ...]:
+    """The feature sides of a model whose T_0 holds ``t0_layers`` layers (issue 52): T_0's side that
+    many times, then T_1..T_3 (`config.ModelConfig.layer_resolutions`)."""
+    return (resolutions[0],) * t0_layers + tuple(resolutions[1:])
+
+
+def widened_inputs(n_in: int, t0_layers: int = 1, n_layers: int = 4) -> int:
+    """The MLP inputs of that model, from ``n_in`` of its ``n_layers``-layer profile: 4 (BC7) or 3
+    (BC6H) more per T_0 layer past the first."""
+    return n_in + n_in // n_layers * (t0_layers - 1)
 
 
 def texture_bytes(fmt, levels: Sequence[tuple[int, int]]) -> int:

@@ -20,8 +20,9 @@ Default objective: the highest all-mip PSNR with the size at most BC@R's and no 
 more than `SLACK_DB` below BC@R at that mip (mips whose smaller side is at least 4 texels, the ones
 the all-mip PSNR averages). ``match_bc``: the smallest layout whose every such mip reaches BC@R.
 The all-classic layout (BC@R itself) always qualifies, so the result is never worse than it.
-When no candidate qualifies on its bound, the mixed one that falls shortest (`most_promising`,
-within `EXPLORE_DB`) is trained anyway: its own model may clear the floor where the bound did not.
+When no candidate qualifies on its bound, the mixed one (or the one with a wider T_0 than the
+probe's) that falls shortest (`most_promising`, within `EXPLORE_DB`) is trained anyway: its own
+model may clear the floor where the bound or the prediction did not.
 """
 from __future__ import annotations
 
@@ -55,6 +56,8 @@ class Candidate:
     split: int = 0  # a mip split: every group's BC@R levels below reference mip ``split``, the features from it on
     resolutions: tuple[int, ...] = ()  # a split's feature sizes T_0..T_3 (``profile`` names them)
     repack: str = ""  # all classic, some of BC@R's groups merged into BC7 (`bcfpipe.layout.classic.Repack`)
+    t0_layers: int = 1  # the neural part's T_0 width: layers of principal components (issue 52)
+    disk_bytes: int | None = field(compare=False, default=None)  # its files zstd-compressed (measured ones only)
     kind: "Kind | None" = field(repr=False, compare=False, default=None)  # what it is (`bcfpipe.layout.kinds`); not in to_json
 
     @property
@@ -74,10 +77,13 @@ class Candidate:
         """Per-mip PSNR minus BC@R's, in dB."""
         return tuple(a - b for a, b in zip(self.psnr_per_mip, bc.psnr_per_mip))
 
-    def to_json(self, bc: "Candidate | None" = None) -> dict:
+    def to_json(self, bc: "Candidate | None" = None, quality: "Candidate | None" = None) -> dict:
+        """Its figures; with ``bc`` (BC@R) and ``quality`` (the BC7 quality set) its per-mip margins
+        against each."""
         d = {"layout": self.label, "classic": list(self.classic), "profile": self.profile,
-             "size_bytes": self.size_bytes, "psnr": round(self.psnr, 3),
-             "psnr_per_mip": [round(v, 3) for v in self.psnr_per_mip], "basis": self.basis}
+             "size_bytes": self.size_bytes, "disk_bytes": self.disk_bytes, "psnr": round(self.psnr, 3),
+             "psnr_per_mip": [round(v, 3) for v in self.psnr_per_mip], "basis": self.basis,
+             "t0_layers": self.t0_layers if self.profile is not None else None}
         if self.split:
             d["split"] = self.split
         if self.repack:
@@ -85,6 +91,8 @@ class Candidate:
         if bc is not None:
             d["margin_per_mip_db"] = [round(v, 3) for v in self.margins(bc)]
             d["worst_margin_db"] = round(min(self.margins(bc)[k] for k in bc.use), 3) if bc.use else None
+        if quality is not None:
+            d["margin_vs_bc7_per_mip_db"] = [round(v, 3) for v in self.margins(quality)]
         return d
 
 
@@ -118,11 +126,13 @@ class Decision:
     chosen: Candidate
     reason: str
     objective: Literal["quality", "match-bc"]
+    quality: Candidate | None = None  # the BC7 quality set, measured: reported against, never shipped
 
     def to_json(self) -> dict:
-        return {"objective": self.objective, "chosen": self.chosen.to_json(self.bc), "reason": self.reason,
-                "bc": self.bc.to_json(),
-                "candidates": [dict(c.to_json(self.bc), rejected=admissible(c, self.bc, self.objective == "match-bc"))
+        q = self.quality
+        return {"objective": self.objective, "chosen": self.chosen.to_json(self.bc, q), "reason": self.reason,
+                "bc": self.bc.to_json(None, q), "bc7_quality": None if q is None else q.to_json(self.bc),
+                "candidates": [dict(c.to_json(self.bc, q), rejected=admissible(c, self.bc, self.objective == "match-bc"))
                                for c in self.candidates]}
 
 
@@ -134,16 +144,21 @@ def deficit(c: Candidate, bc: Candidate, match_bc: bool = False) -> float:
 
 def most_promising(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = False,
                    within_db: float = EXPLORE_DB) -> Candidate | None:
-    """The mixed candidate (some groups classic, a neural part) whose ``bound`` falls shortest of
-    the floor, within ``within_db``, and within BC@R's size: worth its own training, since a model
-    trained on fewer channels fits them better than the all-channel probe did."""
-    pool = [c for c in candidates if c.classic and c.profile is not None and c.basis == "bound"
+    """The candidate worth a training of its own that falls shortest of the floor, within
+    ``within_db``, and within BC@R's size: a mixed one (some groups classic, a neural part) on its
+    ``bound``, since a model trained on fewer channels fits them better than the all-channel probe
+    did; or one with a wider T_0 than the probe's, on its prediction (issue 52: the width gain is a
+    mean over sets, and a set's own may be larger)."""
+    pool = [c for c in candidates if c.profile is not None
+            and ((c.classic and c.basis == "bound") or (c.t0_layers > 1 and c.basis == "predicted"))
             and (match_bc or c.size_bytes <= bc.size_bytes) and 0 < deficit(c, bc, match_bc) <= within_db]
     return min(pool, key=lambda c: (deficit(c, bc, match_bc), c.size_bytes), default=None)
 
 
-def choose(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = False) -> Decision:
-    """The best admissible candidate (BC@R itself among them, so there always is one)."""
+def choose(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = False,
+           quality: Candidate | None = None) -> Decision:
+    """The best admissible candidate (BC@R itself among them, so there always is one); ``quality``,
+    the BC7 quality set, goes with the decision to report against."""
     pool = [bc, *[c for c in candidates if c.label != bc.label]]
     ok = [c for c in pool if admissible(c, bc, match_bc) is None]
     if match_bc:
@@ -157,4 +172,4 @@ def choose(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = Fals
                f"{SLACK_DB:g} dB of it at every mip (worst mip {worst:+.1f} dB)")
         if best is bc:
             why = "no other layout stays within BC@R's size and 0.5 dB of it at every mip; shipping BC@R"
-    return Decision(bc, tuple(pool), best, why, "match-bc" if match_bc else "quality")
+    return Decision(bc, tuple(pool), best, why, "match-bc" if match_bc else "quality", quality)

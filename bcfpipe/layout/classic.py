@@ -47,6 +47,7 @@ class EncodedGroup:
     levels: list[tuple[np.ndarray, int, int]]  # (blocks (n, block bytes) uint8, width, height)
     decoded: list[np.ndarray]  # per reference mip: (H_k, W_k, len(channels)) set values; fit_layout empties it
     # once measured
+    disk: int | None = None  # its file's bytes on disk (`disk_bytes`), once measured
 
     @property
     def size_bytes(self) -> int:
@@ -129,6 +130,29 @@ def repacks(groups: Sequence[Group]) -> list[Repack]:
             out.append(Repack(tuple(packed), tuple(g.name for g in groups),
                               f"all {len(channels)} channels in {n} BC7"))
     return out
+
+
+def bc7_quality_set(groups: Sequence[Group]) -> Repack | None:
+    """The BC7 quality set as a change of BC@R: every BC1 texture (a colour or a packed file) in BC7,
+    the same channels in the same slots at twice the bytes; BC5 normals, BC4 lone scalars and BC6H
+    kept. What quality-focused pipelines ship, and the second set every layout is reported against
+    (issue 52). None when BC@R has no BC1 texture: the quality set is then BC@R itself."""
+    bc1 = [g for g in groups if g.format == ClassicFormat.BC1]
+    if not bc1:
+        return None
+    return Repack(tuple(Group(ClassicFormat.BC7, g.channels, g.name) for g in bc1), tuple(g.name for g in bc1),
+                  "BC7 quality set")
+
+
+def disk_bytes(g: EncodedGroup) -> int:
+    """``g``'s DDS file on disk: its header and its blocks compressed by zstd (`formats.sizes.disk_bytes`),
+    measured once."""
+    from bcfpipe.formats.dds import HEADER_BYTES
+    from bcfpipe.formats.sizes import disk_bytes as zstd_bytes
+
+    if g.disk is None:
+        g.disk = HEADER_BYTES + zstd_bytes([np.concatenate([b.reshape(-1) for b, _, _ in g.levels])])
+    return g.disk
 
 
 def _vector(g: Group) -> bool:

@@ -132,10 +132,21 @@ def export_split(groups: list[EncodedGroup], neural_dir: str | os.PathLike, ts: 
     return out
 
 
+def decision_json(fit: LayoutFit) -> dict:
+    """What layout.json says: the choice among measured layouts, why, each measured layout's figures
+    against BC@R and the BC7 quality set, and ``weighed``: every candidate the first choice was made
+    among (profiles × T_0 widths, mixed, splits), predicted ones included, with the first choice."""
+    d = fit.decision.to_json()
+    if fit.first is not fit.decision:
+        d["weighed"] = fit.first.to_json()["candidates"]
+        d["first_choice"] = fit.first.chosen.label
+    return d
+
+
 def write_decision(out_dir: str | os.PathLike, fit: LayoutFit) -> Path:
     """layout.json beside material.json: the candidates, the choice and why (informative)."""
     import json
 
     path = Path(out_dir) / "layout.json"
-    atomic_write(path, (json.dumps(fit.decision.to_json(), indent=2) + "\n").encode())
+    atomic_write(path, (json.dumps(decision_json(fit), indent=2) + "\n").encode())
     return path

@@ -4,15 +4,17 @@ train the one chosen, choose among what is measured.
 1. Encode BC@R (every classic group, every mip) and its BC7 repacks and measure them per channel:
    exact, no training.
 2. The probe: one neural model on all channels at p0, the largest profile no larger than the one
-   asked for whose bytes fit within BC@R's (the smallest when none does), trained and measured
-   from its exported files, per channel.
+   asked for whose bytes fit within BC@R's (the smallest when none does), with a T_0 of one layer
+   of principal components (or --t0-layers), trained and measured from its exported files, per
+   channel.
 3. Candidates: every kind of `bcfpipe.layout.kinds.REGISTRY` generates its own from (1) and (2)
-   (BC@R, its repacks, neural at a profile, mixed: classic groups + neural, mip splits), with
-   ``measured``, ``bound`` or ``predicted`` figures (`bcfpipe.layout.choose`). The rule picks one.
+   (BC@R, its repacks, neural at a profile and T_0 width, mixed: classic groups + neural, mip
+   splits), with ``measured``, ``bound`` or ``predicted`` figures (`bcfpipe.layout.choose`). The
+   rule picks one. The BC7 quality set is measured beside BC@R and reported, never weighed.
 4. One more training at most, through the chosen candidate's kind: a mip split only when its
    prediction beats what is measured already (`Kind.worth`); when the pick needs no new model
    (BC@R, a repack, the probe), the explorable candidate closest to qualifying
-   (`choose.most_promising`: a mixed one) is trained instead.
+   (`choose.most_promising`: a mixed one, or a wider T_0 than the probe's) is trained instead.
    The final choice is made among measured layouts only: BC@R, the repacks, the probe, and that
    one model; `bcfpipe.layout.export.export_layout` writes it as its kind does.
 
@@ -34,17 +36,17 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from bcfpipe.config import PROFILES, TrainingOptions
+from bcfpipe.config import N_LAYERS, PROFILES, TrainingOptions
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
-from bcfpipe.formats.sizes import neural_bytes
+from bcfpipe.formats.sizes import neural_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
-from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Group, Repack, channel_errors, encode,
-                                    measure_repack, repacks)
+from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Group, Repack, bc7_quality_set, channel_errors,
+                                    disk_bytes, encode, measure_repack, repacks)
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.kinds import ClassicFit, capped, split_bytes, split_candidates, subset  # noqa: F401
-from bcfpipe.layout.predict import LayoutPrediction, Query, predict
+from bcfpipe.layout.predict import LayoutPrediction, Query, predict, widths_of
 from bcfpipe.texset.parallel import encode_workers, workers
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 from bcfpipe.train.trainer import ProgressFn
@@ -78,8 +80,15 @@ def predict_for(ts: TextureSet, options: TrainingOptions, cfg, asked: str, resol
     """`bcfpipe.layout.predict.predict` for a loaded set: what `scan` and `plan` say of it."""
     groups = classic_groups(ts)
     return predict(Query(groups, ts.width, ts.height, ts.num_channels, ts.num_channels, asked,
-                         tuple(cfg.model.resolutions), resolution, cfg.device, (cfg.model.n_inputs, cfg.model.hidden),
-                         options.layout, bool(options.match_bc), named_groups(groups, options.classic)))
+                         tuple(cfg.model.resolutions), resolution, cfg.device,
+                         (N_LAYERS * cfg.model.layer_channels, cfg.model.hidden), options.layout,
+                         bool(options.match_bc), named_groups(groups, options.classic),
+                         t0_widths(options, ts.num_channels)))
+
+
+def t0_widths(options: TrainingOptions, n_channels: int) -> tuple[int, ...]:
+    """The T_0 widths a layout weighs for a set of ``n_channels`` (`predict.widths_of`)."""
+    return widths_of(options, options.layout, n_channels)
 
 
 def _measure_classic(ctx: K.FitContext, with_repacks: bool, lines: list[str] | None = None) -> ClassicFit:
@@ -104,14 +113,29 @@ def _measure_classic(ctx: K.FitContext, with_repacks: bool, lines: list[str] | N
         g.decoded = []  # decoded mips and reference chain hold 2.7 GiB each, which training needs
     names = [g.group.name for g in groups]
     bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
-                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use, kind=K.BC_AT_R)
+                     C.combine(None, e_bc, range(ts.num_channels)), "measured", use,
+                     disk_bytes=sum(disk_bytes(g) for g in groups), kind=K.BC_AT_R)
     say(f"BC@{resolution}: {bc.size_bytes / 2**20:.2f} MiB, {bc.psnr:.2f} dB over all mips "
         f"({time.perf_counter() - t:.1f} s)")
     cf = ClassicFit(groups, e_bc, bc, use)
     if with_repacks and resolution <= MAX_REPACK_SIDE:
         repacked, packed = _repacks(ctx, cf, ref, masks, say)
-        cf = replace(cf, repacked=repacked, packed=tuple(packed))
+        cf = replace(cf, repacked=repacked, packed=tuple(packed), quality=_quality_set(ctx, cf, ref, masks, say))
     return replace(cf, seconds=time.perf_counter() - t)
+
+
+def _quality_set(ctx: K.FitContext, cf: ClassicFit, ref, masks, log) -> C.Candidate:
+    """The BC7 quality set (`classic.bc7_quality_set`) encoded and measured exactly; BC@R itself when
+    BC@R has no BC1 texture."""
+    rp = bc7_quality_set([g.group for g in cf.groups])
+    if rp is None:
+        return replace(cf.bc, kind=K.QUALITY)
+    enc, e, size = measure_repack(ctx.ts, cf.groups, cf.e_bc, rp, ctx.resolution, ref, masks, ctx.wrap)
+    disk = sum(disk_bytes(g) for g in cf.groups if g.group.name not in rp.replaces) + sum(disk_bytes(g) for g in enc)
+    c = C.Candidate(cf.bc.classic, None, size, C.combine(None, e, range(ctx.ts.num_channels)), "measured", cf.bc.use,
+                    repack=rp.label, disk_bytes=disk, kind=K.QUALITY)
+    log(f"BC7 quality set at {ctx.resolution}: {size / 2**20:.2f} MiB, {c.psnr:.2f} dB over all mips")
+    return c
 
 
 def _in_workers(n: int, fn, *args):
@@ -122,8 +146,10 @@ def _in_workers(n: int, fn, *args):
 
 def _train_probe(ctx: K.FitContext) -> MaterialResult:
     """The probe: all channels at p0, no more steps than ``ctx.cap``."""
-    ctx.log(f"probe: all {ctx.ts.num_channels} channels at {ctx.p0}")
-    cfg = capped(make_config(ctx.ts, replace(ctx.options, profile=ctx.own[ctx.p0]), ctx.wrap)[1], ctx.cap)
+    ctx.log(f"probe: all {ctx.ts.num_channels} channels at {ctx.p0}"
+            + (f", T_0 of {ctx.w0} layers" if ctx.w0 > 1 else ""))
+    cfg = capped(make_config(ctx.ts, replace(ctx.options, profile=ctx.own[ctx.p0], t0_layers=ctx.w0), ctx.wrap)[1],
+                 ctx.cap)
     return fit_material(ctx.ts, ctx.out / "probe", cfg, ctx.p0, progress=ctx.progress, coverage=ctx.coverage,
                         image_metrics=False)[0]
 
@@ -150,15 +176,16 @@ def _classic_and_probe(ctx: K.FitContext) -> tuple[ClassicFit, MaterialResult]:
 
 def _probed(ctx: K.FitContext, cfg, pred: LayoutPrediction) -> K.FitContext:
     """``ctx`` with BC@R measured, the probe trained at ``pred``'s p0 and the profiles weighed."""
-    profiles = tuple(pred.profiles)
-    dims = (cfg.model.n_inputs, cfg.model.hidden)
-    sizes = {p: neural_bytes(PROFILES[p] if p in PROFILES else cfg.model.resolutions, *dims, ctx.ts.num_channels)
-             for p in profiles}
-    ctx = replace(ctx, p0=pred.probe, profiles=profiles, dims=dims,
+    profiles, widths = tuple(pred.profiles), tuple(pred.t0_layers)
+    dims = (N_LAYERS * cfg.model.layer_channels, cfg.model.hidden)
+    sizes = {(p, w): neural_bytes(widened(PROFILES[p] if p in PROFILES else cfg.model.resolutions, w),
+                                  widened_inputs(dims[0], w), dims[1], ctx.ts.num_channels)
+             for p in profiles for w in widths}
+    ctx = replace(ctx, p0=pred.probe, w0=pred.probe_t0_layers, profiles=profiles, widths=widths, dims=dims,
                   own={p: (p if p in PROFILES else ctx.options.profile) for p in profiles})  # auto-N trains as "auto"
     cf, probe = _classic_and_probe(ctx)
-    sizes[pred.probe] = probe.size_bytes
-    return replace(ctx, classic=cf, probe=probe, sizes=sizes)
+    sizes[(ctx.p0, ctx.w0)] = probe.size_bytes
+    return replace(ctx, classic=cf, probe=probe, sizes=sizes, probe_disk=K.model_disk_bytes(probe))
 
 
 def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
@@ -180,12 +207,12 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     cands = [w.candidate for w in weighed]
     held = [w for w in weighed if w.candidate.basis == "measured"]
     bc = ctx.classic.bc
-    first = C.choose(cands, bc, ctx.match_bc)
+    first = C.choose(cands, bc, ctx.match_bc, ctx.classic.quality)
     log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
     trained = _train_next(ctx, first.chosen, cands, [t.candidate for t in held])
     train_s = ctx.probe.train_seconds + (trained.model.train_seconds if trained else 0.0)
     held += [trained] if trained else []
-    decision = C.choose([t.candidate for t in held], bc, ctx.match_bc)
+    decision = C.choose([t.candidate for t in held], bc, ctx.match_bc, ctx.classic.quality)
     model = {t.candidate.label: t for t in held}[decision.chosen.label]
     return LayoutFit(decision, first, ctx.classic.groups, model.model, model.channels, ctx.probe, train_s,
                      time.perf_counter() - start, ctx.classic.repacked, ctx.classic.seconds, model.parts)
@@ -220,9 +247,10 @@ def _repacks(ctx: K.FitContext, cf: ClassicFit, ref, masks, log) -> tuple[dict, 
         for g in enc:
             g.decoded = []
         kept = tuple(g.group.name for g in groups if g.group.name not in rp.replaces)
+        disk = sum(disk_bytes(g) for g in groups if g.group.name in kept) + sum(disk_bytes(g) for g in enc)
         c = C.Candidate(kept + tuple(g.name for g in rp.groups), None, size,
                         C.combine(None, e, range(ts.num_channels)), "measured", cf.bc.use, repack=rp.label,
-                        kind=K.REPACK)
+                        disk_bytes=disk, kind=K.REPACK)
         log(f"BC@{resolution} with {rp.label}: {size / 2**20:.2f} MiB, {c.psnr:.2f} dB over all mips "
             f"({time.perf_counter() - t:.1f} s)")
         found[rp.label] = (rp, enc)

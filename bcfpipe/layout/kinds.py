@@ -22,7 +22,7 @@ from bcfpipe.config import TrainingOptions
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import EncodedGroup, Repack, split_levels
+from bcfpipe.layout.classic import EncodedGroup, Repack, disk_bytes, split_levels
 from bcfpipe.layout.export import export_groups, export_split
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
@@ -42,6 +42,7 @@ class ClassicFit:
     repacked: dict[str, tuple[Repack, list[EncodedGroup]]] = field(default_factory=dict)  # by Repack.label
     packed: tuple[C.Candidate, ...] = ()  # the repacks' candidates, measured
     seconds: float = 0.0
+    quality: C.Candidate | None = None  # the BC7 quality set, measured (reported against, not weighed)
 
 
 @dataclass(frozen=True)
@@ -72,11 +73,14 @@ class FitContext:
     log: Callable[[str], None] = lambda s: None
     classic: ClassicFit | None = None  # BC@R measured (every kind reads it)
     probe: MaterialResult | None = None
+    probe_disk: int | None = None  # the probe's files on disk (`model_disk_bytes`)
     p0: str | None = None  # the probe's profile
     profiles: tuple[str, ...] = ()  # weighed, largest first
-    sizes: Mapping[str, int] = field(default_factory=dict)  # a neural part's bytes by profile (p0: the probe's files)
+    widths: tuple[int, ...] = (1,)  # the T_0 widths weighed (--t0-layers, issue 52), narrowest first
+    w0: int = 1  # the probe's T_0 width
+    sizes: Mapping[tuple[str, int], int] = field(default_factory=dict)  # a neural part's bytes by (profile, width)
     own: Mapping[str, str] = field(default_factory=dict)  # the profile each trains as (auto-N trains as "auto")
-    dims: tuple[int, int] = (0, 0)  # (MLP inputs, hidden)
+    dims: tuple[int, int] = (0, 0)  # (MLP inputs of a one-layer T_0, hidden)
 
     @property
     def match_bc(self) -> bool:
@@ -93,12 +97,36 @@ class FitContext:
         preset = self.options.preset
         return _gain(profile, preset if preset in ("draft", "fast", "standard", "paper") else "draft")
 
-    def neural_errors(self, profile: str) -> np.ndarray:
-        """(mips, channels) errors of all channels at ``profile``: the probe's, moved by the gain."""
+    @property
+    def settings(self) -> tuple[tuple[str, int], ...]:
+        """Every (profile, T_0 width) weighed: the profiles largest first, each at every width."""
+        return tuple((p, w) for p in self.profiles for w in self.widths)
+
+    def width_gains(self, profile: str, width: int) -> np.ndarray:
+        """Per reference mip, what ``width`` T_0 layers add over one at ``profile`` (`train.rate`)."""
+        from bcfpipe.config import PROFILES
+        from bcfpipe.train.rate import t0_layer_gains
+
+        n = self.probe.mse_per_channel.shape[0]
+        t0 = PROFILES[profile][0] if profile in PROFILES else self.probe.resolutions[0]
+        t0_mip = max(0, (max(self.ts.width, self.ts.height) // t0).bit_length() - 1)
+        return np.array(t0_layer_gains(width, n, t0_mip))
+
+    def neural_errors(self, profile: str, width: int = 1) -> np.ndarray:
+        """(mips, channels) errors of all channels at ``profile`` with a T_0 of ``width`` layers:
+        the probe's, moved by the profiles' gain and, per mip, the widths'."""
         e0 = self.probe.mse_per_channel
-        if profile == self.p0:
+        if (profile, width) == (self.p0, self.w0):
             return e0
-        return e0 * 10 ** (-(self.gain(profile) - self.gain(self.p0)) / 10)
+        db = (self.gain(profile) - self.gain(self.p0)
+              + self.width_gains(profile, width) - self.width_gains(self.p0, self.w0))
+        return e0 * 10 ** (-db[:, None] / 10)
+
+    def fits_width(self, channels: int, width: int) -> bool:
+        """Whether a model of ``channels`` channels can hold ``width`` layers of components."""
+        from bcfpipe.config import max_t0_layers
+
+        return width <= max_t0_layers(channels, self.options.features)
 
 
 class Kind(ABC):
@@ -108,7 +136,7 @@ class Kind(ABC):
     `REGISTRY`. The final choice weighs every candidate whose basis is ``measured``."""
 
     name = ""
-    explorable = False  # its ``bound`` candidates are trained when none qualifies (`choose.most_promising`)
+    explorable = False  # its candidates may be trained when none qualifies (`choose.most_promising`)
 
     @abstractmethod
     def label(self, c: C.Candidate) -> str:
@@ -150,6 +178,19 @@ class BcAtR(Kind):
         return [Weighed(ctx.classic.bc)]
 
 
+class BcQuality(Kind):
+    """The BC7 quality set (`classic.bc7_quality_set`): measured beside BC@R and reported against,
+    never weighed (its BC7 colour takes BC1's bytes twice)."""
+
+    name = "bc7-quality"
+
+    def label(self, c: C.Candidate) -> str:
+        return "BC7 quality set" if c.repack else C.ALL_CLASSIC
+
+    def predict(self, ctx: FitContext) -> list[Weighed]:
+        return []
+
+
 class BcRepack(Kind):
     """BC@R with some groups merged into BC7 in the same bytes (`classic.repacks`), measured exactly
     beside the probe's training."""
@@ -178,30 +219,42 @@ def at_profiles(ctx: FitContext, chosen: Sequence[int], kind: Kind, at_probe: C.
     cols = [c for i in chosen for c in groups[i].group.channels]
     classic_bytes = sum(groups[i].size_bytes for i in chosen)
     out = []
-    for p in ctx.profiles:
-        c = C.Candidate(names, p, ctx.sizes[p] + classic_bytes, C.combine(ctx.neural_errors(p), ctx.classic.e_bc, cols),
-                        at_probe if p == ctx.p0 else "predicted", ctx.classic.use, kind=kind)
+    for p, w in ctx.settings:
+        if not ctx.fits_width(ctx.ts.num_channels - len(cols), w):
+            continue
+        probe = (p, w) == (ctx.p0, ctx.w0)
+        disk = ctx.probe_disk + sum(disk_bytes(groups[i]) for i in chosen) if probe and at_probe == "measured" else None
+        c = C.Candidate(names, p, ctx.sizes[(p, w)] + classic_bytes,
+                        C.combine(ctx.neural_errors(p, w), ctx.classic.e_bc, cols),
+                        at_probe if probe else "predicted", ctx.classic.use, t0_layers=w, disk_bytes=disk, kind=kind)
         out.append(Weighed(c, ctx.probe, ctx.all_channels) if c.basis == "measured" else Weighed(c))
     return out
 
 
+def t0_text(c: C.Candidate) -> str:
+    """How a candidate's T_0 width reads in its label: nothing for one layer."""
+    return f", T_0 of {c.t0_layers} layers" if c.t0_layers > 1 else ""
+
+
 class NeuralAt(Kind):
-    """Every channel neural at a profile: at p0 the probe itself (measured), elsewhere predicted."""
+    """Every channel neural at a profile and T_0 width: at the probe's the probe itself (measured),
+    elsewhere predicted; a wider T_0 than the probe's is explored when nothing qualifies."""
 
     name = "neural"
+    explorable = True
 
     def label(self, c: C.Candidate) -> str:
-        return f"neural {c.profile}"
+        return f"neural {c.profile}{t0_text(c)}"
 
     def predict(self, ctx: FitContext) -> list[Weighed]:
         return [] if ctx.forced else at_profiles(ctx, (), self, "measured")
 
     def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
-        return c.profile != ctx.p0
+        return (c.profile, c.t0_layers) != (ctx.p0, ctx.w0)
 
     def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
         ctx.log(f"training the channels outside the classic groups at {c.profile} for: {c.label}")
-        return train_outside(ctx, c.classic, c.profile, self)
+        return train_outside(ctx, c.classic, c.profile, self, width=c.t0_layers)
 
 
 class Mixed(Kind):
@@ -212,7 +265,7 @@ class Mixed(Kind):
     explorable = True
 
     def label(self, c: C.Candidate) -> str:
-        return f"neural {c.profile} + classic {', '.join(c.classic)}"
+        return f"neural {c.profile}{t0_text(c)} + classic {', '.join(c.classic)}"
 
     def predict(self, ctx: FitContext) -> list[Weighed]:
         n = len(ctx.classic.groups)
@@ -225,7 +278,7 @@ class Mixed(Kind):
 
     def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
         ctx.log(f"training the channels outside the classic groups at {c.profile} for: {c.label}")
-        return train_outside(ctx, c.classic, c.profile, self)
+        return train_outside(ctx, c.classic, c.profile, self, width=c.t0_layers)
 
 
 class MipSplit(Kind):
@@ -259,7 +312,7 @@ class MipSplit(Kind):
         return export_split(fit.classic, fit.neural.out_dir, ts, out, c.split, resolution)
 
 
-BC_AT_R, REPACK, NEURAL, MIXED, SPLIT = BcAtR(), BcRepack(), NeuralAt(), Mixed(), MipSplit()
+BC_AT_R, REPACK, NEURAL, MIXED, SPLIT, QUALITY = BcAtR(), BcRepack(), NeuralAt(), Mixed(), MipSplit(), BcQuality()
 REGISTRY: tuple[Kind, ...] = (BC_AT_R, REPACK, NEURAL, MIXED, SPLIT)
 
 
@@ -281,21 +334,25 @@ def capped(cfg, cap):
 
 
 def train_outside(ctx: FitContext, classic: Sequence[str], name: str, kind: Kind,
-                  profile: str | None = None) -> Weighed:
+                  profile: str | None = None, width: int | None = None) -> Weighed:
     """Train the channels outside the ``classic`` groups at ``name`` (trained as ``profile``, by
-    default ``ctx.own[name]``) and measure the layout they make with those groups."""
+    default ``ctx.own[name]``) with a T_0 of ``width`` layers (by default the options'), and measure
+    the layout they make with those groups."""
     groups, e_bc = ctx.classic.groups, ctx.classic.e_bc
     keep = [c for c in range(ctx.ts.num_channels)
             if not any(c in g.group.channels for g in groups if g.group.name in classic)]
     sub = subset(ctx.ts, keep)
-    options = replace(ctx.options, profile=profile or ctx.own[name])
+    options = replace(ctx.options, profile=profile or ctx.own[name],
+                      t0_layers=ctx.options.t0_layers if width is None else width)
     res, _ = fit_material(sub, ctx.out / "neural", capped(make_config(sub, options, ctx.wrap)[1], ctx.cap), name,
                           progress=ctx.progress, coverage=ctx.coverage, image_metrics=False)
     e = e_bc.copy()
     e[:, keep] = res.mse_per_channel
     classic_bytes = sum(g.size_bytes for g in groups if g.group.name in classic)
+    disk = model_disk_bytes(res) + sum(disk_bytes(g) for g in groups if g.group.name in classic)
     return Weighed(C.Candidate(tuple(classic), name, res.size_bytes + classic_bytes, tuple(float(v) for v in e.mean(1)),
-                               "measured", ctx.classic.use, kind=kind), res, tuple(keep))
+                               "measured", ctx.classic.use, t0_layers=res.t0_layers, disk_bytes=disk, kind=kind),
+                   res, tuple(keep))
 
 
 def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
@@ -303,6 +360,24 @@ def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
     from bcfpipe.formats.dds import HEADER_BYTES
 
     return sum(HEADER_BYTES + sum(b.nbytes for b, _, _ in g.levels[:keep]) for g in groups)
+
+
+def split_disk_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
+    """`split_bytes` on disk: each group's first ``keep`` levels zstd-compressed, with its header."""
+    from bcfpipe.formats.dds import HEADER_BYTES
+    from bcfpipe.formats.sizes import disk_bytes as zstd_bytes
+
+    return sum(HEADER_BYTES + zstd_bytes([np.concatenate([b.reshape(-1) for b, _, _ in g.levels[:keep]])])
+               for g in groups)
+
+
+def model_disk_bytes(res: MaterialResult) -> int:
+    """A trained model's files on disk, each zstd-compressed: the ones its GPU bytes count (feature
+    DDS files and weights.bin; `export.fit.exported_size`)."""
+    from bcfpipe.export.fit import shipped_files
+    from bcfpipe.formats.sizes import disk_bytes as zstd_bytes
+
+    return zstd_bytes([p.read_bytes() for p in shipped_files(res.out_dir)])
 
 
 def split_candidates(ts: TextureSet, classic: ClassicFit, e_probe: np.ndarray, resolution: int, dims: tuple[int, int],
@@ -343,7 +418,7 @@ def split_candidates(ts: TextureSet, classic: ClassicFit, e_probe: np.ndarray, r
 def train_split(ctx: FitContext, cand: C.Candidate) -> Weighed:
     """Train ``cand``'s features (all channels, s >= its split) and measure the split layout. Below
     the split the layout decodes to BC@R exactly, from it on to the model (tests/test_split_layout.py)."""
-    cfg = capped(make_config(ctx.ts, ctx.options, ctx.wrap)[1], ctx.cap)
+    cfg = capped(make_config(ctx.ts, replace(ctx.options, t0_layers=1), ctx.wrap)[1], ctx.cap)  # as sized
     cfg = cfg.with_(model=replace(cfg.model, resolutions=cand.resolutions, split=cand.split))
     res, _ = fit_material(ctx.ts, ctx.out / "split", cfg, cand.profile, progress=ctx.progress, coverage=ctx.coverage,
                           image_metrics=False)
@@ -351,5 +426,6 @@ def train_split(ctx: FitContext, cand: C.Candidate) -> Weighed:
     err[:cand.split] = ctx.classic.e_bc[:cand.split]
     keep = split_levels(cand.split, ctx.resolution, max(ctx.ts.width, ctx.ts.height))
     m = replace(cand, size_bytes=res.size_bytes + split_bytes(ctx.classic.groups, keep),
-                mse_per_mip=tuple(float(v) for v in err.mean(1)), basis="measured")
+                mse_per_mip=tuple(float(v) for v in err.mean(1)), basis="measured",
+                disk_bytes=model_disk_bytes(res) + split_disk_bytes(ctx.classic.groups, keep))
     return Weighed(m, res, ctx.all_channels)

@@ -12,7 +12,7 @@ from bcfpipe.config import PROFILES, TrainingOptions
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.export import writer as E
 from bcfpipe.export.fit import MaterialResult, exported_size
-from bcfpipe.layout.export import export_layout, write_decision
+from bcfpipe.layout.export import decision_json, export_layout, write_decision
 from bcfpipe.layout.fit import fit_layout
 from bcfpipe.texset.metrics import compute_metrics, mse_per_channel
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
@@ -65,4 +65,4 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
                           fit.train_seconds, {"layout": round(time.perf_counter() - start, 3),
                                               "classic_encode": round(fit.encode_seconds, 3),
                                               "evaluate": round(time.perf_counter() - t0, 3)},
-                          None, per_channel, fit.decision.to_json())
+                          None, per_channel, decision_json(fit))

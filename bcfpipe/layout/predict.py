@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from bcfpipe.config import PROFILES
-from bcfpipe.formats.sizes import feature_bytes, neural_bytes, texture_bytes
+from bcfpipe.formats.sizes import feature_bytes, neural_bytes, texture_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
 
 
@@ -60,6 +60,8 @@ class LayoutPrediction:
     repack_bytes: tuple[int, ...]  # its BC7 repacks, exact (weighed up to R = 4096)
     min_bytes: int
     max_bytes: int
+    t0_layers: tuple[int, ...] = (1,)  # the T_0 widths weighed (--layout neural: the one trained)
+    probe_t0_layers: int = 1  # the probe's T_0 width: the narrowest weighed
 
     @property
     def exact(self) -> bool:
@@ -69,7 +71,7 @@ class LayoutPrediction:
         return {"layout": self.layout, "resolution": self.resolution, "profile": self.profile,
                 "profiles": list(self.profiles), "probe": self.probe, "bc_bytes": self.bc_bytes,
                 "repack_bytes": list(self.repack_bytes), "min_bytes": self.min_bytes, "max_bytes": self.max_bytes,
-                "exact": self.exact}
+                "exact": self.exact, "t0_layers": list(self.t0_layers)}
 
     def size_text(self) -> str:
         """``~X MiB`` when exact, else ``X–Y MiB``."""
@@ -102,6 +104,7 @@ class Query:
     layout: str = Layout.AUTO
     match_bc: bool = False
     classic: tuple[str, ...] = ()
+    widths: tuple[int, ...] = (1,)  # the T_0 widths weighed (`fit.t0_widths`); --layout neural: the one trained
 
 
 def predict(q: Query) -> LayoutPrediction:
@@ -115,17 +118,24 @@ def predict(q: Query) -> LayoutPrediction:
     n_in, hidden = q.dims
     profiles = tuple(candidate_profiles(asked, q.device))
     res_of = {p: (PROFILES[p] if p in PROFILES else tuple(asked_resolutions)) for p in profiles}
-    exact_neural = neural_bytes(asked_resolutions, n_in, hidden, q.n_out)
+    w0 = q.widths[0]
+
+    def model(res, w, n_out):
+        return neural_bytes(widened(res, w), widened_inputs(n_in, w), hidden, n_out)
+
+    exact_neural = model(asked_resolutions, w0, q.n_out)
     forced = set(q.classic)
     forced_bytes = sum(b for name, b in by_group.items() if name in forced)
     if layout == Layout.NEURAL:
         if not forced:
-            return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (), exact_neural, exact_neural)
+            return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (), exact_neural, exact_neural,
+                                    q.widths, w0)
         if forced >= set(by_group):
             return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (), bc, bc)
         return LayoutPrediction(str(layout), resolution, asked, (asked,), None, bc, (),
-                                forced_bytes + feature_bytes(asked_resolutions), forced_bytes + exact_neural)
-    sizes = {p: neural_bytes(res_of[p], n_in, hidden, q.n_channels) for p in profiles}
+                                forced_bytes + feature_bytes(widened(asked_resolutions, w0)), forced_bytes + exact_neural,
+                                q.widths, w0)
+    sizes = {p: model(res_of[p], w0, q.n_channels) for p in profiles}
     p0 = probe_profile(profiles, sizes, bc)
     packs = []
     if resolution <= MAX_REPACK_SIDE:
@@ -141,10 +151,10 @@ def predict(q: Query) -> LayoutPrediction:
         lows.append(sum(split_floor) + feature_bytes((8, 8, 8, 4), headers=True))
     low = min(lows)
     if q.match_bc:  # any size: a mixed layout may hold every group but one and the largest model
-        high = max(bc, *packs, bc + max(neural_bytes(res_of[p], n_in, hidden, q.n_out) for p in profiles))
+        high = max(bc, *packs, bc + max(model(res_of[p], w, q.n_out) for p in profiles for w in q.widths))
     else:
         high = bc
-    return LayoutPrediction(str(layout), resolution, asked, profiles, p0, bc, tuple(packs), low, high)
+    return LayoutPrediction(str(layout), resolution, asked, profiles, p0, bc, tuple(packs), low, high, q.widths, w0)
 
 
 def spec_texture_set(specs: Sequence[tuple[str, str, str]], width: int, height: int,
@@ -193,8 +203,26 @@ def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[s
         groups = classic_groups(spec_texture_set(specs, width, height, hdr))
         out.append(predict(Query(groups, width, height, n, n, asked, tuple(res), bc_resolution(side, options.profile),
                                  device, dims, layout, bool(options.match_bc),
-                                 named_groups(groups, options.classic or ()))))
+                                 named_groups(groups, options.classic or ()), widths_of(options, layout, n))))
     return merge(out)
+
+
+def widths_of(options, layout: str, n_channels: int) -> tuple[int, ...]:
+    """The T_0 widths a job of ``n_channels`` weighs (``layout`` auto) or trains: --t0-layers alone
+    when given (capped at the set's components), one layer for --layout neural or a trained T_0,
+    else every width from 1 to as many layers as the set has components (`config.max_t0_layers`).
+    ``options``: a TrainingOptions or a manifest's Options."""
+    from bcfpipe.config import DEFAULT_T0, max_t0_layers
+    from bcfpipe.formats.vocabulary import T0, FeatureFormat
+
+    features = FeatureFormat(options.features or FeatureFormat.BC7)
+    top = max_t0_layers(n_channels, features)
+    if T0(options.t0 or DEFAULT_T0[features]) != T0.PCA:
+        return (1,)
+    asked = getattr(options, "t0_layers", None)
+    if asked is not None:
+        return (min(int(asked), top),)
+    return tuple(range(1, top + 1)) if layout == Layout.AUTO else (1,)
 
 
 def merge(preds: Sequence[LayoutPrediction]) -> LayoutPrediction:
@@ -205,7 +233,8 @@ def merge(preds: Sequence[LayoutPrediction]) -> LayoutPrediction:
     probes = list(dict.fromkeys(p.probe for p in preds if p.probe))
     return LayoutPrediction(a.layout, a.resolution, a.profile, a.profiles, " or ".join(probes) or None,
                             max(p.bc_bytes for p in preds), tuple(sorted({b for p in preds for b in p.repack_bytes})),
-                            min(p.min_bytes for p in preds), max(p.max_bytes for p in preds))
+                            min(p.min_bytes for p in preds), max(p.max_bytes for p in preds), a.t0_layers,
+                            a.probe_t0_layers)
 
 
 def build_range(preds: Sequence[LayoutPrediction]) -> tuple[int, int]:

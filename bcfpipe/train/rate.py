@@ -32,7 +32,7 @@ from bcfpipe.config import PROFILES, QUALITY_PRESETS, preset_for, resolve_profil
 from bcfpipe.formats.sizes import feature_bytes
 
 __all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_to_target", "anchors_from_bench",
-           "GAINS_DB", "MARGIN_DB"]
+           "GAINS_DB", "MARGIN_DB", "T0_LAYER_GAINS_DB", "t0_layer_gains"]
 
 MARGIN_DB = 0.5
 # On a CPU, 2k does not pay for its 4x bytes and 2.4x time: on the teapot, 2k standard gave 38.54 dB
@@ -52,6 +52,18 @@ GAINS_DB: dict[tuple[str, str], float] = {
     ("1k", "draft"): 0.28, ("1k", "fast"): 3.30, ("1k", "standard"): 4.43,
     ("2k", "draft"): 1.27, ("2k", "fast"): 4.29, ("2k", "standard"): 5.42,
 }
+# What more layers of principal components in a fixed T_0 (--t0-layers, issue 52) add over one, in
+# dB per reference mip, by the mip's place against T_0's level 0: the first entry for every mip
+# finer than it (T_0 magnified), then level 0, 1, 2 and every coarser one. Measured from exported
+# files at 1k draft with the layout neural (docs/benchmarks.md, "Issue 52: a T_0 of 1 to 3 layers"):
+# two layers over one, the mean of the teapot (6 channels: +0.49 / +1.55 / +1.21 / +0.53) and the
+# water bottle (11: +0.83 / +2.98 / +3.36 / +3.54); three layers, the bottle's third over its second
+# (-0.01 / +1.18 / +1.00 / +1.01) added to that. A set of four channels or fewer has one layer only.
+T0_LAYER_GAINS_DB: dict[int, tuple[float, ...]] = {
+    1: (0.0, 0.0, 0.0, 0.0),
+    2: (0.66, 2.27, 2.29, 2.04),
+    3: (0.65, 3.45, 3.29, 3.05),
+}
 PAPER_OVER_STANDARD_DB = 1.0  # a GPU's 206k steps over `standard`'s 19.5k: a guess until measured on a GPU
 
 
@@ -60,6 +72,13 @@ def _gain(profile: str, preset: str) -> float:
     if preset == "paper":
         return GAINS_DB[(base, "standard")] + PAPER_OVER_STANDARD_DB
     return GAINS_DB[(base, preset)]
+
+
+def t0_layer_gains(t0_layers: int, n_mips: int, t0_mip: int) -> "list[float]":
+    """`T0_LAYER_GAINS_DB` of ``t0_layers`` at each of ``n_mips`` reference mips, T_0's level 0
+    serving reference mip ``t0_mip``."""
+    row = T0_LAYER_GAINS_DB[t0_layers]
+    return [row[0] if k < t0_mip else row[min(1 + k - t0_mip, len(row) - 1)] for k in range(n_mips)]
 
 
 @dataclass(frozen=True)
