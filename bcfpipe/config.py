@@ -215,14 +215,15 @@ LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 13  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
+MODEL_FORMAT = 14  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
 # (BC6H and BC7); 7: the BC6H first encode compiled (bc6h/quick.cpp: a few blocks in a thousand differ);
 # 8: --layout auto the default (a record without a layout meant neural before); fast and standard take
 # fewer steps at a 2048² T_0 on a CPU (CPU_PRESETS_LARGE); 9: --layout auto weighs mip splits (material.json
 # format 4); 10: --layout auto weighs BC7 repacks of BC@R (classic BC7_UNORM textures); 11: --t0 pca, the
 # bc7 default: a fixed T_0 of principal components in any BC7 mode; 12: the all-channels BC7 repack keeps every
 # colour and normal whole at a texture's r, g(, b), so that a UsdUVTexture reads it (issue 50); 13: a layout's
-# probe and second model train no more steps than --layout neural at the profile asked (layout.fit.capped)
+# probe and second model train no more steps than --layout neural at the profile asked (layout.fit.capped);
+# 14: --layout auto weighs T_0 widths (issue 52) and layout.json reports the BC7 quality set and disk bytes
 
 # --pca-clip: the percentage of texels at each end of a principal component's range that the PCA
 # start and a fixed T_0 clip (0.1: the 0.1st..99.9th percentiles span the feature range)

@@ -23,13 +23,17 @@ __all__ = ["plan_cmd"]
 def plan_json(bplan) -> dict:
     """The plan as JSON: every job with its content hash, materials, sources (with hashes) and
     options, and ``prediction``: the resolution R, the profiles and probe the build will use, BC@R's
-    bytes and the bytes it can ship (`bcfpipe.layout.predict`); the packed coverage mask is replaced
-    by its covered fraction (already given). ``predicted_bytes``: the build's range, every job summed."""
+    bytes and the bytes it can ship (`bcfpipe.layout.predict`), with every all-neural candidate's
+    bytes and the BC7 quality set's; ``built``: the layout.json of the job's cached build, if any
+    (every layout's per-mip figures against BC@R and the BC7 quality set, measured); the packed
+    coverage mask is replaced by its covered fraction (already given). ``predicted_bytes``: the
+    build's range, every job summed."""
     d = bplan.to_dict()
     preds = [job_prediction(j) for j in bplan.jobs]
-    for j, p in zip(d["jobs"], preds):
+    for job, j, p in zip(bplan.jobs, d["jobs"], preds):
         j.pop("coverage", None)
         j["prediction"] = p.to_json() if p is not None else None
+        j["built"] = built_layout(job)
     known = [p for p in preds if p is not None]
     from bcfpipe.layout.predict import build_range
 
@@ -116,16 +120,55 @@ def _say_job(say, j) -> None:
                       "; no BC7 repack fits its bytes") if r <= MAX_REPACK_SIDE else ""
             probe = f"a probe at {pred.probe}" if pred else "a probe"
             say(f"    layout auto: against BC@{r}{bc}{repack}{held}; {probe} (the largest profile within its "
-                f"bytes), at most one more training (a mixed layout or a mip split), decided when trained "
-                f"(docs/layout.md)")
+                f"bytes), at most one more training (a mixed layout, a wider T_0 or a mip split), decided when "
+                f"trained (docs/layout.md)")
+            if pred is not None:
+                _say_weighed(say, pred)
         else:
             say(f"    layout: against BC@{r}{bc}{held}; the rest neural at {prof}")
     if pred is not None:
         say(f"    ships {pred.size_text()}" + ("" if pred.exact else
                                                  f" (at most BC@{pred.resolution}'s bytes: what training decides)"
                                                  if not j.options.match_bc else " (--match-bc: any size)"))
+    built = built_layout(j)
+    if built is not None:
+        _say_built(say, built)
     for m in j.materials:
         say(f"    {m}")
+
+
+def _say_weighed(say, pred) -> None:
+    """The all-neural candidates' GPU bytes by profile and T_0 width, and the BC7 quality set's."""
+    by = {}
+    for p, w, b in pred.neural:
+        by.setdefault(p, []).append(f"{w} layer{'s' if w > 1 else ''} {b / 2**20:.2f}")
+    text = "; ".join(f"{p}: T_0 of {', '.join(v)} MiB" for p, v in by.items())
+    q = f"; the BC7 quality set {pred.bc7_bytes / 2**20:.2f} MiB (reported against)" if pred.bc7_bytes else ""
+    say(f"    weighs neural {text}{q}")
+
+
+def built_layout(job) -> dict | None:
+    """The layout.json of ``job``'s cached build (its content hash in the default cache), if there is
+    one: what a build of this job ships, measured. Read only: plan writes nothing."""
+    from bcfpipe.cache.store import LAYOUT
+    from bcfpipe.config import default_cache_root
+
+    path = default_cache_root() / LAYOUT / "entries" / job.content_hash[:2] / job.content_hash / "layout.json"
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _say_built(say, d: dict) -> None:
+    """A cached job's layout: the one shipped, its bytes and its per-mip margins."""
+    c = d["chosen"]
+    disk = f", {c['disk_bytes'] / 2**20:.2f} MiB on disk (zstd 19)" if c.get("disk_bytes") else ""
+    say(f"    cached: ships {c['layout']}, {c['size_bytes'] / 2**20:.2f} MiB{disk}, {c['psnr']:.2f} dB")
+    if c.get("margin_per_mip_db"):
+        say("      per mip against BC@R: " + " ".join(f"{v:+.1f}" for v in c["margin_per_mip_db"]) + " dB")
+    if c.get("margin_vs_bc7_per_mip_db"):
+        say("      against the BC7 quality set: " + " ".join(f"{v:+.1f}" for v in c["margin_vs_bc7_per_mip_db"]) + " dB")
 
 
 def _say_decisions(say, bplan) -> None:

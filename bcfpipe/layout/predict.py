@@ -62,6 +62,8 @@ class LayoutPrediction:
     max_bytes: int
     t0_layers: tuple[int, ...] = (1,)  # the T_0 widths weighed (--layout neural: the one trained)
     probe_t0_layers: int = 1  # the probe's T_0 width: the narrowest weighed
+    neural: tuple[tuple[str, int, int], ...] = ()  # every all-neural candidate weighed: (profile, T_0 width, bytes)
+    bc7_bytes: int = 0  # the BC7 quality set at R (reported against, not shipped); 0: not measured
 
     @property
     def exact(self) -> bool:
@@ -71,7 +73,9 @@ class LayoutPrediction:
         return {"layout": self.layout, "resolution": self.resolution, "profile": self.profile,
                 "profiles": list(self.profiles), "probe": self.probe, "bc_bytes": self.bc_bytes,
                 "repack_bytes": list(self.repack_bytes), "min_bytes": self.min_bytes, "max_bytes": self.max_bytes,
-                "exact": self.exact, "t0_layers": list(self.t0_layers)}
+                "exact": self.exact, "t0_layers": list(self.t0_layers),
+                "neural_bytes": [{"profile": p, "t0_layers": w, "size_bytes": b} for p, w, b in self.neural],
+                "bc7_quality_bytes": self.bc7_bytes or None}
 
     def size_text(self) -> str:
         """``~X MiB`` when exact, else ``X–Y MiB``."""
@@ -109,7 +113,7 @@ class Query:
 
 def predict(q: Query) -> LayoutPrediction:
     """The prediction for the set and job ``q`` describes."""
-    from bcfpipe.layout.classic import MAX_REPACK_SIDE, repacks, split_levels
+    from bcfpipe.layout.classic import MAX_REPACK_SIDE, bc7_quality_set, repacks, split_levels
 
     groups, asked, asked_resolutions, resolution, layout = q.groups, q.asked, q.asked_resolutions, q.resolution, q.layout
     levels = bc_levels(q.width, q.height, resolution)
@@ -154,7 +158,11 @@ def predict(q: Query) -> LayoutPrediction:
         high = max(bc, *packs, bc + max(model(res_of[p], w, q.n_out) for p in profiles for w in q.widths))
     else:
         high = bc
-    return LayoutPrediction(str(layout), resolution, asked, profiles, p0, bc, tuple(packs), low, high, q.widths, w0)
+    neural = tuple((p, w, model(res_of[p], w, q.n_channels)) for p in profiles for w in q.widths)
+    quality = bc7_quality_set(groups)
+    bc7 = bc if quality is None else bc + sum(texture_bytes(g.format, levels) - by_group[g.name] for g in quality.groups)
+    return LayoutPrediction(str(layout), resolution, asked, profiles, p0, bc, tuple(packs), low, high, q.widths, w0,
+                            neural, bc7 if resolution <= MAX_REPACK_SIDE else 0)
 
 
 def spec_texture_set(specs: Sequence[tuple[str, str, str]], width: int, height: int,
@@ -234,7 +242,7 @@ def merge(preds: Sequence[LayoutPrediction]) -> LayoutPrediction:
     return LayoutPrediction(a.layout, a.resolution, a.profile, a.profiles, " or ".join(probes) or None,
                             max(p.bc_bytes for p in preds), tuple(sorted({b for p in preds for b in p.repack_bytes})),
                             min(p.min_bytes for p in preds), max(p.max_bytes for p in preds), a.t0_layers,
-                            a.probe_t0_layers)
+                            a.probe_t0_layers, a.neural, max(p.bc7_bytes for p in preds))
 
 
 def build_range(preds: Sequence[LayoutPrediction]) -> tuple[int, int]:
