@@ -38,7 +38,11 @@ BC@R (BC1/BC4/BC5, `encode_texture_set_baseline`) and the BC7 quality set at R (
 BC@R's packing with BC7 for every colour or packed-file texture). Bytes are GPU bytes with every
 mip; a T_0 row counts T_0 only (a 1k model adds 0.44 MiB of T_1..T_3).
 
+``--resolution R`` sets R (a power of two up to the set's side; by default half the side). A T_0
+of more texels than the source (2R past the side) is skipped, and the output says so.
+
   python benchmarks/bound_t0.py --widths [--sets teapot,brick,wood,bottle] [--crop 256] [--workers 1]
+      [--resolution 2048]
 """
 from __future__ import annotations
 
@@ -307,7 +311,11 @@ def widths(args) -> None:
             n = args.crop
             ts = TextureSet(np.ascontiguousarray(ts.data[:n, :n]), ts.channels, n, n)
         ref = build_mip_chain(ts.data)
-        r = max(ts.width, ts.height) // 2
+        side = max(ts.width, ts.height)
+        r = args.resolution or side // 2
+        if r > side or r & (r - 1):
+            raise SystemExit(f"--resolution {r}: {name} is {ts.width}x{ts.height}; "
+                             f"R must be a power of two up to {side}")
         tag = f"{name} ({ts.num_channels} ch{f', {args.crop}² crop' if args.crop else ''})"
 
         def psnr(dec: list[np.ndarray]) -> list[float]:
@@ -323,6 +331,10 @@ def widths(args) -> None:
         q, size = bc7_quality_set(ts, r, ref)
         row(f"BC7 quality set at {r}", size, q)
         for res in (r, 2 * r):
+            if res > side:
+                print(f"<!-- {name}: T_0 at {res}² skipped: more texels than the "
+                      f"{ts.width}x{ts.height} source -->", flush=True)
+                continue
             for label, size, dec, raw in t0_rows(ts, ref, res):
                 row(label, size, dec, raw)
         print(f"<!-- {name}: {time.perf_counter() - t0:.0f} s -->", flush=True)
@@ -333,6 +345,8 @@ def main() -> None:
     ap.add_argument("--sets", default=None, help="teapot,brick (default); with --widths teapot,brick,wood,bottle")
     ap.add_argument("--widths", action="store_true", help="issue 52's table: T_0 of 4, 8, 12 components at R and 2R")
     ap.add_argument("--crop", type=int, default=0, help="with --widths: the sets' top-left N² texels only")
+    ap.add_argument("--resolution", type=int, default=0,
+                    help="with --widths: R, BC@R's and T_0's resolution (default half the set's side: 1024 for 2048²)")
     ap.add_argument("--workers", type=int, default=None, help="cores for the encoders and torch (default all)")
     args = ap.parse_args()
     if args.workers:
