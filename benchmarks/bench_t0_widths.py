@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -37,6 +38,8 @@ def _train(name: str, out: Path, args: argparse.Namespace, extra: list[str]) -> 
         return json.loads(result.read_text())
     cmd = [sys.executable, "-m", "bcfpipe", "train", *_spec_args(name), "--profile", args.profile, "--quality",
            args.quality, "--threads", str(args.threads), "-o", str(out), "--force", "--json", *extra]
+    if os.environ.get("BENCH_LOCK"):  # a file to flock(1) each training on, on a machine shared with other jobs
+        cmd = ["flock", os.environ["BENCH_LOCK"], *cmd]
     t = time.perf_counter()
     p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
