@@ -2,8 +2,10 @@
 
 A BCf cell trains, exports, and is measured from the exported files (BC6H DDS + fp16 decoder
 through onnxruntime), as `bcfpipe train` does. A baseline cell encodes and decodes every mip of
-the texture set with a classic codec (bcfpipe.texset.baselines). Both keep what the report needs
-beyond the metrics: a lod sweep and the decoded texels of the crop windows.
+the texture set with a classic codec (bcfpipe.texset.baselines): BC@R, the BC7 quality set beside
+it, ASTC. Both keep what the report needs beyond the metrics: a lod sweep, the decoded texels of
+the crop windows, and their sizes twice (issue 52): GPU bytes and bytes on disk, each shipped file
+zstd-compressed at `formats.sizes.DISK_ZSTD_LEVEL`, as games ship BC textures.
 """
 from __future__ import annotations
 
@@ -16,39 +18,72 @@ import numpy as np
 
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.bench import lod_sweep as L
-from bcfpipe.texset.baselines import encode_texture_set_baseline
+from bcfpipe.texset.baselines import BC7_QUALITY, encode_texture_set_baseline
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.texset.metrics import Metrics, compute_metrics
 
-__all__ = ["Baseline", "Cell", "baseline_grid", "measure_baseline", "train_cell", "Windows"]
+__all__ = ["Baseline", "Cell", "baseline_grid", "measure_baseline", "train_cell", "Windows", "blocks_disk_bytes",
+           "files_disk_bytes"]
 
 # (mip, x, y, side) of each crop window; a cell keeps its decoded texels there
 Windows = Sequence[tuple[int, int, int, int]]
 CURVE_POINTS = 200
+ENCODERS = {"bc": "quicktex (BC1 level 18, BC4, BC5)", BC7_QUALITY: "ISPC BC7 (alpha_basic) for BC1; quicktex BC4, BC5",
+            "astc": "astcenc -thorough, LDR linear"}
 
 
 @dataclass(frozen=True)
 class Baseline:
-    """A classic encoding of the set: ``codec`` 'bc' (BC1/BC4/BC5 as an engine packs the set) or
-    'astc' with ``block``, at the set's resolution divided by 2**``shift``."""
+    """A classic encoding of the set: ``codec`` 'bc' (BC1/BC4/BC5 as an engine packs the set),
+    `BC7_QUALITY` (the same with BC7 for BC1: the BC7 quality set) or 'astc' with ``block``, at the
+    set's resolution divided by 2**``shift``."""
 
     codec: str
     block: str | None
     shift: int
 
     def label(self, side: int) -> str:
-        name = "BC" if self.codec == "bc" else f"ASTC {self.block}"
+        name = {"bc": "BC", BC7_QUALITY: "BC7 quality"}.get(self.codec, f"ASTC {self.block}")
         return f"{name} @{side >> self.shift}"
 
 
-def baseline_grid(codecs: Sequence[str], astc_blocks: Sequence[str], shifts: Sequence[int]) -> list[Baseline]:
-    """Every requested codec at every resolution step: BC once, ASTC once per block size."""
+def baseline_grid(codecs: Sequence[str], astc_blocks: Sequence[str], shifts: Sequence[int],
+                  bc_shifts: Sequence[int] = ()) -> list[Baseline]:
+    """Every requested codec at every resolution step: BC once and the BC7 quality set beside it,
+    ASTC once per block size; BC and the quality set also at ``bc_shifts`` (the BCf cells' R)."""
     out = []
-    for shift in shifts:
-        for codec in codecs:
+    for shift in sorted({*shifts, *bc_shifts}):
+        for codec in codecs if shift in shifts else [c for c in codecs if c == "bc"]:
             blocks = astc_blocks if codec == "astc" else (None,)
             out.extend(Baseline(codec, b, shift) for b in blocks)
+            if codec == "bc":
+                out.append(Baseline(BC7_QUALITY, None, shift))
     return out
+
+
+def blocks_disk_bytes(textures: Sequence, astc: bool = False) -> int:
+    """Bytes on disk of the shipped ``textures`` ((format, channels, [(blocks, w, h) per level])):
+    a BC texture is one DDS file of every level, an ASTC level one .astc file; each file its header
+    and its blocks zstd-compressed (`formats.sizes.disk_bytes`), as `layout.classic.disk_bytes`
+    counts BC@R's."""
+    from bcfpipe.formats.dds import HEADER_BYTES
+    from bcfpipe.formats.sizes import disk_bytes
+    from bcfpipe.texset.baselines import ASTC_HEADER_BYTES
+
+    if astc:
+        levels = [b for _, _, lv in textures for b, _, _ in lv]
+        return ASTC_HEADER_BYTES * len(levels) + disk_bytes(levels)
+    return HEADER_BYTES * len(textures) + disk_bytes(
+        [np.concatenate([b.reshape(-1) for b, _, _ in lv]) for _, _, lv in textures])
+
+
+def files_disk_bytes(folder: Path) -> int:
+    """Bytes on disk of an exported material's shipped files (`export.fit.shipped_files`: what its
+    GPU bytes count), each zstd-compressed whole."""
+    from bcfpipe.export.fit import shipped_files
+    from bcfpipe.formats.sizes import disk_bytes
+
+    return disk_bytes([p.read_bytes() for p in shipped_files(folder)])
 
 
 @dataclass
@@ -56,20 +91,23 @@ class Cell:
     """A measured cell; ``json`` is what the report and its data file keep."""
 
     method: str
-    kind: str  # "bcf", "bc" or "astc"
+    kind: str  # "bcf", "bc", BC7_QUALITY or "astc"
     metrics: Metrics
-    size_bytes: int
+    size_bytes: int  # GPU bytes: a baseline's blocks; a BCf cell's shipped files
     seconds: float  # BCf: training wall time; baselines: encode + decode
     sweep: list[float]
     crops: list[np.ndarray]  # one (side, side, c) array per window
     extra: dict = field(default_factory=dict)
     textures: list | None = None  # a BC baseline's blocks, for the decode-cost pass
     folder: Path | None = None  # a BCf cell's exported material
+    disk_bytes: int | None = None  # its files on disk, zstd-compressed (`blocks_disk_bytes`, `files_disk_bytes`)
 
     def to_json(self) -> dict:
         m = self.metrics
+        disk = self.disk_bytes
         return {"method": self.method, "kind": self.kind, **self.extra, "size_bytes": self.size_bytes,
-                "size_mib": self.size_bytes / 2**20, "psnr": m.psnr, "psnr_per_mip": list(m.psnr_per_mip),
+                "size_mib": self.size_bytes / 2**20, "disk_bytes": disk,
+                "disk_mib": None if disk is None else disk / 2**20, "psnr": m.psnr, "psnr_per_mip": list(m.psnr_per_mip),
                 "psnr_per_group": dict(m.psnr_per_group), "ssim": m.ssim, "flip": m.flip, "seconds": self.seconds,
                 "lod_sweep": self.sweep}
 
@@ -82,16 +120,18 @@ def measure_baseline(ts: TextureSet, ref: Sequence[np.ndarray], b: Baseline, gri
                      tmp_dir: str | None = None) -> Cell:
     """Encode and decode every mip with baseline ``b``; metrics, lod sweep and crops of the result."""
     side = max(ts.width, ts.height)
-    textures: list | None = [] if b.codec == "bc" and b.shift == 0 else None
+    textures: list = []
     t0 = time.perf_counter()
     dec, size = encode_texture_set_baseline(ts, b.codec, side >> b.shift, ref_mips=ref,
                                             astc_block=b.block or "12x12", textures=textures, tmp_dir=tmp_dir)
     seconds = time.perf_counter() - t0
     metrics = compute_metrics(ref, dec, ts.channels)
     sweep = L.sweep(grid, L.mips_answer(dec, grid.wrap))
-    extra = {"codec": b.codec, "block": b.block, "resolution": side >> b.shift,
-             "encoder": "quicktex (BC1 level 18, BC4, BC5)" if b.codec == "bc" else "astcenc -thorough, LDR linear"}
-    return Cell(b.label(side), b.codec, metrics, size, seconds, sweep, _crops(dec, windows), extra, textures)
+    extra = {"codec": b.codec, "block": b.block, "resolution": side >> b.shift, "encoder": ENCODERS[b.codec],
+             "formats": [fmt for fmt, _, _ in textures]}
+    disk = blocks_disk_bytes(textures, astc=b.codec == "astc")
+    return Cell(b.label(side), b.codec, metrics, size, seconds, sweep, _crops(dec, windows), extra,
+                textures if b.codec == "bc" and b.shift == 0 else None, disk_bytes=disk)
 
 
 def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], options, out_dir: Path, grid: L.LodGrid,
@@ -122,5 +162,6 @@ def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], options, out_dir: Path
              "train_seconds": res.train_seconds,
              "float_psnr": res.float_metrics.psnr if res.float_metrics is not None else None,
              "training_curve": curve[::step] + ([curve[-1]] if curve and (len(curve) - 1) % step else [])}
-    return Cell(f"BCf {name} {preset}" + ("" if features == "bc6h" else f" {features}"), "bcf", res.metrics, res.size_bytes, res.train_seconds, sweep, crops,
-                extra, folder=Path(out_dir))
+    return Cell(f"BCf {name} {preset}" + ("" if features == "bc6h" else f" {features}"), "bcf", res.metrics,
+                res.size_bytes, res.train_seconds, sweep, crops, extra, folder=Path(out_dir),
+                disk_bytes=files_disk_bytes(Path(out_dir)))

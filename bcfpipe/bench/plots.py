@@ -1,8 +1,8 @@
 """The bench's plots, drawn from its JSON alone (so a report can be redrawn without re-measuring).
 
 Per texture set: rate-distortion (PSNR over MiB), PSNR over training time, PSNR per mip and PSNR
-over a continuous lod sweep. BCf cells are solid markers, BC dashed, ASTC dotted; half-resolution
-baselines are lighter.
+over a continuous lod sweep. BCf cells are solid markers, BC dashed, the BC7 quality set dash-dotted,
+ASTC dotted; half-resolution baselines are lighter.
 """
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ __all__ = ["PLOTS", "draw_set"]
 
 PLOTS = ("rd", "time", "per_mip", "lod")
 SIDE_LEGEND = {"fontsize": 6, "ncol": 2, "loc": "upper left", "bbox_to_anchor": (1.01, 1.0)}
+SERIES = {"bc": ("BC", "tab:gray"), "bc7": ("BC7 quality", "tab:purple"), "astc": ("ASTC 4x4..12x12", "tab:green")}
 TITLES = {"rd": "Rate-distortion", "time": "PSNR over training time", "per_mip": "PSNR per mip",
           "lod": "PSNR over lod"}
 
@@ -29,8 +30,8 @@ def _style(row: dict, full: int) -> dict:
     half = row.get("resolution", full) < full
     if row["kind"] == "bcf":
         return {"ls": "-", "marker": "o", "alpha": 1.0}
-    return {"ls": "--" if row["kind"] == "bc" else ":", "marker": "s" if row["kind"] == "bc" else "^",
-            "alpha": 0.45 if half else 0.9}
+    ls, marker = {"bc": ("--", "s"), "bc7": ("-.", "D")}.get(row["kind"], (":", "^"))
+    return {"ls": ls, "marker": marker, "alpha": 0.45 if half else 0.9}
 
 
 def _finite(v) -> float | None:
@@ -58,12 +59,12 @@ def draw_rd(s: dict, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(8.5, 4.4), dpi=110)
     series: dict[tuple, list[dict]] = {}
     for b in s["baselines"]:
-        series.setdefault((b["codec"] if b["codec"] == "bc" else "astc", b["resolution"]), []).append(b)
+        series.setdefault((b["codec"], b["resolution"]), []).append(b)
     for (codec, res), rows in sorted(series.items(), key=lambda kv: (kv[0][0], -kv[0][1])):
         rows = sorted(rows, key=lambda r: r["size_mib"])
         st = _style(rows[0], full)
-        ax.plot([r["size_mib"] for r in rows], [r["psnr"] for r in rows], color="tab:gray" if codec == "bc" else
-                "tab:green", label=f"{'BC' if codec == 'bc' else 'ASTC 4x4..12x12'} @{res}", **st)
+        name, color = SERIES.get(codec, SERIES["astc"])
+        ax.plot([r["size_mib"] for r in rows], [r["psnr"] for r in rows], color=color, label=f"{name} @{res}", **st)
         for r in rows:
             if r["codec"] == "astc":
                 ax.annotate(r["block"], (r["size_mib"], r["psnr"]), fontsize=6, xytext=(3, -8),
@@ -75,7 +76,7 @@ def draw_rd(s: dict, path: Path) -> None:
         for c in rows:
             ax.plot([c["size_mib"]], [c["psnr"]], "o", ms=7, label=f"BCf {prof} {c['preset']}")
     ax.set_xscale("log")
-    _label(ax, "size (MiB, log scale; BCf: 4 BC6H feature textures + fp16 weights)", "PSNR over all mips (dB)",
+    _label(ax, "GPU size (MiB, log scale; BCf: its feature textures + fp16 weights)", "PSNR over all mips (dB)",
            f"{s['name']}: rate-distortion")
     _save(plt, fig, ax, path, {**SIDE_LEGEND, "ncol": 1, "fontsize": 7}, grid="both")
 

@@ -61,6 +61,46 @@ def _decode_ratio(s: dict, method: str) -> float | None:
     return None
 
 
+def _mib(r: dict, key: str) -> str:
+    v = r.get(key)
+    return "-" if v is None else format(v / 2**20, ".3f")
+
+
+def _against(s: dict) -> list[tuple[dict, dict]]:
+    """(BCf cell, reference) for each cell against BC@R and the BC7 quality set at R, R its T_0
+    side; those the report holds."""
+    out = []
+    for c in s["cells"]:
+        r = (c.get("resolutions") or [max(s["width"], s["height"])])[0]
+        out += [(c, b) for kind in ("bc", "bc7") for b in s["baselines"] if b["kind"] == kind and b["resolution"] == r]
+    return out
+
+
+def _ratio(a, b) -> str:
+    return "-" if a is None or not b else f"{a / b:.2f}"
+
+
+def _margin_rows(s: dict) -> list[list[str]]:
+    """Per BCf cell and reference: the size ratios (GPU, disk) and the per-mip margins (dB)."""
+    out = []
+    for c, b in _against(s):
+        margins = [x - y if x is not None and y is not None else None
+                   for x, y in zip(c["psnr_per_mip"], b["psnr_per_mip"])]
+        out.append([c["method"], b["method"], _ratio(c["size_bytes"], b["size_bytes"]),
+                    _ratio(c.get("disk_bytes"), b.get("disk_bytes")), *[_f(v, "+.1f") for v in margins]])
+    return out
+
+
+def _margins_markdown(s: dict) -> list[str]:
+    rows = _margin_rows(s)
+    if not rows:
+        return []
+    head = ["method", "against", "GPU bytes ×", "disk bytes ×", *[f"mip {k}" for k in range(len(s["mips"]))]]
+    return ["\nAgainst BC@R and the BC7 quality set at R, R each BCf cell's T_0 side: size ratios and per-mip "
+            "PSNR margins (dB, + where BCf is better):\n", "| " + " | ".join(head) + " |\n|---|---|" + "---:|" * (len(head) - 2),
+            *("| " + " | ".join(r) + " |" for r in rows)]
+
+
 def summary_markdown(data: dict) -> str:
     m = data["machine"]
     out = [f"# bcfpipe bench\n\nMachine: {m['cpu']}, {m['cores']} cores, torch {m['torch']}, "
@@ -69,15 +109,16 @@ def summary_markdown(data: dict) -> str:
         n = len(s["mips"])
         out.append(f"\n## {s['name']} ({s['width']}x{s['height']}, {len(s['channels'])} channels)\n\n"
                    f"Sources: {', '.join(f'`{x}`' for x in s['sources'])}\n")
-        head = ["method", "MiB", "PSNR all mips", *[f"mip {k}" for k in range(n)], "SSIM", "FLIP", "time (s)",
-                "decode / BC"]
+        head = ["method", "GPU MiB", "disk MiB", "PSNR all mips", *[f"mip {k}" for k in range(n)], "SSIM", "FLIP",
+                "time (s)", "decode / BC"]
         out.append("| " + " | ".join(head) + " |\n|" + "---|" + "---:|" * (len(head) - 1))
         for r in _rows(s):
             t = r.get("train_seconds", r["seconds"])
-            cells = [r["method"], _f(r["size_mib"], ".3f"), _f(r["psnr"]), *[_f(v, ".1f") for v in r["psnr_per_mip"]],
+            cells = [r["method"], _f(r["size_mib"], ".3f"), _mib(r, "disk_bytes"), _f(r["psnr"]), *[_f(v, ".1f") for v in r["psnr_per_mip"]],
                      _f(r["ssim"], ".4f"), _f(r["flip"], ".4f"), _f(t, ".0f"),
                      _f(_decode_ratio(s, r["method"]), ".1f") if r["kind"] == "bcf" else "-"]
             out.append("| " + " | ".join(cells) + " |")
+        out.extend(_margins_markdown(s))
         groups = sorted({g for r in s["cells"] for g in r["psnr_per_group"]})
         if groups:
             out.append("\nPSNR per channel group (all mips, dB):\n\n| method | " + " | ".join(groups) + " |\n|---|"
@@ -96,17 +137,28 @@ def summary_markdown(data: dict) -> str:
 
 def _table_html(s: dict) -> str:
     n = len(s["mips"])
-    head = ["method", "MiB", "PSNR all mips", *[f"mip {k}" for k in range(n)], "SSIM mip 0", "FLIP mip 0",
-            "time (s)", "decode / BC"]
+    head = ["method", "GPU MiB", "disk MiB", "PSNR all mips", *[f"mip {k}" for k in range(n)], "SSIM mip 0",
+            "FLIP mip 0", "time (s)", "decode / BC"]
     rows = []
     for r in _rows(s):
         t = r.get("train_seconds", r["seconds"])
-        vals = [_f(r["size_mib"], ".3f"), _f(r["psnr"]), *[_f(v, ".1f") for v in r["psnr_per_mip"]],
+        vals = [_f(r["size_mib"], ".3f"), _mib(r, "disk_bytes"), _f(r["psnr"]), *[_f(v, ".1f") for v in r["psnr_per_mip"]],
                 _f(r["ssim"], ".4f"), _f(r["flip"], ".4f"), _f(t, ".0f"),
                 _f(_decode_ratio(s, r["method"]), ".1f") if r["kind"] == "bcf" else "-"]
         cls = ' class="bcf"' if r["kind"] == "bcf" else ""
         rows.append(f"<tr{cls}><td>{html.escape(r['method'])}</td>" + "".join(f"<td>{v}</td>" for v in vals) + "</tr>")
     return ("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" + "".join(rows)
+            + "</table>" + _margins_html(s))
+
+
+def _margins_html(s: dict) -> str:
+    rows = _margin_rows(s)
+    if not rows:
+        return ""
+    head = ["method", "against", "GPU bytes ×", "disk bytes ×", *[f"mip {k}" for k in range(len(s["mips"]))]]
+    return ("<p class='note'>Against BC@R and the BC7 quality set at R, R each BCf cell's T_0 side: size ratios "
+            "and per-mip PSNR margins (dB, + where BCf is better).</p><table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head)
+            + "</tr>" + "".join("<tr>" + "".join(f"<td>{html.escape(v)}</td>" for v in r) + "</tr>" for r in rows)
             + "</table>")
 
 
@@ -124,7 +176,9 @@ def _html(data: dict, plots: dict[str, dict[str, str]]) -> str:
              "against the same reference mips: BCf from its exported files (BC6H DDS + fp16 decoder through "
              "onnxruntime), baselines after encoding and decoding every mip (BC: quicktex, BC1 at its slowest "
              "level for colour and packed maps, BC5 for normal xy, BC4 for a lone scalar; ASTC: astcenc "
-             "-thorough, LDR linear; a half-size baseline is magnified bilinearly for the mip it lacks). "
+             "-thorough, LDR linear; the BC7 quality set: BC with every BC1 texture in BC7, ISPC; a half-size "
+             "baseline is magnified bilinearly for the mip it lacks). Sizes are GPU bytes (BCf: its shipped "
+             "files; baselines: their blocks) and bytes on disk, each file zstd-compressed at level 19. "
              "PSNR over all mips averages the "
              "MSE of the mips of at least 4x4; SSIM and FLIP are at mip 0.</p>"]
     for s in data["sets"]:

@@ -1,8 +1,10 @@
 """`bcfpipe bench`: measure what each profile and preset buys against BC and ASTC, per texture set.
 
-For every set: the baseline grid, then every (profile, preset) BCf cell, then the decode cost of
-each BCf cell against the set's BC textures in one GL run, and the crops. The result is one
-JSON-ready dict (bcfpipe.bench.report writes it with its plots, HTML and markdown).
+For every set: the baseline grid (BC@R with the BC7 quality set beside it, ASTC), then every
+(profile, preset) BCf cell, then the decode cost of each BCf cell against the set's BC textures in
+one GL run, and the crops. Every row carries its per-mip margins against BC@R and the BC7 quality
+set at R (a BCf cell's R is its T_0 side: BC and the quality set are measured there too), and its size twice: GPU bytes and zstd-19 bytes on disk (issue 52). The
+result is one JSON-ready dict (bcfpipe.bench.report writes it with its plots, HTML and markdown).
 """
 from __future__ import annotations
 
@@ -125,6 +127,31 @@ def _similar_baseline(cell: C.Cell, baselines: Sequence[C.Cell]) -> C.Cell | Non
     return min(baselines, key=lambda b: abs(np.log(b.size_bytes / cell.size_bytes)), default=None)
 
 
+def _grid(opts: BenchOptions, side: int) -> list[C.Baseline]:
+    """The baselines of a set whose larger side is ``side``: the requested grid, with BC and the BC7
+    quality set also at each profile's R (its T_0), which the BCf cells are reported against."""
+    from bcfpipe.config import resolve_profile
+
+    shifts = {(side // resolve_profile(p, side)[1][0]).bit_length() - 1 for p in opts.profiles} if opts.presets else ()
+    return C.baseline_grid(opts.codecs, opts.astc_blocks, opts.shifts, sorted(shifts))
+
+
+def _add_margins(rows: Sequence[C.Cell], baselines: Sequence[C.Cell]) -> None:
+    """Each row's per-mip PSNR minus BC@R's and the BC7 quality set's at R (layout.json's keys:
+    ``margin_per_mip_db``, ``margin_vs_bc7_per_mip_db``; ``against_bc``, ``against_bc7`` name
+    them), R a BCf cell's T_0 side or a baseline's resolution; none against itself."""
+    from bcfpipe.texset.baselines import BC7_QUALITY
+
+    refs = (("margin_per_mip_db", "against_bc", "bc"), ("margin_vs_bc7_per_mip_db", "against_bc7", BC7_QUALITY))
+    for r in rows:
+        res = r.extra["resolutions"][0] if r.kind == "bcf" else r.extra["resolution"]
+        for key, name, kind in refs:
+            ref = next((b for b in baselines if b.kind == kind and b.extra["resolution"] == res), None)
+            if ref is not None and ref is not r:
+                r.extra[name] = ref.method
+                r.extra[key] = [a - b for a, b in zip(r.metrics.psnr_per_mip, ref.metrics.psnr_per_mip)]
+
+
 def _cell_options(opts: BenchOptions, profile: str, preset: str, features: str):
     """A BCf cell's training options: all neural, at ``profile`` and ``preset`` with ``features``."""
     from bcfpipe.config import DEFAULT_HIDDEN, TrainingOptions
@@ -148,7 +175,7 @@ def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, pro
     side = max(ts.width, ts.height)
 
     baselines = []
-    for b in C.baseline_grid(opts.codecs, opts.astc_blocks, opts.shifts):
+    for b in _grid(opts, side):
         progress.start(f"{bset.name}: {b.label(side)}", _baseline_weight(ts, b))
         baselines.append(C.measure_baseline(ts, ref, b, grid, windows, tmp_dir=str(work)))
         progress.done()
@@ -169,6 +196,7 @@ def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, pro
                     failed.append({"method": f"BCf {prof} {preset}{suffix}", "error": one_line(exc)})
                 progress.done()
 
+    _add_margins([*baselines, *bcf], baselines)
     bc_full = next((b for b in baselines if b.kind == "bc" and b.extra["resolution"] == side), None)
     if rt is not None and bcf:
         progress.start(f"{bset.name}: decode cost", 1.0)
@@ -223,6 +251,7 @@ def _baseline_weight(ts, b: C.Baseline) -> float:
 
     texels = (ts.width >> b.shift) * (ts.height >> b.shift)
     k = {"4x4": 4.0, "6x6": 2.0, "8x8": 1.5}.get(b.block or "", 1.0)  # astcenc -thorough slows with small blocks
+    k *= 2.0 if b.codec == "bc7" else 1.0  # ISPC's BC7 against quicktex's BC1
     return baseline_estimate(len(pack_texture_set(ts, b.codec)), texels) * k
 
 
@@ -234,8 +263,7 @@ def run_bench(sets: Sequence[BenchSet], opts: BenchOptions, out: str | os.PathLi
         ts = s.load()
         _check(s, max(ts.width, ts.height), opts)
         loaded.append((s, ts))
-    grid = C.baseline_grid(opts.codecs, opts.astc_blocks, opts.shifts)
-    total = sum(sum(_baseline_weight(ts, b) for b in grid) + 1.0 for _, ts in loaded)
+    total = sum(sum(_baseline_weight(ts, b) for b in _grid(opts, max(ts.width, ts.height))) + 1.0 for _, ts in loaded)
     total += len(loaded) * len(opts.profiles) * len(opts.features) * sum(_cell_weight(p) for p in opts.presets)
     out.mkdir(parents=True, exist_ok=True)
     rt, gl_error = _gl() if opts.profiles and opts.presets else (None, None)
@@ -249,6 +277,7 @@ def run_bench(sets: Sequence[BenchSet], opts: BenchOptions, out: str | os.PathLi
         if rt is not None:
             rt.release()
     from bcfpipe import __version__
+    from bcfpipe.formats.sizes import DISK_ZSTD_LEVEL
 
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "bcfpipe_version": __version__,
             "machine": machine(), "gl_error": gl_error,
@@ -256,5 +285,5 @@ def run_bench(sets: Sequence[BenchSet], opts: BenchOptions, out: str | os.PathLi
                         "baselines": list(opts.codecs),
                         "astc_blocks": list(opts.astc_blocks), "baseline_scales": [1 / (1 << s) for s in opts.shifts],
                         "seed": opts.seed, "device": opts.device, "threads": opts.threads,
-                        "lod_step": opts.lod_step},
+                        "lod_step": opts.lod_step, "disk_zstd_level": DISK_ZSTD_LEVEL},
             "sets": results}

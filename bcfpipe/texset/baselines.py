@@ -13,8 +13,9 @@ container headers).
   whole 4x4 blocks by edge replication and cropped after decoding. BC1 = BC4 = 8 bytes / block,
   BC5 = 16 bytes / block.
 * ASTC: the ``astcenc`` CLI in LDR-linear mode, one ``-tl`` (compress + decompress, identical to
-  ``-cl`` then ``-dl``) process per mip through temporary 8-bit PNGs, ``-thorough`` by default.
-  16 bytes per block, ceil(w/bw) * ceil(h/bh) blocks.
+  ``-cl`` then ``-dl``, which run instead when the caller wants the blocks) process per mip through
+  temporary 8-bit PNGs, ``-thorough`` by default. 16 bytes per block, ceil(w/bw) * ceil(h/bh) blocks.
+* BC7 (the quality set's colour and packed textures): ISPC (`BC7_SETTINGS`), 16 bytes / block.
 
 `encode_texture_set_baseline` packs a `TextureSet` into the textures an engine would ship and
 maps the result back to the reference mips; see its docstring for the resolution handling.
@@ -34,9 +35,13 @@ from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline",
            "encode_texture_set_shipped", "astcenc_path",
-           "pack_texture_set", "CODECS", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
+           "pack_texture_set", "CODECS", "BC7_QUALITY", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
 
 CODECS = ("bc", "astc")
+# The BC7 quality set (issue 52): BC@R ('bc') with every BC1 texture, a colour or a packed file, in BC7;
+# BC5 normals, BC4 lone scalars and BC6H kept. What quality-focused pipelines ship: a second set to
+# weigh neural materials against (bcfpipe.layout.classic.bc7_quality_set is the layout's).
+BC7_QUALITY = "bc7"
 BC1_LEVEL = 18  # quicktex presets run 0..18
 
 
@@ -264,6 +269,23 @@ def astcenc_path() -> str | None:
     return None
 
 
+ASTC_HEADER_BYTES = 16  # a .astc file: magic, block dimensions, image size; then the blocks
+
+
+def _astcenc(exe: str, src: str, dst: str, block: str, preset: str, threads: int, keep: bool, what: str) -> None:
+    """``src`` PNG -> ``dst`` PNG through ASTC: one ``-tl`` run, or with ``keep`` ``-cl`` to
+    ``dst``.astc then ``-dl`` from it."""
+    opts = [block, preset, "-silent", "-j", str(threads)]
+    runs = ([[exe, "-cl", src, dst + ".astc", *opts], [exe, "-dl", dst + ".astc", dst, "-silent"]] if keep
+            else [[exe, "-tl", src, dst, *opts]])
+    for cmd in runs:
+        res = subprocess.run(cmd, capture_output=True, text=True)
+        if res.returncode != 0:
+            raise RuntimeError(f"astcenc failed on {what}: {(res.stderr or res.stdout).strip()[-300:]}")
+    if not os.path.isfile(dst):
+        raise RuntimeError(f"astcenc failed on {what}: it wrote no {os.path.basename(dst)}")
+
+
 def parse_block(block: str) -> tuple[int, int]:
     try:
         bw, bh = (int(v) for v in block.lower().split("x"))
@@ -275,9 +297,12 @@ def parse_block(block: str) -> tuple[int, int]:
 
 
 def astc_mips(mips_rgb: Sequence[np.ndarray], block: str = "12x12", preset: str = "-thorough",
-              threads: int | None = None, tmp_dir: str | None = None) -> tuple[list[np.ndarray], int]:
+              threads: int | None = None, tmp_dir: str | None = None,
+              blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """ASTC (LDR linear) encode and decode every (H, W, 3) mip with astcenc; (decoded, bytes).
-    The PNGs astcenc reads and writes live in a temporary folder under ``tmp_dir``."""
+    The PNGs astcenc reads and writes live in a temporary folder under ``tmp_dir``. With
+    ``blocks``, each level's (blocks as an (n, 16) uint8 array, w, h) is appended: astcenc then
+    compresses to a .astc file (``-cl``) and decompresses it (``-dl``), the same texels as ``-tl``."""
     import OpenImageIO as oiio
 
     _check_mips(mips_rgb, 3, "astc")
@@ -296,10 +321,10 @@ def astc_mips(mips_rgb: Sequence[np.ndarray], block: str = "12x12", preset: str 
             buf.set_pixels(oiio.ROI(0, w, 0, h, 0, 1, 0, 3), px)
             if not buf.write(src):
                 raise RuntimeError(f"cannot write {src}: {buf.geterror()}")
-            cmd = [exe, "-tl", src, dst, f"{bw}x{bh}", preset, "-silent", "-j", str(threads)]
-            res = subprocess.run(cmd, capture_output=True, text=True)
-            if res.returncode != 0 or not os.path.isfile(dst):
-                raise RuntimeError(f"astcenc failed on mip {k} ({w}x{h}): {(res.stderr or res.stdout).strip()[-300:]}")
+            _astcenc(exe, src, dst, f"{bw}x{bh}", preset, threads, blocks is not None, f"mip {k} ({w}x{h})")
+            if blocks is not None:
+                data = np.fromfile(dst + ".astc", np.uint8)[ASTC_HEADER_BYTES:]
+                blocks.append((data.reshape(-1, 16), w, h))
             out = oiio.ImageBuf(dst).get_pixels(oiio.FLOAT)
             decoded.append(np.asarray(out, np.float32).reshape(h, w, -1)[..., :3].copy())
             size += math.ceil(w / bw) * math.ceil(h / bh) * 16
@@ -320,8 +345,11 @@ def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
     those that share a source file with other scalars stay packed as that file packs them
     (ARM-style, BC1), a scalar alone in its file gets its own BC4 texture. ('astc'): all of them,
     in set order, packed 3 per 3-channel texture; a last texture with 1 channel replicates it into
-    r, g, b (a grey image), one with 2 leaves b = 0.
+    r, g, b (a grey image), one with 2 leaves b = 0. (`BC7_QUALITY`): as 'bc', every BC1 texture
+    in BC7.
     """
+    if codec == BC7_QUALITY:
+        return [("bc7" if fmt == "bc1" else fmt, idx) for fmt, idx in pack_texture_set(ts, "bc")]
     if codec not in CODECS:
         raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
     rgb = "bc1" if codec == "bc" else "astc"
@@ -383,6 +411,33 @@ def _bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
     return np.moveaxis(up[0].numpy(), 0, -1).astype(np.float32)
 
 
+def _encode_texture(ts: TextureSet, fmt: str, idx: list[int], src: Sequence[np.ndarray], levels: list | None,
+                    astc) -> tuple[list[np.ndarray], int]:
+    """One texture of `pack_texture_set` (``fmt``, channels ``idx``) encoded and decoded at every mip
+    of ``src`` (set values); (its decoded stored values per mip, bytes). BC1, BC7 and ASTC (``astc(rgb
+    mips, blocks)``) read RGB: a lone channel replicated, two with b = 0; BC7's alpha is 1."""
+    normal = np.array([ts.channels[i].kind == "normal" for i in idx])
+    if fmt == "bc6h":  # linear source values, as the source file held them
+        scale, bias = hdr_value_map(ts, idx)
+        out, size = bc6h_mips([m[..., idx] * scale + bias for m in src], levels)
+        return [(o - bias) / scale for o in out], size
+    stored = [_to_storage(m[..., idx], normal) for m in src]
+    if fmt == "bc5":
+        return bc5_mips(stored, levels)
+    if fmt == "bc4":
+        return bc4_mips(stored, levels)
+    n = len(idx)
+    rgb = [np.repeat(s, 3, axis=-1) if n == 1 else
+           np.concatenate([s, np.zeros_like(s[..., :1])], axis=-1) if n == 2 else s for s in stored]
+    if fmt == "bc1":
+        out, size = bc1_mips(rgb, blocks=levels)
+    elif fmt == "bc7":
+        out, size = bc7_mips([np.concatenate([x, np.ones_like(x[..., :1])], axis=-1) for x in rgb], levels)
+    else:
+        out, size = astc(rgb, levels)
+    return [o[..., :n] for o in out], size
+
+
 def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | None = None, *,
                                 ref_mips: Sequence[np.ndarray] | None = None, astc_block: str = "12x12",
                                 astc_preset: str = "-thorough", textures: list | None = None,
@@ -390,16 +445,18 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
     """Compress `ts` with a classic codec; returns (decoded mips in the reference's shapes, bytes).
 
     `codec` 'bc': BC1 for colour and packed scalar textures, BC4 for a lone scalar, BC5 for
-    normals (the paper's BC setup), BC6H_UF16 for an HDR colour group; 'astc': ASTC `astc_block` for every texture. Packing: `pack_texture_set`.
+    normals (the paper's BC setup), BC6H_UF16 for an HDR colour group; `BC7_QUALITY`: the same
+    with BC7 for BC1; 'astc': ASTC `astc_block` for every texture. Packing: `pack_texture_set`.
 
     Resolution: `resolution` (a power of two, default the set's larger side) caps the larger side
     of the shipped textures. When it is smaller than the set by 2^d, the baseline's level 0 is the
     reference's (box-filtered) mip d and its mip k is compared against reference mip k + d; the d
     top reference mips it lacks are its decoded level 0 magnified bilinearly (what a GPU shows when
     it samples a lower-resolution texture there). No upsampling of the source ever happens.
-    `ref_mips` may pass a precomputed `build_mip_chain(ts.data)`. With ``textures`` (codec 'bc'),
-    each shipped texture is appended as (format, channel indices, [(blocks, w, h) per level]) so
-    that a renderer can sample the very blocks that were measured (bcfpipe.bench.decode_cost).
+    `ref_mips` may pass a precomputed `build_mip_chain(ts.data)`. With ``textures``, each shipped
+    texture is appended as (format, channel indices, [(blocks, w, h) per level]) so that a renderer
+    can sample the very blocks that were measured (bcfpipe.bench.decode_cost), or their bytes on
+    disk be counted (an ASTC level's blocks are 16 bytes each, as a .astc file holds them).
     """
     ref = list(ref_mips) if ref_mips is not None else build_mip_chain(ts.data)
     shipped, total = encode_texture_set_shipped(ts, codec, resolution, ref_mips=ref, astc_block=astc_block,
@@ -415,8 +472,8 @@ def encode_texture_set_shipped(ts: TextureSet, codec: str, resolution: int | Non
     """`encode_texture_set_baseline` without the magnification: the d reference mips above the
     shipped resolution are None, for a caller that magnifies level 0 its own way
     (bcfpipe.layout.classic, with the material's addressing)."""
-    if codec not in CODECS:
-        raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
+    if codec not in (*CODECS, BC7_QUALITY):
+        raise ValueError(f"codec must be one of {(*CODECS, BC7_QUALITY)}, got {codec!r}")
     ref = list(ref_mips) if ref_mips is not None else build_mip_chain(ts.data)
     side = max(ts.width, ts.height)
     res = side if resolution is None else int(resolution)
@@ -430,23 +487,10 @@ def encode_texture_set_shipped(ts: TextureSet, codec: str, resolution: int | Non
     dec_low = [np.zeros_like(m, dtype=np.float32) for m in src]
     total = 0
     for fmt, idx in pack_texture_set(ts, codec):
-        stored = [] if fmt == "bc6h" else [_to_storage(m[..., idx], normal[idx]) for m in src]
-        levels: list | None = [] if textures is not None and fmt != "astc" else None
-        if fmt == "bc6h":  # linear source values, as the source file held them
-            scale, bias = hdr_value_map(ts, idx)
-            out, size = bc6h_mips([m[..., idx] * scale + bias for m in src], levels)
-            out = [(o - bias) / scale for o in out]
-        elif fmt == "bc5":
-            out, size = bc5_mips(stored, levels)
-        elif fmt == "bc4":
-            out, size = bc4_mips(stored, levels)
-        else:
-            n = len(idx)
-            padded = [np.repeat(s, 3, axis=-1) if n == 1 else
-                      np.concatenate([s, np.zeros_like(s[..., :1])], axis=-1) if n == 2 else s for s in stored]
-            out, size = (bc1_mips(padded, blocks=levels) if fmt == "bc1"
-                         else astc_mips(padded, astc_block, astc_preset, tmp_dir=tmp_dir))
-            out = [o[..., :n] for o in out]
+        levels: list | None = [] if textures is not None else None
+        out, size = _encode_texture(ts, fmt, idx, src, levels,
+                                    lambda rgb, blocks: astc_mips(rgb, astc_block, astc_preset, tmp_dir=tmp_dir,
+                                                                  blocks=blocks))
         if levels is not None:
             textures.append((fmt, list(idx), levels))
         total += size
