@@ -7,7 +7,10 @@ record's words compiled into the shader as a constant array (``const``; with BCF
 BCF_N_OUT the loops unroll and every weight can become an immediate). Each variant is timed
 against the classic BC pass, frames interleaved, in the fragment stage (full-screen draw) and the
 compute stage (grid dispatch), as bcfpipe.bench.decode_cost does; the compute outputs of every
-variant are checked bit for bit against the ssbo one first.
+variant are checked bit for bit against the ssbo one first, and the ssbo one against the library's
+own decode (`GLRuntime.decode`, which verify checks against ONNX). The programs compile with the
+material's own #defines (`MaterialDesc.defines`: BCF_N_LAYERS for a T_0 of several layers, issue 52),
+as bcfpipe.bench.decode_cost and verify compile theirs.
 
   python benchmarks/bench_decode_weights.py MATERIAL_FOLDER [--size 1920x1080] [--frames 100]
 """
@@ -55,7 +58,7 @@ def main() -> None:
     raw += b"\0" * (-len(raw) % 16)
     words = np.frombuffer(raw, "<u4")
     variants = args.variants.split(",")
-    defines = {"BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out, "BCF_MAX_OUT": m.c_out}
+    defines = {**m.defines, "BCF_N_HIDDEN": m.file.mlp.n_hidden, "BCF_N_OUT": m.n_out, "BCF_MAX_OUT": m.c_out}
     rt = G.GLRuntime()
     try:
         gm = rt.load(m)
@@ -86,13 +89,17 @@ def main() -> None:
                 outs.append(np.frombuffer(out.read(), np.float32).copy())
                 out.release()
             check[v] = np.concatenate(outs)
+        g = (np.stack(np.meshgrid(np.arange(256), np.arange(256)), -1).reshape(-1, 2) + 0.5) / 256
+        lib = np.concatenate([rt.decode(gm, g, lod).reshape(-1) for lod in (0.0, 3.0)])
+        print(f"ssbo: max |diff| against the library's decode {np.abs(check['ssbo'] - lib).max():.3g}")
         for v in variants:
             same = np.array_equal(check[v].view(np.uint32), check["ssbo"].view(np.uint32))
             print(f"{v}: compute output {'bit-identical to' if same else 'DIFFERS from'} ssbo "
                   f"(max |diff| {np.abs(check[v] - check['ssbo']).max():.3g})")
 
         print(f"machine: {machine()}; {rt.info['renderer']}; {args.frames} frames, interleaved; "
-              f"classic: {'+'.join(fmts)}; MLP {m.file.mlp.n_in}-{m.file.mlp.n_hidden}-{m.n_out}")
+              f"classic: {'+'.join(fmts)}; {len(m.file.layers)} feature layers; "
+              f"MLP {m.file.mlp.n_in}-{m.file.mlp.n_hidden}-{m.n_out}")
         print("\n| stage | size | classic ms | " + " | ".join(f"{v} ms" for v in variants) + " | "
               + " | ".join(f"{v} / classic" for v in variants) + " |")
         print("|---|---|---:|" + "---:|" * (2 * len(variants)))
