@@ -3,8 +3,9 @@
 For every set: the baseline grid (BC@R with the BC7 quality set beside it, ASTC), then every
 (profile, preset) BCf cell, then the decode cost of each BCf cell against the set's BC textures in
 one GL run, and the crops. Every row carries its per-mip margins against BC@R and the BC7 quality
-set at R (a BCf cell's R is its T_0 side: BC and the quality set are measured there too), and its size twice: GPU bytes and zstd-19 bytes on disk (issue 52). The
-result is one JSON-ready dict (bcfpipe.bench.report writes it with its plots, HTML and markdown).
+set at R (a BCf cell's R is its T_0 side: BC and the quality set are measured there too), and its
+size twice: GPU bytes and zstd-19 bytes on disk (issue 52). The result is one JSON-ready dict
+(bcfpipe.bench.report writes it with its plots, HTML and markdown).
 """
 from __future__ import annotations
 
@@ -247,11 +248,11 @@ def _cell_weight(preset: str) -> float:
 
 
 def _baseline_weight(ts, b: C.Baseline) -> float:
-    from bcfpipe.texset.baselines import pack_texture_set
+    from bcfpipe.texset.baselines import BC7_QUALITY, pack_texture_set
 
     texels = (ts.width >> b.shift) * (ts.height >> b.shift)
     k = {"4x4": 4.0, "6x6": 2.0, "8x8": 1.5}.get(b.block or "", 1.0)  # astcenc -thorough slows with small blocks
-    k *= 2.0 if b.codec == "bc7" else 1.0  # ISPC's BC7 against quicktex's BC1
+    k *= 2.0 if b.codec == BC7_QUALITY else 1.0  # ISPC's BC7 against quicktex's BC1
     return baseline_estimate(len(pack_texture_set(ts, b.codec)), texels) * k
 
 
