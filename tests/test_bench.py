@@ -34,13 +34,14 @@ def textures(root: Path, n: int = 128) -> list[str]:
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory) -> Path:
-    """A bench of a 128² set: one BCf cell (tiny/smoke), BC and ASTC 12x12 at full and half size."""
+    """A bench of a 128² set: one BCf cell (tiny/smoke, its material kept), BC, the BC7 quality set
+    and ASTC 12x12 at full and half size."""
     if shutil.which("astcenc") is None:
         pytest.skip("needs astcenc (apt-get install astcenc)")
     root = tmp_path_factory.mktemp("bench")
     out = root / "report"
     p = run_cli("bench", *textures(root), "--name", "small set", "--profiles", "tiny", "--presets", "smoke",
-                "--astc-blocks", "12x12", "--decode-size", "64x36", "-o", str(out))
+                "--astc-blocks", "12x12", "--decode-size", "64x36", "--keep-materials", "-o", str(out))
     assert p.returncode == 0, p.stderr
     assert "| BCf tiny smoke |" in p.stdout  # the markdown summary on stdout
     return out
@@ -53,7 +54,7 @@ def test_report_files_and_keys(report: Path) -> None:
     assert s["name"] == "small set" and s["slug"] == "small_set"
     assert s["sources"] == ["albedo=albedo.png:rgb", "roughness=rough.png:r", "normal=normal.png:xy"]  # no paths
     methods = [b["method"] for b in s["baselines"]]
-    assert methods == ["BC @128", "ASTC 12x12 @128", "BC @64", "ASTC 12x12 @64"]
+    assert methods == ["BC @128", "BC7 quality @128", "ASTC 12x12 @128", "BC @64", "BC7 quality @64", "ASTC 12x12 @64"]
     (cell,) = s["cells"]
     assert (cell["profile"], cell["preset"], cell["method"]) == ("tiny", "smoke", "BCf tiny smoke")
     n_mips = len(s["mips"])
@@ -61,9 +62,14 @@ def test_report_files_and_keys(report: Path) -> None:
         assert len(row["psnr_per_mip"]) == n_mips and len(row["lod_sweep"]) == len(s["lod_sweep"]["s"])
         assert set(row["psnr_per_group"]) == {"albedo", "roughness", "normal"}
         assert row["size_bytes"] > 0 and 10 < row["psnr"] < 80 and 0 < row["ssim"] <= 1
-    # sizes: BC = BC1 albedo + BC4 roughness (8 B/block) + BC5 normal (16 B/block), every mip
+        assert 0 < row["disk_bytes"] and row["disk_mib"] == row["disk_bytes"] / 2**20
+    # sizes: BC = BC1 albedo + BC4 roughness (8 B/block) + BC5 normal (16 B/block), every mip; the
+    # quality set's albedo in BC7 (16 B/block)
     blocks = sum(((w + 3) // 4) * ((h + 3) // 4) for w, h in s["mips"])
     assert s["baselines"][0]["size_bytes"] == blocks * (8 + 8 + 16)
+    assert s["baselines"][1]["size_bytes"] == blocks * (16 + 8 + 16)
+    assert [b["formats"] for b in s["baselines"][:2]] == [["bc1", "bc5", "bc4"], ["bc7", "bc5", "bc4"]]
+    assert data["options"]["disk_zstd_level"] == 19
     assert cell["training_curve"] and cell["train_seconds"] > 0
     d = s["decode_cost"]
     assert d["classic"] == "BC @128" and d["classic_formats"] == ["BC1", "BC5", "BC4"]
@@ -91,6 +97,69 @@ def test_baselines_match_the_library(report: Path, tmp_path: Path) -> None:
     m = compute_metrics(ref, dec, ts.channels)
     row = next(b for b in s["baselines"] if b["method"] == "BC @64")
     assert row["size_bytes"] == size and row["psnr"] == pytest.approx(m.psnr, abs=1e-9)
+    dec, size = encode_texture_set_baseline(ts, "bc7", 64, ref_mips=ref)
+    row = next(b for b in s["baselines"] if b["method"] == "BC7 quality @64")
+    assert row["size_bytes"] == size
+    assert row["psnr_per_mip"] == pytest.approx(compute_metrics(ref, dec, ts.channels).psnr_per_mip, abs=1e-9)
+
+
+def zstd_cli(data: bytes, tmp: Path) -> int:
+    """``zstd -19 --no-check -c FILE | wc -c``."""
+    f = tmp / "blob.bin"
+    f.write_bytes(data)
+    return len(subprocess.run(["zstd", "-19", "--no-check", "-q", "-c", str(f)], capture_output=True,
+                              check=True).stdout)
+
+
+@pytest.mark.skipif(shutil.which("zstd") is None, reason="needs the zstd command line")
+def test_disk_bytes_against_the_zstd_command_line(report: Path, tmp_path: Path) -> None:
+    """Every row's disk bytes are its files compressed by the zstd CLI at level 19, within a few
+    bytes of frame header per file: the BCf cell's shipped files (its GPU bytes count the same
+    files), BC@R's and the quality set's textures as DDS files (header + zstd of every level's blocks)."""
+    from bcfpipe.export.fit import shipped_files
+    from bcfpipe.formats.dds import HEADER_BYTES
+    from bcfpipe.texset.baselines import BC7_QUALITY, encode_texture_set_baseline
+    from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
+
+    s = json.loads((report / R.JSON_FILE).read_text())["sets"][0]
+    (cell,) = s["cells"]
+    files = shipped_files(report / cell["folder"])
+    assert cell["size_bytes"] == sum(f.stat().st_size for f in files)
+    assert abs(cell["disk_bytes"] - sum(zstd_cli(f.read_bytes(), tmp_path) for f in files)) <= 8 * len(files)
+    ts = load_texture_set([TextureSpec.parse(t) for t in textures(tmp_path)])
+    ref = build_mip_chain(ts.data)
+    for codec, method in (("bc", "BC @128"), (BC7_QUALITY, "BC7 quality @128")):
+        tex: list = []
+        encode_texture_set_baseline(ts, codec, 128, ref_mips=ref, textures=tex)
+        cli = sum(HEADER_BYTES + zstd_cli(b"".join(b.tobytes() for b, _, _ in lv), tmp_path) for _, _, lv in tex)
+        row = next(b for b in s["baselines"] if b["method"] == method)
+        assert abs(row["disk_bytes"] - cli) <= 8 * len(tex), (method, row["disk_bytes"], cli)
+
+
+def test_margins_against_bc_and_the_quality_set(report: Path) -> None:
+    """Each row's per-mip margins against BC@R and the BC7 quality set at R (a BCf cell's R is its
+    T_0 side, tiny's 64; a baseline's its resolution), and the summary's table of the cell's."""
+    s = json.loads((report / R.JSON_FILE).read_text())["sets"][0]
+    rows = {r["method"]: r for r in [*s["baselines"], *s["cells"]]}
+
+    def margins(a: dict, b: dict) -> list:
+        return [x - y if x is not None and y is not None else None for x, y in zip(a["psnr_per_mip"], b["psnr_per_mip"])]
+
+    cell = rows["BCf tiny smoke"]
+    assert cell["resolutions"][0] == 64
+    for method, bc, q in (("BCf tiny smoke", "BC @64", "BC7 quality @64"), ("ASTC 12x12 @128", "BC @128", "BC7 quality @128"),
+                          ("BC7 quality @128", "BC @128", None), ("BC @64", None, "BC7 quality @64")):
+        r = rows[method]
+        assert (r.get("against_bc"), r.get("against_bc7")) == (bc, q)
+        assert r.get("margin_per_mip_db") == (None if bc is None else pytest.approx(margins(r, rows[bc]), abs=1e-9))
+        assert r.get("margin_vs_bc7_per_mip_db") == (None if q is None else pytest.approx(margins(r, rows[q]), abs=1e-9))
+    md = (report / R.MD_FILE).read_text()
+    assert "| method | GPU MiB | disk MiB |" in md
+    q = rows["BC7 quality @64"]
+    line = next(x for x in md.splitlines() if x.startswith("| BCf tiny smoke | BC7 quality @64 |")).split(" | ")
+    assert line[2:5] == [f"{cell['size_bytes'] / q['size_bytes']:.2f}", f"{cell['disk_bytes'] / q['disk_bytes']:.2f}",
+                         f"{margins(cell, q)[0]:+.1f}"]
+    assert any(x.startswith("| BCf tiny smoke | BC @64 |") for x in md.splitlines())
 
 
 def test_redraw_and_refusals(report: Path, tmp_path: Path) -> None:
@@ -151,6 +220,6 @@ def test_bench_a_scene_material(tmp_path: Path) -> None:
     assert p.returncode == 0, p.stderr
     data = json.loads(p.stdout)
     (s,) = data["sets"]
-    assert s["name"] == "/World/Looks/M" and [b["method"] for b in s["baselines"]] == ["BC @32"]
+    assert s["name"] == "/World/Looks/M" and [b["method"] for b in s["baselines"]] == ["BC @32", "BC7 quality @32"]
     assert [c["method"] for c in s["cells"]] == ["BCf auto-32 smoke"]
     assert data == json.loads((out / R.JSON_FILE).read_text())
