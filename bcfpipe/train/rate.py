@@ -39,18 +39,19 @@ MARGIN_DB = 0.5
 # at 7.08 MiB in 606 s, 1k standard 37.55 dB at 1.77 MiB in 256 s (docs/benchmarks.md).
 CPU_PROFILES = ("0.5k", "1k")
 GPU_PROFILES = ("0.5k", "1k", "2k")
-# Mean PSNR over all mips relative to (0.5k, draft) on the teapot and the brick, CPU presets as
-# re-tuned for the fused kernel (issue 30), `benchmarks/bench_presets.py --set S --profile P`
-# (docs/benchmarks.md, "Presets re-tuned"):
-#   teapot 30.91 / 34.60 / 35.50 (0.5k draft / fast / standard), 31.24 / 35.90 / 37.55 (1k)
-#   brick  28.59 / 29.28 / 29.52, 28.82 / 30.20 / 30.80
-# 2k is a candidate on CUDA only; its rows are the teapot's 2k standard over its 1k standard
-# (+0.99 dB: 38.54 against 37.55, docs/benchmarks.md) applied to each 1k row: estimates until a
-# GPU measures them.
+# Mean PSNR over all mips relative to (0.5k, draft) on the teapot and the brick with the default
+# features (bc7, a fixed T_0 of principal components; issue 52 measured them again: the table before
+# held BC6H figures), `benchmarks/bench_presets.py --set S --profile P --features bc7`, each preset's
+# schedule as config.PRESETS holds it (docs/benchmarks.md, "Issue 52: the gain table for bc7"):
+#   teapot 34.68 / 35.65 / 35.88 (0.5k draft / fast / standard), 35.73 / 38.66 / 39.25 (1k)
+#   brick  29.80 / 29.82 / 29.83, 31.48 / 31.55 / 31.59
+# 2k is a candidate on CUDA only; its rows add the BC6H teapot's 2k standard over its 1k standard
+# (+0.99 dB: 38.54 against 37.55, docs/benchmarks.md) to each 1k row: estimates until a GPU
+# measures them.
 GAINS_DB: dict[tuple[str, str], float] = {
-    ("0.5k", "draft"): 0.0, ("0.5k", "fast"): 2.19, ("0.5k", "standard"): 2.76,
-    ("1k", "draft"): 0.28, ("1k", "fast"): 3.30, ("1k", "standard"): 4.43,
-    ("2k", "draft"): 1.27, ("2k", "fast"): 4.29, ("2k", "standard"): 5.42,
+    ("0.5k", "draft"): 0.0, ("0.5k", "fast"): 0.50, ("0.5k", "standard"): 0.62,
+    ("1k", "draft"): 1.37, ("1k", "fast"): 2.87, ("1k", "standard"): 3.18,
+    ("2k", "draft"): 2.36, ("2k", "fast"): 3.86, ("2k", "standard"): 4.17,
 }
 # What more layers of principal components in a fixed T_0 (--t0-layers, issue 52) add over one, in
 # dB per reference mip, by the mip's place against T_0's level 0: the first entry for every mip
