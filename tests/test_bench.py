@@ -115,9 +115,10 @@ def zstd_cli(data: bytes, tmp: Path) -> int:
 def test_disk_bytes_against_the_zstd_command_line(report: Path, tmp_path: Path) -> None:
     """Every row's disk bytes are its files compressed by the zstd CLI at level 19, within a few
     bytes of frame header per file: the BCf cell's shipped files (its GPU bytes count the same
-    files), BC@R's and the quality set's textures as DDS files (header + zstd of every level's blocks)."""
+    files), BC@R's and the quality set's textures as `formats.dds.write` writes them."""
     from bcfpipe.export.fit import shipped_files
-    from bcfpipe.formats.dds import HEADER_BYTES
+    from bcfpipe.formats import dds
+    from bcfpipe.formats.bcn import DXGI, ClassicFormat
     from bcfpipe.texset.baselines import BC7_QUALITY, encode_texture_set_baseline
     from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
 
@@ -131,7 +132,10 @@ def test_disk_bytes_against_the_zstd_command_line(report: Path, tmp_path: Path) 
     for codec, method in (("bc", "BC @128"), (BC7_QUALITY, "BC7 quality @128")):
         tex: list = []
         encode_texture_set_baseline(ts, codec, 128, ref_mips=ref, textures=tex)
-        cli = sum(HEADER_BYTES + zstd_cli(b"".join(b.tobytes() for b, _, _ in lv), tmp_path) for _, _, lv in tex)
+        cli = 0
+        for fmt, _, levels in tex:
+            dds.write(tmp_path / "t.dds", levels, dxgi_format=DXGI[ClassicFormat(fmt)])
+            cli += zstd_cli((tmp_path / "t.dds").read_bytes(), tmp_path)
         row = next(b for b in s["baselines"] if b["method"] == method)
         assert abs(row["disk_bytes"] - cli) <= 8 * len(tex), (method, row["disk_bytes"], cli)
 

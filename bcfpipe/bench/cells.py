@@ -22,7 +22,7 @@ from bcfpipe.texset.baselines import BC7_QUALITY, encode_texture_set_baseline
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.texset.metrics import Metrics, compute_metrics
 
-__all__ = ["Baseline", "Cell", "baseline_grid", "measure_baseline", "train_cell", "Windows", "blocks_disk_bytes",
+__all__ = ["Baseline", "Cell", "baseline_grid", "measure_baseline", "train_cell", "Windows", "blocks_disk_bytes", "texture_files",
            "files_disk_bytes"]
 
 # (mip, x, y, side) of each crop window; a cell keeps its decoded texels there
@@ -61,20 +61,29 @@ def baseline_grid(codecs: Sequence[str], astc_blocks: Sequence[str], shifts: Seq
     return out
 
 
-def blocks_disk_bytes(textures: Sequence, astc: bool = False) -> int:
-    """Bytes on disk of the shipped ``textures`` ((format, channels, [(blocks, w, h) per level])):
-    a BC texture is one DDS file of every level, an ASTC level one .astc file; each file its header
-    and its blocks zstd-compressed (`formats.sizes.disk_bytes`), as `layout.classic.disk_bytes`
-    counts BC@R's."""
-    from bcfpipe.formats.dds import HEADER_BYTES
-    from bcfpipe.formats.sizes import disk_bytes
-    from bcfpipe.texset.baselines import ASTC_HEADER_BYTES
+def texture_files(textures: Sequence, astc_block: str | None = None) -> list[bytes]:
+    """The files of the shipped ``textures`` ((format, channels, [(blocks, w, h) per level])): a BC
+    texture is one DDS file of every level (`formats.dds` header, then the blocks, as `dds.write`
+    writes it); with ``astc_block``, each ASTC level is one .astc file (16-byte header, then the blocks)."""
+    from bcfpipe.formats.bcn import DXGI, ClassicFormat
+    from bcfpipe.formats.dds import encode_header
 
-    if astc:
-        levels = [b for _, _, lv in textures for b, _, _ in lv]
-        return ASTC_HEADER_BYTES * len(levels) + disk_bytes(levels)
-    return HEADER_BYTES * len(textures) + disk_bytes(
-        [np.concatenate([b.reshape(-1) for b, _, _ in lv]) for _, _, lv in textures])
+    if astc_block is None:
+        return [encode_header(lv[0][1], lv[0][2], len(lv), False, DXGI[ClassicFormat(fmt)])
+                + b"".join(np.ascontiguousarray(b).tobytes() for b, _, _ in lv) for fmt, _, lv in textures]
+    from bcfpipe.texset.baselines import parse_block
+
+    bw, bh = parse_block(astc_block)
+    return [bytes([0x13, 0xAB, 0xA1, 0x5C, bw, bh, 1]) + w.to_bytes(3, "little") + h.to_bytes(3, "little")
+            + (1).to_bytes(3, "little") + np.ascontiguousarray(b).tobytes() for _, _, lv in textures for b, w, h in lv]
+
+
+def blocks_disk_bytes(textures: Sequence, astc_block: str | None = None) -> int:
+    """Bytes on disk of the shipped ``textures``: each of their files (`texture_files`) zstd-compressed
+    whole (`formats.sizes.disk_bytes`), as the export writes them and layout.json counts them."""
+    from bcfpipe.formats.sizes import disk_bytes
+
+    return disk_bytes(texture_files(textures, astc_block))
 
 
 def files_disk_bytes(folder: Path) -> int:
@@ -129,7 +138,7 @@ def measure_baseline(ts: TextureSet, ref: Sequence[np.ndarray], b: Baseline, gri
     sweep = L.sweep(grid, L.mips_answer(dec, grid.wrap))
     extra = {"codec": b.codec, "block": b.block, "resolution": side >> b.shift, "encoder": ENCODERS[b.codec],
              "formats": [fmt for fmt, _, _ in textures]}
-    disk = blocks_disk_bytes(textures, astc=b.codec == "astc")
+    disk = blocks_disk_bytes(textures, b.block if b.codec == "astc" else None)
     return Cell(b.label(side), b.codec, metrics, size, seconds, sweep, _crops(dec, windows), extra,
                 textures if b.codec == "bc" and b.shift == 0 else None, disk_bytes=disk)
 
