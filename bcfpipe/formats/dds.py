@@ -136,14 +136,17 @@ def write(path: str | os.PathLike, levels: Sequence[Level], signed: bool = False
 
     The file is written to a temporary name and renamed, so a failure never leaves a partial file.
     """
-    _check_levels(levels, block_bytes(dxgi_format or DXGI_FORMAT_BC6H_UF16))
-    path = Path(path)
-    _, w0, h0 = levels[0]
-    data = encode_header(w0, h0, len(levels), signed, dxgi_format) + b"".join(
-        np.ascontiguousarray(b, dtype=np.uint8).tobytes() for b, _, _ in levels)
     from bcfpipe.formats.atomic import atomic_write
 
-    atomic_write(path, data)
+    atomic_write(Path(path), encode(levels, signed, dxgi_format))
+
+
+def encode(levels: Sequence[Level], signed: bool = False, dxgi_format: int | None = None) -> bytes:
+    """The bytes of the DDS file `write` writes (header, then every level's blocks)."""
+    _check_levels(levels, block_bytes(dxgi_format or DXGI_FORMAT_BC6H_UF16))
+    _, w0, h0 = levels[0]
+    return encode_header(w0, h0, len(levels), signed, dxgi_format) + b"".join(
+        np.ascontiguousarray(b, dtype=np.uint8).tobytes() for b, _, _ in levels)
 
 
 def read(path: str | os.PathLike) -> DdsTexture:

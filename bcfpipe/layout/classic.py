@@ -144,14 +144,17 @@ def bc7_quality_set(groups: Sequence[Group]) -> Repack | None:
                   "BC7 quality set")
 
 
-def disk_bytes(g: EncodedGroup) -> int:
-    """``g``'s DDS file on disk: its header and its blocks compressed by zstd (`formats.sizes.disk_bytes`),
-    measured once."""
-    from bcfpipe.formats.dds import HEADER_BYTES
+def disk_bytes(g: EncodedGroup, keep: int | None = None) -> int:
+    """``g``'s DDS file on disk, zstd-compressed whole as the export writes it (`formats.sizes.disk_bytes`);
+    with ``keep``, the file of its first ``keep`` levels (a mip split's). The whole file's is measured once."""
+    from bcfpipe.formats import dds
+    from bcfpipe.formats.bcn import DXGI
     from bcfpipe.formats.sizes import disk_bytes as zstd_bytes
 
+    if keep is not None:
+        return zstd_bytes([dds.encode(g.levels[:keep], dxgi_format=DXGI[g.group.format])])
     if g.disk is None:
-        g.disk = HEADER_BYTES + zstd_bytes([np.concatenate([b.reshape(-1) for b, _, _ in g.levels])])
+        g.disk = zstd_bytes([dds.encode(g.levels, dxgi_format=DXGI[g.group.format])])
     return g.disk
 
 

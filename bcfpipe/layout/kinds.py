@@ -363,12 +363,8 @@ def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
 
 
 def split_disk_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
-    """`split_bytes` on disk: each group's first ``keep`` levels zstd-compressed, with its header."""
-    from bcfpipe.formats.dds import HEADER_BYTES
-    from bcfpipe.formats.sizes import disk_bytes as zstd_bytes
-
-    return sum(HEADER_BYTES + zstd_bytes([np.concatenate([b.reshape(-1) for b, _, _ in g.levels[:keep]])])
-               for g in groups)
+    """`split_bytes` on disk: each group's file of its first ``keep`` levels, zstd-compressed."""
+    return sum(disk_bytes(g, keep) for g in groups)
 
 
 def model_disk_bytes(res: MaterialResult) -> int:
