@@ -109,12 +109,12 @@ def main() -> None:
             for k, d in widths.items():
                 print(f"{name} width {k}: {d['size_bytes'] / 2**20:.2f} MiB, "
                       + " ".join(f"{v:.2f}" for v in d["metrics"]["psnr_per_mip"][:MIPS])
-                      + f", all {d['psnr']:.2f} ({d['wall_seconds']:.0f} s)", flush=True)
+                      + f", all {d['psnr']:.2f} (trained in {d['train_seconds']:.0f} s)", flush=True)
             continue
         auto = _train(name, args.out / f"{name}_{args.profile}_auto", args, [])
         print("\n" + table(name, auto, widths) + "\n", flush=True)
-        print(f"auto: {auto['wall_seconds']:.0f} s; " + ", ".join(f"width {k}: {d['wall_seconds']:.0f} s"
-                                                               for k, d in widths.items()), flush=True)
+        print(f"training: auto {auto['train_seconds']:.0f} s; " + ", ".join(
+            f"width {k} {d['train_seconds']:.0f} s" for k, d in widths.items()), flush=True)
 
 
 if __name__ == "__main__":
