@@ -55,15 +55,17 @@ GAINS_DB: dict[tuple[str, str], float] = {
 }
 # What more layers of principal components in a fixed T_0 (--t0-layers, issue 52) add over one, in
 # dB per reference mip, by the mip's place against T_0's level 0: the first entry for every mip
-# finer than it (T_0 magnified), then level 0, 1, 2 and every coarser one. Measured from exported
-# files at 1k draft with the layout neural (docs/benchmarks.md, "Issue 52: a T_0 of 1 to 3 layers"):
-# two layers over one, the mean of the teapot (6 channels: +0.49 / +1.55 / +1.21 / +0.53) and the
-# water bottle (11: +0.83 / +2.98 / +3.36 / +3.54); three layers, the bottle's third over its second
-# (-0.01 / +1.18 / +1.00 / +1.01) added to that. A set of four channels or fewer has one layer only.
+# finer than it (T_0 magnified), then level 0, 1, and the mean of every coarser one. Measured from
+# exported files at 1k standard (the default preset), --layout neural, one thread,
+# `benchmarks/bench_t0_widths.py --widths-only` (docs/benchmarks.md, "Issue 52: what auto ships"):
+# two layers over one is the mean of the teapot (6 channels: +0.04 / +0.71 / +0.36, coarser +0.09
+# … +1.5) and the water bottle (11: +0.29 / +2.92 / +1.81, coarser +0.35 … +3.1); three layers add
+# the bottle's third over its second (+0.11 / -0.15 / -0.11, coarser -0.1 … -0.6) to that. A set of
+# four channels or fewer has one layer only.
 T0_LAYER_GAINS_DB: dict[int, tuple[float, ...]] = {
     1: (0.0, 0.0, 0.0, 0.0),
-    2: (0.66, 2.27, 2.29, 2.04),
-    3: (0.65, 3.45, 3.29, 3.05),
+    2: (0.16, 1.81, 1.09, 0.62),
+    3: (0.27, 1.66, 0.98, 0.24),
 }
 PAPER_OVER_STANDARD_DB = 1.0  # a GPU's 206k steps over `standard`'s 19.5k: a guess until measured on a GPU
 
