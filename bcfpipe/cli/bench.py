@@ -1,4 +1,5 @@
-"""`bcfpipe bench`: what each profile and preset buys against BC and ASTC, measured, drawn and tabled."""
+"""`bcfpipe bench`: what each profile and preset buys against BC, the BC7 quality set and ASTC, measured,
+drawn and tabled."""
 from __future__ import annotations
 
 import json
@@ -117,7 +118,7 @@ def _redraw(inputs, output: Path, as_json: bool) -> None:
 @click.pass_context
 def bench(ctx, inputs, output, materials, variants, name, profiles, presets, baselines, astc_blocks, no_half,
           decode_size, decode_frames, features, seed, device, threads, keep_materials, redraw, force, as_json) -> None:
-    """Measure BCf presets and profiles against BC and ASTC on a texture set, and report.
+    """Measure BCf presets and profiles against BC, the BC7 quality set and ASTC on a texture set, and report.
 
     \b
       bcfpipe bench scene.usda -o report/                 every modelled material
@@ -125,9 +126,12 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
       bcfpipe bench albedo=d.jpg:rgb normal=n.png:xy -o report/
 
     For each set: every (profile, preset) BCf cell is trained and measured from its exported files;
-    BC (BC1 colour and packed maps, BC5 normal xy, BC4 lone scalars; quicktex) and ASTC (astcenc
-    -thorough) encode every mip at full and half resolution. All use the same metric code: PSNR
-    over all mips, per mip and per channel group, SSIM and FLIP at mip 0, size, time. The decode
+    BC (BC1 colour and packed maps, BC5 normal xy, BC4 lone scalars; quicktex), the BC7 quality set
+    (BC's with BC7 colour and packed maps: what quality-focused pipelines ship) and ASTC (astcenc
+    -thorough) encode every mip at full and half resolution and at each profile's R. All use the
+    same metric code: PSNR over all mips, per mip and per channel group, SSIM and FLIP at mip 0,
+    size twice (GPU bytes, and bytes on disk after zstd 19), time; each cell's per-mip margins
+    against BC and the BC7 quality set at its R. The decode
     cost is a full-screen pass of each BCf material against one sampling the BC textures, frames
     interleaved, on the machine's OpenGL (on llvmpipe only the ratio is meaningful).
 
