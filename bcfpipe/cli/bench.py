@@ -126,12 +126,10 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
       bcfpipe bench albedo=d.jpg:rgb normal=n.png:xy -o report/
 
     For each set: every (profile, preset) BCf cell is trained and measured from its exported files;
-    BC (BC1 colour and packed maps, BC5 normal xy, BC4 lone scalars; quicktex), the BC7 quality set
-    (BC's with BC7 colour and packed maps: what quality-focused pipelines ship) and ASTC (astcenc
-    -thorough) encode every mip at full and half resolution and at each profile's R. All use the
-    same metric code: PSNR over all mips, per mip and per channel group, SSIM and FLIP at mip 0,
-    size twice (GPU bytes, and bytes on disk after zstd 19), time; each cell's per-mip margins
-    against BC and the BC7 quality set at its R. The decode
+    BC (BC1 colour and packed maps, BC5 normal xy, BC4 lone scalars), the BC7 quality set (BC7 for
+    colour and packed maps) and ASTC (-thorough) encode every mip at full and half size and at each
+    profile's R. All use one metric code: PSNR over all mips, per mip and per channel group, SSIM
+    and FLIP at mip 0, GPU bytes and bytes on disk (zstd 19), time, and margins against BC@R. The decode
     cost is a full-screen pass of each BCf material against one sampling the BC textures, frames
     interleaved, on the machine's OpenGL (on llvmpipe only the ratio is meaningful).
 
