@@ -407,6 +407,9 @@ class TrainingOptions(Record):
                        "material against a PSNR: use one")
         if self.t0_layers is not None and not 1 <= int(self.t0_layers) <= MAX_T0_LAYERS:
             out.append(f"--t0-layers must be 1..{MAX_T0_LAYERS}, got {self.t0_layers}")
+        elif (self.t0_layers or 1) > 1 and self.features == FeatureFormat.BC6H:
+            out.append("--t0-layers widens a T_0 of principal components in BC7: use it with --features bc7 "
+                       "(the default)")
         elif (self.t0_layers or 1) > 1 and self.t0_resolved != T0.PCA:
             out.append("--t0-layers widens a T_0 of principal components: use it with --t0 pca (bc7's default)")
         if not 0 <= self.pca_clip < 50:
