@@ -52,10 +52,9 @@ def _train(name: str, out: Path, args: argparse.Namespace, extra: list[str]) -> 
 
 
 def _disk(folder: Path) -> int:
-    from bcfpipe.export.fit import shipped_files
-    from bcfpipe.formats.sizes import disk_bytes
+    from bcfpipe.export.fit import shipped_disk_bytes
 
-    return disk_bytes([p.read_bytes() for p in shipped_files(folder)])
+    return shipped_disk_bytes(folder)
 
 
 def _row(label: str, size: int, disk: int | None, mips, allm: float, bc, q) -> str:

@@ -87,12 +87,10 @@ def blocks_disk_bytes(textures: Sequence, astc_block: str | None = None) -> int:
 
 
 def files_disk_bytes(folder: Path) -> int:
-    """Bytes on disk of an exported material's shipped files (`export.fit.shipped_files`: what its
-    GPU bytes count), each zstd-compressed whole."""
-    from bcfpipe.export.fit import shipped_files
-    from bcfpipe.formats.sizes import disk_bytes
+    """Bytes on disk of an exported material's shipped files (`export.fit.shipped_disk_bytes`)."""
+    from bcfpipe.export.fit import shipped_disk_bytes
 
-    return disk_bytes([p.read_bytes() for p in shipped_files(folder)])
+    return shipped_disk_bytes(folder)
 
 
 @dataclass

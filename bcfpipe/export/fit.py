@@ -65,6 +65,13 @@ def shipped_files(out_dir: Path) -> list[Path]:
     return [Path(out_dir) / f for f in desc.files if f != (desc.onnx.file if desc.onnx else None)]
 
 
+def shipped_disk_bytes(out_dir: Path) -> int:
+    """`shipped_files` on disk, each zstd-compressed (`formats.sizes.disk_bytes`)."""
+    from bcfpipe.formats.sizes import disk_bytes
+
+    return disk_bytes([p.read_bytes() for p in shipped_files(out_dir)])
+
+
 def exported_size(out_dir: Path) -> int:
     """Bytes a renderer loads (`shipped_files`)."""
     return sum(p.stat().st_size for p in shipped_files(out_dir))

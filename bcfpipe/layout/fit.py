@@ -83,12 +83,7 @@ def predict_for(ts: TextureSet, options: TrainingOptions, cfg, asked: str, resol
                          tuple(cfg.model.resolutions), resolution, cfg.device,
                          (N_LAYERS * cfg.model.layer_channels, cfg.model.hidden), options.layout,
                          bool(options.match_bc), named_groups(groups, options.classic),
-                         t0_widths(options, ts.num_channels)))
-
-
-def t0_widths(options: TrainingOptions, n_channels: int) -> tuple[int, ...]:
-    """The T_0 widths a layout weighs for a set of ``n_channels`` (`predict.widths_of`)."""
-    return widths_of(options, options.layout, n_channels)
+                         widths_of(options, options.layout, ts.num_channels)))
 
 
 def _measure_classic(ctx: K.FitContext, with_repacks: bool, lines: list[str] | None = None) -> ClassicFit:

@@ -370,10 +370,9 @@ def split_disk_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
 def model_disk_bytes(res: MaterialResult) -> int:
     """A trained model's files on disk, each zstd-compressed: the ones its GPU bytes count (feature
     DDS files and weights.bin; `export.fit.exported_size`)."""
-    from bcfpipe.export.fit import shipped_files
-    from bcfpipe.formats.sizes import disk_bytes as zstd_bytes
+    from bcfpipe.export.fit import shipped_disk_bytes
 
-    return zstd_bytes([p.read_bytes() for p in shipped_files(res.out_dir)])
+    return shipped_disk_bytes(res.out_dir)
 
 
 def split_candidates(ts: TextureSet, classic: ClassicFit, e_probe: np.ndarray, resolution: int, dims: tuple[int, int],

@@ -108,7 +108,7 @@ class Query:
     layout: str = Layout.AUTO
     match_bc: bool = False
     classic: tuple[str, ...] = ()
-    widths: tuple[int, ...] = (1,)  # the T_0 widths weighed (`fit.t0_widths`); --layout neural: the one trained
+    widths: tuple[int, ...] = (1,)  # the T_0 widths weighed (`widths_of`); --layout neural: the one trained
 
 
 def predict(q: Query) -> LayoutPrediction:
