@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from bcfpipe.formats.record import Record
-from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout
+from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout, wrap_axes
 
 N_LAYERS = 4  # the profile's layers T_0..T_3; a model has t0_layers - 1 more at T_0 (ModelConfig.n_layers)
 MAX_T0_LAYERS = 3  # layers of principal components a fixed T_0 may hold (ModelConfig.t0_layers)
@@ -215,7 +215,7 @@ LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 14  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
+MODEL_FORMAT = 15  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
 # (BC6H and BC7); 7: the BC6H first encode compiled (bc6h/quick.cpp: a few blocks in a thousand differ);
 # 8: --layout auto the default (a record without a layout meant neural before); fast and standard take
 # fewer steps at a 2048² T_0 on a CPU (CPU_PRESETS_LARGE); 9: --layout auto weighs mip splits (material.json
@@ -223,7 +223,9 @@ MODEL_FORMAT = 14  # 5: the fused kernel by default and the re-tuned presets (is
 # bc7 default: a fixed T_0 of principal components in any BC7 mode; 12: the all-channels BC7 repack keeps every
 # colour and normal whole at a texture's r, g(, b), so that a UsdUVTexture reads it (issue 50); 13: a layout's
 # probe and second model train no more steps than --layout neural at the profile asked (layout.fit.capped);
-# 14: --layout auto weighs T_0 widths (issue 52) and layout.json reports the BC7 quality set and disk bytes
+# 14: --layout auto weighs T_0 widths (issue 52) and layout.json reports the BC7 quality set and disk bytes;
+# 15: addressing per axis, as USD's wrapS / wrapT say it (repeat, clamp, mirror; issue 57): the job's wrap
+# is an (S, T) pair, and mirror is trained as mirror
 
 # --pca-clip: the percentage of texels at each end of a principal component's range that the PCA
 # start and a fixed T_0 clip (0.1: the 0.1st..99.9th percentiles span the feature range)
@@ -242,7 +244,7 @@ class ModelConfig:
     resolutions: tuple[int, int, int, int] = PROFILES["1k"]
     hidden: int = DEFAULT_HIDDEN
     signed: bool = False  # BC6H_UF16 by default: finer endpoint steps over the positive range
-    wrap: str = "repeat"
+    wrap: tuple[str, str] = ("repeat", "repeat")  # (S, T) addressing: repeat, clamp or mirror per axis
     max_feature: float = 2.0  # decoded features are kept within +-max_feature (model.features.endpoint_range)
     features: FeatureFormat = FeatureFormat.BC6H  # the paper's; TrainingOptions holds the user-facing default
     # The first reference mip the features serve: 0 for a neural material; k > 0 in a mip-split
@@ -259,6 +261,7 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if not 1 <= int(self.t0_layers) <= MAX_T0_LAYERS:
             raise ValueError(f"t0_layers must be 1..{MAX_T0_LAYERS}, got {self.t0_layers}")
+        object.__setattr__(self, "wrap", tuple(str(w) for w in wrap_axes(self.wrap)))  # one mode: both axes
 
     @property
     def layer_channels(self) -> int:
@@ -436,13 +439,13 @@ class TrainingOptions(Record):
         asked = int(self.t0_layers or 1)
         return asked if n_channels is None else min(asked, max_t0_layers(n_channels, FeatureFormat(self.features)))
 
-    def train_config(self, source_size: int, wrap: str, device: str,
+    def train_config(self, source_size: int, wrap, device: str,
                      n_channels: int | None = None) -> tuple[str, TrainConfig]:
         """The `TrainConfig` of these choices for a texture set whose larger side is
-        ``source_size`` (of ``n_channels``, which caps the T_0 layers), addressed with ``wrap``, on
+        ``source_size`` (of ``n_channels``, which caps the T_0 layers), addressed with ``wrap`` (one
+        mode, or the (S, T) pair a UsdUVTexture's wrapS / wrapT give: repeat, clamp, mirror), on
         the resolved ``device``; and the profile's resolved name (``auto`` picks from the size)."""
-        if wrap not in ("repeat", "clamp"):
-            raise ValueError(f"unknown addressing mode {wrap!r}; choose repeat or clamp")
+        wrap = tuple(str(w) for w in wrap_axes(wrap))
         name, res = resolve_profile(self.profile, source_size)
         mc = ModelConfig(resolutions=res, hidden=self.hidden, signed=self.signed, wrap=wrap,
                          features=FeatureFormat(self.features), pca_clip=self.pca_clip / 100,

@@ -291,7 +291,7 @@ stage.Save()
 ov = NeuralMaterialOverride(
     material="/M", feature_textures=tuple(str(folder / layer.file) for layer in desc.layers),
     feature_resolutions=tuple(layer.resolution for layer in desc.layers), feature_mip_counts=desc.mip_counts,
-    feature_lod_biases=desc.lod_biases, feature_signed=False, addressing=desc.wrap, reference_resolution=(64, 64),
+    feature_lod_biases=desc.lod_biases, feature_signed=False, wrap=desc.wrap, reference_resolution=(64, 64),
     st_primvar="st", st_scale=(1.0, 1.0), st_rotation=0.0, st_translation=(0.0, 0.0),
     weights=str(folder / "weights.bin"), weights_offset=0, weights_size=desc.mlp.size_bytes, weights_index=0,
     mlp=desc.mlp, decoder=str(folder / "decoder.onnx"), targets=("diffuseColor.r",), channels=(0,), scale=(1.0,),

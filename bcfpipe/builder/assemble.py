@@ -133,7 +133,7 @@ def _override(mp_: MaterialPlan, desc: mf.MaterialFile, e):
         feature_mip_counts=desc.mip_counts,
         feature_lod_biases=desc.lod_biases,
         feature_signed=desc.signed,
-        addressing=desc.wrap,
+        wrap=desc.wrap,
         reference_resolution=(desc.reference.width, desc.reference.height),
         st_primvar=mp_.st_primvar, st_scale=mp_.st_scale, st_rotation=mp_.st_rotation,
         st_translation=mp_.st_translation,

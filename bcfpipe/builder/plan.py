@@ -14,7 +14,7 @@ from bcfpipe.builder.options import Selection
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.manifest import Options
-from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, Kernel
+from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, Kernel, wrap_axes
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import group_materials
@@ -65,7 +65,7 @@ class MaterialJob:
     specs: tuple[tuple[str, str, str], ...]  # (semantic, file, channels) for bcfpipe.texset
     channels: tuple[ModelChannel, ...]
     sources: tuple[SourceFile, ...]
-    wrap: str
+    wrap: tuple[str, str]  # (S, T) addressing: repeat, clamp or mirror per axis
     options: JobOptions
     content_hash: str
     coverage: str | None = None  # packed level-0 mask at the job's size (bcfpipe.scan.coverage); None: all read
@@ -84,6 +84,7 @@ class MaterialJob:
     def from_dict(cls, d: Mapping[str, Any]) -> "MaterialJob":
         d = dict(d)
         d["materials"] = tuple(d["materials"])
+        d["wrap"] = tuple(str(w) for w in wrap_axes(d["wrap"]))
         d["specs"] = tuple(tuple(s) for s in d["specs"])
         d["channels"] = tuple(ModelChannel(**c) for c in d["channels"])
         d["sources"] = tuple(SourceFile(**s) for s in d["sources"])
@@ -179,7 +180,7 @@ def _t0(sources: Mapping[str, SourceFile], options: JobOptions) -> int:
     return resolve_profile(options.profile, max(w, h))[1][0]
 
 
-def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: JobOptions,
+def content_hash(specs, sources: Mapping[str, SourceFile], wrap, options: JobOptions,
                  coverage_digest: str | None = None, anchors: tuple = ()) -> str:
     """The job's cache key: `config.MODEL_FORMAT`, the job's record (``options.keyed()``: every
     field but those that change nothing trained) and its inputs: the bytes of each source file
@@ -194,7 +195,7 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap: str, options: J
         "model_format": MODEL_FORMAT,
         "options": options.keyed(),
         "specs": [[sem, sources[path].xxh3_128, ch] for sem, path, ch in specs],
-        "wrap": wrap,
+        "wrap": [str(w) for w in wrap_axes(wrap)],
         "coverage": coverage_digest,
         "anchors": [list(a) for a in anchors],
         "schedule": asdict(preset_for(options.preset, _t0(sources, options), options.device, fixed)),

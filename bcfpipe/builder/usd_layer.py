@@ -81,7 +81,7 @@ class NeuralMaterialOverride:
     feature_mip_counts: tuple[int, ...]
     feature_lod_biases: tuple[float, ...]
     feature_signed: bool
-    addressing: str
+    wrap: tuple[str, str]  # (S, T): bcf:wrapS / bcf:wrapT
     reference_resolution: tuple[int, int]
     st_primvar: str
     st_scale: tuple[float, float]
@@ -111,7 +111,8 @@ class NeuralMaterialOverride:
             ("bcf:featureMipCounts", _T.IntArray, Vt.IntArray([int(v) for v in self.feature_mip_counts])),
             ("bcf:featureLodBiases", _T.FloatArray, Vt.FloatArray([float(b) for b in self.feature_lod_biases])),
             ("bcf:featureSigned", _T.Bool, bool(self.feature_signed)),
-            ("bcf:addressing", _T.Token, self.addressing),
+            ("bcf:wrapS", _T.Token, self.wrap[0]),
+            ("bcf:wrapT", _T.Token, self.wrap[1]),
             ("bcf:referenceResolution", _T.Int2, Gf.Vec2i(*(int(v) for v in self.reference_resolution))),
             *([("bcf:split", _T.Int, int(self.split))] if self.split else []),
             ("bcf:st:primvar", _T.Token, self.st_primvar),
@@ -233,7 +234,8 @@ def _author_surface(layer: Sdf.Layer, material: Sdf.PrimSpec, ov: NeuralMaterial
         _input(sh, f"lodBias{i}", _T.Float, float(b))
     _input(sh, "referenceResolution", _T.Int2, Gf.Vec2i(*(int(v) for v in ov.reference_resolution)))
     _input(sh, "featureSigned", _T.Int, int(bool(ov.feature_signed)))
-    _input(sh, "addressing", _T.Token, ov.addressing)
+    _input(sh, "wrapS", _T.Token, ov.wrap[0])
+    _input(sh, "wrapT", _T.Token, ov.wrap[1])
     _input(sh, "weights", _T.Asset, Sdf.AssetPath(ov.weights))
     _input(sh, "weightsOffset", _T.Int, int(ov.weights_offset))
     if ov.split:

@@ -79,7 +79,7 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
         layers=tuple(layers),
         bc6h=None if bc7 else mf.BC6H(codec.dxgi_format(mc), mc.signed, mode10.DESCRIPTION),
         bc7=mf.BC7(codec.dxgi_format(mc), BC7_MODE) if bc7 else None,
-        sampling=mf.Sampling(mc.wrap),
+        sampling=mf.Sampling.of(mc.wrap),
         reference=mf.Reference(ts.width, ts.height, max(ts.width, ts.height).bit_length()),
         mlp=mf.Mlp(mf.WEIGHTS, 0, len(record), n_in, hidden, n_out, "relu", "fp16", f"BCFW v{tm.mlp.version}",
                    tuple(f"{mf.layer_name(i, mc.t0_layers)}.{c}" for i in range(mc.n_layers)
@@ -115,7 +115,8 @@ class ExportedMaterial:
         return self.desc.lod_biases
 
     @property
-    def wrap(self) -> str:
+    def wrap(self) -> tuple[str, str]:
+        """(S, T) addressing."""
         return self.desc.wrap
 
 

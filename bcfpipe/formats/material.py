@@ -11,19 +11,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bcfpipe.formats.atomic import atomic_write
-from bcfpipe.formats.vocabulary import Source
+from bcfpipe.formats.vocabulary import Source, Wrap, wrap_axes
 from bcfpipe.formats.record import FormatError, Record, optional, read as read_record
 
 FORMAT = "bcfpipe-material"
-FORMAT_VERSION = 6  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
+FORMAT_VERSION = 7  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
 # 5: a layer's "blocks" (a T_0 of principal components in any BC7 mode, issue 29); 6: more than four layers
-# (a T_0 of two or three layers of components, issue 52: T0.dds, T0b.dds, T0c.dds, then T1..T3); versions 2-5
-# read as before. A material is written as the lowest version its contents need, byte for byte as before:
+# (a T_0 of two or three layers of components, issue 52: T0.dds, T0b.dds, T0c.dds, then T1..T3); 7: addressing
+# per axis (sampling.wrap_s / wrap_t: repeat, clamp or mirror, as a UsdUVTexture's wrapS / wrapT; issue 57),
+# written only where the axes differ or one mirrors; versions 2-6 read as before. A material is written as the lowest version its contents need, byte for byte as before:
 # four layers none of which is in any mode, as version 3 (with a split, 4); four layers, one of them in any
 # mode, as version 5; so readers of those versions read what they read before.
 NO_SPLIT_VERSION = 3
 SPLIT_VERSION = 4
 ANY_MODE_VERSION = 5
+MANY_LAYERS_VERSION = 6
 PROFILE_LAYERS = 4  # T_0..T_3: a material with more layers is written as FORMAT_VERSION
 ANY_BC7_MODE = "any BC7 mode"  # Layer.blocks of a layer encoded once by a full BC7 encoder
 FILE = "material.json"
@@ -87,12 +89,46 @@ class BC7(Record):
 
 @dataclass(frozen=True)
 class Sampling(Record):
-    """How a decoder samples the feature layers (hardware trilinear filtering)."""
+    """How a decoder samples the feature layers and classic textures (hardware trilinear
+    filtering), with an addressing per axis (S along u, T along v). Written as ``addressing`` when
+    both axes repeat or both clamp (the one key readers before version 7 know), else as ``wrap_s``
+    and ``wrap_t`` (version 7); `Sampling.of` picks, `axes` reads either."""
 
-    addressing: str
+    addressing: str | None = optional()
     filter: str = "trilinear (LINEAR_MIPMAP_LINEAR), lod clamped to [0, mip_count-1]"
     uv: str = "u along width, v along height; v = 0 is the first stored row (for USD st use v = 1 - t)"
     lod: str = "s_i = s + lod_bias_i, with s = log2 of the pixel footprint in reference texels"
+    wrap_s: str | None = optional()
+    wrap_t: str | None = optional()
+
+    _ORDER = ("addressing", "wrap_s", "wrap_t")
+
+    def __post_init__(self) -> None:
+        if (self.addressing is None) == (self.wrap_s is None or self.wrap_t is None):
+            raise FormatError("material.json: sampling needs either 'addressing' or both 'wrap_s' and 'wrap_t'")
+        try:
+            self.axes
+        except ValueError as exc:
+            raise FormatError(f"material.json: sampling: {exc}") from None
+
+    @classmethod
+    def of(cls, wrap) -> "Sampling":
+        """The record of an addressing (one mode, or an (S, T) pair), in the lowest version that holds it."""
+        s, t = wrap_axes(wrap)
+        if s == t and s != Wrap.MIRROR:
+            return cls(str(s))
+        return cls(wrap_s=str(s), wrap_t=str(t))
+
+    @property
+    def axes(self) -> tuple[str, str]:
+        """(S, T) addressing, whichever way it is written."""
+        s, t = wrap_axes(self.addressing if self.addressing is not None else (self.wrap_s, self.wrap_t))
+        return str(s), str(t)
+
+    @property
+    def per_axis(self) -> bool:
+        """Whether it is written per axis (material.json version 7)."""
+        return self.addressing is None
 
 
 @dataclass(frozen=True)
@@ -214,7 +250,8 @@ class MaterialFile(Record):
     def __post_init__(self) -> None:
         # the version this record is written as (FORMAT_VERSION's note)
         any_mode = any(layer.blocks is not None for layer in self.layers)
-        object.__setattr__(self, "format_version", FORMAT_VERSION if len(self.layers) > PROFILE_LAYERS else
+        object.__setattr__(self, "format_version", FORMAT_VERSION if self.sampling.per_axis else
+                           MANY_LAYERS_VERSION if len(self.layers) > PROFILE_LAYERS else
                            ANY_MODE_VERSION if any_mode else SPLIT_VERSION if self.split is not None else
                            NO_SPLIT_VERSION)
         neural = any(o.source != Source.CLASSIC for o in self.outputs)
@@ -253,8 +290,9 @@ class MaterialFile(Record):
         return self.bc6h is not None and self.bc6h.signed
 
     @property
-    def wrap(self) -> str:
-        return self.sampling.addressing
+    def wrap(self) -> tuple[str, str]:
+        """(S, T) addressing of every layer and classic texture."""
+        return self.sampling.axes
 
     @property
     def lod_biases(self) -> tuple[float, ...]:
@@ -295,7 +333,7 @@ def _version() -> str:
 def read(folder: str | os.PathLike) -> MaterialFile:
     """``folder/material.json``; a missing, foreign or malformed file raises FormatError."""
     # v2 (all from the MLP) reads as v3; v3, a material without a split, stays v3 as written
-    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3, 4, 5),
+    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3, 4, 5, 6),
                        upgrade=lambda data: dict(data, format_version=NO_SPLIT_VERSION))
 
 

@@ -26,7 +26,8 @@ BASE_URI = "https://bcfpipe.dev/schemas/"
 DESCRIPTIONS: dict[tuple[str, str], str] = {
     # ---------------------------------------------------------------- material.json
     ("MaterialFile", "format"): "Always \"bcfpipe-material\".",
-    ("MaterialFile", "format_version"): "6 with more than four layers (a T_0 of two or three layers of principal "
+    ("MaterialFile", "format_version"): "7 when the addressing is per axis (sampling.wrap_s / wrap_t: the axes "
+                                        "differ or one mirrors), else 6 with more than four layers (a T_0 of two or three layers of principal "
                                         "components), else 5 when a layer is in any BC7 mode, else 4 for a mip-split "
                                         "layout (split), else 3. Version of this contract; a reader refuses versions "
                                         "it does not know.",
@@ -72,7 +73,13 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("BC6H", "dxgi_format"): "95 (BC6H_UF16) or 96 (BC6H_SF16).",
     ("BC6H", "signed"): "Whether the features use the signed BC6H format.",
     ("BC6H", "block_mode"): "The one BC6H mode every block uses (bcfpipe.bc6h.mode10).",
-    ("Sampling", "addressing"): "Texture addressing of every layer: repeat or clamp (to edge).",
+    ("Sampling", "addressing"): "Texture addressing of every layer and classic texture, both axes alike: repeat "
+                                "or clamp (to edge). Absent when the axes differ or one mirrors: then wrap_s and "
+                                "wrap_t (version 7).",
+    ("Sampling", "wrap_s"): "Addressing along u (S, a UsdUVTexture's wrapS) of every layer and classic texture: "
+                            "repeat, clamp (to edge) or mirror (GL_MIRRORED_REPEAT); with wrap_t, instead of "
+                            "addressing (version 7).",
+    ("Sampling", "wrap_t"): "Addressing along v (T, a UsdUVTexture's wrapT): repeat, clamp or mirror.",
     ("Sampling", "filter"): "Texture filtering a decoder must use.",
     ("Sampling", "uv"): "Texture coordinate convention.",
     ("Sampling", "lod"): "How the level of detail is chosen.",
@@ -364,10 +371,13 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
 
 ENUMS: dict[tuple[str, str], list] = {
     ("MaterialFile", "format"): [material.FORMAT],
-    ("MaterialFile", "format_version"): [material.NO_SPLIT_VERSION, material.ANY_MODE_VERSION, material.FORMAT_VERSION],
+    ("MaterialFile", "format_version"): [material.NO_SPLIT_VERSION, material.SPLIT_VERSION, material.ANY_MODE_VERSION,
+                                         material.MANY_LAYERS_VERSION, material.FORMAT_VERSION],
     ("Manifest", "format"): [manifest.FORMAT],
     ("Manifest", "format_version"): [manifest.FORMAT_VERSION],
     ("Sampling", "addressing"): ["repeat", "clamp"],
+    ("Sampling", "wrap_s"): ["repeat", "clamp", "mirror"],
+    ("Sampling", "wrap_t"): ["repeat", "clamp", "mirror"],
     ("Output", "kind"): ["color", "normal", "scalar"],
     ("Material", "status"): list(manifest.STATUSES),
     ("Job", "status"): [Status.BUILT, Status.FAILED, "not run"],

@@ -15,7 +15,7 @@ except ImportError:  # Python 3.10
         def __str__(self) -> str:
             return str(self.value)
 
-__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "ColorSpace", "FeatureFormat", "T0", "Kernel", "Source", "Layout"]
+__all__ = ["StrEnum", "Status", "Decision", "CacheUse", "Wrap", "wrap_axes", "wrap_name", "ColorSpace", "FeatureFormat", "T0", "Kernel", "Source", "Layout"]
 
 
 class Status(StrEnum):
@@ -43,10 +43,30 @@ class CacheUse(StrEnum):
 
 
 class Wrap(StrEnum):
-    """Texture addressing the model is trained for and the runtime samples with."""
+    """Texture addressing of one axis, as UsdUVTexture's wrapS / wrapT say it: what the model is
+    trained for and the runtime samples with (GL_REPEAT, GL_CLAMP_TO_EDGE, GL_MIRRORED_REPEAT)."""
 
     REPEAT = "repeat"
     CLAMP = "clamp"
+    MIRROR = "mirror"
+
+
+def wrap_axes(wrap) -> tuple[Wrap, Wrap]:
+    """(S, T) of an addressing given as one mode for both axes ("clamp") or as a pair: the one
+    reading every sampler uses, so a plain mode and a per-axis pair (from JSON, a list) both work."""
+    pair = (wrap, wrap) if isinstance(wrap, str) else tuple(wrap)
+    if len(pair) != 2:
+        raise ValueError(f"addressing {wrap!r} is neither one mode nor an (S, T) pair")
+    try:
+        return Wrap(pair[0]), Wrap(pair[1])
+    except ValueError:
+        raise ValueError(f"unknown addressing {wrap!r}; choose repeat, clamp or mirror per axis") from None
+
+
+def wrap_name(wrap) -> str:
+    """An addressing as a person reads it: "clamp" when both axes agree, else "clamp S, repeat T"."""
+    s, t = wrap_axes(wrap)
+    return str(s) if s == t else f"{s} S, {t} T"
 
 
 class ColorSpace(StrEnum):

@@ -6,7 +6,7 @@
 //   shader storage block 0 = weight buffer (uint words), 1 = queries (below),
 //   2 = output float[count * uOutStride], sample i's channel c at i * uOutStride + c.
 // Uniforms:
-//   uint  uWeightOffset, float uLodBias[N], vec2 uRefSize, int uNormalIndex, bool uRepeat
+//   uint  uWeightOffset, float uLodBias[N], vec2 uRefSize, int uNormalIndex, ivec2 uWrap
 //                      as in bcf_fullscreen.frag
 //   uint  uCount       number of samples
 //   bool  uGradQueries false: query i is vec4(u, v, s, unused) (bcfDecodeLod);
@@ -31,7 +31,7 @@ uniform uint uWeightOffset;
 uniform float uLodBias[BCF_N_LAYERS];
 uniform vec2 uRefSize;
 uniform int uNormalIndex;
-uniform bool uRepeat;
+uniform ivec2 uWrap;
 uniform uint uCount;
 uniform bool uGradQueries;
 uniform uint uOutStride;
@@ -41,7 +41,7 @@ uniform float uGridLod;
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= uCount) return;
-    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uRepeat);
+    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uWrap);
     float ch[BCF_MAX_OUT];
     int n;
     if (uGrid.x > 0u) {

@@ -18,8 +18,12 @@
 //   s : lod in the reference material's mip units (0 = full-resolution reference texels).
 //   Each layer is sampled with the hardware trilinear filter (LINEAR_MIPMAP_LINEAR, mag LINEAR,
 //   GL_TEXTURE_MAX_LEVEL = mip_count - 1, so s_i is clamped to [0, mip_count - 1] by the sampler).
-//   Range reduction happens here, in exact fp32, not in the texture unit: uv - floor(uv) for repeat,
-//   clamp(uv, -1, 2) for clamp-to-edge, and s_i clamped to [0, BCF_MAX_LOD]; hardware guarantees
+//   Addressing is per axis (S along u, T along v), as the sources' UsdUVTexture wrapS / wrapT:
+//   BCF_WRAP_REPEAT, BCF_WRAP_CLAMP or BCF_WRAP_MIRROR, which the samplers' GL_TEXTURE_WRAP_S / _T
+//   must match (GL_REPEAT, GL_CLAMP_TO_EDGE, GL_MIRRORED_REPEAT).
+//   Range reduction happens here, in exact fp32, not in the texture unit, per axis: x - floor(x) for
+//   repeat, x - 2 floor(x / 2) for mirror, clamp(x, -1, 2) for clamp-to-edge, and s_i clamped to
+//   [0, BCF_MAX_LOD]; hardware guarantees
 //   full sub-texel precision only for |uv| <= 10 (D3D11_COMMONSHADER_TEXCOORD_RANGE_REDUCTION_MAX).
 //   Precision limits (glsl/README.md): the fp32 uv itself resolves ulp(|uv|) * width texels.
 //   Features: BC6H layers give 3 channels (T_i.rgb, n_in 12, 4 layers only), BC7 layers 4 (T_i.rgba,
@@ -65,8 +69,12 @@ struct BcfMaterial {
     float lodBias[BCF_N_LAYERS];  // b_0..b_{N-1} (material.json layers[i].lod_bias)
     vec2 refSize;       // reference width, height (material.json reference; derivative path only)
     int normalIndex;    // index of normal x among the n_out model channels (y follows); -1: none
-    bool repeat;        // sampling.addressing: true for repeat, false for clamp (the samplers' wrap mode)
+    ivec2 wrap;         // (S, T) addressing, BCF_WRAP_*: material.json sampling (the samplers' wrap modes)
 };
+
+const int BCF_WRAP_REPEAT = 0;  // GL_REPEAT
+const int BCF_WRAP_CLAMP = 1;   // GL_CLAMP_TO_EDGE
+const int BCF_WRAP_MIRROR = 2;  // GL_MIRRORED_REPEAT
 
 // fp16 value e of the record whose first fp16 word is 'base'.
 float bcfHalf(uint base, uint e) {
@@ -166,15 +174,23 @@ int bcfDecodeFeatures(BcfMaterial m, vec4 t[BCF_N_LAYERS], out float ch[BCF_MAX_
     return count;
 }
 
-// uv moved into the range where every texture unit filters at full precision, with the same
-// texels and weights: the fractional part for repeat (exact in fp32), [-1, 2] for clamp-to-edge.
-vec2 bcfReduceUv(vec2 uv, bool repeat) {
-    return repeat ? uv - floor(uv) : clamp(uv, -1.0, 2.0);
+// One coordinate moved into the range where every texture unit filters at full precision, with the
+// same texels and weights: the fractional part for repeat, x mod 2 for mirror (both exact in fp32),
+// [-1, 2] for clamp-to-edge.
+float bcfReduceCoord(float x, int wrap) {
+    if (wrap == BCF_WRAP_REPEAT) return x - floor(x);
+    if (wrap == BCF_WRAP_MIRROR) return x - 2.0 * floor(x * 0.5);
+    return clamp(x, -1.0, 2.0);
+}
+
+// uv range-reduced per axis (bcfReduceCoord): u with wrap.x (S), v with wrap.y (T).
+vec2 bcfReduceUv(vec2 uv, ivec2 wrap) {
+    return vec2(bcfReduceCoord(uv.x, wrap.x), bcfReduceCoord(uv.y, wrap.y));
 }
 
 // Hardware trilinear samples of the N layers at s_i = s + b_i (s = +-inf is fine; NaN is not).
 void bcfSampleFeatures(sampler2D T[BCF_N_LAYERS], BcfMaterial m, vec2 uv, float s, out vec4 t[BCF_N_LAYERS]) {
-    uv = bcfReduceUv(uv, m.repeat);
+    uv = bcfReduceUv(uv, m.wrap);
     for (int i = 0; i < BCF_N_LAYERS; ++i)
         t[i] = textureLod(T[i], uv, clamp(s + m.lodBias[i], 0.0, BCF_MAX_LOD));
 }

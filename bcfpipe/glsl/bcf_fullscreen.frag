@@ -9,7 +9,7 @@
 //   float uLodBias[N]    b_0..b_{N-1}
 //   vec2  uRefSize       reference width, height (for the lod from derivatives)
 //   int   uNormalIndex   normal x among the model outputs, -1 if none
-//   bool  uRepeat        true if the material repeats (sampling.addressing), false for clamp
+//   ivec2 uWrap          (S, T) addressing, BCF_WRAP_* (0 repeat, 1 clamp, 2 mirror; material.json sampling)
 //   int   uLodMode       0: s from dFdx/dFdy of uv (paper sec. 5.2); 1: s = uLod
 //   float uLod           explicit lod (reference mip units) for uLodMode 1
 //   int   uView          first of the three channels written to rgb (normals stay in [-1, 1])
@@ -24,7 +24,7 @@ uniform uint uWeightOffset;
 uniform float uLodBias[BCF_N_LAYERS];
 uniform vec2 uRefSize;
 uniform int uNormalIndex;
-uniform bool uRepeat;
+uniform ivec2 uWrap;
 uniform int uLodMode;
 uniform float uLod;
 uniform int uView;
@@ -33,7 +33,7 @@ layout(location = 0) in vec2 vUv;
 layout(location = 0) out vec4 fragColor;
 
 void main() {
-    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uRepeat);
+    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uWrap);
     float ch[BCF_MAX_OUT];
     int n;
     if (uLodMode == 1)

@@ -69,7 +69,7 @@ uniform uint uWeightOffset;
 uniform float uLodBias[BCF_N_LAYERS];
 uniform vec2 uRefSize;
 uniform int uNormalIndex;
-uniform bool uRepeat;
+uniform ivec2 uWrap;
 #define TEXTURE_SOURCE 1024  // bcfpipe/render/surfaces.py
 layout(binding = BCF_N_LAYERS) uniform sampler2D uTexture[MAX_TEXTURES];
 #else
@@ -142,7 +142,7 @@ void main() {
 #if BCF_NEURAL
     vec2 st = stTransform(NEURAL_ST, vSt);
     vec2 uv = vec2(st.x, 1.0 - st.y);
-    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uRepeat);
+    BcfMaterial m = BcfMaterial(uWeightOffset, uLodBias, uRefSize, uNormalIndex, uWrap);
     float ch[BCF_MAX_OUT];
     int n = bcfDecodeGrad(bcfT, m, uv, dFdx(uv), dFdy(uv), ch);
     if (n == 0) {  // an invalid weight record

@@ -18,7 +18,9 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.addressing import address
 from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
+from bcfpipe.formats.vocabulary import wrap_axes
 from bcfpipe.texset.texture_set import TextureSet
 
 
@@ -210,20 +212,20 @@ def measure_repack(ts: TextureSet, bc: Sequence[EncodedGroup], e_bc: np.ndarray,
     return enc, e, size
 
 
-def magnify(img: np.ndarray, height: int, width: int, wrap: str) -> np.ndarray:
-    """Bilinear magnification at the target's texel centres (GL's LINEAR filter), with ``wrap``."""
+def magnify(img: np.ndarray, height: int, width: int, wrap) -> np.ndarray:
+    """Bilinear magnification at the target's texel centres (GL's LINEAR filter), with ``wrap``
+    (one mode, or the (S, T) pair: S along the width, T along the height)."""
     h, w = img.shape[:2]
+    wrap_s, wrap_t = wrap_axes(wrap)
 
-    def taps(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def taps(n_out: int, n_in: int, mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         x = (np.arange(n_out) + 0.5) * n_in / n_out - 0.5
         x0 = np.floor(x).astype(np.int64)
         f = (x - x0).astype(np.float32)
-        a, b = (x0 % n_in, (x0 + 1) % n_in) if wrap == "repeat" else (np.clip(x0, 0, n_in - 1),
-                                                                       np.clip(x0 + 1, 0, n_in - 1))
-        return a, b, f
+        return address(x0, n_in, mode), address(x0 + 1, n_in, mode), f
 
-    ya, yb, fy = taps(height, h)
-    xa, xb, fx = taps(width, w)
+    ya, yb, fy = taps(height, h, wrap_t)
+    xa, xb, fx = taps(width, w, wrap_s)
     out = np.empty((height, width) + img.shape[2:], np.float32)
     band = max(1, (1 << 22) // max(1, width * int(np.prod(img.shape[2:]))))  # 16 MiB temporaries, even at 8K
     for y0 in range(0, height, band):

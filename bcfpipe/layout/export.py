@@ -77,7 +77,7 @@ def export_groups(fit: LayoutFit, shipped: Sequence[EncodedGroup], ts: TextureSe
     if base is not None:
         desc = replace(base, outputs=tuple(outputs), classic=tuple(classic), sha256=None)
     else:
-        desc = mf.MaterialFile(layers=(), sampling=mf.Sampling(wrap),
+        desc = mf.MaterialFile(layers=(), sampling=mf.Sampling.of(wrap),
                                reference=mf.Reference(ts.width, ts.height, max(ts.width, ts.height).bit_length()),
                                outputs=tuple(outputs), training=mf.Training((), "none", 0, "cpu"),
                                classic=tuple(classic))

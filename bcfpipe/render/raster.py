@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bcfpipe.addressing import wrap_codes
 from bcfpipe.formats.vocabulary import ColorSpace, Wrap
 from bcfpipe.errors import InputError
 from bcfpipe.formats import dds
@@ -132,15 +133,14 @@ class Renderer:
     # ------------------------------------------------------------------ resources
     def _feature_textures(self, surface: Surface) -> list[int]:
         f = surface.neural
-        key = (f.textures, f.repeat)
+        key = (f.textures, f.wrap)
         if key not in self._features:
             texs = []
             for path in f.textures:
                 tex = dds.parse(read_asset(path), path)
                 if tex.signed != f.signed:
                     raise InputError(f"{path}: {tex.format_name} but {surface.material} says featureSigned={int(f.signed)}")
-                texs.append(self.rt.upload_compressed(tex.levels, glsl.gl_format(tex),
-                                                      Wrap.REPEAT if f.repeat else Wrap.CLAMP))
+                texs.append(self.rt.upload_compressed(tex.levels, glsl.gl_format(tex), f.wrap))
             self._features[key] = texs
         return self._features[key]
 
@@ -293,7 +293,7 @@ class Renderer:
         if s.kind == "neural":
             f = s.neural
             u.update(uWeightOffset=f.weights_offset, uLodBias=f.lod_biases, uRefSize=tuple(float(x) for x in f.reference_size),
-                     uNormalIndex=f.normal_index, uRepeat=f.repeat)
+                     uNormalIndex=f.normal_index, uWrap=wrap_codes(f.wrap))
         return u
 
     # ------------------------------------------------------------------ drawing

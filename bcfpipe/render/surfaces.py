@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 
 from pxr import Sdf, Usd, UsdShade
 
-from bcfpipe.formats.vocabulary import ColorSpace, Wrap
+from bcfpipe.formats.vocabulary import ColorSpace, Wrap, wrap_axes
 from bcfpipe.scan.network import scan_input, shader_id, st_source
 from bcfpipe.scan.results import PREVIEW_SURFACE_INPUTS, TextureRef, Transform2d
 from bcfpipe.scan.values import is_unregistered
@@ -80,7 +80,7 @@ class NeuralFeatures:
     lod_biases: tuple[float, ...]
     reference_size: tuple[int, int]
     signed: bool
-    repeat: bool
+    wrap: tuple[str, str]  # (S, T): inputs:wrapS / wrapT
     weights: str
     weights_offset: int
     normal_index: int  # decoder channel of normal.x, -1 without a normal
@@ -188,6 +188,17 @@ def _input(shader: UsdShade.Shader, name: str, default=None):
     return default if v is None else v
 
 
+def _wrap(shader: UsdShade.Shader) -> tuple[str, str]:
+    """(S, T) addressing of the features: inputs:wrapS / wrapT (a layer from before issue 57 has
+    one inputs:addressing for both axes)."""
+    both = str(_input(shader, "addressing", Wrap.REPEAT))
+    wrap = (str(_input(shader, "wrapS", both)), str(_input(shader, "wrapT", both)))
+    try:
+        return tuple(str(w) for w in wrap_axes(wrap))  # type: ignore[return-value]
+    except ValueError as exc:
+        raise InputError(f"{shader.GetPath()}: {exc}") from None
+
+
 def feature_layer_count(shader: UsdShade.Shader) -> int:
     """How many feature layers the BcfNeuralMaterial shader names: T0..T3 always (a missing one is
     reported when read), and T4, T5 where authored (a T_0 of several layers, issue 52)."""
@@ -248,7 +259,7 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
         lod_biases=tuple(float(_input(shader, f"lodBias{i}", 0.0)) for i in range(n)),
         reference_size=(int(res[0]), int(res[1])),
         signed=bool(_input(shader, "featureSigned", 0)),
-        repeat=str(_input(shader, "addressing", Wrap.REPEAT)) == Wrap.REPEAT,
+        wrap=_wrap(shader),
         weights=_asset(shader, "weights", path),
         weights_offset=int(_input(shader, "weightsOffset", 0)),
         normal_index=int(channels[targets.index("normal.x")]) if "normal.x" in targets else -1,

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import xxhash
 
-from bcfpipe.formats.vocabulary import Wrap
+from bcfpipe.formats.vocabulary import wrap_axes
 
 INTEGER_STEP = 1.0 / 255.0
 
@@ -109,10 +109,12 @@ def nonfinite_channels(path: str, cache: dict) -> list[str]:
             if not (np.isfinite(c.lo) and np.isfinite(c.hi))]
 
 
-def sample_at(path: str, letter: str, st: tuple[float, float], wrap: str, cache: dict) -> float:
+def sample_at(path: str, letter: str, st: tuple[float, float], wrap, cache: dict) -> float:
     """The value (stored units) that a UsdUVTexture reading ``path`` gives at one ``st``: bilinear
-    between texel centres, v = 1 - t, repeat or clamp addressing (mip 0: a constant st has no
-    footprint)."""
+    between texel centres, v = 1 - t, addressed with ``wrap`` (one mode or (S, T): repeat, clamp,
+    mirror; mip 0: a constant st has no footprint)."""
+    from bcfpipe.addressing import address
+
     from bcfpipe.formats.images import channel_index as source_channel_index
 
     key = (path, "texels")
@@ -126,9 +128,10 @@ def sample_at(path: str, letter: str, st: tuple[float, float], wrap: str, cache:
     x0, y0 = int(np.floor(x)), int(np.floor(y))
     fx, fy = x - x0, y - y0
 
+    wrap_s, wrap_t = wrap_axes(wrap)
+
     def texel(i: int, j: int) -> float:
-        i, j = (i % w, j % h) if wrap == Wrap.REPEAT else (min(max(i, 0), w - 1), min(max(j, 0), h - 1))
-        return float(ch[j, i]) / scale
+        return float(ch[int(address(j, h, wrap_t)), int(address(i, w, wrap_s))]) / scale
 
     top = texel(x0, y0) * (1 - fx) + texel(x0 + 1, y0) * fx
     bottom = texel(x0, y0 + 1) * (1 - fx) + texel(x0 + 1, y0 + 1) * fx

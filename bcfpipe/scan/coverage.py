@@ -6,8 +6,8 @@ into a coverage mask per texture set, with a mip chain dilated by the filter foo
   result is dilated by one texel, the reach of a bilinear tap.
 - Level k + 1: a texel is covered when any of its 2 x 2 children is, dilated by one texel again.
 - Texel (i, j) of a w-texel level has its centre at ((i + 0.5) / w, (j + 0.5) / h) in bcfpipe's
-  uv, whose v = 0 is the first stored row: USD's st maps to (s, 1 - t). Repeat addressing wraps
-  triangles that leave [0, 1]; clamp clips them to the edge texels.
+  uv, whose v = 0 is the first stored row: USD's st maps to (s, 1 - t). Per axis, repeat addressing
+  wraps triangles that leave [0, 1], mirror reflects them, clamp clips them to the edge texels.
 
 Training draws its texel-centre samples from covered texels only (the same as weighting the loss
 by the mask), and quality is also reported over covered texels.
@@ -19,7 +19,7 @@ import base64
 import numpy as np
 import xxhash
 
-from bcfpipe.formats.vocabulary import Wrap
+from bcfpipe.formats.vocabulary import Wrap, wrap_axes
 
 __all__ = ["rasterize", "mask_mips", "pack", "unpack", "digest"]
 
@@ -40,10 +40,35 @@ def _spans(x: np.ndarray, y: np.ndarray, rows: np.ndarray, tri: np.ndarray) -> t
     return lo, hi
 
 
-def rasterize(tris: np.ndarray, width: int, height: int, wrap: str = Wrap.REPEAT) -> np.ndarray:
+def _fold(lo: np.ndarray, hi: np.ndarray, n: int, mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Spans [lo, hi] of texel indices along one axis of n texels as the texels they address:
+    (the source span of each piece, lo, hi), every piece within [0, n). Repeat and mirror fold a
+    span by its period (n, 2n; a mirrored piece runs backwards); clamp keeps what lies inside
+    (past the edge, the dilation of `mask_mips` reaches the edge texel)."""
+    idx = np.arange(len(lo))
+    if mode == Wrap.CLAMP:
+        ok = (hi >= 0) & (lo < n)
+        return idx[ok], np.clip(lo[ok], 0, n - 1), np.clip(hi[ok], 0, n - 1)
+    period = n if mode == Wrap.REPEAT else 2 * n
+    full = hi - lo + 1 >= period
+    shift = np.floor_divide(lo, period) * period
+    lo, hi = lo - shift, hi - shift  # lo in [0, period), hi < 2 period
+    pieces = [(idx[full], np.zeros(int(full.sum()), np.int64), np.full(int(full.sum()), n - 1, np.int64))]
+    for k in range(2 * period // n):
+        a, b = np.maximum(lo, k * n), np.minimum(hi, (k + 1) * n - 1)
+        ok = ~full & (a <= b)
+        a, b = a[ok] - k * n, b[ok] - k * n
+        backwards = mode == Wrap.MIRROR and k % 2 == 1
+        pieces.append((idx[ok], n - 1 - b if backwards else a, n - 1 - a if backwards else b))
+    return tuple(np.concatenate(p) for p in zip(*pieces))
+
+
+def rasterize(tris: np.ndarray, width: int, height: int, wrap=Wrap.REPEAT) -> np.ndarray:
     """(height, width) bool mask of texels covered by ``tris`` (T, 3, 2) in USD st coordinates: a
-    texel whose centre lies in (or on the edge of) a triangle, or in which a triangle's vertex lies.
+    texel whose centre lies in (or on the edge of) a triangle, or in which a triangle's vertex lies,
+    with the addressing ``wrap`` (one mode, or (S, T): S across the width, T down the rows).
     Scanline fill: every (triangle, texel row) pair gives one span, accumulated per row."""
+    wrap_s, wrap_t = wrap_axes(wrap)
     mask = np.zeros((height, width), bool)
     if len(tris) == 0:
         return mask
@@ -63,20 +88,9 @@ def rasterize(tris: np.ndarray, width: int, height: int, wrap: str = Wrap.REPEAT
     # the texels the vertices lie in: one-texel spans
     vx, vy = np.floor(x + 0.5).astype(np.int64).ravel(), np.floor(y + 0.5).astype(np.int64).ravel()
     rows, lo, hi = np.concatenate([rows, vy]), np.concatenate([lo, vx]), np.concatenate([hi, vx])
-    if wrap == Wrap.REPEAT:
-        full = hi - lo + 1 >= width
-        rows = np.mod(rows, height)
-        mask[rows[full]] = True
-        rows, lo, hi = rows[~full], lo[~full], hi[~full]
-        shift = np.floor_divide(lo, width) * width
-        lo, hi = lo - shift, hi - shift  # lo in [0, width); hi may run past the edge once
-        over = hi >= width
-        rows = np.concatenate([rows, rows[over]])
-        lo, hi = np.concatenate([lo, np.zeros(int(over.sum()), np.int64)]), np.concatenate(
-            [np.minimum(hi, width - 1), hi[over] - width])
-    else:
-        ok = (rows >= 0) & (rows < height) & (hi >= 0) & (lo < width)
-        rows, lo, hi = rows[ok], np.clip(lo[ok], 0, width - 1), np.clip(hi[ok], 0, width - 1)
+    keep, rows, _ = _fold(rows, rows, height, wrap_t)
+    keep, lo, hi = _fold(lo[keep], hi[keep], width, wrap_s)
+    rows = rows[keep]
     diff = np.zeros((height, width + 1), np.int32)
     np.add.at(diff, (rows, lo), 1)
     np.add.at(diff, (rows, hi + 1), -1)
@@ -84,15 +98,12 @@ def rasterize(tris: np.ndarray, width: int, height: int, wrap: str = Wrap.REPEAT
     return mask
 
 
-def _dilate(m: np.ndarray, wrap: str) -> np.ndarray:
-    """3 x 3 dilation (wrapping for repeat)."""
-    if wrap == Wrap.REPEAT:
-        out = m.copy()
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                out |= np.roll(m, (dy, dx), (0, 1))
-        return out
-    p = np.pad(m, 1)
+def _dilate(m: np.ndarray, wrap) -> np.ndarray:
+    """3 x 3 dilation, wrapping along a repeat axis (a clamped or mirrored axis's texel past the
+    edge is the edge texel itself, which adds nothing)."""
+    wrap_s, wrap_t = wrap_axes(wrap)
+    p = np.pad(m, ((1, 1), (0, 0)), mode="wrap" if wrap_t == Wrap.REPEAT else "constant")
+    p = np.pad(p, ((0, 0), (1, 1)), mode="wrap" if wrap_s == Wrap.REPEAT else "constant")
     out = np.zeros_like(m)
     for dy in range(3):
         for dx in range(3):
@@ -100,7 +111,7 @@ def _dilate(m: np.ndarray, wrap: str) -> np.ndarray:
     return out
 
 
-def mask_mips(level0: np.ndarray, n_levels: int, wrap: str = Wrap.REPEAT) -> list[np.ndarray]:
+def mask_mips(level0: np.ndarray, n_levels: int, wrap=Wrap.REPEAT) -> list[np.ndarray]:
     """The mask's chain: level 0 dilated by one texel, then 2 x 2 'any' reductions, each dilated."""
     levels = [_dilate(level0, wrap)]
     while len(levels) < n_levels:
@@ -125,7 +136,7 @@ def digest(mask: np.ndarray) -> str:
     return xxhash.xxh3_128_hexdigest(np.packbits(mask, axis=None).tobytes() + f"{mask.shape}".encode())
 
 
-def job_coverage(models, size: tuple[int, int], wrap: str) -> tuple[str | None, float | None, str | None]:
+def job_coverage(models, size: tuple[int, int], wrap) -> tuple[str | None, float | None, str | None]:
     """(packed mask, covered fraction, digest) of the texels the members' meshes read, or Nones when
     a member has no uv triangles to rasterise or every texel is read."""
     w, h = size

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping, Sequence
 
-from bcfpipe.formats.vocabulary import ColorSpace, Wrap
+from bcfpipe.formats.vocabulary import ColorSpace, Wrap, wrap_name
 from bcfpipe.errors import one_line
 from bcfpipe.formats.images import ImageReadError, MissingChannel
 from bcfpipe.scan.sources import SourceFile, common_resolution, source_file
@@ -85,7 +85,7 @@ class MaterialModel:
     specs: list[tuple[str, str, str]]
     targets: list[ChannelTarget]
     sources: dict[str, SourceFile]
-    wrap: str
+    wrap: tuple[str, str]  # (S, T): repeat, clamp or mirror (`material_wrap`)
     st: tuple[str, tuple[float, float], float, tuple[float, float]]
     warnings: list[str]
     constants: list[ConstantTarget] = field(default_factory=list)
@@ -143,15 +143,42 @@ def _at(path: str, letter: str, st, wraps, cache: dict, warnings: list[str], con
     ``content`` unchanged when the texels cannot be read."""
     from bcfpipe.scan.content import ChannelContent, sample_at
 
-    wrap = Wrap.CLAMP if all(w == Wrap.CLAMP for w in wraps) else Wrap.REPEAT
     try:
-        v = sample_at(path, letter, tuple(st), wrap, cache)
+        v = sample_at(path, letter, tuple(st), modelled_wrap(wraps), cache)
     except ImageReadError:
         raise
     except (OSError, ValueError) as exc:
         warnings.append(f"{Path(path).name}: texels not read ({one_line(exc)})")
         return content
     return ChannelContent(v, v, v, content.digest, True)
+
+
+def modelled_wrap(wraps: Sequence[str]) -> tuple[Wrap, Wrap]:
+    """A UsdUVTexture's effective (wrapS, wrapT) as a neural material samples it: repeat, clamp
+    and mirror as they are; black as clamp (the texels inside agree; the border is not black); a
+    mode USD does not know (the scan notes it) as repeat, USD's default."""
+    def one(w: str) -> Wrap:
+        return Wrap.CLAMP if w == "black" else Wrap(w) if w in {m.value for m in Wrap} else Wrap.REPEAT
+
+    return one(wraps[0]), one(wraps[1])
+
+
+def material_wrap(wraps: Sequence[tuple[str, tuple[Wrap, Wrap]]]) -> tuple[tuple[Wrap, Wrap], str | None]:
+    """The (S, T) addressing of a material whose texture inputs are addressed ``wraps`` ((input,
+    (S, T)) in input order), and a warning when they disagree: per axis the mode most inputs use
+    (the first input's on a tie), the warning naming each input's modes and what was chosen."""
+    if not wraps:
+        return (Wrap.REPEAT, Wrap.REPEAT), None
+    chosen = []
+    for axis in (0, 1):
+        modes = [w[axis] for _, w in wraps]
+        chosen.append(max(dict.fromkeys(modes), key=modes.count))
+    pair = (chosen[0], chosen[1])
+    if len({w for _, w in wraps}) == 1:
+        return pair, None
+    said = ", ".join(f"{name} {wrap_name(w)}" for name, w in dict(wraps).items())
+    return pair, (f"inputs disagree on wrap ({said}); the neural features sample {wrap_name(pair)}, "
+                  f"the mode most inputs use per axis")
 
 
 def _decode(value: float, color_space: str) -> float:
@@ -276,7 +303,7 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
     already modelled (in ``canonical``, shared across the materials of a scan) map onto it."""
     canonical = canonical if canonical is not None else Canonical()
     m = _Model(warnings=list(ms.warnings))
-    wraps: set[str] = set()
+    wraps: list[tuple[str, tuple[Wrap, Wrap]]] = []
     sts: list[tuple[str, tuple[float, float], float, tuple[float, float]]] = []
     for inp in ms.texture_inputs:
         tex = inp.texture
@@ -294,19 +321,20 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
         keys, contents = _fold(inp, tex, src, raw, m, file_cache, canonical, facts) if fold else (list(raw), [])
         _add_specs(inp, tex, raw, keys, m)
         _add_targets(inp, tex, src, uses, keys, contents, m)
-        for w in tex.effective_wrap:
-            if w not in (Wrap.REPEAT, Wrap.CLAMP):
-                m.warnings.append(f"{inp.name}: wrap mode {w!r} modelled as repeat")
-        wraps.update(tex.effective_wrap)
+        if "black" in tex.effective_wrap:
+            m.warnings.append(f"{inp.name}: wrap mode 'black' modelled as clamp (the border is not black)")
+        wraps.append((inp.name, modelled_wrap(tex.effective_wrap)))
         st = tex.st
         xf = st.transform
         sts.append((st.varname or "st", xf.scale if xf else (1.0, 1.0), xf.rotation if xf else 0.0,
                     xf.translation if xf else (0.0, 0.0)))
-    wrap = Wrap.CLAMP if wraps == {Wrap.CLAMP} else Wrap.REPEAT
+    wrap, disagree = material_wrap(wraps)
+    if disagree:
+        m.warnings.append(disagree)
     if len(set(sts)) > 1:
         m.warnings.append("textures use different st primvars or transforms; the model uses the first texture's")
     st = sts[0] if sts else ("st", (1.0, 1.0), 0.0, (0.0, 0.0))
-    mm = MaterialModel(m.channels, m.specs, m.targets, m.sources, wrap, st, list(dict.fromkeys(m.warnings)),
+    mm = MaterialModel(m.channels, m.specs, m.targets, m.sources, (str(wrap[0]), str(wrap[1])), st, list(dict.fromkeys(m.warnings)),
                        m.constants, m.folded)
     if ms.density is not None:
         from dataclasses import replace

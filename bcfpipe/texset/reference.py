@@ -14,7 +14,8 @@ Conventions:
 * Bicubic = Keys cubic convolution with a = -0.5 (Catmull-Rom), the common "bicubic": it
   interpolates (returns texel values exactly at texel centres), is C1 and reproduces linear ramps,
   and its weights sum to 1. It can overshoot slightly near edges, like any sharp bicubic.
-* Addressing: 'repeat' wraps indices (tiling materials), 'clamp' clamps them to the edge.
+* Addressing, per axis (S, T): 'repeat' wraps indices (tiling materials), 'clamp' clamps them to
+  the edge, 'mirror' reflects them (bcfpipe.model.sampling.address, as the feature layers').
 """
 from __future__ import annotations
 
@@ -25,13 +26,14 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from bcfpipe.formats.vocabulary import Wrap
+from bcfpipe.formats.vocabulary import Wrap, wrap_axes
+from bcfpipe.model.sampling import address
 from bcfpipe.texset import hostmem
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["ReferencePyramid", "CentreTargets", "keys_weights", "sample_reference", "random_batch", "WRAP_MODES"]
 
-WRAP_MODES = (Wrap.REPEAT, Wrap.CLAMP)
+WRAP_MODES = (Wrap.REPEAT, Wrap.CLAMP, Wrap.MIRROR)
 KEYS_A = -0.5
 # CentreTargets(interleave=True) keeps a level texel by texel when its two images fit in this much
 # (a 2048² level of 8 channels does; at 8K the two largest levels stay planar: no 4 GiB copy)
@@ -97,8 +99,7 @@ def _bicubic(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
     x0 = torch.floor(x)
     wts = keys_weights(x - x0).to(tex.dtype)  # (N, 2, 4): taps at -1, 0, 1, 2 per axis
     idx = x0.long().unsqueeze(-1) + torch.arange(-1, 3, device=uv.device)  # (N, 2, 4)
-    size = size.view(1, 2, 1)
-    idx = torch.remainder(idx, size) if wrap == Wrap.REPEAT else torch.minimum(idx.clamp_min(0), size - 1)
+    idx = torch.stack([address(idx[:, a], n, mode) for a, (n, mode) in enumerate(zip((w, h), wrap_axes(wrap)))], 1)
     flat = (idx[:, 1, :, None] * w + idx[:, 0, None, :]).reshape(-1)  # (N*16,) row-major taps
     weights = (wts[:, 1, :, None] * wts[:, 0, None, :]).reshape(-1, 16)  # (N, 16)
     taps = tex.reshape(c, h * w).index_select(1, flat).reshape(c, -1, 16)  # (c, N, 16)
@@ -119,8 +120,7 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float | torch.T
     `s` is one scalar per batch (the paper's setting: a float or 0-d tensor) or a per-point
     (N,) tensor. See the module docstring for the uv / s / kernel / addressing conventions.
     """
-    if wrap not in WRAP_MODES:
-        raise ValueError(f"wrap must be one of {WRAP_MODES}, got {wrap!r}")
+    wrap = wrap_axes(wrap)
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise ValueError(f"uv must have shape (N, 2), got {tuple(uv.shape)}")
     ref_dtype = pyr.mips[0].dtype

@@ -19,6 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.addressing import gl_wrap_modes, wrap_codes
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds
@@ -112,7 +113,8 @@ class MaterialDesc:
         return self.file.mip_counts
 
     @property
-    def wrap(self) -> str:
+    def wrap(self) -> tuple[str, str]:
+        """(S, T) addressing."""
         return self.file.wrap
 
     @property
@@ -171,7 +173,7 @@ class GLMaterial:
         b = self.desc.lod_biases
         return {"uWeightOffset": self.desc.weight_offset, "uLodBias": tuple(float(x) for x in b),
                 "uNormalIndex": self.desc.normal_index, "uRefSize": tuple(float(x) for x in self.desc.ref_size),
-                "uRepeat": self.desc.wrap == Wrap.REPEAT}
+                "uWrap": wrap_codes(self.desc.wrap)}
 
 
 def _current(method):
@@ -259,9 +261,10 @@ class GLRuntime:
     # ------------------------------------------------------------------ textures
     @_current
     def upload_compressed(self, levels: Sequence[tuple[np.ndarray, int, int]], internal_format: int,
-                          wrap: str = Wrap.REPEAT) -> int:
+                          wrap=Wrap.REPEAT) -> int:
         """A new GL_TEXTURE_2D with the given compressed mip chain, trilinear filtering,
-        GL_TEXTURE_MAX_LEVEL = len(levels) - 1 and REPEAT / CLAMP_TO_EDGE addressing."""
+        GL_TEXTURE_MAX_LEVEL = len(levels) - 1 and ``wrap``'s addressing per axis (REPEAT,
+        CLAMP_TO_EDGE, MIRRORED_REPEAT)."""
         GL = self.GL
         tex = int(GL.glGenTextures(1))
         GL.glActiveTexture(GL.GL_TEXTURE0)
@@ -278,11 +281,11 @@ class GLRuntime:
                 GL.glDeleteTextures([tex])
                 raise RuntimeError(f"glCompressedTexImage2D(level {lvl}, {w}x{h}, 0x{internal_format:04X}) "
                                    f"failed: GL error 0x{err:04X}")
-        mode = GL.GL_REPEAT if wrap == Wrap.REPEAT else GL.GL_CLAMP_TO_EDGE
+        mode_s, mode_t = gl_wrap_modes(wrap, GL)
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR_MIPMAP_LINEAR)
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, mode)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_T, mode)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, mode_s)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_T, mode_t)
         GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
         return tex
 

@@ -42,7 +42,8 @@ from typing import Sequence
 
 import numpy as np
 
-from bcfpipe.formats.vocabulary import Wrap
+from bcfpipe.addressing import address, reduce_coord
+from bcfpipe.formats.vocabulary import wrap_axes
 
 
 
@@ -52,10 +53,6 @@ FP32_ULP = 2.0 ** -23
 TARGET = 2e-3
 
 
-def _addr(i: np.ndarray, n: int, wrap: str) -> np.ndarray:
-    return np.mod(i, n) if wrap == Wrap.REPEAT else np.clip(i, 0, n - 1)
-
-
 def _off_grid(x: np.ndarray, delta: float) -> np.ndarray:
     """1.0 where ``x`` is not a multiple of ``delta`` (a fixed-point fraction would round or
     truncate it), 0.0 where it is exact (texel centres and edges of power-of-two levels, exact lods)."""
@@ -63,13 +60,14 @@ def _off_grid(x: np.ndarray, delta: float) -> np.ndarray:
     return (np.abs(q - np.round(q)) > 1e-6).astype(np.float64)
 
 
-def _bilinear_terms(tex: np.ndarray, uv: np.ndarray, wrap: str, delta: float):
+def _bilinear_terms(tex: np.ndarray, uv: np.ndarray, wrap, delta: float):
     """Bilinear value B, the slopes dB/dfx and dB/dfy of every cell within ``delta`` of each point
     (2 candidates each, zero where the coordinate is exact on the fixed-point grid), the second-order
     bound and the abs error bound of B for fraction errors up to ``delta``."""
     h, w, _ = tex.shape
+    wrap_s, wrap_t = wrap_axes(wrap)
     uv = uv.astype(np.float64)
-    uv = uv - np.floor(uv) if wrap == Wrap.REPEAT else np.clip(uv, -1.0, 2.0)  # as bcfReduceUv, in float64
+    uv = np.stack([reduce_coord(uv[:, 0], wrap_s), reduce_coord(uv[:, 1], wrap_t)], 1)  # as bcfReduceUv, in float64
     x = uv[:, 0] * w - 0.5
     y = uv[:, 1] * h - 0.5
     x0, y0 = np.floor(x), np.floor(y)
@@ -77,7 +75,7 @@ def _bilinear_terms(tex: np.ndarray, uv: np.ndarray, wrap: str, delta: float):
     ax, ay = _off_grid(x, delta)[:, None], _off_grid(y, delta)[:, None]
 
     def texel(cx, cy):
-        return tex[_addr(cy.astype(np.int64), h, wrap), _addr(cx.astype(np.int64), w, wrap)]
+        return tex[address(cy.astype(np.int64), h, wrap_t), address(cx.astype(np.int64), w, wrap_s)]
 
     t00, t01, t10, t11 = texel(x0, y0), texel(x0 + 1, y0), texel(x0, y0 + 1), texel(x0 + 1, y0 + 1)
     value = (t00 * (1 - fx) + t01 * fx) * (1 - fy) + (t10 * (1 - fx) + t11 * fx) * fy
@@ -112,7 +110,7 @@ class FilterError:
 
 
 def filter_error(levels: Sequence[Sequence[np.ndarray]], biases: Sequence[float], uv: np.ndarray,
-                 s: np.ndarray, wrap: str, filter_bits: int = FILTER_BITS,
+                 s: np.ndarray, wrap, filter_bits: int = FILTER_BITS,
                  exact_lods: np.ndarray | bool = True, unorm8: bool = False) -> FilterError:
     """Feature-error terms of trilinear filtering with 2^-filter_bits precision on the bilinear
     fractions and on the mip blend fraction (see the module docstring). ``exact_lods`` False (per

@@ -13,6 +13,17 @@ FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3  # free texels (warm-up)
 # encoded (a T_0 of principal components, BC7 in any mode), its UNORM8 values stored like free
 # texels, sampled with no gradient.
 INACTIVE, TRAINED, FIXED = 0, 1, 2
+# A model's addressing as the kernels take it: S's mode in bits 0-1, T's in bits 2-3.
+WRAP_REPEAT, WRAP_CLAMP, WRAP_MIRROR = 0, 1, 2
+
+
+def wrap_code(wrap) -> int:
+    """The kernels' int for an addressing (one mode or an (S, T) pair): bcfpipe.addressing's codes,
+    which these constants name."""
+    from bcfpipe.addressing import wrap_codes
+
+    s, t = wrap_codes(wrap)
+    return s | t << 2
 
 
 KERNELS_ENV = "BCFPIPE_KERNELS"  # set by a build for its workers: the kernels of the build's cache

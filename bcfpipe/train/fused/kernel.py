@@ -23,7 +23,8 @@ from __future__ import annotations
 import numpy as np
 
 from bcfpipe.texset.reference import KEYS_A
-from bcfpipe.train.fused.common import BLOCK_BC6H, BLOCK_BC7, FIXED, FREE_BC6H, FREE_BC7, TRAINED, kernels_dir
+from bcfpipe.train.fused.common import (BLOCK_BC6H, BLOCK_BC7, FIXED, FREE_BC6H, FREE_BC7, TRAINED, WRAP_MIRROR,
+                                        WRAP_REPEAT, kernels_dir)
 
 
 import numba.core.config  # noqa: E402
@@ -245,14 +246,28 @@ def _dense_backward(dout, inp, w, gw, gb, q, din):
 
 
 @nb.njit(inline="always", cache=True, _nrt=False)
-def _address(i, n, repeat):
-    if repeat:
+def _address(i, n, mode):
+    """Texel i of n along an axis for its mode (common.py: repeat, clamp, mirror; sampling.address)."""
+    if mode == WRAP_REPEAT:
         return i % n
+    if mode == WRAP_MIRROR:
+        j = i % (2 * n)
+        return j if j < n else 2 * n - 1 - j
     return min(max(i, 0), n - 1)
 
 
 @nb.njit(inline="always", cache=True, _nrt=False)
-def _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
+def _reduce(x, mode):
+    """One coordinate range-reduced for its axis's mode, in float32 (sampling.reduce_coord)."""
+    if mode == WRAP_REPEAT:
+        return x - _F32(np.floor(x))
+    if mode == WRAP_MIRROR:
+        return x - _F32(2.0) * _F32(np.floor(x * _F32(0.5)))
+    return min(max(x, _F32(-1.0)), _F32(2.0))
+
+
+@nb.njit(inline="always", cache=True, _nrt=False)
+def _features(fmt, quantized, signed, wrap, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
               w3, w3s, feats, val, deriv, blks, poss, fxy, scratch, lvl):
     """Sample n's features into ``feats``; its taps, their weights and their decode derivatives
     into ``blks``, ``poss``, ``fxy`` and ``deriv`` for the backward."""
@@ -269,12 +284,8 @@ def _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, p
             plane = slots[j, 5]
             u = uv[n, 0]
             v = uv[n, 1]
-            if repeat:
-                u = u - _F32(np.floor(u))
-                v = v - _F32(np.floor(v))
-            else:
-                u = min(max(u, _F32(-1.0)), _F32(2.0))
-                v = min(max(v, _F32(-1.0)), _F32(2.0))
+            u = _reduce(u, wrap & 3)
+            v = _reduce(v, (wrap >> 2) & 3)
             xf = u * _F32(r) - _F32(0.5)
             yf = v * _F32(r) - _F32(0.5)
             x0 = np.floor(xf)
@@ -283,10 +294,10 @@ def _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, p
             fy = yf - _F32(y0)
             fxy[i, lv, 0] = fx
             fxy[i, lv, 1] = fy
-            xa = _address(int(x0), r, repeat)
-            xb = _address(int(x0) + 1, r, repeat)
-            ya = _address(int(y0), r, repeat)
-            yb = _address(int(y0) + 1, r, repeat)
+            xa = _address(int(x0), r, wrap & 3)
+            xb = _address(int(x0) + 1, r, wrap & 3)
+            ya = _address(int(y0), r, (wrap >> 2) & 3)
+            yb = _address(int(y0) + 1, r, (wrap >> 2) & 3)
             fixed = slots[j, 0] == FIXED
             for t in range(4):
                 ty = ya if t < 2 else yb
@@ -355,7 +366,7 @@ def _split(sf, n_in, hidden, n_out, C):
 
 
 @nb.njit(cache=True, _nrt=False)
-def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M, slots, blend, C,
+def _chunk(fmt, quantized, signed, wrap, q, a, b, uv, target, weight, P, X, M, slots, blend, C,
            plo, phi, utab, uslope, w3, w3s, w1, w1t, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1, gw2,
            gb2, sf, si):
     """Samples [a, b): forward, loss and backward, gradients added into row ``q`` of the g* buffers
@@ -372,7 +383,7 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
     poss = si[8 * L:16 * L].reshape((L, 2, 4))
     sse = 0.0
     for n in range(a, b):
-        _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
+        _features(fmt, quantized, signed, wrap, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
                   w3, w3s, feats, val, deriv, blks, poss, fxy, scratch, lvl)
         # ---- the MLP, the loss and its gradient; inner loops run over contiguous rows, in the
         # order of a dot product's terms, so LLVM vectorizes them without reassociating sums
@@ -426,7 +437,7 @@ def _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M,
 
 
 @nb.njit(parallel=True, cache=True)
-def _step_parallel(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
+def _step_parallel(fmt, quantized, signed, wrap, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
                    plo, phi, utab, uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1,
                    gw2, gb2):
     N = uv.shape[0]
@@ -437,20 +448,20 @@ def _step_parallel(fmt, quantized, signed, repeat, n_chunks, uv, target, weight,
         b = N * (q + 1) // n_chunks
         sf = np.zeros(scratch_size(w1.shape[1], w1.shape[0], w2.shape[0], C), np.float32)
         si = np.zeros(16 * blend.shape[0], np.int64)
-        sse[q] = _chunk(fmt, quantized, signed, repeat, q, a, b, uv, target, weight, P, X, M, slots, blend, C,
+        sse[q] = _chunk(fmt, quantized, signed, wrap, q, a, b, uv, target, weight, P, X, M, slots, blend, C,
                         plo, phi, utab, uslope, w3, w3s, w1, w1t, b1, w2, b2, out_scale, out_bias, loss_scale,
                         gP, gX, gw1, gb1, gw2, gb2, sf, si)
     return sse
 
 
 @nb.njit(cache=True)
-def _step_serial(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
+def _step_serial(fmt, quantized, signed, wrap, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
                  plo, phi, utab, uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1,
                  gw2, gb2):
     sse = np.zeros(1, np.float64)
     sf = np.zeros(scratch_size(w1.shape[1], w1.shape[0], w2.shape[0], C), np.float32)
     si = np.zeros(16 * blend.shape[0], np.int64)
-    sse[0] = _chunk(fmt, quantized, signed, repeat, 0, 0, uv.shape[0], uv, target, weight, P, X, M, slots, blend, C,
+    sse[0] = _chunk(fmt, quantized, signed, wrap, 0, 0, uv.shape[0], uv, target, weight, P, X, M, slots, blend, C,
                     plo, phi, utab, uslope, w3, w3s, w1, np.ascontiguousarray(w1.T), b1, w2, b2, out_scale, out_bias,
                     loss_scale, gP, gX, gw1, gb1, gw2, gb2, sf, si)
     return sse
@@ -470,32 +481,32 @@ def uncached(call):
         return call()
 
 
-def step(fmt, quantized, signed, repeat, n_chunks, *args):
+def step(fmt, quantized, signed, wrap, n_chunks, *args):
     """One training step's forward and backward over all samples, in ``n_chunks`` ranges (run in
     parallel when there are several), each into its own row (axis 0) of the g* buffers; returns the
     per-chunk sums of the squared errors (the caller adds the rows in chunk order)."""
     run = _step_parallel if n_chunks > 1 else _step_serial
-    return uncached(lambda: run(fmt, quantized, signed, repeat, n_chunks, *args))
+    return uncached(lambda: run(fmt, quantized, signed, wrap, n_chunks, *args))
 
 
 @nb.njit(cache=True, _nrt=False)
-def _features_all(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
+def _features_all(fmt, quantized, signed, wrap, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
                   out, sf, si):
     feats, pre, hid, draw, val, deriv, fxy, scratch, lvl, g, gl, dfe = _split(sf, out.shape[1], 1, 1, C)
     L = blend.shape[0]
     blks = si[0:8 * L].reshape((L, 2, 4))
     poss = si[8 * L:16 * L].reshape((L, 2, 4))
     for n in range(uv.shape[0]):
-        _features(fmt, quantized, signed, repeat, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
+        _features(fmt, quantized, signed, wrap, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
                   w3, w3s, feats, val, deriv, blks, poss, fxy, scratch, lvl)
         for k in range(out.shape[1]):
             out[n, k] = feats[k]
 
 
-def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s):
+def features(fmt, quantized, signed, wrap, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s):
     """The features (N, layers C) the step feeds the MLP (for tests against the torch path)."""
     out = np.zeros((uv.shape[0], len(blend) * C), np.float32)
-    _features_all(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
+    _features_all(fmt, quantized, signed, wrap, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
                   out, np.zeros(scratch_size(out.shape[1], 1, 1, C), np.float32), np.zeros(16 * len(blend), np.int64))
     return out
 
@@ -514,7 +525,7 @@ def _keys(f, a, w):
 
 
 @nb.njit(cache=True)
-def bicubic_into(tex, uv, repeat, t, out):
+def bicubic_into(tex, uv, wrap, t, out):
     """out = lerp(out, bicubic(tex, uv), t) when ``t`` >= 0, else out = bicubic(tex, uv)."""
     c, h, w = tex.shape
     a = _F32(KEYS_A)
@@ -532,12 +543,8 @@ def bicubic_into(tex, uv, repeat, t, out):
         for k in range(4):
             xi = int(x0) - 1 + k
             yi = int(y0) - 1 + k
-            if repeat:
-                xs[k] = xi % w
-                ys[k] = yi % h
-            else:
-                xs[k] = min(max(xi, 0), w - 1)
-                ys[k] = min(max(yi, 0), h - 1)
+            xs[k] = _address(xi, w, wrap & 3)
+            ys[k] = _address(yi, h, (wrap >> 2) & 3)
         for ch in range(c):
             acc = _F32(0.0)
             for ky in range(4):

@@ -99,15 +99,36 @@ inline bool any(vi m) { for (int l = 0; l < W; ++l) if (m[l]) return true; retur
 // texel further), where the modulo is one conditional add or subtract. A vector modulo has no
 // instruction: it became 16 integer divisions per call, about a sixth of the decode's time. When
 // any lane lies outside, all take the modulo.
-inline vi address(vi i, int n, bool repeat) {
-    if (repeat) {
+// Mirror (mode 2, GL_MIRRORED_REPEAT): i modulo 2n, then 2n - 1 - j for j >= n. mode is one axis's
+// code (common.py: 0 repeat, 1 clamp, 2 mirror).
+inline vi address(vi i, int n, int mode) {
+    if (mode == 0) {
         if (__builtin_expect(any((i < -n) | (i >= 2 * n)), 0)) {
             vi m = i % n;
             return seli(m < 0, m + n, m);  // Python's modulo
         }
         return seli(i < 0, i + n, seli(i >= n, i - n, i));
     }
+    if (mode == 2) {
+        const int p = 2 * n;
+        vi j;
+        if (__builtin_expect(any((i < -p) | (i >= 2 * p)), 0)) {
+            vi m = i % p;
+            j = seli(m < 0, m + p, m);
+        } else {
+            j = seli(i < 0, i + p, seli(i >= p, i - p, i));
+        }
+        return seli(j >= n, (p - 1) - j, j);
+    }
     return vmini(vmaxi(i, Si(0)), Si(n - 1));
+}
+
+// One coordinate range-reduced for its axis's mode (sampling.reduce_coord): x - floor(x) for repeat,
+// x - 2 floor(x / 2) for mirror (both exact), x clamped to [-1, 2] for clamp.
+inline vf reduce(vf x, int mode) {
+    if (mode == 0) return x - vfloor(x);
+    if (mode == 2) return x - 2.0f * vfloor(x * 0.5f);
+    return vclamp(x, -1.0f, 2.0f);
 }
 
 inline float hsum(vf x) {

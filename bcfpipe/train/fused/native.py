@@ -39,7 +39,7 @@ _i64p = ctypes.POINTER(ctypes.c_int64)
 class Args(ctypes.Structure):
     """step.cpp's ``Args``, field for field."""
 
-    _fields_ = [(n, ctypes.c_int32) for n in ("fmt", "quantized", "sgn", "repeat", "C", "n_in", "hidden", "n_out")] + [
+    _fields_ = [(n, ctypes.c_int32) for n in ("fmt", "quantized", "sgn", "wrap", "C", "n_in", "hidden", "n_out")] + [
         ("a", ctypes.c_int64), ("b", ctypes.c_int64),
         ("uv", _f32p), ("target", _f32p), ("weight", _f32p), ("P", _f32p), ("X", _f32p), ("M", _i32p),
         ("slots", _i64p), ("blend", _f32p),
@@ -165,8 +165,8 @@ def _p(a: np.ndarray | None, t=_f32p):
     return None if a is None or a.size == 0 else a.ctypes.data_as(t)
 
 
-def _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, **kw):
-    a = Args(fmt=fmt, quantized=int(quantized), sgn=int(signed), repeat=int(repeat), C=C,
+def _args(fmt, quantized, signed, wrap, uv, P, X, M, slots, blend, C, plo, phi, **kw):
+    a = Args(fmt=fmt, quantized=int(quantized), sgn=int(signed), wrap=int(wrap), C=C,
              uv=_p(uv), P=_p(P), X=_p(X), M=_p(M, _i32p), slots=_p(slots, _i64p), blend=_p(blend),
              plo=float(plo), phi=float(phi))
     for k, v in kw.items():
@@ -174,7 +174,7 @@ def _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi
     return a
 
 
-def step(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, slots, blend, C, plo, phi, utab,
+def step(fmt, quantized, signed, wrap, n_chunks, uv, target, weight, P, X, M, slots, blend, C, plo, phi, utab,
          uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1, gw2, gb2):
     """kernel.step's contract: samples in ``n_chunks`` fixed ranges, each (on its own thread when
     there are several; ctypes releases the GIL) into its own row of the g* buffers; returns the
@@ -188,7 +188,7 @@ def step(fmt, quantized, signed, repeat, n_chunks, uv, target, weight, P, X, M, 
                   out_scale=_p(out_scale), out_bias=_p(out_bias))
 
     def run(q: int) -> float:
-        a = _args(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, a=N * q // n_chunks,
+        a = _args(fmt, quantized, signed, wrap, uv, P, X, M, slots, blend, C, plo, phi, a=N * q // n_chunks,
                   b=N * (q + 1) // n_chunks, gP=_p(gP[q]), gX=_p(gX[q]), gw1=_p(gw1[q]), gb1=_p(gb1[q]),
                   gw2=_p(gw2[q]), gb2=_p(gb2[q]), **common)
         return lib.bcf_step(ctypes.byref(a))
@@ -209,22 +209,22 @@ def _pool(n: int) -> ThreadPoolExecutor:
         return _pools[n]
 
 
-def features(fmt, quantized, signed, repeat, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s):
+def features(fmt, quantized, signed, wrap, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s):
     """kernel.features' contract: the (N, layers C) features the step feeds the MLP."""
     lib = load()
     out = np.zeros((uv.shape[0], len(blend) * C), np.float32)
-    a = _args(fmt, quantized, signed, repeat, np.ascontiguousarray(uv), P, X, M, slots, blend, C, plo, phi, a=0,
+    a = _args(fmt, quantized, signed, wrap, np.ascontiguousarray(uv), P, X, M, slots, blend, C, plo, phi, a=0,
               b=uv.shape[0], n_in=out.shape[1], feats_out=_p(out))
     lib.bcf_features(ctypes.byref(a))
     return out
 
 
-def bicubic_into(tex: np.ndarray, uv: np.ndarray, repeat: bool, a: float, t: float, out: np.ndarray) -> None:
+def bicubic_into(tex: np.ndarray, uv: np.ndarray, wrap: int, a: float, t: float, out: np.ndarray) -> None:
     """targets.py's ``_bicubic_into``: out = bicubic(tex, uv), or lerp(out, it, t) when t >= 0."""
     lib = load()
     tex, uv = np.ascontiguousarray(tex, np.float32), np.ascontiguousarray(uv, np.float32)
     c, h, w = tex.shape
-    lib.bcf_bicubic(tex.ctypes.data, c, h, w, uv.ctypes.data, uv.shape[0], int(repeat), a, t, out.ctypes.data)
+    lib.bcf_bicubic(tex.ctypes.data, c, h, w, uv.ctypes.data, uv.shape[0], int(wrap), a, t, out.ctypes.data)
 
 
 def centres(mip: np.ndarray, up: np.ndarray | None, ids: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:

@@ -114,7 +114,7 @@ inline void q7(vf* e) {
 
 
 struct Args {  // mirrored by native.py's ctypes Structure
-    int32_t fmt, quantized, sgn, repeat, C, n_in, hidden, n_out;  // n_in / C layers
+    int32_t fmt, quantized, sgn, wrap, C, n_in, hidden, n_out;  // n_in / C layers; wrap: S | T << 2 (common.py)
     int64_t a, b;
     const float *uv, *target, *weight;  // weight: null when unweighted
     const float *P, *X;
@@ -228,7 +228,7 @@ inline void texel(const Args& A, int j, int t, Taps& T, vf* val) {
 template <int F, bool q, bool sgn>
 void features(const Args& A, vi idx, Taps& T, vf* feats) {
     const int C = A.C;
-    const bool repeat = A.repeat;
+    const int ws = A.wrap & 3, wt = (A.wrap >> 2) & 3;
     constexpr bool free_ = F == FREE_BC6H || F == FREE_BC7;
     const vf u0 = gather(A.uv, idx * 2), v0 = gather(A.uv, idx * 2 + 1);
     vf val[4][4], lvl[2][4];
@@ -240,19 +240,14 @@ void features(const Args& A, vi idx, Taps& T, vf* feats) {
             if (s[0] == 0) continue;
             const int r = int(s[1]);
             vf u = u0, v = v0;
-            if (repeat) {
-                u = u - vfloor(u);
-                v = v - vfloor(v);
-            } else {
-                u = vclamp(u, -1.0f, 2.0f);
-                v = vclamp(v, -1.0f, 2.0f);
-            }
+            u = reduce(u, ws);
+            v = reduce(v, wt);
             vf xf = u * float(r) - 0.5f, yf = v * float(r) - 0.5f;
             vf x0 = vfloor(xf), y0 = vfloor(yf);
             T.fx[j] = xf - x0;
             T.fy[j] = yf - y0;
-            vi xa = address(toi(x0), r, repeat), xb = address(toi(x0) + 1, r, repeat);
-            vi ya = address(toi(y0), r, repeat), yb = address(toi(y0) + 1, r, repeat);
+            vi xa = address(toi(x0), r, ws), xb = address(toi(x0) + 1, r, ws);
+            vi ya = address(toi(y0), r, wt), yb = address(toi(y0) + 1, r, wt);
             const bool fixed = s[0] == FIXED;
             for (int t = 0; t < 4; ++t) {
                 vi ty = t < 2 ? ya : yb, tx = (t & 1) ? xb : xa;

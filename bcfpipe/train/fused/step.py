@@ -10,11 +10,11 @@ import numpy as np
 import torch
 
 from bcfpipe.config import ModelConfig
-from bcfpipe.formats.vocabulary import FeatureFormat, Wrap
+from bcfpipe.formats.vocabulary import FeatureFormat
 from bcfpipe.model.features import BlockParams, Layers, codec_of
 from bcfpipe.model.sampling import level_weights
 from bcfpipe.texset import hostmem
-from bcfpipe.train.fused.common import FIXED, TRAINED
+from bcfpipe.train.fused.common import FIXED, TRAINED, wrap_code
 
 
 def default_backend() -> str:
@@ -183,7 +183,7 @@ class FusedStep:
         slots, blend, _ = self._slots(s)
         mc = self.mc
         return torch.from_numpy(self.K.features(self.fmt, bool(self.quantized()), bool(mc.signed),
-                                                mc.wrap == Wrap.REPEAT, uv.detach().numpy(), self.P, self.X, self.M,
+                                                wrap_code(mc.wrap), uv.detach().numpy(), self.P, self.X, self.M,
                                                 slots, blend, self.C, self.plo, self.phi, *self.tables))
 
     def __call__(self, uv: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None, s: float) -> float:
@@ -203,7 +203,7 @@ class FusedStep:
         wnp = weight.detach().numpy().astype(np.float32) if weight is not None else np.zeros(0, np.float32)
         wmean = max(float(weight.mean()), 1e-6) if weight is not None else 1.0
         loss_scale = 1.0 / (N * C_out * wmean)
-        sse = self.K.step(self.fmt, bool(self.quantized()), bool(mc.signed), mc.wrap == Wrap.REPEAT, n,
+        sse = self.K.step(self.fmt, bool(self.quantized()), bool(mc.signed), wrap_code(mc.wrap), n,
                           uv.detach().numpy(), target.detach().numpy(), wnp, self.P, self.X, self.M, slots, blend,
                           self.C, self.plo, self.phi, *self.tables, w1, b1, w2, b2,
                           self.mlp["out_scale"].numpy(), self.mlp["out_bias"].numpy(), loss_scale,

@@ -24,7 +24,7 @@ extern "C" {
 
 // out (n, c) = bicubic(tex (c, h, w), uv (n, 2)) when t < 0, else lerp(out, bicubic, t): the
 // numba kernel's sums in its order (rows of taps, then the column).
-void bcf_bicubic(const float* tex, int c, int h, int w, const float* uv, int64_t n, int repeat, float a,
+void bcf_bicubic(const float* tex, int c, int h, int w, const float* uv, int64_t n, int wrap, float a,
                  float t, float* out) {
     const int64_t plane = int64_t(h) * w;
     for (int64_t n0 = 0; n0 < n; n0 += W) {
@@ -38,8 +38,8 @@ void bcf_bicubic(const float* tex, int c, int h, int w, const float* uv, int64_t
         keys(y - y0, a, wy);
         vi xs[4], rows[4];
         for (int k = 0; k < 4; ++k) {
-            xs[k] = address(toi(x0) - 1 + k, w, repeat);
-            rows[k] = address(toi(y0) - 1 + k, h, repeat) * w;
+            xs[k] = address(toi(x0) - 1 + k, w, wrap & 3);
+            rows[k] = address(toi(y0) - 1 + k, h, (wrap >> 2) & 3) * w;
         }
         for (int ch = 0; ch < c; ++ch) {
             const float* p = tex + ch * plane;

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from bcfpipe.formats.vocabulary import Wrap
+from bcfpipe.train.fused.common import wrap_code
 from bcfpipe.texset.reference import KEYS_A, CentreTargets, ReferencePyramid, _level_split
 
 
@@ -20,19 +20,19 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: st
     l0, l1, t = _level_split(float(s), pyr.num_levels)
     u = uv.detach().numpy().astype(np.float32, copy=False)
     out = np.zeros((u.shape[0], pyr.num_channels), np.float32)
-    repeat = wrap == Wrap.REPEAT
+    code = wrap_code(wrap)
     if default_backend() == "native":
         from bcfpipe.train.fused import native
 
-        native.bicubic_into(pyr.mips[l0].numpy(), u, repeat, KEYS_A, -1.0, out)
+        native.bicubic_into(pyr.mips[l0].numpy(), u, code, KEYS_A, -1.0, out)
         if t > 0.0:
-            native.bicubic_into(pyr.mips[l1].numpy(), u, repeat, KEYS_A, float(t), out)
+            native.bicubic_into(pyr.mips[l1].numpy(), u, code, KEYS_A, float(t), out)
         return torch.from_numpy(out)
     from bcfpipe.train.fused.kernel import bicubic_into, uncached
 
-    uncached(lambda: bicubic_into(pyr.mips[l0].numpy(), u, repeat, -1.0, out))
+    uncached(lambda: bicubic_into(pyr.mips[l0].numpy(), u, code, -1.0, out))
     if t > 0.0:
-        uncached(lambda: bicubic_into(pyr.mips[l1].numpy(), u, repeat, float(t), out))
+        uncached(lambda: bicubic_into(pyr.mips[l1].numpy(), u, code, float(t), out))
     return torch.from_numpy(out)
 
 
@@ -42,7 +42,7 @@ def bicubic(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
     from bcfpipe.train.fused import native
 
     out = np.zeros((uv.shape[0], tex.shape[0]), np.float32)
-    native.bicubic_into(tex.numpy(), uv.detach().numpy().astype(np.float32, copy=False), wrap == Wrap.REPEAT, KEYS_A,
+    native.bicubic_into(tex.numpy(), uv.detach().numpy().astype(np.float32, copy=False), wrap_code(wrap), KEYS_A,
                         -1.0, out)
     return torch.from_numpy(out)
 
