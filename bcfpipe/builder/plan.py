@@ -338,9 +338,9 @@ def _material_plan(ms, grouping, job_by_name: Mapping[str, MaterialJob]) -> Mate
         constants=tuple(c for c in mm.constants if c.input not in modelled_inputs), folded=tuple(mm.folded))
 
 
-def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None:
-    """A damaged file, or a float file with NaN/Inf texels (without --fix-nonfinite), is refused
-    before anything trains: one line naming the user's file, exit code 2 (maketx --checknan)."""
+def source_problems(grouping, file_cache: dict, fix_nonfinite: bool = False) -> list[str]:
+    """Why a build refuses its sources, one line each: a damaged file, or a float file with NaN/Inf
+    texels (without --fix-nonfinite). `scan` asks the same (its ``file_cache`` read the texels)."""
     from bcfpipe.scan.content import nonfinite_channels
 
     problems = list(dict.fromkeys(grouping.unreadable.values()))
@@ -351,9 +351,21 @@ def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None
             if bad:
                 problems.append(f"{path}: NaN/Inf texels in channel(s) {', '.join(bad)}; "
                                 "use --fix-nonfinite to replace them")
+    return problems
+
+
+def refusal(problems: list[str]) -> BuildError:
+    """The one-line error (exit code 2) that `problems` (`source_problems`, not empty) make."""
+    more = f" (and {len(problems) - 1} more problem(s) with other sources)" if len(problems) > 1 else ""
+    return BuildError(problems[0] + more)
+
+
+def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None:
+    """Refuse bad sources before anything trains: one line naming the user's file, exit code 2
+    (maketx --checknan)."""
+    problems = source_problems(grouping, file_cache, fix_nonfinite)
     if problems:
-        more = f" (and {len(problems) - 1} more problem(s) with other sources)" if len(problems) > 1 else ""
-        raise BuildError(problems[0] + more)
+        raise refusal(problems)
 
 
 def _bench_anchors(bench: Mapping, specs) -> tuple[tuple[str, str, float], ...]:

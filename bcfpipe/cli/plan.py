@@ -100,10 +100,12 @@ def _say_warnings(say, bplan) -> None:
 def _say_job(say, j) -> None:
     """One job: its size, profile, outputs, coverage and key; how its layout is decided; what it
     ships; its materials."""
+    from bcfpipe.formats.display import bytes_text, dims_text
+
     w, h = j.size
     prof = _profile(j)
     read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
-    say(f"[bold]{j.name}[/bold]  {w}x{h}, profile {prof}, {_outputs(j)} outputs, {read}, "
+    say(f"[bold]{j.name}[/bold]  {dims_text(w, h)}, profile {prof}, {_outputs(j)} outputs, {read}, "
         f"content hash {j.content_hash[:16]}")
     from bcfpipe.layout.classic import MAX_REPACK_SIDE
     from bcfpipe.layout.material import bc_resolution, uses_layout
@@ -114,15 +116,15 @@ def _say_job(say, j) -> None:
         files = {f for sem, f, _ in j.specs if sem in (j.options.classic or ())}
         kept = list(dict.fromkeys(sem for sem, f, _ in j.specs if f in files))  # a packed file goes whole
         held = f"; {', '.join(kept)} kept as BC textures (--classic)" if kept else ""
-        bc = f" ({pred.bc_bytes / 2**20:.2f} MiB)" if pred else ""
+        bc = f" ({bytes_text(pred.bc_bytes)})" if pred else ""
         if j.options.layout == "auto":
             repack = (" and its BC7 repacks (encoded, not trained)" if pred is None or pred.repack_bytes else
                       "; no BC7 repack fits its bytes") if r <= MAX_REPACK_SIDE else ""
-            probe = f"a probe at {pred.probe}" if pred else "a probe"
-            say(f"    layout auto: against BC@{r}{bc}{repack}{held}; {probe} (the largest profile within its "
-                f"bytes), at most one more training (a mixed layout, a wider T_0 or a mip split), decided when "
-                f"trained (docs/layout.md)")
-            if pred is not None:
+            probe = pred.probe_text() if pred else "a probe (the largest profile within BC@R's bytes)"
+            more = (", at most one more training (a mixed layout, a wider T_0 or a mip split), decided when "
+                    "trained" if pred is None or pred.probe else "")
+            say(f"    layout auto: against BC@{r}{bc}{repack}{held}; {probe}{more} (docs/layout.md)")
+            if pred is not None and pred.probe:
                 _say_weighed(say, pred)
         else:
             say(f"    layout: against BC@{r}{bc}{held}; the rest neural at {prof}")
@@ -139,11 +141,13 @@ def _say_job(say, j) -> None:
 
 def _say_weighed(say, pred) -> None:
     """The all-neural candidates' GPU bytes by profile and T_0 width, and the BC7 quality set's."""
+    from bcfpipe.formats.display import bytes_text
+
     by = {}
     for p, w, b in pred.neural:
-        by.setdefault(p, []).append(f"{w} layer{'s' if w > 1 else ''} {b / 2**20:.2f}")
-    text = "; ".join(f"{p}: T_0 of {', '.join(v)} MiB" for p, v in by.items())
-    q = f"; the BC7 quality set {pred.bc7_bytes / 2**20:.2f} MiB (reported against)" if pred.bc7_bytes else ""
+        by.setdefault(p, []).append(f"{w} layer{'s' if w > 1 else ''} {bytes_text(b)}")
+    text = "; ".join(f"{p}: T_0 of {', '.join(v)}" for p, v in by.items())
+    q = f"; the BC7 quality set {bytes_text(pred.bc7_bytes)} (reported against)" if pred.bc7_bytes else ""
     say(f"    weighs neural {text}{q}")
 
 
@@ -162,9 +166,11 @@ def built_layout(job) -> dict | None:
 
 def _say_built(say, d: dict) -> None:
     """A cached job's layout: the one shipped, its bytes and its per-mip margins."""
+    from bcfpipe.formats.display import bytes_text
+
     c = d["chosen"]
-    disk = f", {c['disk_bytes'] / 2**20:.2f} MiB on disk (zstd 19)" if c.get("disk_bytes") else ""
-    say(f"    cached: ships {c['layout']}, {c['size_bytes'] / 2**20:.2f} MiB{disk}, {c['psnr']:.2f} dB")
+    disk = f", {bytes_text(c['disk_bytes'])} on disk (zstd 19)" if c.get("disk_bytes") else ""
+    say(f"    cached: ships {c['layout']}, {bytes_text(c['size_bytes'])}{disk}, {c['psnr']:.2f} dB")
     if c.get("margin_per_mip_db"):
         say("      per mip against BC@R: " + " ".join(f"{v:+.1f}" for v in c["margin_per_mip_db"]) + " dB")
     if c.get("margin_vs_bc7_per_mip_db"):
@@ -191,9 +197,11 @@ def _say_range(say, bplan) -> None:
     if preds and all(p is not None for p in preds):
         from bcfpipe.layout.predict import build_range
 
+        from bcfpipe.formats.display import bytes_range
+
         lo, hi = build_range(preds)
         exact = all(p.exact for p in preds)
-        say(f"the build ships {lo / 2**20:.2f}–{hi / 2**20:.2f} MiB" + ("" if exact else
+        say(f"the build ships {bytes_range(lo, hi)}" + ("" if exact else
                                                                         " (each layout decided when trained)"))
 
 

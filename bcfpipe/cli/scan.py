@@ -2,7 +2,8 @@
 
 Exit codes: 0 when the stage was scanned (skipped materials included),
 2 when the stage cannot be read, ``--variant`` is malformed, unknown or repeated for one set, or a
-texture a build would read cannot be read (empty, truncated, damaged: the build refuses it too).
+texture a build would read is refused (empty, truncated, damaged, NaN/Inf texels): after the
+report, the build's own one-line error on stderr.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from rich.markup import escape
 from rich.text import Text
 
 from bcfpipe.errors import EXIT_USAGE
+from bcfpipe.formats.display import bytes_range, bytes_text, dims_text, file_name
 from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import all_materials_option, material_option, texel_density_option, variant_option
@@ -34,14 +36,14 @@ def _texture_lines(material: MaterialScan, grouping: Grouping) -> list[Text]:
     for inp in material.texture_inputs:
         tex = inp.texture
         assert tex is not None
-        name = Path(tex.asset_path).name if tex.asset_path else "(no file)"
+        name = file_name(tex.asset_path) if tex.asset_path else "(no file)"
         style = None if tex.ok else "yellow" if tex.uses_fallback else "red"
         lines.append(Text(f"{inp.name} ← {name}:{tex.channel}" + (" (fallback)" if tex.uses_fallback else ""),
                           style=style))
     mm = grouping.model_of(material.path)
     for f in mm.folded if mm else ():
-        what = f"= {Path(f.same_as.file).name}:{f.same_as.channel}" if f.same_as else f"= {f.value:.4g}"
-        lines.append(Text(f"folded {Path(f.file).name}:{f.channel} {f.reason} {what}", style="cyan"))
+        what = f"= {file_name(f.same_as.file)}:{f.same_as.channel}" if f.same_as else f"= {f.value:.4g}"
+        lines.append(Text(f"folded {file_name(f.file)}:{f.channel} {f.reason} {what}", style="cyan"))
     return lines
 
 
@@ -75,20 +77,26 @@ def _need_line(req: dict | None) -> Text:
             parts.append(f"{100 * req['covered_fraction']:.0f}% of texels read")
         cap = f" capped: {req['texel_density_reached']:.0f} px/m" if req["capped"] else ""
         lay = req.get("layout")
+        size = dims_text(req["width"], req["height"])
         if not req["estimated_bytes"]:
-            parts.append(f"{req['resolution']}²{cap}, profile {req['profile']}, shared")
+            parts.append(f"{size}{cap}, profile {req['profile']}, shared")
         elif lay:  # what the default layout weighs (bcfpipe.layout.predict): R, the probe, BC@R, the range
-            lo, hi = req["estimated_min_bytes"] / 2**20, req["estimated_bytes"] / 2**20
-            parts.append(f"{req['resolution']}²{cap}, layout auto against BC@{lay['resolution']} "
-                         f"({lay['bc_bytes'] / 2**20:.2f} MiB), probe {lay['probe']}, profiles up to "
-                         f"{req['profile']}, ships {lo:.2f}–{hi:.2f} MiB")
+            parts.append(f"{size}{cap}, layout auto against BC@{lay['resolution']} "
+                         f"({bytes_text(lay['bc_bytes'])}), {_probe_words(lay)}, profiles up to "
+                         f"{req['profile']}, ships {bytes_range(req['estimated_min_bytes'], req['estimated_bytes'])}")
         else:
-            parts.append(f"{req['resolution']}²{cap}, profile {req['profile']}, "
-                         f"{req['estimated_bytes'] / 2**20:.2f} MiB")
+            parts.append(f"{size}{cap}, profile {req['profile']}, {bytes_text(req['estimated_bytes'])}")
     text = Text(", ".join(parts), style="dim")
     for note in d.get("notes", [])[:2]:
         text.append(f"; {note}" if text.plain else note, style="yellow")
     return text
+
+
+def _probe_words(lay: dict) -> str:
+    """The probe as `LayoutPrediction.probe_text` weighs it, in scan's short form."""
+    if lay["probe"] is None:
+        return "no probe (nothing neural fits within BC@R's bytes)"
+    return f"probe {lay['probe']}" + ("" if lay["probe_fits"] else " (the smallest profile: none fits within BC@R's bytes)")
 
 
 def _print_material(m: MaterialScan, grouping: Grouping, reqs: dict, console: Console) -> None:
@@ -118,7 +126,7 @@ def _print_material(m: MaterialScan, grouping: Grouping, reqs: dict, console: Co
         console.print(Text("    ").append_text(line), highlight=False, soft_wrap=True)
 
 
-def _conclusion(result: StageScan, grouping: Grouping) -> str:
+def _conclusion(result: StageScan, grouping: Grouping, refusals: list[str]) -> str:
     """What a build of this stage would do, in one sentence, with every skip reason counted."""
     outcomes = [grouping.outcome(m) for m in result.materials]
     n_model = sum(1 for d, r, _ in outcomes if d == Decision.MODEL)
@@ -129,6 +137,9 @@ def _conclusion(result: StageScan, grouping: Grouping) -> str:
     if grouping.failed:
         return (f"conclusion: a build stops before training (exit 2): {len(grouping.failed)} material(s) read "
                 "textures it cannot read (above)")
+    if refusals:
+        return (f"conclusion: a build stops before training (exit 2): {len(refusals)} source(s) it refuses "
+                "(above)")
     if not result.materials and mtlx:
         return (f"conclusion: a build builds nothing: the stage's materials are in {len(mtlx)} MaterialX "
                 f"document(s) (.mtlx) that this USD cannot open, and bcfpipe reads UsdPreviewSurface only")
@@ -142,7 +153,7 @@ def _conclusion(result: StageScan, grouping: Grouping) -> str:
             f"authors {n_const} constant material(s){tail}")
 
 
-def _print_human(result: StageScan, grouping: Grouping, reqs: dict, console: Console) -> None:
+def _print_human(result: StageScan, grouping: Grouping, reqs: dict, refusals: list[str], console: Console) -> None:
     """Stage facts, one block per material, the variant selections that bind other materials,
     and the conclusion."""
     say = lambda text: console.print(text, highlight=False, soft_wrap=True)  # noqa: E731
@@ -173,11 +184,13 @@ def _print_human(result: StageScan, grouping: Grouping, reqs: dict, console: Con
     for path, message in grouping.failed.items():
         say(f"[red]unreadable:[/red] {path}: {escape(message)}")
     tot = reqs["totals"]
-    say(f"a build writes {tot['estimated_min_bytes'] / 2**20:.2f}–{tot['estimated_bytes'] / 2**20:.2f} MiB "
+    say(f"a build writes {bytes_range(tot['estimated_min_bytes'], tot['estimated_bytes'])} "
         f"({tot['texture_sets']} texture set(s), each layout decided when trained); "
-        f"modelling everything (no folding, no density cap): up to {tot['everything_estimated_bytes'] / 2**20:.2f} MiB "
+        f"modelling everything (no folding, no density cap): up to {bytes_text(tot['everything_estimated_bytes'])} "
         f"({tot['everything_texture_sets']} texture set(s))")
-    say(f"[bold]{_conclusion(result, grouping)}[/bold]")
+    for line in refusals:
+        say(f"[red]refused:[/red] {escape(line)}")
+    say(f"[bold]{_conclusion(result, grouping, refusals)}[/bold]")
 
 
 @click.command("scan", cls=Command)
@@ -197,7 +210,8 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
 
     \b
     Exit codes: 0 scanned (skipped materials included); 2 the stage cannot be read, a bad or
-    repeated --variant, or a texture a build would read is unreadable (the build refuses it too).
+    repeated --variant, or a texture a build would read is refused (unreadable, NaN/Inf texels):
+    the build's own one-line error follows the report on stderr.
     """
     from bcfpipe.scan.requirements import requirements
 
@@ -209,6 +223,9 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
     from bcfpipe.layout.predict import predict_specs
 
     reqs = requirements(grouping, everything, texel_density=texel_density, predict=predict_specs)
+    from bcfpipe.builder.plan import refusal, source_problems
+
+    refusals = source_problems(grouping, cache)  # what plan and build refuse, in the same words
     if as_json:
         d = result.to_dict()
         for m, md in zip(result.materials, d["materials"]):
@@ -223,8 +240,11 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
         d["requirements"] = reqs["totals"]
         d["instanced"] = sorted(grouping.instanced)
         d["unreadable"] = dict(grouping.failed)
+        d["refused"] = refusals
         click.echo(json.dumps(d, indent=2))
     else:
-        _print_human(result, grouping, reqs, Console())
+        _print_human(result, grouping, reqs, refusals, Console())
+    if refusals:  # the build's own line and exit code, on stderr
+        raise refusal(refusals)
     if grouping.failed:  # as the build, which refuses an unreadable texture before training
         click.get_current_context().exit(EXIT_USAGE)

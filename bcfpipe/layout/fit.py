@@ -4,9 +4,11 @@ train the one chosen, choose among what is measured.
 1. Encode BC@R (every classic group, every mip) and its BC7 repacks and measure them per channel:
    exact, no training.
 2. The probe: one neural model on all channels at p0, the largest profile no larger than the one
-   asked for whose bytes fit within BC@R's (the smallest when none does), with a T_0 of one layer
-   of principal components (or --t0-layers), trained and measured from its exported files, per
-   channel.
+   asked for whose bytes fit within BC@R's (the smallest when none does: it measures the neural
+   part of a mip split or a mixed layout), with a T_0 of one layer of principal components (or
+   --t0-layers), trained and measured from its exported files, per channel. No probe, and no
+   training, when not even the smallest features fit within BC@R's bytes (`predict`): BC@R and
+   its repacks are all that can ship.
 3. Candidates: every kind of `bcfpipe.layout.kinds.REGISTRY` generates its own from (1) and (2)
    (BC@R, its repacks, neural at a profile and T_0 width, mixed: classic groups + neural, mip
    splits), with ``measured``, ``bound`` or ``predicted`` figures (`bcfpipe.layout.choose`). The
@@ -196,8 +198,11 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
                        progress=progress, coverage=coverage, log=log)
     if options.layout == Layout.NEURAL:
         return _fixed(replace(ctx, classic=_measure_classic(ctx, False)), asked, start)
+    pred = predict_for(ts, options, cfg, asked, resolution)
+    if pred.probe is None:
+        return _classic_only(ctx, start)
     # no training here takes more steps than --layout neural's (at the profile asked)
-    ctx = _probed(replace(ctx, cap=cfg.preset), cfg, predict_for(ts, options, cfg, asked, resolution))
+    ctx = _probed(replace(ctx, cap=cfg.preset), cfg, pred)
     weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
     cands = [w.candidate for w in weighed]
     held = [w for w in weighed if w.candidate.basis == "measured"]
@@ -211,6 +216,17 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     model = {t.candidate.label: t for t in held}[decision.chosen.label]
     return LayoutFit(decision, first, ctx.classic.groups, model.model, model.channels, ctx.probe, train_s,
                      time.perf_counter() - start, ctx.classic.repacked, ctx.classic.seconds, model.parts)
+
+
+def _classic_only(ctx: K.FitContext, start: float) -> LayoutFit:
+    """No neural layout fits within BC@R's bytes (`predict` gives no probe: a tiny set's features
+    alone exceed them): BC@R and its repacks, measured; nothing trains."""
+    cf = _measure_classic(ctx, True)
+    ctx.log(f"no probe: nothing neural fits within BC@R's {cf.bc.size_bytes} bytes")
+    packed = [c for c in cf.packed if set(ctx.forced) <= set(c.classic)]
+    decision = C.choose(packed, cf.bc, ctx.match_bc, cf.quality)
+    return LayoutFit(decision, decision, cf.groups, None, (), None, 0.0, time.perf_counter() - start,
+                     cf.repacked, cf.seconds)
 
 
 def _train_next(ctx: K.FitContext, chosen: C.Candidate, cands: Sequence[C.Candidate],

@@ -55,7 +55,7 @@ class LayoutPrediction:
     resolution: int  # R: BC@R's level 0 side
     profile: str  # the profile asked, resolved (what --layout neural trains)
     profiles: tuple[str, ...]  # the profiles auto weighs, largest first
-    probe: str | None  # auto's probe profile p0: the largest whose bytes fit within BC@R's; None: no probe
+    probe: str | None  # auto's probe p0: the largest profile within BC@R's bytes, else the smallest; None: no probe
     bc_bytes: int  # BC@R, exact
     repack_bytes: tuple[int, ...]  # its BC7 repacks, exact (weighed up to R = 4096)
     min_bytes: int
@@ -64,6 +64,7 @@ class LayoutPrediction:
     probe_t0_layers: int = 1  # the probe's T_0 width: the narrowest weighed
     neural: tuple[tuple[str, int, int], ...] = ()  # every all-neural candidate weighed: (profile, T_0 width, bytes)
     bc7_bytes: int = 0  # the BC7 quality set at R (reported against, not shipped); 0: not measured
+    probe_fits: bool = False  # the probe's bytes are within BC@R's (else it is the smallest profile)
 
     @property
     def exact(self) -> bool:
@@ -75,12 +76,28 @@ class LayoutPrediction:
                 "repack_bytes": list(self.repack_bytes), "min_bytes": self.min_bytes, "max_bytes": self.max_bytes,
                 "exact": self.exact, "t0_layers": list(self.t0_layers),
                 "neural_bytes": [{"profile": p, "t0_layers": w, "size_bytes": b} for p, w, b in self.neural],
-                "bc7_quality_bytes": self.bc7_bytes or None}
+                "bc7_quality_bytes": self.bc7_bytes or None, "probe_fits": self.probe_fits}
 
     def size_text(self) -> str:
-        """``~X MiB`` when exact, else ``X–Y MiB``."""
-        lo, hi = self.min_bytes / 2**20, self.max_bytes / 2**20
-        return f"{hi:.2f} MiB" if self.exact else f"{lo:.2f}–{hi:.2f} MiB"
+        """``X MiB`` when exact, else ``X–Y MiB`` (KiB for small sets: `display.bytes_range`)."""
+        from bcfpipe.formats.display import bytes_range
+
+        return bytes_range(self.min_bytes, self.max_bytes)
+
+    def probe_text(self) -> str:
+        """What the probe is and why, as scan and plan say it: the largest profile within BC@R's
+        bytes, the smallest when none is (it then measures the neural part of a mip split or a
+        mixed layout), or no probe at all when nothing neural can fit."""
+        from bcfpipe.formats.display import bytes_text
+
+        bc = bytes_text(self.bc_bytes)
+        if self.probe is None:
+            return (f"no probe: nothing neural fits within BC@R's {bc} (not even the smallest features), "
+                    "so nothing trains")
+        if self.probe_fits:
+            return f"a probe at {self.probe} (the largest profile within BC@R's {bc})"
+        return (f"a probe at {self.probe} (the smallest profile; none fits within BC@R's {bc}, so the probe "
+                "only measures what a mip split or a mixed layout can hold)")
 
 
 def probe_profile(profiles: Sequence[str], sizes: dict[str, int], bc_bytes: int) -> str:
@@ -150,10 +167,12 @@ def predict(q: Query) -> LayoutPrediction:
                          + sum(texture_bytes(g.format, levels) for g in rp.groups))
     side = max(q.width, q.height)
     split_floor = [texture_bytes(g.format, levels[:split_levels(1, resolution, side)]) for g in groups]
-    lows = [bc, *packs, forced_bytes + min(feature_bytes(res_of[p]) for p in profiles)]
+    neural_lows = [forced_bytes + min(feature_bytes(res_of[p]) for p in profiles)]
     if not forced:
-        lows.append(sum(split_floor) + feature_bytes((8, 8, 8, 4), headers=True))
-    low = min(lows)
+        neural_lows.append(sum(split_floor) + feature_bytes((8, 8, 8, 4), headers=True))
+    if not q.match_bc and min(neural_lows) > bc:  # no neural layout can ship within BC@R's bytes: no probe
+        p0, neural_lows = None, []
+    low = min([bc, *packs, *neural_lows])
     if q.match_bc:  # any size: a mixed layout may hold every group but one and the largest model
         high = max(bc, *packs, bc + max(model(res_of[p], w, q.n_out) for p in profiles for w in q.widths))
     else:
@@ -162,7 +181,8 @@ def predict(q: Query) -> LayoutPrediction:
     quality = bc7_quality_set(groups)
     bc7 = bc if quality is None else bc + sum(texture_bytes(g.format, levels) - by_group[g.name] for g in quality.groups)
     return LayoutPrediction(str(layout), resolution, asked, profiles, p0, bc, tuple(packs), low, high, q.widths, w0,
-                            neural, bc7 if resolution <= MAX_REPACK_SIDE else 0)
+                            neural, bc7 if resolution <= MAX_REPACK_SIDE else 0,
+                            p0 is not None and sizes[p0] <= bc)
 
 
 def spec_texture_set(specs: Sequence[tuple[str, str, str]], width: int, height: int,
@@ -242,7 +262,8 @@ def merge(preds: Sequence[LayoutPrediction]) -> LayoutPrediction:
     return LayoutPrediction(a.layout, a.resolution, a.profile, a.profiles, " or ".join(probes) or None,
                             max(p.bc_bytes for p in preds), tuple(sorted({b for p in preds for b in p.repack_bytes})),
                             min(p.min_bytes for p in preds), max(p.max_bytes for p in preds), a.t0_layers,
-                            a.probe_t0_layers, a.neural, max(p.bc7_bytes for p in preds))
+                            a.probe_t0_layers, a.neural, max(p.bc7_bytes for p in preds),
+                            all(p.probe_fits for p in preds))
 
 
 def build_range(preds: Sequence[LayoutPrediction]) -> tuple[int, int]:

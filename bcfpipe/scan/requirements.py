@@ -37,7 +37,7 @@ def _job(mm: MaterialModel, members, options: JobOptions, predict=None) -> dict:
         pred = predict(tuple(mm.specs), floats, w, h, o)
     neural = neural_bytes(res, N_LAYERS * LAYER_CHANNELS_OF[FeatureFormat(o.features)], o.hidden,
                           n_out) if res and n_out else 0
-    return {"resolution": side, "profile": profile, "capped": o.resolution is not None,
+    return {"resolution": side, "width": w, "height": h, "profile": profile, "capped": o.resolution is not None,
             "texel_density_reached": reached, "covered_fraction": covered,
             "layout": pred.to_json() if pred else None,
             "estimated_min_bytes": pred.min_bytes if pred else neural,
@@ -67,7 +67,8 @@ def requirements(grouping: Grouping, everything: Grouping, profile: str = DEFAUL
     for path, mm in grouping.constant.items():
         out[path] = {"decision": Decision.CONSTANT, "texture_set": None, "outputs": 0,
                      "folded": [f.to_dict() for f in mm.folded],
-                     "density": mm.density.to_dict() if mm.density else None, "resolution": 0, "profile": None,
+                     "density": mm.density.to_dict() if mm.density else None, "resolution": 0, "width": 0, "height": 0,
+                     "profile": None,
                      "capped": False, "texel_density_reached": None, "covered_fraction": None,
                      "layout": None, "estimated_min_bytes": 0, "estimated_bytes": 0}
     plain = replace(options, texel_density=None)
