@@ -25,7 +25,8 @@ def _figures(ch: dict) -> str:
 
 
 def material_line(m) -> str:
-    """One material's report on one line (no status word): each failed check and what it found,
+    """One material's report on one line (no status word): the material whose texture set it
+    shares (its checks are that material's, repeated), each failed check and what it found,
     then the GLSL figures (the largest |GLSL - ONNX|, its channel and that channel's largest
     tolerance: figures --json has too), the checks that passed and those skipped."""
     failed = [f"bad input: {m.input_error}"] if m.input_error else []
@@ -46,7 +47,8 @@ def material_line(m) -> str:
         elif c.passed:
             ok.append(c.name)
     skipped = [c.name for c in m.checks if c.passed is None]
-    return "; ".join(failed + figures + [f"ok: {', '.join(ok)}"] * bool(ok)
+    shares = [f"the texture set of {m.shares}, checked with it"] if m.shares else []
+    return "; ".join(shares + failed + figures + [f"ok: {', '.join(ok)}"] * bool(ok)
                      + [f"skipped: {', '.join(skipped)}"] * bool(skipped))
 
 
@@ -105,7 +107,8 @@ class VerifyOutput:
         from rich.table import Table
 
         status = "[green]PASS[/green]" if m.passed else "[red]FAIL[/red]"
-        self._print(f"\n{status} {escape(m.name)}  ({escape(m.folder)})")
+        shares = f"; the texture set of {escape(m.shares)}, checked with it" if m.shares else ""
+        self._print(f"\n{status} {escape(m.name)}  ({escape(m.folder)}{shares})")
         if m.input_error:
             self._print(f"  [red]bad input:[/red] {escape(m.input_error)}")
         for c in m.checks:

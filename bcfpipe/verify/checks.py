@@ -64,6 +64,9 @@ class Check:
 
 @dataclass
 class MaterialReport:
+    """One material's checks. ``shares``: the material whose files it shares (a shared texture set),
+    checked once, under that material's name; its checks are repeated here."""
+
     name: str
     folder: str
     checks: list[Check] = field(default_factory=list)
@@ -71,6 +74,7 @@ class MaterialReport:
     categories: list[dict] = field(default_factory=list)
     n_points: int = 0
     input_error: str | None = None
+    shares: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -79,7 +83,13 @@ class MaterialReport:
     def to_dict(self) -> dict:
         return {"name": self.name, "folder": self.folder, "passed": self.passed, "input_error": self.input_error,
                 "checks": [c.to_dict() for c in self.checks], "n_points": self.n_points,
-                "channels": self.channels, "categories": self.categories}
+                "channels": self.channels, "categories": self.categories, "shares": self.shares}
+
+    def sharing(self, name: str, extra: Sequence[Check] = ()) -> "MaterialReport":
+        """The report of ``name``, which shares this material's files: its checks (not its error
+        tables), then ``extra`` (its own constants)."""
+        return MaterialReport(name, self.folder, [*self.checks, *extra], input_error=self.input_error,
+                              shares=self.name)
 
 
 @dataclass(frozen=True)
@@ -442,17 +452,27 @@ def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = Non
     return rep
 
 
-def constant_reports(root: Path) -> list[MaterialReport]:
-    """For a build folder, one report per material with folded constants (bcfpipe.verify.constants)."""
+def constant_checks(root: Path) -> dict[str, Check]:
+    """For a build folder, the ``constants`` check of each material with folded constants
+    (bcfpipe.verify.constants), by material path, in the manifest's order."""
     from bcfpipe.formats import manifest as mfst
     from bcfpipe.verify.constants import check_constants
 
     if not (root / mfst.FILE).is_file():
-        return []
-    out = []
-    for name, passed, detail in check_constants(root, mfst.read(root)):
-        out.append(MaterialReport(name, str(root), [Check("constants", passed, detail)]))
-    return out
+        return {}
+    return {name: Check("constants", passed, detail) for name, passed, detail in check_constants(root, mfst.read(root))}
+
+
+def target_reports(t: Target, checked: MaterialReport, constants: dict[str, Check]) -> list[MaterialReport]:
+    """One report per material that uses ``t``'s files: ``checked`` for the first, a report that
+    shares its checks for each other; each with its own constants check, taken out of ``constants``."""
+    names = t.aliases or [checked.name]
+    shared = list(checked.checks)
+    if names[0] in constants:
+        checked.checks.append(constants.pop(names[0]))
+    others = [MaterialReport(checked.name, checked.folder, shared, input_error=checked.input_error)
+              .sharing(name, [constants.pop(name)] if name in constants else []) for name in names[1:]]
+    return [checked, *others]
 
 
 def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool = True, seed: int = 0,
@@ -479,17 +499,22 @@ def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool =
     tell = progress or (lambda ev: None)
     try:
         renderer = rt.info if rt is not None else None
-        tell(VerifyEvent("start", renderer=renderer, tolerance=tol_info, total=len(targets)))
+        tell(VerifyEvent("check", check="constants"))
+        constants = constant_checks(Path(path))
+        users = {name for t in targets for name in t.aliases}
+        total = sum(len(t.aliases) or 1 for t in targets) + sum(name not in users for name in constants)
+        tell(VerifyEvent("start", renderer=renderer, tolerance=tol_info, total=total))
         reports = []
         for t in targets:
             name = t.desc.name
-            reports.append(verify_target(t, rt if glsl else None, tolerance, seed, filter_bits,
-                                         on_check=lambda check, name=name: tell(VerifyEvent("check", name, check))))
+            checked = verify_target(t, rt if glsl else None, tolerance, seed, filter_bits,
+                                    on_check=lambda check, name=name: tell(VerifyEvent("check", name, check)))
+            for rep in target_reports(t, checked, constants):
+                reports.append(rep)
+                tell(VerifyEvent("done", rep.name, report=rep))
+        for name, check in constants.items():  # a constant material: nothing but its values
+            reports.append(MaterialReport(name, str(path), [check]))
             tell(VerifyEvent("done", name, report=reports[-1]))
-        tell(VerifyEvent("check", check="constants"))
-        for rep in constant_reports(Path(path)):
-            reports.append(rep)
-            tell(VerifyEvent("done", rep.name, report=rep))
         return Report(str(path), reports, renderer, tol_info)
     finally:
         if own:
