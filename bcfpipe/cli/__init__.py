@@ -18,6 +18,14 @@ from bcfpipe.cli.errors import Group
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, BcfError  # noqa: F401  (re-exported)
 
 
+class OneFormat(logging.Formatter):
+    """Log records as the commands' own lines read: ``bcfpipe: warning: <message>`` (the level in
+    lower case), one format for every warning whether logged or printed."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"bcfpipe: {record.levelname.lower()}: {record.getMessage()}"
+
+
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="bcfpipe")
 @click.option("-v", "--verbose", count=True, help="More logging (repeat for debug).")
@@ -32,7 +40,9 @@ def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
     Exit codes: 0 ok, 1 work failed, 2 usage error or bad input, 130 interrupted.
     """
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
-    logging.basicConfig(level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(OneFormat())
+    logging.basicConfig(level=level, handlers=[handler])
     ctx.ensure_object(dict)
     ctx.obj["quiet"] = quiet
 

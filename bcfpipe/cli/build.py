@@ -32,9 +32,9 @@ __all__ = ["build", "summary_table", "print_summary"]
 
 
 def _fmt_size(n: int | None) -> str:
-    if n is None:
-        return ""
-    return f"{n / 2**20:.2f} MiB" if n >= 2**20 else f"{n / 1024:.0f} KiB"
+    from bcfpipe.formats.display import bytes_text
+
+    return "" if n is None else bytes_text(n)
 
 
 COLUMNS = ("material", "status", "outputs", "profile", "PSNR", "size", "train", "encode", "note")
@@ -42,56 +42,84 @@ COLUMNS = ("material", "status", "outputs", "profile", "PSNR", "size", "train", 
 _OTHER_COLUMNS_WIDTH = 80
 
 
-def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...]]:
-    """One row per material, in `COLUMNS` order: what the end-of-run summary shows."""
-    from bcfpipe.builder.report import headline_psnr
+def material_notes(m, r, sharing: dict[str, tuple[str, ...]], usd: dict | None) -> tuple[list[str], list[str]]:
+    """(short, detail): the table's note for material ``m`` (report row ``r``), a few words each,
+    and what the line under the table says of it in full (the layout's reason, the USD wiring, the
+    shared texture set's first material)."""
+    from bcfpipe.builder.usd_classic import UNTOUCHED
     from bcfpipe.layout.choose import ALL_CLASSIC
 
-    from bcfpipe.builder.usd_classic import UNTOUCHED, usd_notes
+    short = [m.reason] if m.reason else []
+    detail = []
+    if m.status == Status.CONSTANT:
+        short.append(f"{len(m.constants)} value(s) authored")
+    users = sharing.get(m.job, ()) if m.status == Status.BUILT else ()
+    if len(users) > 1:
+        short = [f"shared by {len(users)}"]
+        detail.append(f"texture set {m.job} shared by {len(users)} materials, trained for {users[0]}"
+                      if m.path != users[0] else f"texture set {m.job} shared by {len(users)} materials")
+    if m.folded:
+        kinds = [f.reason for f in m.folded]
+        short.append("folded: " + ", ".join(f"{kinds.count(k)} {k}" for k in
+                                            ("constant", "unread", "no-alpha", "duplicate") if k in kinds))
+    if m.metrics and m.metrics.detail and m.metrics.detail.covered_fraction is not None:
+        short.append(f"PSNR over the {100 * m.metrics.detail.covered_fraction:.0f}% read")
+    if r.attempts:
+        short.append(f"worker died, retried: {r.attempts} attempts")
+    if m.target is not None:
+        goal = "met" if m.target.met else "unreachable"
+        short.append(f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)")
+    if m.layout is not None:
+        lay = m.layout
+        worst = (lay.worst_margin_db if lay.worst_margin_db is not None  # the mips the rule counts
+                 else min(lay.margin_per_mip_db) if lay.margin_per_mip_db else 0.0)
+        if lay.chosen == ALL_CLASSIC:
+            detail.append("layout: BC@R, nothing neural held it at every mip")
+        else:
+            short.append(f"worst mip {worst:+.1f} dB vs BC@R")
+            detail.append(f"layout {lay.chosen}: {lay.psnr - lay.bc_psnr:+.1f} dB all mips, worst mip "
+                          f"{worst:+.1f} dB against BC@R")
+    if m.status == Status.BUILT and usd is not None:
+        detail.append(usd.get(m.path, UNTOUCHED))
+    return short, detail
 
-    rows = []
-    sharing = {j.name: len(j.materials) for j in manifest.jobs}
+
+def summary_rows(manifest: Manifest, report: BuildReport) -> list[tuple[str, ...]]:
+    """One row per material, in `COLUMNS` order (the note short: `material_notes`), then the
+    detail under the table says in full: what the end-of-run summary shows."""
+    return [row for row, _ in _rows(manifest, report)]
+
+
+def summary_details(manifest: Manifest, report: BuildReport) -> list[tuple[str, str]]:
+    """(material, its notes in full) for each material that has any: the lines under the table."""
+    return [(row[0], "; ".join(detail)) for row, detail in _rows(manifest, report) if detail]
+
+
+def _rows(manifest: Manifest, report: BuildReport) -> list[tuple[tuple[str, ...], list[str]]]:
+    from bcfpipe.builder.report import headline_psnr
+    from bcfpipe.builder.usd_classic import usd_notes
+    from bcfpipe.layout.choose import ALL_CLASSIC
+
+    out = []
+    sharing = {j.name: tuple(j.materials) for j in manifest.jobs}
     usd = usd_notes(os.path.join(report.out, manifest.overrides_layer))  # what the USD layer changed
     for m, r in zip(manifest.materials, report.materials):
-        notes = [m.reason] if m.reason else []
-        if m.status == Status.CONSTANT:
-            notes.append(f"{len(m.constants)} value(s) authored")
-        if m.status == Status.BUILT and sharing.get(m.job, 1) > 1:
-            notes = [f"shared: {m.job} x{sharing[m.job]}"]
-        if m.folded:
-            kinds = [f.reason for f in m.folded]
-            notes.append("folded: " + ", ".join(f"{kinds.count(k)} {k}" for k in
-                                                ("constant", "unread", "no-alpha", "duplicate") if k in kinds))
+        short, detail = material_notes(m, r, sharing, usd)
         head = headline_psnr(m)
-        if m.metrics and m.metrics.detail and m.metrics.detail.covered_fraction is not None:
-            notes.append(f"PSNR over the {100 * m.metrics.detail.covered_fraction:.0f}% of texels read")
-        if r.attempts:
-            notes.append(f"worker died, retried: {r.attempts} attempts")
-        if m.target is not None:
-            goal = "met" if m.target.met else "unreachable"
-            notes.append(f"target {m.target.target_psnr:.1f} dB {goal} after {len(m.target.attempts)} training(s)")
-        if m.layout is not None:
-            lay = m.layout
-            worst = (lay.worst_margin_db if lay.worst_margin_db is not None  # the mips the rule counts
-                     else min(lay.margin_per_mip_db) if lay.margin_per_mip_db else 0.0)
-            notes.append("layout: BC@R, nothing neural held it at every mip" if lay.chosen == ALL_CLASSIC else
-                         f"layout {lay.chosen}: {lay.psnr - lay.bc_psnr:+.1f} dB all mips, worst mip "
-                         f"{worst:+.1f} dB against BC@R")
-        if m.status == Status.BUILT and usd is not None:
-            notes.append(usd.get(m.path, UNTOUCHED))
         outputs = len({tg.channel for tg in m.targets if tg.channel >= 0})
         profile = (f"{m.profile} {m.preset}" if m.profile and m.preset else m.profile or "")
         if m.layout is not None and m.layout.profile is None:
             profile = "BC@R" if m.layout.chosen == ALL_CLASSIC else "BC7 repack"
         elif m.layout is not None and m.layout.classic:
             profile += " + BC"
-        rows.append((m.path, m.status, str(outputs or ""), profile,
-                     f"{head:.2f}" if head is not None else "",
-                     _fmt_size(m.sizes.total_bytes) if m.sizes else "",
-                     "cached" if r.cache == CacheUse.HIT else f"{r.train_seconds:.1f}s" if r.train_seconds else "",
-                     "" if r.cache == CacheUse.HIT or r.encode_seconds is None else f"{r.encode_seconds:.1f}s",
-                     "; ".join(notes)))
-    return rows
+        row = (m.path, m.status, str(outputs or ""), profile,
+               f"{head:.2f}" if head is not None else "",
+               _fmt_size(m.sizes.total_bytes) if m.sizes else "",
+               "cached" if r.cache == CacheUse.HIT else f"{r.train_seconds:.1f}s" if r.train_seconds else "",
+               "" if r.cache == CacheUse.HIT or r.encode_seconds is None else f"{r.encode_seconds:.1f}s",
+               "; ".join(short))
+        out.append((row, detail))
+    return out
 
 
 def summary_caption(manifest: Manifest, report: BuildReport) -> str:
@@ -122,6 +150,15 @@ def summary_table(manifest: Manifest, report: BuildReport) -> Table:
     return t
 
 
+def _print_details(console: Console, manifest: Manifest, report: BuildReport) -> None:
+    """Under the table: each material's notes in full, one line each (never squeezed into a column)."""
+    details = summary_details(manifest, report)
+    if details:
+        console.print("notes:", highlight=False)
+    for path, text in details:
+        console.print(Text(f"  {path}: {text}"), soft_wrap=True, highlight=False)
+
+
 def print_summary(console: Console, manifest: Manifest, report: BuildReport) -> None:
     """The summary as a table when the console is wide enough for its longest path and the other
     columns; else one block per material (the path on its own line, the figures below), so that a
@@ -130,6 +167,7 @@ def print_summary(console: Console, manifest: Manifest, report: BuildReport) -> 
     longest = max((len(r[0]) for r in rows), default=0)
     if console.width >= longest + _OTHER_COLUMNS_WIDTH:
         console.print(summary_table(manifest, report))
+        _print_details(console, manifest, report)
         return
     console.print(f"bcfpipe build: {manifest.root_layer}", highlight=False, soft_wrap=True)
     for row in rows:
@@ -141,6 +179,7 @@ def print_summary(console: Console, manifest: Manifest, report: BuildReport) -> 
             line.append(f", {part}")
         console.print(line, highlight=False)
     console.print(summary_caption(manifest, report), highlight=False)
+    _print_details(console, manifest, report)
 
 
 def nothing_built(manifest) -> str | None:

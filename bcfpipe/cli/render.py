@@ -72,9 +72,11 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
     sc = load_scene(scene, width, height, camera=camera, zoom=zoom, kinds=kinds)
     neural = sc.neural_materials() if NEURAL in kinds else []
     frames = render_frames(sc, width, height)
+    others = sorted(m for m in sc.surfaces[kinds[0]] if m and m not in neural)
+    classic = [m for m in others if kinds[0] == NEURAL and _reads_shipped(sc.surfaces[NEURAL][m], scene)]
     report = {"output": output, "width": width, "height": height, "camera": sc.view.source,
-              "triangles": sc.triangles, "neural_materials": neural,
-              "original_materials": sorted(m for m in sc.surfaces[kinds[0]] if m and m not in neural),
+              "triangles": sc.triangles, "neural_materials": neural, "classic_materials": classic,
+              "original_materials": [m for m in others if m not in classic],
               "notes": sc.notes(kinds[0])}
     if compare:
         diff, per_pixel = C.difference(frames[NEURAL].image, frames[ORIGINAL].image)
@@ -87,6 +89,14 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
         click.echo(json.dumps(report, indent=2))
     else:
         _echo_report(report)
+
+
+def _reads_shipped(surface, scene: str) -> bool:
+    """Whether a (non-neural) surface of the built stage reads a texture the build shipped beside
+    ``scene``: a classic layout's DDS files, not the source scene's own."""
+    out = os.path.dirname(os.path.abspath(scene))
+    return any(os.path.abspath(t.path).startswith(out + os.sep) and t.path.lower().endswith(".dds")
+               for t in surface.textures)
 
 
 def _check_output(output: str, force: bool) -> None:
@@ -105,7 +115,9 @@ def _echo_report(report: dict) -> None:
         click.echo(f"note: {n}", err=True)
     click.echo(f"{report['output']}: {report['width']}x{report['height']}, camera {report['camera']}, "
                f"{report['triangles']:,} triangles; {len(report['neural_materials'])} neural, "
-               f"{len(report['original_materials'])} original material(s)")
+               + (f"{len(report['classic_materials'])} classic (shipped BC textures), "
+                  if report["classic_materials"] else "")
+               + f"{len(report['original_materials'])} original material(s)")
     if "difference" in report:
         d = report["difference"]
         psnr = "identical" if d["psnr_db"] is None else f"PSNR {d['psnr_db']:.2f} dB"
