@@ -246,9 +246,11 @@ def _layout_choice(d: dict | None) -> mfst.LayoutChoice | None:
     if not d:
         return None
     ch, bc = d["chosen"], d["bc"]
+    angle = d.get("normal_angular_error")
     return mfst.LayoutChoice(ch["layout"], tuple(ch["classic"]), ch["profile"], d["reason"], ch["size_bytes"],
                              bc["size_bytes"], ch["psnr"], bc["psnr"], tuple(ch["margin_per_mip_db"]),
-                             ch.get("worst_margin_db"))
+                             ch.get("worst_margin_db"),
+                             (angle["mean_deg"], angle["p99_deg"]) if angle else None)
 
 
 def _classic_wiring(bplan: BuildPlan, descs: Mapping[str, mf.MaterialFile]) -> tuple[list, object]:

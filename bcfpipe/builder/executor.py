@@ -194,12 +194,15 @@ def _load(mj: MaterialJob, sources: Mapping[str, bytes] | None):
     """The job's texture set, read where the plan found its files or from their ``sources`` bytes."""
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
+    from dataclasses import replace
+
     with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
         local = copy_sources(mj, tmp) if sources is None else write_sources(sources, tmp)
-        return load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
-                                resolution=mj.size if mj.options.resolution else None,
-                                fix_nonfinite=mj.options.fix_nonfinite,
-                                names={copy: path for path, copy in local.items()})
+        ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
+                              resolution=mj.size if mj.options.resolution else None,
+                              fix_nonfinite=mj.options.fix_nonfinite,
+                              names={copy: path for path, copy in local.items()})
+        return replace(ts, vectors=mj.vectors)
 
 
 def _mask(mj: MaterialJob, ts):

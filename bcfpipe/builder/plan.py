@@ -71,6 +71,7 @@ class MaterialJob:
     coverage: str | None = None  # packed level-0 mask at the job's size (bcfpipe.scan.coverage); None: all read
     covered_fraction: float | None = None
     anchors: tuple[tuple[str, str, float], ...] = ()  # --bench-data cells of this set: (profile, preset, psnr)
+    vectors: tuple[tuple[str, tuple[int, ...]], ...] = ()  # TextureSet.vectors: colours its classic textures keep whole
 
     def to_dict(self) -> dict:
         return {**asdict(self), "options": self.options.to_json()}
@@ -90,6 +91,7 @@ class MaterialJob:
         d["sources"] = tuple(SourceFile(**s) for s in d["sources"])
         d["options"] = JobOptions.from_json(d["options"], "options")
         d["anchors"] = tuple(tuple(a) for a in d.get("anchors", ()))
+        d["vectors"] = tuple((str(sem), tuple(int(c) for c in chans)) for sem, chans in d.get("vectors", ()))
         return cls(**d)
 
 
@@ -181,7 +183,7 @@ def _t0(sources: Mapping[str, SourceFile], options: JobOptions) -> int:
 
 
 def content_hash(specs, sources: Mapping[str, SourceFile], wrap, options: JobOptions,
-                 coverage_digest: str | None = None, anchors: tuple = ()) -> str:
+                 coverage_digest: str | None = None, anchors: tuple = (), vectors: tuple = ()) -> str:
     """The job's cache key: `config.MODEL_FORMAT`, the job's record (``options.keyed()``: every
     field but those that change nothing trained) and its inputs: the bytes of each source file
     (its XXH3-128) with the semantic and channels read from it, the addressing, the coverage mask's
@@ -202,6 +204,8 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap, options: JobOpt
     }
     if any(sources[path].format in FLOAT_TYPES for _, path, _ in specs):
         payload["hdr_encoding"] = HDR_ENCODING  # float sources may hold HDR channels (texset/encoding.py)
+    if vectors:  # colours a classic texture keeps in their slots' order (TextureSet.vectors)
+        payload["vectors"] = [[sem, list(chans)] for sem, chans in vectors]
     if options.target_psnr is not None:  # rate control picks among every preset, from these predictions
         payload["schedules"] = {name: asdict(PRESETS[name]) for name in QUALITY_PRESETS}
         payload["schedules_large"] = {name: asdict(p) for name, p in CPU_PRESETS_LARGE.items()}
@@ -297,12 +301,40 @@ def _job(g, options: JobOptions, bench: Mapping | None) -> MaterialJob:
         packed, fraction, cov_digest = job_coverage(g.models, job_size(rep_sources.values(), job_options.resolution),
                                                     rep.wrap)
     anchors = _bench_anchors(bench, rep.specs) if options.target_psnr is not None and bench is not None else ()
+    vectors = _vectors(g)
     return MaterialJob(
         name=g.name, materials=g.materials, specs=tuple(rep.specs), channels=tuple(rep.channels),
         sources=tuple(rep_sources.values()), wrap=rep.wrap, options=job_options,
-        content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options, cov_digest, anchors),
-        coverage=packed, covered_fraction=fraction, anchors=anchors,
+        content_hash=content_hash(rep.specs, rep_sources, rep.wrap, job_options, cov_digest, anchors, vectors),
+        coverage=packed, covered_fraction=fraction, anchors=anchors, vectors=vectors,
     )
+
+
+def _vectors(g) -> tuple[tuple[str, tuple[int, ...]], ...]:
+    """The colours the group's materials read through a UsdUVTexture's rgb whose set channels no
+    colour spec holds in r, g, b order (issue 57): a folded duplicate (b equal to g) or a grey file
+    leaves generic channels, which a classic layout would pack as scalars, where USD could no longer
+    read the colour from one output. (semantic, the set channel of each slot), once each."""
+    from bcfpipe.texset.texture_set import SEMANTICS
+
+    colours = {s.usd_input: s.name for s in SEMANTICS.values() if s.kind == "color"}
+    rep = g.model
+    index = {c: i for i, c in enumerate(rep.channels)}
+    whole, k = set(), 0
+    for sem, _, letters in rep.specs:  # a set's channels follow its specs, one per letter
+        if sem in colours.values() and len(letters) == 3:
+            whole.add((k, k + 1, k + 2))
+        k += len(letters)
+    out: dict[tuple[int, ...], str] = {}
+    for mm in g.models:
+        by_target = {t.target: t for t in mm.targets}
+        for name, sem in colours.items():
+            comps = [by_target.get(f"{name}.{c}") for c in "rgb"]
+            if all(t is not None and t.channel in index for t in comps):
+                chans = tuple(index[t.channel] for t in comps)
+                if chans not in whole:
+                    out.setdefault(chans, sem)
+    return tuple((sem, chans) for chans, sem in out.items())
 
 
 def _material_plan(ms, grouping, job_by_name: Mapping[str, MaterialJob]) -> MaterialPlan:

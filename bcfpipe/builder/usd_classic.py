@@ -10,9 +10,13 @@ already folded to v). A UsdUVTexture computes ``cs(t) * scale + bias`` per rgba 
 * sRGB: only when ``f = t`` (colour textures store the source file's encoded values, texel map 1, 0):
   ``sourceColorSpace = "sRGB"`` (rgb slots only; alpha is always linear), scale ``s``, bias ``b``;
 * a constant component of an input: scale 0, bias its value;
-* a normal's z, which BC5 and the repacks do not store (the decoder reconstructs it): scale 0, bias
-  1, so the input reads ``(x, y, 1)``: a UsdPreviewSurface consumer that normalises its tangent-space
-  normal (Storm does) sees ``normalize(x, y, 1)``, not the decoder's ``sqrt(1 - x² - y²)``.
+* a normal's z: a layout's classic normal is BC7 of (x, y, z), z rebuilt as sqrt(1 - x² - y²) and
+  stored at slot b (material.json: the z output's ``texel_channel`` 2, v = 2t - 1), so the input
+  reads ``(x, y, z)`` with scale 2 and bias -1 on every slot and a UsdPreviewSurface consumer that
+  normalises it (Storm does) sees the normal within BC7's error (issue 57; docs/benchmarks.md
+  measures the angle). A BC5 normal (an older build) has no z to read: scale 0, bias 1, ``(x, y, 1)``.
+* a colour whose source repeats a channel (its b equals its g, a grey file) keeps it in each slot
+  a UsdUVTexture's rgb reads: material.json's ``slots`` says which output each texel channel holds.
 
 An input is wired only when one UsdUVTexture output can give it: a vector input (colour, normal)
 needs its components in slots r, g, b (x, y) of one texture, a scalar any one slot. Otherwise it
@@ -142,10 +146,13 @@ def _wire_input(name: str, ref, type_name: str, targets: dict, desc: mf.Material
             slots.append((slot, 0.0, float(t.bias)))
             continue
         o = outs[t.channel]
-        if o.reconstructed:  # normal z: not stored; see the module's note
+        if o.reconstructed and o.texel_channel is None:  # normal z not stored (a BC5 of an older build)
             slots.append((slot, 0.0, 1.0))
             continue
         texel = int(o.texel_channel)
+        held = desc.classic[tex].slots
+        if vector and texel != slot and held is not None and slot < len(held) and held[slot] == t.channel:
+            texel = slot  # the colour's repeated channel, stored again in the slot USD reads
         if vector and texel != slot:
             return f"{o.name} is in slot {'rgba'[texel]} of C{tex}, not {'rgba'[slot]}"
         m = _slot_map(t, o)
@@ -156,7 +163,7 @@ def _wire_input(name: str, ref, type_name: str, targets: dict, desc: mf.Material
                 return f"{o.name} is sRGB in an alpha slot"
             srgb = True
         slots.append((texel, *m))
-    raw_rgb = [t for t, slot in used if slot < 3 and t.channel >= 0 and not outs[t.channel].reconstructed
+    raw_rgb = [t for t, slot in used if slot < 3 and t.channel >= 0 and outs[t.channel].texel_channel is not None
                and t.color_space != ColorSpace.SRGB]
     if srgb and raw_rgb:
         return "sRGB and raw components in one node"

@@ -79,6 +79,8 @@ def material_notes(m, r, sharing: dict[str, tuple[str, ...]], usd: dict | None) 
             short.append(f"worst mip {worst:+.1f} dB vs BC@R")
             detail.append(f"layout {lay.chosen}: {lay.psnr - lay.bc_psnr:+.1f} dB all mips, worst mip "
                           f"{worst:+.1f} dB against BC@R")
+    if m.layout is not None and m.layout.normal_angle_deg is not None:  # beside the PSNR (issue 57)
+        short.append("normal {:.1f}°/{:.1f}° p99".format(*m.layout.normal_angle_deg))
     if m.status == Status.BUILT and usd is not None:
         detail.append(usd.get(m.path, UNTOUCHED))
     return short, detail

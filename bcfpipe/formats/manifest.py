@@ -147,6 +147,8 @@ class LayoutChoice(Record):
     bc_psnr: float
     margin_per_mip_db: tuple[float, ...]
     worst_margin_db: float | None = optional()  # over the mips the rule counts (>= 4 texels a side)
+    # the shipped normal's (mean, p99) angle in degrees at mip 0 as it is read (layout.json normal_angular_error)
+    normal_angle_deg: tuple[float, float] | None = optional()
 
 
 @dataclass(frozen=True)

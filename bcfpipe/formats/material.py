@@ -201,6 +201,10 @@ class ClassicTexture(Record):
     mip_count: int
     lod_bias: float
     channels: int
+    # per texel channel, the output it stores (an index into outputs),
+    # when a channel is stored in more than one slot: a colour whose source repeats a channel, kept in
+    # the slots a UsdUVTexture's rgb reads (issue 57); None when every channel is stored once
+    slots: tuple[int, ...] | None = optional()
 
 
 @dataclass(frozen=True)

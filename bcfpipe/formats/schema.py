@@ -58,8 +58,12 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("ClassicTexture", "mip_count"): "Mips stored: down to 1x1, or in a mip-split layout those that serve s < split "
                                      "(the lod clamps to the last).",
     ("ClassicTexture", "lod_bias"): "Added to s before sampling: log2 of this texture's width over the reference's.",
-    ("ClassicTexture", "channels"): "Channels the outputs read (BC1: 3, BC4: 1, BC5: 2, BC6H: 3); texels are UNORM in "
+    ("ClassicTexture", "channels"): "Channels the outputs read (BC1: 3, BC4: 1, BC5: 2, BC6H: 3; BC7: 3 or 4, a normal "
+                                    "3: x, y and its z, stored for a UsdUVTexture); texels are UNORM in "
                                     "[0, 1], BC6H's unsigned half floats (the source's linear values).",
+    ("ClassicTexture", "slots"): "Per texel channel, the index in outputs of the output it stores, when a channel is "
+                                 "stored in more than one slot (a colour whose source repeats a channel, kept in the "
+                                 "slots a UsdUVTexture's rgb reads); absent when every channel is stored once.",
     ("Layer", "file"): "DDS file name, relative to the material folder.",
     ("Layer", "resolution"): "Width and height of mip 0 in texels (square, a power of two).",
     ("Layer", "mip_count"): "Number of mips stored (down to 4x4, the BC6H block size).",
@@ -125,7 +129,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                           "both, mixed by lod (see split); a split normal's z is the decoder's from s = split on, "
                           "else sqrt(max(0, 1 - x^2 - y^2)) of the mixed x and y.",
     ("Output", "texture"): "Classic and split outputs: index into classic.",
-    ("Output", "texel_channel"): "Classic outputs: the texture channel (0 = r).",
+    ("Output", "texel_channel"): "Classic outputs: the texture channel (0 = r). A reconstructed normal z with a "
+                                 "texel_channel is stored there too (a BC7 normal, for USD); decoders may rebuild it.",
     ("Output", "texel_scale"): "Classic outputs: value = texel * texel_scale + texel_bias (normals: 2, -1; BC6H: "
                                "1 / value_scale, -value_bias / value_scale, so the source value is the texel).",
     ("Output", "texel_bias"): "Classic outputs: see texel_scale.",
@@ -162,6 +167,7 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("LayoutChoice", "bc_psnr"): "PSNR over all mips of BC@R, dB.",
     ("LayoutChoice", "margin_per_mip_db"): "Per reference mip: the layout's PSNR minus BC@R's, dB.",
     ("LayoutChoice", "worst_margin_db"): "The smallest of margin_per_mip_db over the mips the rule counts (at least 4 texels a side), dB; the floor is -0.5.",
+    ("LayoutChoice", "normal_angle_deg"): "The shipped normal map's mean and 99th-percentile angle from the set's, in degrees, at mip 0, as it is read (a classic normal as a UsdPreviewSurface reads it); absent without a normal map.",
     ("Manifest", "overrides_layer"): "The USD layer with the neural-material overrides.",
     ("Manifest", "weights"): "The combined weight buffer (bcfpipe.formats.weights).",
     ("Manifest", "variants"): "Variant selections given on the command line, as [set, value].",

@@ -29,8 +29,14 @@ class Group:
     """One classic texture: its format and the texture set's channels it stores, in texel order."""
 
     format: ClassicFormat
-    channels: tuple[int, ...]
+    channels: tuple[int, ...]  # a channel twice where a colour's slots repeat it (TextureSet.vectors)
     name: str  # the semantics it holds, e.g. "albedo" or "occlusion+roughness+metallic"
+    normal_z: bool = False  # a normal map as BC7: x, y and its rebuilt z at r, g, b (issue 57)
+
+    @property
+    def stored(self) -> int:
+        """Channels its texels store: its set channels, and a normal's z."""
+        return len(self.channels) + (1 if self.normal_z else 0)
 
     def texel_map(self, ts: TextureSet) -> tuple[tuple[float, float], ...]:
         """(texel_scale, texel_bias) per stored channel: set value = t * scale + bias (BC6H: t is
@@ -60,13 +66,18 @@ class EncodedGroup:
 
 
 def groups(ts: TextureSet) -> tuple[Group, ...]:
-    """The classic textures of ``ts``, in pack order."""
-    from bcfpipe.texset.baselines import pack_texture_set
+    """The classic textures of ``ts``, in pack order: BC@R as a UsdUVTexture can read it
+    (`baselines.USD`: a normal map as BC7 x, y, z; a colour in ``ts.vectors`` in its slots' order,
+    named by its semantic)."""
+    from bcfpipe.texset.baselines import NORMAL_XYZ, USD, pack_texture_set
 
+    vectors = {tuple(chans): sem for sem, chans in ts.vectors}
     out = []
-    for fmt, idx in pack_texture_set(ts, "bc"):
-        names = list(dict.fromkeys(ts.channels[i].semantic for i in idx))
-        out.append(Group(ClassicFormat(fmt), tuple(idx), "+".join(names)))
+    for fmt, idx in pack_texture_set(ts, USD):
+        names = [vectors[tuple(idx)]] if tuple(idx) in vectors else \
+            list(dict.fromkeys(ts.channels[i].semantic for i in idx))
+        z = fmt == NORMAL_XYZ
+        out.append(Group(ClassicFormat.BC7 if z else ClassicFormat(fmt), tuple(idx), "+".join(names), z))
     return tuple(out)
 
 
@@ -74,22 +85,37 @@ def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap
     """Every group of ``ts`` encoded at ``resolution`` with its full mip chain (bench's BC@R).
     Reference mips above ``resolution`` see level 0 magnified with the material's addressing, as
     the runtime samples it (bench's baseline clamps at the edges)."""
-    from bcfpipe.texset.baselines import encode_texture_set_shipped
+    from bcfpipe.texset.baselines import USD, encode_texture_set_shipped
 
     textures: list = []
-    decoded, _ = encode_texture_set_shipped(ts, "bc", resolution, ref_mips=ref_mips, textures=textures)
+    decoded, _ = encode_texture_set_shipped(ts, USD, resolution, ref_mips=ref_mips, textures=textures)
     d = sum(1 for m in ref_mips if max(m.shape[:2]) > resolution)
     for k in range(d):
         decoded[k] = magnify(decoded[d], *ref_mips[k].shape[:2], wrap)
     out = []
     for g, (fmt, idx, levels) in zip(groups(ts), textures):
-        assert g.format == fmt and list(g.channels) == list(idx)
+        assert list(g.channels) == list(idx)
         out.append(EncodedGroup(g, levels, []))
     for k in range(len(decoded)):  # split mip by mip, so the whole set is held decoded once, not twice
         for e in out:
             e.decoded.append(decoded[k][..., list(e.group.channels)])
         decoded[k] = None
+    for e in out:
+        if e.group.normal_z:
+            e.decoded = usd_normals(e.levels, [m.shape[:2] for m in ref_mips], wrap)
     return out
+
+
+def usd_normals(levels: Sequence[tuple[np.ndarray, int, int]], shapes: Sequence[tuple[int, int]],
+                wrap) -> list[np.ndarray]:
+    """A BC7 normal's (x, y, z) per reference mip as a UsdPreviewSurface reads it: the texel's
+    2t - 1 (magnified with ``wrap`` above the texture's resolution, as a GPU samples it), normalised."""
+    from bcfpipe.formats.bcn import decode_levels
+    from bcfpipe.texset.normals import unit
+
+    d = len(shapes) - len(levels)
+    v = [t[..., :3] * 2.0 - 1.0 for t in decode_levels(ClassicFormat.BC7, levels)]
+    return [unit(magnify(v[0], h, w, wrap)) for h, w in shapes[:d]] + [unit(x) for x in v]
 
 
 # Above this, every repack's BC7 chain takes minutes to encode (one 4096² texture with its mips: 43 s on
@@ -115,8 +141,9 @@ def repacks(groups: Sequence[Group]) -> list[Repack]:
     its UsdPreviewSurface input, bcfpipe.builder.usd_classic). BC7
     has up to 4-bit indices, 7-bit endpoints and partitions where BC1 has 2-bit indices and 5:6:5
     endpoints (benchmarks/bound_classic_bc7.py measures what that buys). A BC6H (HDR) group is
-    never repacked: BC7 is UNORM, and stays as it is beside any repack."""
-    groups = [g for g in groups if g.format != ClassicFormat.BC6H]
+    never repacked: BC7 is UNORM, and stays as it is beside any repack; nor is a normal, BC7 already
+    (x, y, z: its z takes the third slot)."""
+    groups = [g for g in groups if g.format != ClassicFormat.BC6H and not g.normal_z]
     out = [Repack((Group(ClassicFormat.BC7, a.channels + b.channels, f"{a.name}+{b.name}"),), (a.name, b.name),
                   f"{a.name}+{b.name} as BC7")
            for a in groups if a.format == ClassicFormat.BC1 for b in groups if b.format == ClassicFormat.BC4]
@@ -246,11 +273,37 @@ def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Seq
     out = np.zeros((len(ref_mips), ts.num_channels))
     for g in groups:
         for j, c in enumerate(g.group.channels):
+            if c in g.group.channels[:j]:  # a repeated channel is measured at its first slot
+                continue
             gain = np.array([ts.channels[c].log_gain], np.float32)
             out[:, c] = mse_per_mip(encoding.encode_levels([r[..., c:c + 1] for r in ref_mips], gain),
                                     encoding.encode_levels([m[..., j:j + 1] for m in g.decoded], gain),
                                     [ts.channels[c]], None, masks)
+        if g.group.normal_z:
+            out[:, list(g.group.channels)] += normal_z_errors(ts, g, ref_mips, masks)[:, None] / 2.0
     return out
+
+
+def normal_z_errors(ts: TextureSet, g: EncodedGroup, ref_mips: Sequence[np.ndarray],
+                    masks: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """Per mip, the MSE of a normal's z as USD reads it (``g.decoded``'s third column) against the
+    reference's rebuilt z, at the normal's peak: half of it is added to x's and half to y's, so the
+    normal's channels sum the whole vector's error (issue 57: the error counts z as USD reads it)."""
+    from bcfpipe.texset.metrics import mse_per_mip
+    from bcfpipe.texset.normals import rebuild_z
+
+    x = ts.channels[g.group.channels[0]]
+    return np.array(mse_per_mip([rebuild_z(r[..., list(g.group.channels)])[..., 2:] for r in ref_mips],
+                                [m[..., 2:3] for m in g.decoded], [x], None, masks))
+
+
+def angular_errors(ts: TextureSet, g: EncodedGroup, ref_mips: Sequence[np.ndarray], mip: int = 0,
+                   mask: np.ndarray | None = None) -> tuple[float, float]:
+    """(mean, p99) angle in degrees at reference mip ``mip`` between a BC7 normal as USD reads it
+    and the reference (x, y and rebuilt z)."""
+    from bcfpipe.texset.normals import angular_stats, rebuild_z
+
+    return angular_stats(rebuild_z(ref_mips[mip][..., list(g.group.channels)]), g.decoded[mip], mask)
 
 
 def split_levels(split: int, resolution: int, reference_side: int) -> int:

@@ -30,7 +30,29 @@ def classic_texture(i: int, enc: EncodedGroup, reference_width: int) -> mf.Class
     _, w, h = enc.levels[0]
     fmt = DXGI[enc.group.format]
     return mf.ClassicTexture(mf.classic_file(i), fmt, dds.DXGI_NAMES[fmt], w, h, len(enc.levels),
-                             math.log2(w / reference_width), len(enc.group.channels))
+                             math.log2(w / reference_width), enc.group.stored)
+
+
+def _slots(enc: EncodedGroup, outputs: Sequence[mf.Output], ts: TextureSet) -> tuple[int, ...] | None:
+    """Per texel channel, the output it stores (``ClassicTexture.slots``), when a colour's slots
+    repeat a channel (issue 57): where the USD layer finds each of its components; else None."""
+    chans = enc.group.channels
+    if len(set(chans)) == len(chans):
+        return None
+    index = {o.name: k for k, o in enumerate(outputs)}
+    return tuple(index[ts.channels[c].name] for c in chans)
+
+
+def _where(shipped: Sequence[EncodedGroup], ts: TextureSet) -> dict[int, tuple[int, int, float, float]]:
+    """Set channel -> (texture, texel channel, scale, bias), at a repeated channel's first slot; a BC7
+    normal's z (stored at slot 2, v = 2t - 1) under the key -1 - its y channel."""
+    where: dict[int, tuple[int, int, float, float]] = {}
+    for i, enc in enumerate(shipped):
+        for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.group.texel_map(ts))):
+            where.setdefault(c, (i, j, scale, bias))
+        if enc.group.normal_z:
+            where[-1 - enc.group.channels[1]] = (i, 2, 2.0, -1.0)
+    return where
 
 
 def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wrap: str) -> Path:
@@ -46,12 +68,10 @@ def export_groups(fit: LayoutFit, shipped: Sequence[EncodedGroup], ts: TextureSe
     """Write the classic textures ``shipped`` as C_i.dds and ``fit``'s model (if any) for the other
     channels to ``out``, with the material.json that says where each output comes from."""
     classic = []
-    where: dict[int, tuple[int, int, float, float]] = {}  # set channel -> (texture, channel, scale, bias)
     for i, enc in enumerate(shipped):
         dds.write(out / mf.classic_file(i), enc.levels, dxgi_format=DXGI[enc.group.format])
         classic.append(classic_texture(i, enc, ts.width))
-        for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.group.texel_map(ts))):
-            where[c] = (i, j, scale, bias)
+    where = _where(shipped, ts)  # set channel -> (texture, channel, scale, bias)
 
     base = None
     if fit.neural is not None:
@@ -67,13 +87,16 @@ def export_groups(fit: LayoutFit, shipped: Sequence[EncodedGroup], ts: TextureSe
             c = names[f"{o.semantic}.y"] if f"{o.semantic}.y" in names else None
         if c in where:
             t, j, scale, bias = where[c]
+            # z stored (a BC7 normal): its slot, which the USD layer reads; a decoder rebuilds z all the same
+            z = where.get(-1 - c) if o.reconstructed else None
             # a classic texture holds linear values: the decoder's log curve is no part of its output
             outputs.append(replace(o, source=Source.CLASSIC.value, texture=t, log_gain=None,
-                                   texel_channel=None if o.reconstructed else j,
-                                   texel_scale=None if o.reconstructed else scale,
-                                   texel_bias=None if o.reconstructed else bias))
+                                   texel_channel=z[1] if z else None if o.reconstructed else j,
+                                   texel_scale=z[2] if z else None if o.reconstructed else scale,
+                                   texel_bias=z[3] if z else None if o.reconstructed else bias))
         else:
             outputs.append(o)
+    classic = [replace(c, slots=_slots(enc, outputs, ts)) for c, enc in zip(classic, shipped)]
     if base is not None:
         desc = replace(base, outputs=tuple(outputs), classic=tuple(classic), sha256=None)
     else:
@@ -116,7 +139,7 @@ def export_split(groups: list[EncodedGroup], neural_dir: str | os.PathLike, ts: 
         dds.write(out / mf.classic_file(i), part.levels, dxgi_format=DXGI[enc.group.format])
         classic.append(classic_texture(i, part, ts.width))
         for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.group.texel_map(ts))):
-            where[ts.channels[c].name] = (i, j, scale, bias)
+            where.setdefault(ts.channels[c].name, (i, j, scale, bias))
     outputs = []
     for o in base.outputs:
         name = f"{o.semantic}.y" if o.reconstructed else o.name  # normal z follows its x and y
@@ -143,10 +166,14 @@ def decision_json(fit: LayoutFit) -> dict:
     return d
 
 
-def write_decision(out_dir: str | os.PathLike, fit: LayoutFit) -> Path:
-    """layout.json beside material.json: the candidates, the choice and why (informative)."""
+def write_decision(out_dir: str | os.PathLike, fit: LayoutFit, normal_angle: dict | None = None) -> Path:
+    """layout.json beside material.json: the candidates, the choice and why (informative); with
+    ``normal_angle``, the shipped normal's angular error as it is read (`layout.material.normal_angles`)."""
     import json
 
     path = Path(out_dir) / "layout.json"
-    atomic_write(path, (json.dumps(decision_json(fit), indent=2) + "\n").encode())
+    d = decision_json(fit)
+    if normal_angle is not None:
+        d["normal_angular_error"] = normal_angle
+    atomic_write(path, (json.dumps(d, indent=2) + "\n").encode())
     return path

@@ -58,6 +58,11 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
         masks = mask_mips(coverage, len(ref), wrap)
     metrics = compute_metrics(ref, dec, ts.channels, masks=masks)
     per_channel = mse_per_channel(ref, dec, ts.channels, masks)
+    decision = decision_json(fit)
+    angle = normal_angles(out, ts, ref[0], dec[0], masks[0] if masks else None)
+    if angle is not None:  # beside the PSNR: what a renderer shades with (issue 57)
+        decision["normal_angular_error"] = angle
+        write_decision(out, fit, angle)
     ch, n = fit.decision.chosen, fit.neural
     res = tuple(n.resolutions) if n else ()
     return MaterialResult(out, ch.profile or "classic", res,
@@ -65,4 +70,35 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
                           fit.train_seconds, {"layout": round(time.perf_counter() - start, 3),
                                               "classic_encode": round(fit.encode_seconds, 3),
                                               "evaluate": round(time.perf_counter() - t0, 3)},
-                          None, per_channel, decision_json(fit))
+                          None, per_channel, decision)
+
+
+def normal_angles(folder: Path, ts: TextureSet, ref: np.ndarray, dec: np.ndarray,
+                  mask: np.ndarray | None = None) -> dict | None:
+    """Mean and p99 angle (degrees) at mip 0 between the set's normal (x, y, rebuilt z) and the
+    shipped one as it is read: a classic normal that stores z (BC7 x, y, z) as a UsdPreviewSurface
+    reads it (2t - 1, normalised; level 0 magnified to the reference's size as it is sampled), else
+    the decoder's x, y with z rebuilt, as the bcf context gives it. None without a normal."""
+    from bcfpipe.formats import dds, material as mf
+    from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
+    from bcfpipe.layout.classic import magnify
+    from bcfpipe.texset.normals import angular_stats, rebuild_z, usd_normal
+
+    xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
+    if len(xy) != 2:
+        return None
+    desc = mf.read(folder)
+    z = next((o for o in desc.outputs if o.reconstructed), None)
+    truth = rebuild_z(ref[..., xy])
+    if z is not None and z.source == mf.Source.CLASSIC and z.texel_channel is not None:
+        tex = desc.classic[z.texture]
+        d = dds.read(folder / tex.file)
+        t = decode_levels(FORMAT_OF[tex.dxgi_format], d.levels[:1])[0][..., :3]
+        if t.shape[:2] != ref.shape[:2]:
+            t = magnify(t, *ref.shape[:2], desc.wrap)
+        mean, p99 = angular_stats(truth, usd_normal(t), mask)
+        read = "USD: BC7 x, y, z"
+    else:
+        mean, p99 = angular_stats(truth, rebuild_z(dec[..., xy]), mask)
+        read = "z rebuilt from x, y"
+    return {"mean_deg": round(mean, 3), "p99_deg": round(p99, 3), "mip": 0, "read_as": read}

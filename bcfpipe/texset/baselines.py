@@ -35,13 +35,18 @@ from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline",
            "encode_texture_set_shipped", "astcenc_path",
-           "pack_texture_set", "CODECS", "BC7_QUALITY", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
+           "pack_texture_set", "CODECS", "BC7_QUALITY", "USD", "NORMAL_XYZ", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
 
 CODECS = ("bc", "astc")
 # The BC7 quality set (issue 52): BC@R ('bc') with every BC1 texture, a colour or a packed file, in BC7;
 # BC5 normals, BC4 lone scalars and BC6H kept. What quality-focused pipelines ship: a second set to
 # weigh neural materials against (bcfpipe.layout.classic.bc7_quality_set is the layout's).
 BC7_QUALITY = "bc7"
+# What a layout ships for USD (issue 57): 'bc' with a normal map as BC7 of (x, y, z), z rebuilt and
+# stored, in BC5's bytes (16 per block): a UsdUVTexture cannot rebuild z, so BC5's x, y reach a
+# UsdPreviewSurface as normalize(x, y, 1) at best. bcfpipe.layout.classic's groups are these.
+USD = "usd"
+NORMAL_XYZ = "bc7n"  # pack_texture_set's format of such a normal: BC7 blocks, r, g, b = (n + 1) / 2, a = 1
 BC1_LEVEL = 18  # quicktex presets run 0..18
 
 
@@ -346,16 +351,27 @@ def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
     (ARM-style, BC1), a scalar alone in its file gets its own BC4 texture. ('astc'): all of them,
     in set order, packed 3 per 3-channel texture; a last texture with 1 channel replicates it into
     r, g, b (a grey image), one with 2 leaves b = 0. (`BC7_QUALITY`): as 'bc', every BC1 texture
-    in BC7.
+    in BC7. (`USD`): as 'bc', a normal map as BC7 of its x, y and rebuilt z (`NORMAL_XYZ`).
     """
     if codec == BC7_QUALITY:
         return [("bc7" if fmt == "bc1" else fmt, idx) for fmt, idx in pack_texture_set(ts, "bc")]
+    if codec == USD:
+        return [(NORMAL_XYZ if fmt == "bc5" else fmt, idx) for fmt, idx in pack_texture_set(ts, "bc")]
     if codec not in CODECS:
         raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
     rgb = "bc1" if codec == "bc" else "astc"
     textures: list[tuple[str, list[int]]] = []
     scalars: list[int] = []
+    held = _vector_textures(ts) if codec == "bc" else {}
+    done: set[int] = set()
     for sem, idx in ts.groups().items():
+        for c in idx:  # a vector a UsdUVTexture reads: its texture where its first channel comes
+            if c in held and c not in done:
+                textures.append(held[c])
+                done.update(held[c][1])
+        if done.intersection(idx):
+            scalars.extend(c for c in idx if c not in done)
+            continue
         kind = ts.kind_of(sem)
         if codec == "bc" and is_hdr_color(ts, idx):
             textures.append(("bc6h", idx))
@@ -378,6 +394,19 @@ def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
     for i in range(0, len(scalars), 3):
         textures.append((rgb, scalars[i:i + 3]))
     return textures
+
+
+def _vector_textures(ts: TextureSet) -> dict[int, tuple[str, list[int]]]:
+    """The BC1 (or BC6H) texture of each of ``ts.vectors`` (a colour a UsdUVTexture reads through
+    rgb, its slots' channels, a channel twice where the source repeats it), by each of its channels;
+    a vector one of whose channels an earlier one holds is left out (its input keeps its source)."""
+    out: dict[int, tuple[str, list[int]]] = {}
+    for _, chans in ts.vectors:
+        if any(c in out for c in chans):
+            continue
+        tex = ("bc6h" if is_hdr_color(ts, sorted(set(chans))) else "bc1", list(chans))
+        out.update({c: tex for c in chans})
+    return out
 
 
 def is_hdr_color(ts: TextureSet, idx: Sequence[int]) -> bool:
@@ -421,6 +450,12 @@ def _encode_texture(ts: TextureSet, fmt: str, idx: list[int], src: Sequence[np.n
         scale, bias = hdr_value_map(ts, idx)
         out, size = bc6h_mips([m[..., idx] * scale + bias for m in src], levels)
         return [(o - bias) / scale for o in out], size
+    if fmt == NORMAL_XYZ:  # x, y and the rebuilt z at r, g, b; decoded as a UsdPreviewSurface reads it
+        from bcfpipe.texset.normals import stored_xyz, usd_normal
+
+        out, size = bc7_mips([np.concatenate([stored_xyz(m[..., idx]), np.ones_like(m[..., :1])], -1) for m in src],
+                             levels)
+        return [(usd_normal(o)[..., :2] + 1.0) * 0.5 for o in out], size
     stored = [_to_storage(m[..., idx], normal) for m in src]
     if fmt == "bc5":
         return bc5_mips(stored, levels)
@@ -472,8 +507,8 @@ def encode_texture_set_shipped(ts: TextureSet, codec: str, resolution: int | Non
     """`encode_texture_set_baseline` without the magnification: the d reference mips above the
     shipped resolution are None, for a caller that magnifies level 0 its own way
     (bcfpipe.layout.classic, with the material's addressing)."""
-    if codec not in (*CODECS, BC7_QUALITY):
-        raise ValueError(f"codec must be one of {(*CODECS, BC7_QUALITY)}, got {codec!r}")
+    if codec not in (*CODECS, BC7_QUALITY, USD):
+        raise ValueError(f"codec must be one of {(*CODECS, BC7_QUALITY, USD)}, got {codec!r}")
     ref = list(ref_mips) if ref_mips is not None else build_mip_chain(ts.data)
     side = max(ts.width, ts.height)
     res = side if resolution is None else int(resolution)
@@ -494,7 +529,9 @@ def encode_texture_set_shipped(ts: TextureSet, codec: str, resolution: int | Non
         if levels is not None:
             textures.append((fmt, list(idx), levels))
         total += size
+        once = list(dict.fromkeys(idx))  # a channel stored twice (a vector's repeat) is measured at its first slot
+        first = [list(idx).index(c) for c in once]
         for k, o in enumerate(out):
-            dec_low[k][..., idx] = _from_storage(o, normal[idx])
+            dec_low[k][..., once] = _from_storage(o[..., first], normal[once])
 
     return [None] * d + dec_low, total

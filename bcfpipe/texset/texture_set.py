@@ -220,6 +220,10 @@ class TextureSet:
     channels: tuple[Channel, ...]
     width: int
     height: int
+    # colours a UsdUVTexture reads through rgb whose channels no colour semantic holds in order (issue
+    # 57: a folded duplicate or a grey file): (semantic, the set channel of each of its r, g, b slots,
+    # repeated where the source repeats it). A classic layout stores each as one texture in that order.
+    vectors: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
     def __post_init__(self) -> None:
         d = self.data
