@@ -101,7 +101,9 @@ def test_features_are_bit_identical_to_the_torch_path(fmt, phase, real, quantize
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-@pytest.mark.parametrize("fmt,signed,wrap", [("bc6h", True, "repeat"), ("bc6h", False, "clamp"), ("bc7", False, "clamp")])
+@pytest.mark.parametrize("fmt,signed,wrap", [("bc6h", True, "repeat"), ("bc6h", False, "clamp"), ("bc7", False, "clamp"),
+                                             ("bc7", False, "mirror"), ("bc7", False, ("clamp", "repeat")),
+                                             ("bc6h", False, ("clamp", "mirror")), ("bc7", False, ("mirror", "repeat"))])
 def test_features_signed_and_clamped(fmt, signed, wrap, backend):
     for phase in ("free", "blocks"):
         mc, levels, level_fn, mlp, biases, gen = _model(fmt, phase, False, signed=signed, wrap=wrap)
@@ -191,7 +193,7 @@ def test_fused_training_is_deterministic_and_trains_as_well_as_torch():
         assert fused_last[phase] == pytest.approx(last[phase], rel=0.1), phase
 
 
-@pytest.mark.parametrize("wrap", ["repeat", "clamp"])
+@pytest.mark.parametrize("wrap", ["repeat", "clamp", "mirror", ("clamp", "repeat"), ("repeat", "mirror")])
 def test_targets_match_the_reference_lookup(wrap):
     """The fused path's targets, both backends: the bicubic lookup agrees with
     reference.sample_reference to float rounding, the texel-centre batches are bit-identical to

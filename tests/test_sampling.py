@@ -24,19 +24,27 @@ def _grid_sample(tex, uv, wrap):
     return out[0, :, :, 0].t()
 
 
+def _texel_index(i, n, mode):
+    """Texel i of n by the GL spec's wording (OpenGL 4.5 §8.14.2): repeat takes i mod n, clamp-to-edge
+    clamps, mirrored repeat takes (n - 1) - mirror((i mod 2n) - n), mirror(a) = a >= 0 ? a : -(1 + a)."""
+    if mode == "repeat":
+        return i % n
+    if mode == "mirror":
+        a = (i % (2 * n)) - n
+        return (n - 1) - (a if a >= 0 else -(1 + a))
+    return min(max(i, 0), n - 1)
+
+
 def _loop_bilinear(tex, u, v, wrap):
     c, h, w = tex.shape
+    ws, wt = (wrap, wrap) if isinstance(wrap, str) else wrap
     x, y = u * w - 0.5, v * h - 0.5
     x0, y0 = math.floor(x), math.floor(y)
     fx, fy = x - x0, y - y0
     acc = np.zeros(c)
     for dy, wy in ((0, 1 - fy), (1, fy)):
         for dx, wx in ((0, 1 - fx), (1, fx)):
-            xi, yi = x0 + dx, y0 + dy
-            if wrap == "repeat":
-                xi, yi = xi % w, yi % h
-            else:
-                xi, yi = min(max(xi, 0), w - 1), min(max(yi, 0), h - 1)
+            xi, yi = _texel_index(x0 + dx, w, ws), _texel_index(y0 + dy, h, wt)
             acc += wx * wy * tex[:, yi, xi].numpy().astype(np.float64)
     return acc
 
@@ -73,7 +81,37 @@ def test_texel_centres_return_texels_exactly():
     assert torch.equal(sample_bilinear(tex, uv, "repeat"), tex.reshape(3, -1).t())
 
 
-@pytest.mark.parametrize("wrap", ["repeat", "clamp"])
+PER_AXIS = [("clamp", "repeat"), ("repeat", "clamp"), ("clamp", "mirror"), ("mirror", "repeat"), ("mirror", "mirror")]
+
+
+@pytest.mark.parametrize("h,w", [(8, 8), (16, 4), (5, 7)])
+def test_mirror_matches_grid_sample_reflection(h, w):
+    """Mirror on both axes is grid_sample's reflection padding (reflected about the image's edges),
+    for uv within one period beyond each border."""
+    g = torch.Generator().manual_seed(h * 10 + w)
+    tex = torch.rand((3, h, w), generator=g, dtype=torch.float64)
+    uv = torch.cat([torch.rand((500, 2), generator=g, dtype=torch.float64) * 2.8 - 0.9,
+                    torch.tensor([[0.0, 0.0], [1.0, 1.0], [-0.001, 0.999], [1.0001, -0.0001], [-0.5, 1.5]],
+                                 dtype=torch.float64)])
+    grid = (uv * 2 - 1).view(1, -1, 1, 2)
+    ref = F.grid_sample(tex[None], grid, mode="bilinear", padding_mode="reflection", align_corners=False)[0, :, :, 0].t()
+    assert torch.allclose(sample_bilinear(tex, uv, "mirror"), ref, atol=1e-12)
+
+
+@pytest.mark.parametrize("wrap", PER_AXIS)
+def test_bilinear_per_axis_matches_explicit_loop(wrap):
+    """S and T addressed apart: u by the first mode, v by the second, far uvs included."""
+    g = torch.Generator().manual_seed(11)
+    tex = torch.rand((2, 6, 10), generator=g, dtype=torch.float64)
+    uv = torch.cat([torch.rand((400, 2), generator=g, dtype=torch.float64) * 7 - 3,
+                    torch.tensor([[-0.01, 1.01], [1.01, -0.01], [-1.0, 2.0], [0.0, 1.0]], dtype=torch.float64)])
+    ours = sample_bilinear(tex, uv, wrap)
+    for n in range(uv.shape[0]):
+        np.testing.assert_allclose(ours[n].numpy(), _loop_bilinear(tex, float(uv[n, 0]), float(uv[n, 1]), wrap),
+                                   atol=1e-12)
+
+
+@pytest.mark.parametrize("wrap", ["repeat", "clamp"] + PER_AXIS)
 def test_trilinear_matches_explicit_loop(wrap):
     g = torch.Generator().manual_seed(7)
     levels = [torch.rand((3, 32 >> k, 32 >> k), generator=g, dtype=torch.float64) for k in range(4)]  # 32..4

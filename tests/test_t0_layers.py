@@ -2,7 +2,9 @@
 the one-layer T_0 is, T_1..T_3 and the MLP trained around it. The fused kernel samples any number of
 layers as the torch path does; the export names the layers T0, T0b, T0c, T1..T3 in material.json
 (format 6); and the files decode, rebuilt from material.json alone (OpenImageIO and onnxruntime), to
-what bcfpipe's own decode gives."""
+what bcfpipe's own decode gives. The rebuild (`rebuild_at`) addresses each axis as material.json's
+sampling says (repeat, clamp or mirror, in the GL spec's words); tests/test_wrap.py runs it at and
+beyond the borders."""
 from __future__ import annotations
 
 import json
@@ -70,7 +72,7 @@ def test_files_and_material_json_list_every_layer_in_input_order(trained):
         desc = mf.read(folder)
         names = ["T0", "T0b", "T0c"][:k] + ["T1", "T2", "T3"]
         assert [layer.file for layer in desc.layers] == [f"{n}.dds" for n in names]
-        assert desc.format_version == mf.FORMAT_VERSION == 6
+        assert desc.format_version == mf.MANY_LAYERS_VERSION == 6  # its addressing is one mode (repeat)
         assert desc.mlp.n_in == 4 * (k + 3) and desc.mlp.input_order == tuple(f"{n}.{c}" for n in names for c in "rgba")
         t0 = desc.layers[:k]
         assert {(layer.resolution, layer.mip_count, layer.lod_bias) for layer in t0} == {
@@ -103,16 +105,36 @@ def test_the_fixed_layers_hold_successive_components(trained, ts):
     assert np.ptp(em.levels[2][0][..., 2:]) < 12 / 255
 
 
-def _bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """(h, w, c) sampled at uv with repeat addressing, texel centres at (i + 0.5) / size."""
+def texel_index(i: np.ndarray, n: int, mode: str) -> np.ndarray:
+    """Texel i of n along one axis, in the GL spec's words (OpenGL 4.5 §8.14.2): REPEAT i mod n,
+    CLAMP_TO_EDGE clamp(i, 0, n - 1), MIRRORED_REPEAT (n - 1) - mirror((i mod 2n) - n), where
+    mirror(a) = a if a >= 0 else -(1 + a)."""
+    if mode == "repeat":
+        return np.mod(i, n)
+    if mode == "mirror":
+        a = np.mod(i, 2 * n) - n
+        return (n - 1) - np.where(a >= 0, a, -(1 + a))
+    assert mode == "clamp", mode
+    return np.clip(i, 0, n - 1)
+
+
+def bilinear(img: np.ndarray, uv: np.ndarray, wrap: tuple[str, str] = ("repeat", "repeat")) -> np.ndarray:
+    """(h, w, c) sampled at uv, texel centres at (i + 0.5) / size, u addressed with wrap[0] (S) and
+    v with wrap[1] (T)."""
     h, w = img.shape[:2]
     x, y = uv[:, 0] * w - 0.5, uv[:, 1] * h - 0.5
-    x0, y0 = np.floor(x), np.floor(y)
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    xa, ya = x0.astype(int) % w, y0.astype(int) % h
-    xb, yb = (xa + 1) % w, (ya + 1) % h
+    xa, xb = texel_index(x0, w, wrap[0]), texel_index(x0 + 1, w, wrap[0])
+    ya, yb = texel_index(y0, h, wrap[1]), texel_index(y0 + 1, h, wrap[1])
     top = img[ya, xa] * (1 - fx) + img[ya, xb] * fx
     return top * (1 - fy) + (img[yb, xa] * (1 - fx) + img[yb, xb] * fx) * fy
+
+
+def sampling_axes(d: dict) -> tuple[str, str]:
+    """(S, T) addressing of a material.json: ``addressing`` for both axes, or wrap_s / wrap_t (version 7)."""
+    s = d["sampling"]
+    return (s["addressing"],) * 2 if "addressing" in s else (s["wrap_s"], s["wrap_t"])
 
 
 def _oiio_levels(path: Path, channels: int) -> list[np.ndarray]:
@@ -128,30 +150,37 @@ def _oiio_levels(path: Path, channels: int) -> list[np.ndarray]:
     return out
 
 
-def _rebuild(folder: Path, mip: int) -> np.ndarray:
-    """Every output at reference mip ``mip``'s texel centres from material.json alone: each layer's
-    DDS through OpenImageIO, sampled trilinearly at s + lod_bias (lod clamped to its mips) in the
-    order material.json lists them, into onnxruntime."""
+def rebuild_at(folder: Path, uv: np.ndarray, s: float) -> np.ndarray:
+    """The decoder's outputs (N, n_out) at ``uv`` (N, 2) and lod ``s`` from material.json alone: each
+    layer's DDS through OpenImageIO, sampled trilinearly at s + lod_bias (lod clamped to its mips)
+    with material.json's addressing per axis, in the order material.json lists them, into onnxruntime."""
     import onnxruntime as ort
 
     d = json.loads((folder / "material.json").read_text())
-    w, h = d["reference"]["width"] >> mip, d["reference"]["height"] >> mip
-    ids = np.arange(w * h)
-    uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1)
+    wrap = sampling_axes(d)
     feats = []
     for layer in d["layers"]:
         levels = _oiio_levels(folder / layer["file"], layer["channels"])
         assert len(levels) == layer["mip_count"]
-        s = min(max(mip + layer["lod_bias"], 0.0), len(levels) - 1)
-        lo, t = int(np.floor(s)), s - np.floor(s)
-        f = _bilinear(levels[lo], uv)
+        lod = min(max(s + layer["lod_bias"], 0.0), len(levels) - 1)
+        lo, t = int(np.floor(lod)), lod - np.floor(lod)
+        f = bilinear(levels[lo], uv, wrap)
         if t > 0:
-            f = f + (_bilinear(levels[lo + 1], uv) - f) * t
+            f = f + (bilinear(levels[lo + 1], uv, wrap) - f) * t
         feats.append(f)
     x = np.concatenate(feats, 1).astype(np.float32)
     assert x.shape[1] == d["mlp"]["n_in"]
     sess = ort.InferenceSession(str(folder / d["onnx"]["file"]), providers=["CPUExecutionProvider"])
-    return sess.run([d["onnx"]["output"]], {d["onnx"]["input"]: x})[0].reshape(h, w, -1)
+    return sess.run([d["onnx"]["output"]], {d["onnx"]["input"]: x})[0]
+
+
+def _rebuild(folder: Path, mip: int) -> np.ndarray:
+    """Every output at reference mip ``mip``'s texel centres (`rebuild_at`), as (h, w, n_out)."""
+    d = json.loads((folder / "material.json").read_text())
+    w, h = d["reference"]["width"] >> mip, d["reference"]["height"] >> mip
+    ids = np.arange(w * h)
+    uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1)
+    return rebuild_at(folder, uv, float(mip)).reshape(h, w, -1)
 
 
 @pytest.mark.parametrize("k", [2, 3])

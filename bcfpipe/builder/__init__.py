@@ -52,8 +52,10 @@ What is modelled, and how (the contract with renderers):
   renderer to the decoded opacity, exactly as UsdPreviewSurface applies it to the texture fetch, so
   cut-outs keep their threshold and get smooth, stable coverage at distance. Displacement is
   decoded at the vertex/tessellation stage by renderers that displace.
-* Addressing is ``clamp`` when every texture of the material clamps both axes, else ``repeat``
-  (``black``/``mirror`` are modelled as repeat, with a warning). The textures' st primvar and
+* Addressing is per axis, as the textures' wrapS / wrapT say it: repeat, clamp or mirror (``black``
+  sampled as clamp, with a warning; ``useMetadata`` as repeat). Sets of different addressing are
+  never merged; inputs of one material that disagree take the mode most use per axis, with a
+  warning naming them (docs/build.md, "Addressing and uv"). The textures' st primvar and
   UsdTransform2d are recorded; textures of one material must share them (else a warning).
 * The profile ``auto`` is capped by the source resolution (``config.resolve_profile``).
 
