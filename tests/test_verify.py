@@ -343,7 +343,7 @@ def test_cli_one_line_per_material_unless_verbose(materials, tmp_path):
     rep = json.loads(r.stdout)
     assert set(rep) == {"path", "passed", "exit_code", "renderer", "gl_error", "tolerance", "materials"}
     assert set(rep["materials"][0]) == {"name", "folder", "passed", "input_error", "checks", "n_points", "channels",
-                                        "categories"}
+                                        "categories", "shares"}
 
 
 def _report(checks, channels=(), n_points=0, input_error=None) -> V.MaterialReport:
@@ -446,7 +446,10 @@ def test_build_folder_with_combined_weights(materials, gl_runtime, tmp_path):
     mats.append(mfst.Material("/World/Looks/broken", "failed"))
     mfst.write(root, mfst.Manifest(scene="scene.usda", root_layer="scene.bcf.usda", materials=tuple(mats)))
     rep = V.verify(root, runtime=gl_runtime)
-    assert [m.name for m in rep.materials] == ["/World/Looks/unsigned_repeat", "/World/Looks/signed_clamp_normal"]
+    # one report per built material: the alias shares unsigned_repeat's files, checked once
+    assert [(m.name, m.shares) for m in rep.materials] == [
+        ("/World/Looks/unsigned_repeat", None), ("/World/Looks/alias", "/World/Looks/unsigned_repeat"),
+        ("/World/Looks/signed_clamp_normal", None)]
     assert rep.exit_code == 0
     assert all("weights.bin@" in {c.name: c for c in m.checks}["weights"].detail for m in rep.materials)
     assert entries[1].offset > 0
@@ -455,7 +458,7 @@ def test_build_folder_with_combined_weights(materials, gl_runtime, tmp_path):
     data[entries[1].offset + HEADER_BYTES + 40] ^= 0x20
     (root / "weights.bin").write_bytes(bytes(data))
     rep = V.verify(root, runtime=gl_runtime)
-    assert [m.passed for m in rep.materials] == [True, False] and rep.exit_code == 1
+    assert [m.passed for m in rep.materials] == [True, True, False] and rep.exit_code == 1
     # without a manifest: a directory scan of */material.json
     (root / "manifest.json").unlink()
     (root / "weights.bin").unlink()
