@@ -119,6 +119,19 @@ class Cell:
                 "lod_sweep": self.sweep}
 
 
+def normal_angle(ts: TextureSet, ref: np.ndarray, dec: np.ndarray) -> dict:
+    """``{"normal_angle_deg": {"mean", "p99"}}``: the angle at mip 0 between the set's normal map and
+    the decoded one, both with z rebuilt from x, y as engines (and bcfpipe's decoder) read them
+    (issue 57: beside the PSNR, which measures x and y only); {} without a normal map."""
+    from bcfpipe.texset.normals import angular_stats, rebuild_z
+
+    xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
+    if len(xy) != 2:
+        return {}
+    mean, p99 = angular_stats(rebuild_z(ref[..., xy]), rebuild_z(dec[..., xy]))
+    return {"normal_angle_deg": {"mean": round(mean, 3), "p99": round(p99, 3)}}
+
+
 def _crops(mips: Sequence[np.ndarray], windows: Windows) -> list[np.ndarray]:
     return [np.array(mips[k][y:y + n, x:x + n]) for k, x, y, n in windows]
 
@@ -135,7 +148,7 @@ def measure_baseline(ts: TextureSet, ref: Sequence[np.ndarray], b: Baseline, gri
     metrics = compute_metrics(ref, dec, ts.channels)
     sweep = L.sweep(grid, L.mips_answer(dec, grid.wrap))
     extra = {"codec": b.codec, "block": b.block, "resolution": side >> b.shift, "encoder": ENCODERS[b.codec],
-             "formats": [fmt for fmt, _, _ in textures]}
+             "formats": [fmt for fmt, _, _ in textures], **normal_angle(ts, ref[0], dec[0])}
     disk = blocks_disk_bytes(textures, b.block if b.codec == "astc" else None)
     return Cell(b.label(side), b.codec, metrics, size, seconds, sweep, _crops(dec, windows), extra,
                 textures if b.codec == "bc" and b.shift == 0 else None, disk_bytes=disk)
@@ -162,12 +175,13 @@ def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], options, out_dir: Path
     name = res.profile
     dec = E.decode_mips(E.load(out_dir), [m.shape[:2] for m in ref])
     crops = _crops(dec, windows)
+    angle = normal_angle(ts, ref[0], dec[0])
     del dec
     sweep = L.sweep(grid, L.exported_answer(out_dir))
     step = max(1, len(curve) // CURVE_POINTS)
     extra = {"profile": name, "preset": preset, "features": features, "resolutions": list(res.resolutions), "device": res.device,
              "train_seconds": res.train_seconds,
-             "float_psnr": res.float_metrics.psnr if res.float_metrics is not None else None,
+             "float_psnr": res.float_metrics.psnr if res.float_metrics is not None else None, **angle,
              "training_curve": curve[::step] + ([curve[-1]] if curve and (len(curve) - 1) % step else [])}
     return Cell(f"BCf {name} {preset}" + ("" if features == "bc6h" else f" {features}"), "bcf", res.metrics,
                 res.size_bytes, res.train_seconds, sweep, crops, extra, folder=Path(out_dir),

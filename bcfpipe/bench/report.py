@@ -125,6 +125,13 @@ def summary_markdown(data: dict) -> str:
                        + "---:|" * len(groups))
             for r in _rows(s):
                 out.append(f"| {r['method']} | " + " | ".join(_f(r["psnr_per_group"].get(g)) for g in groups) + " |")
+        angled = [r for r in _rows(s) if r.get("normal_angle_deg")]
+        if angled:  # beside the PSNR, which measures x and y only (issue 57)
+            out.append("\nNormal map's angle at mip 0, z rebuilt from x, y (degrees):\n\n| method | mean | p99 |\n"
+                       "|---|---:|---:|")
+            for r in angled:
+                a = r["normal_angle_deg"]
+                out.append(f"| {r['method']} | {a['mean']:.2f} | {a['p99']:.2f} |")
         d = s.get("decode_cost") or {}
         if d.get("rows"):
             out.append(f"\nDecode cost at {d['width']}x{d['height']}, {d['renderer']} ({d['timer']}, median of "

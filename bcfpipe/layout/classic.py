@@ -2,8 +2,10 @@
 the channels that neural features lose (issue 31), and their BC7 repacks at the same bytes.
 
 A group is one texture of `bcfpipe.texset.baselines.pack_texture_set` (codec 'bc'): BC1 for a colour
-or a packed (ARM-style) file, BC4 for a lone scalar, BC5 for a normal map's x and y, BC6H_UF16 for
-a colour beyond 1 from a float file (HDR). Its texels store set values v as t, with
+or a packed (ARM-style) file, BC4 for a lone scalar, BC7 for a normal map's x, y and rebuilt z (in
+BC5's bytes, so that a UsdUVTexture reads z; issue 57), BC6H_UF16 for a colour beyond 1 from a float
+file (HDR). A colour a UsdUVTexture reads whose source repeats a channel (TextureSet.vectors) is one
+BC1 with the channel in each slot it feeds. Its texels store set values v as t, with
 v = t * texel_scale + texel_bias: t in [0, 1] (normals: v = 2t - 1), or for BC6H the source's
 linear value itself (v = t / value_scale - value_bias / value_scale), so that every map from texel
 to source value is affine, as a UsdUVTexture's scale and bias apply it; no classic texture stores
@@ -163,7 +165,7 @@ def repacks(groups: Sequence[Group]) -> list[Repack]:
 
 def bc7_quality_set(groups: Sequence[Group]) -> Repack | None:
     """The BC7 quality set as a change of BC@R: every BC1 texture (a colour or a packed file) in BC7,
-    the same channels in the same slots at twice the bytes; BC5 normals, BC4 lone scalars and BC6H
+    the same channels in the same slots at twice the bytes; normals (BC7 already), BC4 lone scalars and BC6H
     kept. What quality-focused pipelines ship, and the second set every layout is reported against
     (issue 52). None when BC@R has no BC1 texture: the quality set is then BC@R itself."""
     bc1 = [g for g in groups if g.format == ClassicFormat.BC1]

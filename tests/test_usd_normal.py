@@ -1,0 +1,102 @@
+"""Normals a renderer can use (issue 57, item 3): a layout's classic normal stores z (BC7 x, y, z in
+BC5's bytes), the USD layer reads it with scale 2 and bias -1 on r, g and b (not z = 1), and what a
+UsdPreviewSurface shades with, the DDS as OpenImageIO decodes it with that scale and bias,
+normalised, is within a small angle of the source's normal; layout.json and the manifest report it."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from pxr import Sdf, Usd, UsdShade
+
+from bcfpipe.cli import main
+from bcfpipe.formats import manifest as mfst
+from bcfpipe.formats import material as mf
+from bcfpipe.texset.normals import angular_stats, rebuild_z, unit, usd_normal
+
+N = 128
+LOOKS = "/World/Looks/Smooth"
+
+
+def bumps(n: int = N) -> np.ndarray:
+    """A tangent-space normal map of smooth bumps, tilted up to about 35 degrees: (n, n, 3) unit."""
+    y, x = np.mgrid[0:n, 0:n] / n
+    xy = np.stack([0.45 * np.sin(2 * np.pi * 2 * x) * np.cos(2 * np.pi * y),
+                   0.4 * np.cos(2 * np.pi * 3 * y) * np.sin(2 * np.pi * x)], -1)
+    return rebuild_z(xy)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> tuple[Path, np.ndarray]:
+    """The smooth quad with a normal map (scale 2, bias -1, as authors wire one), built with
+    ``--classic normal``; (OUT, the source normals as stored 8-bit, back to unit vectors)."""
+    from test_render import smooth_stage, write_png
+
+    root = tmp_path_factory.mktemp("usd_normal")
+    quad = smooth_stage(root)
+    write_png(root / "tex" / "normal.png", (bumps() + 1.0) * 0.5)
+    stage = Usd.Stage.Open(str(quad))
+    tex = UsdShade.Shader.Define(stage, f"{LOOKS}/normalTex")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./tex/normal.png")
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+    tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((2.0, 2.0, 2.0, 1.0))
+    tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set((-1.0, -1.0, -1.0, 0.0))
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
+        UsdShade.Shader(stage.GetPrimAtPath(f"{LOOKS}/St")).ConnectableAPI(), "result")
+    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    UsdShade.Shader(stage.GetPrimAtPath(f"{LOOKS}/Surface")).CreateInput(
+        "normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+    stage.GetRootLayer().Save()
+    out = root / "out"
+    r = CliRunner().invoke(main, ["build", str(quad), "-o", str(out), "--quality", "smoke", "--profile", "tiny",
+                                  "--layout", "neural", "--classic", "normal", "--jobs", "1", "--threads", "1",
+                                  "--no-cache"])
+    assert r.exit_code == 0, r.output
+    import OpenImageIO as oiio
+
+    src = np.asarray(oiio.ImageBuf(str(root / "tex" / "normal.png")).get_pixels(oiio.FLOAT), np.float32)[..., :3]
+    return out, unit(src * 2.0 - 1.0)
+
+
+def test_the_normal_usd_reads_stores_z_with_scale_2_bias_minus_1(built) -> None:
+    out, _ = built
+    man = mfst.read(out)
+    stage = Usd.Stage.Open(str(out / man.root_layer))
+    surface = UsdShade.Shader(stage.GetPrimAtPath(f"{LOOKS}/Surface"))
+    src, output, _ = surface.GetInput("normal").GetConnectedSource()
+    node = UsdShade.Shader(src.GetPrim())
+    assert output == "rgb"
+    path = Path(node.GetInput("file").Get().resolvedPath)
+    assert path.suffix == ".dds" and path.resolve().is_relative_to(out.resolve())
+    assert tuple(node.GetInput("scale").Get())[:3] == (2.0, 2.0, 2.0)
+    assert tuple(node.GetInput("bias").Get())[:3] == (-1.0, -1.0, -1.0)
+    desc = mf.read(path.parent)
+    tex = next(c for c in desc.classic if c.file == path.name)
+    assert tex.format == "BC7_UNORM" and tex.channels == 3  # BC5's 16 bytes per block, z in slot b
+    z = next(o for o in desc.outputs if o.name == "normal.z")
+    assert (z.source, z.texel_channel, z.texel_scale, z.texel_bias) == ("classic", 2, 2.0, -1.0)
+
+
+def test_what_usd_shades_with_is_within_a_small_angle_of_the_source(built) -> None:
+    import OpenImageIO as oiio
+
+    out, truth = built
+    man = mfst.read(out)
+    stage = Usd.Stage.Open(str(out / man.root_layer))
+    src, _, _ = UsdShade.Shader(stage.GetPrimAtPath(f"{LOOKS}/Surface")).GetInput("normal").GetConnectedSource()
+    node = UsdShade.Shader(src.GetPrim())
+    texels = np.asarray(oiio.ImageBuf(node.GetInput("file").Get().resolvedPath).get_pixels(oiio.FLOAT), np.float32)
+    assert texels.shape[:2] == truth.shape[:2]  # R = the tiny profile's 256 >= 128: level 0 is the source's size
+    seen = usd_normal(texels, tuple(node.GetInput("scale").Get())[:3], tuple(node.GetInput("bias").Get())[:3])
+    mean, p99 = angular_stats(truth, seen)
+    flat_mean, flat_p99 = angular_stats(truth, unit(np.concatenate([seen[..., :2], np.ones_like(seen[..., :1])], -1)))
+    assert mean < 0.6 and p99 < 1.5, (mean, p99)
+    assert flat_p99 > 4 * p99, (flat_p99, p99)  # z = 1, as before, is far off on these 35-degree bumps
+    m = next(m for m in man.built() if m.path == LOOKS)
+    assert m.layout is not None and m.layout.normal_angle_deg is not None
+    reported = json.loads((out / m.outputs.folder / "layout.json").read_text())["normal_angular_error"]
+    assert reported["read_as"].startswith("USD") and reported["p99_deg"] < 1.5, reported
