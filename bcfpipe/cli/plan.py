@@ -48,7 +48,8 @@ def job_prediction(job):
     from bcfpipe.layout.predict import predict_specs
 
     w, h = job.size
-    return predict_specs(job.specs, [s.path for s in job.sources if s.format in FLOAT_TYPES], w, h, job.options)
+    return predict_specs(job.specs, [s.path for s in job.sources if s.format in FLOAT_TYPES], w, h, job.options,
+                         job.vectors)
 
 
 @click.command("plan", cls=Command)

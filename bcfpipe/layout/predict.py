@@ -186,9 +186,10 @@ def predict(q: Query) -> LayoutPrediction:
 
 
 def spec_texture_set(specs: Sequence[tuple[str, str, str]], width: int, height: int,
-                     hdr_files: Sequence[str] = ()) -> "TextureSet":
+                     hdr_files: Sequence[str] = (), vectors: Sequence = ()) -> "TextureSet":
     """A texture set of ``specs`` ((semantic, file, channels)) with no texels (a broadcast zero):
-    enough for `classic.groups`. A colour read from one of ``hdr_files`` counts as HDR (BC6H)."""
+    enough for `classic.groups`. A colour read from one of ``hdr_files`` counts as HDR (BC6H);
+    ``vectors``: the job's colours kept in their slots (TextureSet.vectors)."""
     import numpy as np
 
     from bcfpipe.texset.texture_set import Channel, TextureSet, semantic_info
@@ -201,11 +202,11 @@ def spec_texture_set(specs: Sequence[tuple[str, str, str]], width: int, height: 
             hdr = info.kind == "color" and path in hdr_files
             chans.append(Channel(info.name, comp, info.kind, path, i, log_gain=1.0 if hdr else 0.0))
     data = np.broadcast_to(np.zeros((1, 1, len(chans)), np.float32), (height, width, len(chans)))
-    return TextureSet(data, tuple(chans), width, height)
+    return TextureSet(data, tuple(chans), width, height, tuple(vectors))
 
 
 def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[str], width: int, height: int,
-                  options) -> LayoutPrediction | None:
+                  options, vectors: Sequence = ()) -> LayoutPrediction | None:
     """The prediction for a job of ``specs`` at ``width``×``height`` with ``options`` (a job's
     manifest.Options or TrainingOptions): None under ``--target-psnr`` (rate control sizes it). A
     colour from one of ``float_files`` may be HDR (BC6H, twice BC1's bytes) or not, which only its
@@ -228,7 +229,7 @@ def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[s
 
     out = []
     for hdr in ((), tuple(hdr_colours)) if hdr_colours else ((),):
-        groups = classic_groups(spec_texture_set(specs, width, height, hdr))
+        groups = classic_groups(spec_texture_set(specs, width, height, hdr, vectors))
         out.append(predict(Query(groups, width, height, n, n, asked, tuple(res), bc_resolution(side, options.profile),
                                  device, dims, layout, bool(options.match_bc),
                                  named_groups(groups, options.classic or ()), widths_of(options, layout, n))))
