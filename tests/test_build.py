@@ -505,7 +505,7 @@ def test_plan_channel_mapping(tmp_path: Path) -> None:
     stage.Save()
     p = plan(tmp_path / "scene.usda", **FAST)
     (job,) = p.jobs
-    assert job.wrap == "clamp"
+    assert job.wrap == ("clamp", "clamp")
     # color.png rgb read once for diffuse, emissive and opacity; normal x, y; grey r
     assert [(Path(c.file).name, c.channel, c.kind) for c in job.channels] == [
         ("color.png", "r", "value"), ("color.png", "g", "value"), ("color.png", "b", "value"),

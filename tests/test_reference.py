@@ -123,8 +123,8 @@ def test_from_texture_set_and_validation():
     pyr = ReferencePyramid.from_texture_set(TextureSet(data, ch, 8, 4), "cpu")
     assert pyr.num_levels == 4 and pyr.num_channels == 2 and tuple(pyr.mips[0].shape) == (2, 4, 8)
     torch.testing.assert_close(pyr.mips[0], torch.from_numpy(data).permute(2, 0, 1))
-    with pytest.raises(ValueError, match="wrap must be"):
-        sample_reference(pyr, torch.zeros(1, 2), 0.0, "mirror")
+    with pytest.raises(ValueError, match="unknown addressing 'black'; choose repeat, clamp or mirror"):
+        sample_reference(pyr, torch.zeros(1, 2), 0.0, "black")
     with pytest.raises(ValueError, match=r"uv must have shape"):
         sample_reference(pyr, torch.zeros(3), 0.0)
     with pytest.raises(ValueError, match="per-point s"):

@@ -155,7 +155,7 @@ def _check_values(out: Path, m: mfst.Material, stage: Usd.Stage, drawn, pts: np.
         bias = np.array(node.GetInput("bias").Get(), np.float64)
         srgb = node.GetInput("sourceColorSpace").Get() == "sRGB"
         wrap = (node.GetInput("wrapS").Get() or "useMetadata", node.GetInput("wrapT").Get() or "useMetadata")
-        assert wrap == (desc.wrap, desc.wrap)
+        assert wrap == desc.wrap  # (S, T)
         for target, slot in _components(name, output):
             t = targets[target]
             o = desc.outputs[t.channel] if t.channel >= 0 else None

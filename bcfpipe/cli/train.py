@@ -160,7 +160,8 @@ def _anchors(report: dict | None, specs, options):
 @training_options
 @click.option("--resolution", type=int, default=None, help="Resample the texture set to this power of two first.")
 @click.option("--wrap", type=click.Choice([w.value for w in Wrap]), default=Wrap.REPEAT.value, show_default=True,
-              help="Texture addressing used in training and recorded for the runtime (build takes it from USD).")
+              help="Texture addressing of both axes, used in training and recorded for the runtime (build takes "
+                   "each axis from USD's wrapS / wrapT).")
 @click.option("-f", "--force", is_flag=True, help="Overwrite a non-empty output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object to stdout (progress stays on stderr).")
 @click.pass_context
