@@ -21,13 +21,14 @@ from bcfpipe.layout.export import export_layout
 from bcfpipe.layout.fit import LayoutFit, subset
 from bcfpipe.resources import SCHEMA_DIR
 from bcfpipe.texset.metrics import mse_per_channel
+from bcfpipe.texset.normals import unit
 from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
 
 SCHEMA = SCHEMA_DIR / "material.schema.json"
 
 
 def _set(size=64, seed=0) -> TextureSet:
-    """albedo (rgb, its own file), normal (x, y), roughness alone in its file: BC1 + BC5 + BC4."""
+    """albedo (rgb, its own file), normal (x, y), roughness alone in its file: BC1 + BC7 (the normal's x, y, z) + BC4."""
     rng = np.random.default_rng(seed)
     yy, xx = np.mgrid[0:size, 0:size] / size
     alb = np.stack([0.5 + 0.4 * np.sin(6.28 * xx), 0.5 + 0.3 * np.cos(6.28 * yy), 0.3 + 0.2 * xx], -1)
@@ -40,11 +41,13 @@ def _set(size=64, seed=0) -> TextureSet:
     return TextureSet(data, ch, size, size)
 
 
-def test_groups_are_benchs_bc_set():
+def test_groups_are_benchs_bc_set_with_the_normal_in_bc7_xyz():
+    """Bench's BC set, but the normal: BC7 of x, y and the rebuilt z in BC5's bytes, so that a
+    UsdUVTexture reads z (issue 57)."""
     gs = groups(_set())
-    assert [(g.format, g.channels, g.name) for g in gs] == [
-        (ClassicFormat.BC1, (0, 1, 2), "albedo"), (ClassicFormat.BC5, (3, 4), "normal"),
-        (ClassicFormat.BC4, (5,), "roughness")]
+    assert [(g.format, g.channels, g.name, g.normal_z) for g in gs] == [
+        (ClassicFormat.BC1, (0, 1, 2), "albedo", False), (ClassicFormat.BC7, (3, 4), "normal", True),
+        (ClassicFormat.BC4, (5,), "roughness", False)]
 
 
 def test_classic_blocks_decode_to_what_bench_measured():
@@ -55,6 +58,9 @@ def test_classic_blocks_decode_to_what_bench_measured():
         scale_bias = np.array(enc.group.texel_map(ts))
         # level 0 is reference mip 1 (R = 32 for a 64² set); every level after it in turn
         for k, t in enumerate(texels):
+            if enc.group.normal_z:  # what USD shades with: the stored x, y, z as 2t - 1, normalised
+                np.testing.assert_allclose(unit(t[..., :3] * 2.0 - 1.0), enc.decoded[k + 1], atol=1e-6)
+                continue
             np.testing.assert_allclose(t * scale_bias[:, 0] + scale_bias[:, 1], enc.decoded[k + 1], atol=1e-6)
 
 
@@ -95,7 +101,7 @@ def test_combine_is_the_per_channel_mean():
 
 @pytest.fixture(scope="module")
 def mixed(tmp_path_factory):
-    """albedo and roughness neural (a model on those channels alone), the normal map classic BC5."""
+    """albedo and roughness neural (a model on those channels alone), the normal map classic (BC7 x, y, z)."""
     tmp = tmp_path_factory.mktemp("mixed")
     ts = _set()
     ref = build_mip_chain(ts.data)
@@ -135,26 +141,49 @@ def test_mixed_material_json_says_where_each_output_comes_from(mixed):
     d = json.loads((out / "material.json").read_text())
     jsonschema.validate(d, json.loads(SCHEMA.read_text()))
     assert d["format_version"] == (5 if any("blocks" in layer for layer in d["layers"]) else 3)  # 5: a fixed T_0
-    assert [c["file"] for c in d["classic"]] == ["C0.dds"] and d["classic"][0]["format"] == "BC5_UNORM"
+    assert [c["file"] for c in d["classic"]] == ["C0.dds"] and d["classic"][0]["format"] == "BC7_UNORM"
+    assert d["classic"][0]["channels"] == 3  # the normal's x, y and its z, stored for USD (issue 57)
     assert d["classic"][0]["width"] == 32 and d["classic"][0]["lod_bias"] == -1.0
     src = {o["name"]: o.get("source", "mlp") for o in d["outputs"]}
     assert src == {"albedo.r": "mlp", "albedo.g": "mlp", "albedo.b": "mlp", "normal.x": "classic",
                    "normal.y": "classic", "normal.z": "classic", "roughness.r": "mlp"}
     nx = next(o for o in d["outputs"] if o["name"] == "normal.x")
     assert (nx["texture"], nx["texel_channel"], nx["texel_scale"], nx["texel_bias"]) == (0, 0, 2.0, -1.0)
+    nz = next(o for o in d["outputs"] if o["name"] == "normal.z")
+    assert nz["reconstructed"] and (nz["texture"], nz["texel_channel"], nz["texel_scale"], nz["texel_bias"]) == (
+        0, 2, 2.0, -1.0)
     assert d["mlp"]["n_out"] == 4 and sorted(d["sha256"]) == sorted(
         ["T0.dds", "T1.dds", "T2.dds", "T3.dds", "weights.bin", "decoder.onnx", "C0.dds"])
     assert not (out / "probe").exists() and sorted(p.name for p in out.iterdir()) == sorted(
         [*d["sha256"], "material.json"])
 
 
+def _usd_normal_errors(ts: TextureSet, ref, out: Path) -> np.ndarray:
+    """(mips, 2) errors of the normal's x and y as the layout counts them, rebuilt from the folder:
+    the classic normal's DDS as a UsdPreviewSurface reads it (2t - 1, normalised) against the
+    reference's x, y and rebuilt z, each at the normal's peak, half of z's added to x's and to y's."""
+    from bcfpipe.layout.classic import usd_normals
+    from bcfpipe.texset.normals import rebuild_z
+
+    desc = mf.read(out)
+    z = next(o for o in desc.outputs if o.name == "normal.z")
+    seen = usd_normals(dds.read(out / desc.classic[z.texture].file).levels, [m.shape[:2] for m in ref], desc.wrap)
+    xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
+    e = np.array([[np.mean((s[..., i].astype(np.float64) - t[..., i]) ** 2) / 4.0 for i in range(3)]
+                  for s, t in zip(seen, (rebuild_z(r[..., xy]) for r in ref))])
+    return e[:, :2] + e[:, 2:] / 2.0
+
+
 def test_mixed_material_measures_what_its_choice_predicted(mixed):
-    """Decoding the exported folder gives exactly the per-mip errors the choice combined."""
+    """Decoding the exported folder gives exactly the per-mip errors the choice combined: the
+    decoder's outputs and the classic ones as material.json says, the classic normal as USD reads
+    it (z counted, issue 57)."""
     ts, ref, out, chosen = mixed
     em = E.load(out)
     dec = E.decode_mips(em, [m.shape[:2] for m in ref])
-    got = mse_per_channel(ref, dec, ts.channels).mean(1)
-    np.testing.assert_allclose(got, chosen.mse_per_mip, rtol=1e-5)
+    per = mse_per_channel(ref, dec, ts.channels)
+    per[:, [i for i, c in enumerate(ts.channels) if c.kind == "normal"]] = _usd_normal_errors(ts, ref, out)
+    np.testing.assert_allclose(per.mean(1), chosen.mse_per_mip, rtol=1e-5)
 
 
 def _trilinear(levels, uv, lod, wrap):
@@ -208,7 +237,7 @@ def read_independently(out: Path):
 
 
 def test_mixed_material_rebuilt_from_material_json_alone(mixed):
-    """An independent consumer: OpenImageIO reads every DDS (BC6H features, BC5 normals), numpy
+    """An independent consumer: OpenImageIO reads every DDS (the features, the BC7 normal), numpy
     samples them as GL would, onnxruntime runs the decoder, material.json says the rest."""
     ts, ref, out, _ = mixed
     d, layers, classic, sess = read_independently(out)
@@ -252,7 +281,9 @@ def test_a_layer_file_that_is_a_classic_format_is_refused(mixed, tmp_path):
     _, _, out, _ = mixed
     bad = tmp_path / "bad"
     shutil.copytree(out, bad)
-    shutil.copyfile(bad / "C0.dds", bad / "T0.dds")
+    t0 = dds.read(bad / "T0.dds")  # a BC5 texture (a classic format) of T0's size in its place
+    dds.write(bad / "T0.dds", [(np.zeros((b.shape[0], 16), np.uint8), w, h) for b, w, h in t0.levels],
+              dxgi_format=dds.DXGI_FORMAT_BC5_UNORM)
     with pytest.raises(dds.DdsError, match="no feature-layer format"):
         E.load(bad)
 
@@ -438,7 +469,7 @@ def test_classic_option_is_parsed_once():
 
 
 def test_train_classic_keeps_the_named_group_and_trains_the_rest(tmp_path):
-    """`bcfpipe train --classic normal`: the normal map ships as BC@R's BC5, the decoder learns the
+    """`bcfpipe train --classic normal`: the normal map ships as BC@R's (BC7 x, y, z), the decoder learns the
     other channels only, no probe is trained, and verify passes; a semantic the set lacks changes
     nothing (an all-neural folder)."""
     from click.testing import CliRunner
@@ -456,7 +487,7 @@ def test_train_classic_keeps_the_named_group_and_trains_the_rest(tmp_path):
     assert d["layout"]["chosen"]["layout"] == "neural tiny + classic normal"
     assert "--classic normal" in d["layout"]["reason"]
     desc = mf.read(out)
-    assert [c.dxgi_format for c in desc.classic] == [dds.DXGI_FORMAT_BC5_UNORM]
+    assert [c.dxgi_format for c in desc.classic] == [98]  # BC7_UNORM: x, y and z, in BC5's bytes (issue 57)
     assert {o.name for o in desc.outputs if o.source == "classic"} == {"normal.x", "normal.y", "normal.z"}
     assert desc.mlp.n_out == 3  # albedo only
     assert not (out / ".layout-work").exists()
