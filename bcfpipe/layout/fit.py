@@ -40,6 +40,7 @@ import numpy as np
 
 from bcfpipe.config import N_LAYERS, PROFILES, TrainingOptions
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
+from bcfpipe.formats.display import bytes_text
 from bcfpipe.formats.sizes import neural_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.layout import choose as C
@@ -112,7 +113,7 @@ def _measure_classic(ctx: K.FitContext, with_repacks: bool, lines: list[str] | N
     bc = C.Candidate(tuple(names), None, sum(g.size_bytes for g in groups),
                      C.combine(None, e_bc, range(ts.num_channels)), "measured", use,
                      disk_bytes=sum(disk_bytes(g) for g in groups), kind=K.BC_AT_R)
-    say(f"BC@{resolution}: {bc.size_bytes / 2**20:.2f} MiB, {bc.psnr:.2f} dB over all mips "
+    say(f"BC@{resolution}: {bytes_text(bc.size_bytes)}, {bc.psnr:.2f} dB over all mips "
         f"({time.perf_counter() - t:.1f} s)")
     cf = ClassicFit(groups, e_bc, bc, use)
     if with_repacks and resolution <= MAX_REPACK_SIDE:
@@ -131,7 +132,7 @@ def _quality_set(ctx: K.FitContext, cf: ClassicFit, ref, masks, log) -> C.Candid
     disk = sum(disk_bytes(g) for g in cf.groups if g.group.name not in rp.replaces) + sum(disk_bytes(g) for g in enc)
     c = C.Candidate(cf.bc.classic, None, size, C.combine(None, e, range(ctx.ts.num_channels)), "measured", cf.bc.use,
                     repack=rp.label, disk_bytes=disk, kind=K.QUALITY)
-    log(f"BC7 quality set at {ctx.resolution}: {size / 2**20:.2f} MiB, {c.psnr:.2f} dB over all mips")
+    log(f"BC7 quality set at {ctx.resolution}: {bytes_text(size)}, {c.psnr:.2f} dB over all mips")
     return c
 
 
@@ -222,7 +223,7 @@ def _classic_only(ctx: K.FitContext, start: float) -> LayoutFit:
     """No neural layout fits within BC@R's bytes (`predict` gives no probe: a tiny set's features
     alone exceed them): BC@R and its repacks, measured; nothing trains."""
     cf = _measure_classic(ctx, True)
-    ctx.log(f"no probe: nothing neural fits within BC@R's {cf.bc.size_bytes} bytes")
+    ctx.log(f"no probe: nothing neural fits within BC@R's {bytes_text(cf.bc.size_bytes)}")
     packed = [c for c in cf.packed if set(ctx.forced) <= set(c.classic)]
     decision = C.choose(packed, cf.bc, ctx.match_bc, cf.quality)
     return LayoutFit(decision, decision, cf.groups, None, (), None, 0.0, time.perf_counter() - start,
@@ -262,7 +263,7 @@ def _repacks(ctx: K.FitContext, cf: ClassicFit, ref, masks, log) -> tuple[dict, 
         c = C.Candidate(kept + tuple(g.name for g in rp.groups), None, size,
                         C.combine(None, e, range(ts.num_channels)), "measured", cf.bc.use, repack=rp.label,
                         disk_bytes=disk, kind=K.REPACK)
-        log(f"BC@{resolution} with {rp.label}: {size / 2**20:.2f} MiB, {c.psnr:.2f} dB over all mips "
+        log(f"BC@{resolution} with {rp.label}: {bytes_text(size)}, {c.psnr:.2f} dB over all mips "
             f"({time.perf_counter() - t:.1f} s)")
         found[rp.label] = (rp, enc)
         cands.append(c)
