@@ -22,7 +22,7 @@ from bcfpipe.texset.metrics import mse_per_channel
 from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_classic_layout import SAMPLE, SCHEMA, _oiio_levels, _set, _trilinear, bc_at  # noqa: E402
+from test_classic_layout import SAMPLE, SCHEMA, _oiio_levels, _set, _trilinear, _usd_normal_errors, bc_at  # noqa: E402
 
 
 def _two_colours() -> TextureSet:
@@ -35,15 +35,18 @@ def _two_colours() -> TextureSet:
 
 
 def test_repacks_merge_bc1_with_bc4_and_pack_every_channel_where_the_bytes_allow():
-    gs = groups(_set())  # albedo BC1, normal BC5, roughness BC4: 32 bytes per 4x4 block
+    gs = groups(_set())  # albedo BC1, normal BC7 (x, y, z), roughness BC4: 32 bytes per 4x4 block
     rp = repacks(gs)
-    assert [(r.label, r.replaces) for r in rp] == [
-        ("albedo+roughness as BC7", ("albedo", "roughness")),
-        ("all 6 channels in 2 BC7", ("albedo", "normal", "roughness"))]
+    # the normal is BC7 already, its z in slot b (issue 57): never repacked; every other channel in
+    # one BC7 is the albedo+roughness repack itself, so it is offered once
+    assert [(r.label, r.replaces) for r in rp] == [("albedo+roughness as BC7", ("albedo", "roughness"))]
     assert rp[0].groups == (Group(ClassicFormat.BC7, (0, 1, 2, 5), "albedo+roughness"),)
-    # each colour and normal whole at r, g(, b) of one texture (a UsdUVTexture's rgb), scalars after
-    assert [g.channels for g in rp[1].groups] == [(0, 1, 2, 5), (3, 4)]
     assert repacks(groups(_two_colours())) == []  # 6 channels need 2 bytes per texel, BC@R has 1
+    # each colour whole at r, g, b of one texture (a UsdUVTexture's rgb), scalars after
+    three = TextureSet(np.zeros((8, 8, 6), np.float32), _two_colours().channels[:3] + tuple(
+        Channel(s, "r", "scalar", f"{s}.png", 0) for s in ("occlusion", "roughness", "metallic")), 8, 8)
+    (every,) = [r for r in repacks(groups(three)) if r.label.startswith("all")]
+    assert [g.channels for g in every.groups] == [(0, 1, 2, 3), (4, 5)]
 
 
 def test_a_bc7_group_decodes_to_what_was_measured():
@@ -82,22 +85,24 @@ def test_a_repack_exports_bc7_and_says_where_each_output_comes_from(repacked):
     d = json.loads((out / "material.json").read_text())
     jsonschema.validate(d, json.loads(SCHEMA.read_text()))
     assert [(c["file"], c["dxgi_format"], c["format"], c["channels"]) for c in d["classic"]] == [
-        ("C0.dds", 83, "BC5_UNORM", 2), ("C1.dds", 98, "BC7_UNORM", 4)]
+        ("C0.dds", 98, "BC7_UNORM", 3), ("C1.dds", 98, "BC7_UNORM", 4)]
     where = {o["name"]: (o["source"], o["texture"], o.get("texel_channel")) for o in d["outputs"]}
     assert where == {"albedo.r": ("classic", 1, 0), "albedo.g": ("classic", 1, 1), "albedo.b": ("classic", 1, 2),
-                     "normal.x": ("classic", 0, 0), "normal.y": ("classic", 0, 1), "normal.z": ("classic", 0, None),
+                     "normal.x": ("classic", 0, 0), "normal.y": ("classic", 0, 1), "normal.z": ("classic", 0, 2),
                      "roughness.r": ("classic", 1, 3)}
     assert not d["layers"] and "mlp" not in d and sorted(p.name for p in out.iterdir()) == [
         "C0.dds", "C1.dds", "material.json"]
     assert dds.read(out / "C1.dds").is_bc7 and sum((out / f).stat().st_size for f in ("C0.dds", "C1.dds")) == \
         chosen.size_bytes
-    # the folder decodes to exactly what the choice measured
+    # the folder decodes to exactly what the choice measured (the normal as USD reads it)
     dec = E.decode_mips(E.load(out), [m.shape[:2] for m in ref])
-    np.testing.assert_allclose(mse_per_channel(ref, dec, ts.channels).mean(1), chosen.mse_per_mip, rtol=1e-5)
+    per = mse_per_channel(ref, dec, ts.channels)
+    per[:, [3, 4]] = _usd_normal_errors(ts, ref, out)
+    np.testing.assert_allclose(per.mean(1), chosen.mse_per_mip, rtol=1e-5)
 
 
 def test_a_repack_rebuilt_from_material_json_alone(repacked):
-    """OpenImageIO reads both DDS files (BC5 and BC7); numpy samples them as GL would; material.json
+    """OpenImageIO reads both DDS files (the BC7 normal and the BC7 repack); numpy samples them as GL would; material.json
     says the rest. BC7's palette is exact integer arithmetic, so every BC7 output agrees bit for bit."""
     ts, ref, out, _ = repacked
     d = json.loads((out / "material.json").read_text())
@@ -189,5 +194,5 @@ def test_classic_keeps_its_group_as_bc_at_r_has_it_and_a_repack_of_the_rest_ship
     desc = mf.read(out)
     assert not desc.neural and not desc.layers
     assert sorted(p.name for p in out.iterdir()) == ["C0.dds", "C1.dds", "C2.dds", "layout.json", "material.json"]
-    assert [c.dxgi_format for c in desc.classic].count(dds.DXGI_FORMAT_BC7_UNORM) == 1
+    assert [c.dxgi_format for c in desc.classic].count(dds.DXGI_FORMAT_BC7_UNORM) == 2  # the normal's and the repack
     assert verify(out, glsl=False).exit_code == 0
