@@ -34,6 +34,23 @@ def test_rasterize_wraps_for_repeat_and_clips_for_clamp():
     assert not clamp[:, :2].any() and clamp[:, -2:].any()
 
 
+def test_each_axis_folds_by_its_own_mode():
+    """A triangle past the right edge (st u in [1.1, 1.3]): repeat S finds it at u - 1, mirror S at
+    2 - u (the columns reversed), clamp S leaves it out; T repeats in all three. Dilation wraps only
+    along a repeat axis."""
+    tri = np.array([[[1.13, 0.41], [1.31, 0.43], [1.22, 0.67]]])
+    rep = cov.rasterize(tri, 20, 20, ("repeat", "repeat"))
+    assert rep.any() and rep[:, :10].any() and not rep[:, 10:].any()
+    assert np.array_equal(cov.rasterize(tri, 20, 20, ("mirror", "repeat")), rep[:, ::-1])
+    assert not cov.rasterize(tri, 20, 20, ("clamp", "repeat")).any()
+    assert np.array_equal(cov.rasterize(tri - [0.0, 1.0], 20, 20, ("repeat", "repeat")), rep)  # T wraps too
+    corner = np.zeros((8, 8), bool)
+    corner[0, 0] = True
+    m = cov.mask_mips(corner, 1, ("repeat", "clamp"))[0]
+    assert m[0, 7] and m[1, 7] and not m[7, 0] and not m[7, 7]  # wraps along S only
+    assert np.array_equal(cov.mask_mips(corner, 1, "mirror")[0], cov.mask_mips(corner, 1, "clamp")[0])
+
+
 def test_tiny_triangles_still_count():
     tri = np.array([[(0.5001, 0.5001), (0.5002, 0.5001), (0.5001, 0.5002)]], float)
     assert cov.rasterize(tri, 16, 16).sum() == 1

@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from bcfpipe.addressing import address
+from bcfpipe.formats.addressing import address
 from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
 from bcfpipe.formats.vocabulary import wrap_axes
 from bcfpipe.texset.texture_set import TextureSet

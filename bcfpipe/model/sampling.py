@@ -17,20 +17,10 @@ from typing import Callable, Sequence
 
 import torch
 
+from bcfpipe.formats.addressing import address
 from bcfpipe.formats.vocabulary import Wrap, wrap_axes
 
 WRAP_MODES = (Wrap.REPEAT, Wrap.CLAMP, Wrap.MIRROR)
-
-
-def address(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
-    """Texel i of n along one axis: wrapped, clamped to the edge, or mirrored (period 2n, texel -1
-    is texel 0 and texel n is texel n - 1, as GL_MIRRORED_REPEAT)."""
-    if mode == Wrap.REPEAT:
-        return torch.remainder(i, n)
-    if mode == Wrap.MIRROR:
-        j = torch.remainder(i, 2 * n)
-        return torch.where(j < n, j, 2 * n - 1 - j)
-    return i.clamp(0, n - 1)
 
 
 def reduce_coord(x: torch.Tensor, mode: str) -> torch.Tensor:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bcfpipe.addressing import wrap_codes
+from bcfpipe.formats.addressing import wrap_codes
 from bcfpipe.formats.vocabulary import ColorSpace, Wrap
 from bcfpipe.errors import InputError
 from bcfpipe.formats import dds

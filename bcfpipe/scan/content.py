@@ -113,7 +113,7 @@ def sample_at(path: str, letter: str, st: tuple[float, float], wrap, cache: dict
     """The value (stored units) that a UsdUVTexture reading ``path`` gives at one ``st``: bilinear
     between texel centres, v = 1 - t, addressed with ``wrap`` (one mode or (S, T): repeat, clamp,
     mirror; mip 0: a constant st has no footprint)."""
-    from bcfpipe.addressing import address
+    from bcfpipe.formats.addressing import address
 
     from bcfpipe.formats.images import channel_index as source_channel_index
 
@@ -131,7 +131,7 @@ def sample_at(path: str, letter: str, st: tuple[float, float], wrap, cache: dict
     wrap_s, wrap_t = wrap_axes(wrap)
 
     def texel(i: int, j: int) -> float:
-        return float(ch[int(address(j, h, wrap_t)), int(address(i, w, wrap_s))]) / scale
+        return float(ch[int(address(np.int64(j), h, wrap_t)), int(address(np.int64(i), w, wrap_s))]) / scale
 
     top = texel(x0, y0) * (1 - fx) + texel(x0 + 1, y0) * fx
     bottom = texel(x0, y0 + 1) * (1 - fx) + texel(x0 + 1, y0 + 1) * fx

@@ -15,7 +15,7 @@ Conventions:
   interpolates (returns texel values exactly at texel centres), is C1 and reproduces linear ramps,
   and its weights sum to 1. It can overshoot slightly near edges, like any sharp bicubic.
 * Addressing, per axis (S, T): 'repeat' wraps indices (tiling materials), 'clamp' clamps them to
-  the edge, 'mirror' reflects them (bcfpipe.model.sampling.address, as the feature layers').
+  the edge, 'mirror' reflects them (bcfpipe.formats.addressing.address, as the feature layers').
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from bcfpipe.formats.vocabulary import Wrap, wrap_axes
-from bcfpipe.model.sampling import address
+from bcfpipe.formats.addressing import address
 from bcfpipe.texset import hostmem
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 

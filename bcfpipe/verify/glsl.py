@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from bcfpipe.addressing import gl_wrap_modes, wrap_codes
+from bcfpipe.formats.addressing import gl_wrap_modes, wrap_codes
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds

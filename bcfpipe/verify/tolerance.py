@@ -42,7 +42,7 @@ from typing import Sequence
 
 import numpy as np
 
-from bcfpipe.addressing import address, reduce_coord
+from bcfpipe.formats.addressing import address, reduce_coord
 from bcfpipe.formats.vocabulary import wrap_axes
 
 

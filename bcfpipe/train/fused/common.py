@@ -18,9 +18,9 @@ WRAP_REPEAT, WRAP_CLAMP, WRAP_MIRROR = 0, 1, 2
 
 
 def wrap_code(wrap) -> int:
-    """The kernels' int for an addressing (one mode or an (S, T) pair): bcfpipe.addressing's codes,
+    """The kernels' int for an addressing (one mode or an (S, T) pair): bcfpipe.formats.addressing's codes,
     which these constants name."""
-    from bcfpipe.addressing import wrap_codes
+    from bcfpipe.formats.addressing import wrap_codes
 
     s, t = wrap_codes(wrap)
     return s | t << 2

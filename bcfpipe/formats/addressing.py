@@ -1,7 +1,8 @@
-"""Texel addressing per axis on the CPU, in numpy (or on plain ints): which texel of n an index
-names under repeat, clamp-to-edge or mirror, as GL_REPEAT, GL_CLAMP_TO_EDGE and GL_MIRRORED_REPEAT
-do. The torch samplers (bcfpipe.model.sampling.address), the fused kernels and the GLSL decoder's
-samplers address alike; scan, layout and verify use this one."""
+"""Texel addressing per axis, as GL_REPEAT, GL_CLAMP_TO_EDGE and GL_MIRRORED_REPEAT address: which
+texel of n an index names (`address`, for numpy arrays and torch tensors alike: the samplers of
+training, scan, layout and verify share it), how a coordinate is range-reduced as the decoder does
+(`reduce_coord`, numpy; bcfpipe.model.sampling has torch's), and each mode's code and GL enum. The
+fused kernels and bcf_decode.glsl address alike."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,15 +11,15 @@ from bcfpipe.formats.vocabulary import Wrap, wrap_axes
 
 
 def address(i, n: int, mode: str):
-    """Texel ``i`` (an int or an integer array) of ``n`` along an axis addressed with ``mode``:
-    i mod n for repeat, i clamped to [0, n - 1] for clamp, and for mirror i mod 2n reflected
-    (texel -1 is texel 0, texel n is texel n - 1)."""
+    """Texels ``i`` (an integer numpy array or torch tensor) of ``n`` along an axis addressed with
+    ``mode``: i mod n for repeat (Python's modulo, as both libraries' ``%``), i clamped to [0, n - 1]
+    for clamp, and for mirror i mod 2n reflected (period 2n: texel -1 is texel 0, texel n is n - 1)."""
     if mode == Wrap.REPEAT:
-        return np.mod(i, n)
+        return i % n
     if mode == Wrap.MIRROR:
-        j = np.mod(i, 2 * n)
-        return np.where(j < n, j, 2 * n - 1 - j)
-    return np.clip(i, 0, n - 1)
+        j = i % (2 * n)
+        return j + (j >= n) * (2 * n - 1 - 2 * j)
+    return i.clip(0, n - 1)
 
 
 def reduce_coord(x, mode: str):
