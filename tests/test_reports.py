@@ -65,6 +65,21 @@ def test_verify_lists_every_built_material_of_roughness_test(shared_scenes, tmp_
     assert [m["shares"] for m in rep["materials"]] == [None] + [first] * 5
 
 
+def test_verify_reports_in_the_builds_order_when_a_shared_set_is_not_adjacent(tmp_path):
+    write_png(tmp_path / "t.png", pattern(16, 3))
+    write_png(tmp_path / "u.png", pattern(16, 3, seed=2))
+    scene = quad_stage(tmp_path, {"/World/Looks/A": colour("./t.png"), "/World/Looks/B": colour("./u.png"),
+                                  "/World/Looks/C": colour("./t.png")})
+    out = tmp_path / "out"
+    assert bcfpipe("build", scene, "-o", out, *SMOKE).returncode == 0
+    proc = bcfpipe("verify", out, "--no-glsl")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PASS ")]
+    assert [ln.split()[1] for ln in lines] == ["/World/Looks/A", "/World/Looks/B", "/World/Looks/C"], lines
+    assert "the texture set of /World/Looks/A, checked with it" in lines[2]
+    assert proc.stdout.strip().splitlines()[-1] == "3/3 material(s) passed"
+
+
 # ---------------------------------------------------------------------------------------------
 # item 5: scan, plan and build agree
 

@@ -446,10 +446,10 @@ def test_build_folder_with_combined_weights(materials, gl_runtime, tmp_path):
     mats.append(mfst.Material("/World/Looks/broken", "failed"))
     mfst.write(root, mfst.Manifest(scene="scene.usda", root_layer="scene.bcf.usda", materials=tuple(mats)))
     rep = V.verify(root, runtime=gl_runtime)
-    # one report per built material: the alias shares unsigned_repeat's files, checked once
+    # one report per built material, in the manifest's order: the alias shares unsigned_repeat's files
     assert [(m.name, m.shares) for m in rep.materials] == [
-        ("/World/Looks/unsigned_repeat", None), ("/World/Looks/alias", "/World/Looks/unsigned_repeat"),
-        ("/World/Looks/signed_clamp_normal", None)]
+        ("/World/Looks/unsigned_repeat", None), ("/World/Looks/signed_clamp_normal", None),
+        ("/World/Looks/alias", "/World/Looks/unsigned_repeat")]
     assert rep.exit_code == 0
     assert all("weights.bin@" in {c.name: c for c in m.checks}["weights"].detail for m in rep.materials)
     assert entries[1].offset > 0
@@ -458,7 +458,7 @@ def test_build_folder_with_combined_weights(materials, gl_runtime, tmp_path):
     data[entries[1].offset + HEADER_BYTES + 40] ^= 0x20
     (root / "weights.bin").write_bytes(bytes(data))
     rep = V.verify(root, runtime=gl_runtime)
-    assert [m.passed for m in rep.materials] == [True, True, False] and rep.exit_code == 1
+    assert [m.passed for m in rep.materials] == [True, False, True] and rep.exit_code == 1
     # without a manifest: a directory scan of */material.json
     (root / "manifest.json").unlink()
     (root / "weights.bin").unlink()

@@ -141,9 +141,9 @@ _STYLE = {Status.BUILT: "green", Status.CONSTANT: "cyan", Status.FAILED: "red", 
 
 
 def summary_table(manifest: Manifest, report: BuildReport) -> Table:
-    """The end-of-run table: one row per material (paths never wrapped), then totals."""
-    t = Table(title=f"bcfpipe build: {manifest.root_layer}", title_justify="left",
-              caption=summary_caption(manifest, report), caption_justify="left")
+    """The end-of-run table: one row per material (paths never wrapped); `print_summary` prints the
+    totals under it."""
+    t = Table(title=f"bcfpipe build: {manifest.root_layer}", title_justify="left")
     for col in COLUMNS:
         t.add_column(col, overflow="fold", no_wrap=col == "material",
                      justify="right" if col in ("outputs", "PSNR", "size", "train", "encode") else "left")
@@ -169,6 +169,7 @@ def print_summary(console: Console, manifest: Manifest, report: BuildReport) -> 
     longest = max((len(r[0]) for r in rows), default=0)
     if console.width >= longest + _OTHER_COLUMNS_WIDTH:
         console.print(summary_table(manifest, report))
+        console.print(summary_caption(manifest, report), highlight=False, soft_wrap=True)  # as wide as it is
         _print_details(console, manifest, report)
         return
     console.print(f"bcfpipe build: {manifest.root_layer}", highlight=False, soft_wrap=True)

@@ -463,6 +463,48 @@ def constant_checks(root: Path) -> dict[str, Check]:
     return {name: Check("constants", passed, detail) for name, passed, detail in check_constants(root, mfst.read(root))}
 
 
+def build_order(root: Path) -> list[str]:
+    """The built and constant materials of a build folder in its manifest's order ([] for a
+    material folder or a folder of them: the order they are found in)."""
+    from bcfpipe.formats import manifest as mfst
+    from bcfpipe.formats.vocabulary import Status
+
+    if not (root / mfst.FILE).is_file():
+        return []
+    return [m.path for m in mfst.read(root).materials if m.status in (Status.BUILT, Status.CONSTANT)]
+
+
+class InOrder:
+    """Material reports handed on (``emit``) in ``order`` as soon as every one before them is
+    done, whatever order their texture sets are checked in; reports of names not in ``order``
+    go as they come."""
+
+    def __init__(self, order: Sequence[str], emit: Callable[[MaterialReport], None]):
+        self.order, self.emit = list(order), emit
+        self.waiting: dict[str, MaterialReport] = {}
+        self.out: list[MaterialReport] = []
+
+    def add(self, reports: Sequence[MaterialReport]) -> None:
+        for rep in reports:
+            if rep.name in self.order:
+                self.waiting[rep.name] = rep
+            else:
+                self._emit(rep)
+        while self.order and self.order[0] in self.waiting:
+            self._emit(self.waiting.pop(self.order.pop(0)))
+
+    def _emit(self, rep: MaterialReport) -> None:
+        self.out.append(rep)
+        self.emit(rep)
+
+    def finish(self) -> list[MaterialReport]:
+        """Every report, in order (any the order named but never came are left out)."""
+        for name in self.order:
+            if name in self.waiting:
+                self._emit(self.waiting.pop(name))
+        return self.out
+
+
 def target_reports(t: Target, checked: MaterialReport, constants: dict[str, Check]) -> list[MaterialReport]:
     """One report per material that uses ``t``'s files: ``checked`` for the first, a report that
     shares its checks for each other; each with its own constants check, taken out of ``constants``."""
@@ -504,18 +546,15 @@ def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool =
         users = {name for t in targets for name in t.aliases}
         total = sum(len(t.aliases) or 1 for t in targets) + sum(name not in users for name in constants)
         tell(VerifyEvent("start", renderer=renderer, tolerance=tol_info, total=total))
-        reports = []
+        ordered = InOrder(build_order(Path(path)), lambda rep: tell(VerifyEvent("done", rep.name, report=rep)))
         for t in targets:
             name = t.desc.name
             checked = verify_target(t, rt if glsl else None, tolerance, seed, filter_bits,
                                     on_check=lambda check, name=name: tell(VerifyEvent("check", name, check)))
-            for rep in target_reports(t, checked, constants):
-                reports.append(rep)
-                tell(VerifyEvent("done", rep.name, report=rep))
-        for name, check in constants.items():  # a constant material: nothing but its values
-            reports.append(MaterialReport(name, str(path), [check]))
-            tell(VerifyEvent("done", name, report=reports[-1]))
-        return Report(str(path), reports, renderer, tol_info)
+            ordered.add(target_reports(t, checked, constants))
+        # a constant material: nothing but its values
+        ordered.add([MaterialReport(name, str(path), [check]) for name, check in constants.items()])
+        return Report(str(path), ordered.finish(), renderer, tol_info)
     finally:
         if own:
             rt.release()
