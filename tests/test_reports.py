@@ -236,3 +236,23 @@ def test_the_readme_lists_what_setup_installs():
     listed = {p for ln in rows for p in re.findall(r"`([^`]+)`", ln.split("|")[1])}
     assert listed == set(packages), (listed, packages)
     assert all(ln.split("|")[2].strip() for ln in rows), "each package says why"
+
+
+def test_a_failure_message_goes_under_the_table_not_into_the_note_column():
+    from bcfpipe.cli.build import material_notes
+    from bcfpipe.formats import manifest as mfst
+    from bcfpipe.formats import report as rep
+
+    why = "worker process died (signal 9) while training; the texture set may need more memory than is free"
+    m = mfst.Material("/World/Looks/M", "failed", reason=why, job="M")
+    r = rep.MaterialReport("/World/Looks/M", "failed", why, "M", None, None, None, None, None, None, ())
+    short, detail = material_notes(m, r, {"M": ("/World/Looks/M",)}, None)
+    assert short == ["why: below"] and detail == [why]
+    skipped = mfst.Material("/World/Looks/S", "skipped", reason="no-textures")
+    assert material_notes(skipped, replace_status(r, "skipped", "no-textures"), {}, None) == (["no-textures"], [])
+
+
+def replace_status(r, status: str, reason: str):
+    from dataclasses import replace
+
+    return replace(r, status=status, reason=reason)

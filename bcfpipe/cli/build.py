@@ -49,8 +49,9 @@ def material_notes(m, r, sharing: dict[str, tuple[str, ...]], usd: dict | None) 
     from bcfpipe.builder.usd_classic import UNTOUCHED
     from bcfpipe.layout.choose import ALL_CLASSIC
 
-    short = [m.reason] if m.reason else []
-    detail = []
+    failed = m.status == Status.FAILED and bool(m.reason)  # a failure's message is a sentence: said below
+    short = ["why: below"] if failed else [m.reason] if m.reason else []
+    detail = [m.reason] if failed else []
     if m.status == Status.CONSTANT:
         short.append(f"{len(m.constants)} value(s) authored")
     users = sharing.get(m.job, ()) if m.status == Status.BUILT else ()
