@@ -56,6 +56,34 @@ def test_material_round_trip_and_schema(tmp_path):
     assert back == m and back.kinds == ("scalar", "scalar") and back.normal_index == -1
 
 
+def test_per_axis_addressing_is_version_7_and_one_mode_stays_as_before(tmp_path):
+    """sampling: ``addressing`` while both axes repeat or both clamp (the version, and the bytes, as
+    before issue 57); ``wrap_s`` / ``wrap_t`` (version 7) where they differ or one mirrors; both read
+    back as the (S, T) pair, valid against the schema; a sampling with neither, or with a mode
+    nobody knows, is refused in one line."""
+    import dataclasses
+
+    import jsonschema
+
+    for wrap, written, version in [("clamp", {"addressing": "clamp"}, mf.NO_SPLIT_VERSION),
+                                   (("clamp", "repeat"), {"wrap_s": "clamp", "wrap_t": "repeat"}, 7),
+                                   ("mirror", {"wrap_s": "mirror", "wrap_t": "mirror"}, 7)]:
+        m = dataclasses.replace(_material(), sampling=mf.Sampling.of(wrap))
+        mf.write(tmp_path, m)
+        data = json.loads((tmp_path / mf.FILE).read_text())
+        assert {k: v for k, v in data["sampling"].items() if k in ("addressing", "wrap_s", "wrap_t")} == written
+        assert data["format_version"] == version == mf.read(tmp_path).format_version
+        jsonschema.validate(data, json.loads(schema.render("material.schema.json")))
+        assert mf.read(tmp_path).wrap == ((wrap, wrap) if isinstance(wrap, str) else wrap)
+    for bad, message in [({"wrap_s": "clamp"}, "either 'addressing' or both"),
+                         ({"addressing": "black"}, "unknown addressing 'black'")]:
+        data["sampling"] = {**{k: v for k, v in data["sampling"].items() if k in ("filter", "uv", "lod")}, **bad}
+        (tmp_path / mf.FILE).write_text(json.dumps(data))
+        with pytest.raises(FormatError) as e:
+            mf.read(tmp_path)
+        assert message in str(e.value) and "\n" not in str(e.value)
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda d: d.update(extra=1), "unknown key 'extra'"),
     (lambda d: d["layers"][2].pop("lod_bias"), "material.json.layers[2]: missing key 'lod_bias'"),

@@ -107,7 +107,7 @@ class Sampling(Record):
         if (self.addressing is None) == (self.wrap_s is None or self.wrap_t is None):
             raise FormatError("material.json: sampling needs either 'addressing' or both 'wrap_s' and 'wrap_t'")
         try:
-            self.axes
+            wrap_axes(self.addressing if self.addressing is not None else (self.wrap_s, self.wrap_t))
         except ValueError as exc:
             raise FormatError(f"material.json: sampling: {exc}") from None
 
