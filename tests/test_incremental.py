@@ -214,7 +214,7 @@ def test_ctrl_c_stops_the_workers_and_leaves_out_as_it_was(tmp_path):
     # as from a terminal: SIGINT at its default disposition even where this test runs with it ignored
     # (a background job of a non-interactive shell ignores SIGINT, and so would the build it starts)
     p = subprocess.Popen([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), "--cache",
-                          str(cache), "--profile", "tiny", "--quality", "standard"],
+                          str(cache), "--profile", "tiny", "--quality", "standard", "--layout", "neural"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
