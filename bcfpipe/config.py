@@ -215,7 +215,7 @@ LAYER_CHANNELS_OF = {FeatureFormat.BC6H: 3, FeatureFormat.BC7: 4}
 # Version of what training and export produce from the same inputs and options. It is part of
 # every cache key (bcfpipe.builder.plan.content_hash): bump it with any change to the trainer, the
 # encoder, the export or the files' contents, so that no cached material from before is reused.
-MODEL_FORMAT = 16  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
+MODEL_FORMAT = 17  # 5: the fused kernel by default and the re-tuned presets (issue 30); 6: the quick first encode
 # (BC6H and BC7); 7: the BC6H first encode compiled (bc6h/quick.cpp: a few blocks in a thousand differ);
 # 8: --layout auto the default (a record without a layout meant neural before); fast and standard take
 # fewer steps at a 2048² T_0 on a CPU (CPU_PRESETS_LARGE); 9: --layout auto weighs mip splits (material.json
@@ -228,6 +228,8 @@ MODEL_FORMAT = 16  # 5: the fused kernel by default and the re-tuned presets (is
 # is an (S, T) pair, and mirror is trained as mirror
 # 16: a layout's classic normal is BC7 of (x, y, z), z stored for USD, and a colour read through rgb keeps its
 # channels in their slots (TextureSet.vectors, material.json classic[].slots; issue 57)
+# 17: a layout's classic normal is BC5 of its slopes (x / z, y / z) / m, read by USD as (s_x, s_y, 1) and by
+# decoders normalised (material.json outputs' encoding "slope", format version 8; issue 57)
 
 # --pca-clip: the percentage of texels at each end of a principal component's range that the PCA
 # start and a fixed T_0 clip (0.1: the 0.1st..99.9th percentiles span the feature range)

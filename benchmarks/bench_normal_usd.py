@@ -4,12 +4,15 @@ mean and p99 angle against the source, beside BC5 with z rebuilt as engines read
 For each set's normal map, at R (the source's side: the default `--profile auto`, or
 ``--resolution``):
 
-* **shipped**: the layout's BC@R normal (`bcfpipe.layout.classic.encode`: BC7 of x, y and the
-  rebuilt z, ISPC at the project's BC7 preset), written as the export writes it (a DX10 DDS), read
-  back with OpenImageIO, the USD layer's scale 2 and bias -1 applied to r, g, b, normalised;
-* **BC5, z rebuilt**: the same x, y in BC5 (quicktex, as BC@R was before and `bench` still has it),
+* **BC5 slopes (shipped)**: the layout's BC@R normal (`bcfpipe.layout.classic.encode`: BC5 of
+  clip(s / m) / 2 + 1 / 2, s = (x / z, y / z), m the 0.999 quantile of |s| at level 0), written as
+  the export writes it (a DX10 DDS), read back with OpenImageIO, the USD layer's scale and bias
+  (r, g: 2m / M, -m / M; b: 0, 1 / M; M = max(m, 1)) applied, normalised;
+* **BC7 x, y, z**: x, y and the rebuilt z in BC7 (ISPC at the project's BC7 preset), read with scale 2
+  and bias -1 on r, g, b, normalised (what the layout shipped before the slopes);
+* **BC5, z rebuilt**: the same x, y in BC5 (quicktex, as `bench`'s BC@R has it),
   z = sqrt(1 - x² - y²), as engines read it;
-* **BC5, z = 1**: what the USD layer gave a UsdPreviewSurface before (scale 0, bias 1 on z);
+* **BC5, z = 1**: what the USD layer gave a UsdPreviewSurface before issue 57 (scale 0, bias 1 on z);
 * **source x, y, z rebuilt**: no compression: how far the source's own z is from its x, y's.
 
 The reference is the source file's r, g, b as 2v - 1, normalised, at its own resolution (R below
@@ -60,8 +63,8 @@ def measure(name: str, path: Path, resolution: int | None) -> list[tuple[str, fl
     from bcfpipe.formats import dds
     from bcfpipe.formats.bcn import DXGI
     from bcfpipe.layout import classic as C
-    from bcfpipe.texset.baselines import bc5_mips
-    from bcfpipe.texset.normals import angular_stats, rebuild_z, usd_normal
+    from bcfpipe.texset.baselines import bc5_mips, bc7_mips
+    from bcfpipe.texset.normals import angular_stats, rebuild_z, stored_xyz, usd_normal
     from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
 
     ts = load_texture_set([TextureSpec("normal", str(path), "xy")])
@@ -73,17 +76,24 @@ def measure(name: str, path: Path, resolution: int | None) -> list[tuple[str, fl
     rows = []
     t = time.perf_counter()
     (group,) = C.encode(ts, r, ref_mips)
-    assert group.group.normal_z
+    assert group.group.slope and group.slope is not None
+    m = group.slope
+    big = max(m, 1.0)  # the USD layer's scale and bias (bcfpipe.builder.usd_classic)
     with tempfile.TemporaryDirectory() as tmp:
         f = Path(tmp) / "C0.dds"
         dds.write(f, group.levels, dxgi_format=DXGI[group.group.format])
-        shipped = usd_normal(oiio_texels(f), (2.0, 2.0, 2.0), (-1.0, -1.0, -1.0))  # the USD layer's scale, bias
+        shipped = usd_normal(oiio_texels(f), (2 * m / big, 2 * m / big, 0.0), (-m / big, -m / big, 1 / big))
         size = f.stat().st_size
-    rows.append((f"shipped: {group.group.format.value.upper()} x, y, z as USD reads it",
-                 *angular_stats(truth, shipped), size, time.perf_counter() - t))
+    rows.append((f"BC5 slopes (shipped, m = {m:.2f}) as USD reads it", *angular_stats(truth, shipped), size,
+                 time.perf_counter() - t))
     t = time.perf_counter()
     blocks: list = []
-    dec, _ = bc5_mips([(m + 1.0) * 0.5 for m in ref_mips[mip:]], blocks)
+    dec, _ = bc7_mips([np.concatenate([stored_xyz(x), np.ones_like(x[..., :1])], -1) for x in ref_mips[mip:]], blocks)
+    rows.append(("BC7 x, y, z as USD reads it", *angular_stats(truth, usd_normal(dec[0])),
+                 dds.HEADER_BYTES + sum(b.nbytes for b, _, _ in blocks), time.perf_counter() - t))
+    t = time.perf_counter()
+    blocks = []
+    dec, _ = bc5_mips([(x + 1.0) * 0.5 for x in ref_mips[mip:]], blocks)
     xy = dec[0] * 2.0 - 1.0
     bc5 = dds.HEADER_BYTES + sum(b.nbytes for b, _, _ in blocks)
     rows.append(("BC5, z rebuilt (engines)", *angular_stats(truth, rebuild_z(xy)), bc5, time.perf_counter() - t))

@@ -41,12 +41,12 @@ def _set(size=64, seed=0) -> TextureSet:
     return TextureSet(data, ch, size, size)
 
 
-def test_groups_are_benchs_bc_set_with_the_normal_in_bc7_xyz():
-    """Bench's BC set, but the normal: BC7 of x, y and the rebuilt z in BC5's bytes, so that a
-    UsdUVTexture reads z (issue 57)."""
+def test_groups_are_benchs_bc_set_with_the_normal_as_bc5_slopes():
+    """Bench's BC set, the normal in BC5 as bench has it, but of its slopes (x / z, y / z), so that a
+    UsdUVTexture gives its direction (issue 57)."""
     gs = groups(_set())
-    assert [(g.format, g.channels, g.name, g.normal_z) for g in gs] == [
-        (ClassicFormat.BC1, (0, 1, 2), "albedo", False), (ClassicFormat.BC7, (3, 4), "normal", True),
+    assert [(g.format, g.channels, g.name, g.slope) for g in gs] == [
+        (ClassicFormat.BC1, (0, 1, 2), "albedo", False), (ClassicFormat.BC5, (3, 4), "normal", True),
         (ClassicFormat.BC4, (5,), "roughness", False)]
 
 
@@ -55,11 +55,13 @@ def test_classic_blocks_decode_to_what_bench_measured():
     ref = build_mip_chain(ts.data)
     for enc in encode(ts, 32, ref):
         texels = decode_levels(enc.group.format, enc.levels)
-        scale_bias = np.array(enc.group.texel_map(ts))
+        scale_bias = np.array(enc.texel_map(ts))
         # level 0 is reference mip 1 (R = 32 for a 64² set); every level after it in turn
         for k, t in enumerate(texels):
-            if enc.group.normal_z:  # what USD shades with: the stored x, y, z as 2t - 1, normalised
-                np.testing.assert_allclose(unit(t[..., :3] * 2.0 - 1.0), enc.decoded[k + 1], atol=1e-6)
+            if enc.group.slope:  # what USD shades with: the slopes (2t - 1) m as (s_x, s_y, 1), normalised
+                s = t[..., :2] * scale_bias[:, 0] + scale_bias[:, 1]
+                np.testing.assert_allclose(unit(np.concatenate([s, np.ones_like(s[..., :1])], -1)), enc.decoded[k + 1],
+                                           atol=1e-6)
                 continue
             np.testing.assert_allclose(t * scale_bias[:, 0] + scale_bias[:, 1], enc.decoded[k + 1], atol=1e-6)
 
@@ -140,18 +142,18 @@ def test_mixed_material_json_says_where_each_output_comes_from(mixed):
     ts, _, out, _ = mixed
     d = json.loads((out / "material.json").read_text())
     jsonschema.validate(d, json.loads(SCHEMA.read_text()))
-    assert d["format_version"] == (5 if any("blocks" in layer for layer in d["layers"]) else 3)  # 5: a fixed T_0
-    assert [c["file"] for c in d["classic"]] == ["C0.dds"] and d["classic"][0]["format"] == "BC7_UNORM"
-    assert d["classic"][0]["channels"] == 3  # the normal's x, y and its z, stored for USD (issue 57)
+    assert d["format_version"] == 8  # a normal stored as slopes (issue 57)
+    assert [c["file"] for c in d["classic"]] == ["C0.dds"] and d["classic"][0]["format"] == "BC5_UNORM"
+    assert d["classic"][0]["channels"] == 2  # the normal's slopes (issue 57)
     assert d["classic"][0]["width"] == 32 and d["classic"][0]["lod_bias"] == -1.0
     src = {o["name"]: o.get("source", "mlp") for o in d["outputs"]}
     assert src == {"albedo.r": "mlp", "albedo.g": "mlp", "albedo.b": "mlp", "normal.x": "classic",
                    "normal.y": "classic", "normal.z": "classic", "roughness.r": "mlp"}
     nx = next(o for o in d["outputs"] if o["name"] == "normal.x")
-    assert (nx["texture"], nx["texel_channel"], nx["texel_scale"], nx["texel_bias"]) == (0, 0, 2.0, -1.0)
+    m = nx["texel_scale"] / 2.0
+    assert (nx["texture"], nx["texel_channel"], nx["texel_bias"], nx["encoding"]) == (0, 0, -m, "slope") and m >= 1 / 64
     nz = next(o for o in d["outputs"] if o["name"] == "normal.z")
-    assert nz["reconstructed"] and (nz["texture"], nz["texel_channel"], nz["texel_scale"], nz["texel_bias"]) == (
-        0, 2, 2.0, -1.0)
+    assert nz["reconstructed"] and (nz["texture"], nz["encoding"]) == (0, "slope") and "texel_channel" not in nz
     assert d["mlp"]["n_out"] == 4 and sorted(d["sha256"]) == sorted(
         ["T0.dds", "T1.dds", "T2.dds", "T3.dds", "weights.bin", "decoder.onnx", "C0.dds"])
     assert not (out / "probe").exists() and sorted(p.name for p in out.iterdir()) == sorted(
@@ -160,14 +162,15 @@ def test_mixed_material_json_says_where_each_output_comes_from(mixed):
 
 def _usd_normal_errors(ts: TextureSet, ref, out: Path) -> np.ndarray:
     """(mips, 2) errors of the normal's x and y as the layout counts them, rebuilt from the folder:
-    the classic normal's DDS as a UsdPreviewSurface reads it (2t - 1, normalised) against the
+    the classic normal's DDS as a UsdPreviewSurface reads it ((s_x, s_y, 1) normalised) against the
     reference's x, y and rebuilt z, each at the normal's peak, half of z's added to x's and to y's."""
     from bcfpipe.layout.classic import usd_normals
     from bcfpipe.texset.normals import rebuild_z
 
     desc = mf.read(out)
-    z = next(o for o in desc.outputs if o.name == "normal.z")
-    seen = usd_normals(dds.read(out / desc.classic[z.texture].file).levels, [m.shape[:2] for m in ref], desc.wrap)
+    x = next(o for o in desc.outputs if o.name == "normal.x")
+    seen = usd_normals(dds.read(out / desc.classic[x.texture].file).levels, [m.shape[:2] for m in ref], desc.wrap,
+                       -x.texel_bias)
     xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
     e = np.array([[np.mean((s[..., i].astype(np.float64) - t[..., i]) ** 2) / 4.0 for i in range(3)]
                   for s, t in zip(seen, (rebuild_z(r[..., xy]) for r in ref))])
@@ -237,7 +240,7 @@ def read_independently(out: Path):
 
 
 def test_mixed_material_rebuilt_from_material_json_alone(mixed):
-    """An independent consumer: OpenImageIO reads every DDS (the features, the BC7 normal), numpy
+    """An independent consumer: OpenImageIO reads every DDS (the features, the BC5 slope normal), numpy
     samples them as GL would, onnxruntime runs the decoder, material.json says the rest."""
     ts, ref, out, _ = mixed
     d, layers, classic, sess = read_independently(out)
@@ -255,12 +258,17 @@ def test_mixed_material_rebuilt_from_material_json_alone(mixed):
             if o.get("source", "mlp") == "mlp":
                 cols.append(y_mlp[:, j])
                 j += 1
+            elif o["reconstructed"] and o.get("encoding") == "slope":  # (s_x, s_y, 1) normalised
+                sx, sy = cols[-2], cols[-1]
+                z = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
+                cols[-2:] = [sx * z, sy * z]
+                cols.append(z)
             elif o["reconstructed"]:
                 x, y = cols[-2], cols[-1]
                 cols.append(np.sqrt(np.maximum(0.0, 1.0 - x * x - y * y)))
             else:
                 v = texels[o["texture"]][:, o["texel_channel"]] * o["texel_scale"] + o["texel_bias"]
-                cols.append(np.clip(v, *o["range"]))
+                cols.append(v if o.get("encoding") == "slope" else np.clip(v, *o["range"]))
         theirs, mine = np.stack(cols, 1), ours[k].reshape(h * w, -1)
         for i, o in enumerate(d["outputs"]):
             if o.get("source", "mlp") == "mlp":
@@ -487,7 +495,7 @@ def test_train_classic_keeps_the_named_group_and_trains_the_rest(tmp_path):
     assert d["layout"]["chosen"]["layout"] == "neural tiny + classic normal"
     assert "--classic normal" in d["layout"]["reason"]
     desc = mf.read(out)
-    assert [c.dxgi_format for c in desc.classic] == [98]  # BC7_UNORM: x, y and z, in BC5's bytes (issue 57)
+    assert [c.dxgi_format for c in desc.classic] == [83]  # BC5_UNORM: the normal's slopes (issue 57)
     assert {o.name for o in desc.outputs if o.source == "classic"} == {"normal.x", "normal.y", "normal.z"}
     assert desc.mlp.n_out == 3  # albedo only
     assert not (out / ".layout-work").exists()

@@ -35,9 +35,9 @@ def _two_colours() -> TextureSet:
 
 
 def test_repacks_merge_bc1_with_bc4_and_pack_every_channel_where_the_bytes_allow():
-    gs = groups(_set())  # albedo BC1, normal BC7 (x, y, z), roughness BC4: 32 bytes per 4x4 block
+    gs = groups(_set())  # albedo BC1, normal BC5 (slopes), roughness BC4: 32 bytes per 4x4 block
     rp = repacks(gs)
-    # the normal is BC7 already, its z in slot b (issue 57): never repacked; every other channel in
+    # the normal's slopes stay BC5 (issue 57): never repacked; every other channel in
     # one BC7 is the albedo+roughness repack itself, so it is offered once
     assert [(r.label, r.replaces) for r in rp] == [("albedo+roughness as BC7", ("albedo", "roughness"))]
     assert rp[0].groups == (Group(ClassicFormat.BC7, (0, 1, 2, 5), "albedo+roughness"),)
@@ -85,10 +85,10 @@ def test_a_repack_exports_bc7_and_says_where_each_output_comes_from(repacked):
     d = json.loads((out / "material.json").read_text())
     jsonschema.validate(d, json.loads(SCHEMA.read_text()))
     assert [(c["file"], c["dxgi_format"], c["format"], c["channels"]) for c in d["classic"]] == [
-        ("C0.dds", 98, "BC7_UNORM", 3), ("C1.dds", 98, "BC7_UNORM", 4)]
+        ("C0.dds", 83, "BC5_UNORM", 2), ("C1.dds", 98, "BC7_UNORM", 4)]
     where = {o["name"]: (o["source"], o["texture"], o.get("texel_channel")) for o in d["outputs"]}
     assert where == {"albedo.r": ("classic", 1, 0), "albedo.g": ("classic", 1, 1), "albedo.b": ("classic", 1, 2),
-                     "normal.x": ("classic", 0, 0), "normal.y": ("classic", 0, 1), "normal.z": ("classic", 0, 2),
+                     "normal.x": ("classic", 0, 0), "normal.y": ("classic", 0, 1), "normal.z": ("classic", 0, None),
                      "roughness.r": ("classic", 1, 3)}
     assert not d["layers"] and "mlp" not in d and sorted(p.name for p in out.iterdir()) == [
         "C0.dds", "C1.dds", "material.json"]
@@ -102,8 +102,8 @@ def test_a_repack_exports_bc7_and_says_where_each_output_comes_from(repacked):
 
 
 def test_a_repack_rebuilt_from_material_json_alone(repacked):
-    """OpenImageIO reads both DDS files (the BC7 normal and the BC7 repack); numpy samples them as GL would; material.json
-    says the rest. BC7's palette is exact integer arithmetic, so every BC7 output agrees bit for bit."""
+    """OpenImageIO reads both DDS files (the BC5 slope normal and the BC7 repack); numpy samples them as GL would;
+    material.json says the rest (a slope normal: (s_x, s_y, 1) normalised). BC7's palette is exact integer arithmetic, so every BC7 output agrees bit for bit."""
     ts, ref, out, _ = repacked
     d = json.loads((out / "material.json").read_text())
     classic = [_oiio_levels(out / c["file"], c["channels"]) for c in d["classic"]]
@@ -114,10 +114,16 @@ def test_a_repack_rebuilt_from_material_json_alone(repacked):
         uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1)
         texels = [_trilinear(lv, uv, k + c["lod_bias"], "repeat") for lv, c in zip(classic, d["classic"])]
         mine = ours[k].reshape(h * w, -1)
+        raw = {i: texels[o["texture"]][:, o["texel_channel"]] * o["texel_scale"] + o["texel_bias"]
+               for i, o in enumerate(d["outputs"]) if not o["reconstructed"]}
+        sx, sy = (raw[i] for i, o in enumerate(d["outputs"]) if o.get("encoding") == "slope" and i in raw)
+        inv = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
+        raw.update({i: v * inv for i, v in zip((3, 4), (sx, sy))})
+        assert [d["outputs"][i]["name"] for i in (3, 4)] == ["normal.x", "normal.y"]
         for i, o in enumerate(d["outputs"]):
             if o["reconstructed"]:
                 continue
-            v = np.clip(texels[o["texture"]][:, o["texel_channel"]] * o["texel_scale"] + o["texel_bias"], *o["range"])
+            v = np.clip(raw[i], *o["range"])
             bc7 = d["classic"][o["texture"]]["dxgi_format"] == 98
             np.testing.assert_allclose(v, mine[:, i], atol=1e-6 if bc7 else abs(o["texel_scale"]) / 255 + 1e-6,
                                        err_msg=f"{o['name']} mip {k}")
@@ -194,5 +200,5 @@ def test_classic_keeps_its_group_as_bc_at_r_has_it_and_a_repack_of_the_rest_ship
     desc = mf.read(out)
     assert not desc.neural and not desc.layers
     assert sorted(p.name for p in out.iterdir()) == ["C0.dds", "C1.dds", "C2.dds", "layout.json", "material.json"]
-    assert [c.dxgi_format for c in desc.classic].count(dds.DXGI_FORMAT_BC7_UNORM) == 2  # the normal's and the repack
+    assert [c.dxgi_format for c in desc.classic].count(dds.DXGI_FORMAT_BC7_UNORM) == 1  # the repack (the normal: BC5)
     assert verify(out, glsl=False).exit_code == 0

@@ -82,20 +82,6 @@ def test_split_material_json_says_both_sources_of_every_output(split):
         replace(desc, split=0)
 
 
-def _read(g, k: int, shapes) -> np.ndarray:
-    """What a decoder reads of BC@R's group ``g`` at reference mip ``k``: what was measured, but for
-    a BC7 normal (measured as USD reads it, normalised) its texels' x, y as 2t - 1, as material.json
-    maps them (level 0 magnified for the mips above R)."""
-    if not g.group.normal_z:
-        return g.decoded[k]
-    from bcfpipe.formats.bcn import ClassicFormat, decode_levels
-    from bcfpipe.layout.classic import magnify
-
-    xy = [t[..., :2] * 2.0 - 1.0 for t in decode_levels(ClassicFormat.BC7, g.levels)]
-    d = len(shapes) - len(xy)
-    return magnify(xy[0], *shapes[k], "repeat") if k < d else xy[k - d]
-
-
 def test_split_decodes_to_bc_below_the_split_and_to_the_model_from_it(split):
     """At the reference mips, the folder decodes exactly as BC@R's blocks below the split and as
     the neural model alone from it on: the figures of both parts carry over unchanged."""
@@ -106,7 +92,8 @@ def test_split_decodes_to_bc_below_the_split_and_to_the_model_from_it(split):
     cols = {c: (g, j) for g in enc for j, c in enumerate(g.group.channels)}
     for k in range(len(ref)):
         if k < SPLIT:
-            bc = np.stack([_read(enc_g, k, shapes)[..., j] for c, (enc_g, j) in sorted(cols.items())], -1)
+            # a slope normal was measured as USD reads it, (s_x, s_y, 1) normalised: as the decoder reads it
+            bc = np.stack([enc_g.decoded[k][..., j] for c, (enc_g, j) in sorted(cols.items())], -1)
             np.testing.assert_allclose(ours[k], bc, atol=1e-6, err_msg=f"mip {k}")
         else:
             np.testing.assert_array_equal(ours[k], model[k], err_msg=f"mip {k}")
@@ -127,6 +114,13 @@ def test_split_material_rebuilt_from_material_json_alone(split):
         feats = np.concatenate([_trilinear(lv, uv, s + l["lod_bias"], wrap) for lv, l in zip(layers, d["layers"])], 1)
         y_mlp = sess.run([d["onnx"]["output"]], {d["onnx"]["input"]: feats.astype(np.float32)})[0]
         texels = [_trilinear(lv, uv, s + c["lod_bias"], wrap) for lv, c in zip(classic, d["classic"])]
+        raw = {j: texels[o["texture"]][:, o["texel_channel"]] * o["texel_scale"] + o["texel_bias"]
+               for j, o in enumerate(d["outputs"]) if not o["reconstructed"]}
+        slope = [j for j in raw if d["outputs"][j].get("encoding") == "slope"]
+        if slope:  # the normal's slopes (s_x, s_y), read as (s_x, s_y, 1) normalised
+            sx, sy = raw[slope[0]], raw[slope[1]]
+            inv = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
+            raw[slope[0]], raw[slope[1]] = sx * inv, sy * inv
         theirs = []
         for j, o in enumerate(d["outputs"]):
             if o["reconstructed"]:
@@ -134,7 +128,7 @@ def test_split_material_rebuilt_from_material_json_alone(split):
                 z = np.sqrt(np.maximum(0.0, 1.0 - x * x - y * y))
                 theirs.append(y_mlp[:, j] if w == 1.0 else z)
                 continue
-            v = np.clip(texels[o["texture"]][:, o["texel_channel"]] * o["texel_scale"] + o["texel_bias"], *o["range"])
+            v = np.clip(raw[j], *o["range"])
             theirs.append((1 - w) * v + w * y_mlp[:, j])
         theirs = np.stack(theirs, 1)
         mine = np.empty_like(theirs, dtype=np.float32)

@@ -132,6 +132,24 @@ def normal_angle(ts: TextureSet, ref: np.ndarray, dec: np.ndarray) -> dict:
     return {"normal_angle_deg": {"mean": round(mean, 3), "p99": round(p99, 3)}}
 
 
+def shipped_normal_angle(ts: TextureSet, ref: Sequence[np.ndarray], shift: int) -> dict:
+    """``{"normal_angle_deg_shipped": {"mean", "p99", "m"}}``: BC@R's normal as a layout ships it for
+    USD (BC5 of its slopes, `baselines.slope_mips`, read as (s_x, s_y, 1) normalised; level 0 at R
+    magnified to mip 0 as the baseline is), beside the cell's BC5 with z rebuilt (issue 57); {}
+    without a normal map."""
+    from bcfpipe.texset.baselines import _bilinear_up, slope_mips
+    from bcfpipe.texset.normals import angular_stats, rebuild_z, unit
+
+    xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
+    if len(xy) != 2:
+        return {}
+    k = min(shift, len(ref) - 1)
+    normals, m, _ = slope_mips([r[..., xy] for r in ref[k:k + 1]])
+    seen = unit(_bilinear_up(normals[0], *ref[0].shape[:2])) if k else normals[0]
+    mean, p99 = angular_stats(rebuild_z(ref[0][..., xy]), seen)
+    return {"normal_angle_deg_shipped": {"mean": round(mean, 3), "p99": round(p99, 3), "m": round(m, 4)}}
+
+
 def _crops(mips: Sequence[np.ndarray], windows: Windows) -> list[np.ndarray]:
     return [np.array(mips[k][y:y + n, x:x + n]) for k, x, y, n in windows]
 
@@ -148,7 +166,8 @@ def measure_baseline(ts: TextureSet, ref: Sequence[np.ndarray], b: Baseline, gri
     metrics = compute_metrics(ref, dec, ts.channels)
     sweep = L.sweep(grid, L.mips_answer(dec, grid.wrap))
     extra = {"codec": b.codec, "block": b.block, "resolution": side >> b.shift, "encoder": ENCODERS[b.codec],
-             "formats": [fmt for fmt, _, _ in textures], **normal_angle(ts, ref[0], dec[0])}
+             "formats": [fmt for fmt, _, _ in textures], **normal_angle(ts, ref[0], dec[0]),
+             **(shipped_normal_angle(ts, ref, b.shift) if b.codec == "bc" else {})}
     disk = blocks_disk_bytes(textures, b.block if b.codec == "astc" else None)
     return Cell(b.label(side), b.codec, metrics, size, seconds, sweep, _crops(dec, windows), extra,
                 textures if b.codec == "bc" and b.shift == 0 else None, disk_bytes=disk)

@@ -132,6 +132,10 @@ def summary_markdown(data: dict) -> str:
             for r in angled:
                 a = r["normal_angle_deg"]
                 out.append(f"| {r['method']} | {a['mean']:.2f} | {a['p99']:.2f} |")
+                if r.get("normal_angle_deg_shipped"):  # what a layout ships for USD (BC5 slopes)
+                    a = r["normal_angle_deg_shipped"]
+                    out.append(f"| {r['method']}, BC5 slopes as USD reads them (shipped) | {a['mean']:.2f} | "
+                               f"{a['p99']:.2f} |")
         d = s.get("decode_cost") or {}
         if d.get("rows"):
             out.append(f"\nDecode cost at {d['width']}x{d['height']}, {d['renderer']} ({d['timer']}, median of "

@@ -10,11 +10,14 @@ already folded to v). A UsdUVTexture computes ``cs(t) * scale + bias`` per rgba 
 * sRGB: only when ``f = t`` (colour textures store the source file's encoded values, texel map 1, 0):
   ``sourceColorSpace = "sRGB"`` (rgb slots only; alpha is always linear), scale ``s``, bias ``b``;
 * a constant component of an input: scale 0, bias its value;
-* a normal's z: a layout's classic normal is BC7 of (x, y, z), z rebuilt as sqrt(1 - x² - y²) and
-  stored at slot b (material.json: the z output's ``texel_channel`` 2, v = 2t - 1), so the input
-  reads ``(x, y, z)`` with scale 2 and bias -1 on every slot and a UsdPreviewSurface consumer that
-  normalises it (Storm does) sees the normal within BC7's error (issue 57; docs/benchmarks.md
-  measures the angle). A BC5 normal (an older build) has no z to read: scale 0, bias 1, ``(x, y, 1)``.
+* a normal: a layout's classic normal is BC5 of its slopes (material.json: encoding "slope", x's and
+  y's texel_scale 2m, texel_bias -m give s = (x / z, y / z)), which a UsdUVTexture cannot turn back
+  into (x, y, sqrt(1 - x² - y²)); but UsdPreviewSurface normalises its tangent-space normal (Storm
+  does), and (s_x, s_y, 1) normalised is (x, y, z). So r and g read s / M (scale 2m / M, bias -m / M)
+  and b the constant 1 / M (scale 0: BC5's b, 0 as Storm and OpenImageIO read a two-channel texture,
+  is not used), with M = max(m, 1) so that every component stays in the normal's documented
+  [-1, 1] (issue 57; docs/benchmarks.md measures the angle). A normal stored as x, y without an
+  encoding (an older build's BC5) reads z as 1: scale 0, bias 1, ``(x, y, 1)``.
 * a colour whose source repeats a channel (its b equals its g, a grey file) keeps it in each slot
   a UsdUVTexture's rgb reads: material.json's ``slots`` says which output each texel channel holds.
 
@@ -123,6 +126,13 @@ def _slot_map(t, o: mf.Output) -> tuple[float, float] | str:
     return float(t.scale) * ts * vs, float(t.scale) * (tb * vs + vb) + float(t.bias)
 
 
+def _slope_norm(outs: Sequence[mf.Output], o: mf.Output) -> float:
+    """M = max(m, 1) of the slope normal that output ``o`` (x, y or z) belongs to; 1 for a normal
+    without an encoding (its z reads 1)."""
+    x = next((p for p in outs if p.semantic == o.semantic and p.encoding == mf.SLOPE and not p.reconstructed), None)
+    return max(float(x.texel_scale) / 2.0, 1.0) if x is not None else 1.0
+
+
 def _wire_input(name: str, ref, type_name: str, targets: dict, desc: mf.MaterialFile,
                 folder: str) -> Wiring | str | None:
     """The wiring of one input, why it cannot be wired (a str), or None when it is not classic."""
@@ -146,8 +156,8 @@ def _wire_input(name: str, ref, type_name: str, targets: dict, desc: mf.Material
             slots.append((slot, 0.0, float(t.bias)))
             continue
         o = outs[t.channel]
-        if o.reconstructed and o.texel_channel is None:  # normal z not stored (a BC5 of an older build)
-            slots.append((slot, 0.0, 1.0))
+        if o.reconstructed and o.texel_channel is None:  # normal z: not stored; see the module's note
+            slots.append((slot, 0.0, 1.0 / _slope_norm(outs, o)))
             continue
         texel = int(o.texel_channel)
         held = desc.classic[tex].slots
@@ -158,6 +168,8 @@ def _wire_input(name: str, ref, type_name: str, targets: dict, desc: mf.Material
         m = _slot_map(t, o)
         if isinstance(m, str):
             return m
+        if o.encoding == mf.SLOPE:  # s / M; see the module's note
+            m = (m[0] / _slope_norm(outs, o), m[1] / _slope_norm(outs, o))
         if t.color_space == ColorSpace.SRGB:
             if texel == 3:
                 return f"{o.name} is sRGB in an alpha slot"

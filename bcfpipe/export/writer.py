@@ -203,6 +203,18 @@ def split_weight(split: int, s: float) -> float:
     return float(min(1.0, max(0.0, s - (split - 1))))
 
 
+def _unslope(outputs, v: dict) -> None:
+    """A normal stored as slopes (material.json encoding "slope"): its x and y columns of ``v`` (s_x,
+    s_y) become the unit normal's, (s_x, s_y, 1) normalised, as a UsdPreviewSurface reads it."""
+    by_semantic: dict[str, list[int]] = {}
+    for i in v:
+        if outputs[i].encoding == mf.SLOPE:
+            by_semantic.setdefault(outputs[i].semantic, []).append(i)
+    for ix, iy in by_semantic.values():
+        inv = 1.0 / np.sqrt(1.0 + v[ix] * v[ix] + v[iy] * v[iy])
+        v[ix], v[iy] = v[ix] * inv, v[iy] * inv
+
+
 def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarray) -> None:
     """Fill the classic outputs' columns of ``y`` (N, outputs): each texture sampled trilinearly at
     s + its lod_bias (lod clamped to its mips, so below 0 level 0 is magnified), value = texel *
@@ -220,10 +232,12 @@ def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarra
         t = M.sample_features(lvl, [len(tex) for tex in levels], tuple(c.lod_bias for c in desc.classic),
                               torch.from_numpy(uv), s, desc.wrap).numpy()
     first = np.cumsum([0] + [c.channels for c in desc.classic])
-    for i, o in enumerate(desc.outputs):
-        if mine[i] and not o.reconstructed:
-            v = np.clip(t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias, *o.range)
-            y[:, i] = v if o.source == mf.Source.CLASSIC else (1.0 - w) * v + w * y[:, i]
+    v = {i: t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias
+         for i, o in enumerate(desc.outputs) if mine[i] and not o.reconstructed}
+    _unslope(desc.outputs, v)
+    for i, vi in v.items():
+        vi = np.clip(vi, *desc.outputs[i].range)
+        y[:, i] = vi if desc.outputs[i].source == mf.Source.CLASSIC else (1.0 - w) * vi + w * y[:, i]
     for i, o in enumerate(desc.outputs):
         if mine[i] and o.reconstructed:  # normal z after its x and y (a split one's: of the mixed x and y)
             x, yy = y[:, i - 2], y[:, i - 1]

@@ -15,17 +15,20 @@ from bcfpipe.formats.vocabulary import Source, Wrap, wrap_axes
 from bcfpipe.formats.record import FormatError, Record, optional, read as read_record
 
 FORMAT = "bcfpipe-material"
-FORMAT_VERSION = 7  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
+FORMAT_VERSION = 8  # 3: classic textures and each output's source (issue 31); 4: the mip-split layout ("split");
 # 5: a layer's "blocks" (a T_0 of principal components in any BC7 mode, issue 29); 6: more than four layers
 # (a T_0 of two or three layers of components, issue 52: T0.dds, T0b.dds, T0c.dds, then T1..T3); 7: addressing
 # per axis (sampling.wrap_s / wrap_t: repeat, clamp or mirror, as a UsdUVTexture's wrapS / wrapT; issue 57),
-# written only where the axes differ or one mirrors; versions 2-6 read as before. A material is written as the lowest version its contents need, byte for byte as before:
+# written only where the axes differ or one mirrors; 8: a classic normal stored as slopes (outputs' "encoding":
+# "slope", issue 57), written only with one; versions 2-7 read as before. A material is written as the lowest version its contents need, byte for byte as before:
 # four layers none of which is in any mode, as version 3 (with a split, 4); four layers, one of them in any
 # mode, as version 5; so readers of those versions read what they read before.
 NO_SPLIT_VERSION = 3
 SPLIT_VERSION = 4
 ANY_MODE_VERSION = 5
 MANY_LAYERS_VERSION = 6
+PER_AXIS_VERSION = 7
+SLOPE = "slope"  # Output.encoding of a normal stored as slopes: (s_x, s_y, 1) normalised is the normal
 PROFILE_LAYERS = 4  # T_0..T_3: a material with more layers is written as FORMAT_VERSION
 ANY_BC7_MODE = "any BC7 mode"  # Layer.blocks of a layer encoded once by a full BC7 encoder
 FILE = "material.json"
@@ -183,6 +186,9 @@ class Output(Record):
     texel_channel: int | None = optional()  # classic outputs: the texture's channel (0 = r)
     texel_scale: float | None = optional()  # classic outputs: value = texel * texel_scale + texel_bias
     texel_bias: float | None = optional()
+    # SLOPE: a classic normal stored as slopes (issue 57): x's and y's texel * texel_scale + texel_bias are
+    # s_x = x / z and s_y = y / z; the normal is (s_x, s_y, 1) normalised (z = 1 / sqrt(1 + s_x² + s_y²))
+    encoding: str | None = optional()
 
 
 @dataclass(frozen=True)
@@ -254,7 +260,9 @@ class MaterialFile(Record):
     def __post_init__(self) -> None:
         # the version this record is written as (FORMAT_VERSION's note)
         any_mode = any(layer.blocks is not None for layer in self.layers)
-        object.__setattr__(self, "format_version", FORMAT_VERSION if self.sampling.per_axis else
+        slope = [o for o in self.outputs if o.encoding is not None]
+        object.__setattr__(self, "format_version", FORMAT_VERSION if slope else
+                           PER_AXIS_VERSION if self.sampling.per_axis else
                            MANY_LAYERS_VERSION if len(self.layers) > PROFILE_LAYERS else
                            ANY_MODE_VERSION if any_mode else SPLIT_VERSION if self.split is not None else
                            NO_SPLIT_VERSION)
@@ -269,6 +277,9 @@ class MaterialFile(Record):
             if o.source in (Source.CLASSIC, Source.SPLIT) and (o.texture is None
                                                                or not 0 <= o.texture < len(self.classic)):
                 raise FormatError(f"material.json: output {o.name} names no classic texture")
+        if any(o.encoding != SLOPE or o.kind != "normal" or o.source not in (Source.CLASSIC, Source.SPLIT)
+               for o in slope):
+            raise FormatError("material.json: an output's 'encoding' is 'slope', on a classic or split normal only")
         splits = any(o.source == Source.SPLIT for o in self.outputs)
         if splits != (self.split is not None) or (self.split is not None and self.split < 1):
             raise FormatError("material.json: 'split' (a reference mip >= 1) goes with outputs whose source is "
@@ -337,7 +348,7 @@ def _version() -> str:
 def read(folder: str | os.PathLike) -> MaterialFile:
     """``folder/material.json``; a missing, foreign or malformed file raises FormatError."""
     # v2 (all from the MLP) reads as v3; v3, a material without a split, stays v3 as written
-    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3, 4, 5, 6),
+    return read_record(MaterialFile, Path(folder) / FILE, FORMAT, FORMAT_VERSION, compatible=(2, 3, 4, 5, 6, 7),
                        upgrade=lambda data: dict(data, format_version=NO_SPLIT_VERSION))
 
 

@@ -26,7 +26,7 @@ BASE_URI = "https://bcfpipe.dev/schemas/"
 DESCRIPTIONS: dict[tuple[str, str], str] = {
     # ---------------------------------------------------------------- material.json
     ("MaterialFile", "format"): "Always \"bcfpipe-material\".",
-    ("MaterialFile", "format_version"): "7 when the addressing is per axis (sampling.wrap_s / wrap_t: the axes "
+    ("MaterialFile", "format_version"): "8 when a classic normal is stored as slopes (an output's encoding), else 7 when the addressing is per axis (sampling.wrap_s / wrap_t: the axes "
                                         "differ or one mirrors), else 6 with more than four layers (a T_0 of two or three layers of principal "
                                         "components), else 5 when a layer is in any BC7 mode, else 4 for a mip-split "
                                         "layout (split), else 3. Version of this contract; a reader refuses versions "
@@ -58,8 +58,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("ClassicTexture", "mip_count"): "Mips stored: down to 1x1, or in a mip-split layout those that serve s < split "
                                      "(the lod clamps to the last).",
     ("ClassicTexture", "lod_bias"): "Added to s before sampling: log2 of this texture's width over the reference's.",
-    ("ClassicTexture", "channels"): "Channels the outputs read (BC1: 3, BC4: 1, BC5: 2, BC6H: 3; BC7: 3 or 4, a normal "
-                                    "3: x, y and its z, stored for a UsdUVTexture); texels are UNORM in "
+    ("ClassicTexture", "channels"): "Channels the outputs read (BC1: 3, BC4: 1, BC5: 2, BC6H: 3; BC7: 3 or 4); texels "
+                                    "are UNORM in "
                                     "[0, 1], BC6H's unsigned half floats (the source's linear values).",
     ("ClassicTexture", "slots"): "Per texel channel, the index in outputs of the output it stores, when a channel is "
                                  "stored in more than one slot (a colour whose source repeats a channel, kept in the "
@@ -129,11 +129,15 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
                           "both, mixed by lod (see split); a split normal's z is the decoder's from s = split on, "
                           "else sqrt(max(0, 1 - x^2 - y^2)) of the mixed x and y.",
     ("Output", "texture"): "Classic and split outputs: index into classic.",
-    ("Output", "texel_channel"): "Classic outputs: the texture channel (0 = r). A reconstructed normal z with a "
-                                 "texel_channel is stored there too (a BC7 normal, for USD); decoders may rebuild it.",
-    ("Output", "texel_scale"): "Classic outputs: value = texel * texel_scale + texel_bias (normals: 2, -1; BC6H: "
+    ("Output", "texel_channel"): "Classic outputs: the texture channel (0 = r); none for a normal's z, which is rebuilt.",
+    ("Output", "texel_scale"): "Classic outputs: value = texel * texel_scale + texel_bias (a slope normal: 2m, -m; BC6H: "
                                "1 / value_scale, -value_bias / value_scale, so the source value is the texel).",
     ("Output", "texel_bias"): "Classic outputs: see texel_scale.",
+    ("Output", "encoding"): "\"slope\" on a classic or split normal's x, y and z stored as slopes (a layout's classic "
+                            "normal, for a UsdUVTexture): x's and y's texel * texel_scale + texel_bias (2m, -m) are "
+                            "s_x = x / z and s_y = y / z, unclamped; the normal is (s_x, s_y, 1) normalised, so "
+                            "x = s_x / sqrt(1 + s_x^2 + s_y^2) and z = 1 / sqrt(1 + s_x^2 + s_y^2). Absent: x and y "
+                            "are the values themselves.",
     ("Onnx", "file"): "ONNX file name, relative to the material folder.",
     ("Onnx", "input"): "Input tensor name: float32 (N, n_in) features.",
     ("Onnx", "output"): "Output tensor name: float32 (N, outputs) channels.",
@@ -378,13 +382,15 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
 ENUMS: dict[tuple[str, str], list] = {
     ("MaterialFile", "format"): [material.FORMAT],
     ("MaterialFile", "format_version"): [material.NO_SPLIT_VERSION, material.SPLIT_VERSION, material.ANY_MODE_VERSION,
-                                         material.MANY_LAYERS_VERSION, material.FORMAT_VERSION],
+                                         material.MANY_LAYERS_VERSION, material.PER_AXIS_VERSION,
+                                         material.FORMAT_VERSION],
     ("Manifest", "format"): [manifest.FORMAT],
     ("Manifest", "format_version"): [manifest.FORMAT_VERSION],
     ("Sampling", "addressing"): ["repeat", "clamp"],
     ("Sampling", "wrap_s"): ["repeat", "clamp", "mirror"],
     ("Sampling", "wrap_t"): ["repeat", "clamp", "mirror"],
     ("Output", "kind"): ["color", "normal", "scalar"],
+    ("Output", "encoding"): [material.SLOPE],
     ("Material", "status"): list(manifest.STATUSES),
     ("Job", "status"): [Status.BUILT, Status.FAILED, "not run"],
     ("BuildReport", "format"): [report.FORMAT],

@@ -2,11 +2,11 @@
 the channels that neural features lose (issue 31), and their BC7 repacks at the same bytes.
 
 A group is one texture of `bcfpipe.texset.baselines.pack_texture_set` (codec 'bc'): BC1 for a colour
-or a packed (ARM-style) file, BC4 for a lone scalar, BC7 for a normal map's x, y and rebuilt z (in
-BC5's bytes, so that a UsdUVTexture reads z; issue 57), BC6H_UF16 for a colour beyond 1 from a float
-file (HDR). A colour a UsdUVTexture reads whose source repeats a channel (TextureSet.vectors) is one
+or a packed (ARM-style) file, BC4 for a lone scalar, BC5 for a normal map's slopes (x / z, y / z) / m
+(so that a UsdUVTexture reads (s_x, s_y, 1), whose direction is the normal's; issue 57,
+bcfpipe.texset.normals), BC6H_UF16 for a colour beyond 1 from a float file (HDR). A colour a UsdUVTexture reads whose source repeats a channel (TextureSet.vectors) is one
 BC1 with the channel in each slot it feeds. Its texels store set values v as t, with
-v = t * texel_scale + texel_bias: t in [0, 1] (normals: v = 2t - 1), or for BC6H the source's
+v = t * texel_scale + texel_bias: t in [0, 1] (a normal's slope: s = (2t - 1) m), or for BC6H the source's
 linear value itself (v = t / value_scale - value_bias / value_scale), so that every map from texel
 to source value is affine, as a UsdUVTexture's scale and bias apply it; no classic texture stores
 a log curve. Every
@@ -33,12 +33,7 @@ class Group:
     format: ClassicFormat
     channels: tuple[int, ...]  # a channel twice where a colour's slots repeat it (TextureSet.vectors)
     name: str  # the semantics it holds, e.g. "albedo" or "occlusion+roughness+metallic"
-    normal_z: bool = False  # a normal map as BC7: x, y and its rebuilt z at r, g, b (issue 57)
-
-    @property
-    def stored(self) -> int:
-        """Channels its texels store: its set channels, and a normal's z."""
-        return len(self.channels) + (1 if self.normal_z else 0)
+    slope: bool = False  # a normal map as BC5 of its slopes (x / z, y / z) / m (issue 57)
 
     def texel_map(self, ts: TextureSet) -> tuple[tuple[float, float], ...]:
         """(texel_scale, texel_bias) per stored channel: set value = t * scale + bias (BC6H: t is
@@ -55,9 +50,16 @@ class EncodedGroup:
 
     group: Group
     levels: list[tuple[np.ndarray, int, int]]  # (blocks (n, block bytes) uint8, width, height)
-    decoded: list[np.ndarray]  # per reference mip: (H_k, W_k, len(channels)) set values; fit_layout empties it
-    # once measured
+    decoded: list[np.ndarray]  # per reference mip: (H_k, W_k, len(channels)) set values (a slope normal: x, y, z as
+    # USD reads it); fit_layout empties it once measured
     disk: int | None = None  # its file's bytes on disk (`disk_bytes`), once measured
+    slope: float | None = None  # a slope normal's m: slope = (2t - 1) m
+
+    def texel_map(self, ts: TextureSet) -> tuple[tuple[float, float], ...]:
+        """(texel_scale, texel_bias) per stored channel: the group's, a slope normal's (2m, -m)."""
+        if self.slope is not None:
+            return tuple((2.0 * self.slope, -self.slope) for _ in self.group.channels)
+        return self.group.texel_map(ts)
 
     @property
     def size_bytes(self) -> int:
@@ -69,17 +71,17 @@ class EncodedGroup:
 
 def groups(ts: TextureSet) -> tuple[Group, ...]:
     """The classic textures of ``ts``, in pack order: BC@R as a UsdUVTexture can read it
-    (`baselines.USD`: a normal map as BC7 x, y, z; a colour in ``ts.vectors`` in its slots' order,
+    (`baselines.USD`: a normal map as BC5 slopes; a colour in ``ts.vectors`` in its slots' order,
     named by its semantic)."""
-    from bcfpipe.texset.baselines import NORMAL_XYZ, USD, pack_texture_set
+    from bcfpipe.texset.baselines import NORMAL_SLOPE, USD, pack_texture_set
 
     vectors = {tuple(chans): sem for sem, chans in ts.vectors}
     out = []
     for fmt, idx in pack_texture_set(ts, USD):
         names = [vectors[tuple(idx)]] if tuple(idx) in vectors else \
             list(dict.fromkeys(ts.channels[i].semantic for i in idx))
-        z = fmt == NORMAL_XYZ
-        out.append(Group(ClassicFormat.BC7 if z else ClassicFormat(fmt), tuple(idx), "+".join(names), z))
+        slope = fmt == NORMAL_SLOPE
+        out.append(Group(ClassicFormat.BC5 if slope else ClassicFormat(fmt), tuple(idx), "+".join(names), slope))
     return tuple(out)
 
 
@@ -103,21 +105,25 @@ def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap
             e.decoded.append(decoded[k][..., list(e.group.channels)])
         decoded[k] = None
     for e in out:
-        if e.group.normal_z:
-            e.decoded = usd_normals(e.levels, [m.shape[:2] for m in ref_mips], wrap)
+        if e.group.slope:  # m as baselines.slope_mips took it, from level 0's set values
+            from bcfpipe.texset.normals import slope_scale
+
+            e.slope = slope_scale(ref_mips[d][..., list(e.group.channels)])
+            e.decoded = usd_normals(e.levels, [m.shape[:2] for m in ref_mips], wrap, e.slope)
     return out
 
 
 def usd_normals(levels: Sequence[tuple[np.ndarray, int, int]], shapes: Sequence[tuple[int, int]],
-                wrap) -> list[np.ndarray]:
-    """A BC7 normal's (x, y, z) per reference mip as a UsdPreviewSurface reads it: the texel's
-    2t - 1 (magnified with ``wrap`` above the texture's resolution, as a GPU samples it), normalised."""
+                wrap, m: float) -> list[np.ndarray]:
+    """A slope normal's (x, y, z) per reference mip as a UsdPreviewSurface reads it: the BC5 texels
+    (magnified with ``wrap`` above the texture's resolution, as a GPU samples it) as (s_x, s_y, 1),
+    s = (2t - 1) m, normalised (`normals.slope_normal`)."""
     from bcfpipe.formats.bcn import decode_levels
-    from bcfpipe.texset.normals import unit
+    from bcfpipe.texset.normals import slope_normal
 
     d = len(shapes) - len(levels)
-    v = [t[..., :3] * 2.0 - 1.0 for t in decode_levels(ClassicFormat.BC7, levels)]
-    return [unit(magnify(v[0], h, w, wrap)) for h, w in shapes[:d]] + [unit(x) for x in v]
+    t = [x[..., :2] for x in decode_levels(ClassicFormat.BC5, levels)]
+    return [slope_normal(magnify(t[0], h, w, wrap), m) for h, w in shapes[:d]] + [slope_normal(x, m) for x in t]
 
 
 # Above this, every repack's BC7 chain takes minutes to encode (one 4096² texture with its mips: 43 s on
@@ -143,9 +149,9 @@ def repacks(groups: Sequence[Group]) -> list[Repack]:
     its UsdPreviewSurface input, bcfpipe.builder.usd_classic). BC7
     has up to 4-bit indices, 7-bit endpoints and partitions where BC1 has 2-bit indices and 5:6:5
     endpoints (benchmarks/bound_classic_bc7.py measures what that buys). A BC6H (HDR) group is
-    never repacked: BC7 is UNORM, and stays as it is beside any repack; nor is a normal, BC7 already
-    (x, y, z: its z takes the third slot)."""
-    groups = [g for g in groups if g.format != ClassicFormat.BC6H and not g.normal_z]
+    never repacked: BC7 is UNORM, and stays as it is beside any repack; nor is a normal: its slopes
+    stay BC5 (one index per channel; BC7 shares one across x, y, z, 3° worse at p99 on the brick)."""
+    groups = [g for g in groups if g.format != ClassicFormat.BC6H and not g.slope]
     out = [Repack((Group(ClassicFormat.BC7, a.channels + b.channels, f"{a.name}+{b.name}"),), (a.name, b.name),
                   f"{a.name}+{b.name} as BC7")
            for a in groups if a.format == ClassicFormat.BC1 for b in groups if b.format == ClassicFormat.BC4]
@@ -165,7 +171,7 @@ def repacks(groups: Sequence[Group]) -> list[Repack]:
 
 def bc7_quality_set(groups: Sequence[Group]) -> Repack | None:
     """The BC7 quality set as a change of BC@R: every BC1 texture (a colour or a packed file) in BC7,
-    the same channels in the same slots at twice the bytes; normals (BC7 already), BC4 lone scalars and BC6H
+    the same channels in the same slots at twice the bytes; BC5 slope normals, BC4 lone scalars and BC6H
     kept. What quality-focused pipelines ship, and the second set every layout is reported against
     (issue 52). None when BC@R has no BC1 texture: the quality set is then BC@R itself."""
     bc1 = [g for g in groups if g.format == ClassicFormat.BC1]
@@ -281,7 +287,7 @@ def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Seq
             out[:, c] = mse_per_mip(encoding.encode_levels([r[..., c:c + 1] for r in ref_mips], gain),
                                     encoding.encode_levels([m[..., j:j + 1] for m in g.decoded], gain),
                                     [ts.channels[c]], None, masks)
-        if g.group.normal_z:
+        if g.group.slope:
             out[:, list(g.group.channels)] += normal_z_errors(ts, g, ref_mips, masks)[:, None] / 2.0
     return out
 
@@ -301,7 +307,7 @@ def normal_z_errors(ts: TextureSet, g: EncodedGroup, ref_mips: Sequence[np.ndarr
 
 def angular_errors(ts: TextureSet, g: EncodedGroup, ref_mips: Sequence[np.ndarray], mip: int = 0,
                    mask: np.ndarray | None = None) -> tuple[float, float]:
-    """(mean, p99) angle in degrees at reference mip ``mip`` between a BC7 normal as USD reads it
+    """(mean, p99) angle in degrees at reference mip ``mip`` between a slope normal as USD reads it
     and the reference (x, y and rebuilt z)."""
     from bcfpipe.texset.normals import angular_stats, rebuild_z
 

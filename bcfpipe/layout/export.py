@@ -30,7 +30,7 @@ def classic_texture(i: int, enc: EncodedGroup, reference_width: int) -> mf.Class
     _, w, h = enc.levels[0]
     fmt = DXGI[enc.group.format]
     return mf.ClassicTexture(mf.classic_file(i), fmt, dds.DXGI_NAMES[fmt], w, h, len(enc.levels),
-                             math.log2(w / reference_width), enc.group.stored)
+                             math.log2(w / reference_width), len(enc.group.channels))
 
 
 def _slots(enc: EncodedGroup, outputs: Sequence[mf.Output], ts: TextureSet) -> tuple[int, ...] | None:
@@ -44,15 +44,18 @@ def _slots(enc: EncodedGroup, outputs: Sequence[mf.Output], ts: TextureSet) -> t
 
 
 def _where(shipped: Sequence[EncodedGroup], ts: TextureSet) -> dict[int, tuple[int, int, float, float]]:
-    """Set channel -> (texture, texel channel, scale, bias), at a repeated channel's first slot; a BC7
-    normal's z (stored at slot 2, v = 2t - 1) under the key -1 - its y channel."""
+    """Set channel -> (texture, texel channel, scale, bias), at a repeated channel's first slot (a
+    slope normal's x and y: the slope's 2m, -m)."""
     where: dict[int, tuple[int, int, float, float]] = {}
     for i, enc in enumerate(shipped):
-        for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.group.texel_map(ts))):
+        for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.texel_map(ts))):
             where.setdefault(c, (i, j, scale, bias))
-        if enc.group.normal_z:
-            where[-1 - enc.group.channels[1]] = (i, 2, 2.0, -1.0)
     return where
+
+
+def _encoding(o: mf.Output, shipped: Sequence[EncodedGroup], texture: int) -> str | None:
+    """Output ``o``'s material.json encoding: `mf.SLOPE` for a normal's x, y and z read from a slope normal."""
+    return mf.SLOPE if o.kind == "normal" and shipped[texture].slope is not None else None
 
 
 def export_layout(fit: LayoutFit, ts: TextureSet, out_dir: str | os.PathLike, wrap: str) -> Path:
@@ -87,13 +90,11 @@ def export_groups(fit: LayoutFit, shipped: Sequence[EncodedGroup], ts: TextureSe
             c = names[f"{o.semantic}.y"] if f"{o.semantic}.y" in names else None
         if c in where:
             t, j, scale, bias = where[c]
-            # z stored (a BC7 normal): its slot, which the USD layer reads; a decoder rebuilds z all the same
-            z = where.get(-1 - c) if o.reconstructed else None
             # a classic texture holds linear values: the decoder's log curve is no part of its output
             outputs.append(replace(o, source=Source.CLASSIC.value, texture=t, log_gain=None,
-                                   texel_channel=z[1] if z else None if o.reconstructed else j,
-                                   texel_scale=z[2] if z else None if o.reconstructed else scale,
-                                   texel_bias=z[3] if z else None if o.reconstructed else bias))
+                                   texel_channel=None if o.reconstructed else j,
+                                   texel_scale=None if o.reconstructed else scale,
+                                   texel_bias=None if o.reconstructed else bias, encoding=_encoding(o, shipped, t)))
         else:
             outputs.append(o)
     classic = [replace(c, slots=_slots(enc, outputs, ts)) for c, enc in zip(classic, shipped)]
@@ -138,7 +139,7 @@ def export_split(groups: list[EncodedGroup], neural_dir: str | os.PathLike, ts: 
         part = replace(enc, levels=enc.levels[:keep])
         dds.write(out / mf.classic_file(i), part.levels, dxgi_format=DXGI[enc.group.format])
         classic.append(classic_texture(i, part, ts.width))
-        for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.group.texel_map(ts))):
+        for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.texel_map(ts))):
             where.setdefault(ts.channels[c].name, (i, j, scale, bias))
     outputs = []
     for o in base.outputs:
@@ -147,7 +148,7 @@ def export_split(groups: list[EncodedGroup], neural_dir: str | os.PathLike, ts: 
         outputs.append(replace(o, source=Source.SPLIT.value, texture=t,
                                texel_channel=None if o.reconstructed else j,
                                texel_scale=None if o.reconstructed else scale,
-                               texel_bias=None if o.reconstructed else bias))
+                               texel_bias=None if o.reconstructed else bias, encoding=_encoding(o, groups, t)))
     desc = replace(base, outputs=tuple(outputs), classic=tuple(classic), split=int(split), sha256=None)
     desc = replace(desc, sha256={f: sha256_file(out / f) for f in desc.files})
     _drop_stale(out, desc)

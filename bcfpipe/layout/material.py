@@ -76,28 +76,28 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
 def normal_angles(folder: Path, ts: TextureSet, ref: np.ndarray, dec: np.ndarray,
                   mask: np.ndarray | None = None) -> dict | None:
     """Mean and p99 angle (degrees) at mip 0 between the set's normal (x, y, rebuilt z) and the
-    shipped one as it is read: a classic normal that stores z (BC7 x, y, z) as a UsdPreviewSurface
-    reads it (2t - 1, normalised; level 0 magnified to the reference's size as it is sampled), else
-    the decoder's x, y with z rebuilt, as the bcf context gives it. None without a normal."""
+    shipped one as it is read: a classic normal stored as slopes as a UsdPreviewSurface reads it
+    ((s_x, s_y, 1) normalised; level 0 magnified to the reference's size as it is sampled), else the
+    decoder's x, y with z rebuilt, as the bcf context gives it. None without a normal."""
     from bcfpipe.formats import dds, material as mf
     from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
     from bcfpipe.layout.classic import magnify
-    from bcfpipe.texset.normals import angular_stats, rebuild_z, usd_normal
+    from bcfpipe.texset.normals import angular_stats, rebuild_z, slope_normal
 
     xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
     if len(xy) != 2:
         return None
     desc = mf.read(folder)
-    z = next((o for o in desc.outputs if o.reconstructed), None)
+    x = next((o for o in desc.outputs if o.kind == "normal" and not o.reconstructed), None)
     truth = rebuild_z(ref[..., xy])
-    if z is not None and z.source == mf.Source.CLASSIC and z.texel_channel is not None:
-        tex = desc.classic[z.texture]
-        d = dds.read(folder / tex.file)
-        t = decode_levels(FORMAT_OF[tex.dxgi_format], d.levels[:1])[0][..., :3]
+    if x is not None and x.source == mf.Source.CLASSIC and x.encoding == mf.SLOPE:
+        tex = desc.classic[x.texture]
+        t = decode_levels(FORMAT_OF[tex.dxgi_format], dds.read(folder / tex.file).levels[:1])[0]
         if t.shape[:2] != ref.shape[:2]:
             t = magnify(t, *ref.shape[:2], desc.wrap)
-        mean, p99 = angular_stats(truth, usd_normal(t), mask)
-        read = "USD: BC7 x, y, z"
+        seen = slope_normal(t, -x.texel_bias)
+        mean, p99 = angular_stats(truth, seen, mask)
+        read = "USD: BC5 slopes (s_x, s_y, 1) normalised"
     else:
         mean, p99 = angular_stats(truth, rebuild_z(dec[..., xy]), mask)
         read = "z rebuilt from x, y"

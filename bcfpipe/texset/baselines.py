@@ -35,18 +35,19 @@ from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline",
            "encode_texture_set_shipped", "astcenc_path",
-           "pack_texture_set", "CODECS", "BC7_QUALITY", "USD", "NORMAL_XYZ", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
+           "pack_texture_set", "CODECS", "BC7_QUALITY", "USD", "NORMAL_SLOPE", "slope_mips", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
 
 CODECS = ("bc", "astc")
 # The BC7 quality set (issue 52): BC@R ('bc') with every BC1 texture, a colour or a packed file, in BC7;
 # BC5 normals, BC4 lone scalars and BC6H kept. What quality-focused pipelines ship: a second set to
 # weigh neural materials against (bcfpipe.layout.classic.bc7_quality_set is the layout's).
 BC7_QUALITY = "bc7"
-# What a layout ships for USD (issue 57): 'bc' with a normal map as BC7 of (x, y, z), z rebuilt and
-# stored, in BC5's bytes (16 per block): a UsdUVTexture cannot rebuild z, so BC5's x, y reach a
-# UsdPreviewSurface as normalize(x, y, 1) at best. bcfpipe.layout.classic's groups are these.
+# What a layout ships for USD (issue 57): 'bc' with a normal map as BC5 of its slopes (x / z, y / z) / m
+# (bcfpipe.texset.normals), BC5's bytes: a UsdUVTexture cannot rebuild z, so BC5's x, y would reach a
+# UsdPreviewSurface as normalize(x, y, 1); it reads (s_x, s_y, 1), whose direction is (x, y, z).
+# bcfpipe.layout.classic's groups are these.
 USD = "usd"
-NORMAL_XYZ = "bc7n"  # pack_texture_set's format of such a normal: BC7 blocks, r, g, b = (n + 1) / 2, a = 1
+NORMAL_SLOPE = "bc5s"  # pack_texture_set's format of such a normal: BC5 blocks of clip(s / m) / 2 + 1 / 2
 BC1_LEVEL = 18  # quicktex presets run 0..18
 
 
@@ -254,6 +255,17 @@ def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple
                                blocks)
 
 
+def slope_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], float, int]:
+    """A normal map's (H, W, 2) set-value mips as `NORMAL_SLOPE` (issue 57): m from level 0
+    (`normals.slope_scale`), every mip's slopes clip(s / m) / 2 + 1 / 2 in BC5 (quicktex, as BC@R's
+    normal); (each mip decoded as (s_x, s_y, 1) normalised, (H, W, 3); m; bytes)."""
+    from bcfpipe.texset.normals import slope_normal, slope_scale, slope_texels
+
+    m = slope_scale(mips_xy[0])
+    out, size = bc5_mips([slope_texels(x, m) for x in mips_xy], blocks)
+    return [slope_normal(o, m) for o in out], m, size
+
+
 def bc4_mips(mips_x: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC4-encode and decode every (H, W, 1) mip of [0, 1] data; returns (decoded mips, bytes)."""
     from quicktex.s3tc.bc4 import BC4Decoder, BC4Encoder, BC4Texture
@@ -351,12 +363,12 @@ def pack_texture_set(ts: TextureSet, codec: str) -> list[tuple[str, list[int]]]:
     (ARM-style, BC1), a scalar alone in its file gets its own BC4 texture. ('astc'): all of them,
     in set order, packed 3 per 3-channel texture; a last texture with 1 channel replicates it into
     r, g, b (a grey image), one with 2 leaves b = 0. (`BC7_QUALITY`): as 'bc', every BC1 texture
-    in BC7. (`USD`): as 'bc', a normal map as BC7 of its x, y and rebuilt z (`NORMAL_XYZ`).
+    in BC7. (`USD`): as 'bc', a normal map as BC5 of its slopes (`NORMAL_SLOPE`).
     """
     if codec == BC7_QUALITY:
         return [("bc7" if fmt == "bc1" else fmt, idx) for fmt, idx in pack_texture_set(ts, "bc")]
     if codec == USD:
-        return [(NORMAL_XYZ if fmt == "bc5" else fmt, idx) for fmt, idx in pack_texture_set(ts, "bc")]
+        return [(NORMAL_SLOPE if fmt == "bc5" else fmt, idx) for fmt, idx in pack_texture_set(ts, "bc")]
     if codec not in CODECS:
         raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
     rgb = "bc1" if codec == "bc" else "astc"
@@ -450,12 +462,9 @@ def _encode_texture(ts: TextureSet, fmt: str, idx: list[int], src: Sequence[np.n
         scale, bias = hdr_value_map(ts, idx)
         out, size = bc6h_mips([m[..., idx] * scale + bias for m in src], levels)
         return [(o - bias) / scale for o in out], size
-    if fmt == NORMAL_XYZ:  # x, y and the rebuilt z at r, g, b; decoded as a UsdPreviewSurface reads it
-        from bcfpipe.texset.normals import stored_xyz, usd_normal
-
-        out, size = bc7_mips([np.concatenate([stored_xyz(m[..., idx]), np.ones_like(m[..., :1])], -1) for m in src],
-                             levels)
-        return [(usd_normal(o)[..., :2] + 1.0) * 0.5 for o in out], size
+    if fmt == NORMAL_SLOPE:  # decoded as a UsdPreviewSurface reads it: (s_x, s_y, 1) normalised
+        normals, _, size = slope_mips([m[..., idx] for m in src], levels)
+        return [(n[..., :2] + 1.0) * 0.5 for n in normals], size
     stored = [_to_storage(m[..., idx], normal) for m in src]
     if fmt == "bc5":
         return bc5_mips(stored, levels)

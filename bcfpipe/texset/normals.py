@@ -1,16 +1,24 @@
-"""Tangent-space normals as a renderer reads them (issue 57): z rebuilt from x and y, the stored
-form of a classic normal texture that keeps z (BC7 x, y, z), what a UsdPreviewSurface sees
-(the texel's 2t - 1, normalised) and the angular error between two normal maps.
+"""Tangent-space normals as a renderer reads them (issue 57): z rebuilt from x and y, the slopes
+(x / z, y / z) a layout's classic normal stores, what a UsdPreviewSurface sees (scale * t + bias,
+normalised) and the angular error between two normal maps.
 
 A set holds a normal's x and y as v in [-1, 1] (bcfpipe.texset.texture_set); engines rebuild z as
 sqrt(max(0, 1 - x² - y²)). A UsdUVTexture cannot rebuild z: it gives scale * t + bias per slot, and
-UsdPreviewSurface normalises what it reads. So a classic normal that USD reads stores z too.
+UsdPreviewSurface normalises what it reads. So a classic normal that USD reads carries z in its
+ratio: BC5 of the slopes s = (x / z, y / z) / m, read as (s_x, s_y, 1), whose direction is (x, y, z).
+One m per texture (a UsdUVTexture has one scale and bias): the `SLOPE_QUANTILE` of |s| at level 0,
+so that a few near-horizontal texels (s up to 1000 on the brick) do not flatten the rest.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rebuild_z", "stored_xyz", "usd_normal", "unit", "angular_error_deg", "angular_stats"]
+__all__ = ["rebuild_z", "stored_xyz", "slope_scale", "slope_texels", "slope_normal", "usd_normal", "unit",
+           "angular_error_deg", "angular_stats", "SLOPE_QUANTILE", "SLOPE_FLOOR"]
+
+SLOPE_QUANTILE = 0.999  # m: this quantile of |x / z|, |y / z| at level 0 (1.0 breaks on the brick: m = 1000)
+SLOPE_FLOOR = 1.0 / 64.0  # the least m: a flat map keeps a finite scale
+_MIN_Z = 1e-3  # z below this (a horizontal normal) counts as this when divided by
 
 
 def rebuild_z(xy: np.ndarray) -> np.ndarray:
@@ -27,6 +35,31 @@ def stored_xyz(xy: np.ndarray) -> np.ndarray:
     return (rebuild_z(xy) + 1.0) * 0.5
 
 
+def _slopes(xy: np.ndarray) -> np.ndarray:
+    """(…, 2) set values -> (…, 2) slopes (x / z, y / z) of the normal with z rebuilt."""
+    n = rebuild_z(xy)
+    return n[..., :2] / np.maximum(n[..., 2:3], _MIN_Z)
+
+
+def slope_scale(xy: np.ndarray) -> float:
+    """m of a slope normal texture: the `SLOPE_QUANTILE` of |x / z| and |y / z| over ``xy`` (its
+    level 0's set values), at least `SLOPE_FLOOR`."""
+    return max(float(np.quantile(np.abs(_slopes(xy)), SLOPE_QUANTILE)), SLOPE_FLOOR)
+
+
+def slope_texels(xy: np.ndarray, m: float) -> np.ndarray:
+    """(…, 2) set values -> (…, 2) stored texels in [0, 1]: clip(s / m, -1, 1) / 2 + 1 / 2 of the
+    slopes s = (x / z, y / z), z rebuilt (what a layout's BC5 normal holds)."""
+    return np.clip(_slopes(xy) / m, -1.0, 1.0) * 0.5 + 0.5
+
+
+def slope_normal(texels: np.ndarray, m: float) -> np.ndarray:
+    """(…, ≥2) decoded slope texels -> the unit normal (s_x, s_y, 1) normalised, s = (2t - 1) m:
+    what a UsdPreviewSurface shades with and what bcfpipe's decoder gives."""
+    s = (np.asarray(texels, np.float32)[..., :2] * 2.0 - 1.0) * np.float32(m)
+    return unit(np.concatenate([s, np.ones_like(s[..., :1])], -1))
+
+
 def unit(v: np.ndarray) -> np.ndarray:
     """(…, 3) vectors normalised; a zero vector becomes (0, 0, 1)."""
     v = np.asarray(v, np.float32)
@@ -38,8 +71,11 @@ def unit(v: np.ndarray) -> np.ndarray:
 
 def usd_normal(texels: np.ndarray, scale=(2.0, 2.0, 2.0), bias=(-1.0, -1.0, -1.0)) -> np.ndarray:
     """(…, ≥3) decoded texels -> the unit normal a UsdPreviewSurface shades with: the UsdUVTexture's
-    ``scale * t + bias`` on r, g, b, normalised (Storm normalises the tangent-space normal)."""
+    ``scale * t + bias`` on r, g, b, normalised (Storm normalises the tangent-space normal). A
+    two-channel texture (BC5) reads 0 in b, as Storm and OpenImageIO read one."""
     t = np.asarray(texels, np.float32)[..., :3]
+    if t.shape[-1] < 3:
+        t = np.concatenate([t, np.zeros(t.shape[:-1] + (3 - t.shape[-1],), np.float32)], -1)
     return unit(t * np.asarray(scale, np.float32) + np.asarray(bias, np.float32))
 
 
