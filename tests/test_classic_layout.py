@@ -360,7 +360,10 @@ def test_train_layout_auto_writes_the_chosen_layout_and_why(tmp_path):
     assert json.loads((out / "layout.json").read_text()) == lay
     assert not (out / ".layout-work").exists()
     assert d["size_bytes"] <= lay["bc"]["size_bytes"] and d["size_bytes"] == lay["chosen"]["size_bytes"]
-    assert abs(d["psnr"] - lay["chosen"]["psnr"]) < 0.01  # the folder measures what the choice said
+    # the folder measures what the choice said, but for the classic normal's z: the choice counts it as
+    # USD reads it (half its MSE on x and half on y, issue 57), the folder's PSNR, as every PSNR, x and y
+    # (0.02 dB on these bricks)
+    assert abs(d["psnr"] - lay["chosen"]["psnr"]) < 0.05
     from bcfpipe.verify.checks import verify
 
     assert verify(out, glsl=False).exit_code == 0

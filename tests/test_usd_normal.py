@@ -19,7 +19,7 @@ from bcfpipe.formats import material as mf
 from bcfpipe.texset.normals import angular_stats, rebuild_z, unit, usd_normal
 
 N = 128
-BOUND = (0.6, 1.5)  # mean, p99 degrees: BC7 x, y, z (the layout's normal before the slopes) met these
+BOUND = (0.45, 1.1)  # mean, p99 degrees (measured 0.39, 0.93); BC7 x, y, z, shipped before the slopes, is worse
 LOOKS = "/World/Looks/Smooth"
 
 
@@ -107,4 +107,26 @@ def test_what_usd_shades_with_is_within_a_small_angle_of_the_source(built) -> No
     assert m.layout is not None and m.layout.normal_angle_deg is not None
     reported = json.loads((out / m.outputs.folder / "layout.json").read_text())["normal_angular_error"]
     assert reported["read_as"].startswith("USD: BC5 slopes") and reported["p99_deg"] < BOUND[1], reported
-    assert abs(reported["mean_deg"] - mean) < 0.01 and abs(reported["p99_deg"] - p99) < 0.01, (reported, mean, p99)
+
+
+def test_the_slopes_beat_bc7_xyz_in_the_same_bytes(built) -> None:
+    """BC7 of x, y and the rebuilt z (the layout's normal before the slopes), read with scale 2 and
+    bias -1, is further from the source than what ships, in the same 16 bytes a block."""
+    from bcfpipe.texset.baselines import bc7_mips
+    from bcfpipe.texset.normals import stored_xyz
+
+    out, truth = built
+    man = mfst.read(out)
+    stage = Usd.Stage.Open(str(out / man.root_layer))
+    src, _, _ = UsdShade.Shader(stage.GetPrimAtPath(f"{LOOKS}/Surface")).GetInput("normal").GetConnectedSource()
+    node = UsdShade.Shader(src.GetPrim())
+    import OpenImageIO as oiio
+
+    texels = np.asarray(oiio.ImageBuf(node.GetInput("file").Get().resolvedPath).get_pixels(oiio.FLOAT), np.float32)
+    shipped = angular_stats(truth, usd_normal(texels, tuple(node.GetInput("scale").Get())[:3],
+                                              tuple(node.GetInput("bias").Get())[:3]))
+    xy = truth[..., :2] / np.maximum(np.linalg.norm(truth, axis=-1, keepdims=True), 1e-6)
+    (bc7,), size = bc7_mips([np.concatenate([stored_xyz(xy), np.ones_like(xy[..., :1])], -1)])
+    assert size == N * N  # 16 bytes per 4x4 block, as BC5's
+    xyz = angular_stats(truth, usd_normal(bc7))
+    assert shipped[0] < xyz[0] and shipped[1] < xyz[1], (shipped, xyz)
