@@ -67,7 +67,8 @@ def test_split_material_json_says_both_sources_of_every_output(split):
     ts, ref, enc, _, out, _ = split
     d = json.loads((out / "material.json").read_text())
     jsonschema.validate(d, json.loads(SCHEMA.read_text()))
-    assert d["format_version"] == (5 if any("blocks" in layer for layer in d["layers"]) else 4) and d["split"] == SPLIT
+    assert d["format_version"] == 8 and d["split"] == SPLIT  # 8: its BC@R normal is stored as slopes (issue 57)
+    assert [o.get("encoding") for o in d["outputs"] if o["semantic"] == "normal"] == ["slope"] * 3
     assert {o["source"] for o in d["outputs"]} == {"split"}
     keep = split_levels(SPLIT, R, 64)
     assert [c["mip_count"] for c in d["classic"]] == [keep] * len(enc) == [2, 2, 2]
