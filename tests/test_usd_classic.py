@@ -420,3 +420,33 @@ def test_a_mip_split_keeps_its_universal_context_and_says_so(tmp_path):
     assert usd_notes(str(tmp_path / "over.usda")) == {
         "/M": f"USD: neural (bcf context); universal context on its sources ({SPLIT_WHY})"}
     assert layer.GetPrimAtPath("/M/S") is None and layer.GetPrimAtPath("/M/Col") is None
+
+
+def test_a_classic_dds_that_nothing_reads_fails_the_build(built):
+    """The build's consistency check (issue 57: no file shipped that nothing reads): with the wiring as
+    the built stage has it every DDS is read; were one texture's UsdUVTexture nodes missing, the build
+    would fail naming that file (bcfpipe.builder.assemble.check_classic_read, run before the layers)."""
+    from bcfpipe.builder.assemble import check_classic_read
+    from bcfpipe.builder.usd_classic import ClassicMaterial, Wiring
+    from bcfpipe.errors import WorkFailed
+
+    man = mfst.read(built)
+    stage = Usd.Stage.Open(str(built / man.root_layer))
+    job_of, descs, classic = {}, {}, []
+    for m in man.built():
+        folder = built / m.outputs.folder
+        job_of[m.path], descs[folder.name] = folder.name, mf.read(folder)
+        files = [c.file for c in descs[folder.name].classic]
+        wired = []
+        for name, node, output in _drawn_textures(stage, m.path):
+            path = Path(node.GetInput("file").Get().resolvedPath)
+            wired.append(Wiring(name, "", str(node.GetPath()), files.index(path.name), path.name, output, (), False))
+        classic.append(ClassicMaterial(m.path, "", tuple(wired)))
+    check_classic_read(job_of, descs, classic)
+    bricks = next(cm for cm in classic if cm.material.endswith("/Bricks"))
+    dropped = bricks.wired[0].texture
+    without = [cm if cm is not bricks else ClassicMaterial(cm.material, "", tuple(w for w in cm.wired
+                                                                               if w.texture != dropped))
+               for cm in classic]
+    with pytest.raises(WorkFailed, match=f"materials/{job_of[bricks.material]}/C{dropped}.dds"):
+        check_classic_read(job_of, descs, without)

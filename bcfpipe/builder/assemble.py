@@ -109,7 +109,7 @@ def _write_layers(bplan: BuildPlan, staging: Path, final_out: Path, descs: Mappi
     scene_rel = usdout.relative_asset(bplan.scene, final_out)
     stamp = f"Written by bcfpipe {__version__} build from {scene_rel}"
     classic, source_stage = _classic_wiring(bplan, descs)
-    _check_classic_read(bplan, descs, classic)
+    check_classic_read({mp_.path: mp_.job for mp_ in bplan.materials}, descs, classic)
     usdout.write_overrides_layer(staging / OVERRIDES, overrides, bplan.variant_selections, comment=stamp,
                                  constants=_constant_inputs(bplan), classic=classic, source_stage=source_stage)
     root_name = root_layer_name(bplan.scene)
@@ -273,14 +273,15 @@ def _classic_wiring(bplan: BuildPlan, descs: Mapping[str, mf.MaterialFile]) -> t
     return out, stage
 
 
-def _check_classic_read(bplan: BuildPlan, descs: Mapping[str, mf.MaterialFile], classic: Sequence) -> None:
+def check_classic_read(job_of: Mapping[str, str | None], descs: Mapping[str, mf.MaterialFile],
+                       classic: Sequence) -> None:
     """Every shipped classic DDS is read (issue 57: no file shipped that nothing reads): by a
-    UsdUVTexture the wiring points at it, or by the decoder (a mip split's, below its split). A
-    layout whose texture nothing reads is an internal inconsistency of the layout and the wiring:
-    the build fails, naming it, rather than ship and count it."""
+    UsdUVTexture the wiring (``classic``: usd_classic.ClassicMaterial per material) points at it, or
+    by the decoder (a mip split's, below its split). ``job_of``: material path -> its job; ``descs``:
+    each built job's material.json. A texture nothing reads is an internal inconsistency of the
+    layout and the wiring: the build fails, naming it, rather than ship and count it."""
     from bcfpipe.errors import WorkFailed
 
-    job_of = {mp_.path: mp_.job for mp_ in bplan.materials}
     read = {(job_of[cm.material], w.texture) for cm in classic for w in cm.wired}
     unread = [f"{MATERIALS_DIR}/{job}/{c.file}" for job, desc in descs.items() if desc.split is None
               for i, c in enumerate(desc.classic) if (job, i) not in read]
