@@ -67,7 +67,7 @@ def test_verify_lists_every_built_material_of_roughness_test(shared_scenes, tmp_
 
 def test_verify_reports_in_the_builds_order_when_a_shared_set_is_not_adjacent(tmp_path):
     write_png(tmp_path / "t.png", pattern(16, 3))
-    write_png(tmp_path / "u.png", pattern(16, 3, seed=2))
+    write_png(tmp_path / "u.png", pattern(16, 3, seed=5))  # no channel equal to one of t.png's
     scene = quad_stage(tmp_path, {"/World/Looks/A": colour("./t.png"), "/World/Looks/B": colour("./u.png"),
                                   "/World/Looks/C": colour("./t.png")})
     out = tmp_path / "out"
@@ -140,14 +140,18 @@ def test_a_set_no_neural_layout_fits_trains_nothing_and_says_so(tmp_path):
         assert proc.returncode == 0, proc.stderr
         assert "0.00" not in proc.stdout and "332 B" in proc.stdout, proc.stdout
         assert "no probe" in proc.stdout, proc.stdout
+    scan = bcfpipe("scan", scene).stdout.strip().splitlines()[-1]
+    assert scan.startswith("conclusion: a build trains 0 texture set(s) and encodes 1 as BC textures only"), scan
     plan = json.loads(bcfpipe("plan", scene, "--json").stdout)
     assert plan["jobs"][0]["prediction"]["probe"] is None
-    proc = bcfpipe("build", scene, "--json", *SMOKE)
+    proc = bcfpipe("build", scene, "--no-cache", *SMOKE)
     assert proc.returncode == 0, proc.stderr
-    (m,) = json.loads(proc.stdout)["materials"]
+    assert "0 KiB" not in proc.stdout and "348 B" in proc.stdout, proc.stdout  # BC@R and weights.bin's header
+    assert "0 texture set(s) trained and 1 encoded as BC textures only" in proc.stdout, proc.stdout
+    report = json.loads(bcfpipe("build", scene, "--json", "--no-cache", *SMOKE).stdout)
+    (m,) = report["materials"]
     assert m["train_seconds"] in (None, 0.0) and m["layout"]["chosen"] == "all classic (BC@R)", m
-    proc = bcfpipe("build", scene, *SMOKE)
-    assert "0 KiB" not in proc.stdout and "332 B" in proc.stdout, proc.stdout
+    assert plan["predicted_bytes"]["min"] <= report["totals"]["total_bytes"] <= plan["predicted_bytes"]["max"]
 
 
 def test_bytes_and_sizes_read_the_same_everywhere():

@@ -131,8 +131,12 @@ def summary_caption(manifest: Manifest, report: BuildReport) -> str:
     cached = f", {rt.cached} from the cache" if rt.cached else ""
     wrote = f"; {rt.written_files} file(s) written" if rt.written_files else "; OUT unchanged"
     encoded = f" (BC encodes {rt.encode_seconds:.1f}s of it, apart from training)" if rt.encode_seconds else ""
+    bc_only = len({m.job for m in report.materials if m.status == Status.BUILT and m.cache != CacheUse.HIT
+                   and not m.train_seconds})  # the default layout weighed nothing neural: no training
+    made = (f"{rt.trained - bc_only} texture set(s) trained and {bc_only} encoded as BC textures only"
+            if bc_only else f"{rt.trained} texture set(s) trained")
     return (f"{tot.built} built, {tot.constant} constant, {tot.failed} failed, {tot.skipped} skipped; "
-            f"{rt.trained} texture set(s) trained{cached} in {rt.wall_seconds:.1f}s wall{encoded}; "
+            f"{made}{cached} in {rt.wall_seconds:.1f}s wall{encoded}; "
             f"{_fmt_size(tot.total_bytes)} (sources {_fmt_size(tot.source_bytes)}){wrote}\n"
             "PSNR: dB, the exported files against the source textures, MSE averaged over every mip "
             "(over the texels the meshes read where the note says so)")

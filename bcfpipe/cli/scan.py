@@ -126,7 +126,7 @@ def _print_material(m: MaterialScan, grouping: Grouping, reqs: dict, console: Co
         console.print(Text("    ").append_text(line), highlight=False, soft_wrap=True)
 
 
-def _conclusion(result: StageScan, grouping: Grouping, refusals: list[str]) -> str:
+def _conclusion(result: StageScan, grouping: Grouping, refusals: list[str], reqs: dict) -> str:
     """What a build of this stage would do, in one sentence, with every skip reason counted."""
     outcomes = [grouping.outcome(m) for m in result.materials]
     n_model = sum(1 for d, r, _ in outcomes if d == Decision.MODEL)
@@ -149,8 +149,17 @@ def _conclusion(result: StageScan, grouping: Grouping, refusals: list[str]) -> s
         why = "MaterialX only, which bcfpipe does not read" if set(skips) == {"materialx-only"} else skipped
         return f"conclusion: a build builds nothing: {len(result.materials)} material(s), none modelled ({why})"
     tail = f"; skipped: {skipped}" if skipped else ""
-    return (f"conclusion: a build trains {len(grouping.groups)} texture set(s) for {n_model} material(s) and "
-            f"authors {n_const} constant material(s){tail}")
+    classic = sum(1 for g in grouping.groups if _classic_only(reqs["materials"].get(g.materials[0])))
+    sets = (f"trains {len(grouping.groups) - classic} texture set(s) and encodes {classic} as BC textures only "
+            "(no neural layout fits within their BC@R's bytes)" if classic else
+            f"trains {len(grouping.groups)} texture set(s)")
+    return f"conclusion: a build {sets} for {n_model} material(s) and authors {n_const} constant material(s){tail}"
+
+
+def _classic_only(req: dict | None) -> bool:
+    """Whether the default layout weighs nothing neural for this set (no probe: `predict`)."""
+    lay = (req or {}).get("layout")
+    return bool(lay) and lay["layout"] == "auto" and lay["probe"] is None
 
 
 def _print_human(result: StageScan, grouping: Grouping, reqs: dict, refusals: list[str], console: Console) -> None:
@@ -190,7 +199,7 @@ def _print_human(result: StageScan, grouping: Grouping, reqs: dict, refusals: li
         f"({tot['everything_texture_sets']} texture set(s))")
     for line in refusals:
         say(f"[red]refused:[/red] {escape(line)}")
-    say(f"[bold]{_conclusion(result, grouping, refusals)}[/bold]")
+    say(f"[bold]{_conclusion(result, grouping, refusals, reqs)}[/bold]")
 
 
 @click.command("scan", cls=Command)
