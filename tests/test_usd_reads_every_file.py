@@ -77,3 +77,30 @@ def test_each_diffuse_color_reads_a_file_in_out(built: Path) -> None:
         assert neural or path.is_relative_to(built.resolve()), (m.path, asset.resolvedPath)
         checked += 1
     assert checked, "no built material reads a diffuseColor"
+
+
+def test_a_colour_whose_channel_duplicates_another_files_is_read_from_out(tmp_path: Path) -> None:
+    """u.png's r equals t.png's b: B's set then holds t.png:b and u.png:b, two generic channels both
+    named ``generic.b``. Its outputs are mapped to channels by position, so B's diffuseColor reads
+    its BC1 from slot r, g, b in order (before, r resolved to slot b and the DDS shipped unread)."""
+    import numpy as np
+
+    from test_build import pattern, write_png
+    from test_reports import colour, quad_stage
+
+    t = pattern(16, 3)
+    u = pattern(16, 3, seed=2)  # its r is t's b
+    write_png(tmp_path / "t.png", t)
+    write_png(tmp_path / "u.png", u)
+    scene = quad_stage(tmp_path, {"/World/Looks/A": colour("./t.png"), "/World/Looks/B": colour("./u.png"),
+                                  "/World/Looks/C": colour("./t.png")})
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["build", str(scene), "-o", str(out), "--quality", "smoke", "--jobs", "1",
+                                  "--threads", "1", "--no-cache"])
+    assert r.exit_code == 0, r.output
+    test_every_dds_is_read_by_a_usduvtexture_or_is_a_feature_texture(out)
+    test_each_diffuse_color_reads_a_file_in_out(out)
+    (b,) = [m for m in mfst.read(out).built() if m.path == "/World/Looks/B"]
+    desc = mf.read(out / b.outputs.folder)
+    assert [o.texel_channel for o in desc.outputs] == [0, 1, 2], desc.outputs
+    assert np.array_equal(u[..., 0], t[..., 2])

@@ -33,14 +33,27 @@ def classic_texture(i: int, enc: EncodedGroup, reference_width: int) -> mf.Class
                              math.log2(w / reference_width), len(enc.group.channels))
 
 
-def _slots(enc: EncodedGroup, outputs: Sequence[mf.Output], ts: TextureSet) -> tuple[int, ...] | None:
+def output_sources(ts: TextureSet) -> list[int]:
+    """Per decoder output of ``output_channels(ts.channels)``, the set channel it reads (normal z:
+    its y). By position, not by name: generic channels of two files can share a name (``generic.b``)."""
+    out = []
+    for c, ch in enumerate(ts.channels):
+        out.append(c)
+        if ch.kind == "normal" and ch.component == "y":
+            out.append(c)
+    return out
+
+
+def _slots(enc: EncodedGroup, ts: TextureSet) -> tuple[int, ...] | None:
     """Per texel channel, the output it stores (``ClassicTexture.slots``), when a colour's slots
     repeat a channel (issue 57): where the USD layer finds each of its components; else None."""
     chans = enc.group.channels
     if len(set(chans)) == len(chans):
         return None
-    index = {o.name: k for k, o in enumerate(outputs)}
-    return tuple(index[ts.channels[c].name] for c in chans)
+    index = {}
+    for k, c in enumerate(output_sources(ts)):
+        index.setdefault(c, k)
+    return tuple(index[c] for c in chans)
 
 
 def _where(shipped: Sequence[EncodedGroup], ts: TextureSet) -> dict[int, tuple[int, int, float, float]]:
@@ -83,11 +96,7 @@ def export_groups(fit: LayoutFit, shipped: Sequence[EncodedGroup], ts: TextureSe
         for f in base.files:
             shutil.copyfile(src / f, out / f)
     outputs = []
-    names = {ch.name: c for c, ch in enumerate(ts.channels)}
-    for o in output_channels(ts.channels):
-        c = names.get(o.name)
-        if o.reconstructed:  # normal z follows its x and y
-            c = names[f"{o.semantic}.y"] if f"{o.semantic}.y" in names else None
+    for o, c in zip(output_channels(ts.channels), output_sources(ts)):
         if c in where:
             t, j, scale, bias = where[c]
             # a classic texture holds linear values: the decoder's log curve is no part of its output
@@ -97,7 +106,7 @@ def export_groups(fit: LayoutFit, shipped: Sequence[EncodedGroup], ts: TextureSe
                                    texel_bias=None if o.reconstructed else bias, encoding=_encoding(o, shipped, t)))
         else:
             outputs.append(o)
-    classic = [replace(c, slots=_slots(enc, outputs, ts)) for c, enc in zip(classic, shipped)]
+    classic = [replace(c, slots=_slots(enc, ts)) for c, enc in zip(classic, shipped)]
     if base is not None:
         desc = replace(base, outputs=tuple(outputs), classic=tuple(classic), sha256=None)
     else:
@@ -140,11 +149,10 @@ def export_split(groups: list[EncodedGroup], neural_dir: str | os.PathLike, ts: 
         dds.write(out / mf.classic_file(i), part.levels, dxgi_format=DXGI[enc.group.format])
         classic.append(classic_texture(i, part, ts.width))
         for j, (c, (scale, bias)) in enumerate(zip(enc.group.channels, enc.texel_map(ts))):
-            where.setdefault(ts.channels[c].name, (i, j, scale, bias))
+            where.setdefault(c, (i, j, scale, bias))
     outputs = []
-    for o in base.outputs:
-        name = f"{o.semantic}.y" if o.reconstructed else o.name  # normal z follows its x and y
-        t, j, scale, bias = where[name]
+    for o, c in zip(base.outputs, output_sources(ts)):
+        t, j, scale, bias = where[c]
         outputs.append(replace(o, source=Source.SPLIT.value, texture=t,
                                texel_channel=None if o.reconstructed else j,
                                texel_scale=None if o.reconstructed else scale,
