@@ -218,7 +218,8 @@ def _unslope(outputs, v: dict) -> None:
 def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarray) -> None:
     """Fill the classic outputs' columns of ``y`` (N, outputs): each texture sampled trilinearly at
     s + its lod_bias (lod clamped to its mips, so below 0 level 0 is magnified), value = texel *
-    texel_scale + texel_bias clamped to the output's range; a normal's z from its x and y. A split
+    texel_scale + texel_bias clamped to the output's range (a normal stored as slopes: (s_x, s_y, 1)
+    normalised first, `_unslope`); a normal's z from its x and y. A split
     output's column, which holds the MLP's value, becomes the two mixed by `split_weight`."""
     desc = em.desc
     w = split_weight(desc.split, s) if desc.split is not None else 1.0
