@@ -257,7 +257,7 @@ def test_attributes_readable(sample, plugin: bool) -> None:
     for m in result.manifest.to_json()["materials"]:
         r = report[m["path"]]
         if m["status"] == "built":
-            assert r["n"] == 28 and r["none"] == [] and r["has_api"] is plugin
+            assert r["n"] == 29 and r["none"] == [] and r["has_api"] is plugin
             assert "normal.z" in r["targets"] or m["path"].endswith("Leaves")
         else:
             assert r["n"] == 0
