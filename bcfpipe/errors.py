@@ -8,10 +8,21 @@ Exit codes (every command):
   1  the work ran but failed (a material did not build, verification failed, ...)
   2  usage error or unreadable input (bad arguments, missing or corrupt file, refused output)
   130 interrupted (Ctrl-C): running work was cancelled; outputs were left as they were
+  143 terminated (SIGTERM, as a build tool or a CI timeout sends it): the same as 130
 """
 from __future__ import annotations
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread (`bcfpipe.cli`), so that it takes Ctrl-C's path: running
+    work cancelled, its worker processes stopped, outputs left as they were."""
+
+
+def raise_terminated(signum, frame) -> None:
+    """A SIGTERM handler: `Terminated`."""
+    raise Terminated()
 
 
 class BcfError(Exception):

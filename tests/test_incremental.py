@@ -200,10 +200,13 @@ def test_sigkill_at_random_moments_never_leaves_anything_used_corrupt(tmp_path):
     assert not list(out.glob(".bcfpipe-staging-*")), "staging folders of killed builds are cleaned up"
 
 
-def test_ctrl_c_stops_the_workers_and_leaves_out_as_it_was(tmp_path):
-    """SIGINT to the build (its process only, as `kill -INT` would) while a worker trains the standard
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")],
+                         ids=["sigint", "sigterm"])
+def test_ctrl_c_stops_the_workers_and_leaves_out_as_it_was(tmp_path, sig, code, word):
+    """SIGINT to the build (its process only, as `kill -INT` would), or SIGTERM (a build tool's or CI's
+    cancel: before, the build died and its workers trained on, orphaned), while a worker trains the standard
     preset (a minute or more for the tiny profile; the paper preset spends 30 s preparing before it
-    trains): exit 130 with one line, at once (the workers are stopped, not waited
+    trains): exit 130 (143) with one line, at once (the workers are stopped, not waited
     for); nothing new in the cache; OUT keeps its previous build; no staging is left."""
     scene = small_scene(tmp_path)
     out, cache = tmp_path / "out", tmp_path / "cache"
@@ -226,15 +229,15 @@ def test_ctrl_c_stops_the_workers_and_leaves_out_as_it_was(tmp_path):
                                               text=True).stdout.split()]
     assert workers, "".join(lines)
     t0 = time.monotonic()
-    p.send_signal(signal.SIGINT)
+    p.send_signal(sig)
     p.wait(timeout=300)
     latency = time.monotonic() - t0
     err = "".join(lines) + p.stderr.read()
-    assert p.returncode == 130, err[-3000:]
+    assert p.returncode == code, err[-3000:]
     # the training has a minute or more left; a build that waits for its workers, or lets them see a dead
     # progress queue, takes 30 s or more here; one that stops them takes well under a second
     assert latency < 15, f"the build took {latency:.1f}s to stop after Ctrl-C"
-    assert "Error: interrupted" in err and "Traceback" not in err, err[-3000:]
+    assert f"Error: {word}" in err and "Traceback" not in err, err[-3000:]
     assert tree(out) == before and not list(out.glob(".bcfpipe-staging-*"))
     assert {e.key for e in Cache(cache).entries()} == entries, "the interrupted job ran to its end"
     deadline = time.monotonic() + 20

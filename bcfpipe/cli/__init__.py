@@ -5,17 +5,20 @@ Exit codes (all commands):
   1  the work ran but failed (a material did not build, verification failed, ...)
   2  usage error or unreadable input (bad arguments, missing or corrupt file)
   130 interrupted (Ctrl-C)
+  143 terminated (SIGTERM)
 """
 from __future__ import annotations
 
 import logging
+import signal
 import sys
+import threading
 
 import click
 
 from bcfpipe import __version__
 from bcfpipe.cli.errors import Group
-from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, BcfError  # noqa: F401  (re-exported)
+from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, BcfError, raise_terminated  # noqa: F401
 
 
 class OneFormat(logging.Formatter):
@@ -37,8 +40,11 @@ def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
     the paper's BC6H.
 
     \b
-    Exit codes: 0 ok, 1 work failed, 2 usage error or bad input, 130 interrupted.
+    Exit codes: 0 ok, 1 work failed, 2 usage error or bad input, 130 interrupted, 143 terminated.
     """
+    if threading.current_thread() is threading.main_thread():  # SIGTERM stops workers as Ctrl-C does
+        before = signal.signal(signal.SIGTERM, raise_terminated)
+        ctx.call_on_close(lambda: signal.signal(signal.SIGTERM, before))
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(OneFormat())

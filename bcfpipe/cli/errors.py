@@ -4,13 +4,13 @@ Every bcfpipe command is a `Command` (or `Group`): a `bcfpipe.errors.BcfError` r
 options are parsed or while it runs is printed as ``Error: <message>`` on stderr and ends the
 process with the error's ``exit_code`` (0 ok, 1 work failed, 2 usage or input), never a traceback.
 Ctrl-C ends it with one line and exit code 130 (the library has already cancelled its workers and
-left its outputs as they were).
+left its outputs as they were); SIGTERM the same way, with exit code 143.
 """
 from __future__ import annotations
 
 import click
 
-from bcfpipe.errors import EXIT_INTERRUPTED, BcfError
+from bcfpipe.errors import EXIT_INTERRUPTED, EXIT_TERMINATED, BcfError, Terminated
 
 
 def as_click(exc: BcfError) -> click.ClickException:
@@ -31,6 +31,9 @@ class _Reporting:
             return super().invoke(ctx)
         except BcfError as exc:
             raise as_click(exc) from None
+        except Terminated:
+            click.echo("Error: terminated; running work was cancelled and the output left as it was", err=True)
+            ctx.exit(EXIT_TERMINATED)
         except KeyboardInterrupt:
             click.echo("Error: interrupted; running work was cancelled and the output left as it was", err=True)
             ctx.exit(EXIT_INTERRUPTED)
