@@ -58,8 +58,9 @@ def _display(a: np.ndarray, idx: list[int], kind: str, channels: Sequence[Channe
     """A crop's channels ``idx`` as an (n, n, 3) image in [0, 1]."""
     x = a[..., idx].astype(np.float32)
     if kind == "normal" and len(idx) == 2:
-        z = np.sqrt(np.clip(1.0 - (x ** 2).sum(-1, keepdims=True), 0.0, 1.0))
-        return np.clip(np.concatenate([x, z], -1) * 0.5 + 0.5, 0, 1)
+        from bcfpipe.texset.normals import rebuild_z
+
+        return np.clip(rebuild_z(x) * 0.5 + 0.5, 0, 1)
     lo, hi = channels[idx[0]].value_range
     x = (x - lo) / max(hi - lo, 1e-12)
     if x.shape[-1] == 3:
