@@ -53,7 +53,7 @@ def test_bc7_threads_equal_one_thread():
 
 
 def test_job_encode_workers_share_the_cores(monkeypatch):
-    monkeypatch.setattr(parallel.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(parallel, "_cores", lambda: 2)  # no --jobs: the machine's cores
     assert parallel.job_encode_workers(1, 1) == 2  # one material: both cores encode
     assert parallel.job_encode_workers(1, 2) == 1  # two side by side: one each
     assert parallel.job_encode_workers(3, 2) == 3  # never fewer than --threads

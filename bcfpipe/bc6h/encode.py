@@ -515,6 +515,9 @@ def _run_chunks(run, starts: range, device: torch.device, workers: int | None) -
             for s in starts:
                 run(s)
         else:
+            from bcfpipe.pooltrace import trace_pool
+
+            trace_pool("bc6h-thread-pool", workers)
             with ThreadPoolExecutor(workers) as pool:
                 list(pool.map(run, starts))
     finally:

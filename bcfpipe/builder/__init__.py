@@ -10,8 +10,9 @@ between them):
    (xxh3-128 over the source file *bytes* and the training configuration, never paths or times)
    names its result.
 2. `execute` (executor.py) trains the jobs, each in its own worker process (``ProcessPoolExecutor``, spawn
-   context), with ``config.DEFAULT_THREADS`` (1) torch threads each unless told otherwise. A job
-   that raises, or whose worker dies, becomes ``failed`` with a one-line reason; the others go on.
+   context), with ``config.DEFAULT_THREADS`` (1) torch threads each unless told otherwise; ``jobs``
+   (``--jobs N``) bounds the build to N busy cores, every pool and thread of its jobs within their
+   shares (`core_shares`). A job that raises, or whose worker dies, becomes ``failed`` with a one-line reason; the others go on.
 3. `assemble` (assemble.py) writes the combined ``weights.bin`` (`bcfpipe.formats.weights`), the USD layers
    (`bcfpipe.builder.usd_layer`) and ``manifest.json``.
 

@@ -46,6 +46,37 @@ def default_jobs(n_jobs: int, device: str = "cpu") -> int:
 
 
 @dataclass(frozen=True)
+class Shares:
+    """How a build's jobs share the cores: ``workers`` jobs side by side, each with ``threads``
+    torch (and OpenImageIO, fused-kernel, BC6H) threads and ``encode`` BC encode workers."""
+
+    workers: int
+    threads: int
+    encode: int
+
+
+def core_shares(n_jobs: int, jobs: int | None, threads: int, device: str = "cpu") -> Shares:
+    """The cores of a build's ``n_jobs`` jobs (issue 58).
+
+    ``jobs`` (``--jobs N``) is the build's cores: at most N busy at once. N // ``threads`` jobs
+    train side by side (at least 1, at most ``n_jobs``), and each job's share is N // that: its
+    threads are at most its share, its encodes use its share (`job_encode_workers`). ``--jobs 1``:
+    one job at a time on one core everywhere (torch 1 thread, encodes inline).
+    Without ``jobs``: one job per core (per GPU on CUDA), each with ``threads``, its encodes on the
+    cores the parallel jobs leave each (at least ``threads``), as fast as the machine allows.
+    """
+    from bcfpipe.texset.parallel import job_encode_workers
+
+    threads = max(1, int(threads))
+    if jobs is None:
+        workers = default_jobs(n_jobs, device)
+        return Shares(workers, threads, job_encode_workers(threads, min(workers, max(n_jobs, 1))))
+    cores = max(1, int(jobs))
+    workers = max(1, min(max(n_jobs, 1), cores // threads))
+    return Shares(workers, min(threads, cores // workers), job_encode_workers(threads, workers, cores))
+
+
+@dataclass(frozen=True)
 class JobResult:
     """What one job's worker reported."""
 
@@ -155,17 +186,25 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad=True to a scalar")
         import torch
 
+        from bcfpipe.pooltrace import trace_pool
+
         torch.set_num_threads(max(1, threads))
+        trace_pool("torch-intra-op", torch.get_num_threads())
         try:
             torch.set_num_interop_threads(1)
         except RuntimeError:
             pass
+        trace_pool("torch-inter-op", torch.get_num_interop_threads())
         import OpenImageIO as oiio
 
         oiio.attribute("threads", max(1, threads))
+        trace_pool("oiio", oiio.get_int_attribute("threads"))
+        share = max(1, encode_workers or threads)  # the cores this job may use
+        set_exr_threads(oiio, share)
         from bcfpipe.texset.parallel import set_encode_workers
 
-        set_encode_workers(encode_workers or threads)
+        set_encode_workers(share)
+        trace_pool("encode-share", share)
         mj = MaterialJob.from_dict(job)
         progress = _Throttle(queue, mj.name) if queue is not None else None
         if progress:
@@ -188,6 +227,15 @@ def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, 
         from bcfpipe.texset.parallel import release_workers
 
         release_workers()
+
+
+def set_exr_threads(oiio, n: int) -> None:
+    """OpenEXR's own thread pool (OpenImageIO's ``exr_threads``, beside its ``threads``) on ``n``
+    cores: ``n`` workers, or none at all for one (-1: the reading thread decodes)."""
+    oiio.attribute("exr_threads", n if n > 1 else -1)
+    from bcfpipe.pooltrace import trace_pool
+
+    trace_pool("oiio-exr", max(1, oiio.get_int_attribute("exr_threads")))
 
 
 def _load(mj: MaterialJob, sources: Mapping[str, bytes] | None):
@@ -327,6 +375,7 @@ class _Work:
 
     materials_dir: Path
     threads: int
+    encode: int  # each job's BC encode workers
     devices: Sequence[str]
     queue: Any
     progress: ProgressCallback | None
@@ -342,9 +391,11 @@ def _run_pool(jobs: Sequence[MaterialJob], work: _Work, workers: int,
     broken: list[MaterialJob] = []
     own = executor is None
     pool = executor or cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
-    from bcfpipe.texset.parallel import job_encode_workers
+    if own:
+        from bcfpipe.pooltrace import trace_pool
 
-    encode = job_encode_workers(threads, min(workers, len(jobs)))  # the cores the parallel jobs leave each
+        trace_pool("job-pool", workers)
+    encode = work.encode
     try:
         futures = {}
         for i, job in enumerate(jobs):
@@ -399,7 +450,9 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
 
     Each job runs in a worker process of a spawn-context ``ProcessPoolExecutor`` (or of
     ``executor``, anything with the concurrent.futures interface that runs `run_job`), with
-    ``threads`` torch threads each (default ``config.DEFAULT_THREADS``). A job whose worker process
+    ``threads`` torch threads each (default ``config.DEFAULT_THREADS``). ``workers`` (``--jobs``)
+    bounds the cores: ``workers`` // ``threads`` jobs side by side, each within its share
+    (`core_shares`); without it one job per core (or GPU). A job whose worker process
     dies is retried once in a fresh single-worker pool (so one crash cannot take others with it),
     then marked failed.
     ``progress`` receives event dicts: ``queued``, ``progress`` (phase, step, steps, psnr, eta) and
@@ -411,15 +464,20 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
     if not jobs:
         return {}
     device = jobs[0].options.device
-    workers = max(1, int(workers)) if workers else default_jobs(len(jobs), device)
-    threads = max(1, int(threads)) if threads else DEFAULT_THREADS
+    shares = core_shares(len(jobs), max(1, int(workers)) if workers else None,
+                         max(1, int(threads)) if threads else DEFAULT_THREADS, device)
+    workers, threads = shares.workers, shares.threads
     gpus = _gpu_count(device)
     devices = [f"cuda:{i}" for i in range(gpus)] if gpus else [device]
     manager = mp.get_context("spawn").Manager() if progress else None
+    if manager is not None:
+        from bcfpipe.pooltrace import trace_pool
+
+        trace_pool("progress-queue", 1)  # a server process that forwards events: it waits, it does not compute
     try:
         queue = manager.Queue() if manager else None
         root = str(cache_root) if cache_root is not None else None
-        work = _Work(materials_dir, threads, devices, queue, progress, root)
+        work = _Work(materials_dir, threads, shares.encode, devices, queue, progress, root)
         results, broken = _run_pool(jobs, work, workers, executor)
         for job in broken:
             retry, again = _run_pool([job], work, 1, None)

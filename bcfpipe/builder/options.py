@@ -35,7 +35,7 @@ class Selection:
 class Execution:
     """Where and how a build's jobs run, and what it writes besides OUT."""
 
-    jobs: int | None = None  # worker processes (default: one per core, or per GPU, at most one per job)
+    jobs: int | None = None  # the build's cores, at most N busy (executor.core_shares); default: one job per core, or per GPU
     executor: ExecutorName = ExecutorName.LOCAL
     ray_address: str | None = None  # with the Ray executor: the cluster (None: a Ray of the build's own)
     cache: str | os.PathLike | bool | None = None  # a folder; True/None the default one; False none

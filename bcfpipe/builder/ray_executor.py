@@ -14,7 +14,9 @@ returns a failed result). A job that fails for good fails only its materials. Ev
 says so on the progress queue, so a retry is counted and reported. Ctrl-C cancels the tasks still queued or running.
 
 Threads and device come from what Ray grants: ``num_cpus`` = the build's ``--threads``, and
-``num_gpus`` = 1 when training on CUDA.
+``num_gpus`` = 1 when training on CUDA; a task's encodes use its threads. ``--jobs N`` bounds the
+build's cores here too: a Ray of the build's own gets N CPUs, and on a cluster at most
+N // ``--threads`` tasks run at once (threads at most N).
 """
 from __future__ import annotations
 
@@ -124,36 +126,40 @@ def _store(job: MaterialJob, r: JobResult, files: dict[str, bytes], materials_di
 def execute_ray(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, address: str | None = None,
                 threads: int | None = None, progress: ProgressCallback | None = None,
                 cache_root: str | os.PathLike | None = None,
-                max_retries: int = MAX_RETRIES) -> tuple[dict[str, JobResult], dict[str, int]]:
+                max_retries: int = MAX_RETRIES, cores: int | None = None) -> tuple[dict[str, JobResult], dict[str, int]]:
     """Train ``jobs`` as Ray tasks into ``materials_dir/<job>/``; returns ({job: JobResult},
     {job: attempts}). Connects to ``address`` (or RAY_ADDRESS), else starts a Ray of its own. Ray's
-    own messages (a raylet reporting a dead worker, ...) go to stderr: stdout stays the build's."""
+    own messages (a raylet reporting a dead worker, ...) go to stderr: stdout stays the build's.
+    ``cores`` (``--jobs``): the build's cores (module docstring)."""
     with contextlib.redirect_stdout(sys.stderr):
-        return _execute(jobs, materials_dir, address, threads, progress, cache_root, max_retries)
+        return _execute(jobs, materials_dir, address, threads, progress, cache_root, max_retries, cores)
 
 
-def _execute(jobs, materials_dir, address, threads, progress, cache_root, max_retries):
+def _execute(jobs, materials_dir, address, threads, progress, cache_root, max_retries, cores=None):
     ray = require_ray()
     materials_dir = Path(materials_dir)
     materials_dir.mkdir(parents=True, exist_ok=True)
     if not jobs:
         return {}, {}
     threads = max(1, int(threads)) if threads else DEFAULT_THREADS
+    if cores is not None:
+        cores = max(1, int(cores))
+        threads = min(threads, cores)
     device = jobs[0].options.device
     started_here = not ray.is_initialized()
     with contextlib.ExitStack() as stack:
         if started_here:
-            stack.enter_context(_connect(ray, address or os.environ.get("RAY_ADDRESS")))
-        return _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries)
+            stack.enter_context(_connect(ray, address or os.environ.get("RAY_ADDRESS"), cores))
+        return _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries, cores)
 
 
 @contextlib.contextmanager
-def _connect(ray, address: str | None):
+def _connect(ray, address: str | None, cores: int | None = None):
     """Connect to the cluster at ``address`` ("auto": the one `ray start` last started on this
     machine), or with none start a Ray of this build's own and end it after. An own Ray keeps its
     session files in a temporary folder it removes, and gets a random auth token through the
     environment, so nothing is left behind (Ray would otherwise write ~/.ray/auth_token and
-    /tmp/ray/session_*)."""
+    /tmp/ray/session_*). An own Ray gets ``cores`` CPUs (``--jobs``), else every core."""
     saved = {"RAY_AUTH_TOKEN": os.environ.get("RAY_AUTH_TOKEN")}
     tmp = None
     try:
@@ -167,7 +173,7 @@ def _connect(ray, address: str | None):
             tmp = tempfile.mkdtemp(prefix="bcfray-")  # short: Ray's socket paths have a length limit
             if not saved["RAY_AUTH_TOKEN"]:  # (RAY_AUTH_MODE is read when ray is imported: not set here)
                 os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
-            ray.init(address="local", num_cpus=cpu_count(), log_to_driver=False, include_dashboard=False,
+            ray.init(address="local", num_cpus=cores or cpu_count(), log_to_driver=False, include_dashboard=False,
                      configure_logging=False, _temp_dir=tmp)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         _restore(saved, tmp)
@@ -253,7 +259,7 @@ class _Flight:
                 self.ray.cancel(ref, force=True)
 
 
-def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries):
+def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries, cores=None):
     from ray.util.queue import Queue
 
     queue = Queue(actor_options={"num_cpus": 0})  # progress events, and one "attempt" per run of a task
@@ -266,6 +272,8 @@ def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_re
             progress(ev)
     root = str(cache_root) if cache_root is not None else None
     gpus, window = _slots(ray, device, threads, len(jobs))
+    if cores is not None:  # --jobs: at most that many cores busy, on any cluster
+        window = min(window, max(1, cores // threads))
     flight = _Flight(ray, _remote_parts(ray), queue, device, threads, gpus, max_retries, progress)
     try:
         for job in jobs:

@@ -2,8 +2,10 @@
 install it as OUT, writing only the files that changed."""
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import sys
 import shutil
 import time
 import uuid
@@ -209,6 +211,44 @@ def build(scene: str | os.PathLike, out: str | os.PathLike | None = None, *,
     t0 = time.perf_counter()
     if execution.jobs is not None and int(execution.jobs) < 1:
         raise BuildError("--jobs must be at least 1")
+    with driver_threads(execution.jobs):
+        return _build(scene, out, training, selection, execution, progress, t0)
+
+
+@contextlib.contextmanager
+def driver_threads(jobs: int | None):
+    """With ``--jobs N``, the build's own reads (the scan's OpenImageIO, torch where loaded) use at
+    most N threads meanwhile; restored after (issue 58). Without it nothing changes."""
+    if jobs is None:
+        yield
+        return
+    import OpenImageIO as oiio
+
+    from bcfpipe.pooltrace import trace_pool
+
+    from bcfpipe.builder.executor import set_exr_threads
+
+    n = max(1, int(jobs))
+    before, exr_before = oiio.get_int_attribute("threads"), oiio.get_int_attribute("exr_threads")
+    oiio.attribute("threads", min(n, before) if before > 0 else n)
+    trace_pool("oiio", oiio.get_int_attribute("threads"), where="driver")
+    set_exr_threads(oiio, min(n, exr_before) if exr_before > 0 else n)
+    torch = sys.modules.get("torch")  # not imported here for this: the driver trains nothing
+    t_before = torch.get_num_threads() if torch is not None else None
+    if torch is not None:
+        torch.set_num_threads(min(n, t_before))
+        trace_pool("torch-intra-op", torch.get_num_threads(), where="driver")
+    try:
+        yield
+    finally:
+        oiio.attribute("threads", before)
+        oiio.attribute("exr_threads", exr_before)
+        if torch is not None:
+            torch.set_num_threads(t_before)
+
+
+def _build(scene, out, training: TrainingOptions, selection: Selection, execution: Execution,
+           progress: ProgressCallback | None, t0: float) -> BuildResult:
     scene_path = Path(scene)
     out_given = Path(out) if out is not None else default_out(scene_path, resolve=False)
     out_path = out_given.resolve()
@@ -322,7 +362,7 @@ def _train(todo: list, run: _Run, execution: Execution, threads: int | None,
         from bcfpipe.builder.ray_executor import execute_ray
 
         done, attempts = execute_ray(todo, run.staging / MATERIALS_DIR, execution.ray_address, threads=threads,
-                                     progress=progress, cache_root=root)
+                                     progress=progress, cache_root=root, cores=execution.jobs)
         return {k: replace(r, attempts=attempts.get(k, 1)) for k, r in done.items()}
     from bcfpipe.texset.blocks import blocks_in
     from bcfpipe.train.fused.common import kernels_in

@@ -217,8 +217,13 @@ def nothing_built(manifest) -> str | None:
 @all_materials_option
 @material_option
 @training_options
-@click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
-              help="Materials trained in parallel [default: one per core, or per GPU].")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Cores the build may use: at most N busy at once, every process and thread it starts "
+                   "counted. N // --threads materials train side by side, and each one's torch threads, BC "
+                   "encoders, evaluation, ONNX and OpenImageIO stay within its share; --jobs 1 uses one core "
+                   "everywhere (a --threads above N is cut to N). With --executor ray: a Ray of the build's own "
+                   "gets N CPUs, a cluster at most N // --threads tasks at once [default: every core: one "
+                   "material per core, or per GPU, each encoding on the cores the others leave].")
 @texel_density_option
 @click.option("--no-coverage", is_flag=True,
               help="Train on every texel, not only on those the bound meshes' uvs cover (the default; "

@@ -59,7 +59,8 @@ TRAINING_OPTIONS = (
                       "train faster with --device cpu (the fused kernel) even there (README, CUDA)."),
     click.option("--threads", type=click.IntRange(min=1), default=DEFAULT_THREADS, show_default=True,
                  help="Torch CPU threads per training; 1 trained fastest on a 2-core machine "
-                      "(docs/benchmarks.md). Parallelism comes from training materials side by side."),
+                      "(docs/benchmarks.md). Parallelism comes from training materials side by side. "
+                      "In a build, never more than --jobs."),
     click.option("--kernel", type=click.Choice([k.value for k in Kernel]), default=DEFAULT_KERNEL.value,
                  show_default=True,
                  help="How a training step runs: fused (one vectorised C++ kernel for features, MLP and gradients, "

@@ -166,8 +166,12 @@ def onnx_session(em: ExportedMaterial):
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     import onnxruntime as ort
 
+    from bcfpipe.pooltrace import trace_pool
+
     so = ort.SessionOptions()
     so.intra_op_num_threads = 1
+    so.inter_op_num_threads = 1
+    trace_pool("onnxruntime", so.intra_op_num_threads)
     return ort.InferenceSession(str(em.onnx_path), so, providers=["CPUExecutionProvider"])
 
 

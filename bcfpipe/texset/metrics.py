@@ -230,11 +230,23 @@ def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
     # GIL and runs alone); each value is what it is alone
     ssim_per_group: dict[str, float] = {}
     if ssim:
-        threads = SSIM_THREADS if r0.size <= SSIM_PARALLEL_VALUES else 1
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            values = pool.map(lambda idx: ssim_group(r0[..., idx], d0[..., idx], channels[idx[0]].peak),
-                              groups.values())
-            ssim_per_group = {g: v for g, v in zip(groups, values) if v is not None}
+        from bcfpipe.texset.parallel import encode_workers
+
+        # never more than the cores the job may use (--jobs 1: one)
+        threads = min(SSIM_THREADS, encode_workers(), len(groups)) if r0.size <= SSIM_PARALLEL_VALUES else 1
+
+        def one(idx):
+            return ssim_group(r0[..., idx], d0[..., idx], channels[idx[0]].peak)
+
+        if threads > 1:
+            from bcfpipe.pooltrace import trace_pool
+
+            trace_pool("ssim-thread-pool", threads)
+            with ThreadPoolExecutor(max_workers=threads) as pool:
+                values = list(pool.map(one, groups.values()))
+        else:
+            values = [one(idx) for idx in groups.values()]
+        ssim_per_group = {g: v for g, v in zip(groups, values) if v is not None}
     flip_per_group = {g: flip_group(r0[..., groups[g]], d0[..., groups[g]]) for g in flip_groups}
 
     return Metrics(

@@ -5,9 +5,10 @@ same bytes as the level at once, band by band in row order. ISPC's encoder relea
 its bands run in threads; quicktex holds it, so its bands run in worker processes (spawned: the
 callers hold torch's threads, which a fork would copy half-started).
 
-How many: `encode_workers()`, set per job by the build (the cores its parallel jobs leave to each,
-at least its ``--threads``) and by `train` (``--threads``, or every core), through
-`set_encode_workers`.
+How many: `encode_workers()`, set per job by the build (`job_encode_workers`: its share of
+``--jobs`` cores, or without ``--jobs`` the cores its parallel jobs leave to each, at least its
+``--threads``) and by `train` (``--threads``, or every core), through `set_encode_workers`. With one
+worker every encode runs inline, in the calling thread: no pool, no process (issue 58).
 """
 from __future__ import annotations
 
@@ -21,6 +22,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bcfpipe.pooltrace import trace_pool
+
 BAND_ROWS = 256  # texel rows per band: a multiple of 4, 2 MiB of RGBA at 2048 wide
 MIN_PARALLEL_TEXELS = 512 * 512  # below this a level encodes inline: a band's pickling costs more
 
@@ -28,6 +31,14 @@ _workers: int | None = None
 _local = threading.local()  # a thread's own count (an encode beside a training: `workers`)
 _pool: ProcessPoolExecutor | None = None
 _pool_size = 0
+
+
+def _cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
 
 
 def set_encode_workers(n: int | None) -> None:
@@ -42,7 +53,7 @@ def encode_workers() -> int:
     own = getattr(_local, "n", None)
     if own is not None:
         return own
-    return _workers if _workers is not None else max(1, os.cpu_count() or 1)
+    return _workers if _workers is not None else _cores()
 
 
 @contextlib.contextmanager
@@ -50,6 +61,8 @@ def workers(n: int):
     """Encodes of this thread use ``n`` cores meanwhile (the others train)."""
     before = getattr(_local, "n", None)
     _local.n = max(1, int(n))
+    if _off_main_thread():
+        trace_pool("encode-beside-training", _local.n)
     try:
         yield
     finally:
@@ -62,10 +75,13 @@ def _off_main_thread() -> bool:
     return threading.current_thread() is not threading.main_thread()
 
 
-def job_encode_workers(threads: int, parallel_jobs: int) -> int:
-    """A job's encode workers: the machine's cores shared among the ``parallel_jobs`` that run at
-    once, and never fewer than its own ``threads``."""
-    return max(1, int(threads), (os.cpu_count() or 1) // max(1, int(parallel_jobs)))
+def job_encode_workers(threads: int, parallel_jobs: int, cores: int | None = None) -> int:
+    """A job's encode workers: ``cores`` (the build's ``--jobs``) shared among the
+    ``parallel_jobs`` that run at once, at least 1 (the job's ``threads`` fit in that share: the
+    build makes them). Without ``cores`` (no ``--jobs``): the machine's cores so shared, and never
+    fewer than the job's own ``threads``."""
+    share = (_cores() if cores is None else max(1, int(cores))) // max(1, int(parallel_jobs))
+    return max(1, share) if cores is not None else max(1, int(threads), share)
 
 
 def bands(px: np.ndarray, rows: int = BAND_ROWS) -> list[np.ndarray]:
@@ -88,6 +104,7 @@ def _process_pool(n: int) -> ProcessPoolExecutor:
     if _pool is None or _pool_size != n:
         release_workers()
         _pool, _pool_size = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn")), n
+        trace_pool("encode-process-pool", n)
         atexit.register(release_workers)
     return _pool
 
@@ -118,13 +135,14 @@ def make_quicktex_encoder(codec: str):
 
 def quicktex_level(codec: str, px: np.ndarray, block_bytes: int) -> np.ndarray:
     """A padded (H, W, 4) uint8 level's blocks, (n, block_bytes) uint8 in row-major order, by
-    quicktex's ``codec``: a large level in bands over `encode_workers()` processes, and every level
-    in them off the main thread."""
+    quicktex's ``codec``: with more than one worker, a large level in bands over `encode_workers()`
+    processes, and every level in them off the main thread; with one, inline (one core: a thread
+    beside a training then takes its turns on the GIL, and no process starts)."""
     import quicktex
 
     n = encode_workers()
     h, w = px.shape[:2]
-    if _off_main_thread() or (n > 1 and h * w >= MIN_PARALLEL_TEXELS and h > BAND_ROWS):
+    if n > 1 and (_off_main_thread() or (h * w >= MIN_PARALLEL_TEXELS and h > BAND_ROWS)):
         pool = _process_pool(n)
         futures = [pool.submit(_quicktex_band, codec, np.ascontiguousarray(b).tobytes(), w, b.shape[0])
                    for b in bands(px)]
@@ -142,6 +160,7 @@ def threaded_bands(encode_band: Callable[[np.ndarray], bytes], px: np.ndarray, b
     parts = bands(px)
     n = min(encode_workers(), len(parts))
     if n > 1:
+        trace_pool("encode-thread-pool", n)
         with ThreadPoolExecutor(n) as pool:
             raw = b"".join(pool.map(encode_band, parts))
     else:

@@ -205,7 +205,10 @@ def _pool(n: int) -> ThreadPoolExecutor:
     """One lasting pool per chunk count: a step is milliseconds, a pool's start is not free."""
     with _lock:
         if n not in _pools:
+            from bcfpipe.pooltrace import trace_pool
+
             _pools[n] = ThreadPoolExecutor(n, thread_name_prefix="bcf-fused")
+            trace_pool("fused-thread-pool", n)
         return _pools[n]
 
 

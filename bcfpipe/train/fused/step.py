@@ -103,6 +103,9 @@ class FusedStep:
 
             self.K = K
             numba.set_num_threads(min(self.chunks, numba.config.NUMBA_NUM_THREADS))
+            from bcfpipe.pooltrace import trace_pool
+
+            trace_pool("numba", numba.get_num_threads())
 
     def adam(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> None:
         """Adam (torch's update, per-level step counts as torch keeps per tensor) on the levels the
