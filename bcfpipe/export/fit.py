@@ -12,9 +12,15 @@ from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
 from bcfpipe.config import TrainConfig, TrainingOptions
+from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.metrics import Metrics, compute_metrics, metrics_from_mse, mse_per_channel
-from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
+from bcfpipe.texset.texture_set import Channel, TextureSet
 from bcfpipe.train.trainer import Progress, ProgressFn, TrainedMaterial, resolve_device, train
+
+# The metrics after the decode, in units of the decode's own time, for the evaluation's ETA: PSNR
+# and per-channel errors alone (0.38-0.39), and with SSIM and FLIP at mip 0 (3.15-3.24), measured
+# at 1024² and 2048² x 8 channels, tiny, on a 2-core CPU (docs/benchmarks.md, issue 58)
+METRICS_PER_DECODE = {False: 0.4, True: 3.2}
 
 
 @dataclass(frozen=True)
@@ -77,32 +83,104 @@ def exported_size(out_dir: Path) -> int:
     return sum(p.stat().st_size for p in shipped_files(out_dir))
 
 
+class EvaluateProgress:
+    """The ``evaluate`` phase as steps: one per mip decoded, then one for the metrics, with an ETA
+    (the decode's rate so far over the texels left, plus `METRICS_PER_DECODE` of the decode's
+    time for the metrics). Reports at most every ``every`` seconds, and at each step."""
+
+    def __init__(self, progress: ProgressFn | None, shapes, image_metrics: bool = True,
+                 start: float | None = None, every: float = 1.0):
+        self.progress, self.every = progress, every
+        self.texels = [h * w for h, w in shapes]
+        self.ratio = METRICS_PER_DECODE[bool(image_metrics)]
+        self.start = time.perf_counter() if start is None else start  # the run's start: elapsed counts from it
+        self.t0 = time.perf_counter()
+        self.done, self.last = 0, float("-inf")
+
+    @property
+    def steps(self) -> int:
+        return len(self.texels) + 1
+
+    def _send(self, step: int, steps: int, eta: float) -> None:
+        now = time.perf_counter()
+        self.last = now
+        if self.progress:
+            self.progress(Progress("evaluate", step, steps, float("nan"), float("nan"), now - self.start, eta))
+
+    def begin(self) -> None:
+        """Evaluation starts: no rate yet, so no step count and no ETA."""
+        self._send(0, 0, 0.0)
+
+    def _decode_seconds(self) -> float:
+        """The whole decode's seconds, estimated from its rate so far."""
+        spent = time.perf_counter() - self.t0
+        return spent * sum(self.texels) / max(self.done, 1)
+
+    def chunk(self, k: int, texels: int) -> None:
+        """`bcfpipe.export.writer.decode_mips`' ``on_chunk``."""
+        self.done += texels
+        finished = sum(self.texels[:k + 1]) == self.done
+        if finished or time.perf_counter() - self.last >= self.every:
+            total = self._decode_seconds()
+            spent = time.perf_counter() - self.t0
+            self._send(k + 1 if finished else k, self.steps, max(0.0, total - spent) + self.ratio * total)
+
+    def metrics(self) -> None:
+        """The decode is done; the metrics start."""
+        self._send(len(self.texels), self.steps, self.ratio * (time.perf_counter() - self.t0))
+
+    def end(self) -> None:
+        self._send(self.steps, self.steps, 0.0)
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """An exported folder measured against its set's reference."""
+
+    metrics: Metrics
+    per_channel: np.ndarray  # (mips, channels) MSE (`mse_per_channel`)
+    decoded: list[np.ndarray]  # (H_k, W_k, c) per mip, as `bcfpipe.export.writer.decode_mips` returns
+
+
+def evaluate_exported(folder: str | os.PathLike, reference: Reference, channels: tuple[Channel, ...],
+                      progress: ProgressFn | None = None, image_metrics: bool = True,
+                      start: float | None = None) -> Evaluation:
+    """Decode ``folder`` at every mip of ``reference`` and measure it (over ``reference.masks``'
+    texels too, when it has masks), reporting ``evaluate`` step by step to ``progress``
+    (`EvaluateProgress`; elapsed from ``start``, a `time.perf_counter` reading)."""
+    ep = EvaluateProgress(progress, reference.shapes, image_metrics, start)
+    ep.begin()
+    dec = E.decode_mips(E.load(folder), reference.shapes, on_chunk=ep.chunk if progress else None)
+    ep.metrics()
+    ref, masks = list(reference.mips), reference.masks
+    metrics = compute_metrics(ref, dec, channels, masks=masks, ssim=image_metrics, flip=image_metrics)
+    per_channel = mse_per_channel(ref, dec, channels, masks)
+    ep.end()
+    return Evaluation(metrics, per_channel, dec)
+
+
 def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
                  progress: ProgressFn | None = None, coverage: np.ndarray | None = None,
-                 image_metrics: bool = True) -> tuple[MaterialResult, TrainedMaterial]:
+                 image_metrics: bool = True, reference: Reference | None = None) -> tuple[MaterialResult, TrainedMaterial]:
     """Train on ``ts``, export to ``out_dir``, then evaluate the exported files (over every texel,
     and with a ``coverage`` mask also over the covered ones). ``progress`` hears the training's
-    phases, then ``evaluate``. ``image_metrics=False`` leaves out SSIM and FLIP (seconds at 2048²)
-    for a model that is judged by its PSNR and per-channel errors alone, as the layout's probe."""
+    phases, then ``evaluate`` step by step (`EvaluateProgress`). ``image_metrics=False`` leaves out
+    SSIM and FLIP (seconds at 2048²) for a model that is judged by its PSNR and per-channel errors
+    alone, as the layout's probe. ``reference``: ``Reference.of(ts, coverage, cfg.model.wrap)`` when
+    the caller holds it already (the training and the measure share it), else built here once."""
     start = time.perf_counter()
-    tm = train(ts, cfg, progress, coverage=coverage)
+    if reference is None:
+        reference = Reference.of(ts, coverage, cfg.model.wrap)
+    else:
+        reference.check(ts, coverage, cfg.model.wrap)
+    tm = train(ts, cfg, progress, coverage=coverage, reference=reference)
     out = E.export(tm, out_dir)
-    if progress:
-        progress(Progress("evaluate", 0, 0, float("nan"), float("nan"), time.perf_counter() - start, 0.0))
     t0 = time.perf_counter()
-    ref = build_mip_chain(ts.data)
-    float_metrics = (metrics_from_mse(tm.float_mse, ts.channels, [m.shape[:2] for m in ref])
+    float_metrics = (metrics_from_mse(tm.float_mse, ts.channels, reference.shapes)
                      if tm.float_mse is not None else None)
-    em = E.load(out)
-    dec = E.decode_mips(em, [m.shape[:2] for m in ref])
-    masks = None
-    if coverage is not None:
-        from bcfpipe.scan.coverage import mask_mips
-
-        masks = mask_mips(coverage, len(ref), cfg.model.wrap)
-    metrics = compute_metrics(ref, dec, ts.channels, masks=masks, ssim=image_metrics, flip=image_metrics)
-    per_channel = mse_per_channel(ref, dec, ts.channels, masks)
-    del dec
+    ev = evaluate_exported(out, reference, ts.channels, progress, image_metrics, start)
+    metrics, per_channel = ev.metrics, ev.per_channel
+    del ev
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)
     res = MaterialResult(out, profile, cfg.model.resolutions, cfg.preset_name, cfg.device, metrics, float_metrics,
                          exported_size(out), tm.train_seconds, {k: round(v, 3) for k, v in phases.items()},

@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -176,11 +177,11 @@ def onnx_session(em: ExportedMaterial):
 
 
 def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: int = 1 << 18,
-                drop_normal_z: bool = True) -> list[np.ndarray]:
+                drop_normal_z: bool = True, on_chunk: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
     """The exported material decoded at each reference mip's texel centres (s = mip index) ->
     [(H, W, c)], every output in material.json's order: the decoder's through onnxruntime, a
     classic output from its texture (trilinear, like the layers); normal z is dropped unless asked
-    for."""
+    for. ``on_chunk(k, texels)`` hears each chunk decoded: its mip and its texels (for progress)."""
     sess = onnx_session(em) if em.desc.mlp is not None else None
     outputs = em.desc.outputs
     mlp_cols = [i for i, o in enumerate(outputs) if o.source != mf.Source.CLASSIC]
@@ -197,6 +198,8 @@ def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: 
             if em.classic:
                 classic_outputs(em, uv, float(k), y)
             level[a:a + len(ids)] = y[:, keep]
+            if on_chunk is not None:
+                on_chunk(k, len(ids))
         out.append(level.reshape(h, w, -1))
     return out
 

@@ -10,12 +10,11 @@ from typing import Callable
 
 from bcfpipe.config import PROFILES, TrainingOptions
 from bcfpipe.formats.vocabulary import Layout
-from bcfpipe.export import writer as E
-from bcfpipe.export.fit import MaterialResult, exported_size
+from bcfpipe.export.fit import MaterialResult, evaluate_exported, exported_size
 from bcfpipe.layout.export import decision_json, export_layout, write_decision
 from bcfpipe.layout.fit import fit_layout
-from bcfpipe.texset.metrics import compute_metrics, mse_per_channel
-from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
+from bcfpipe.texset.chain import Reference
+from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
 
 WORK = ".layout-work"  # inside the output folder while the probe and the chosen model train
@@ -37,29 +36,28 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
                         progress: ProgressFn | None = None, coverage: np.ndarray | None = None) -> MaterialResult:
     """Choose, train and export ``ts``'s layout into ``out_dir`` (material.json says where every
     output comes from; layout.json why), measured from the exported files. With ``coverage`` (the
-    texels the scene reads) training draws there and every figure is over those texels."""
+    texels the scene reads) training draws there and every figure is over those texels. ``ts``'s
+    reference chain and coverage masks are built once here (`Reference`) and shared by the layout's
+    fit and the final measure; ``progress`` hears that measure as ``evaluate``, step by step."""
     out = Path(out_dir)
     work = out / WORK
     start = time.perf_counter()
+    reference = Reference.of(ts, coverage, wrap)
     try:
         fit = fit_layout(ts, work, options, bc_resolution(max(ts.width, ts.height), options.profile), wrap=wrap,
-                         log=log, progress=progress, coverage=coverage)
+                         log=log, progress=progress, reference=reference)
         export_layout(fit, ts, out, wrap)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     write_decision(out, fit)
     t0 = time.perf_counter()
-    ref = build_mip_chain(ts.data)
-    dec = E.decode_mips(E.load(out), [m.shape[:2] for m in ref])
-    masks = None
-    if coverage is not None:
-        from bcfpipe.scan.coverage import mask_mips
-
-        masks = mask_mips(coverage, len(ref), wrap)
-    metrics = compute_metrics(ref, dec, ts.channels, masks=masks)
-    per_channel = mse_per_channel(ref, dec, ts.channels, masks)
+    ev = evaluate_exported(out, reference, ts.channels, progress, start=start)
+    metrics, per_channel, dec = ev.metrics, ev.per_channel, ev.decoded
+    del ev
+    masks = reference.masks
     decision = decision_json(fit)
-    angle = normal_angles(out, ts, ref[0], dec[0], masks[0] if masks else None)
+    angle = normal_angles(out, ts, reference.mips[0], dec[0], masks[0] if masks else None)
+    del dec
     if angle is not None:  # beside the PSNR: what a renderer shades with (issue 57)
         decision["normal_angular_error"] = angle
         write_decision(out, fit, angle)

@@ -40,7 +40,8 @@ from bcfpipe.train.fixed_t0 import pca_t0
 from bcfpipe.train.pace import Pace, Pacer
 from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_batch
 from bcfpipe.texset import encoding
-from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
+from bcfpipe.texset.chain import Reference
+from bcfpipe.texset.texture_set import TextureSet
 
 
 
@@ -431,11 +432,14 @@ def _quantize(run: _Run, blocks: Layers[BlockParams]) -> tuple[Layers[BlockLevel
 
 
 def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
-          pace: Pace = Pace(), measure_float: bool = True, coverage: np.ndarray | None = None) -> TrainedMaterial:
+          pace: Pace = Pace(), measure_float: bool = True, coverage: np.ndarray | None = None,
+          reference: Reference | None = None) -> TrainedMaterial:
     """Train one neural material on ``ts`` (see module docstring): warm-up, encode,
     constrained, quantize, MLP fine-tune. ``coverage``: a (H, W) bool mask of the texels the
     scene reads (bcfpipe.scan.coverage); steps then draw their samples there only, which weights
-    the loss by the mask. ``progress`` is called as ``pace`` says, and as each phase starts."""
+    the loss by the mask. ``reference``: ``ts``'s chain and ``coverage``'s masks when the caller
+    holds them already (`Reference.of(ts, coverage, cfg.model.wrap)`), else built here. ``progress``
+    is called as ``pace`` says, and as each phase starts."""
     if cfg.model.t0_layers > 1 and cfg.t0 != T0.PCA:
         raise InputError(f"a T_0 of {cfg.model.t0_layers} layers holds fixed principal components: use it with --t0 pca")
     if cfg.threads:
@@ -444,7 +448,14 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
     mc, preset = cfg.model, cfg.preset
     gen = torch.Generator().manual_seed(cfg.seed)
     gains = encoding.gains(ts.channels)
-    ref = ReferencePyramid.from_mips(encoding.encode_levels(build_mip_chain(ts.data), gains), device)
+    if reference is None:
+        reference = Reference.of(ts, coverage, mc.wrap)
+    else:
+        reference.check(ts, coverage, mc.wrap)
+    # the trainer's own copy: planar, encoded, on the device; the numpy chain stays the caller's
+    ref = ReferencePyramid.from_mips(encoding.encode_levels(reference.mips, gains), device)
+    masks = reference.masks
+    del reference
     c = ts.num_channels
     biases = M.layer_lod_biases(mc, ts.width, ts.height)
     kinds = tuple(ch.kind for ch in ts.channels)
@@ -455,11 +466,6 @@ def train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None = None,
                     "finetune": preset.finetune.steps})
     next_s = StratifiedScale(float(ref.num_levels - 1), gen, power=preset.lod_power, s_min=float(mc.split))
     t0 = time.perf_counter()
-    masks = None
-    if coverage is not None:
-        from bcfpipe.scan.coverage import mask_mips
-
-        masks = mask_mips(coverage, ref.num_levels, mc.wrap)
     centres = (CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch, covered=masks,
                              bicubic=backend.bicubic(), interleave=backend.library() is not None)
                if preset.centre_targets else None)
