@@ -157,6 +157,18 @@ FIXED_T0_PRESETS: dict[str, Preset] = {
 }
 
 
+def shortened(preset: Preset, fraction: float) -> Preset:
+    """``preset`` with every phase ``fraction`` as long and its learning rates decaying as far (the
+    layout's probe, issue 58): the same schedule, compressed."""
+    def phase(p: PhaseSchedule) -> PhaseSchedule:
+        steps = max(1, round(p.steps * fraction))
+        return replace(p, steps=steps, gamma_features=p.gamma_features ** (p.steps / steps),
+                       gamma_mlp=p.gamma_mlp ** (p.steps / steps))
+
+    return replace(preset, warmup=phase(preset.warmup), constrained=phase(preset.constrained),
+                   finetune=phase(preset.finetune))
+
+
 def preset_for(name: str, t0: int, device: str, fixed_t0: bool = False) -> Preset:
     """The schedule that preset ``name`` trains with a T_0 of ``t0`` texels on ``device``;
     ``fixed_t0``: T_0 holds fixed principal components (FIXED_T0_PRESETS)."""

@@ -145,12 +145,11 @@ def _execute(jobs, materials_dir, address, threads, progress, cache_root, max_re
     if cores is not None:
         cores = max(1, int(cores))
         threads = min(threads, cores)
-    device = jobs[0].options.device
     started_here = not ray.is_initialized()
     with contextlib.ExitStack() as stack:
         if started_here:
             stack.enter_context(_connect(ray, address or os.environ.get("RAY_ADDRESS"), cores))
-        return _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries, cores)
+        return _run(ray, jobs, materials_dir, threads, progress, cache_root, max_retries, cores)
 
 
 @contextlib.contextmanager
@@ -259,7 +258,8 @@ class _Flight:
                 self.ray.cancel(ref, force=True)
 
 
-def _run(ray, jobs, materials_dir, threads, device, progress, cache_root, max_retries, cores=None):
+def _run(ray, jobs, materials_dir, threads, progress, cache_root, max_retries, cores=None):
+    device = jobs[0].options.device
     from ray.util.queue import Queue
 
     queue = Queue(actor_options={"num_cpus": 0})  # progress events, and one "attempt" per run of a task

@@ -9,10 +9,11 @@ MSE is the mean over channels of each channel's own MSE (the metric is a plain m
 `bcfpipe.texset.metrics`), so a candidate's figures follow from per-channel errors without
 decoding it:
 
-* classic channels: exact, from the encoded blocks;
-* neural channels, ``bound``: from a model trained on *all* channels at that profile. A model
-  trained on fewer channels fits those at least as well in expectation, so this is what the
-  candidate can hold at the least;
+* classic channels, ``estimated``: from a sample of their blocks (`bcfpipe.layout.estimate`),
+  ``measured`` once encoded in full (what ships always is);
+* neural channels, ``bound``: from the probe, a short training on *all* channels at that
+  profile. A model trained in full, and one trained on fewer channels, fits those at least as
+  well in expectation, so this is what the candidate can hold at the least;
 * ``predicted``: the same errors moved by the measured gain between two profiles
   (`bcfpipe.train.rate.GAINS_DB`), for profiles that were not trained.
 
@@ -38,7 +39,7 @@ if TYPE_CHECKING:
 
 SLACK_DB = 0.5
 EXPLORE_DB = 3.0  # a bound this far below the floor may still be reached by its own training
-Basis = Literal["measured", "bound", "predicted"]
+Basis = Literal["measured", "estimated", "bound", "predicted"]
 ALL_CLASSIC = "all classic (BC@R)"
 
 
@@ -150,7 +151,7 @@ def most_promising(candidates: Sequence[Candidate], bc: Candidate, match_bc: boo
     did; or one with a wider T_0 than the probe's, on its prediction (issue 52: the width gain is a
     mean over sets, and a set's own may be larger)."""
     pool = [c for c in candidates if c.profile is not None
-            and ((c.classic and c.basis == "bound") or (c.t0_layers > 1 and c.basis == "predicted"))
+            and (c.basis == "bound" or (c.t0_layers > 1 and c.basis == "predicted"))
             and (match_bc or c.size_bytes <= bc.size_bytes) and 0 < deficit(c, bc, match_bc) <= within_db]
     return min(pool, key=lambda c: (deficit(c, bc, match_bc), c.size_bytes), default=None)
 

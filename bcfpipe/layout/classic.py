@@ -54,6 +54,18 @@ class EncodedGroup:
     # USD reads it); fit_layout empties it once measured
     disk: int | None = None  # its file's bytes on disk (`disk_bytes`), once measured
     slope: float | None = None  # a slope normal's m: slope = (2t - 1) m
+    planned: tuple[tuple[int, int], ...] = ()  # (width, height) per level, for a group not yet encoded
+
+    @property
+    def encoded(self) -> bool:
+        return bool(self.levels)
+
+    def level_bytes(self) -> list[int]:
+        """Each level's block bytes: counted from its blocks, or for a group not yet encoded from its
+        `planned` sizes (exact: BC blocks have fixed sizes)."""
+        if self.levels:
+            return [b.nbytes for b, _, _ in self.levels]
+        return [-(-w // 4) * -(-h // 4) * BLOCK_BYTES[self.group.format] for w, h in self.planned]
 
     def texel_map(self, ts: TextureSet) -> tuple[tuple[float, float], ...]:
         """(texel_scale, texel_bias) per stored channel: the group's, a slope normal's (2m, -m)."""
@@ -66,7 +78,7 @@ class EncodedGroup:
         """Its DDS file's bytes (header included), as a layout's other files are counted."""
         from bcfpipe.formats.dds import HEADER_BYTES
 
-        return HEADER_BYTES + sum(b.nbytes for b, _, _ in self.levels)
+        return HEADER_BYTES + sum(self.level_bytes())
 
 
 def groups(ts: TextureSet) -> tuple[Group, ...]:
@@ -85,32 +97,38 @@ def groups(ts: TextureSet) -> tuple[Group, ...]:
     return tuple(out)
 
 
+def planned(ts: TextureSet, group: Group, resolution: int) -> EncodedGroup:
+    """``group`` at ``resolution``, not yet encoded: its sizes known, its blocks not (`bcfpipe.layout.estimate`)."""
+    from bcfpipe.layout.predict import bc_levels
+
+    return EncodedGroup(group, [], [], planned=tuple(bc_levels(ts.width, ts.height, resolution)))
+
+
 def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap: str = "repeat") -> list[EncodedGroup]:
-    """Every group of ``ts`` encoded at ``resolution`` with its full mip chain (bench's BC@R).
-    Reference mips above ``resolution`` see level 0 magnified with the material's addressing, as
-    the runtime samples it (bench's baseline clamps at the edges)."""
-    from bcfpipe.texset.baselines import USD, encode_texture_set_shipped
+    """Every group of ``ts`` (BC@R) encoded at ``resolution`` with its full mip chain (`encode_group`)."""
+    return [encode_group(ts, g, resolution, ref_mips, wrap) for g in groups(ts)]
 
-    textures: list = []
-    decoded, _ = encode_texture_set_shipped(ts, USD, resolution, ref_mips=ref_mips, textures=textures)
+
+def encode_group(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequence[np.ndarray],
+                 wrap: str = "repeat") -> EncodedGroup:
+    """One group encoded in full at ``resolution``, every mip, by the encoder and preset that ship
+    it (`group_texels`). Reference mips above ``resolution`` see level 0 magnified with the
+    material's addressing, as the runtime samples it; a slope normal's m is taken from level 0's
+    set values, as `baselines.slope_mips` takes it."""
     d = sum(1 for m in ref_mips if max(m.shape[:2]) > resolution)
-    for k in range(d):
-        decoded[k] = magnify(decoded[d], *ref_mips[k].shape[:2], wrap)
-    out = []
-    for g, (fmt, idx, levels) in zip(groups(ts), textures):
-        assert list(g.channels) == list(idx)
-        out.append(EncodedGroup(g, levels, []))
-    for k in range(len(decoded)):  # split mip by mip, so the whole set is held decoded once, not twice
-        for e in out:
-            e.decoded.append(decoded[k][..., list(e.group.channels)])
-        decoded[k] = None
-    for e in out:
-        if e.group.slope:  # m as baselines.slope_mips took it, from level 0's set values
-            from bcfpipe.texset.normals import slope_scale
+    cols = list(group.channels)
+    m = None
+    if group.slope:
+        from bcfpipe.texset.normals import slope_scale
 
-            e.slope = slope_scale(ref_mips[d][..., list(e.group.channels)])
-            e.decoded = usd_normals(e.levels, [m.shape[:2] for m in ref_mips], wrap, e.slope)
-    return out
+        m = slope_scale(ref_mips[d][..., cols])
+    levels: list = []
+    decoded = group_texels(ts, group, ref_mips[d:], levels, m)
+    if group.slope:  # magnified as texels, then read as a normal
+        decoded = usd_normals(levels, [r.shape[:2] for r in ref_mips], wrap, m)
+    else:
+        decoded = [magnify(decoded[0], *ref_mips[k].shape[:2], wrap) for k in range(d)] + decoded
+    return EncodedGroup(group, levels, decoded, slope=m)
 
 
 def usd_normals(levels: Sequence[tuple[np.ndarray, int, int]], shapes: Sequence[tuple[int, int]],
@@ -218,20 +236,32 @@ def _whole_inputs(groups: Sequence[Group], n: int) -> list[tuple[int, ...]] | No
 
 def encode_bc7(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequence[np.ndarray],
                wrap: str = "repeat") -> EncodedGroup:
-    """One BC7 group of ``ts`` at ``resolution`` with every mip, as `encode` does BC@R's groups."""
-    from bcfpipe.texset.baselines import bc7_mips
+    """One BC7 group of ``ts`` at ``resolution`` with every mip (`encode_group`)."""
+    return encode_group(ts, group, resolution, ref_mips, wrap)
 
-    d = sum(1 for m in ref_mips if max(m.shape[:2]) > resolution)
+
+def group_texels(ts: TextureSet, group: Group, images: Sequence[np.ndarray], blocks: list | None = None,
+                 slope_m: float | None = None) -> list[np.ndarray]:
+    """``group`` encoded and decoded in each of ``images`` (set values, (H, W, channels) each: a
+    level, or a mosaic of some of its blocks, `bcfpipe.layout.estimate`), by the encoder and preset
+    that ship it: each as set values in the group's slots (a slope normal: its (x, y, z) as USD
+    reads it, with the whole level's ``slope_m``). With ``blocks``, each image's (blocks, w, h)."""
+    from bcfpipe.texset import baselines as B
+
     cols = list(group.channels)
-    scale, bias = (np.array(v, np.float32) for v in zip(*group.texel_map(ts)))
-    pad = 4 - len(cols)
-    stored = [np.concatenate([(m[..., cols] - bias) / scale, np.zeros(m.shape[:2] + (pad,), np.float32)], -1)
-              if pad else (m[..., cols] - bias) / scale for m in ref_mips[d:]]
-    levels: list = []
-    out, _ = bc7_mips(stored, levels)
-    decoded = [o[..., :len(cols)] * scale + bias for o in out]
-    decoded = [magnify(decoded[0], *ref_mips[k].shape[:2], wrap) for k in range(d)] + decoded
-    return EncodedGroup(group, levels, decoded)
+    if group.format == ClassicFormat.BC7:
+        scale, bias = (np.array(v, np.float32) for v in zip(*group.texel_map(ts)))
+        pad = 4 - len(cols)
+        stored = [np.concatenate([(m[..., cols] - bias) / scale, np.zeros(m.shape[:2] + (pad,), np.float32)], -1)
+                  if pad else (m[..., cols] - bias) / scale for m in images]
+        out, _ = B.bc7_mips(stored, blocks)
+        return [o[..., :len(cols)] * scale + bias for o in out]
+    if group.slope:
+        normals, _, _ = B.slope_mips([m[..., cols] for m in images], blocks, slope_m)
+        return normals
+    normal = np.array([ts.channels[i].kind == "normal" for i in cols])
+    out, _ = B._encode_texture(ts, group.format.value, cols, images, blocks, None)
+    return [B._from_storage(o, normal) for o in out]
 
 
 def measure_repack(ts: TextureSet, bc: Sequence[EncodedGroup], e_bc: np.ndarray, rp: Repack, resolution: int,

@@ -22,27 +22,15 @@ from bcfpipe.config import TrainingOptions
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import EncodedGroup, Repack, disk_bytes, split_levels
+from bcfpipe.layout.classic import EncodedGroup, disk_bytes, split_levels
+from bcfpipe.layout.classic_fit import ClassicFit
 from bcfpipe.layout.export import export_groups, export_split
+from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
 
 if TYPE_CHECKING:
     from bcfpipe.layout.fit import LayoutFit
-
-
-@dataclass(frozen=True)
-class ClassicFit:
-    """BC@R encoded and measured, and its repacks."""
-
-    groups: list[EncodedGroup]
-    e_bc: np.ndarray  # (mips, channels) errors
-    bc: C.Candidate
-    use: tuple[int, ...]  # the reference mips the all-mip figure averages
-    repacked: dict[str, tuple[Repack, list[EncodedGroup]]] = field(default_factory=dict)  # by Repack.label
-    packed: tuple[C.Candidate, ...] = ()  # the repacks' candidates, measured
-    seconds: float = 0.0
-    quality: C.Candidate | None = None  # the BC7 quality set, measured (reported against, not weighed)
 
 
 @dataclass(frozen=True)
@@ -73,7 +61,6 @@ class FitContext:
     log: Callable[[str], None] = lambda s: None
     classic: ClassicFit | None = None  # BC@R measured (every kind reads it)
     probe: MaterialResult | None = None
-    probe_disk: int | None = None  # the probe's files on disk (`model_disk_bytes`)
     p0: str | None = None  # the probe's profile
     profiles: tuple[str, ...] = ()  # weighed, largest first
     widths: tuple[int, ...] = (1,)  # the T_0 widths weighed (--t0-layers, issue 52), narrowest first
@@ -81,6 +68,8 @@ class FitContext:
     sizes: Mapping[tuple[str, int], int] = field(default_factory=dict)  # a neural part's bytes by (profile, width)
     own: Mapping[str, str] = field(default_factory=dict)  # the profile each trains as (auto-N trains as "auto")
     dims: tuple[int, int] = (0, 0)  # (MLP inputs of a one-layer T_0, hidden)
+    reference: Reference | None = None  # the set's chain and coverage masks, built once per fit
+    costs: dict[str, float] = field(default_factory=dict)  # seconds by part (layout.json's cost_seconds)
 
     @property
     def match_bc(self) -> bool:
@@ -179,7 +168,7 @@ class BcAtR(Kind):
 
 
 class BcQuality(Kind):
-    """The BC7 quality set (`classic.bc7_quality_set`): measured beside BC@R and reported against,
+    """The BC7 quality set (`classic.bc7_quality_set`): estimated beside BC@R and reported against,
     never weighed (its BC7 colour takes BC1's bytes twice)."""
 
     name = "bc7-quality"
@@ -192,8 +181,8 @@ class BcQuality(Kind):
 
 
 class BcRepack(Kind):
-    """BC@R with some groups merged into BC7 in the same bytes (`classic.repacks`), measured exactly
-    beside the probe's training."""
+    """BC@R with some groups merged into BC7 in the same bytes (`classic.repacks`): estimated, and
+    encoded in full when it ships (`classic_fit`)."""
 
     name = "repack"
 
@@ -210,10 +199,10 @@ class BcRepack(Kind):
                              ts, out, wrap)
 
 
-def at_profiles(ctx: FitContext, chosen: Sequence[int], kind: Kind, at_probe: C.Basis) -> list[Weighed]:
+def at_profiles(ctx: FitContext, chosen: Sequence[int], kind: Kind) -> list[Weighed]:
     """The groups ``chosen`` (indices into BC@R's) classic and a model on the other channels, at every
-    profile: ``at_probe`` at p0 (the probe's errors on those channels; ``measured``: the probe itself,
-    which ships with its model), ``predicted`` elsewhere."""
+    profile: ``bound`` at p0 (the probe's errors on those channels: a model trained in full, on
+    fewer channels or the same, holds them at least as well), ``predicted`` elsewhere."""
     groups = ctx.classic.groups
     names = tuple(groups[i].group.name for i in chosen)
     cols = [c for i in chosen for c in groups[i].group.channels]
@@ -223,11 +212,9 @@ def at_profiles(ctx: FitContext, chosen: Sequence[int], kind: Kind, at_probe: C.
         if not ctx.fits_width(ctx.ts.num_channels - len(cols), w):
             continue
         probe = (p, w) == (ctx.p0, ctx.w0)
-        disk = ctx.probe_disk + sum(disk_bytes(groups[i]) for i in chosen) if probe and at_probe == "measured" else None
-        c = C.Candidate(names, p, ctx.sizes[(p, w)] + classic_bytes,
-                        C.combine(ctx.neural_errors(p, w), ctx.classic.e_bc, cols),
-                        at_probe if probe else "predicted", ctx.classic.use, t0_layers=w, disk_bytes=disk, kind=kind)
-        out.append(Weighed(c, ctx.probe, ctx.all_channels) if c.basis == "measured" else Weighed(c))
+        out.append(Weighed(C.Candidate(names, p, ctx.sizes[(p, w)] + classic_bytes,
+                                       C.combine(ctx.neural_errors(p, w), ctx.classic.e_bc, cols),
+                                       "bound" if probe else "predicted", ctx.classic.use, t0_layers=w, kind=kind)))
     return out
 
 
@@ -237,8 +224,8 @@ def t0_text(c: C.Candidate) -> str:
 
 
 class NeuralAt(Kind):
-    """Every channel neural at a profile and T_0 width: at the probe's the probe itself (measured),
-    elsewhere predicted; a wider T_0 than the probe's is explored when nothing qualifies."""
+    """Every channel neural at a profile and T_0 width: bound at the probe's, elsewhere predicted;
+    explored when nothing qualifies (the probe's own setting or a wider T_0)."""
 
     name = "neural"
     explorable = True
@@ -247,10 +234,10 @@ class NeuralAt(Kind):
         return f"neural {c.profile}{t0_text(c)}"
 
     def predict(self, ctx: FitContext) -> list[Weighed]:
-        return [] if ctx.forced else at_profiles(ctx, (), self, "measured")
+        return [] if ctx.forced else at_profiles(ctx, (), self)
 
     def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
-        return (c.profile, c.t0_layers) != (ctx.p0, ctx.w0)
+        return True
 
     def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
         ctx.log(f"training the channels outside the classic groups at {c.profile} for: {c.label}")
@@ -271,7 +258,7 @@ class Mixed(Kind):
         n = len(ctx.classic.groups)
         names = [g.group.name for g in ctx.classic.groups]
         return [w for r in range(1, n) for chosen in itertools.combinations(range(n), r)
-                if set(ctx.forced) <= {names[i] for i in chosen} for w in at_profiles(ctx, chosen, self, "bound")]
+                if set(ctx.forced) <= {names[i] for i in chosen} for w in at_profiles(ctx, chosen, self)]
 
     def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
         return True
@@ -344,8 +331,12 @@ def train_outside(ctx: FitContext, classic: Sequence[str], name: str, kind: Kind
     sub = subset(ctx.ts, keep)
     options = replace(ctx.options, profile=profile or ctx.own[name],
                       t0_layers=ctx.options.t0_layers if width is None else width)
+    ref = ctx.reference
+    if ref is not None and len(keep) < ctx.ts.num_channels:  # the subset's chain: its channels of the set's
+        ref = Reference(tuple(np.ascontiguousarray(m[..., keep]) for m in ref.mips), ref.masks, ref.wrap)
     res, _ = fit_material(sub, ctx.out / "neural", capped(make_config(sub, options, ctx.wrap)[1], ctx.cap), name,
-                          progress=ctx.progress, coverage=ctx.coverage, image_metrics=False)
+                          progress=ctx.progress, coverage=ctx.coverage, image_metrics=False, reference=ref)
+    del ref
     e = e_bc.copy()
     e[:, keep] = res.mse_per_channel
     classic_bytes = sum(g.size_bytes for g in groups if g.group.name in classic)
@@ -359,7 +350,7 @@ def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
     """Bytes of BC@R's groups cut to their first ``keep`` levels (headers included)."""
     from bcfpipe.formats.dds import HEADER_BYTES
 
-    return sum(HEADER_BYTES + sum(b.nbytes for b, _, _ in g.levels[:keep]) for g in groups)
+    return sum(HEADER_BYTES + sum(g.level_bytes()[:keep]) for g in groups)
 
 
 def split_disk_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
@@ -389,7 +380,7 @@ def split_candidates(ts: TextureSet, classic: ClassicFit, e_probe: np.ndarray, r
     out = []
     for k in range(1, e_bc.shape[0]):
         keep = split_levels(k, resolution, side)
-        if keep >= min(len(g.levels) for g in groups):
+        if keep >= min(len(g.level_bytes()) for g in groups):
             break
         budget = bc.size_bytes - split_bytes(groups, keep)
         t = 1 << (max(1, side >> k).bit_length() - 1)
@@ -416,7 +407,7 @@ def train_split(ctx: FitContext, cand: C.Candidate) -> Weighed:
     cfg = capped(make_config(ctx.ts, replace(ctx.options, t0_layers=1), ctx.wrap)[1], ctx.cap)  # as sized
     cfg = cfg.with_(model=replace(cfg.model, resolutions=cand.resolutions, split=cand.split))
     res, _ = fit_material(ctx.ts, ctx.out / "split", cfg, cand.profile, progress=ctx.progress, coverage=ctx.coverage,
-                          image_metrics=False)
+                          image_metrics=False, reference=ctx.reference)
     err = res.mse_per_channel.copy()
     err[:cand.split] = ctx.classic.e_bc[:cand.split]
     keep = split_levels(cand.split, ctx.resolution, max(ctx.ts.width, ctx.ts.height))

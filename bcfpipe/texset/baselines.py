@@ -255,13 +255,15 @@ def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple
                                blocks)
 
 
-def slope_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], float, int]:
+def slope_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None,
+               m: float | None = None) -> tuple[list[np.ndarray], float, int]:
     """A normal map's (H, W, 2) set-value mips as `NORMAL_SLOPE` (issue 57): m from level 0
-    (`normals.slope_scale`), every mip's slopes clip(s / m) / 2 + 1 / 2 in BC5 (quicktex, as BC@R's
-    normal); (each mip decoded as (s_x, s_y, 1) normalised, (H, W, 3); m; bytes)."""
+    (`normals.slope_scale`) unless given (a sample of blocks takes the whole level's), every mip's
+    slopes clip(s / m) / 2 + 1 / 2 in BC5 (quicktex, as BC@R's normal); (each mip decoded as
+    (s_x, s_y, 1) normalised, (H, W, 3); m; bytes)."""
     from bcfpipe.texset.normals import slope_normal, slope_scale, slope_texels
 
-    m = slope_scale(mips_xy[0])
+    m = slope_scale(mips_xy[0]) if m is None else m
     out, size = bc5_mips([slope_texels(x, m) for x in mips_xy], blocks)
     return [slope_normal(o, m) for o in out], m, size
 

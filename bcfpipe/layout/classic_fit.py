@@ -1,0 +1,184 @@
+"""BC@R, its BC7 repacks and the BC7 quality set as a layout fit weighs them (issue 58): estimated
+from a sample of their blocks first (`bcfpipe.layout.estimate`), then encoded in full, once, only
+where a decision needs it: the candidate that ships, and BC@R when a neural part is weighed
+against its floor.
+
+Sizes are exact from the start (BC blocks have fixed sizes); errors are ``estimated`` until every
+group a candidate holds is encoded in full, then ``measured``. A group encoded in full keeps its
+blocks for the export and replaces its estimate in every candidate that holds it.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from bcfpipe.formats.display import bytes_text
+from bcfpipe.layout import choose as C
+from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Group, Repack, bc7_quality_set, channel_errors,
+                                    disk_bytes, encode_group, planned, repacks)
+from bcfpipe.layout.classic import groups as classic_groups
+from bcfpipe.layout.estimate import estimate_errors
+from bcfpipe.texset.chain import Reference
+from bcfpipe.texset.texture_set import TextureSet
+
+QUALITY_LABEL = "BC7 quality set"
+
+
+@dataclass(frozen=True)
+class ClassicFit:
+    """BC@R and its repacks, each group estimated or encoded in full, with its candidates."""
+
+    groups: list[EncodedGroup]  # BC@R's, in pack order (encoded or planned)
+    e_bc: np.ndarray  # (mips, channels) errors of BC@R's groups, exact for the encoded ones
+    bc: C.Candidate
+    use: tuple[int, ...]  # the reference mips the all-mip figure averages
+    repacked: dict[str, tuple[Repack, list[EncodedGroup]]] = field(default_factory=dict)  # by Repack.label
+    packed: tuple[C.Candidate, ...] = ()  # the repacks' candidates
+    seconds: float = 0.0  # encoding and measuring, estimates included
+    quality: C.Candidate | None = None  # the BC7 quality set (reported against, not weighed)
+    rp_errors: dict[str, np.ndarray] = field(default_factory=dict)  # a repack's own groups' errors, by label
+    estimate_seconds: float = 0.0
+    sampled: float = 1.0  # the share of BC@R's texels its estimate encoded
+
+    @property
+    def measured(self) -> bool:
+        """Whether BC@R is encoded in full (its figures exact)."""
+        return all(g.encoded for g in self.groups)
+
+
+@dataclass
+class ClassicWork:
+    """Where classic encodes happen: the set, R, its reference and how to report."""
+
+    ts: TextureSet
+    resolution: int
+    reference: Reference
+    wrap: object
+    log: Callable[[str], None] = lambda s: None
+    seconds: float = 0.0
+    progress: Callable | None = None  # hears each full encode as phase ``bc-encode``, with an ETA
+
+    def report(self, done: int, total: int, start: float) -> None:
+        """``done`` of ``total`` texels encoded since ``start``: the ETA at the rate so far."""
+        if self.progress is None:
+            return
+        from bcfpipe.train.trainer import Progress
+
+        el = time.perf_counter() - start
+        eta = el / done * (total - done) if done else float("nan")
+        self.progress(Progress("bc-encode", done * 100 // max(1, total), 100, float("nan"), float("nan"), el, eta))
+
+
+def _candidate(names: Sequence[str], size: int, e: np.ndarray, measured: bool, use, kind, repack: str = "",
+               disk: int | None = None) -> C.Candidate:
+    return C.Candidate(tuple(names), None, size, C.combine(None, e, range(e.shape[1])),
+                       "measured" if measured else "estimated", use, repack=repack, disk_bytes=disk, kind=kind)
+
+
+def _cols(groups: Sequence[Group]) -> list[int]:
+    return [c for g in groups for c in g.channels]
+
+
+def estimated(work: ClassicWork, with_repacks: bool = True) -> ClassicFit:
+    """BC@R, its repacks and the quality set, every error estimated from a sample of blocks."""
+    t = time.perf_counter()
+    ts, r, ref = work.ts, work.resolution, work.reference
+    groups = [planned(ts, g, r) for g in classic_groups(ts)]
+    e_bc, frac = estimate_errors(ts, [g.group for g in groups], r, ref.mips, ref.masks, work.wrap)
+    use = tuple(k for k, m in enumerate(ref.mips) if min(m.shape[:2]) >= 4) or tuple(range(len(ref.mips)))
+    cf = ClassicFit(groups, e_bc, None, use, sampled=frac)
+    rp_errors, repacked = {}, {}
+    found = list(repacks([g.group for g in groups])) if with_repacks and r <= MAX_REPACK_SIDE else []
+    q = bc7_quality_set([g.group for g in groups]) if with_repacks and r <= MAX_REPACK_SIDE else None
+    for rp in found + ([q] if q is not None else []):
+        e, _ = estimate_errors(ts, rp.groups, r, ref.mips, ref.masks, work.wrap)
+        rp_errors[rp.label] = e
+        repacked[rp.label] = (rp, [planned(ts, g, r) for g in rp.groups])
+    cf = refresh(replace(cf, repacked=repacked, rp_errors=rp_errors, estimate_seconds=time.perf_counter() - t))
+    work.log(f"BC@{r}: {bytes_text(cf.bc.size_bytes)}, {cf.bc.psnr:.2f} dB over all mips, estimated from "
+             f"{frac:.0%} of its texels ({time.perf_counter() - t:.1f} s with {len(found)} repack(s))")
+    return cf
+
+
+def refresh(cf: ClassicFit) -> ClassicFit:
+    """``cf``'s candidates made again from its groups and errors (after a group was encoded)."""
+    from bcfpipe.layout import kinds as K
+
+    names = [g.group.name for g in cf.groups]
+    bc = _candidate(names, sum(g.size_bytes for g in cf.groups), cf.e_bc, cf.measured, cf.use, K.BC_AT_R,
+                    disk=sum(disk_bytes(g) for g in cf.groups) if cf.measured else None)
+    packed, quality = [], None
+    for label, (rp, enc) in cf.repacked.items():
+        kept = [g for g in cf.groups if g.group.name not in rp.replaces]
+        e = cf.e_bc.copy()
+        cols = _cols(rp.groups)
+        e[:, cols] = cf.rp_errors[label][:, cols]
+        done = all(g.encoded for g in kept + enc)
+        size = sum(g.size_bytes for g in kept) + sum(g.size_bytes for g in enc)
+        disk = sum(disk_bytes(g) for g in kept + enc) if done else None
+        if label == QUALITY_LABEL:
+            quality = _candidate(names, size, e, done, cf.use, K.QUALITY, label, disk)
+            continue
+        kept_names = tuple(g.group.name for g in kept)
+        packed.append(_candidate(kept_names + tuple(g.name for g in rp.groups), size, e, done, cf.use,
+                                 K.REPACK, label, disk))
+    if quality is None:
+        quality = replace(bc, kind=K.QUALITY)
+    return replace(cf, bc=bc, packed=tuple(packed), quality=quality)
+
+
+def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None) -> ClassicFit:
+    """``cf`` with every group of ``c`` (a classic candidate: BC@R or a repack; None: BC@R) encoded
+    in full and measured exactly, once: what it ships, or the floor a neural part is held to."""
+    t = time.perf_counter()
+    ts, r, ref = work.ts, work.resolution, work.reference
+    rp = cf.repacked[c.repack][0] if c is not None and c.repack else None
+    e_bc = cf.e_bc.copy()
+    groups = list(cf.groups)
+    todo = [i for i, g in enumerate(groups) if not g.encoded and not (rp is not None and g.group.name in rp.replaces)]
+    work_of = [_texels(groups[i]) for i in todo] + ([_texels(planned(ts, g, r)) for g in rp.groups] if rp else [])
+    total, done_texels = sum(work_of), 0
+    done = []
+    for n, i in enumerate(todo):
+        g = groups[i]
+        work.report(done_texels, total, t)
+        groups[i] = encode_group(ts, g.group, r, ref.mips, work.wrap)
+        done_texels += work_of[n]
+        cols = list(g.group.channels)
+        e_bc[:, cols] = channel_errors(ts, [groups[i]], ref.mips, ref.masks)[:, cols]
+        _empty(groups[i])
+        done.append(g.group.name)
+    repacked, rp_errors = dict(cf.repacked), dict(cf.rp_errors)
+    if rp is not None:
+        enc = []
+        for n, g in enumerate(rp.groups):
+            work.report(done_texels, total, t)
+            enc.append(encode_group(ts, g, r, ref.mips, work.wrap))
+            done_texels += work_of[len(todo) + n]
+        e = channel_errors(ts, enc, ref.mips, ref.masks)
+        for g in enc:
+            _empty(g)
+        repacked[rp.label], rp_errors[rp.label] = (rp, enc), e
+        done.append(rp.label)
+    work.report(total, total, t)
+    out = refresh(replace(cf, groups=groups, e_bc=e_bc, repacked=repacked, rp_errors=rp_errors))
+    s = time.perf_counter() - t
+    work.seconds += s
+    if done:
+        what = out.bc if c is None or not c.repack else next(p for p in out.packed if p.repack == c.repack)
+        work.log(f"encoded in full: {', '.join(done)} ({s:.1f} s); {what.label}: {what.psnr:.2f} dB over all mips")
+    return replace(out, seconds=cf.seconds + s)
+
+
+def _texels(g: EncodedGroup) -> int:
+    """Texels times stored channels of a group's levels: what its encode costs, roughly."""
+    return sum(w * h for w, h in g.planned) * len(g.group.channels)
+
+
+def _empty(g: EncodedGroup) -> None:
+    """Measured: from here on a group is its blocks (an 8192² set's decoded mips hold 2.7 GiB), except
+    a slope normal's level 0, which the angular error reads."""
+    g.decoded = []
