@@ -119,6 +119,7 @@ def test_one_worker_encodes_inline_off_the_main_thread(tmp_path: Path, monkeypat
     import numpy as np
 
     monkeypatch.setenv(TRACE_ENV, str(tmp_path / "t.jsonl"))
+    parallel.release_workers()  # a pool an earlier test of this process kept
     px = np.zeros((64, 64, 4), np.uint8)
     out: list = []
 

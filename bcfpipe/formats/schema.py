@@ -357,8 +357,8 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("ReportTotals", "cached"): "Jobs taken from the cache.",
     ("ReportTotals", "train_seconds"): "Seconds spent training in this run (sum over jobs).",
     ("ReportTotals", "wall_seconds"): "Wall seconds of this run.",
-    ("ReportTotals", "encode_seconds"): "Seconds spent encoding and measuring BC@R and its repacks in this run (sum over "
-                                        "jobs; a layout fit encodes them beside its probe's training).",
+    ("ReportTotals", "encode_seconds"): "Seconds spent estimating BC@R and its repacks from samples of their blocks and "
+                                        "encoding in full what ships, in this run (sum over jobs).",
     ("ReportTotals", "total_bytes"): "Bytes of the feature textures and the combined weights.",
     ("ReportTotals", "written_files"): "Files created or replaced in OUT.",
     ("MaterialReport", "path"): "The Material prim path.",
@@ -370,9 +370,9 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("MaterialReport", "psnr"): "PSNR in dB of the exported files over the mips counted in the mean; over the texels the scene reads when a coverage mask applied (manifest.json has both).",
     ("MaterialReport", "psnr_per_mip"): "PSNR in dB of each mip, mip 0 first (over the texels read, as psnr).",
     ("MaterialReport", "train_seconds"): "Seconds its material trained (when it was trained, for a hit).",
-    ("MaterialReport", "encode_seconds"): "Seconds its layout fit spent encoding and measuring BC@R and its BC7 "
-                                          "repacks, apart from training (when it was encoded, for a hit); null when "
-                                          "it encoded none (all neural).",
+    ("MaterialReport", "encode_seconds"): "Seconds its layout fit spent estimating BC@R and its BC7 repacks and "
+                                          "encoding in full what ships, apart from training (when it was encoded, "
+                                          "for a hit); null when it encoded none (all neural).",
     ("MaterialReport", "seconds"): "Wall seconds its job took in this run (0 for a hit found before any worker).",
     ("MaterialReport", "total_bytes"): "Bytes of its feature textures and weight record.",
     ("MaterialReport", "files"): "Its output files, relative to OUT.",

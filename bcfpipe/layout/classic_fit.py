@@ -130,15 +130,18 @@ def refresh(cf: ClassicFit) -> ClassicFit:
     return replace(cf, bc=bc, packed=tuple(packed), quality=quality)
 
 
-def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None) -> ClassicFit:
+def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None,
+            only: Sequence[str] | None = None) -> ClassicFit:
     """``cf`` with every group of ``c`` (a classic candidate: BC@R or a repack; None: BC@R) encoded
-    in full and measured exactly, once: what it ships, or the floor a neural part is held to."""
+    in full and measured exactly, once: what it ships, or the floor a neural part is held to.
+    ``only``: just those of BC@R's groups (a mixed layout's classic part)."""
     t = time.perf_counter()
     ts, r, ref = work.ts, work.resolution, work.reference
     rp = cf.repacked[c.repack][0] if c is not None and c.repack else None
     e_bc = cf.e_bc.copy()
     groups = list(cf.groups)
-    todo = [i for i, g in enumerate(groups) if not g.encoded and not (rp is not None and g.group.name in rp.replaces)]
+    todo = [i for i, g in enumerate(groups) if not g.encoded and not (rp is not None and g.group.name in rp.replaces)
+            and (only is None or g.group.name in only)]
     work_of = [_texels(groups[i]) for i in todo] + ([_texels(planned(ts, g, r)) for g in rp.groups] if rp else [])
     total, done_texels = sum(work_of), 0
     done = []

@@ -19,7 +19,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 4. One training at most, at the preset asked, through the chosen candidate's kind: the first
    choice when it has a neural part (a mip split only when its prediction beats the classic
    choice, `Kind.worth`); when it is classic, the neural candidate closest to qualifying on its
-   bound (`choose.most_promising`), if one is within reach. BC@R is encoded in full before it.
+   bound (`choose.most_promising`), if one is within reach. The BC@R groups it ships beside are
+   encoded in full before it.
 5. The final choice among the trained model and the classic candidates: a classic candidate that
    its estimate puts first is encoded in full and measured, and the choice made again, until the
    one chosen is measured (`_settle`). What ships is encoded once, at the shipping preset, and
@@ -27,8 +28,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    writes it as its kind does.
 
 Cost: the estimates, the probe, and at most one training no larger than `--layout neural`'s
-(`capped`), with BC@R encoded in full only when a model trains or a classic choice is held to
-its floor by less than `FLOOR_GUARD_DB`. layout.json's ``cost_seconds`` says what each part took.
+(`capped`), with BC@R encoded in full only when what ships is held to its floor by less than
+`FLOOR_GUARD_DB` on BC@R's estimate. layout.json's ``cost_seconds`` says what each part took.
 Splits are not weighed when ``--classic`` fixes groups.
 
 ``--classic`` names groups that stay classic: with ``auto`` every candidate keeps them; with
@@ -211,8 +212,8 @@ def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate,
     has a neural part and its kind finds it worth that against the classic candidates; when the
     first choice is classic, the neural candidate closest to the floor on its bound
     (`choose.most_promising`), if one is close enough that its own training may clear it; else
-    none. BC@R is encoded in full first: a trained model is weighed against its exact floor and a
-    mixed one ships some of its groups."""
+    none. The BC@R groups the model ships beside are encoded in full first (a split's: all); BC@R
+    itself is measured later only if the model is chosen near its floor (`_settle`)."""
     bc = ctx.classic.bc
     classic = [c for c in cands if c.profile is None]
     held = C.choose(classic, bc, ctx.match_bc).chosen
@@ -226,8 +227,9 @@ def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate,
         ctx.log(f"no candidate clears the floor on its bound; training the closest: {alt.label} "
                 f"({C.deficit(alt, bc, ctx.match_bc):.1f} dB short)")
         chosen = alt
-    if not ctx.classic.measured:
-        ctx = replace(ctx, classic=measure(work, ctx.classic))
+    need = None if chosen.kind is K.SPLIT else chosen.classic  # what the model ships beside
+    if need is None or need:
+        ctx = replace(ctx, classic=measure(work, ctx.classic, only=need))
     t = time.perf_counter()
     trained = chosen.kind.train(ctx, chosen)
     ctx.costs["train"] = time.perf_counter() - t

@@ -1,0 +1,133 @@
+"""Issue 58: the default layout's wall time against `--layout neural`'s, before and after, interleaved.
+
+For each set, in turn: the default layout with the code BEFORE (a source tree, e.g. a `git worktree`
+of the commit before the change), `--layout neural` with this tree, the default layout with this
+tree; each run alone, into a fresh folder, with no cache. The teapot, brick, wood and water bottle
+sets are trained with `bcfpipe train` (default profile), the sample scene built with `bcfpipe build
+--no-cache`. Prints per run the wall seconds, what shipped and its per-mip PSNR, and per set the
+ratios auto / neural before and after, and whether the decision held: the same layout, or one
+within 0.1 dB at every mip, or better; never below BC@R - 0.5 dB (BC@R as BEFORE measured it,
+encoded in full) at any mip.
+
+  python benchmarks/bench_default_cost.py BEFORE_TREE [--sets teapot,brick,wood,bottle,sample]
+      [--quality draft] [--reps 1] [--json out.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import REPO, SHARED, machine  # noqa: E402
+
+MX = SHARED / "materialx_texture_sets"
+TEAPOT = SHARED / "usdwg_teapot" / "textures"
+BOTTLE = SHARED / "gltf_water_bottle"
+SETS = {
+    "teapot": [f"albedo={TEAPOT / 'tea_set_01_diff_2k.jpg'}:rgb", f"occlusion={TEAPOT / 'tea_set_01_arm_2k.jpg'}:r",
+               f"roughness={TEAPOT / 'tea_set_01_arm_2k.jpg'}:g", f"metallic={TEAPOT / 'tea_set_01_arm_2k.jpg'}:b"],
+    "brick": [f"albedo={MX / 'brick' / 'brick_base_gray.jpg'}:rgb", f"normal={MX / 'brick' / 'brick_normal.jpg'}:xy",
+              f"roughness={MX / 'brick' / 'brick_roughness.jpg'}:r"],
+    "wood": [f"albedo={MX / 'wood' / 'wood_color.jpg'}:rgb", f"roughness={MX / 'wood' / 'wood_roughness.jpg'}:r"],
+    "bottle": [f"albedo={BOTTLE / 'WaterBottle_baseColor.png'}:rgb", f"normal={BOTTLE / 'WaterBottle_normal.png'}:xy",
+               f"occlusion={BOTTLE / 'WaterBottle_occlusionRoughnessMetallic.png'}:r",
+               f"roughness={BOTTLE / 'WaterBottle_occlusionRoughnessMetallic.png'}:g",
+               f"metallic={BOTTLE / 'WaterBottle_occlusionRoughnessMetallic.png'}:b",
+               f"emissiveColor={BOTTLE / 'WaterBottle_emissive.png'}:rgb"],
+    "sample": None,  # samples/sample_scene.usda, built
+}
+
+
+def run(tree: Path, name: str, layout: str, quality: str, out: Path) -> dict:
+    """One run of ``tree``'s bcfpipe: wall seconds and what shipped (per material)."""
+    shutil.rmtree(out, ignore_errors=True)
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    py = str(REPO / ".venv" / "bin" / "python")
+    common = ["--quality", quality, "--layout", layout, "--json"]
+    if SETS[name] is None:
+        cmd = [py, "-m", "bcfpipe", "build", str(tree / "samples" / "sample_scene.usda"), "-o", str(out),
+               "--no-cache", *common]
+    else:
+        cmd = [py, "-m", "bcfpipe", "train", *SETS[name], "-o", str(out), *common]
+    t = time.perf_counter()
+    p = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    if p.returncode != 0:
+        raise SystemExit(f"{name} {layout} ({tree}): exit {p.returncode}: {p.stderr[-600:]}")
+    folders = [out] if SETS[name] is not None else sorted(d for d in (out / "materials").iterdir() if d.is_dir())
+    shipped = {}
+    for f in folders:
+        key = name if SETS[name] is not None else f.name
+        lay = f / "layout.json"
+        if lay.exists():
+            d = json.loads(lay.read_text())
+            shipped[key] = {"layout": d["chosen"]["layout"], "psnr_per_mip": d["chosen"]["psnr_per_mip"],
+                               "bc_psnr_per_mip": d["bc"]["psnr_per_mip"], "bc_basis": d["bc"].get("basis"),
+                               "size_bytes": d["chosen"]["size_bytes"], "bc_bytes": d["bc"]["size_bytes"],
+                               "cost_seconds": d.get("cost_seconds")}
+    return {"wall_seconds": round(wall, 1), "shipped": shipped}
+
+
+def held(before: dict, after: dict) -> list[str]:
+    """Per material: the same layout; or one within 0.1 dB at every mip; or better; and never below
+    BC@R - 0.5 dB (BEFORE's BC@R, encoded in full) at any mip, nor bigger."""
+    out = []
+    for m, b in before["shipped"].items():
+        a = after["shipped"].get(m)
+        if a is None:
+            out.append(f"{m}: missing after")
+            continue
+        diff = [x - y for x, y in zip(a["psnr_per_mip"], b["psnr_per_mip"])]
+        floor = [x - y for x, y in zip(a["psnr_per_mip"], b["bc_psnr_per_mip"])]
+        same = "same layout" if a["layout"] == b["layout"] else f"{b['layout']} -> {a['layout']}"
+        worst = min(diff[:-2] or diff)
+        kind = ("same figures" if max(abs(d) for d in diff) < 1e-3 else
+                "within 0.1 dB" if worst >= -0.1 else "WORSE by %.2f dB at a mip" % -worst)
+        ok = min(floor[:-2] or floor) >= -0.5 and a["size_bytes"] <= b["bc_bytes"]
+        out.append(f"{m}: {same}, {kind} (worst mip {worst:+.2f} dB), "
+                   f"{'within' if ok else 'NOT within'} BC@R - 0.5 dB and its bytes")
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("before", type=Path)
+    ap.add_argument("--sets", default="teapot,brick,wood,bottle,sample")
+    ap.add_argument("--quality", default="draft")
+    ap.add_argument("--reps", type=int, default=1)
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args()
+    before, after = a.before.resolve(), REPO
+    print(f"machine: {machine()}; quality {a.quality}", flush=True)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in a.sets.split(","):
+            for rep in range(a.reps):
+                r = {"set": name, "rep": rep}
+                for key, tree, layout in (("auto_before", before, "auto"), ("neural", after, "neural"),
+                                          ("auto_after", after, "auto")):
+                    r[key] = run(tree, name, layout, a.quality, Path(tmp) / key)
+                    print(f"  {name} {key}: {r[key]['wall_seconds']} s "
+                          f"{[(k, v['layout']) for k, v in r[key]['shipped'].items()]}", flush=True)
+                nb, na = r["auto_before"]["wall_seconds"], r["auto_after"]["wall_seconds"]
+                n = r["neural"]["wall_seconds"]
+                r["ratio_before"], r["ratio_after"] = round(nb / n, 2), round(na / n, 2)
+                r["decisions"] = held(r["auto_before"], r["auto_after"])
+                print(f"{name}: auto before {nb} s, neural {n} s, auto after {na} s: "
+                      f"{r['ratio_before']}x -> {r['ratio_after']}x", flush=True)
+                for line in r["decisions"]:
+                    print("    " + line, flush=True)
+                rows.append(r)
+    if a.json:
+        a.json.write_text(json.dumps({"machine": machine(), "quality": a.quality, "runs": rows}, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,103 @@
+"""The layout's classic estimates (issue 58): a sample of blocks encoded as the shipping encoder
+encodes them, whose error is the level's; with every block the full encode's error exactly; and
+what ships is encoded in full, once, and measured."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bcfpipe.config import TrainingOptions
+from bcfpipe.layout import classic as L
+from bcfpipe.layout import estimate as E
+from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure
+from bcfpipe.texset.chain import Reference
+from bcfpipe.texset.metrics import psnr_from_mse
+from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
+
+SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "textures"
+
+
+@pytest.fixture(scope="module")
+def bricks():
+    """The sample's bricks (512²): albedo BC1, normal BC5 slopes, roughness BC4."""
+    return load_texture_set([TextureSpec.parse(f"albedo={SAMPLE / 'bricks_albedo.png'}:rgb"),
+                             TextureSpec.parse(f"normal={SAMPLE / 'bricks_normal.png'}:xy"),
+                             TextureSpec.parse(f"roughness={SAMPLE / 'bricks_roughness.png'}:r")])
+
+
+def test_the_draw_is_one_block_per_cell_fixed_and_whole_where_small():
+    s = E.draw([(1024, 1024), (512, 512), (256, 256), (6, 6)], budget=4096)
+    big, mid, small, odd = s.picks
+    assert small is None and odd is None  # 4096 blocks and under, and sides not multiples of 4: whole
+    assert len(big) == 4096 and len(mid) == 4096  # s = 4 and 2: one block in each s x s cell
+    cells = {(r // 4, c // 4) for r, c in big}
+    assert len(cells) == 4096 and big.min() >= 0 and big.max() < 256
+    assert all((a == b).all() for a, b in zip(s.picks[:2], E.draw([(1024, 1024), (512, 512), (256, 256), (6, 6)],
+                                                                    budget=4096).picks[:2]))
+    assert E.draw([(1024, 1024)], whole_first=True, budget=4096).picks == (None,)
+
+
+def test_a_mosaic_encodes_to_the_levels_own_blocks(bricks):
+    """Block-local encoders: each drawn block's bytes in the mosaic are its bytes in the full level."""
+    level = build_mip_chain(bricks.data)[0]
+    g = L.groups(bricks)[0]  # albedo, BC1 (quicktex level 18)
+    full, mosaic = [], []
+    L.group_texels(bricks, g, [level], full)
+    pick = E.draw([level.shape[:2]], budget=512).picks[0]
+    L.group_texels(bricks, g, [E.gather(level, pick)], mosaic)
+    blocks_full = full[0][0].reshape(128, 128, 8)
+    got = mosaic[0][0][:len(pick)]
+    np.testing.assert_array_equal(got, blocks_full[pick[:, 0], pick[:, 1]])
+
+
+def test_every_block_drawn_is_the_full_encode_exactly(bricks):
+    ref = build_mip_chain(bricks.data)
+    for r in (512, 256):  # at R = 256 level 0 is magnified over mip 0
+        enc = L.encode(bricks, r, ref)
+        e, frac = E.estimate_errors(bricks, [g.group for g in enc], r, ref, budget=10 ** 9)
+        assert frac == 1.0
+        np.testing.assert_array_equal(e, L.channel_errors(bricks, enc, ref))
+
+
+def test_a_sampled_estimate_is_within_a_tenth_of_a_db_per_mip(bricks):
+    ref = build_mip_chain(bricks.data)
+    enc = L.encode(bricks, 512, ref)
+    exact = L.channel_errors(bricks, enc, ref).mean(1)
+    e, frac = E.estimate_errors(bricks, [g.group for g in enc], 512, ref, budget=4096)  # level 0: 1 block in 4
+    assert frac < 0.5
+    diff = [psnr_from_mse(a) - psnr_from_mse(b) for a, b in zip(e.mean(1), exact)]
+    assert max(abs(d) for d in diff) < 0.1, diff
+
+
+def test_measure_encodes_what_ships_once_and_replaces_the_estimate(bricks):
+    work = ClassicWork(bricks, 512, Reference.of(bricks), "repeat")
+    est = estimated(work)
+    assert est.bc.basis == "estimated" and not est.measured and all(not g.encoded for g in est.groups)
+    assert all(p.basis == "estimated" for p in est.packed)
+    exact_bytes = sum(g.size_bytes for g in L.encode(bricks, 512, build_mip_chain(bricks.data)))
+    assert est.bc.size_bytes == exact_bytes  # sizes are exact before any encode
+    rp = est.packed[0]
+    got = measure(work, est, rp)
+    shipped = next(p for p in got.packed if p.repack == rp.repack)
+    assert shipped.basis == "measured" and shipped.disk_bytes
+    kept = [g for g in got.groups if g.group.name not in got.repacked[rp.repack][0].replaces]
+    assert kept and all(g.encoded for g in kept)  # only what the repack ships was encoded
+    assert not got.measured and got.bc.basis == "estimated"
+    bc = measure(work, got)
+    assert bc.measured and bc.bc.basis == "measured"
+
+
+def test_the_default_layout_ships_a_measured_candidate_and_says_what_each_part_cost(tmp_path):
+    from bcfpipe.layout.export import decision_json
+    from bcfpipe.layout.fit import fit_layout
+
+    from test_classic_layout import _set
+
+    opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
+    fit = fit_layout(_set(64), tmp_path / "work", opts, 64)
+    assert fit.decision.chosen.basis == "measured"
+    d = decision_json(fit)
+    assert set(d["cost_seconds"]) >= {"estimate", "probe", "classic_encode"}
+    assert {c["basis"] for c in d["weighed"]} >= {"estimated", "bound"}
