@@ -10,7 +10,7 @@ within 0.1 dB at every mip, or better; never below BC@R - 0.5 dB (BC@R as BEFORE
 encoded in full) at any mip.
 
   python benchmarks/bench_default_cost.py BEFORE_TREE [--sets teapot,brick,wood,bottle,sample]
-      [--quality draft] [--reps 1] [--json out.json]
+      [--quality draft] [--profile P] [--reps 1] [--json out.json]
 """
 from __future__ import annotations
 
@@ -45,12 +45,12 @@ SETS = {
 }
 
 
-def run(tree: Path, name: str, layout: str, quality: str, out: Path) -> dict:
+def run(tree: Path, name: str, layout: str, quality: str, out: Path, profile: str | None = None) -> dict:
     """One run of ``tree``'s bcfpipe: wall seconds and what shipped (per material)."""
     shutil.rmtree(out, ignore_errors=True)
     env = dict(os.environ, PYTHONPATH=str(tree))
     py = str(REPO / ".venv" / "bin" / "python")
-    common = ["--quality", quality, "--layout", layout, "--json"]
+    common = ["--quality", quality, "--layout", layout, "--json", *(["--profile", profile] if profile else [])]
     if SETS[name] is None:
         cmd = [py, "-m", "bcfpipe", "build", str(tree / "samples" / "sample_scene.usda"), "-o", str(out),
                "--no-cache", *common]
@@ -102,6 +102,7 @@ def main() -> None:
     ap.add_argument("--sets", default="teapot,brick,wood,bottle,sample")
     ap.add_argument("--quality", default="draft")
     ap.add_argument("--reps", type=int, default=1)
+    ap.add_argument("--profile", help="passed to every run (default: the default profile)")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     before, after = a.before.resolve(), REPO
@@ -113,7 +114,7 @@ def main() -> None:
                 r = {"set": name, "rep": rep}
                 for key, tree, layout in (("auto_before", before, "auto"), ("neural", after, "neural"),
                                           ("auto_after", after, "auto")):
-                    r[key] = run(tree, name, layout, a.quality, Path(tmp) / key)
+                    r[key] = run(tree, name, layout, a.quality, Path(tmp) / key, a.profile)
                     print(f"  {name} {key}: {r[key]['wall_seconds']} s "
                           f"{[(k, v['layout']) for k, v in r[key]['shipped'].items()]}", flush=True)
                 nb, na = r["auto_before"]["wall_seconds"], r["auto_after"]["wall_seconds"]

@@ -101,3 +101,33 @@ def test_the_default_layout_ships_a_measured_candidate_and_says_what_each_part_c
     d = decision_json(fit)
     assert set(d["cost_seconds"]) >= {"estimate", "probe", "classic_encode"}
     assert {c["basis"] for c in d["weighed"]} >= {"estimated", "bound"}
+
+
+def _context(ts):
+    from bcfpipe.layout import kinds as K
+
+    ref = Reference.of(ts)
+    work = ClassicWork(ts, max(ts.width, ts.height), ref, "repeat")
+    opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
+    return K.FitContext(ts, Path("unused"), opts, "repeat", work.resolution, reference=ref,
+                        classic=estimated(work, with_repacks=False))
+
+
+@pytest.mark.parametrize("detail, vetoed", [(False, False), (True, True)])
+def test_the_oracle_vetoes_exploring_a_t0_too_coarse_for_the_fine_mips(detail, vetoed):
+    """A 256² set at a 64² T_0 (tiny): smooth, its T_0-sized mip magnified holds mips 0 and 1 within
+    BC@R's floor; with texel-scale detail it falls far below, and no training of that T_0 restores it."""
+    from bcfpipe.layout import choose as C
+    from bcfpipe.layout import kinds as K
+    from bcfpipe.layout.oracle import ORACLE_MARGIN_DB, oracle_shortfall
+    from bcfpipe.texset.texture_set import Channel, TextureSet
+
+    yy, xx = np.mgrid[0:256, 0:256] / 256
+    v = 0.5 + 0.3 * np.sin(6.28 * xx) * np.cos(6.28 * yy)
+    if detail:
+        v = v + 0.2 * np.random.default_rng(0).standard_normal(v.shape)
+    ts = TextureSet(np.clip(v, 0, 1)[..., None].astype(np.float32), (Channel("roughness", "r", "scalar", "r.png", 0),),
+                    256, 256)
+    ctx = _context(ts)
+    c = C.Candidate((), "tiny", 1, ctx.classic.bc.mse_per_mip, "bound", ctx.classic.bc.use, kind=K.NEURAL)
+    assert (oracle_shortfall(ctx, c) > ORACLE_MARGIN_DB) == vetoed

@@ -19,8 +19,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 4. One training at most, at the preset asked, through the chosen candidate's kind: the first
    choice when it has a neural part (a mip split only when its prediction beats the classic
    choice, `Kind.worth`); when it is classic, the neural candidate closest to qualifying on its
-   bound (`choose.most_promising`), if one is within reach. The BC@R groups it ships beside are
-   encoded in full before it.
+   bound (`choose.most_promising`), if one is within reach and its T_0 can hold the mips finer
+   than it (`bcfpipe.layout.oracle`). The BC@R groups it ships beside are encoded in full before it.
 5. The final choice among the trained model and the classic candidates: a classic candidate that
    its estimate puts first is encoded in full and measured, and the choice made again, until the
    one chosen is measured (`_settle`). What ships is encoded once, at the shipping preset, and
@@ -55,6 +55,7 @@ from bcfpipe.layout.classic import EncodedGroup, Group, Repack
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.classic_fit import ClassicFit, ClassicWork, estimated, measure  # noqa: F401
 from bcfpipe.layout.kinds import capped, split_bytes, split_candidates, subset  # noqa: F401
+from bcfpipe.layout.oracle import ORACLE_MARGIN_DB, oracle_shortfall
 from bcfpipe.layout.predict import LayoutPrediction, Query, predict, widths_of
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
@@ -223,6 +224,11 @@ def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate,
         alt = C.most_promising([c for c in cands if c.kind.explorable], bc, ctx.match_bc)
         if alt is None:
             ctx.log("no neural candidate comes within reach of the floor: no training")
+            return ctx, None
+        short = oracle_shortfall(ctx, alt)
+        if short > ORACLE_MARGIN_DB:
+            ctx.log(f"the closest, {alt.label}, is {C.deficit(alt, bc, ctx.match_bc):.1f} dB short on its bound, and "
+                    f"its T_0 magnified falls {short:.1f} dB below the floor at a finer mip: no training")
             return ctx, None
         ctx.log(f"no candidate clears the floor on its bound; training the closest: {alt.label} "
                 f"({C.deficit(alt, bc, ctx.match_bc):.1f} dB short)")
