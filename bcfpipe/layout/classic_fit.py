@@ -171,7 +171,8 @@ def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None,
     s = time.perf_counter() - t
     work.seconds += s
     if done:
-        what = out.bc if c is None or not c.repack else next(p for p in out.packed if p.repack == c.repack)
+        what = out.bc if c is None or not c.repack else next(p for p in (*out.packed, out.quality)
+                                                             if p.repack == c.repack)
         work.log(f"encoded in full: {', '.join(done)} ({s:.1f} s); {what.label}: {what.psnr:.2f} dB over all mips")
     return replace(out, seconds=cf.seconds + s)
 
