@@ -71,8 +71,17 @@ def run(tree: Path, name: str, layout: str, quality: str, out: Path, profile: st
             shipped[key] = {"layout": d["chosen"]["layout"], "psnr_per_mip": d["chosen"]["psnr_per_mip"],
                                "bc_psnr_per_mip": d["bc"]["psnr_per_mip"], "bc_basis": d["bc"].get("basis"),
                                "size_bytes": d["chosen"]["size_bytes"], "bc_bytes": d["bc"]["size_bytes"],
-                               "cost_seconds": d.get("cost_seconds")}
+                               "cost_seconds": d.get("cost_seconds") or _phases(p.stdout)}
     return {"wall_seconds": round(wall, 1), "shipped": shipped}
+
+
+def _phases(stdout: str) -> dict | None:
+    """A train run's layout_* phase seconds from its --json output (a build's: None)."""
+    try:
+        d = json.loads(stdout.strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        return None
+    return {k[7:]: v for k, v in (d.get("phase_seconds") or {}).items() if k.startswith("layout_")} or None
 
 
 def held(before: dict, after: dict) -> list[str]:

@@ -169,8 +169,6 @@ def decision_json(fit: LayoutFit) -> dict:
     against BC@R and the BC7 quality set, and ``weighed``: every candidate the first choice was made
     among (profiles × T_0 widths, mixed, splits), predicted ones included, with the first choice."""
     d = fit.decision.to_json()
-    if fit.costs:  # what each part of the fit took: estimates, probe, training, full encodes
-        d["cost_seconds"] = dict(fit.costs)
     if fit.first is not fit.decision:
         d["weighed"] = fit.first.to_json()["candidates"]
         d["first_choice"] = fit.first.chosen.label

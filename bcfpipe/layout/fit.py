@@ -29,7 +29,9 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 
 Cost: the estimates, the probe, and at most one training no larger than `--layout neural`'s
 (`capped`), with BC@R encoded in full only when what ships is held to its floor by less than
-`FLOOR_GUARD_DB` on BC@R's estimate. layout.json's ``cost_seconds`` says what each part took.
+`FLOOR_GUARD_DB` on BC@R's estimate. What each part took goes to the report's ``phase_seconds``
+(``layout_estimate``, ``layout_probe``, ``layout_train``, ``layout_classic_encode``), not to
+layout.json, which a build writes byte for byte the same every time.
 Splits are not weighed when ``--classic`` fixes groups.
 
 ``--classic`` names groups that stay classic: with ``auto`` every candidate keeps them; with

@@ -69,7 +69,7 @@ class FitContext:
     own: Mapping[str, str] = field(default_factory=dict)  # the profile each trains as (auto-N trains as "auto")
     dims: tuple[int, int] = (0, 0)  # (MLP inputs of a one-layer T_0, hidden)
     reference: Reference | None = None  # the set's chain and coverage masks, built once per fit
-    costs: dict[str, float] = field(default_factory=dict)  # seconds by part (layout.json's cost_seconds)
+    costs: dict[str, float] = field(default_factory=dict)  # seconds by part (the report's phase_seconds, layout_*)
 
     @property
     def match_bc(self) -> bool:

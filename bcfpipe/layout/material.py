@@ -67,7 +67,8 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
                           options.preset if n else "none", n.device if n else "cpu", metrics, None, exported_size(out),
                           fit.train_seconds, {"layout": round(time.perf_counter() - start, 3),
                                               "classic_encode": round(fit.encode_seconds, 3),
-                                              "evaluate": round(time.perf_counter() - t0, 3)},
+                                              "evaluate": round(time.perf_counter() - t0, 3),
+                                              **{f"layout_{k}": v for k, v in fit.costs.items()}},
                           None, per_channel, decision)
 
 
