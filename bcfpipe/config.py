@@ -178,6 +178,26 @@ def preset_for(name: str, t0: int, device: str, fixed_t0: bool = False) -> Prese
     if fixed_t0 and not large_on_cpu and name in FIXED_T0_PRESETS:
         return FIXED_T0_PRESETS[name]
     return PRESETS[name]
+# The encoder presets of the classic textures a layout weighs and ships, by quality preset (issue 58).
+# quicktex's BC1 dominates a classic layout's encode (level 18, its slowest and best: 3.1 s per 1024²
+# level on one core). Level 13 loses 0.063 dB on the teapot's colour and 0.040 on the brick's at 5.4x
+# the speed, level 16 0.014 at 2.7x (1024² crops, `benchmarks/bench_classic_presets.py`), so
+# `draft`, a preview, encodes at 13, `fast` at 16. BC7's profile stays: ISPC's alpha_veryfast loses
+# 0.17 dB on the teapot's colour with its roughness as alpha.
+@dataclass(frozen=True)
+class EncodePreset:
+    """How a layout's classic textures are encoded: quicktex's BC1 level (0..18)."""
+
+    bc1_level: int = 18
+
+
+ENCODE_PRESETS: dict[str, EncodePreset] = {
+    "smoke": EncodePreset(13), "draft": EncodePreset(13), "fast": EncodePreset(16),
+    "standard": EncodePreset(18), "paper": EncodePreset(18),
+}
+DEFAULT_ENCODE = EncodePreset()
+
+
 # `smoke` checks that a scene and a pipeline (build system, cache, shards, Ray) work end to end, in
 # about a second of training per material; its quality is not meant to be looked at. Rate control
 # never chooses it, and it is not in the schedules that key a rate-controlled build.

@@ -20,6 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.config import DEFAULT_ENCODE, EncodePreset
 from bcfpipe.formats.addressing import address
 from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
 from bcfpipe.formats.vocabulary import wrap_axes
@@ -110,7 +111,7 @@ def encode(ts: TextureSet, resolution: int, ref_mips: Sequence[np.ndarray], wrap
 
 
 def encode_group(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequence[np.ndarray],
-                 wrap: str = "repeat") -> EncodedGroup:
+                 wrap: str = "repeat", enc: EncodePreset = DEFAULT_ENCODE) -> EncodedGroup:
     """One group encoded in full at ``resolution``, every mip, by the encoder and preset that ship
     it (`group_texels`). Reference mips above ``resolution`` see level 0 magnified with the
     material's addressing, as the runtime samples it; a slope normal's m is taken from level 0's
@@ -123,7 +124,7 @@ def encode_group(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequen
 
         m = slope_scale(ref_mips[d][..., cols])
     levels: list = []
-    decoded = group_texels(ts, group, ref_mips[d:], levels, m)
+    decoded = group_texels(ts, group, ref_mips[d:], levels, m, enc)
     if group.slope:  # magnified as texels, then read as a normal
         decoded = usd_normals(levels, [r.shape[:2] for r in ref_mips], wrap, m)
     else:
@@ -241,11 +242,12 @@ def encode_bc7(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequence
 
 
 def group_texels(ts: TextureSet, group: Group, images: Sequence[np.ndarray], blocks: list | None = None,
-                 slope_m: float | None = None) -> list[np.ndarray]:
+                 slope_m: float | None = None, enc: EncodePreset = DEFAULT_ENCODE) -> list[np.ndarray]:
     """``group`` encoded and decoded in each of ``images`` (set values, (H, W, channels) each: a
     level, or a mosaic of some of its blocks, `bcfpipe.layout.estimate`), by the encoder and preset
     that ship it: each as set values in the group's slots (a slope normal: its (x, y, z) as USD
-    reads it, with the whole level's ``slope_m``). With ``blocks``, each image's (blocks, w, h)."""
+    reads it, with the whole level's ``slope_m``). With ``blocks``, each image's (blocks, w, h).
+    ``enc``: the quality preset's encoder presets (`config.ENCODE_PRESETS`)."""
     from bcfpipe.texset import baselines as B
 
     cols = list(group.channels)
@@ -260,7 +262,7 @@ def group_texels(ts: TextureSet, group: Group, images: Sequence[np.ndarray], blo
         normals, _, _ = B.slope_mips([m[..., cols] for m in images], blocks, slope_m)
         return normals
     normal = np.array([ts.channels[i].kind == "normal" for i in cols])
-    out, _ = B._encode_texture(ts, group.format.value, cols, images, blocks, None)
+    out, _ = B._encode_texture(ts, group.format.value, cols, images, blocks, None, enc.bc1_level)
     return [B._from_storage(o, normal) for o in out]
 
 

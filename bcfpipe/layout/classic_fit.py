@@ -15,6 +15,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bcfpipe.config import DEFAULT_ENCODE, EncodePreset
 from bcfpipe.formats.display import bytes_text
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Group, Repack, bc7_quality_set, channel_errors,
@@ -60,6 +61,7 @@ class ClassicWork:
     log: Callable[[str], None] = lambda s: None
     seconds: float = 0.0
     progress: Callable | None = None  # hears each full encode as phase ``bc-encode``, with an ETA
+    enc: EncodePreset = DEFAULT_ENCODE  # the quality preset's (`config.ENCODE_PRESETS`)
 
     def report(self, done: int, total: int, start: float) -> None:
         """``done`` of ``total`` texels encoded since ``start``: the ETA at the rate so far."""
@@ -87,14 +89,14 @@ def estimated(work: ClassicWork, with_repacks: bool = True) -> ClassicFit:
     t = time.perf_counter()
     ts, r, ref = work.ts, work.resolution, work.reference
     groups = [planned(ts, g, r) for g in classic_groups(ts)]
-    e_bc, frac = estimate_errors(ts, [g.group for g in groups], r, ref.mips, ref.masks, work.wrap)
+    e_bc, frac = estimate_errors(ts, [g.group for g in groups], r, ref.mips, ref.masks, work.wrap, enc=work.enc)
     use = tuple(k for k, m in enumerate(ref.mips) if min(m.shape[:2]) >= 4) or tuple(range(len(ref.mips)))
     cf = ClassicFit(groups, e_bc, None, use, sampled=frac)
     rp_errors, repacked = {}, {}
     found = list(repacks([g.group for g in groups])) if with_repacks and r <= MAX_REPACK_SIDE else []
     q = bc7_quality_set([g.group for g in groups]) if with_repacks and r <= MAX_REPACK_SIDE else None
     for rp in found + ([q] if q is not None else []):
-        e, _ = estimate_errors(ts, rp.groups, r, ref.mips, ref.masks, work.wrap)
+        e, _ = estimate_errors(ts, rp.groups, r, ref.mips, ref.masks, work.wrap, enc=work.enc)
         rp_errors[rp.label] = e
         repacked[rp.label] = (rp, [planned(ts, g, r) for g in rp.groups])
     cf = refresh(replace(cf, repacked=repacked, rp_errors=rp_errors, estimate_seconds=time.perf_counter() - t))
@@ -148,7 +150,7 @@ def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None,
     for n, i in enumerate(todo):
         g = groups[i]
         work.report(done_texels, total, t)
-        groups[i] = encode_group(ts, g.group, r, ref.mips, work.wrap)
+        groups[i] = encode_group(ts, g.group, r, ref.mips, work.wrap, work.enc)
         done_texels += work_of[n]
         cols = list(g.group.channels)
         e_bc[:, cols] = channel_errors(ts, [groups[i]], ref.mips, ref.masks)[:, cols]
@@ -159,7 +161,7 @@ def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None,
         enc = []
         for n, g in enumerate(rp.groups):
             work.report(done_texels, total, t)
-            enc.append(encode_group(ts, g, r, ref.mips, work.wrap))
+            enc.append(encode_group(ts, g, r, ref.mips, work.wrap, work.enc))
             done_texels += work_of[len(todo) + n]
         e = channel_errors(ts, enc, ref.mips, ref.masks)
         for g in enc:

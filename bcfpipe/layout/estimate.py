@@ -20,6 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.config import DEFAULT_ENCODE, EncodePreset
 from bcfpipe.layout.classic import EncodedGroup, Group, channel_errors, group_texels, magnify, usd_normals
 from bcfpipe.texset.texture_set import TextureSet
 
@@ -97,10 +98,11 @@ def mosaic_mask(pick: np.ndarray | None, mask: np.ndarray | None, shape: tuple[i
 
 def estimate_errors(ts: TextureSet, groups: Sequence[Group], resolution: int, ref: Sequence[np.ndarray],
                     masks: Sequence[np.ndarray] | None = None, wrap: str = "repeat",
-                    slopes: dict[str, float] | None = None, budget: int = FULL_BLOCKS) -> tuple[np.ndarray, float]:
+                    budget: int = FULL_BLOCKS, enc: EncodePreset = DEFAULT_ENCODE) -> tuple[np.ndarray, float]:
     """(mips, channels) errors of ``groups`` at ``resolution`` as `classic.channel_errors` measures
     them (0 on channels no group holds), estimated from a `draw` of their blocks; and the share of
-    texels encoded. ``slopes``: a slope normal's m by group name (default: the whole level 0's)."""
+    texels encoded; a slope normal's m is the whole level 0's, as the full encode takes it.
+    ``enc``: the quality preset's encoder presets."""
     d = sum(1 for m in ref if max(m.shape[:2]) > resolution)
     src = ref[d:]
     sample = draw([m.shape[:2] for m in src], whole_first=d > 0, budget=budget)
@@ -118,8 +120,8 @@ def estimate_errors(ts: TextureSet, groups: Sequence[Group], resolution: int, re
         if g.slope:
             from bcfpipe.texset.normals import slope_scale
 
-            m = (slopes or {}).get(g.name) or slope_scale(src[0][..., list(g.channels)])
-        dec = group_texels(ts, g, refs[d:], levels, m)
+            m = slope_scale(src[0][..., list(g.channels)])
+        dec = group_texels(ts, g, refs[d:], levels, m, enc)
         if g.slope:  # read as a normal as `classic.encode_group` reads it
             dec = usd_normals(levels, [r.shape[:2] for r in refs], wrap, m)
         else:

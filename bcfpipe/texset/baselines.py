@@ -8,7 +8,8 @@ container headers).
 * BC6H (UF16, for a colour group beyond 1 whose source is float): ISPC's encoder (`BC6H_PROFILE`),
   decoded by bcfpipe.bc6h; it stores the source's linear values as half floats (an HDR set's
   normalised values times its value_scale), not [0, 1]. 16 bytes / block.
-* BC1 / BC4 / BC5: quicktex (``BC1Encoder(18)``, its slowest and best preset, four-colour mode;
+* BC1 / BC4 / BC5: quicktex (``BC1Encoder(18)``, its slowest and best preset, four-colour mode; a
+  layout's encodes take the quality preset's level, `config.ENCODE_PRESETS`;
   ``BC4Encoder``, ``BC5Encoder``). Levels whose sides are not multiples of 4 (including 2x2, 1x1) are padded to
   whole 4x4 blocks by edge replication and cropped after decoding. BC1 = BC4 = 8 bytes / block,
   BC5 = 16 bytes / block.
@@ -455,7 +456,7 @@ def _bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
 
 
 def _encode_texture(ts: TextureSet, fmt: str, idx: list[int], src: Sequence[np.ndarray], levels: list | None,
-                    astc) -> tuple[list[np.ndarray], int]:
+                    astc, bc1_level: int = BC1_LEVEL) -> tuple[list[np.ndarray], int]:
     """One texture of `pack_texture_set` (``fmt``, channels ``idx``) encoded and decoded at every mip
     of ``src`` (set values); (its decoded stored values per mip, bytes). BC1, BC7 and ASTC (``astc(rgb
     mips, blocks)``) read RGB: a lone channel replicated, two with b = 0; BC7's alpha is 1."""
@@ -476,7 +477,7 @@ def _encode_texture(ts: TextureSet, fmt: str, idx: list[int], src: Sequence[np.n
     rgb = [np.repeat(s, 3, axis=-1) if n == 1 else
            np.concatenate([s, np.zeros_like(s[..., :1])], axis=-1) if n == 2 else s for s in stored]
     if fmt == "bc1":
-        out, size = bc1_mips(rgb, blocks=levels)
+        out, size = bc1_mips(rgb, bc1_level, blocks=levels)
     elif fmt == "bc7":
         out, size = bc7_mips([np.concatenate([x, np.ones_like(x[..., :1])], axis=-1) for x in rgb], levels)
     else:
