@@ -54,7 +54,7 @@ def main() -> None:
 
     from bcfpipe.config import TrainingOptions, scaled_profile
     from bcfpipe.export import writer as E
-    from bcfpipe.export.fit import exported_size, fit_material, make_config
+    from bcfpipe.export.fit import FIGURES, exported_size, fit_material, make_config
     from bcfpipe.layout.classic import channel_errors, encode, split_levels
     from bcfpipe.layout.export import export_split
     from bcfpipe.texset.metrics import mse_per_channel, psnr_from_mse
@@ -80,7 +80,7 @@ def main() -> None:
     cfg = cfg.with_(model=model, threads=1)
     with tempfile.TemporaryDirectory(prefix="bcfpipe-split-") as tmp:
         t = time.perf_counter()
-        res, _ = fit_material(ts, Path(tmp) / "m", cfg, f"T={res_t}", image_metrics=False)
+        res, _ = fit_material(ts, Path(tmp) / "m", cfg, f"T={res_t}", measure=FIGURES)
         wall = time.perf_counter() - t
         nn_bytes = exported_size(Path(tmp) / "m")
         out = export_split(groups, Path(tmp) / "m", ts, Path(tmp) / "split", args.split, args.resolution)

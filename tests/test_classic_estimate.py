@@ -90,44 +90,53 @@ def test_measure_encodes_what_ships_once_and_replaces_the_estimate(bricks):
 
 
 def test_the_default_layout_ships_a_measured_candidate_and_says_what_each_part_cost(tmp_path):
+    """The probe's all-channel candidate is predicted from it with the measured gain of a full
+    training per mip (`rate.PROBE_GAINS_DB`), and a classic first choice trains nothing."""
     from bcfpipe.layout.export import decision_json
     from bcfpipe.layout.fit import fit_layout
+    from bcfpipe.texset.metrics import psnr_from_mse
+    from bcfpipe.train.rate import probe_gains
 
     from test_classic_layout import _set
 
     opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
-    fit = fit_layout(_set(64), tmp_path / "work", opts, 64)
+    ts = _set(64)
+    fit = fit_layout(ts, tmp_path / "work", opts, 64)
     assert fit.decision.chosen.basis == "measured"
     d = decision_json(fit)
     assert set(fit.costs) >= {"estimate", "probe", "classic_encode"}
-    assert {c["basis"] for c in d["weighed"]} >= {"estimated", "bound"}
+    assert {c["basis"] for c in d["weighed"]} == {"estimated", "predicted"}
+    probe = fit.probe
+    own = next(c for c in fit.first.candidates if c.profile == probe.profile and not c.classic and not c.split
+               and c.t0_layers == probe.t0_layers)
+    t0_mip = max(0, (max(ts.width, ts.height) // probe.resolutions[0]).bit_length() - 1)
+    gains = probe_gains("smoke", probe.mse_per_channel.shape[0], t0_mip)
+    for k in own.use:
+        assert own.psnr_per_mip[k] - psnr_from_mse(float(probe.mse_per_channel[k].mean())) == pytest.approx(gains[k])
+    if fit.first.chosen.profile is None:  # classic first: no training but the probe
+        assert "train" not in fit.costs and fit.neural is None
 
 
-def _context(ts):
-    from bcfpipe.layout import kinds as K
+def test_a_sampled_measure_decodes_the_texels_it_names_exactly(tmp_path):
+    """`writer.decode_mips` with ``texels`` gives those texels of the whole decode, bit for bit; a
+    sampled measure takes one texel in each 2x2 cell of a large mip, every place within a cell."""
+    from bcfpipe.export import writer as E
+    from bcfpipe.export.fit import Measure, fit_material, make_config, sampled_texels
 
-    ref = Reference.of(ts)
-    work = ClassicWork(ts, max(ts.width, ts.height), ref, "repeat")
-    opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
-    return K.FitContext(ts, Path("unused"), opts, "repeat", work.resolution, reference=ref,
-                        classic=estimated(work, with_repacks=False))
+    from test_classic_layout import _set
 
-
-@pytest.mark.parametrize("detail, vetoed", [(False, False), (True, True)])
-def test_the_oracle_vetoes_exploring_a_t0_too_coarse_for_the_fine_mips(detail, vetoed):
-    """A 256² set at a 64² T_0 (tiny): smooth, its T_0-sized mip magnified holds mips 0 and 1 within
-    BC@R's floor; with texel-scale detail it falls far below, and no training of that T_0 restores it."""
-    from bcfpipe.layout import choose as C
-    from bcfpipe.layout import kinds as K
-    from bcfpipe.layout.oracle import ORACLE_MARGIN_DB, oracle_shortfall
-    from bcfpipe.texset.texture_set import Channel, TextureSet
-
-    yy, xx = np.mgrid[0:256, 0:256] / 256
-    v = 0.5 + 0.3 * np.sin(6.28 * xx) * np.cos(6.28 * yy)
-    if detail:
-        v = v + 0.2 * np.random.default_rng(0).standard_normal(v.shape)
-    ts = TextureSet(np.clip(v, 0, 1)[..., None].astype(np.float32), (Channel("roughness", "r", "scalar", "r.png", 0),),
-                    256, 256)
-    ctx = _context(ts)
-    c = C.Candidate((), "tiny", 1, ctx.classic.bc.mse_per_mip, "bound", ctx.classic.bc.use, kind=K.NEURAL)
-    assert (oracle_shortfall(ctx, c) > ORACLE_MARGIN_DB) == vetoed
+    ts = _set(64)
+    cfg = make_config(ts, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0))[1]
+    res = fit_material(ts, tmp_path / "m", cfg, "tiny", measure=Measure(image_metrics=False, float_model=False))[0]
+    em = E.load(res.out_dir)
+    shapes = [(64, 64), (32, 32)]
+    picks = [np.array([0, 5, 64 * 10 + 3, 64 * 64 - 1]), None]
+    whole = E.decode_mips(em, shapes)
+    part = E.decode_mips(em, shapes, texels=picks)
+    assert np.array_equal(part[0][:, 0], whole[0].reshape(-1, whole[0].shape[-1])[picks[0]])
+    assert np.array_equal(part[1], whole[1])
+    big, small = sampled_texels([(2048, 1024), (1024, 1024)])
+    assert small is None and len(big) == 2048 * 1024 // 4
+    y, x = big // 1024, big % 1024
+    assert len(np.unique((y // 2) * 512 + x // 2)) == len(big)  # one per 2x2 cell
+    assert {(a, b) for a, b in zip(y % 2, x % 2)} == {(0, 0), (0, 1), (1, 0), (1, 1)}

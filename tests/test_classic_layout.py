@@ -11,7 +11,7 @@ import pytest
 
 from bcfpipe.config import TrainingOptions
 from bcfpipe.export import writer as E
-from bcfpipe.export.fit import fit_material, make_config
+from bcfpipe.export.fit import FIGURES, fit_material, make_config
 from bcfpipe.formats import dds, material as mf
 from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
@@ -129,7 +129,7 @@ def test_a_probe_skips_ssim_and_flip_but_measures_the_same_errors(tmp_path):
     ts = _set()
     _, cfg = make_config(ts, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
     full, _ = fit_material(ts, tmp_path / "full", cfg, "tiny")
-    probe, _ = fit_material(ts, tmp_path / "probe", cfg, "tiny", image_metrics=False)
+    probe, _ = fit_material(ts, tmp_path / "probe", cfg, "tiny", measure=FIGURES)
     assert full.metrics.ssim is not None and full.metrics.flip is not None
     assert probe.metrics.ssim is None and probe.metrics.flip is None
     assert probe.metrics.psnr_per_mip == full.metrics.psnr_per_mip
@@ -326,15 +326,12 @@ def test_verify_refuses_a_classic_texture_whose_bytes_changed(mixed, tmp_path):
     assert "C0.dds differs from its recorded SHA-256" in {c.name: c for c in rep.materials[0].checks}["integrity"].detail
 
 
-def test_the_closest_mixed_bound_is_explored_when_none_qualifies():
+def test_bc_at_r_ships_when_no_neural_candidate_clears_its_floor():
     bc = _cand(("a", "b"), 1000, [1e-4, 1e-4, 1e-4], profile=None, kind=K.BC_AT_R)
-    near = _cand(("a",), 800, (2e-4, 5e-5, 5e-5), "bound")  # 3.0 dB under at mip 0
-    nearer = _cand(("b",), 900, (1.5e-4, 5e-5, 5e-5), "bound")  # 1.3 dB under
-    too_big = _cand(("b",), 1100, (1.2e-4, 5e-5, 5e-5), "bound", profile="2k")
-    hopeless = _cand(("a",), 500, (1e-3, 5e-5, 5e-5), "bound", profile="0.5k")  # 9.5 dB under
-    assert C.choose([near, nearer, too_big, hopeless], bc).chosen is bc
-    assert C.most_promising([near, nearer, too_big, hopeless], bc) is nearer
-    assert C.most_promising([hopeless], bc) is None
+    near = _cand(("a",), 800, (2e-4, 5e-5, 5e-5), "predicted")  # 3.0 dB under at mip 0
+    nearer = _cand(("b",), 900, (1.5e-4, 5e-5, 5e-5), "predicted")  # 1.3 dB under
+    too_big = _cand(("b",), 1100, (1.2e-4, 5e-5, 5e-5), "predicted", profile="2k")
+    assert C.choose([near, nearer, too_big], bc).chosen is bc
     assert C.deficit(nearer, bc) == pytest.approx(10 * np.log10(1.5) - 0.5)
 
 

@@ -104,8 +104,8 @@ def test_the_shipped_kinds_label_their_candidates():
     assert bc.label == C.ALL_CLASSIC
     assert C.Candidate(("normal", "albedo+roughness"), None, 1, (1.0,), "measured", use, repack="albedo+roughness as BC7",
                        kind=K.REPACK).label == "BC@R with albedo+roughness as BC7"
-    assert C.Candidate((), "1k", 1, (1.0,), "bound", use, kind=K.NEURAL).label == "neural 1k"
-    assert C.Candidate(("normal",), "1k", 1, (1.0,), "bound", use, kind=K.MIXED).label == "neural 1k + classic normal"
+    assert C.Candidate((), "1k", 1, (1.0,), "predicted", use, kind=K.NEURAL).label == "neural 1k"
+    assert C.Candidate(("normal",), "1k", 1, (1.0,), "predicted", use, kind=K.MIXED).label == "neural 1k + classic normal"
     split = C.Candidate(bc.classic, "8/8/8/4", 1, (1.0,), "predicted", use, split=2, resolutions=(8, 8, 8, 4),
                         kind=K.SPLIT)
     assert split.label == "BC@R below mip 2 + neural 8/8/8/4 from it"

@@ -44,8 +44,8 @@ def check_prediction_holds(plan: dict, report: dict, out: Path) -> None:
         if p["layout"] == "auto":
             d = json.loads(lay.read_text())
             assert d["bc"]["size_bytes"] == p["bc_bytes"]
-            # the probe never ships (issue 58): its all-channel candidate is weighed on its bound
-            probes = [c["profile"] for c in d["weighed"] if c["basis"] == "bound" and c["profile"]
+            # the probe never ships (issue 58): its all-channel candidate is weighed on its prediction
+            probes = [c["profile"] for c in d["weighed"] if c["basis"] == "predicted" and c["profile"]
                       and not c["classic"] and not c.get("split")]
             assert p["probe"] in probes, (p["probe"], probes)
             measured = d["candidates"]  # sizes are exact whether a candidate is estimated or measured

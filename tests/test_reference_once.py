@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bcfpipe.config import TrainingOptions
-from bcfpipe.export.fit import fit_material, make_config
+from bcfpipe.export.fit import FIGURES, fit_material, make_config
 from bcfpipe.layout.fit import fit_layout
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
@@ -63,7 +63,7 @@ def _counted(monkeypatch) -> tuple[list, list]:
 def test_fit_material_builds_one_chain_and_one_set_of_masks(tmp_path, monkeypatch, bricks, coverage):
     _, cfg = make_config(bricks, OPTIONS)
     chains, masks = _counted(monkeypatch)
-    res, _ = fit_material(bricks, tmp_path / "m", cfg, "tiny", coverage=coverage, image_metrics=False)
+    res, _ = fit_material(bricks, tmp_path / "m", cfg, "tiny", coverage=coverage, measure=FIGURES)
     assert len(chains) == 1 and len(masks) == 1
     assert res.metrics.psnr_covered is not None and 0.0 < res.metrics.covered_fraction < 1.0
 
@@ -96,7 +96,7 @@ def test_a_reference_of_something_else_is_refused(tmp_path, bricks, coverage):
 def test_evaluate_reports_steps_and_an_eta(tmp_path, bricks):
     _, cfg = make_config(bricks, OPTIONS)
     seen = []
-    fit_material(bricks, tmp_path / "m", cfg, "tiny", progress=seen.append, image_metrics=False)
+    fit_material(bricks, tmp_path / "m", cfg, "tiny", progress=seen.append, measure=FIGURES)
     ev = [p for p in seen if p.phase == "evaluate"]
     mips = 7  # 64² .. 1²
     assert ev[0].steps == 0  # it starts before there is a rate to estimate from

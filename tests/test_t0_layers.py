@@ -253,9 +253,9 @@ def test_a_layer_past_the_sets_components_is_refused_in_one_line():
 
 
 def test_torch_kernel_trains_a_two_layer_t0(ts, tmp_path):
-    from bcfpipe.export.fit import fit_material
+    from bcfpipe.export.fit import FIGURES, fit_material
 
-    res, tm = fit_material(ts, tmp_path / "m", _config(2, Kernel.TORCH), image_metrics=False)
+    res, tm = fit_material(ts, tmp_path / "m", _config(2, Kernel.TORCH), measure=FIGURES)
     assert sorted(tm.layers.fixed) == [0, 1] and res.metrics.psnr > 20
 
 

@@ -5,6 +5,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -142,43 +143,92 @@ class Evaluation:
     decoded: list[np.ndarray]  # (H_k, W_k, c) per mip, as `bcfpipe.export.writer.decode_mips` returns
 
 
+# A sampled measure (the layout's probe) decodes, of a mip of more texels than this, one texel in
+# each 2x2 cell, at a place drawn per cell (fixed seed): a quarter of them, spread over the mip and
+# over the places within a BC block and a magnified texel, whose errors differ. Whole rows would not
+# do: on the teapot they missed mip 0's error by 0.36 dB.
+SAMPLED_TEXELS = 1 << 20
+SAMPLE_SEED = 58
+
+
+def sampled_texels(shapes: Sequence[tuple[int, int]]) -> list[np.ndarray | None]:
+    """Per mip, the texels a sampled measure decodes, row-major indices (None: all)."""
+    out: list[np.ndarray | None] = []
+    rng = np.random.default_rng(SAMPLE_SEED)
+    for h, w in shapes:
+        if h * w <= SAMPLED_TEXELS:
+            out.append(None)
+            continue
+        cy, cx = np.mgrid[0:h // 2, 0:w // 2]
+        dy, dx = rng.integers(0, 2, (2,) + cy.shape)
+        out.append(((2 * cy + dy) * w + 2 * cx + dx).ravel())
+    return out
+
+
 def evaluate_exported(folder: str | os.PathLike, reference: Reference, channels: tuple[Channel, ...],
                       progress: ProgressFn | None = None, image_metrics: bool = True,
-                      start: float | None = None) -> Evaluation:
+                      start: float | None = None, sampled: bool = False) -> Evaluation:
     """Decode ``folder`` at every mip of ``reference`` and measure it (over ``reference.masks``'
     texels too, when it has masks), reporting ``evaluate`` step by step to ``progress``
-    (`EvaluateProgress`; elapsed from ``start``, a `time.perf_counter` reading)."""
-    ep = EvaluateProgress(progress, reference.shapes, image_metrics, start)
+    (`EvaluateProgress`; elapsed from ``start``, a `time.perf_counter` reading). ``sampled``: of
+    the mips over `SAMPLED_TEXELS`, a quarter of the texels (`sampled_texels`), for figures that
+    decide rather than ship (no image metrics then; ``decoded`` holds those texels, one per 2x2 cell
+    in the cells' order, (H/2, W/2, c))."""
+    shapes = reference.shapes
+    picks = sampled_texels(shapes) if sampled else [None] * len(shapes)
+    image_metrics = image_metrics and not sampled
+    cells = [s if p is None else (s[0] // 2, s[1] // 2) for s, p in zip(shapes, picks)]
+
+    def taken(levels):
+        return [m if p is None else m.reshape(-1, *m.shape[2:])[p].reshape(*c, *m.shape[2:])
+                for m, p, c in zip(levels, picks, cells)]
+
+    ep = EvaluateProgress(progress, cells, image_metrics, start)
     ep.begin()
-    dec = E.decode_mips(E.load(folder), reference.shapes, on_chunk=ep.chunk if progress else None)
+    dec = E.decode_mips(E.load(folder), shapes, on_chunk=ep.chunk if progress else None, texels=picks)
+    dec = [d if p is None else d.reshape(*c, -1) for d, p, c in zip(dec, picks, cells)]
     ep.metrics()
-    ref, masks = list(reference.mips), reference.masks
+    ref = taken(reference.mips)
+    masks = None if reference.masks is None else taken(reference.masks)
     metrics = compute_metrics(ref, dec, channels, masks=masks, ssim=image_metrics, flip=image_metrics)
     per_channel = mse_per_channel(ref, dec, channels, masks)
     ep.end()
     return Evaluation(metrics, per_channel, dec)
 
 
+@dataclass(frozen=True)
+class Measure:
+    """What `fit_material` measures of the files it exports."""
+
+    image_metrics: bool = True  # SSIM and FLIP (seconds at 2048²)
+    float_model: bool = True  # the float model's figures just before quantization (a decode of every mip)
+    sampled: bool = False  # the large mips on a sample of their texels (`evaluate_exported`)
+
+
+FIGURES = Measure(image_metrics=False)  # PSNR and per-channel errors: a layout candidate's
+PROBE = Measure(image_metrics=False, float_model=False, sampled=True)  # what decides, never ships
+
+
 def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
                  progress: ProgressFn | None = None, coverage: np.ndarray | None = None,
-                 image_metrics: bool = True, reference: Reference | None = None) -> tuple[MaterialResult, TrainedMaterial]:
+                 measure: Measure = Measure(), reference: Reference | None = None) -> tuple[MaterialResult, TrainedMaterial]:
     """Train on ``ts``, export to ``out_dir``, then evaluate the exported files (over every texel,
     and with a ``coverage`` mask also over the covered ones). ``progress`` hears the training's
-    phases, then ``evaluate`` step by step (`EvaluateProgress`). ``image_metrics=False`` leaves out
-    SSIM and FLIP (seconds at 2048²) for a model that is judged by its PSNR and per-channel errors
-    alone, as the layout's probe. ``reference``: ``Reference.of(ts, coverage, cfg.model.wrap)`` when
+    phases, then ``evaluate`` step by step (`EvaluateProgress`). ``measure``: `FIGURES` for a model
+    judged by its PSNR and per-channel errors alone, as a layout's candidates; `PROBE` for the
+    layout's probe, which never ships (`Measure`). ``reference``: ``Reference.of(ts, coverage, cfg.model.wrap)`` when
     the caller holds it already (the training and the measure share it), else built here once."""
     start = time.perf_counter()
     if reference is None:
         reference = Reference.of(ts, coverage, cfg.model.wrap)
     else:
         reference.check(ts, coverage, cfg.model.wrap)
-    tm = train(ts, cfg, progress, coverage=coverage, reference=reference)
+    tm = train(ts, cfg, progress, coverage=coverage, reference=reference, measure_float=measure.float_model)
     out = E.export(tm, out_dir)
     t0 = time.perf_counter()
     float_metrics = (metrics_from_mse(tm.float_mse, ts.channels, reference.shapes)
                      if tm.float_mse is not None else None)
-    ev = evaluate_exported(out, reference, ts.channels, progress, image_metrics, start)
+    ev = evaluate_exported(out, reference, ts.channels, progress, measure.image_metrics, start, measure.sampled)
     metrics, per_channel = ev.metrics, ev.per_channel
     del ev
     phases = dict(tm.phase_seconds, evaluate=time.perf_counter() - t0)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -177,20 +177,24 @@ def onnx_session(em: ExportedMaterial):
 
 
 def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: int = 1 << 18,
-                drop_normal_z: bool = True, on_chunk: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
+                drop_normal_z: bool = True, on_chunk: Callable[[int, int], None] | None = None,
+                texels: Sequence[np.ndarray | None] | None = None) -> list[np.ndarray]:
     """The exported material decoded at each reference mip's texel centres (s = mip index) ->
     [(H, W, c)], every output in material.json's order: the decoder's through onnxruntime, a
     classic output from its texture (trilinear, like the layers); normal z is dropped unless asked
-    for. ``on_chunk(k, texels)`` hears each chunk decoded: its mip and its texels (for progress)."""
+    for. ``on_chunk(k, texels)`` hears each chunk decoded: its mip and its texels (for progress).
+    ``texels``: per mip, the texels to decode, row-major indices (None: all), giving (n, 1, c)."""
     sess = onnx_session(em) if em.desc.mlp is not None else None
     outputs = em.desc.outputs
     mlp_cols = [i for i, o in enumerate(outputs) if o.source != mf.Source.CLASSIC]
     keep = [i for i, o in enumerate(outputs) if not (drop_normal_z and o.reconstructed)]
     out = []
     for k, (h, w) in enumerate(ref_shapes):
-        level = np.empty((h * w, len(keep)), np.float32)
-        for a in range(0, h * w, chunk):  # texel-centre uvs made per chunk: O(chunk) scratch at 8K
-            ids = np.arange(a, min(a + chunk, h * w))
+        picked = None if texels is None or texels[k] is None else np.asarray(texels[k])
+        n = h * w if picked is None else len(picked)
+        level = np.empty((n, len(keep)), np.float32)
+        for a in range(0, n, chunk):  # texel-centre uvs made per chunk: O(chunk) scratch at 8K
+            ids = np.arange(a, min(a + chunk, n)) if picked is None else picked[a:a + chunk]
             uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1).astype(np.float32)
             y = np.empty((len(ids), len(outputs)), np.float32)
             if sess is not None:
@@ -200,7 +204,7 @@ def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: 
             level[a:a + len(ids)] = y[:, keep]
             if on_chunk is not None:
                 on_chunk(k, len(ids))
-        out.append(level.reshape(h, w, -1))
+        out.append(level.reshape(h, w, -1) if picked is None else level[:, None])
     return out
 
 

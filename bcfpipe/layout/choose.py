@@ -11,19 +11,17 @@ decoding it:
 
 * classic channels, ``estimated``: from a sample of their blocks (`bcfpipe.layout.estimate`),
   ``measured`` once encoded in full (what ships always is);
-* neural channels, ``bound``: from the probe, a short training on *all* channels at that
-  profile. A model trained in full, and one trained on fewer channels, fits those at least as
-  well in expectation, so this is what the candidate can hold at the least;
-* ``predicted``: the same errors moved by the measured gain between two profiles
-  (`bcfpipe.train.rate.GAINS_DB`), for profiles that were not trained.
+* neural channels, ``predicted``: from the probe, a short training on *all* channels at one
+  profile, moved per mip by what a full training at the preset asked gains over it
+  (`bcfpipe.train.rate.PROBE_GAINS_DB`), and for the other profiles and T_0 widths by the
+  measured gains between them (`GAINS_DB`, `T0_LAYER_GAINS_DB`). A model trained on fewer
+  channels fits those at least as well in expectation;
+* ``measured`` once trained: the first choice alone is, when it has a neural part.
 
 Default objective: the highest all-mip PSNR with the size at most BC@R's and no reference mip
 more than `SLACK_DB` below BC@R at that mip (mips whose smaller side is at least 4 texels, the ones
 the all-mip PSNR averages). ``match_bc``: the smallest layout whose every such mip reaches BC@R.
 The all-classic layout (BC@R itself) always qualifies, so the result is never worse than it.
-When no candidate qualifies on its bound, the mixed one (or the one with a wider T_0 than the
-probe's) that falls shortest (`most_promising`, within `EXPLORE_DB`) is trained anyway: its own
-model may clear the floor where the bound or the prediction did not.
 """
 from __future__ import annotations
 
@@ -38,8 +36,7 @@ if TYPE_CHECKING:
     from bcfpipe.layout.kinds import Kind
 
 SLACK_DB = 0.5
-EXPLORE_DB = 3.0  # a bound this far below the floor may still be reached by its own training
-Basis = Literal["measured", "estimated", "bound", "predicted"]
+Basis = Literal["measured", "estimated", "predicted"]
 ALL_CLASSIC = "all classic (BC@R)"
 
 
@@ -141,19 +138,6 @@ def deficit(c: Candidate, bc: Candidate, match_bc: bool = False) -> float:
     """How far ``c``'s worst mip falls short of its floor (BC@R - slack), in dB; <= 0 when none does."""
     slack = 0.0 if match_bc else SLACK_DB
     return max(bc.psnr_per_mip[k] - slack - c.psnr_per_mip[k] for k in bc.use)
-
-
-def most_promising(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = False,
-                   within_db: float = EXPLORE_DB) -> Candidate | None:
-    """The candidate worth a training of its own that falls shortest of the floor, within
-    ``within_db``, and within BC@R's size: a mixed one (some groups classic, a neural part) on its
-    ``bound``, since a model trained on fewer channels fits them better than the all-channel probe
-    did; or one with a wider T_0 than the probe's, on its prediction (issue 52: the width gain is a
-    mean over sets, and a set's own may be larger)."""
-    pool = [c for c in candidates if c.profile is not None
-            and (c.basis == "bound" or (c.t0_layers > 1 and c.basis == "predicted"))
-            and (match_bc or c.size_bytes <= bc.size_bytes) and 0 < deficit(c, bc, match_bc) <= within_db]
-    return min(pool, key=lambda c: (deficit(c, bc, match_bc), c.size_bytes), default=None)
 
 
 def choose(candidates: Sequence[Candidate], bc: Candidate, match_bc: bool = False,

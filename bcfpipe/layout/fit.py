@@ -9,18 +9,17 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    asked for whose bytes fit within BC@R's (the smallest when none does: it measures the neural
    part of a mip split or a mixed layout), with a T_0 of one layer of principal components (or
    --t0-layers), trained for `PROBE_FRACTION` of the steps the preset asked takes and measured
-   from its exported files, per channel. Its errors bound what the same model holds when trained
-   in full; it never ships. No probe, and no training, when not even the smallest features fit
-   within BC@R's bytes (`predict`): BC@R and its repacks are all that can ship.
+   from its exported files, per channel; it never ships. What the same model trained in full
+   holds is predicted from it with the measured per-mip gain of a full training over the probe
+   (`bcfpipe.train.rate.PROBE_GAINS_DB`). No probe, and no training, when not even the smallest
+   features fit within BC@R's bytes (`predict`): BC@R and its repacks are all that can ship.
 3. Candidates: every kind of `bcfpipe.layout.kinds.REGISTRY` generates its own from (1) and (2)
    (BC@R, its repacks, neural at a profile and T_0 width, mixed: classic groups + neural, mip
-   splits), with ``estimated``, ``bound`` or ``predicted`` figures (`bcfpipe.layout.choose`). The
-   rule picks one. The BC7 quality set is reported against, never weighed.
-4. One training at most, at the preset asked, through the chosen candidate's kind: the first
-   choice when it has a neural part (a mip split only when its prediction beats the classic
-   choice, `Kind.worth`); when it is classic, the neural candidate closest to qualifying on its
-   bound (`choose.most_promising`), if one is within reach and its T_0 can hold the mips finer
-   than it (`bcfpipe.layout.oracle`). The BC@R groups it ships beside are encoded in full before it.
+   splits), with ``estimated`` or ``predicted`` figures (`bcfpipe.layout.choose`). The rule picks
+   one. The BC7 quality set is reported against, never weighed.
+4. One training at most, at the preset asked: the first choice, when it has a neural part (a mip
+   split only when its prediction beats the classic choice, `Kind.worth`), through its kind. The
+   BC@R groups it ships beside are encoded in full before it. A classic first choice trains nothing.
 5. The final choice among the trained model and the classic candidates: a classic candidate that
    its estimate puts first is encoded in full and measured, and the choice made again, until the
    one chosen is measured (`_settle`). What ships is encoded once, at the shipping preset, and
@@ -46,8 +45,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from bcfpipe.config import N_LAYERS, PROFILES, TrainingOptions, shortened
-from bcfpipe.export.fit import MaterialResult, fit_material, make_config
+from bcfpipe.config import DEFAULT_ENCODE, ENCODE_PRESETS, N_LAYERS, PROFILES, TrainingOptions, shortened
+from bcfpipe.export.fit import PROBE, MaterialResult, fit_material, make_config
 from bcfpipe.formats.display import bytes_text
 from bcfpipe.formats.sizes import neural_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
@@ -57,7 +56,6 @@ from bcfpipe.layout.classic import EncodedGroup, Group, Repack
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.classic_fit import ClassicFit, ClassicWork, estimated, measure  # noqa: F401
 from bcfpipe.layout.kinds import capped, split_bytes, split_candidates, subset  # noqa: F401
-from bcfpipe.layout.oracle import ORACLE_MARGIN_DB, oracle_shortfall
 from bcfpipe.layout.predict import LayoutPrediction, Query, predict, widths_of
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
@@ -103,20 +101,22 @@ def predict_for(ts: TextureSet, options: TrainingOptions, cfg, asked: str, resol
 
 
 def _work(ctx: K.FitContext) -> ClassicWork:
-    return ClassicWork(ctx.ts, ctx.resolution, ctx.reference, ctx.wrap, ctx.log, progress=ctx.progress)
+    return ClassicWork(ctx.ts, ctx.resolution, ctx.reference, ctx.wrap, ctx.log, progress=ctx.progress,
+                       enc=ENCODE_PRESETS.get(ctx.options.preset, DEFAULT_ENCODE))
 
 
 def _train_probe(ctx: K.FitContext) -> MaterialResult:
     """The probe: all channels at p0, a `PROBE_FRACTION` of the steps ``ctx.cap`` (--layout neural's)
-    takes, so that it costs a fraction of one training. Its errors bound what a full training of
-    the same model holds (more steps fit better), and never ship."""
+    takes, so that it costs a fraction of one training, without the float model's figures. What
+    a full training of the same model holds is predicted from it (`kinds.FitContext.neural_errors`);
+    it never ships."""
     ctx.log(f"probe: all {ctx.ts.num_channels} channels at {ctx.p0}"
             + (f", T_0 of {ctx.w0} layers" if ctx.w0 > 1 else "") + f", {PROBE_FRACTION:.0%} of the steps")
     cfg = make_config(ctx.ts, replace(ctx.options, profile=ctx.own[ctx.p0], t0_layers=ctx.w0), ctx.wrap)[1]
     cfg = capped(cfg, ctx.cap)
     cfg = cfg.with_(preset=shortened(cfg.preset, PROBE_FRACTION))
     return fit_material(ctx.ts, ctx.out / "probe", cfg, ctx.p0, progress=ctx.progress, coverage=ctx.coverage,
-                        image_metrics=False, reference=ctx.reference)[0]
+                        measure=PROBE, reference=ctx.reference)[0]
 
 
 def _probed(ctx: K.FitContext, cfg, pred: LayoutPrediction) -> K.FitContext:
@@ -212,29 +212,17 @@ def _near_floor(c: C.Candidate, bc: C.Candidate, match_bc: bool) -> bool:
 def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate,
                 cands: Sequence[C.Candidate]) -> tuple[K.FitContext, K.Weighed | None]:
     """The one training of the fit, at the preset asked, at most: the first choice ``chosen``, if it
-    has a neural part and its kind finds it worth that against the classic candidates; when the
-    first choice is classic, the neural candidate closest to the floor on its bound
-    (`choose.most_promising`), if one is close enough that its own training may clear it; else
-    none. The BC@R groups the model ships beside are encoded in full first (a split's: all); BC@R
-    itself is measured later only if the model is chosen near its floor (`_settle`)."""
-    bc = ctx.classic.bc
+    has a neural part and its kind finds it worth that against the classic candidates; else none.
+    The BC@R groups the model ships beside are encoded in full first (a split's: all); BC@R itself
+    is measured later only if the model is chosen near its floor (`_settle`)."""
     classic = [c for c in cands if c.profile is None]
-    held = C.choose(classic, bc, ctx.match_bc).chosen
-    if chosen.profile is not None and not chosen.kind.worth(ctx, chosen, held):
-        chosen = held
-    if chosen.profile is None:  # nothing neural clears the floor on its bound: explore the closest
-        alt = C.most_promising([c for c in cands if c.kind.explorable], bc, ctx.match_bc)
-        if alt is None:
-            ctx.log("no neural candidate comes within reach of the floor: no training")
-            return ctx, None
-        short = oracle_shortfall(ctx, alt)
-        if short > ORACLE_MARGIN_DB:
-            ctx.log(f"the closest, {alt.label}, is {C.deficit(alt, bc, ctx.match_bc):.1f} dB short on its bound, and "
-                    f"its T_0 magnified falls {short:.1f} dB below the floor at a finer mip: no training")
-            return ctx, None
-        ctx.log(f"no candidate clears the floor on its bound; training the closest: {alt.label} "
-                f"({C.deficit(alt, bc, ctx.match_bc):.1f} dB short)")
-        chosen = alt
+    held = C.choose(classic, ctx.classic.bc, ctx.match_bc).chosen
+    if chosen.profile is None:
+        ctx.log("no neural candidate clears the floor on its prediction: no training")
+        return ctx, None
+    if not chosen.kind.worth(ctx, chosen, held):
+        ctx.log(f"{chosen.label} does not beat {held.label} on its prediction: no training")
+        return ctx, None
     need = None if chosen.kind is K.SPLIT else chosen.classic  # what the model ships beside
     if need is None or need:
         ctx = replace(ctx, classic=measure(work, ctx.classic, only=need))

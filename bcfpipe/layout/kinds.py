@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 import numpy as np
 
 from bcfpipe.config import TrainingOptions
-from bcfpipe.export.fit import MaterialResult, fit_material, make_config
+from bcfpipe.export.fit import FIGURES, MaterialResult, fit_material, make_config
 from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import EncodedGroup, disk_bytes, split_levels
@@ -91,25 +91,32 @@ class FitContext:
         """Every (profile, T_0 width) weighed: the profiles largest first, each at every width."""
         return tuple((p, w) for p in self.profiles for w in self.widths)
 
+    def t0_mip(self, profile: str) -> int:
+        """The reference mip T_0's level 0 serves at ``profile``."""
+        from bcfpipe.config import PROFILES
+
+        t0 = PROFILES[profile][0] if profile in PROFILES else self.probe.resolutions[0]
+        return max(0, (max(self.ts.width, self.ts.height) // t0).bit_length() - 1)
+
+    def probe_gains(self) -> np.ndarray:
+        """Per reference mip, what a full training at the preset asked gains over the probe (`train.rate`)."""
+        from bcfpipe.train.rate import probe_gains
+
+        return np.array(probe_gains(self.options.preset, self.probe.mse_per_channel.shape[0], self.t0_mip(self.p0)))
+
     def width_gains(self, profile: str, width: int) -> np.ndarray:
         """Per reference mip, what ``width`` T_0 layers add over one at ``profile`` (`train.rate`)."""
-        from bcfpipe.config import PROFILES
         from bcfpipe.train.rate import t0_layer_gains
 
-        n = self.probe.mse_per_channel.shape[0]
-        t0 = PROFILES[profile][0] if profile in PROFILES else self.probe.resolutions[0]
-        t0_mip = max(0, (max(self.ts.width, self.ts.height) // t0).bit_length() - 1)
-        return np.array(t0_layer_gains(width, n, t0_mip))
+        return np.array(t0_layer_gains(width, self.probe.mse_per_channel.shape[0], self.t0_mip(profile)))
 
     def neural_errors(self, profile: str, width: int = 1) -> np.ndarray:
-        """(mips, channels) errors of all channels at ``profile`` with a T_0 of ``width`` layers:
-        the probe's, moved by the profiles' gain and, per mip, the widths'."""
-        e0 = self.probe.mse_per_channel
-        if (profile, width) == (self.p0, self.w0):
-            return e0
-        db = (self.gain(profile) - self.gain(self.p0)
+        """(mips, channels) errors of all channels at ``profile`` with a T_0 of ``width`` layers,
+        trained in full at the preset asked: the probe's, moved per mip by what a full training
+        gains over it, by the profiles' gain and by the widths'."""
+        db = (self.probe_gains() + self.gain(profile) - self.gain(self.p0)
               + self.width_gains(profile, width) - self.width_gains(self.p0, self.w0))
-        return e0 * 10 ** (-db[:, None] / 10)
+        return self.probe.mse_per_channel * 10 ** (-db[:, None] / 10)
 
     def fits_width(self, channels: int, width: int) -> bool:
         """Whether a model of ``channels`` channels can hold ``width`` layers of components."""
@@ -125,7 +132,6 @@ class Kind(ABC):
     `REGISTRY`. The final choice weighs every candidate whose basis is ``measured``."""
 
     name = ""
-    explorable = False  # its candidates may be trained when none qualifies (`choose.most_promising`)
 
     @abstractmethod
     def label(self, c: C.Candidate) -> str:
@@ -133,11 +139,11 @@ class Kind(ABC):
 
     @abstractmethod
     def predict(self, ctx: FitContext) -> list[Weighed]:
-        """Its candidates, measured, bound or predicted, each with ``kind=self`` (a measured one with
+        """Its candidates, measured, estimated or predicted, each with ``kind=self`` (a measured one with
         its model and parts)."""
 
     def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
-        """Whether shipping ``c`` needs a model trained for it (when not, the rule explores)."""
+        """Whether shipping ``c`` needs a model trained for it."""
         return False
 
     def worth(self, ctx: FitContext, c: C.Candidate, held: C.Candidate) -> bool:
@@ -201,8 +207,8 @@ class BcRepack(Kind):
 
 def at_profiles(ctx: FitContext, chosen: Sequence[int], kind: Kind) -> list[Weighed]:
     """The groups ``chosen`` (indices into BC@R's) classic and a model on the other channels, at every
-    profile: ``bound`` at p0 (the probe's errors on those channels: a model trained in full, on
-    fewer channels or the same, holds them at least as well), ``predicted`` elsewhere."""
+    profile and T_0 width, ``predicted`` from the probe's errors on those channels (`neural_errors`;
+    a model on fewer channels fits them at least as well as the all-channel probe)."""
     groups = ctx.classic.groups
     names = tuple(groups[i].group.name for i in chosen)
     cols = [c for i in chosen for c in groups[i].group.channels]
@@ -211,10 +217,9 @@ def at_profiles(ctx: FitContext, chosen: Sequence[int], kind: Kind) -> list[Weig
     for p, w in ctx.settings:
         if not ctx.fits_width(ctx.ts.num_channels - len(cols), w):
             continue
-        probe = (p, w) == (ctx.p0, ctx.w0)
         out.append(Weighed(C.Candidate(names, p, ctx.sizes[(p, w)] + classic_bytes,
                                        C.combine(ctx.neural_errors(p, w), ctx.classic.e_bc, cols),
-                                       "bound" if probe else "predicted", ctx.classic.use, t0_layers=w, kind=kind)))
+                                       "predicted", ctx.classic.use, t0_layers=w, kind=kind)))
     return out
 
 
@@ -224,11 +229,9 @@ def t0_text(c: C.Candidate) -> str:
 
 
 class NeuralAt(Kind):
-    """Every channel neural at a profile and T_0 width: bound at the probe's, elsewhere predicted;
-    explored when nothing qualifies (the probe's own setting or a wider T_0)."""
+    """Every channel neural at a profile and T_0 width, predicted from the probe."""
 
     name = "neural"
-    explorable = True
 
     def label(self, c: C.Candidate) -> str:
         return f"neural {c.profile}{t0_text(c)}"
@@ -246,10 +249,9 @@ class NeuralAt(Kind):
 
 class Mixed(Kind):
     """Some of BC@R's groups classic (every one --classic names among them), a model on the rest at
-    a profile: ``bound`` at p0 (a model on fewer channels fits them at least as well), else predicted."""
+    a profile, predicted from the probe."""
 
     name = "mixed"
-    explorable = True
 
     def label(self, c: C.Candidate) -> str:
         return f"neural {c.profile}{t0_text(c)} + classic {', '.join(c.classic)}"
@@ -281,7 +283,7 @@ class MipSplit(Kind):
         if ctx.forced:  # --classic keeps its groups classic at every mip
             return []
         halving = max(0.0, ctx.gain("1k") - ctx.gain("0.5k"))  # one halving of T_0
-        return [Weighed(c) for c in split_candidates(ctx.ts, ctx.classic, ctx.probe.mse_per_channel, ctx.resolution,
+        return [Weighed(c) for c in split_candidates(ctx.ts, ctx.classic, ctx.neural_errors(ctx.p0, 1), ctx.resolution,
                                                      ctx.dims, ctx.match_bc, ctx.probe.resolutions[0], halving)]
 
     def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
@@ -335,7 +337,7 @@ def train_outside(ctx: FitContext, classic: Sequence[str], name: str, kind: Kind
     if ref is not None and len(keep) < ctx.ts.num_channels:  # the subset's chain: its channels of the set's
         ref = Reference(tuple(np.ascontiguousarray(m[..., keep]) for m in ref.mips), ref.masks, ref.wrap)
     res, _ = fit_material(sub, ctx.out / "neural", capped(make_config(sub, options, ctx.wrap)[1], ctx.cap), name,
-                          progress=ctx.progress, coverage=ctx.coverage, image_metrics=False, reference=ref)
+                          progress=ctx.progress, coverage=ctx.coverage, measure=FIGURES, reference=ref)
     del ref
     e = e_bc.copy()
     e[:, keep] = res.mse_per_channel
@@ -407,7 +409,7 @@ def train_split(ctx: FitContext, cand: C.Candidate) -> Weighed:
     cfg = capped(make_config(ctx.ts, replace(ctx.options, t0_layers=1), ctx.wrap)[1], ctx.cap)  # as sized
     cfg = cfg.with_(model=replace(cfg.model, resolutions=cand.resolutions, split=cand.split))
     res, _ = fit_material(ctx.ts, ctx.out / "split", cfg, cand.profile, progress=ctx.progress, coverage=ctx.coverage,
-                          image_metrics=False, reference=ctx.reference)
+                          measure=FIGURES, reference=ctx.reference)
     err = res.mse_per_channel.copy()
     err[:cand.split] = ctx.classic.e_bc[:cand.split]
     keep = split_levels(cand.split, ctx.resolution, max(ctx.ts.width, ctx.ts.height))

@@ -32,7 +32,7 @@ from bcfpipe.config import PROFILES, QUALITY_PRESETS, preset_for, resolve_profil
 from bcfpipe.formats.sizes import feature_bytes
 
 __all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_to_target", "anchors_from_bench",
-           "GAINS_DB", "MARGIN_DB", "T0_LAYER_GAINS_DB", "t0_layer_gains"]
+           "GAINS_DB", "MARGIN_DB", "T0_LAYER_GAINS_DB", "t0_layer_gains", "PROBE_GAINS_DB", "probe_gains"]
 
 MARGIN_DB = 0.5
 # On a CPU, 2k does not pay for its 4x bytes and 2.4x time: on the teapot, 2k standard gave 38.54 dB
@@ -67,6 +67,20 @@ T0_LAYER_GAINS_DB: dict[int, tuple[float, ...]] = {
     2: (0.16, 1.81, 1.09, 0.62),
     3: (0.27, 1.66, 0.98, 0.24),
 }
+# What a full training at a preset gains over the default layout's probe (the same model trained for
+# `layout.fit.PROBE_FRACTION` of its steps, issue 58), in dB per reference mip by its place against
+# T_0's level 0, as T0_LAYER_GAINS_DB reads: finer than it, level 0, level 1, every coarser mip.
+# Means over sets, from exported files, `benchmarks/bench_probe_gain.py --quality Q`
+# (docs/benchmarks.md, "Issue 58: what a full training gains over the probe"):
+#   draft: teapot, brick, wood, water bottle at 1k (per set, mip 0: 0.76 / 0.08 / 0.09 / 0.68;
+#   mip 1: 1.44 / -0.24 / -0.09 / 2.06); standard: the teapot and the water bottle (mip 0: 0.55 /
+#   0.50; mip 1: 0.19 / 2.09); fast: the teapot and the water bottle (mip 0: 1.35 / 0.60; mip 1:
+#   2.33 / 2.41). paper (a GPU's) takes standard's until measured; smoke, a pipeline check, draft's.
+PROBE_GAINS_DB: dict[str, tuple[float, float, float, float]] = {
+    "draft": (0.41, 0.79, 0.82, 1.6),
+    "fast": (0.97, 2.37, 2.52, 2.82),
+    "standard": (0.53, 1.14, 1.48, 2.05),
+}
 PAPER_OVER_STANDARD_DB = 1.0  # a GPU's 206k steps over `standard`'s 19.5k: a guess until measured on a GPU
 
 
@@ -75,6 +89,13 @@ def _gain(profile: str, preset: str) -> float:
     if preset == "paper":
         return GAINS_DB[(base, "standard")] + PAPER_OVER_STANDARD_DB
     return GAINS_DB[(base, preset)]
+
+
+def probe_gains(preset: str, n_mips: int, t0_mip: int) -> "list[float]":
+    """`PROBE_GAINS_DB` of ``preset`` at each of ``n_mips`` reference mips, T_0's level 0 serving
+    reference mip ``t0_mip``."""
+    row = PROBE_GAINS_DB.get(preset) or PROBE_GAINS_DB["draft" if preset == "smoke" else "standard"]
+    return [row[0] if k < t0_mip else row[min(1 + k - t0_mip, len(row) - 1)] for k in range(n_mips)]
 
 
 def t0_layer_gains(t0_layers: int, n_mips: int, t0_mip: int) -> "list[float]":
