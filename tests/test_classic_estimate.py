@@ -140,3 +140,24 @@ def test_a_sampled_measure_decodes_the_texels_it_names_exactly(tmp_path):
     y, x = big // 1024, big % 1024
     assert len(np.unique((y // 2) * 512 + x // 2)) == len(big)  # one per 2x2 cell
     assert {(a, b) for a, b in zip(y % 2, x % 2)} == {(0, 0), (0, 1), (1, 0), (1, 1)}
+
+
+@pytest.mark.parametrize("detail", [False, True])
+def test_the_oracle_holds_predictions_at_the_mips_finer_than_t0(detail):
+    """A 256² set at a 64² T_0: smooth, its 64² mip magnified holds mips 0 and 1 within 0.1 dB of
+    nothing lost; with texel-scale detail it loses far more, and a prediction there is held to it."""
+    from bcfpipe.layout.oracle import ORACLE_MARGIN_DB, cap, magnified_errors
+    from bcfpipe.texset.metrics import psnr_from_mse
+    from bcfpipe.texset.texture_set import Channel, TextureSet
+
+    yy, xx = np.mgrid[0:256, 0:256] / 256
+    v = 0.5 + 0.3 * np.sin(6.28 * xx) * np.cos(6.28 * yy)
+    if detail:
+        v = v + 0.2 * np.random.default_rng(0).standard_normal(v.shape)
+    ts = TextureSet(np.clip(v, 0, 1)[..., None].astype(np.float32), (Channel("roughness", "r", "scalar", "r.png", 0),),
+                    256, 256)
+    e = magnified_errors(Reference.of(ts), 64, ts.channels, "repeat")
+    assert e.shape[0] == len(Reference.of(ts).mips) and not e[2:].any()  # mip 2 is T_0's own size
+    assert (psnr_from_mse(float(e[0, 0])) < 25) == detail and (psnr_from_mse(float(e[0, 0])) > 40) == (not detail)
+    held = cap(np.full_like(e, 1e-9), e)
+    assert np.allclose(held[:2], e[:2] * 10 ** (-ORACLE_MARGIN_DB / 10)) and np.all(held[2:] == 1e-9)

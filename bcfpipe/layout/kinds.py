@@ -70,6 +70,7 @@ class FitContext:
     dims: tuple[int, int] = (0, 0)  # (MLP inputs of a one-layer T_0, hidden)
     reference: Reference | None = None  # the set's chain and coverage masks, built once per fit
     costs: dict[str, float] = field(default_factory=dict)  # seconds by part (the report's phase_seconds, layout_*)
+    oracles: dict[int, np.ndarray] = field(default_factory=dict)  # `oracle` by T_0 side, made once each
 
     @property
     def match_bc(self) -> bool:
@@ -104,6 +105,15 @@ class FitContext:
 
         return np.array(probe_gains(self.options.preset, self.probe.mse_per_channel.shape[0], self.t0_mip(self.p0)))
 
+    def oracle(self, t0: int) -> np.ndarray:
+        """(mips, channels) errors of the reference's ``t0``-sized mip magnified to each finer mip
+        (`bcfpipe.layout.oracle`), 0 elsewhere."""
+        if t0 not in self.oracles:
+            from bcfpipe.layout.oracle import magnified_errors
+
+            self.oracles[t0] = magnified_errors(self.reference, t0, self.ts.channels, self.wrap)
+        return self.oracles[t0]
+
     def width_gains(self, profile: str, width: int) -> np.ndarray:
         """Per reference mip, what ``width`` T_0 layers add over one at ``profile`` (`train.rate`)."""
         from bcfpipe.train.rate import t0_layer_gains
@@ -113,10 +123,15 @@ class FitContext:
     def neural_errors(self, profile: str, width: int = 1) -> np.ndarray:
         """(mips, channels) errors of all channels at ``profile`` with a T_0 of ``width`` layers,
         trained in full at the preset asked: the probe's, moved per mip by what a full training
-        gains over it, by the profiles' gain and by the widths'."""
+        gains over it, by the profiles' gain and by the widths', and held to the oracle at the
+        mips finer than its T_0 (`bcfpipe.layout.oracle.cap`)."""
+        from bcfpipe.config import PROFILES
+        from bcfpipe.layout.oracle import cap
+
         db = (self.probe_gains() + self.gain(profile) - self.gain(self.p0)
               + self.width_gains(profile, width) - self.width_gains(self.p0, self.w0))
-        return self.probe.mse_per_channel * 10 ** (-db[:, None] / 10)
+        t0 = PROFILES[profile][0] if profile in PROFILES else self.probe.resolutions[0]
+        return cap(self.probe.mse_per_channel * 10 ** (-db[:, None] / 10), self.oracle(t0))
 
     def fits_width(self, channels: int, width: int) -> bool:
         """Whether a model of ``channels`` channels can hold ``width`` layers of components."""
@@ -282,9 +297,19 @@ class MipSplit(Kind):
     def predict(self, ctx: FitContext) -> list[Weighed]:
         if ctx.forced:  # --classic keeps its groups classic at every mip
             return []
+        from bcfpipe.layout.oracle import ORACLE_MARGIN_DB
+
         halving = max(0.0, ctx.gain("1k") - ctx.gain("0.5k"))  # one halving of T_0
-        return [Weighed(c) for c in split_candidates(ctx.ts, ctx.classic, ctx.neural_errors(ctx.p0, 1), ctx.resolution,
-                                                     ctx.dims, ctx.match_bc, ctx.probe.resolutions[0], halving)]
+        out = []
+        for c in split_candidates(ctx.ts, ctx.classic, ctx.neural_errors(ctx.p0, 1), ctx.resolution,
+                                  ctx.dims, ctx.match_bc, ctx.probe.resolutions[0], halving):
+            # features smaller than the mips they serve are magnified there: held to the oracle
+            floor = ctx.oracle(c.resolutions[0]).mean(1) * 10 ** (-ORACLE_MARGIN_DB / 10)
+            c = replace(c, mse_per_mip=tuple(m if k < c.split else max(m, float(floor[k]))
+                                             for k, m in enumerate(c.mse_per_mip)))
+            if C.deficit(c, ctx.classic.bc, ctx.match_bc) <= 0:
+                out.append(Weighed(c))
+        return out
 
     def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
         return True
