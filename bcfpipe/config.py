@@ -254,7 +254,7 @@ MODEL_FORMAT = 17  # 5: the fused kernel by default and the re-tuned presets (is
 # format 4); 10: --layout auto weighs BC7 repacks of BC@R (classic BC7_UNORM textures); 11: --t0 pca, the
 # bc7 default: a fixed T_0 of principal components in any BC7 mode; 12: the all-channels BC7 repack keeps every
 # colour and normal whole at a texture's r, g(, b), so that a UsdUVTexture reads it (issue 50); 13: a layout's
-# probe and second model train no more steps than --layout neural at the profile asked (layout.fit.capped);
+# probe and second model train no more steps than --layout neural at the profile asked (layout.kinds.capped);
 # 14: --layout auto weighs T_0 widths (issue 52) and layout.json reports the BC7 quality set and disk bytes;
 # 15: addressing per axis, as USD's wrapS / wrapT say it (repeat, clamp, mirror; issue 57): the job's wrap
 # is an (S, T) pair, and mirror is trained as mirror

@@ -24,6 +24,7 @@ from common import machine  # noqa: E402
 
 def main() -> None:
     from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure
+    from bcfpipe.layout.kinds import CLASSIC
     from bcfpipe.texset.chain import Reference
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
@@ -36,7 +37,7 @@ def main() -> None:
     for name in a.sets.split(","):
         ts = load_texture_set([TextureSpec.parse(s) for s in SETS[name]])
         r = max(ts.width, ts.height)
-        work = ClassicWork(ts, r, Reference.of(ts), "repeat")
+        work = ClassicWork(ts, r, Reference.of(ts), "repeat", CLASSIC)
         t = time.perf_counter()
         est = estimated(work)
         t_est = time.perf_counter() - t

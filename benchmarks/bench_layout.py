@@ -95,7 +95,7 @@ def one_layout(ts, opts, r, classic, profile, lod_power=None) -> None:
     from bcfpipe.export.fit import fit_material, make_config
     from bcfpipe.layout import choose as C
     from bcfpipe.layout.classic import channel_errors, encode
-    from bcfpipe.layout.fit import subset
+    from bcfpipe.layout.kinds import subset
     from bcfpipe.texset.texture_set import build_mip_chain
 
     ref = build_mip_chain(ts.data)

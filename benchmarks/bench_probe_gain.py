@@ -52,7 +52,7 @@ def main() -> None:
     from bcfpipe.export.fit import FIGURES, PROBE, evaluate_exported, fit_material, make_config
     from bcfpipe.layout.fit import PROBE_FRACTION, predict_for
     from bcfpipe.layout.kinds import capped
-    from bcfpipe.layout.material import bc_resolution
+    from bcfpipe.layout.predict import bc_resolution
     from bcfpipe.texset.chain import Reference
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 

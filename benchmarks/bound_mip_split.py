@@ -17,7 +17,7 @@ construction. This script measures both parts from their own files:
 
 then prints the split layout's per-mip PSNR, all mips (MSE averaged over the mips >= 4 texels, as
 everywhere), its size against BC@R's, and its worst margin against BC@R (the floor is -0.5 dB).
-`--layout auto` weighs such splits itself (bcfpipe.layout.fit.split_candidates); this script
+`--layout auto` weighs such splits itself (bcfpipe.layout.kinds.split_candidates); this script
 measures any one split and feature size by hand.
 
   python benchmarks/bound_mip_split.py --set teapot --resolution 1024 --split 3 --t0 256 [--resolutions 128,128,128,64] [--hidden H] [--preset standard]

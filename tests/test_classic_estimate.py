@@ -12,6 +12,7 @@ from bcfpipe.config import TrainingOptions
 from bcfpipe.layout import classic as L
 from bcfpipe.layout import estimate as E
 from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure
+from bcfpipe.layout.kinds import CLASSIC
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.metrics import psnr_from_mse
 from bcfpipe.texset.texture_set import TextureSpec, build_mip_chain, load_texture_set
@@ -72,7 +73,7 @@ def test_a_sampled_estimate_is_within_a_tenth_of_a_db_per_mip(bricks):
 
 
 def test_measure_encodes_what_ships_once_and_replaces_the_estimate(bricks):
-    work = ClassicWork(bricks, 512, Reference.of(bricks), "repeat")
+    work = ClassicWork(bricks, 512, Reference.of(bricks), "repeat", CLASSIC)
     est = estimated(work)
     assert est.bc.basis == "estimated" and not est.measured and all(not g.encoded for g in est.groups)
     assert all(p.basis == "estimated" for p in est.packed)
@@ -161,3 +162,25 @@ def test_the_oracle_holds_predictions_at_the_mips_finer_than_t0(detail):
     assert (psnr_from_mse(float(e[0, 0])) < 25) == detail and (psnr_from_mse(float(e[0, 0])) > 40) == (not detail)
     held = cap(np.full_like(e, 1e-9), e)
     assert np.allclose(held[:2], e[:2] * 10 ** (-ORACLE_MARGIN_DB / 10)) and np.all(held[2:] == 1e-9)
+
+
+@pytest.mark.parametrize("detail", [False, True])
+def test_no_probe_when_the_oracle_rules_out_every_neural_candidate(detail, tmp_path):
+    """A 256² set at R = 256 with a 64² T_0 (tiny): with texel-scale detail, mips 0 and 1 magnified
+    from T_0 fall far below BC@R's floor whatever a model holds, so nothing neural is trained, not
+    even the probe; smooth, the probe trains."""
+    from bcfpipe.layout.fit import fit_layout
+    from bcfpipe.texset.texture_set import Channel, TextureSet
+
+    yy, xx = np.mgrid[0:256, 0:256] / 256
+    v = 0.5 + 0.3 * np.sin(6.28 * xx) * np.cos(6.28 * yy)
+    if detail:
+        v = v + 0.2 * np.random.default_rng(0).standard_normal(v.shape)
+    ts = TextureSet(np.clip(v, 0, 1)[..., None].astype(np.float32), (Channel("roughness", "r", "scalar", "r.png", 0),),
+                    256, 256)
+    opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
+    seen: list[str] = []
+    fit = fit_layout(ts, tmp_path / "work", opts, 256, log=seen.append)
+    assert (fit.probe is None) == detail and ("probe" in fit.costs) == (not detail)
+    assert any(s.startswith("no probe: no neural candidate") for s in seen) == detail
+    assert fit.decision.chosen.basis == "measured"

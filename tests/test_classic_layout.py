@@ -18,7 +18,8 @@ from bcfpipe.layout import kinds as K
 from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 from bcfpipe.layout.classic import channel_errors, encode, groups
 from bcfpipe.layout.export import export_layout
-from bcfpipe.layout.fit import LayoutFit, subset
+from bcfpipe.layout.kinds import subset
+from bcfpipe.layout.result import LayoutFit
 from bcfpipe.resources import SCHEMA_DIR
 from bcfpipe.texset.metrics import mse_per_channel
 from bcfpipe.texset.normals import unit

@@ -16,7 +16,7 @@ from bcfpipe.formats.bcn import ClassicFormat, decode_levels
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import Group, encode_bc7, groups, measure_repack, repacks
 from bcfpipe.layout.export import export_layout
-from bcfpipe.layout.fit import LayoutFit
+from bcfpipe.layout.result import LayoutFit
 from bcfpipe.layout.kinds import REPACK
 from bcfpipe.texset.metrics import mse_per_channel
 from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain

@@ -210,7 +210,7 @@ def test_a_chosen_split_is_exported_as_one_folder(split, tmp_path):
     """export_layout writes a LayoutFit whose choice is a split as export_split does."""
     from bcfpipe.layout import choose as C
     from bcfpipe.layout.export import export_layout
-    from bcfpipe.layout.fit import LayoutFit
+    from bcfpipe.layout.result import LayoutFit
     from bcfpipe.layout.kinds import BC_AT_R, SPLIT as MIP_SPLIT
 
     ts, ref, enc, neural, out, res = split

@@ -102,7 +102,7 @@ def _write_layers(bplan: BuildPlan, staging: Path, final_out: Path, descs: Mappi
                   entry_of: Mapping) -> tuple[str, str]:
     """The overrides layer (each neural material's override, the constant inputs, the classic
     wiring) and the root layer over it and the scene; (the scene relative to OUT, the root layer)."""
-    from bcfpipe.builder import usd_layer as usdout
+    import bcfpipe.builder.usd_layer as usdout
 
     overrides = [_override(mp_, descs[mp_.job], entry_of[mp_.job]) for mp_ in bplan.materials
                  if mp_.job is not None and mp_.job in entry_of]
@@ -121,7 +121,7 @@ def _write_layers(bplan: BuildPlan, staging: Path, final_out: Path, descs: Mappi
 def _override(mp_: MaterialPlan, desc: mf.MaterialFile, e):
     """A neural material's override (usd_layer.NeuralMaterialOverride): its feature textures, its
     record ``e`` in weights.bin, its decoder and the targets it drives."""
-    from bcfpipe.builder import usd_layer as usdout
+    import bcfpipe.builder.usd_layer as usdout
 
     folder = f"./{MATERIALS_DIR}/{mp_.job}"
     layers = desc.layers
@@ -154,7 +154,7 @@ def _override(mp_: MaterialPlan, desc: mf.MaterialFile, e):
 
 def _relative(path: str | None, final_out: Path) -> str | None:
     """A file path as the manifest records it: relative to OUT; a path inside a package as it is."""
-    from bcfpipe.builder import usd_layer as usdout
+    import bcfpipe.builder.usd_layer as usdout
 
     return usdout.relative_asset(path, final_out) if path and package_split(path) is None else path
 
@@ -261,7 +261,7 @@ def _classic_wiring(bplan: BuildPlan, descs: Mapping[str, mf.MaterialFile]) -> t
             and any(o.source in (mf.Source.CLASSIC, mf.Source.SPLIT) for o in descs[mp_.job].outputs)]
     if not todo:
         return [], None
-    from bcfpipe.builder import usd_classic
+    import bcfpipe.builder.usd_classic as usd_classic
 
     stage = usd_classic.open_source_stage(bplan.scene, bplan.variant_selections)
     out = []

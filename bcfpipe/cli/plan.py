@@ -109,7 +109,7 @@ def _say_job(say, j) -> None:
     say(f"[bold]{j.name}[/bold]  {dims_text(w, h)}, profile {prof}, {_outputs(j)} outputs, {read}, "
         f"content hash {j.content_hash[:16]}")
     from bcfpipe.layout.classic import MAX_REPACK_SIDE
-    from bcfpipe.layout.material import bc_resolution, uses_layout
+    from bcfpipe.layout.predict import bc_resolution, uses_layout
 
     pred = job_prediction(j)
     if uses_layout(j.options, [sem for sem, _, _ in j.specs]):

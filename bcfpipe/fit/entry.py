@@ -22,7 +22,8 @@ import numpy as np
 from bcfpipe.config import TrainingOptions
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
 from bcfpipe.formats.vocabulary import T0
-from bcfpipe.layout.material import fit_material_layout, uses_layout
+from bcfpipe.layout.material import fit_material_layout
+from bcfpipe.layout.predict import uses_layout
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
 

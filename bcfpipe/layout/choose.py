@@ -27,18 +27,25 @@ The all-classic layout (BC@R itself) always qualifies, so the result is never wo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Literal, Sequence
+from typing import Literal, Protocol, Sequence
 
 import numpy as np
 
 from bcfpipe.texset.metrics import psnr_from_mse
 
-if TYPE_CHECKING:
-    from bcfpipe.layout.kinds import Kind
 
 SLACK_DB = 0.5
 Basis = Literal["measured", "estimated", "predicted"]
 ALL_CLASSIC = "all classic (BC@R)"
+
+
+class CandidateKind(Protocol):
+    """What a candidate's kind is to the rule: a name and a label (`bcfpipe.layout.kinds.Kind`, which
+    also trains and exports it, is one)."""
+
+    name: str
+
+    def label(self, c: "Candidate") -> str: ...
 
 
 @dataclass(frozen=True)
@@ -57,7 +64,7 @@ class Candidate:
     repack: str = ""  # all classic, some of BC@R's groups merged into BC7 (`bcfpipe.layout.classic.Repack`)
     t0_layers: int = 1  # the neural part's T_0 width: layers of principal components (issue 52)
     disk_bytes: int | None = field(compare=False, default=None)  # its files zstd-compressed (measured ones only)
-    kind: "Kind | None" = field(repr=False, compare=False, default=None)  # what it is (`bcfpipe.layout.kinds`); not in to_json
+    kind: "CandidateKind | None" = field(repr=False, compare=False, default=None)  # what it is (`bcfpipe.layout.kinds`); not in to_json
 
     @property
     def label(self) -> str:

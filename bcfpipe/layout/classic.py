@@ -98,10 +98,30 @@ def groups(ts: TextureSet) -> tuple[Group, ...]:
     return tuple(out)
 
 
+def bc_levels(width: int, height: int, resolution: int) -> list[tuple[int, int]]:
+    """(width, height) of BC@R's levels: the set's box mip whose larger side is R (the set itself
+    when it is no larger), then every mip down to 1×1 (`classic.encode`)."""
+    side = max(width, height)
+    d = 0
+    while (side >> d) > resolution and (side >> d) > 1:
+        d += 1
+    w, h = max(1, width >> d), max(1, height >> d)
+    out = [(w, h)]
+    while (w, h) != (1, 1):
+        w, h = max(1, w // 2), max(1, h // 2)
+        out.append((w, h))
+    return out
+
+
+def named_groups(groups: Sequence[Group | EncodedGroup], semantics: Sequence[str]) -> tuple[str, ...]:
+    """The names of the groups that hold one of ``semantics`` (--classic): a packed group goes whole."""
+    wanted = set(semantics)
+    names = [getattr(g, "group", g).name for g in groups]
+    return tuple(n for n in names if wanted & set(n.split("+")))
+
+
 def planned(ts: TextureSet, group: Group, resolution: int) -> EncodedGroup:
     """``group`` at ``resolution``, not yet encoded: its sizes known, its blocks not (`bcfpipe.layout.estimate`)."""
-    from bcfpipe.layout.predict import bc_levels
-
     return EncodedGroup(group, [], [], planned=tuple(bc_levels(ts.width, ts.height, resolution)))
 
 

@@ -29,6 +29,16 @@ QUALITY_LABEL = "BC7 quality set"
 
 
 @dataclass(frozen=True)
+class ClassicKinds:
+    """The kinds of a classic fit's candidates (`bcfpipe.layout.kinds.CLASSIC`), given by the caller:
+    this module sits below the kinds, which read what it fits."""
+
+    bc: C.CandidateKind  # BC@R
+    repack: C.CandidateKind  # BC@R with groups repacked as BC7
+    quality: C.CandidateKind  # the BC7 quality set
+
+
+@dataclass(frozen=True)
 class ClassicFit:
     """BC@R and its repacks, each group estimated or encoded in full, with its candidates."""
 
@@ -43,6 +53,7 @@ class ClassicFit:
     rp_errors: dict[str, np.ndarray] = field(default_factory=dict)  # a repack's own groups' errors, by label
     estimate_seconds: float = 0.0
     sampled: float = 1.0  # the share of BC@R's texels its estimate encoded
+    kinds: ClassicKinds | None = None  # its candidates' (`ClassicWork.kinds`)
 
     @property
     def measured(self) -> bool:
@@ -58,6 +69,7 @@ class ClassicWork:
     resolution: int
     reference: Reference
     wrap: object
+    kinds: ClassicKinds  # what its candidates are (`bcfpipe.layout.kinds.CLASSIC`)
     log: Callable[[str], None] = lambda s: None
     seconds: float = 0.0
     progress: Callable | None = None  # hears each full encode as phase ``bc-encode``, with an ETA
@@ -91,7 +103,7 @@ def estimated(work: ClassicWork, with_repacks: bool = True) -> ClassicFit:
     groups = [planned(ts, g, r) for g in classic_groups(ts)]
     e_bc, frac = estimate_errors(ts, [g.group for g in groups], r, ref.mips, ref.masks, work.wrap, enc=work.enc)
     use = tuple(k for k, m in enumerate(ref.mips) if min(m.shape[:2]) >= 4) or tuple(range(len(ref.mips)))
-    cf = ClassicFit(groups, e_bc, None, use, sampled=frac)
+    cf = ClassicFit(groups, e_bc, None, use, sampled=frac, kinds=work.kinds)
     rp_errors, repacked = {}, {}
     found = list(repacks([g.group for g in groups])) if with_repacks and r <= MAX_REPACK_SIDE else []
     q = bc7_quality_set([g.group for g in groups]) if with_repacks and r <= MAX_REPACK_SIDE else None
@@ -107,10 +119,9 @@ def estimated(work: ClassicWork, with_repacks: bool = True) -> ClassicFit:
 
 def refresh(cf: ClassicFit) -> ClassicFit:
     """``cf``'s candidates made again from its groups and errors (after a group was encoded)."""
-    from bcfpipe.layout import kinds as K
-
+    K = cf.kinds
     names = [g.group.name for g in cf.groups]
-    bc = _candidate(names, sum(g.size_bytes for g in cf.groups), cf.e_bc, cf.measured, cf.use, K.BC_AT_R,
+    bc = _candidate(names, sum(g.size_bytes for g in cf.groups), cf.e_bc, cf.measured, cf.use, K.bc,
                     disk=sum(disk_bytes(g) for g in cf.groups) if cf.measured else None)
     packed, quality = [], None
     for label, (rp, enc) in cf.repacked.items():
@@ -122,13 +133,13 @@ def refresh(cf: ClassicFit) -> ClassicFit:
         size = sum(g.size_bytes for g in kept) + sum(g.size_bytes for g in enc)
         disk = sum(disk_bytes(g) for g in kept + enc) if done else None
         if label == QUALITY_LABEL:
-            quality = _candidate(names, size, e, done, cf.use, K.QUALITY, label, disk)
+            quality = _candidate(names, size, e, done, cf.use, K.quality, label, disk)
             continue
         kept_names = tuple(g.group.name for g in kept)
         packed.append(_candidate(kept_names + tuple(g.name for g in rp.groups), size, e, done, cf.use,
-                                 K.REPACK, label, disk))
+                                 K.repack, label, disk))
     if quality is None:
-        quality = replace(bc, kind=K.QUALITY)
+        quality = replace(bc, kind=K.quality)
     return replace(cf, bc=bc, packed=tuple(packed), quality=quality)
 
 

@@ -11,7 +11,7 @@ import os
 import shutil
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 from bcfpipe.export.writer import output_channels
 from bcfpipe.formats import dds, material as mf
@@ -20,10 +20,8 @@ from bcfpipe.formats.digest import sha256_file
 from bcfpipe.formats.vocabulary import Source
 from bcfpipe.formats.bcn import DXGI
 from bcfpipe.layout.classic import EncodedGroup, split_levels
+from bcfpipe.layout.result import LayoutFit
 from bcfpipe.texset.texture_set import TextureSet
-
-if TYPE_CHECKING:
-    from bcfpipe.layout.fit import LayoutFit
 
 
 def classic_texture(i: int, enc: EncodedGroup, reference_width: int) -> mf.ClassicTexture:

@@ -12,7 +12,10 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    from its exported files, per channel; it never ships. What the same model trained in full
    holds is predicted from it with the measured per-mip gain of a full training over the probe
    (`bcfpipe.train.rate.PROBE_GAINS_DB`). No probe, and no training, when not even the smallest
-   features fit within BC@R's bytes (`predict`): BC@R and its repacks are all that can ship.
+   features fit within BC@R's bytes (`predict`), or when no candidate with a neural part could
+   clear the floor even if it held all its T_0 can (`_ruled_out`: at the mips finer than T_0 the
+   oracle, the reference's T_0-sized mip magnified, holds every prediction): BC@R and its repacks
+   are then all that can ship.
 3. Candidates: every kind of `bcfpipe.layout.kinds.REGISTRY` generates its own from (1) and (2)
    (BC@R, its repacks, neural at a profile and T_0 width, mixed: classic groups + neural, mip
    splits), with ``estimated`` or ``predicted`` figures (`bcfpipe.layout.choose`). The rule picks
@@ -39,9 +42,9 @@ Splits are not weighed when ``--classic`` fixes groups.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -52,42 +55,19 @@ from bcfpipe.formats.sizes import neural_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
-from bcfpipe.layout.classic import EncodedGroup, Group, Repack
 from bcfpipe.layout.classic import groups as classic_groups
-from bcfpipe.layout.classic_fit import ClassicFit, ClassicWork, estimated, measure  # noqa: F401
-from bcfpipe.layout.kinds import capped, split_bytes, split_candidates, subset  # noqa: F401
+from bcfpipe.layout.classic import named_groups
+from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure
+from bcfpipe.layout.kinds import capped
+from bcfpipe.layout.oracle import PerfectProbe
 from bcfpipe.layout.predict import LayoutPrediction, Query, predict, widths_of
+from bcfpipe.layout.result import LayoutFit
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
 
 PROBE_FRACTION = 0.15  # of the steps --layout neural trains: the probe's share of one training
 FLOOR_GUARD_DB = 0.25  # a choice held to BC@R's floor by less than this on BC@R's estimate measures BC@R
-
-
-@dataclass
-class LayoutFit:
-    """What `fit_layout` decided and trained."""
-
-    decision: C.Decision  # among measured layouts
-    first: C.Decision  # among all candidates, some predicted: what was trained next
-    classic: list[EncodedGroup]  # every group of BC@R
-    neural: MaterialResult | None  # the chosen layout's model (None: all classic)
-    neural_channels: tuple[int, ...]  # the texture set's channels it decodes
-    probe: MaterialResult | None  # None when --classic fixed the layout
-    train_seconds: float  # training of the probe and of the model trained, if any
-    seconds: float  # everything: BC@R, trainings, exports and measuring
-    repacked: dict[str, tuple[Repack, list[EncodedGroup]]] = field(default_factory=dict)  # by Repack.label
-    encode_seconds: float = 0.0  # BC@R's and its repacks' estimates, encodes and measuring
-    parts: Any = None  # what the chosen candidate's kind exports beside the model (`kinds.Weighed.parts`)
-    costs: dict[str, float] = field(default_factory=dict)  # seconds by part: estimate, probe, train, classic_encode
-
-
-def named_groups(groups: Sequence[Group | EncodedGroup], semantics: Sequence[str]) -> tuple[str, ...]:
-    """The names of the groups that hold one of ``semantics`` (--classic): a packed group goes whole."""
-    wanted = set(semantics)
-    names = [getattr(g, "group", g).name for g in groups]
-    return tuple(n for n in names if wanted & set(n.split("+")))
 
 
 def predict_for(ts: TextureSet, options: TrainingOptions, cfg, asked: str, resolution: int) -> LayoutPrediction:
@@ -101,7 +81,7 @@ def predict_for(ts: TextureSet, options: TrainingOptions, cfg, asked: str, resol
 
 
 def _work(ctx: K.FitContext) -> ClassicWork:
-    return ClassicWork(ctx.ts, ctx.resolution, ctx.reference, ctx.wrap, ctx.log, progress=ctx.progress,
+    return ClassicWork(ctx.ts, ctx.resolution, ctx.reference, ctx.wrap, K.CLASSIC, ctx.log, progress=ctx.progress,
                        enc=ENCODE_PRESETS.get(ctx.options.preset, DEFAULT_ENCODE))
 
 
@@ -119,19 +99,36 @@ def _train_probe(ctx: K.FitContext) -> MaterialResult:
                         measure=PROBE, reference=ctx.reference)[0]
 
 
-def _probed(ctx: K.FitContext, cfg, pred: LayoutPrediction) -> K.FitContext:
-    """``ctx`` with the probe trained at ``pred``'s p0 and the profiles weighed."""
+def _sized(ctx: K.FitContext, cfg, pred: LayoutPrediction) -> K.FitContext:
+    """``ctx`` with ``pred``'s p0, the profiles and T_0 widths weighed, and their bytes."""
     profiles, widths = tuple(pred.profiles), tuple(pred.t0_layers)
     dims = (N_LAYERS * cfg.model.layer_channels, cfg.model.hidden)
     sizes = {(p, w): neural_bytes(widened(PROFILES[p] if p in PROFILES else cfg.model.resolutions, w),
                                   widened_inputs(dims[0], w), dims[1], ctx.ts.num_channels)
              for p in profiles for w in widths}
-    ctx = replace(ctx, p0=pred.probe, w0=pred.probe_t0_layers, profiles=profiles, widths=widths, dims=dims,
-                  own={p: (p if p in PROFILES else ctx.options.profile) for p in profiles})  # auto-N trains as "auto"
+    return replace(ctx, p0=pred.probe, w0=pred.probe_t0_layers, profiles=profiles, widths=widths, dims=dims,
+                   sizes=sizes, own={p: (p if p in PROFILES else ctx.options.profile) for p in profiles})  # auto-N trains as "auto"
+
+
+def _ruled_out(ctx: K.FitContext) -> list[K.Weighed] | None:
+    """When no candidate with a neural part can clear the floor even if its model held all its T_0
+    can (`oracle.PerfectProbe`), the probe would only confirm it and is not trained: then what the
+    kinds weigh that is measured already; else None."""
+    res = make_config(ctx.ts, replace(ctx.options, profile=ctx.own[ctx.p0], t0_layers=ctx.w0), ctx.wrap)[1]
+    perfect = replace(ctx, probe=PerfectProbe(np.zeros_like(ctx.classic.e_bc), tuple(res.model.resolutions)))
+    weighed = [w for kind in K.REGISTRY for w in kind.predict(perfect)]
+    if any(C.admissible(w.candidate, ctx.classic.bc, ctx.match_bc) is None
+           for w in weighed if w.candidate.profile is not None):
+        return None
+    return [w for w in weighed if w.candidate.basis == "measured"]
+
+
+def _probed(ctx: K.FitContext) -> K.FitContext:
+    """``ctx`` with the probe trained at its p0."""
     t = time.perf_counter()
     probe = _train_probe(ctx)
     ctx.costs["probe"] = time.perf_counter() - t
-    return replace(ctx, probe=probe, sizes=sizes)
+    return replace(ctx, probe=probe)
 
 
 def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
@@ -162,7 +159,12 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
         log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
         return _settle(ctx, work, [], None, start)
     # no training here takes more steps than --layout neural's (at the profile asked)
-    ctx = _probed(replace(ctx, cap=cfg.preset), cfg, pred)
+    ctx = _sized(replace(ctx, cap=cfg.preset), cfg, pred)
+    if (measured := _ruled_out(ctx)) is not None:
+        log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
+            "reference's T_0-sized mip magnified (the oracle) holds it")
+        return _settle(ctx, work, measured, None, start)
+    ctx = _probed(ctx)
     weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
     cands = [w.candidate for w in weighed]
     first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)

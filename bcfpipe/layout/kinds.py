@@ -14,7 +14,7 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -23,14 +23,12 @@ from bcfpipe.export.fit import FIGURES, MaterialResult, fit_material, make_confi
 from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import EncodedGroup, disk_bytes, split_levels
-from bcfpipe.layout.classic_fit import ClassicFit
+from bcfpipe.layout.classic_fit import ClassicFit, ClassicKinds
 from bcfpipe.layout.export import export_groups, export_split
+from bcfpipe.layout.result import LayoutFit
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
-
-if TYPE_CHECKING:
-    from bcfpipe.layout.fit import LayoutFit
 
 
 @dataclass(frozen=True)
@@ -170,7 +168,7 @@ class Kind(ABC):
         """Train and measure ``c`` (only when `trains`)."""
         raise NotImplementedError(f"{type(self).__name__} trains nothing: its candidates are measured")
 
-    def export(self, fit: "LayoutFit", c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
+    def export(self, fit: LayoutFit, c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
         """Write ``c``, ``fit``'s choice, to ``out``: by default the groups ``c.classic`` names and the
         chosen model, if any."""
         return export_groups(fit, [g for g in fit.classic if g.group.name in c.classic], ts, out, wrap)
@@ -213,7 +211,7 @@ class BcRepack(Kind):
     def predict(self, ctx: FitContext) -> list[Weighed]:
         return [Weighed(c) for c in ctx.classic.packed if set(ctx.forced) <= set(c.classic)]
 
-    def export(self, fit: "LayoutFit", c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
+    def export(self, fit: LayoutFit, c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
         """BC@R's groups that were not merged, then the BC7 textures that replace the rest."""
         rp, enc = fit.repacked[c.repack]
         return export_groups(fit, [g for g in fit.classic if g.group.name not in rp.replaces] + list(enc),
@@ -321,13 +319,14 @@ class MipSplit(Kind):
         ctx.log(f"training the features of a mip split for: {c.label} (predicted {c.psnr:.2f} dB over all mips)")
         return train_split(ctx, c)
 
-    def export(self, fit: "LayoutFit", c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
+    def export(self, fit: LayoutFit, c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
         resolution = max(max(g.levels[0][1], g.levels[0][2]) for g in fit.classic)
         return export_split(fit.classic, fit.neural.out_dir, ts, out, c.split, resolution)
 
 
 BC_AT_R, REPACK, NEURAL, MIXED, SPLIT, QUALITY = BcAtR(), BcRepack(), NeuralAt(), Mixed(), MipSplit(), BcQuality()
 REGISTRY: tuple[Kind, ...] = (BC_AT_R, REPACK, NEURAL, MIXED, SPLIT)
+CLASSIC = ClassicKinds(BC_AT_R, REPACK, QUALITY)  # what `classic_fit` makes its candidates of
 
 
 def subset(ts: TextureSet, keep: Sequence[int]) -> TextureSet:

@@ -8,27 +8,16 @@ from pathlib import Path
 import numpy as np
 from typing import Callable
 
-from bcfpipe.config import PROFILES, TrainingOptions
-from bcfpipe.formats.vocabulary import Layout
+from bcfpipe.config import TrainingOptions
 from bcfpipe.export.fit import MaterialResult, evaluate_exported, exported_size
 from bcfpipe.layout.export import decision_json, export_layout, write_decision
 from bcfpipe.layout.fit import fit_layout
+from bcfpipe.layout.predict import bc_resolution
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
 
 WORK = ".layout-work"  # inside the output folder while the probe and the chosen model train
-
-
-def uses_layout(options, semantics) -> bool:
-    """Whether a material is fitted here rather than trained all neural: ``--layout auto``, or
-    ``--classic`` naming one of its ``semantics`` (``options``: TrainingOptions or a job's Options)."""
-    return options.layout == Layout.AUTO or bool(set(options.classic or ()) & set(semantics))
-
-
-def bc_resolution(side: int, profile: str) -> int:
-    """R: the T_0 of the profile asked for (1k -> 1024), or the set's larger ``side`` for auto."""
-    return PROFILES[profile][0] if profile in PROFILES else side
 
 
 def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, wrap: str,

@@ -10,6 +10,7 @@ measured 32.4 dB where the profile step predicted 39.6), or a smaller profile th
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -20,6 +21,16 @@ from bcfpipe.texset.metrics import mse_per_channel
 from bcfpipe.texset.texture_set import Channel
 
 ORACLE_MARGIN_DB = 1.0
+
+
+@dataclass(frozen=True)
+class PerfectProbe:
+    """A probe that holds all a T_0 of its ``resolutions`` can: no error at all, which every
+    prediction then holds to the oracle at the mips finer than T_0. Weighed in the probe's place, it
+    tells which candidates no training can bring within the floor (`bcfpipe.layout.fit`)."""
+
+    mse_per_channel: np.ndarray  # (mips, channels) zeros
+    resolutions: tuple[int, ...]
 
 
 def magnified_errors(reference: Reference, t0: int, channels: Sequence[Channel], wrap) -> np.ndarray:

@@ -18,6 +18,7 @@ from typing import Sequence
 from bcfpipe.config import PROFILES
 from bcfpipe.formats.sizes import feature_bytes, neural_bytes, texture_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
+from bcfpipe.layout.classic import bc_levels, named_groups
 
 
 def candidate_profiles(asked: str, device: str) -> list[str]:
@@ -32,19 +33,15 @@ def candidate_profiles(asked: str, device: str) -> list[str]:
     return sorted((p for p in pool if PROFILES[p][0] <= top), key=lambda p: -PROFILES[p][0]) or [asked]
 
 
-def bc_levels(width: int, height: int, resolution: int) -> list[tuple[int, int]]:
-    """(width, height) of BC@R's levels: the set's box mip whose larger side is R (the set itself
-    when it is no larger), then every mip down to 1×1 (`classic.encode`)."""
-    side = max(width, height)
-    d = 0
-    while (side >> d) > resolution and (side >> d) > 1:
-        d += 1
-    w, h = max(1, width >> d), max(1, height >> d)
-    out = [(w, h)]
-    while (w, h) != (1, 1):
-        w, h = max(1, w // 2), max(1, h // 2)
-        out.append((w, h))
-    return out
+def uses_layout(options, semantics) -> bool:
+    """Whether a material is fitted here rather than trained all neural: ``--layout auto``, or
+    ``--classic`` naming one of its ``semantics`` (``options``: TrainingOptions or a job's Options)."""
+    return options.layout == Layout.AUTO or bool(set(options.classic or ()) & set(semantics))
+
+
+def bc_resolution(side: int, profile: str) -> int:
+    """R: the T_0 of the profile asked for (1k -> 1024), or the set's larger ``side`` for auto."""
+    return PROFILES[profile][0] if profile in PROFILES else side
 
 
 @dataclass(frozen=True)
@@ -214,7 +211,6 @@ def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[s
     from bcfpipe.config import LAYER_CHANNELS_OF, N_LAYERS, resolve_profile
     from bcfpipe.formats.vocabulary import FeatureFormat
     from bcfpipe.layout.classic import groups as classic_groups
-    from bcfpipe.layout.material import bc_resolution, uses_layout
 
     if options.target_psnr is not None or not width:
         return None
@@ -225,7 +221,6 @@ def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[s
     n = sum(len(ch) for _, _, ch in specs)
     device = options.device or "cpu"
     hdr_colours = [p for s, p, _ in specs if p in float_files]
-    from bcfpipe.layout.fit import named_groups
 
     out = []
     for hdr in ((), tuple(hdr_colours)) if hdr_colours else ((),):

@@ -1,0 +1,28 @@
+"""What a layout fit decided and trained (`bcfpipe.layout.fit.fit_layout`'s result), read by the
+kinds that export it and by the material's measure; below them all, so that none imports the fit."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from bcfpipe.export.fit import MaterialResult
+from bcfpipe.layout import choose as C
+from bcfpipe.layout.classic import EncodedGroup, Repack
+
+
+@dataclass
+class LayoutFit:
+    """What `fit_layout` decided and trained."""
+
+    decision: C.Decision  # among measured layouts
+    first: C.Decision  # among all candidates, some predicted: what was trained next
+    classic: list[EncodedGroup]  # every group of BC@R
+    neural: MaterialResult | None  # the chosen layout's model (None: all classic)
+    neural_channels: tuple[int, ...]  # the texture set's channels it decodes
+    probe: MaterialResult | None  # None when --classic fixed the layout
+    train_seconds: float  # training of the probe and of the model trained, if any
+    seconds: float  # everything: BC@R, trainings, exports and measuring
+    repacked: dict[str, tuple[Repack, list[EncodedGroup]]] = field(default_factory=dict)  # by Repack.label
+    encode_seconds: float = 0.0  # BC@R's and its repacks' estimates, encodes and measuring
+    parts: Any = None  # what the chosen candidate's kind exports beside the model (`kinds.Weighed.parts`)
+    costs: dict[str, float] = field(default_factory=dict)  # seconds by part: estimate, probe, train, classic_encode
