@@ -7,7 +7,10 @@ estimated as `bcfpipe.layout.classic_fit.estimated` does it (a jittered sample o
 and presets. Prints, per candidate, the all-channel PSNR per mip of both and their largest
 difference, and the seconds of each.
 
-  python benchmarks/bench_classic_estimate.py [--sets teapot,brick,wood,bottle] [--json out.json]
+  python benchmarks/bench_classic_estimate.py [--sets teapot,brick,wood,bottle] [--quality standard]
+      [--json out.json]
+
+``--quality`` picks the encoder presets (`config.ENCODE_PRESETS`: quicktex BC1 at level 13 at draft).
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ from common import machine  # noqa: E402
 
 
 def main() -> None:
+    from bcfpipe.config import ENCODE_PRESETS
     from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure
     from bcfpipe.layout.kinds import CLASSIC
     from bcfpipe.texset.chain import Reference
@@ -30,14 +34,16 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sets", default="teapot,brick,wood,bottle")
+    ap.add_argument("--quality", default="standard")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
-    print(f"machine: {machine()}", flush=True)
+    enc = ENCODE_PRESETS[a.quality]
+    print(f"machine: {machine()}; encoders of --quality {a.quality}: {enc}", flush=True)
     rows = []
     for name in a.sets.split(","):
         ts = load_texture_set([TextureSpec.parse(s) for s in SETS[name]])
         r = max(ts.width, ts.height)
-        work = ClassicWork(ts, r, Reference.of(ts), "repeat", CLASSIC)
+        work = ClassicWork(ts, r, Reference.of(ts), "repeat", CLASSIC, enc=enc)
         t = time.perf_counter()
         est = estimated(work)
         t_est = time.perf_counter() - t
