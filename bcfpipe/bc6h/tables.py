@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bcfpipe import bptc
+
 __all__ = [
     "PARTITIONS2",
     "ANCHOR2",
@@ -24,48 +26,17 @@ __all__ = [
 ]
 
 
-def _partitions2() -> np.ndarray:
-    """D3D11 BC6H format, 'Partition set for 2 regions' (the 32 two-region shapes)."""
-    rows = [
-        "0011 0011 0011 0011", "0001 0001 0001 0001", "0111 0111 0111 0111",
-        "0001 0011 0011 0111", "0000 0001 0001 0011", "0011 0111 0111 1111",
-        "0001 0011 0111 1111", "0000 0001 0011 0111", "0000 0000 0001 0011",
-        "0011 0111 1111 1111", "0000 0001 0111 1111", "0000 0000 0001 0111",
-        "0001 0111 1111 1111", "0000 0000 1111 1111", "0000 1111 1111 1111",
-        "0000 0000 0000 1111", "0000 1000 1110 1111", "0111 0001 0000 0000",
-        "0000 0000 1000 1110", "0111 0011 0001 0000", "0011 0001 0000 0000",
-        "0000 1000 1100 1110", "0000 0000 1000 1100", "0111 0011 0011 0001",
-        "0011 0001 0001 0000", "0000 1000 1000 1100", "0110 0110 0110 0110",
-        "0011 0110 0110 1100", "0001 0111 1110 1000", "0000 1111 1111 0000",
-        "0111 0001 1000 1110", "0011 1001 1001 1100",
-    ]
-    out = np.array([[int(c) for c in r.replace(" ", "")] for r in rows], dtype=np.uint8)
-    assert out.shape == (32, 16)
-    return out
-
-
-#: Subset id (0/1) of each texel for the 32 BC6H two-region shapes, shape (32, 16).
-PARTITIONS2: np.ndarray = _partitions2()
-PARTITIONS2.setflags(write=False)
+#: Subset id (0/1) of each texel for the 32 BC6H two-region shapes, shape (32, 16): D3D11 BC6H
+#: format, 'Partition set for 2 regions', the first 32 of BPTC's (`bcfpipe.bptc`).
+PARTITIONS2: np.ndarray = bptc.PARTITIONS2[:32]
 
 #: Anchor ("fix-up") texel of subset 1 per shape; subset 0's anchor is texel 0.
 #: D3D11 BC6H/BC7 format, 'anchor index' table for two-subset shapes.
-ANCHOR2: np.ndarray = np.array(
-    [15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15,
-     15, 2, 8, 2, 2, 8, 8, 15, 2, 8, 2, 2, 8, 8, 2, 2],
-    dtype=np.uint8,
-)
-ANCHOR2.setflags(write=False)
+ANCHOR2: np.ndarray = bptc.ANCHOR2[:32]
 
-#: Interpolation weights (out of 64) for 3-bit indices; D3D11 BC6H format, 'aWeight3'.
-WEIGHTS3: np.ndarray = np.array([0, 9, 18, 27, 37, 46, 55, 64], dtype=np.int32)
-WEIGHTS3.setflags(write=False)
-
-#: Interpolation weights (out of 64) for 4-bit indices; D3D11 BC6H format, 'aWeight4'.
-WEIGHTS4: np.ndarray = np.array(
-    [0, 4, 9, 13, 17, 21, 26, 30, 34, 38, 43, 47, 51, 55, 60, 64], dtype=np.int32
-)
-WEIGHTS4.setflags(write=False)
+#: Interpolation weights (out of 64) for 3- and 4-bit indices; D3D11 BC6H format, 'aWeight3', 'aWeight4'.
+WEIGHTS3: np.ndarray = bptc.WEIGHTS[3]
+WEIGHTS4: np.ndarray = bptc.WEIGHTS[4]
 
 
 @dataclass(frozen=True)

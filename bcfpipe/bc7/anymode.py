@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .partitions import ANCHOR2, ANCHOR3, PARTITIONS2, PARTITIONS3
+from bcfpipe.bptc import ANCHOR2, ANCHOR3, PARTITIONS2, PARTITIONS3, WEIGHTS
 
 __all__ = ["MODES", "block_modes", "decode_to_u8"]
 
@@ -54,12 +54,6 @@ MODES: tuple[ModeSpec, ...] = (
     ModeSpec(1, 0, 0, 0, 7, 7, 1, 0, 4, 0),
     ModeSpec(2, 6, 0, 0, 5, 5, 1, 0, 2, 0),
 )
-#: Interpolation weights in 64ths for 2-, 3- and 4-bit indices (Khronos "aWeight2/3/4").
-WEIGHTS = {
-    2: np.array([0, 21, 43, 64], np.int32),
-    3: np.array([0, 9, 18, 27, 37, 46, 55, 64], np.int32),
-    4: np.array([0, 4, 9, 13, 17, 21, 26, 30, 34, 38, 43, 47, 51, 55, 60, 64], np.int32),
-}
 
 
 def block_modes(blocks: np.ndarray) -> np.ndarray:

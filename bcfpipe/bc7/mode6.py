@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from bcfpipe.bptc import WEIGHTS
+
 MODE_BITS = 0b1000000
 #: The mode's name in material.json (like bcfpipe.bc6h.mode10.DESCRIPTION).
 DESCRIPTION = "BC7 mode 6 (one subset, RGBA, 7-bit endpoints + p-bit, 4-bit indices)"
 #: BC7 4-bit interpolation weights in 64ths (Khronos Data Format, BC7 "aWeight4"); the same table
 #: as BC6H's 4-bit weights.
-WEIGHTS4 = np.array([0, 4, 9, 13, 17, 21, 26, 30, 34, 38, 43, 47, 51, 55, 60, 64], np.int32)
+WEIGHTS4 = WEIGHTS[4]  # 4-bit indices' weights in 64ths (`bcfpipe.bptc`)
 
 
 def _words(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

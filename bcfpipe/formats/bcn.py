@@ -1,7 +1,8 @@
 """The classic BC formats a layout ships beside the feature textures (issue 31): BC1, BC4 and BC5
 as BC@R has them, BC6H (UF16) for an HDR colour group, and BC7 for groups repacked at equal bytes;
-their DXGI codes, block sizes, and a decoder (quicktex for BC1/BC4/BC5, texture2ddecoder for BC7,
-bcfpipe.bc6h for BC6H; `bcfpipe verify` checks them against OpenImageIO). BC1/BC4/BC5/BC7 texels
+their DXGI codes, block sizes, and bcfpipe's own decoder of each (`bcfpipe.formats.s3tc` for
+BC1/BC4/BC5, bcfpipe.bc7 and bcfpipe.bc6h; quicktex and texture2ddecoder are the tests' oracles,
+and `bcfpipe verify` checks what ships against OpenImageIO). BC1/BC4/BC5/BC7 texels
 are UNORM in [0, 1], BC1 in four-colour mode as bcfpipe encodes it; BC6H texels are unsigned half
 floats, the source's linear values as they are (what a UsdUVTexture reads from a float texture).
 """
@@ -11,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.formats import s3tc
 from bcfpipe.formats.vocabulary import StrEnum
 
 
@@ -33,35 +35,20 @@ BLOCK_BYTES = {ClassicFormat.BC1: 8, ClassicFormat.BC4: 8, ClassicFormat.BC5: 16
 
 
 def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, int]]) -> list[np.ndarray]:
-    """Blocks -> stored texels, (h, w, channels) float32 per level: UNORM in [0, 1] through
-    quicktex's decoders (BC7: texture2ddecoder's), BC6H's half floats through bcfpipe.bc6h's."""
-    if fmt == ClassicFormat.BC7:
-        return [_decode_bc7(blocks, w, h) for blocks, w, h in levels]
+    """Blocks -> stored texels, (h, w, channels) float32 per level: UNORM in [0, 1] through bcfpipe's
+    own decoders (`bcfpipe.formats.s3tc`, `bcfpipe.bc7`), BC6H's half floats through bcfpipe.bc6h's."""
     if fmt == ClassicFormat.BC6H:
         from bcfpipe.bc6h import decode
 
         return [decode(blocks, w, h, signed=False).astype(np.float32) for blocks, w, h in levels]
-    import quicktex
-    from quicktex.s3tc.bc1 import BC1Decoder
-    from quicktex.s3tc.bc4 import BC4Decoder
-    from quicktex.s3tc.bc5 import BC5Decoder
+    if fmt == ClassicFormat.BC7:
+        from bcfpipe.bc7.decode import decode as bc7_decode
 
-    dec, cls, n = {ClassicFormat.BC1: (BC1Decoder(), quicktex.s3tc.bc1.BC1Texture, 3),
-                   ClassicFormat.BC4: (BC4Decoder(0), quicktex.s3tc.bc4.BC4Texture, 1),
-                   ClassicFormat.BC5: (BC5Decoder(0, 1), quicktex.s3tc.bc5.BC5Texture, 2)}[fmt]
+        return [bc7_decode(blocks, w, h) for blocks, w, h in levels]
+    texels = {ClassicFormat.BC1: s3tc.bc1_texels, ClassicFormat.BC4: s3tc.bc4_texels,
+              ClassicFormat.BC5: s3tc.bc5_texels}[fmt]
     out = []
     for blocks, w, h in levels:
-        pw, ph = (w + 3) // 4 * 4, (h + 3) // 4 * 4
-        tex = cls.from_bytes(np.ascontiguousarray(blocks).tobytes(), pw, ph)
-        px = np.frombuffer(dec.decode(tex).tobytes(), np.uint8).reshape(ph, pw, 4)
-        out.append(px[:h, :w, :n].astype(np.float32) / 255.0)
+        img = s3tc.to_image(texels(blocks), w, h)
+        out.append((img if img.ndim == 3 else img[..., None]).astype(np.float32) / 255.0)
     return out
-
-
-def _decode_bc7(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
-    import texture2ddecoder
-
-    pw, ph = (width + 3) // 4 * 4, (height + 3) // 4 * 4
-    px = np.frombuffer(texture2ddecoder.decode_bc7(np.ascontiguousarray(blocks).tobytes(), pw, ph),
-                       np.uint8).reshape(ph, pw, 4)
-    return px[:height, :width, [2, 1, 0, 3]].astype(np.float32) / 255.0  # BGRA -> RGBA

@@ -8,7 +8,9 @@ container headers).
 * BC6H (UF16, for a colour group beyond 1 whose source is float): ISPC's encoder (`BC6H_PROFILE`),
   decoded by bcfpipe.bc6h; it stores the source's linear values as half floats (an HDR set's
   normalised values times its value_scale), not [0, 1]. 16 bytes / block.
-* BC1 / BC4 / BC5: quicktex (``BC1Encoder(18)``, its slowest and best preset, four-colour mode; a
+* BC1 / BC4 / BC5: encoded by quicktex, decoded by bcfpipe's own decoders (`bcfpipe.formats.s3tc`,
+  as every BC format bcfpipe ships; quicktex's and texture2ddecoder's are the tests' oracles)
+  (``BC1Encoder(18)``, its slowest and best preset, four-colour mode; a
   layout's encodes take the quality preset's level, `config.ENCODE_PRESETS`;
   ``BC4Encoder``, ``BC5Encoder``). Levels whose sides are not multiples of 4 (including 2x2, 1x1) are padded to
   whole 4x4 blocks by edge replication and cropped after decoding. BC1 = BC4 = 8 bytes / block,
@@ -95,14 +97,16 @@ def _cached_levels(tag: str, mips: Sequence[np.ndarray], texels=None) -> tuple[o
     return cache, key, cache.get(key, len(mips))
 
 
-def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cls, tag: str, channels: int,
-                        block_bytes: int, blocks: list | None = None) -> tuple[list[np.ndarray], int]:
-    """Encode and decode each mip; with ``blocks`` also append each level's (block bytes as an
+def _quicktex_roundtrip(mips: Sequence[np.ndarray], fmt, tag: str, channels: int, block_bytes: int,
+                        blocks: list | None = None) -> tuple[list[np.ndarray], int]:
+    """Encode each mip with quicktex (the encoder and settings ``tag`` names) and decode it as ``fmt``
+    by bcfpipe's own decoder (`bcfpipe.formats.bcn.decode_levels`); with ``blocks`` also append each level's (block bytes as an
     (n, block_bytes) uint8 array, width, height), ready for a GPU upload. Inside a build with a
     cache (bcfpipe.texset.blocks), blocks already encoded from the same texels by the same encoder
     (``tag`` names it and its settings) are read back instead of encoded again."""
     import quicktex
 
+    from bcfpipe.formats.bcn import decode_levels
     from bcfpipe.texset.parallel import quicktex_level
 
     cache, key, levels = _cached_levels(f"{tag}|quicktex {quicktex.__version__}|{block_bytes}", mips)
@@ -111,7 +115,6 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cl
     for k, m in enumerate(mips):
         h, w = m.shape[:2]
         px = _pad4(_to_u8_rgba(np.asarray(m)))
-        ph, pw = px.shape[:2]
         if levels is None:
             b = quicktex_level(tag, px, block_bytes)  # in bands over the job's cores: the same bytes
             encoded.append(b)
@@ -120,9 +123,7 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cl
         size += b.nbytes
         if blocks is not None:
             blocks.append((b, w, h))
-        out = np.frombuffer(decoder.decode(texture_cls.from_bytes(b.tobytes(), pw, ph)).tobytes(),
-                            np.uint8).reshape(ph, pw, 4)
-        decoded.append(out[:h, :w, :channels].astype(np.float32) / 255.0)
+        decoded.append(decode_levels(fmt, [(b, w, h)])[0][..., :channels])
     if cache is not None and levels is None:
         cache.put(key, encoded)
     return decoded, size
@@ -131,11 +132,10 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], encoder, decoder, texture_cl
 def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL,
              blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC1-encode and decode every (H, W, 3) mip; returns (decoded mips, bytes)."""
-    from quicktex.s3tc.bc1 import BC1Decoder, BC1Encoder, BC1Texture
+    from bcfpipe.formats.bcn import ClassicFormat
 
     _check_mips(mips_rgb, 3, "bc1")
-    return _quicktex_roundtrip(mips_rgb, BC1Encoder(level), BC1Decoder(), BC1Texture, f"bc1 level {level}", 3, 8,
-                               blocks)
+    return _quicktex_roundtrip(mips_rgb, ClassicFormat.BC1, f"bc1 level {level}", 3, 8, blocks)
 
 
 # ISPC's ``alpha_basic`` profile (ispc_texcomp.h, GetProfile_alpha_basic): every mode group (0/2,
@@ -164,7 +164,7 @@ def _ispc_bc7_levels(mips_rgba: Sequence[np.ndarray]) -> list[np.ndarray]:
 
 
 def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
-    """BC7-encode (ISPC, `BC7_SETTINGS`) and decode (texture2ddecoder) every (H, W, 4)
+    """BC7-encode (ISPC, `BC7_SETTINGS`) and decode (bcfpipe.bc7) every (H, W, 4)
     mip; returns (decoded mips, bytes). With ``blocks``, each level's (blocks, w, h) is appended. In
     a build with a cache the blocks are kept as BC1/BC4/BC5's are."""
     import ispc_texcomp as ispc
@@ -249,11 +249,10 @@ def bc6h_mips(mips_rgb: Sequence[np.ndarray], blocks: list | None = None) -> tup
 
 def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC5-encode and decode every (H, W, 2) mip of [0, 1] data; returns (decoded mips, bytes)."""
-    from quicktex.s3tc.bc5 import BC5Decoder, BC5Encoder, BC5Texture
+    from bcfpipe.formats.bcn import ClassicFormat
 
     _check_mips(mips_xy, 2, "bc5")
-    return _quicktex_roundtrip(mips_xy, BC5Encoder(0, 1), BC5Decoder(0, 1), BC5Texture, "bc5 channels 0 1", 2, 16,
-                               blocks)
+    return _quicktex_roundtrip(mips_xy, ClassicFormat.BC5, "bc5 channels 0 1", 2, 16, blocks)
 
 
 def slope_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None,
@@ -271,10 +270,10 @@ def slope_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None,
 
 def bc4_mips(mips_x: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC4-encode and decode every (H, W, 1) mip of [0, 1] data; returns (decoded mips, bytes)."""
-    from quicktex.s3tc.bc4 import BC4Decoder, BC4Encoder, BC4Texture
+    from bcfpipe.formats.bcn import ClassicFormat
 
     _check_mips(mips_x, 1, "bc4")
-    return _quicktex_roundtrip(mips_x, BC4Encoder(0), BC4Decoder(0), BC4Texture, "bc4 channel 0", 1, 8, blocks)
+    return _quicktex_roundtrip(mips_x, ClassicFormat.BC4, "bc4 channel 0", 1, 8, blocks)
 
 
 def astcenc_path() -> str | None:

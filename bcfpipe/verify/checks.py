@@ -11,10 +11,10 @@ For every material (one exported folder, or every material of a build) the check
 ``openimageio`` OpenImageIO reads every mip of every DDS to the same fp16 bits as bcfpipe.bc6h.decode.
 ``classic``    a layout's classic textures (--layout auto): each DDS agrees with material.json (format,
                size, full mip chain, or in a mip split the levels that serve s < split); texture2ddecoder
-               decodes every BC1/BC4/BC5 mip to the same 8-bit values as bcfpipe (quicktex), and
-               OpenImageIO to within 2 (BC1) or 1 (BC4/BC5) 8-bit steps (its palettes round
-               differently); a BC7 texture (a repacked group) OpenImageIO decodes bit for bit as
-               bcfpipe (texture2ddecoder) does; a BC6H_UF16 one (an HDR colour group) OpenImageIO
+               decodes every BC1/BC4/BC5 mip to the same 8-bit values as bcfpipe's own decoder
+               (bcfpipe.formats.s3tc), and OpenImageIO to within 2 (BC1) or 1 (BC4/BC5) 8-bit steps
+               (its palettes round differently); a BC7 texture (a repacked group) texture2ddecoder
+               and OpenImageIO decode bit for bit as bcfpipe.bc7 does; a BC6H_UF16 one (an HDR colour group) OpenImageIO
                (bcdec) to the same fp16 bits as bcfpipe.bc6h, as Mesa does (texture2ddecoder 1.0.6
                misreads BC6H mode 2's endpoints, so it is not asked). A material with classic
                outputs only has no other check but ``integrity``.
@@ -293,13 +293,13 @@ def check_classic(m: MaterialDesc) -> Check:
             for k, ((blocks, w, h), o) in enumerate(zip(tex.levels, ours)):
                 n_levels += 1
                 mine = np.rint(o * 255).astype(np.int32)
-                # BC7: t2d is bcfpipe's own decoder; BC6H: t2d misreads mode 2 (OpenImageIO's is exact)
-                if t2d is not None and fmt not in (ClassicFormat.BC7, ClassicFormat.BC6H):
+                # BC6H: t2d misreads mode 2 (OpenImageIO's is exact)
+                if t2d is not None and fmt != ClassicFormat.BC6H:
                     pw, ph = (w + 3) // 4 * 4, (h + 3) // 4 * 4
                     dec = {ClassicFormat.BC1: t2d.decode_bc1, ClassicFormat.BC4: t2d.decode_bc4,
-                           ClassicFormat.BC5: t2d.decode_bc5}[fmt]
+                           ClassicFormat.BC5: t2d.decode_bc5, ClassicFormat.BC7: t2d.decode_bc7}[fmt]
                     bgra = np.frombuffer(dec(blocks.tobytes(), pw, ph), np.uint8).reshape(ph, pw, 4)[:h, :w]
-                    theirs = bgra[..., [2, 1, 0]][..., :c.channels].astype(np.int32)
+                    theirs = bgra[..., [2, 1, 0, 3]][..., :c.channels].astype(np.int32)
                     if (theirs != mine).any():
                         bad.append(f"{c.file} mip {k}: texture2ddecoder differs in {int((theirs != mine).sum())} value(s)")
                 if not inp.seek_subimage(0, k):

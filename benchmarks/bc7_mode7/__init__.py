@@ -2,4 +2,4 @@
 measured them and did not adopt them for training (docs/benchmarks.md, "Partitioned BC7 modes,
 trained"), so they live beside the benchmarks that measure them (bound_t0.py), not in the package.
 Import with benchmarks/ on sys.path: ``from bc7_mode7 import encode7, mode7, modes``. The shapes
-(`bcfpipe.bc7.partitions`) stay in the package: its any-mode decoder reads mode 7."""
+(`bcfpipe.bptc`) stay in the package: its any-mode decoder reads mode 7."""

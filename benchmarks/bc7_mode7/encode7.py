@@ -16,7 +16,7 @@ import numpy as np
 
 from bcfpipe.bc7 import mode6
 from bcfpipe.bc7.encode import encode_params as _encode6, nearest_with_pbit, principal_endpoints, refit_endpoints
-from bcfpipe.bc7.partitions import PARTITIONS2
+from bcfpipe.bptc import PARTITIONS2
 
 from . import mode7
 from .modes import MODE6

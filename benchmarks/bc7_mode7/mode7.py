@@ -4,7 +4,7 @@ Block layout (Khronos Data Format 1.3, §"BC7", Table "Mode 7"; D3D11 "BC7 Forma
 bit 0 first::
 
     bits   0-7   mode, 0b10000000 (seven zeros, then a one)
-    bits   8-13  partition (shape) p, :data:`bcfpipe.bc7.partitions.PARTITIONS2`
+    bits   8-13  partition (shape) p, :data:`bcfpipe.bptc.PARTITIONS2`
     bits  14-93  R0 R1 R2 R3 G0 .. G3 B0 .. B3 A0 .. A3, 5 bits each
     bits  94-97  P0 P1 P2 P3, one per endpoint
     bits  98-127 indices, texel 0 first: 2 bits each, except 1 bit for the two anchors
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bcfpipe.bc7.partitions import ANCHOR2, PARTITIONS2
+from bcfpipe.bptc import ANCHOR2, PARTITIONS2
 
 MODE_BITS = 0b10000000
 #: BC7 2-bit interpolation weights in 64ths (Khronos Data Format, BC7 "aWeight2").

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from bcfpipe.bc7 import mode6
-from bcfpipe.bc7.partitions import PARTITIONS2
+from bcfpipe.bptc import PARTITIONS2
 
 from . import mode7
 

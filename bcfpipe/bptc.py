@@ -1,17 +1,18 @@
-"""BC7's two- and three-subset partition shapes and their anchors (Khronos Data Format 1.3, §"BC7",
-Tables "Partition table for 2 subsets", "... for 3 subsets" and the anchor index tables; D3D11
-"BC7 Format", the same tables). Texel ``i`` is row-major within
-its 4x4 block; shape ``p``'s texel ``i`` belongs to subset 1 when bit ``i`` of ``_MASKS2[p]`` is set.
-
-The first 32 shapes are BC6H's (:data:`bcfpipe.bc6h.tables.PARTITIONS2`); tests check that, and
-every shape and anchor against an independent decoder.
+"""The BPTC tables BC6H and BC7 share (Khronos Data Format 1.3, §"BPTC": BC7 and BC6H; D3D11 "BC7
+Format" and "BC6H Format", the same tables), kept once: the partition shapes of two and three
+subsets, their anchor texels, and the interpolation weights of 2-, 3- and 4-bit indices. BC6H reads
+the first 32 two-subset shapes and the 3- and 4-bit weights. Texel ``i`` is row-major within its
+4x4 block: ``i = 4 y + x``. Tests check every shape and anchor against independent decoders
+(texture2ddecoder, Mesa's BPTC through OpenGL).
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PARTITIONS2", "ANCHOR2", "PARTITIONS3", "ANCHOR3"]
+__all__ = ["PARTITIONS2", "ANCHOR2", "PARTITIONS3", "ANCHOR3", "WEIGHTS"]
 
+# Two-subset shapes (Table "Partition table for 2 subsets"): shape p's texel i belongs to subset 1
+# when bit i of _MASKS2[p] is set.
 _MASKS2 = (
     0xCCCC, 0x8888, 0xEEEE, 0xECC8, 0xC880, 0xFEEC, 0xFEC8, 0xEC80,
     0xC800, 0xFFEC, 0xFE80, 0xE800, 0xFFE8, 0xFF00, 0xFFF0, 0xF000,
@@ -74,3 +75,14 @@ ANCHOR3: np.ndarray = np.array([
     (5, 15), (10, 15), (8, 15), (13, 15), (15, 3), (12, 15), (3, 15), (3, 8),
 ], np.uint8)
 ANCHOR3.setflags(write=False)
+
+
+#: Interpolation weights in 64ths for 2-, 3- and 4-bit indices (Khronos "aWeight2/3/4"; D3D11
+#: BC6H format, 'aWeight3', 'aWeight4'), read-only.
+WEIGHTS: dict[int, np.ndarray] = {
+    2: np.array([0, 21, 43, 64], np.int32),
+    3: np.array([0, 9, 18, 27, 37, 46, 55, 64], np.int32),
+    4: np.array([0, 4, 9, 13, 17, 21, 26, 30, 34, 38, 43, 47, 51, 55, 60, 64], np.int32),
+}
+for _w in WEIGHTS.values():
+    _w.setflags(write=False)
