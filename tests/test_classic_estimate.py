@@ -184,3 +184,13 @@ def test_no_probe_when_the_oracle_rules_out_every_neural_candidate(detail, tmp_p
     assert (fit.probe is None) == detail and ("probe" in fit.costs) == (not detail)
     assert any(s.startswith("no probe: no neural candidate") for s in seen) == detail
     assert fit.decision.chosen.basis == "measured"
+
+
+def test_the_largest_gain_is_at_least_the_mean_at_every_place():
+    """`PROBE_GAINS_MAX_DB` is the most any measured set gained, `PROBE_GAINS_DB` their mean."""
+    from bcfpipe.train.rate import PROBE_GAINS_DB, PROBE_GAINS_MAX_DB, probe_gains
+
+    assert set(PROBE_GAINS_MAX_DB) == set(PROBE_GAINS_DB)
+    for preset in PROBE_GAINS_DB:
+        assert all(m >= g for m, g in zip(PROBE_GAINS_MAX_DB[preset], PROBE_GAINS_DB[preset])), preset
+    assert probe_gains("draft", 4, 1, most=True) == [0.76, 2.06, 2.27, 2.34]

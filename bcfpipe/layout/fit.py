@@ -169,9 +169,23 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
     cands = [w.candidate for w in weighed]
     first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)
     log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
-    ctx, trained = _train_next(ctx, work, first.chosen, cands)
+    chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
+    ctx, trained = _train_next(ctx, work, chosen, cands)
     ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
     return _settle(ctx, work, ready, first, start)
+
+
+def _hopeful(ctx: K.FitContext, held: C.Candidate) -> C.Candidate:
+    """When the mean predictions ship ``held``, a classic candidate: the candidate the rule would
+    choose if its full training gained over the probe the most any measured set did
+    (`rate.PROBE_GAINS_MAX_DB`), when that one has a neural part; else ``held``. Its own training
+    confirms it or not."""
+    cands = [w.candidate for kind in K.REGISTRY for w in kind.predict(replace(ctx, most=True))]
+    best = C.choose(cands, ctx.classic.bc, ctx.match_bc).chosen
+    if best.profile is None:
+        return held
+    ctx.log(f"{best.label} clears the floor only with the largest gain measured on any set: training it")
+    return best
 
 
 def _settle(ctx: K.FitContext, work: ClassicWork, ready: list[K.Weighed], first: C.Decision | None,

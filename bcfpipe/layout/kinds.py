@@ -69,6 +69,7 @@ class FitContext:
     reference: Reference | None = None  # the set's chain and coverage masks, built once per fit
     costs: dict[str, float] = field(default_factory=dict)  # seconds by part (the report's phase_seconds, layout_*)
     oracles: dict[int, np.ndarray] = field(default_factory=dict)  # `oracle` by T_0 side, made once each
+    most: bool = False  # predict with the most a full training gained over the probe on any set measured
 
     @property
     def match_bc(self) -> bool:
@@ -101,7 +102,8 @@ class FitContext:
         """Per reference mip, what a full training at the preset asked gains over the probe (`train.rate`)."""
         from bcfpipe.train.rate import probe_gains
 
-        return np.array(probe_gains(self.options.preset, self.probe.mse_per_channel.shape[0], self.t0_mip(self.p0)))
+        return np.array(probe_gains(self.options.preset, self.probe.mse_per_channel.shape[0], self.t0_mip(self.p0),
+                                    self.most))
 
     def oracle(self, t0: int) -> np.ndarray:
         """(mips, channels) errors of the reference's ``t0``-sized mip magnified to each finer mip
