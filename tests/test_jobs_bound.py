@@ -1,8 +1,8 @@
 """Issue 58: ``--jobs N`` bounds every process and thread a build starts, encoders included.
 
-A real ``bcfpipe build`` (a subprocess, as a user's shell starts it) of a small scene with the
-default layout (auto: BC@R's quicktex and ISPC encodes, the probe's training, the evaluation
-through onnxruntime) and ``--jobs 1``, with ``BCFPIPE_TRACE_POOLS`` set: every place that opens a
+Real ``bcfpipe build`` runs (subprocesses, as a user's shell starts them) of a small scene with
+``--jobs 1``, with the default layout (BC@R's quicktex and ISPC encodes, weighed) and with
+``--layout neural`` (a training, the evaluation through onnxruntime), ``BCFPIPE_TRACE_POOLS`` set: every place that opens a
 pool or sets a thread count appends what it opened (bcfpipe/pooltrace.py). Every record must say
 one worker, and no encoder process pool or thread beside a training may start. Before issue 58 a
 lone job on a 2-core machine encoded on 2 cores: quicktex in a pool of 2 processes, beside the
@@ -42,28 +42,38 @@ def _records(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
 
 
-def test_jobs_1_opens_every_pool_and_thread_group_with_one_worker(tmp_path: Path) -> None:
-    trace = tmp_path / "pools.jsonl"
-    out = tmp_path / "out"
+def _build(tmp_path: Path, name: str, *extra: str) -> tuple[dict, list[dict]]:
+    """A ``--jobs 1`` build of the scene with pool tracing: its report and what it opened."""
+    trace = tmp_path / f"{name}.jsonl"
     env = dict(os.environ, **{TRACE_ENV: str(trace)})
-    proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(_scene(tmp_path)), "-o", str(out),
-                           "--profile", "tiny", "--quality", "smoke", "--jobs", "1", "--json"],
-                          capture_output=True, text=True, env=env, timeout=600)
+    proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(_scene(tmp_path / name)), "-o",
+                           str(tmp_path / name / "out"), "--profile", "tiny", "--quality", "smoke", "--jobs", "1",
+                           "--json", *extra], capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    report = json.loads(proc.stdout)
+    return json.loads(proc.stdout), _records(trace)
+
+
+def test_jobs_1_opens_every_pool_and_thread_group_with_one_worker(tmp_path: Path) -> None:
+    """The default layout (BC@R weighed; here nothing neural fits its bytes, so no model trains)
+    and ``--layout neural`` (a model trained and measured through onnxruntime)."""
+    report, auto = _build(tmp_path, "auto")
     (m,) = report["materials"]
     assert m["status"] == "built" and m["layout"]["bc_size_bytes"] > 0  # BC@R was encoded and weighed
-    records = _records(trace)
+    report, neural = _build(tmp_path, "neural", "--layout", "neural")
+    assert report["materials"][0]["status"] == "built"
+    records = auto + neural
     kinds = {r["kind"] for r in records}
-    # what a build always opens: the job pool, and in its worker torch, OpenImageIO and the encode share
+    # what builds open: the job pool, and in its worker torch, OpenImageIO, the encode share, onnxruntime
+    assert {"job-pool", "encode-share", "oiio"} <= {r["kind"] for r in auto}, auto
     assert {"job-pool", "torch-intra-op", "torch-inter-op", "oiio", "oiio-exr", "encode-share",
             "onnxruntime"} <= kinds, kinds
     assert [r for r in records if r["workers"] != 1] == [], "every pool and thread group has one worker"
     assert not kinds & {"encode-process-pool", "encode-thread-pool", "encode-beside-training"}, \
         "with one core the encodes run inline: no encoder process or thread"
-    (pool,) = [r for r in records if r["kind"] == "job-pool"]
-    workers = {r["pid"] for r in records if r["kind"] == "torch-intra-op"}
-    assert pool["pid"] not in workers, "training ran in the job pool's worker"
+    for run in (auto, neural):
+        (pool,) = [r for r in run if r["kind"] == "job-pool"]
+        workers = {r["pid"] for r in run if r["kind"] == "torch-intra-op"}
+        assert pool["pid"] not in workers, "training ran in the job pool's worker"
 
 
 def test_core_shares() -> None:

@@ -22,7 +22,10 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    one. The BC7 quality set is reported against, never weighed.
 4. One training at most, at the preset asked: the first choice, when it has a neural part (a mip
    split only when its prediction beats the classic choice, `Kind.worth`), through its kind. The
-   BC@R groups it ships beside are encoded in full before it. A classic first choice trains nothing.
+   BC@R groups it ships beside are encoded in full before it. When the first choice is classic, the
+   candidate the rule would choose with the largest gain a full training made over the probe on
+   any measured set (`_hopeful`, `rate.PROBE_GAINS_MAX_DB`) is trained instead, if it has a neural
+   part; else nothing is.
 5. The final choice among the trained model and the classic candidates: a classic candidate that
    its estimate puts first is encoded in full and measured, and the choice made again, until the
    one chosen is measured (`_settle`). What ships is encoded once, at the shipping preset, and
@@ -227,8 +230,9 @@ def _near_floor(c: C.Candidate, bc: C.Candidate, match_bc: bool) -> bool:
 
 def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate,
                 cands: Sequence[C.Candidate]) -> tuple[K.FitContext, K.Weighed | None]:
-    """The one training of the fit, at the preset asked, at most: the first choice ``chosen``, if it
-    has a neural part and its kind finds it worth that against the classic candidates; else none.
+    """The one training of the fit, at the preset asked, at most: ``chosen`` (the first choice, or
+    `_hopeful`'s), if it has a neural part and its kind finds it worth that against the classic
+    candidates; else none.
     The BC@R groups the model ships beside are encoded in full first (a split's: all); BC@R itself
     is measured later only if the model is chosen near its floor (`_settle`)."""
     classic = [c for c in cands if c.profile is None]
