@@ -180,7 +180,7 @@ def preset_for(name: str, t0: int, device: str, fixed_t0: bool = False) -> Prese
     return PRESETS[name]
 # The encoder presets of the classic textures a layout weighs and ships, by quality preset (issue 58).
 # quicktex's BC1 dominates a classic layout's encode (level 18, its slowest and best: 3.1 s per 1024²
-# level on one core). Level 13 loses 0.063 dB on the teapot's colour and 0.040 on the brick's at 5.4x
+# level on one core). Level 13 loses 0.064 dB on the teapot's colour and 0.040 on the brick's at 5.4x
 # the speed, level 16 0.014 at 2.7x (1024² crops, `benchmarks/bench_classic_presets.py`), so
 # `draft`, a preview, encodes at 13, `fast` at 16. BC7's profile stays: ISPC's alpha_veryfast loses
 # 0.17 dB on the teapot's colour with its roughness as alpha.
