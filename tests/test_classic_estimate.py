@@ -149,14 +149,8 @@ def test_the_oracle_holds_predictions_at_the_mips_finer_than_t0(detail):
     nothing lost; with texel-scale detail it loses far more, and a prediction there is held to it."""
     from bcfpipe.layout.oracle import ORACLE_MARGIN_DB, cap, magnified_errors
     from bcfpipe.texset.metrics import psnr_from_mse
-    from bcfpipe.texset.texture_set import Channel, TextureSet
 
-    yy, xx = np.mgrid[0:256, 0:256] / 256
-    v = 0.5 + 0.3 * np.sin(6.28 * xx) * np.cos(6.28 * yy)
-    if detail:
-        v = v + 0.2 * np.random.default_rng(0).standard_normal(v.shape)
-    ts = TextureSet(np.clip(v, 0, 1)[..., None].astype(np.float32), (Channel("roughness", "r", "scalar", "r.png", 0),),
-                    256, 256)
+    ts = _smooth_or_detailed(detail)
     e = magnified_errors(Reference.of(ts), 64, ts.channels, "repeat")
     assert e.shape[0] == len(Reference.of(ts).mips) and not e[2:].any()  # mip 2 is T_0's own size
     assert (psnr_from_mse(float(e[0, 0])) < 25) == detail and (psnr_from_mse(float(e[0, 0])) > 40) == (not detail)
@@ -170,14 +164,8 @@ def test_no_probe_when_the_oracle_rules_out_every_neural_candidate(detail, tmp_p
     from T_0 fall far below BC@R's floor whatever a model holds, so nothing neural is trained, not
     even the probe; smooth, the probe trains."""
     from bcfpipe.layout.fit import fit_layout
-    from bcfpipe.texset.texture_set import Channel, TextureSet
 
-    yy, xx = np.mgrid[0:256, 0:256] / 256
-    v = 0.5 + 0.3 * np.sin(6.28 * xx) * np.cos(6.28 * yy)
-    if detail:
-        v = v + 0.2 * np.random.default_rng(0).standard_normal(v.shape)
-    ts = TextureSet(np.clip(v, 0, 1)[..., None].astype(np.float32), (Channel("roughness", "r", "scalar", "r.png", 0),),
-                    256, 256)
+    ts = _smooth_or_detailed(detail)
     opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
     seen: list[str] = []
     fit = fit_layout(ts, tmp_path / "work", opts, 256, log=seen.append)
@@ -194,3 +182,15 @@ def test_the_largest_gain_is_at_least_the_mean_at_every_place():
     for preset in PROBE_GAINS_DB:
         assert all(m >= g for m, g in zip(PROBE_GAINS_MAX_DB[preset], PROBE_GAINS_DB[preset])), preset
     assert probe_gains("draft", 4, 1, most=True) == [0.76, 2.06, 2.27, 2.34]
+
+
+def _smooth_or_detailed(detail: bool):
+    """A 256² roughness map: a smooth wave, or the same with texel-scale noise."""
+    from bcfpipe.texset.texture_set import Channel, TextureSet
+
+    yy, xx = np.mgrid[0:256, 0:256] / 256
+    v = 0.5 + 0.3 * np.sin(6.28 * xx) * np.cos(6.28 * yy)
+    if detail:
+        v = v + 0.2 * np.random.default_rng(0).standard_normal(v.shape)
+    return TextureSet(np.clip(v, 0, 1)[..., None].astype(np.float32),
+                      (Channel("roughness", "r", "scalar", "r.png", 0),), 256, 256)
