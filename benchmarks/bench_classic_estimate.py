@@ -45,7 +45,7 @@ def main() -> None:
         r = max(ts.width, ts.height)
         work = ClassicWork(ts, r, Reference.of(ts), "repeat", CLASSIC, enc=enc)
         t = time.perf_counter()
-        est = estimated(work)
+        est = estimated(work, whole_bc=False)
         t_est = time.perf_counter() - t
         cands = [est.bc, *est.packed] + ([est.quality] if est.quality.repack else [])
         for c in cands:

@@ -151,12 +151,13 @@ SAMPLED_TEXELS = 1 << 20
 SAMPLE_SEED = 58
 
 
-def sampled_texels(shapes: Sequence[tuple[int, int]]) -> list[np.ndarray | None]:
-    """Per mip, the texels a sampled measure decodes, row-major indices (None: all)."""
+def sampled_texels(shapes: Sequence[tuple[int, int]], above: int = SAMPLED_TEXELS) -> list[np.ndarray | None]:
+    """Per mip, the texels a sampled measure decodes, row-major indices (None: all, at a mip of
+    no more than ``above`` texels)."""
     out: list[np.ndarray | None] = []
     rng = np.random.default_rng(SAMPLE_SEED)
     for h, w in shapes:
-        if h * w <= SAMPLED_TEXELS:
+        if h * w <= above:
             out.append(None)
             continue
         cy, cx = np.mgrid[0:h // 2, 0:w // 2]

@@ -322,6 +322,25 @@ def magnify(img: np.ndarray, height: int, width: int, wrap) -> np.ndarray:
     return out
 
 
+def magnify_at(img: np.ndarray, height: int, width: int, wrap, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """`magnify`'s texels at (``ys``, ``xs``) of the (``height``, ``width``) target only, (n, ...)."""
+    h, w = img.shape[:2]
+    wrap_s, wrap_t = wrap_axes(wrap)
+
+    def taps(at: np.ndarray, n_out: int, n_in: int, mode: str):
+        x = (at + 0.5) * (n_in / n_out) - 0.5
+        x0 = np.floor(x).astype(np.int64)
+        f = (x - x0).astype(np.float32).reshape((-1,) + (1,) * (img.ndim - 2))
+        return address(x0, n_in, mode), address(x0 + 1, n_in, mode), f
+
+    ya, yb, fy = taps(ys, height, h, wrap_t)
+    xa, xb, fx = taps(xs, width, w, wrap_s)
+    flat = np.ascontiguousarray(img).reshape((h * w,) + img.shape[2:])
+    ya, yb = ya * w, yb * w
+    top = np.take(flat, ya + xa, 0) * (1 - fx) + np.take(flat, ya + xb, 0) * fx
+    return top * (1 - fy) + (np.take(flat, yb + xa, 0) * (1 - fx) + np.take(flat, yb + xb, 0) * fx) * fy
+
+
 def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Sequence[np.ndarray],
                    masks: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """(mips, channels) MSE of BC@R, every channel from its group (over ``masks``' texels if given),

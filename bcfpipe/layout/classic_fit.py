@@ -96,22 +96,33 @@ def _cols(groups: Sequence[Group]) -> list[int]:
     return [c for g in groups for c in g.channels]
 
 
-def estimated(work: ClassicWork, with_repacks: bool = True) -> ClassicFit:
-    """BC@R, its repacks and the quality set, every error estimated from a sample of blocks."""
+def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | None = None) -> ClassicFit:
+    """BC@R, its repacks and the quality set, every error estimated from a sample of blocks. With
+    ``whole_bc`` (None: when no repack can take BC@R's place), BC@R is encoded in full instead
+    (`measure`): it then ships or is the floor a neural part is held to, so its estimate would
+    be thrown away."""
     t = time.perf_counter()
     ts, r, ref = work.ts, work.resolution, work.reference
     groups = [planned(ts, g, r) for g in classic_groups(ts)]
-    e_bc, frac = estimate_errors(ts, [g.group for g in groups], r, ref.mips, ref.masks, work.wrap, enc=work.enc)
+    found = list(repacks([g.group for g in groups])) if with_repacks and r <= MAX_REPACK_SIDE else []
+    whole = not found if whole_bc is None else whole_bc
+    if whole:
+        e_bc, frac = np.zeros((len(ref.mips), ts.num_channels)), 1.0
+    else:
+        e_bc, frac = estimate_errors(ts, [g.group for g in groups], r, ref.mips, ref.masks, work.wrap,
+                                     enc=work.enc)
     use = tuple(k for k, m in enumerate(ref.mips) if min(m.shape[:2]) >= 4) or tuple(range(len(ref.mips)))
     cf = ClassicFit(groups, e_bc, None, use, sampled=frac, kinds=work.kinds)
     rp_errors, repacked = {}, {}
-    found = list(repacks([g.group for g in groups])) if with_repacks and r <= MAX_REPACK_SIDE else []
     q = bc7_quality_set([g.group for g in groups]) if with_repacks and r <= MAX_REPACK_SIDE else None
     for rp in found + ([q] if q is not None else []):
         e, _ = estimate_errors(ts, rp.groups, r, ref.mips, ref.masks, work.wrap, enc=work.enc)
         rp_errors[rp.label] = e
         repacked[rp.label] = (rp, [planned(ts, g, r) for g in rp.groups])
-    cf = refresh(replace(cf, repacked=repacked, rp_errors=rp_errors, estimate_seconds=time.perf_counter() - t))
+    cf = replace(cf, repacked=repacked, rp_errors=rp_errors, estimate_seconds=time.perf_counter() - t)
+    if whole:
+        return measure(work, cf)
+    cf = refresh(cf)
     work.log(f"BC@{r}: {bytes_text(cf.bc.size_bytes)}, {cf.bc.psnr:.2f} dB over all mips, estimated from "
              f"{frac:.0%} of its texels ({time.perf_counter() - t:.1f} s with {len(found)} repack(s))")
     return cf

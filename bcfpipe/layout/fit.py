@@ -152,7 +152,7 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
                        progress=progress, coverage=coverage, log=log, reference=reference, costs={})
     work = _work(ctx)
     if options.layout == Layout.NEURAL:  # BC@R in full: what the neural layout is reported against
-        cf = measure(work, estimated(work, with_repacks=False))
+        cf = estimated(work, with_repacks=False)  # BC@R encoded in full: no repack weighed
         return _fixed(replace(ctx, classic=cf), asked, start)
     pred = predict_for(ts, options, cfg, asked, resolution)
     t = time.perf_counter()
