@@ -7,7 +7,8 @@ that opens a pool or sets a thread count appends one JSON line to the file: ``ki
 written and nothing is imported. Kinds: ``job-pool`` (the build's training worker processes),
 ``progress-queue`` (the build's progress queue server process), ``torch-intra-op``,
 ``torch-inter-op``, ``oiio`` (OpenImageIO's ``threads``), ``encode-share`` (the cores a job's
-encodes may use), ``encode-process-pool`` (quicktex bands), ``encode-thread-pool`` (ISPC bands),
+encodes may use), ``encode-process-pool`` (quicktex bands beside a training), ``quicktex-openmp`` (quicktex's own
+OpenMP threads on the main thread), ``disk-bytes-thread`` (zstd sizes aside), ``encode-thread-pool`` (ISPC bands),
 ``encode-beside-training`` (an encode in a thread beside a training), ``fused-thread-pool`` and
 ``numba`` (the fused training kernel's chunks), ``bc6h-thread-pool`` (BC6H fitting chunks),
 ``ssim-thread-pool`` (evaluation) and ``onnxruntime`` (an inference session's intra-op threads).

@@ -68,6 +68,7 @@ def test_jobs_1_opens_every_pool_and_thread_group_with_one_worker(tmp_path: Path
     assert {"job-pool", "torch-intra-op", "torch-inter-op", "oiio", "oiio-exr", "encode-share",
             "onnxruntime"} <= kinds, kinds
     assert [r for r in records if r["workers"] != 1] == [], "every pool and thread group has one worker"
+    assert "quicktex-openmp" in {r["kind"] for r in auto}, "quicktex's own OpenMP threads are bounded"
     assert not kinds & {"encode-process-pool", "encode-thread-pool", "encode-beside-training"}, \
         "with one core the encodes run inline: no encoder process or thread"
     for run in (auto, neural):
@@ -141,8 +142,27 @@ def test_one_worker_encodes_inline_off_the_main_thread(tmp_path: Path, monkeypat
     th.start()
     th.join()
     assert out and out[0].shape == (256, 8) and parallel._pool is None
-    assert [r["kind"] for r in _records(tmp_path / "t.jsonl")] == ["encode-beside-training"]
-    assert _records(tmp_path / "t.jsonl")[0]["workers"] == 1
+    assert {r["kind"] for r in _records(tmp_path / "t.jsonl")} <= {"encode-beside-training", "quicktex-openmp"}
+    assert [r["workers"] for r in _records(tmp_path / "t.jsonl")] in ([1], [1, 1])
+
+
+_THREADS_AFTER = """
+import os, sys, numpy as np
+from bcfpipe.texset import parallel
+parallel.set_encode_workers(int(sys.argv[1]))
+before = len(os.listdir('/proc/self/task'))
+parallel.quicktex_level('bc1 level 13', np.zeros((512, 512, 4), np.uint8), 8)
+print(len(os.listdir('/proc/self/task')) - before)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc (Linux)")
+def test_quicktex_runs_on_the_workers_it_is_given() -> None:
+    """quicktex encodes on its own OpenMP runtime (not torch's), on every core unless told: with one
+    worker no thread starts, with two one more does (`parallel.openmp_threads`)."""
+    started = [int(subprocess.run([sys.executable, "-c", _THREADS_AFTER, str(n)], capture_output=True, text=True,
+                                  check=True).stdout) for n in (1, 2)]
+    assert started == [0, 1], started
 
 
 def test_trace_is_silent_without_the_variable(tmp_path: Path, monkeypatch) -> None:

@@ -1,4 +1,4 @@
-"""BC encodes in bands over processes (quicktex) and threads (ISPC) give the bytes of one encode
+"""BC encodes on OpenMP threads or in bands over processes (quicktex) and threads (ISPC) give the bytes of one encode
 (bcfpipe.texset.parallel, issue 50)."""
 from __future__ import annotations
 
@@ -27,15 +27,27 @@ def _texels(h: int, w: int, seed: int = 0) -> np.ndarray:
 
 
 @pytest.mark.parametrize("codec,block", [("bc1 level 18", 8), ("bc4 channel 0", 8), ("bc5 channels 0 1", 16)])
-def test_quicktex_bands_in_processes_equal_one_encode(two_workers, codec, block):
+def test_quicktex_on_any_workers_equals_one_encode(two_workers, codec, block):
+    """On the main thread quicktex's own OpenMP threads (2, then 1), beside a training its bands in
+    2 processes: the bytes of one plain encode every time."""
+    import threading
+
     import quicktex
 
     px = _texels(768, 512)
-    assert px.shape[0] > parallel.BAND_ROWS and px.shape[0] * px.shape[1] >= parallel.MIN_PARALLEL_TEXELS
+    assert px.shape[0] > parallel.BAND_ROWS
     whole = parallel.make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(px.tobytes(), 512, 768))
-    banded = parallel.quicktex_level(codec, px, block)
-    assert banded.shape == (768 * 512 // 16, block)
-    assert banded.tobytes() == whole.tobytes()
+    two = parallel.quicktex_level(codec, px, block)
+    parallel.set_encode_workers(1)
+    one = parallel.quicktex_level(codec, px, block)
+    parallel.set_encode_workers(2)
+    aside: list = []
+    th = threading.Thread(target=lambda: aside.append(parallel.quicktex_level(codec, px, block)))
+    th.start()
+    th.join()
+    assert parallel._pool is not None  # the bands went to processes
+    assert two.shape == (768 * 512 // 16, block)
+    assert two.tobytes() == one.tobytes() == aside[0].tobytes() == whole.tobytes()
 
 
 def test_bc7_threads_equal_one_thread():

@@ -238,7 +238,8 @@ def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarra
     mine = [o.source == mf.Source.CLASSIC or (o.source == mf.Source.SPLIT and w < 1.0) for o in desc.outputs]
     if not any(mine):  # a split material from its split on: no texture to sample
         return
-    levels = [[torch.from_numpy(np.ascontiguousarray(np.moveaxis(m, -1, 0))) for m in tex] for tex in em.classic]
+    # (C, H, W) views of the (H, W, C) texels, no copy: sampling reads them as (H*W, C) rows
+    levels = [[torch.from_numpy(np.ascontiguousarray(m)).permute(2, 0, 1) for m in tex] for tex in em.classic]
     lvl = M.cached_level_fn(levels)
     with torch.no_grad():
         t = M.sample_features(lvl, [len(tex) for tex in levels], tuple(c.lod_bias for c in desc.classic),

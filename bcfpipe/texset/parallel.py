@@ -2,8 +2,10 @@
 
 BC1/BC4/BC5/BC7 blocks are independent: a level cut into bands of whole block rows encodes to the
 same bytes as the level at once, band by band in row order. ISPC's encoder releases the GIL, so
-its bands run in threads; quicktex holds it, so its bands run in worker processes (spawned: the
-callers hold torch's threads, which a fork would copy half-started).
+its bands run in threads. quicktex runs a level's blocks on OpenMP threads of its own runtime,
+which `openmp_threads` bounds; it holds the GIL, so off the main thread (beside a training) its
+bands run in worker processes instead (spawned: the callers hold torch's threads, which a fork
+would copy half-started).
 
 How many: `encode_workers()`, set per job by the build (`job_encode_workers`: its share of
 ``--jobs`` cores, or without ``--jobs`` the cores its parallel jobs leave to each, at least its
@@ -18,14 +20,13 @@ import multiprocessing as mp
 import os
 import threading
 from concurrent.futures import ProcessPoolExecutor
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 
 from bcfpipe.pooltrace import trace_pool
 
 BAND_ROWS = 256  # texel rows per band: a multiple of 4, 2 MiB of RGBA at 2048 wide
-MIN_PARALLEL_TEXELS = 512 * 512  # below this a level encodes inline: a band's pickling costs more
 
 _workers: int | None = None
 _local = threading.local()  # a thread's own count (an encode beside a training: `workers`)
@@ -113,6 +114,7 @@ def _quicktex_band(codec: str, raw: bytes, width: int, height: int) -> bytes:
     """One band's quicktex blocks (runs in a worker process)."""
     import quicktex
 
+    openmp_threads(1)  # the pool's processes are the band's parallelism
     return make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(raw, width, height)).tobytes()
 
 
@@ -135,21 +137,51 @@ def make_quicktex_encoder(codec: str):
 
 def quicktex_level(codec: str, px: np.ndarray, block_bytes: int) -> np.ndarray:
     """A padded (H, W, 4) uint8 level's blocks, (n, block_bytes) uint8 in row-major order, by
-    quicktex's ``codec``: with more than one worker, a large level in bands over `encode_workers()`
-    processes, and every level in them off the main thread; with one, inline (one core: a thread
-    beside a training then takes its turns on the GIL, and no process starts)."""
+    quicktex's ``codec``. On the main thread inline, on `encode_workers()` OpenMP threads (quicktex
+    runs a level's blocks on its own OpenMP runtime, every core unless told: `openmp_threads`).
+    Off the main thread (an encode beside a training), where quicktex would hold the GIL for the
+    whole level: with more than one worker in bands over that many processes of one thread each;
+    with one, inline on one thread (a thread beside a training takes its turns on the GIL)."""
     import quicktex
 
     n = encode_workers()
     h, w = px.shape[:2]
-    if n > 1 and (_off_main_thread() or (h * w >= MIN_PARALLEL_TEXELS and h > BAND_ROWS)):
+    if n > 1 and _off_main_thread():
         pool = _process_pool(n)
         futures = [pool.submit(_quicktex_band, codec, np.ascontiguousarray(b).tobytes(), w, b.shape[0])
                    for b in bands(px)]
         raw = b"".join(f.result() for f in futures)
     else:
+        openmp_threads(n)
         raw = make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(px.tobytes(), w, h)).tobytes()
     return np.frombuffer(raw, np.uint8).reshape(-1, block_bytes).copy()
+
+
+def openmp_threads(n: int) -> None:
+    """quicktex's OpenMP runtime (a libgomp of its own, apart from torch's) runs this thread's next
+    encodes on ``n`` threads. Without it every encode takes every core, whatever ``--jobs`` says."""
+    global _gomp
+    if _gomp is None:
+        import ctypes
+
+        import _quicktex  # noqa: F401  # loads its OpenMP runtime
+
+        try:
+            with open("/proc/self/maps") as f:
+                paths = {line.split()[-1] for line in f if "quicktex" in line and "gomp" in line}
+        except OSError:  # not Linux: quicktex's runtime keeps its own default
+            paths = set()
+        _gomp = [ctypes.CDLL(p) for p in sorted(paths)]
+    global _gomp_n
+    if _gomp and n != _gomp_n:
+        for lib in _gomp:
+            lib.omp_set_num_threads(int(n))
+        _gomp_n = n
+        trace_pool("quicktex-openmp", n)
+
+
+_gomp: list | None = None
+_gomp_n = 0
 
 
 def threaded_bands(encode_band: Callable[[np.ndarray], bytes], px: np.ndarray, block_bytes: int) -> np.ndarray:
