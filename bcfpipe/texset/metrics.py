@@ -130,14 +130,14 @@ def ssim_group(ref: np.ndarray, dec: np.ndarray, peak: float) -> float | None:
         return None
     if h * w * ref.shape[2] > BAND_VALUES and min(h, w) >= 11:
         return _ssim_banded(ref, dec, kw)
-    r, d = np.asarray(ref, np.float64), np.asarray(dec, np.float64)
+    r, d = np.asarray(ref, np.float32), np.asarray(dec, np.float32)  # skimage filters in the input's float type
     if r.shape[2] == 1:
         return float(structural_similarity(r[..., 0], d[..., 0], **kw))
     return float(structural_similarity(r, d, channel_axis=-1, **kw))
 
 
 def _ssim_banded(ref: np.ndarray, dec: np.ndarray, kw: dict) -> float:
-    """skimage's Gaussian SSIM of a large image, computed on bands of rows in float64: each band
+    """skimage's Gaussian SSIM of a large image, computed on bands of rows in float32: each band
     carries a halo of the filter's radius (5 rows), so every local SSIM value is the one the whole
     image gives, and the mean is taken over the same cropped area as skimage's."""
     from skimage.metrics import structural_similarity
@@ -151,7 +151,7 @@ def _ssim_banded(ref: np.ndarray, dec: np.ndarray, kw: dict) -> float:
         for y0 in range(pad, h - pad, rows):
             y1 = min(h - pad, y0 + rows)
             a, b = max(0, y0 - pad), min(h, y1 + pad)
-            _, s_map = structural_similarity(np.asarray(ref[a:b, :, c], np.float64), np.asarray(dec[a:b, :, c], np.float64),
+            _, s_map = structural_similarity(np.asarray(ref[a:b, :, c], np.float32), np.asarray(dec[a:b, :, c], np.float32),
                                              full=True, **kw)
             total += float(s_map[y0 - a:y1 - a, pad:w - pad].sum(dtype=np.float64))
         means.append(total / ((h - 2 * pad) * (w - 2 * pad)))
