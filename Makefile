@@ -13,7 +13,7 @@ demo: setup
 	$(BCF) build samples/sample_scene.usda --quality draft --layout neural --verify
 
 test: setup
-	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
+	$(PY) -m pytest -n 2 --durations=15 $(PYTEST_ARGS)
 
 # the package as a user installs it (tests/test_install.py, slow: about 4 min): the sdist and the wheel,
 # the wheel in a new venv with only torch beside it, build --verify and render run outside the repository

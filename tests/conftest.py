@@ -9,6 +9,34 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_SCENES = REPO.parent / "shared" / "scenes"
 
 
+KERNELS = "BCFPIPE_TEST_KERNELS"  # the session's compiled kernels, shared by its xdist workers
+
+
+def pytest_configure(config) -> None:
+    """One compiled-kernel cache for the whole session (issue 59): numba's and the fused C++
+    kernel's (`bcfpipe.train.fused.common.kernels_dir`: NUMBA_CACHE_DIR wins over a build's
+    --cache), made once by the controller before its xdist workers start and inherited by every
+    CLI subprocess; without it each build into a fresh --cache compiled them again. Removed at
+    the end of the session."""
+    import os
+    import tempfile
+
+    if KERNELS not in os.environ and not hasattr(config, "workerinput"):
+        os.environ[KERNELS] = tempfile.mkdtemp(prefix="bcfpipe-test-kernels-")
+        config._bcfpipe_kernels = os.environ[KERNELS]
+    os.environ["NUMBA_CACHE_DIR"] = os.environ.get(KERNELS, os.environ.get("NUMBA_CACHE_DIR", ""))
+
+
+def pytest_unconfigure(config) -> None:
+    import os
+    import shutil
+
+    made = getattr(config, "_bcfpipe_kernels", None)
+    if made:
+        shutil.rmtree(made, ignore_errors=True)
+        os.environ.pop(KERNELS, None)
+
+
 @pytest.fixture(scope="session")
 def shared_scenes() -> Path:
     if not SHARED_SCENES.is_dir():
