@@ -7,11 +7,7 @@ layer of resolution r has log2(r) - 1 mips (512 -> 8, as in Table 1).
 from __future__ import annotations
 
 import math
-import os
-from contextlib import contextmanager
 from dataclasses import dataclass, field, fields, replace
-from pathlib import Path
-from typing import Callable, Iterator
 
 from bcfpipe.formats.record import Record
 from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout, wrap_axes
@@ -514,54 +510,3 @@ class JobOptions(TrainingOptions):
         """The record's canonical JSON without its `UNKEYED` fields: what the cache key states."""
         skip = {f.name for f in fields(self) if UNKEYED in f.metadata}
         return {k: v for k, v in self.to_json().items() if k not in skip}
-
-
-CACHE_ENV = "BCFPIPE_CACHE"
-
-
-def default_cache_root() -> Path:
-    """The cache folder when none is given: ``BCFPIPE_CACHE``, else the platformdirs user cache
-    folder of bcfpipe. Trained materials live there (bcfpipe.cache), and compiled training kernels
-    under ``kernels/`` (bcfpipe.train.fused)."""
-    env = os.environ.get(CACHE_ENV)
-    if env:
-        return Path(env).expanduser()
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("bcfpipe", appauthor=False))
-
-
-@contextmanager
-def environment(name: str, value: str | None) -> Iterator[None]:
-    """Within the block, ``name`` is ``value`` in this process's environment (and so in the workers
-    it starts); None changes nothing. How a build points its workers at its cache's folders."""
-    if value is None:
-        yield
-        return
-    old = os.environ.get(name)
-    os.environ[name] = value
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop(name, None)
-        else:
-            os.environ[name] = old
-
-
-def replace_atomically(path: Path, write: Callable[[Path], None]) -> bool:
-    """``write`` a temporary file beside ``path``, then rename it into place, so that no reader sees
-    it half-written; False (and nothing left behind) when the folder cannot take it. For the
-    cache's derived files, where a failed write only costs recomputing them."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write(tmp)
-        os.replace(tmp, path)
-        return True
-    except OSError:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        return False

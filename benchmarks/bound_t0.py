@@ -185,7 +185,7 @@ def bc7_quality_set(ts, res: int, ref: list[np.ndarray]) -> tuple[list[np.ndarra
     texture, a colour or a packed file, in BC7 (ISPC, every mode; alpha 1); BC5 normals, BC4 lone
     scalars and BC6H HDR colour as BC@R has them. Returns (decoded reference mips 0 and 1, GPU bytes
     of every mip)."""
-    from bcfpipe.texset.baselines import (_bilinear_up, _from_storage, _to_storage, bc4_mips, bc5_mips,
+    from bcfpipe.texset.baselines import (bilinear_up, from_storage, _to_storage, bc4_mips, bc5_mips,
                                           bc6h_mips, bc7_mips, hdr_value_map, pack_texture_set)
 
     d = int(round(math.log2(max(ts.width, ts.height) / res)))
@@ -211,8 +211,8 @@ def bc7_quality_set(ts, res: int, ref: list[np.ndarray]) -> tuple[list[np.ndarra
             out = [o[..., :n] for o in out]
         total += size
         for k, o in enumerate(out):
-            low[k][..., idx] = _from_storage(o, normal[idx])
-    dec = [_bilinear_up(low[0], *ref[k].shape[:2]) for k in range(d)] + low
+            low[k][..., idx] = from_storage(o, normal[idx])
+    dec = [bilinear_up(low[0], *ref[k].shape[:2]) for k in range(d)] + low
     return dec[:2], total
 
 
@@ -265,7 +265,7 @@ def t0_decode(ts, mlp, feats: list[np.ndarray]) -> np.ndarray:
 
 def t0_rows(ts, ref: list[np.ndarray], res: int):
     """(label, GPU bytes, decoded reference mips 0 and 1, the same unencoded) per T_0 width at ``res``."""
-    from bcfpipe.texset.baselines import _bilinear_up, bc1_mips, bc7_mips
+    from bcfpipe.texset.baselines import bilinear_up, bc1_mips, bc7_mips
 
     c = ts.num_channels
     d = int(round(math.log2(max(ts.width, ts.height) / res)))
@@ -290,7 +290,7 @@ def t0_rows(ts, ref: list[np.ndarray], res: int):
             top = t0_decode(ts, mlp, [lv[0] for lv in levels])
             if d == 0:
                 return [top, t0_decode(ts, mlp, [lv[1] for lv in levels])]
-            return [_bilinear_up(top, *ref[0].shape[:2]), top]
+            return [bilinear_up(top, *ref[0].shape[:2]), top]
 
         yield f"{label} at {res}², {stored}", size, ref01(dec), ref01(layers)
 
@@ -361,7 +361,7 @@ def main() -> None:
         return widths(args)
     args.sets = args.sets or "teapot,brick"
 
-    from bcfpipe.texset.baselines import _bilinear_up, encode_texture_set_baseline
+    from bcfpipe.texset.baselines import bilinear_up, encode_texture_set_baseline
     from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
 
@@ -382,7 +382,7 @@ def main() -> None:
         report("BC@1024", "BC1/BC4/BC5", f"{size / 2**20:.2f} MiB with mips", bc[0], bc[1])
         for label, n_pc, codec, size in rows_for(c):
             rec = oracle(ref[1], n_pc, codec)
-            report(label, codec, size, _bilinear_up(rec, *ref[0].shape[:2]), rec)
+            report(label, codec, size, bilinear_up(rec, *ref[0].shape[:2]), rec)
 
 
 if __name__ == "__main__":

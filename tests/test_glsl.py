@@ -25,7 +25,7 @@ UBO_ACCESSOR = ("layout(std140, binding = 0) uniform BcfWeights { uvec4 bcfWeigh
                 "uint bcfWeightWord(uint i) { return bcfWeights[i >> 2u][i & 3u]; }")
 
 
-def _validate(source: str, stage: str, tmp_path: Path) -> None:
+def validate_texels(source: str, stage: str, tmp_path: Path) -> None:
     if GLSLANG is None:
         pytest.skip("glslangValidator is not installed (Debian: glslang-tools)")
     path = tmp_path / f"shader.{stage}"
@@ -36,24 +36,24 @@ def _validate(source: str, stage: str, tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("stage", ["vert", "frag", "comp"])
 def test_shaders_compile_glsl450(stage, tmp_path):
-    _validate(G.assemble(stage), stage, tmp_path)
+    validate_texels(G.assemble(stage), stage, tmp_path)
 
 
 @pytest.mark.parametrize("stage", ["frag", "comp"])
 def test_shaders_compile_for_one_network_shape(stage, tmp_path):
-    _validate(G.assemble(stage, {"BCF_N_HIDDEN": 16, "BCF_N_OUT": 6, "BCF_MAX_OUT": 7}), stage, tmp_path)
+    validate_texels(G.assemble(stage, {"BCF_N_HIDDEN": 16, "BCF_N_OUT": 6, "BCF_MAX_OUT": 7}), stage, tmp_path)
 
 
 @pytest.mark.parametrize("stage", ["vert", "frag", "comp"])
 def test_shaders_compile_es32(stage, tmp_path):
-    _validate(G.assemble(stage, version=ES_HEADER), stage, tmp_path)
+    validate_texels(G.assemble(stage, version=ES_HEADER), stage, tmp_path)
 
 
 def test_es32_fragment_with_uniform_block_weights(tmp_path):
     src = G.assemble("frag", version=ES_HEADER)
     ssbo = re.search(r"layout\(std430, binding = 0\) readonly buffer BcfWeights .*\n.*\n", src)
     assert ssbo, "the example fragment shader's weight accessor changed; update the README and this test"
-    _validate(src.replace(ssbo.group(0), UBO_ACCESSOR + "\n"), "frag", tmp_path)
+    validate_texels(src.replace(ssbo.group(0), UBO_ACCESSOR + "\n"), "frag", tmp_path)
 
 
 def test_library_is_binding_and_extension_free():

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from bcfpipe.builder import Selection, plan
+from bcfpipe.builder import plan
 from bcfpipe.builder.plan import content_hash
 from bcfpipe.config import UNKEYED, JobOptions, TrainingOptions
 
@@ -68,7 +68,7 @@ def test_every_keyed_field_changes_the_cache_key(tmp_path: Path) -> None:
 def test_every_field_survives_the_executors_transport(tmp_path: Path) -> None:
     """A job whose every record field is non-default comes out of the local executor's pickle and
     Ray's JSON-able dict whole, and the worker trains that record with only its device and thread
-    count set (builder.executor._train_job); the full builds below show it reaching the TrainConfig."""
+    count set (builder.executor.train_job); the full builds below show it reaching the TrainConfig."""
     import pickle
 
     from bcfpipe.builder.plan import MaterialJob

@@ -92,7 +92,7 @@ REPO = Path(__file__).resolve().parents[1]
 BASE_IMPORTS = {"config": {"errors", "formats"}, "errors": set(), "bc6h": {"bptc", "errors", "pooltrace"},
                 "bc7": {"bptc", "errors"}, "bptc": set(),
                 "formats": {"bc6h", "bc7", "errors", "resources"}, "resources": {"errors"}, "extras": {"errors"},
-                "pooltrace": set()}
+                "pooltrace": set(), "process_env": set()}
 
 
 def _bcfpipe_imports(path: Path, module: str):

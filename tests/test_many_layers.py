@@ -26,7 +26,7 @@ from bcfpipe.model.decoder import from_bytes, to_bytes, to_onnx
 from bcfpipe.verify import glsl as G
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_glsl import ES_HEADER, _validate  # noqa: E402
+from test_glsl import ES_HEADER, validate_texels  # noqa: E402
 
 EXTRA_NAMES = ("T0b", "T0c")  # formats.material.layer_name's names of T_0's second and third layers
 
@@ -123,15 +123,15 @@ def test_widened_materials_read_back(mats):
 def test_shaders_compile_for_more_layers(n, stage, tmp_path):
     defines = {"BCF_N_LAYERS": n, **({"BCF_NEURAL": 1} if stage == "bcf_render.frag" else {})}
     kind = "frag" if stage.endswith("frag") else "comp"
-    _validate(G.assemble(stage, defines), kind, tmp_path)
+    validate_texels(G.assemble(stage, defines), kind, tmp_path)
     if stage != "bcf_render.frag":
-        _validate(G.assemble(stage, defines, version=ES_HEADER), kind, tmp_path)
+        validate_texels(G.assemble(stage, defines, version=ES_HEADER), kind, tmp_path)
 
 
 @pytest.mark.parametrize("n", [3, 7])
 def test_other_layer_counts_do_not_compile(n, tmp_path):
     with pytest.raises(AssertionError, match="BCF_N_LAYERS must be 4, 5 or 6"):
-        _validate(G.assemble("comp", {"BCF_N_LAYERS": n}), "comp", tmp_path)
+        validate_texels(G.assemble("comp", {"BCF_N_LAYERS": n}), "comp", tmp_path)
 
 
 def _decodes(rt, folder: Path, weights: bytes | None = None, desc_from: Path | None = None) -> dict[str, np.ndarray]:

@@ -444,3 +444,18 @@ def test_mip_split_material_reads_its_original_network_below_the_split(smooth, r
     d_one, _ = C.difference(one[NEURAL].image, one[ORIGINAL].image)
     assert np.isfinite(one[NEURAL].image).all()
     assert d_one.max_abs > 10, d_one  # the scrambled decoder shows again
+
+
+def test_a_bad_wrap_on_a_neural_shader_is_a_one_line_input_error():
+    """An authored wrapS the runtime has no mode for: InputError naming the shader, not a NameError
+    (surfaces._wrap raised a name it had not imported)."""
+    from pxr import Sdf, Usd, UsdShade
+
+    from bcfpipe.errors import InputError
+    from bcfpipe.render import surfaces
+
+    stage = Usd.Stage.CreateInMemory()
+    shader = UsdShade.Shader.Define(stage, "/M/Bcf")
+    shader.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("bogus")
+    with pytest.raises(InputError, match="/M/Bcf"):
+        surfaces._wrap(shader)

@@ -66,7 +66,7 @@ import torch
 from . import mode10
 from .tables import PARTITIONS2, WEIGHTS3
 
-__all__ = ["encode", "encode_params", "Settings", "blocks_from_image", "image_from_blocks", "MAX_UNSIGNED", "MAX_SIGNED"]
+__all__ = ["validate_texels", "encode", "encode_params", "Settings", "blocks_from_image", "image_from_blocks", "MAX_UNSIGNED", "MAX_SIGNED"]
 
 MAX_UNSIGNED = 65504.0  # half bits 0x7BFF = (0xFFFF * 31) >> 6
 MAX_SIGNED = 65504.0  # half bits 0x7BFF = (0x7FFF * 31) >> 5
@@ -82,7 +82,7 @@ _SCALES = (1.0, 1.0 / 7.0)
 # ---------------------------------------------------------------------------
 
 
-def _validate(texels) -> np.ndarray:
+def validate_texels(texels) -> np.ndarray:
     a = np.asarray(texels)
     if a.ndim != 3 or a.shape[2] != 3:
         raise ValueError(f"texels must have shape (H, W, 3), got {a.shape}")
@@ -537,7 +537,7 @@ def encode_params(texels, signed: bool = False, partitions=None, **settings):
     (``refine_top``, ``keep``, ``rounds``, ``window``, ``chunk``, ``device``, ``workers``).
     """
     s = Settings(**settings)
-    img = _validate(texels)
+    img = validate_texels(texels)
     blocks = blocks_from_image(img)
     n = blocks.shape[0]
     dev = torch.device(s.device) if s.device is not None else torch.device("cpu")

@@ -26,9 +26,9 @@ def encode_params(texels, signed: bool, lib, *, rounds: int = 1, window: int = 1
     """Mode-10 parameters of an (H, W, 3) float image, as encode.encode_params returns them
     (endpoints (n, 4, 3), indices (n, 16), shapes (n,), int64, blocks row-major) with one shape
     refined, by ``lib``'s bcf_bc6h_quick (a ctypes library with quick.cpp built in)."""
-    from bcfpipe.bc6h.encode import _validate, blocks_from_image
+    from bcfpipe.bc6h.encode import validate_texels, blocks_from_image
 
-    blocks = np.ascontiguousarray(blocks_from_image(_validate(texels)), np.float32)
+    blocks = np.ascontiguousarray(blocks_from_image(validate_texels(texels)), np.float32)
     n = blocks.shape[0]
     e, idx, part = np.empty((n, 4, 3), np.int64), np.empty((n, 16), np.int64), np.empty(n, np.int64)
     u, pal, w3, shapes = _tables(bool(signed))

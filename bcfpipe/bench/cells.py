@@ -137,7 +137,7 @@ def shipped_normal_angle(ts: TextureSet, ref: Sequence[np.ndarray], shift: int) 
     USD (BC5 of its slopes, `baselines.slope_mips`, read as (s_x, s_y, 1) normalised; level 0 at R
     magnified to mip 0 as the baseline is), beside the cell's BC5 with z rebuilt (issue 57); {}
     without a normal map."""
-    from bcfpipe.texset.baselines import _bilinear_up, slope_mips
+    from bcfpipe.texset.baselines import bilinear_up, slope_mips
     from bcfpipe.texset.normals import angular_stats, rebuild_z, unit
 
     xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
@@ -145,7 +145,7 @@ def shipped_normal_angle(ts: TextureSet, ref: Sequence[np.ndarray], shift: int) 
         return {}
     k = min(shift, len(ref) - 1)
     normals, m, _ = slope_mips([r[..., xy] for r in ref[k:k + 1]])
-    seen = unit(_bilinear_up(normals[0], *ref[0].shape[:2])) if k else normals[0]
+    seen = unit(bilinear_up(normals[0], *ref[0].shape[:2])) if k else normals[0]
     mean, p99 = angular_stats(rebuild_z(ref[0][..., xy]), seen)
     return {"normal_angle_deg_shipped": {"mean": round(mean, 3), "p99": round(p99, 3), "m": round(m, 4)}}
 

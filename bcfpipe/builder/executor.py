@@ -135,7 +135,7 @@ def _run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, qu
     t0 = time.perf_counter()
     name = job.get("name", "?")
     if cache_root is None:
-        return _train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers)
+        return train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers)
     from bcfpipe.cache import Cache
 
     try:
@@ -147,7 +147,7 @@ def _run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, qu
                 found.entry.copy_to(out_dir)
                 return JobResult(name, Status.BUILT, None, time.perf_counter() - t0, device, threads,
                                  dict(found.entry.result), CacheUse.HIT).to_dict()
-            r = _train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers)
+            r = train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers)
             if r["status"] == Status.BUILT:
                 store_entry(cache, key, out_dir, r["result"], name)
             return dict(r, cache=CacheUse.MISS)
@@ -168,7 +168,7 @@ def store_entry(cache, key: str, folder: str | os.PathLike, result: dict, name: 
                                                    name, cache.root, exc.strerror or exc)
 
 
-def _train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, t0: float,
+def train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue, t0: float,
                sources: Mapping[str, bytes] | None = None, encode_workers: int | None = None) -> dict:
     """Train one job into ``out_dir``. Its source files are read where the plan found them, or,
     given ``sources`` ({plan path: bytes}, a worker without the driver's filesystem), from those
@@ -335,7 +335,7 @@ def read_sources(job: MaterialJob) -> dict[str, bytes]:
     return out
 
 
-def _drain(queue, progress: ProgressCallback | None, returned: Callable[[ProgressEvent], None] | None = None) -> None:
+def drain_events(queue, progress: ProgressCallback | None, returned: Callable[[ProgressEvent], None] | None = None) -> None:
     if queue is None:
         return
     import queue as queue_mod
@@ -352,7 +352,7 @@ def _drain(queue, progress: ProgressCallback | None, returned: Callable[[Progres
             progress(ev)
 
 
-def _emit(progress: ProgressCallback | None, **event) -> None:
+def emit_event(progress: ProgressCallback | None, **event) -> None:
     if progress:
         progress(ProgressEvent(**event))
 
@@ -403,7 +403,7 @@ def _run_pool(jobs: Sequence[MaterialJob], work: _Work, workers: int,
             fut = pool.submit(run_job, job.to_dict(), str(materials_dir / job.name), threads, dev, queue, cache_root,
                               encode)
             futures[fut] = (job, dev)
-            _emit(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
+            emit_event(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
         by_name = {job.name: fut for fut, (job, _) in futures.items()}
         pending = set(futures)
 
@@ -418,7 +418,7 @@ def _run_pool(jobs: Sequence[MaterialJob], work: _Work, workers: int,
             except BaseException as exc:  # noqa: BLE001
                 r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, dev, threads)
             results[job.name] = r
-            _emit(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
+            emit_event(progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
                   psnr=result_psnr(r.result), seconds=r.seconds, cache=r.cache)
 
         def returned(ev: ProgressEvent) -> None:
@@ -429,7 +429,7 @@ def _run_pool(jobs: Sequence[MaterialJob], work: _Work, workers: int,
 
         while pending:
             done, _ = cf.wait(pending, timeout=0.2, return_when=cf.FIRST_COMPLETED)
-            _drain(queue, progress, returned)
+            drain_events(queue, progress, returned)
             for fut in done:
                 if fut in pending:
                     finish(fut)
@@ -439,7 +439,7 @@ def _run_pool(jobs: Sequence[MaterialJob], work: _Work, workers: int,
         raise
     if own:
         pool.shutdown(wait=True)
-    _drain(queue, progress)
+    drain_events(queue, progress)
     return results, broken
 
 
@@ -485,7 +485,7 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
             if again:
                 results[job.name] = JobResult(job.name, Status.FAILED, "worker process died (out of memory?)",
                                               0.0, device, threads)
-                _emit(progress, event=EventKind.DONE, job=job.name, status=Status.FAILED, reason=results[job.name].reason,
+                emit_event(progress, event=EventKind.DONE, job=job.name, status=Status.FAILED, reason=results[job.name].reason,
                       psnr=None, seconds=0.0)
     finally:
         if manager is not None:

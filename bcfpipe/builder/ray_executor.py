@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from bcfpipe.formats.vocabulary import CacheUse, Status
-from bcfpipe.builder.executor import JobResult, _emit, _drain, _train_job, read_sources, store_entry
+from bcfpipe.builder.executor import JobResult, emit_event, drain_events, train_job, read_sources, store_entry
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
 from bcfpipe.builder.plan import MaterialJob
 from bcfpipe.config import DEFAULT_THREADS
@@ -89,7 +89,7 @@ def _remote_parts(ray):
         threads = max(1, int(granted.get("CPU", 1)))
         with tempfile.TemporaryDirectory(prefix="bcfpipe-ray-") as tmp:
             out = Path(tmp) / "out"
-            r = _train_job(job, str(out), threads, device, events, time.perf_counter(),
+            r = train_job(job, str(out), threads, device, events, time.perf_counter(),
                            sources=dict(zip(paths, blobs)))
             files = {p.name: p.read_bytes() for p in sorted(out.iterdir()) if p.is_file()} if out.is_dir() else {}
         return r, files
@@ -226,7 +226,7 @@ class _Flight:
 
     def finish(self, job: MaterialJob, r: JobResult) -> None:
         self.results[job.name] = r
-        _emit(self.progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
+        emit_event(self.progress, event=EventKind.DONE, job=job.name, status=r.status, reason=r.reason,
               psnr=result_psnr(r.result), seconds=r.seconds, cache=r.cache)
 
     def submit(self, job: MaterialJob):
@@ -277,7 +277,7 @@ def _run(ray, jobs, materials_dir, threads, progress, cache_root, max_retries, c
     flight = _Flight(ray, _remote_parts(ray), queue, device, threads, gpus, max_retries, progress)
     try:
         for job in jobs:
-            _emit(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
+            emit_event(progress, event=EventKind.QUEUED, job=job.name, materials=job.materials)
         waiting = collections.deque(jobs)
         pending: list = []
 
@@ -290,11 +290,11 @@ def _run(ray, jobs, materials_dir, threads, progress, cache_root, max_retries, c
         fill()
         while pending:
             ready, pending = ray.wait(pending, num_returns=1, timeout=0.2)
-            _drain(queue, forward)
+            drain_events(queue, forward)
             for ref in ready:
                 flight.collect(ref, materials_dir, root)
             fill()
-        _drain(queue, forward)
+        drain_events(queue, forward)
     except KeyboardInterrupt:  # cancel what is still queued or running; the build then stops cleanly
         flight.cancel()
         raise

@@ -41,7 +41,7 @@ class FactsStore:
         """Record a file's facts; a cache that cannot be written costs a decode next time, nothing else."""
         from dataclasses import asdict
 
-        from bcfpipe.config import replace_atomically
+        from bcfpipe.formats.atomic import replace_atomically
 
         data = json.dumps({"format": FORMAT, "version": VERSION, "names": list(names),
                            "channels": [asdict(c) for c in contents]})

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
-from bcfpipe.config import CACHE_ENV, default_cache_root
+from bcfpipe.process_env import CACHE_ENV, default_cache_root
 from bcfpipe.errors import InputError
 from bcfpipe.formats.digest import sha256_file
 

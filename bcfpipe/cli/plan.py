@@ -156,7 +156,7 @@ def built_layout(job) -> dict | None:
     """The layout.json of ``job``'s cached build (its content hash in the default cache), if there is
     one: what a build of this job ships, measured. Read only: plan writes nothing."""
     from bcfpipe.cache.store import LAYOUT
-    from bcfpipe.config import default_cache_root
+    from bcfpipe.process_env import default_cache_root
 
     path = default_cache_root() / LAYOUT / "entries" / job.content_hash[:2] / job.content_hash / "layout.json"
     try:

@@ -33,7 +33,7 @@ def optional(default=None):
 
 
 @lru_cache(maxsize=None)
-def _hints(cls) -> dict[str, Any]:
+def field_hints(cls) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
@@ -111,7 +111,7 @@ def _load(tp: Any, v: Any, where: str) -> Any:
         unknown = sorted(set(v) - set(fields))
         if unknown:
             raise _fail(where, f"unknown key {unknown[0]!r}")
-        hints = _hints(tp)
+        hints = field_hints(tp)
         kw = {}
         for name, f in fields.items():
             if name in v:

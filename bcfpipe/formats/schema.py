@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from bcfpipe.formats import manifest, material, report
-from bcfpipe.formats.record import _hints, key_order
+from bcfpipe.formats.record import field_hints, key_order
 from bcfpipe.formats.vocabulary import Status
 from bcfpipe.resources import SCHEMA_DIR
 
@@ -429,7 +429,7 @@ def _type(tp: Any, defs: dict[str, Any]) -> dict[str, Any]:
 
 
 def _object(cls, defs: dict[str, Any]) -> dict[str, Any]:
-    hints = _hints(cls)
+    hints = field_hints(cls)
     order = key_order(cls)
     props = {}
     for name in order:

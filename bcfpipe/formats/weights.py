@@ -45,7 +45,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["MAGIC", "VERSION", "ALIGN", "Entry", "pack", "unpack", "read", "write", "record",
+__all__ = ["align_up", "MAGIC", "VERSION", "ALIGN", "Entry", "pack", "unpack", "read", "write", "record",
            "RECORD_MAGIC", "RECORD_VERSIONS", "RECORD_HEADER", "RecordHeader", "record_header", "record_values",
            "record_size"]
 
@@ -113,7 +113,8 @@ def record_values(data: bytes, offset: int = 0) -> tuple[RecordHeader, np.ndarra
     return head, h
 
 
-def _align(n: int) -> int:
+def align_up(n: int) -> int:
+    """``n`` bytes rounded up to the record's `ALIGN`."""
     return n + (-n % ALIGN)
 
 
@@ -136,13 +137,13 @@ def pack(records: Sequence[bytes]) -> tuple[bytes, list[Entry]]:
     """Combine BCFW records (``bcfpipe.model.decoder.to_bytes`` output) into one buffer; returns the bytes
     and the table entries (in record order)."""
     entries: list[Entry] = []
-    pos = _align(HEADER.size + ENTRY.size * len(records))
+    pos = align_up(HEADER.size + ENTRY.size * len(records))
     for i, rec in enumerate(records):
         magic, version, _n_in, hidden, n_out, _n = RECORD_HEADER.unpack_from(rec, 0)
         if magic != RECORD_MAGIC:
             raise ValueError(f"record {i} is not a BCFW record")
         entries.append(Entry(i, pos, len(rec), hidden, n_out))
-        pos = _align(pos + len(rec))
+        pos = align_up(pos + len(rec))
     total = pos
     buf = bytearray(total)
     HEADER.pack_into(buf, 0, MAGIC, VERSION, len(records), total)

@@ -312,8 +312,8 @@ def group_texels(ts: TextureSet, group: Group, images: Sequence[np.ndarray], blo
         normals, _, _ = B.slope_mips([m[..., cols] for m in images], blocks, slope_m)
         return normals
     normal = np.array([ts.channels[i].kind == "normal" for i in cols])
-    out, _ = B._encode_texture(ts, group.format.value, cols, images, blocks, None, enc.bc1_level)
-    return [B._from_storage(o, normal) for o in out]
+    out, _ = B.encode_texture(ts, group.format.value, cols, images, blocks, None, enc.bc1_level)
+    return [B.from_storage(o, normal) for o in out]
 
 
 def measure_repack(ts: TextureSet, bc: Sequence[EncodedGroup], e_bc: np.ndarray, rp: Repack, resolution: int,

@@ -81,10 +81,10 @@ class FitContext:
 
     def gain(self, profile: str) -> float:
         """The measured gain of ``profile`` (`train.rate`); smoke is no rate-control preset: draft's stand in."""
-        from bcfpipe.train.rate import _gain
+        from bcfpipe.train.rate import profile_gain
 
         preset = self.options.preset
-        return _gain(profile, preset if preset in ("draft", "fast", "standard", "paper") else "draft")
+        return profile_gain(profile, preset if preset in ("draft", "fast", "standard", "paper") else "draft")
 
     @property
     def settings(self) -> tuple[tuple[str, int], ...]:

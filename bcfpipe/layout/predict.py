@@ -13,12 +13,15 @@ estimator, which also sizes the profiles the probe is chosen from).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 from bcfpipe.config import PROFILES
 from bcfpipe.formats.sizes import feature_bytes, neural_bytes, texture_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.layout.classic import bc_levels, named_groups
+
+if TYPE_CHECKING:  # annotations only: the texture set module loads images
+    from bcfpipe.texset.texture_set import TextureSet
 
 
 def candidate_profiles(asked: str, device: str) -> list[str]:
@@ -183,7 +186,7 @@ def predict(q: Query) -> LayoutPrediction:
 
 
 def spec_texture_set(specs: Sequence[tuple[str, str, str]], width: int, height: int,
-                     hdr_files: Sequence[str] = (), vectors: Sequence = ()) -> "TextureSet":
+                     hdr_files: Sequence[str] = (), vectors: Sequence = ()) -> TextureSet:
     """A texture set of ``specs`` ((semantic, file, channels)) with no texels (a broadcast zero):
     enough for `classic.groups`. A colour read from one of ``hdr_files`` counts as HDR (BC6H);
     ``vectors``: the job's colours kept in their slots (TextureSet.vectors)."""
@@ -268,6 +271,6 @@ def build_range(preds: Sequence[LayoutPrediction]) -> tuple[int, int]:
     from bcfpipe.formats import weights as W
 
     n = len(preds)
-    low = sum(p.min_bytes for p in preds) + W._align(W.HEADER.size)
-    high = sum(p.max_bytes for p in preds) + W._align(W.HEADER.size + W.ENTRY.size * n) + n * (W.ALIGN - 1)
+    low = sum(p.min_bytes for p in preds) + W.align_up(W.HEADER.size)
+    high = sum(p.max_bytes for p in preds) + W.align_up(W.HEADER.size + W.ENTRY.size * n) + n * (W.ALIGN - 1)
     return low, high

@@ -311,7 +311,7 @@ class Renderer:
             prog["uViewProj"].write(vp.tobytes())
             glsl.set_uniforms(prog, self._uniforms(d, view))
             self.rt.bind_textures(d.textures)
-            (d.weights or self.rt._dummy).bind_to_storage_buffer(0)
+            (d.weights or self.rt.empty_buffer).bind_to_storage_buffer(0)
             d.vao.render(self.rt.moderngl.TRIANGLES)
         ctx.disable(ctx.DEPTH_TEST)
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 
 from pxr import Sdf, Usd, UsdShade
 
+from bcfpipe.errors import InputError
 from bcfpipe.formats.vocabulary import ColorSpace, Wrap, wrap_axes
 from bcfpipe.scan.network import scan_input, shader_id, st_source
 from bcfpipe.scan.results import PREVIEW_SURFACE_INPUTS, TextureRef, Transform2d
@@ -177,7 +178,6 @@ def _original(path: str, material: UsdShade.Material | None, display_color) -> S
 def _checked(value, where: str):
     """A value of the build's own: one of a type USD does not know means a damaged layer."""
     if is_unregistered(value):
-        from bcfpipe.errors import InputError
         raise InputError(f"{where}: a value of a type USD does not know; a damaged build (build it again)")
     return value
 
@@ -212,7 +212,6 @@ def _asset(shader: UsdShade.Shader, name: str, material: str) -> str:
     v = _input(shader, name)
     resolved = v.resolvedPath if isinstance(v, Sdf.AssetPath) else ""
     if not resolved:
-        from bcfpipe.errors import InputError
         raise InputError(f"{material}: {shader.GetPath()}.inputs:{name} "
                          f"{(v.path if isinstance(v, Sdf.AssetPath) else 'is not authored')!r} does not resolve")
     return resolved
@@ -231,7 +230,6 @@ def _neural(path: str, material: UsdShade.Material, shader: UsdShade.Shader, dis
     scale, bias = attr("bcf:outputs:scale", []), attr("bcf:outputs:bias", [])
     spaces = [str(t) for t in attr("bcf:outputs:colorSpaces", [])]
     if not targets or not all(len(x) == len(targets) for x in (channels, scale, bias, spaces)):
-        from bcfpipe.errors import InputError
         raise InputError(f"{path}: bcf:outputs:* are missing or of different lengths; not a bcfpipe build?")
     comps = list(base.components)
     driven = set()

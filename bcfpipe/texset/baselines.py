@@ -36,7 +36,7 @@ import numpy as np
 
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
-__all__ = ["parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline",
+__all__ = ["from_storage", "encode_texture", "bilinear_up", "parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline",
            "encode_texture_set_shipped", "astcenc_path",
            "pack_texture_set", "CODECS", "BC7_QUALITY", "USD", "NORMAL_SLOPE", "slope_mips", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
 
@@ -441,11 +441,11 @@ def _to_storage(x: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return np.where(normal, (x + 1.0) * 0.5, x)
 
 
-def _from_storage(x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+def from_storage(x: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return np.where(normal, x * 2.0 - 1.0, x).astype(np.float32)
 
 
-def _bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
+def bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
     """Bilinear magnification (texel-centre aligned, clamp to edge), as a GPU sampler would."""
     import torch
 
@@ -454,7 +454,7 @@ def _bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
     return np.moveaxis(up[0].numpy(), 0, -1).astype(np.float32)
 
 
-def _encode_texture(ts: TextureSet, fmt: str, idx: list[int], src: Sequence[np.ndarray], levels: list | None,
+def encode_texture(ts: TextureSet, fmt: str, idx: list[int], src: Sequence[np.ndarray], levels: list | None,
                     astc, bc1_level: int = BC1_LEVEL) -> tuple[list[np.ndarray], int]:
     """One texture of `pack_texture_set` (``fmt``, channels ``idx``) encoded and decoded at every mip
     of ``src`` (set values); (its decoded stored values per mip, bytes). BC1, BC7 and ASTC (``astc(rgb
@@ -508,7 +508,7 @@ def encode_texture_set_baseline(ts: TextureSet, codec: str, resolution: int | No
     shipped, total = encode_texture_set_shipped(ts, codec, resolution, ref_mips=ref, astc_block=astc_block,
                                                 astc_preset=astc_preset, textures=textures, tmp_dir=tmp_dir)
     d = sum(m is None for m in shipped)
-    return [_bilinear_up(shipped[d], *ref[k].shape[:2]) for k in range(d)] + shipped[d:], total
+    return [bilinear_up(shipped[d], *ref[k].shape[:2]) for k in range(d)] + shipped[d:], total
 
 
 def encode_texture_set_shipped(ts: TextureSet, codec: str, resolution: int | None = None, *,
@@ -534,7 +534,7 @@ def encode_texture_set_shipped(ts: TextureSet, codec: str, resolution: int | Non
     total = 0
     for fmt, idx in pack_texture_set(ts, codec):
         levels: list | None = [] if textures is not None else None
-        out, size = _encode_texture(ts, fmt, idx, src, levels,
+        out, size = encode_texture(ts, fmt, idx, src, levels,
                                     lambda rgb, blocks: astc_mips(rgb, astc_block, astc_preset, tmp_dir=tmp_dir,
                                                                   blocks=blocks))
         if levels is not None:
@@ -543,6 +543,6 @@ def encode_texture_set_shipped(ts: TextureSet, codec: str, resolution: int | Non
         once = list(dict.fromkeys(idx))  # a channel stored twice (a vector's repeat) is measured at its first slot
         first = [list(idx).index(c) for c in once]
         for k, o in enumerate(out):
-            dec_low[k][..., once] = _from_storage(o[..., first], normal[once])
+            dec_low[k][..., once] = from_storage(o[..., first], normal[once])
 
     return [None] * d + dec_low, total

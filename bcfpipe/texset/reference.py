@@ -31,7 +31,7 @@ from bcfpipe.formats.addressing import address
 from bcfpipe.texset import hostmem
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
-__all__ = ["ReferencePyramid", "CentreTargets", "keys_weights", "sample_reference", "random_batch", "WRAP_MODES"]
+__all__ = ["level_split", "bicubic_sample", "ReferencePyramid", "CentreTargets", "keys_weights", "sample_reference", "random_batch", "WRAP_MODES"]
 
 WRAP_MODES = (Wrap.REPEAT, Wrap.CLAMP, Wrap.MIRROR)
 KEYS_A = -0.5
@@ -91,7 +91,7 @@ def keys_weights(f: torch.Tensor, a: float = KEYS_A) -> torch.Tensor:
     return torch.stack((w0, w1, w2, w3), dim=-1)
 
 
-def _bicubic(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
+def bicubic_sample(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
     """Catmull-Rom sample of one level (c, H, W) at uv (N, 2): (N, c), one gather of 16 taps."""
     c, h, w = tex.shape
     size = torch.tensor([w, h], device=uv.device)
@@ -106,7 +106,7 @@ def _bicubic(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
     return torch.einsum("cnk,nk->nc", taps, weights)
 
 
-def _level_split(s: float, levels: int) -> tuple[int, int, float]:
+def level_split(s: float, levels: int) -> tuple[int, int, float]:
     s = max(float(s), 0.0)
     base = math.floor(s)
     l0, l1 = min(base, levels - 1), min(base + 1, levels - 1)
@@ -128,10 +128,10 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float | torch.T
     n, levels = uv.shape[0], pyr.num_levels
 
     if not torch.is_tensor(s) or s.ndim == 0:
-        l0, l1, t = _level_split(float(s), levels)
-        out = _bicubic(pyr.mips[l0], uv, wrap)
+        l0, l1, t = level_split(float(s), levels)
+        out = bicubic_sample(pyr.mips[l0], uv, wrap)
         if t > 0.0:
-            out = torch.lerp(out, _bicubic(pyr.mips[l1], uv, wrap), t)
+            out = torch.lerp(out, bicubic_sample(pyr.mips[l1], uv, wrap), t)
         return out
 
     if s.shape != (n,):
@@ -146,7 +146,7 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float | torch.T
         wk = (1.0 - t) * (l0 == k) + t * (l1 == k)
         sel = torch.nonzero(wk > 0).squeeze(-1)
         if sel.numel():
-            out.index_add_(0, sel, _bicubic(pyr.mips[k], uv[sel], wrap) * wk[sel, None])
+            out.index_add_(0, sel, bicubic_sample(pyr.mips[k], uv[sel], wrap) * wk[sel, None])
     return out
 
 
@@ -212,7 +212,7 @@ class CentreTargets:
                 up[:, :c] = m.reshape(c, -1).t()
             for a in range(0, h * w, chunk):  # in chunks: no 2x peak at 8K
                 ids = torch.arange(a, min(a + chunk, h * w), device=m.device)
-                b = (bicubic or _bicubic)(nxt, texel_centres(h, w, ids).to(nxt.dtype), wrap)
+                b = (bicubic or bicubic_sample)(nxt, texel_centres(h, w, ids).to(nxt.dtype), wrap)
                 if rows:
                     up[a:a + len(ids), c:] = b
                 else:
@@ -222,12 +222,12 @@ class CentreTargets:
 
     def covers(self, s: float) -> bool:
         """Whether a batch at scale ``s`` can be drawn at precomputed texel centres."""
-        l0, _, _ = _level_split(s, self.pyr.num_levels)
+        l0, _, _ = level_split(s, self.pyr.num_levels)
         return self.up[l0] is not None or self.texels[l0] is not None
 
     def draw(self, n: int, s: float, gen: torch.Generator | None) -> tuple[int, float, torch.Tensor]:
         """(mip floor(s), the blend t towards the next, ``n`` uniformly random texel ids of it)."""
-        l0, _, t = _level_split(s, self.pyr.num_levels)
+        l0, _, t = level_split(s, self.pyr.num_levels)
         m = self.pyr.mips[l0]
         c, h, w = m.shape
         gdev = gen.device if gen is not None else torch.device("cpu")

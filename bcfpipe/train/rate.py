@@ -31,7 +31,7 @@ from typing import Callable, Mapping, Sequence
 from bcfpipe.config import PROFILES, QUALITY_PRESETS, preset_for, resolve_profile
 from bcfpipe.formats.sizes import feature_bytes
 
-__all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_to_target", "anchors_from_bench",
+__all__ = ["profile_gain", "Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_to_target", "anchors_from_bench",
            "GAINS_DB", "MARGIN_DB", "T0_LAYER_GAINS_DB", "t0_layer_gains", "PROBE_GAINS_DB", "PROBE_GAINS_MAX_DB", "probe_gains"]
 
 MARGIN_DB = 0.5
@@ -93,7 +93,7 @@ PROBE_GAINS_MAX_DB: dict[str, tuple[float, float, float, float]] = {
 PAPER_OVER_STANDARD_DB = 1.0  # a GPU's 206k steps over `standard`'s 19.5k: a guess until measured on a GPU
 
 
-def _gain(profile: str, preset: str) -> float:
+def profile_gain(profile: str, preset: str) -> float:
     base = profile if (profile, "draft") in GAINS_DB else "0.5k"
     if preset == "paper":
         return GAINS_DB[(base, "standard")] + PAPER_OVER_STANDARD_DB
@@ -151,7 +151,7 @@ def predict(settings: Sequence[Setting], anchors: Mapping[tuple[str, str], float
         if key in anchors:
             out[key] = anchors[key]
         elif anchors:
-            out[key] = sum(v + _gain(*key) - _gain(*a) for a, v in anchors.items()) / len(anchors)
+            out[key] = sum(v + profile_gain(*key) - profile_gain(*a) for a, v in anchors.items()) / len(anchors)
     return out
 
 

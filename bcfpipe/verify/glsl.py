@@ -216,7 +216,7 @@ class GLRuntime:
         self._upload = glCompressedTexImage2D
         self._programs: dict[tuple, object] = {}
         self._fbos: dict[tuple[int, int], object] = {}
-        self._dummy = self.ctx.buffer(reserve=16)
+        self.empty_buffer = self.ctx.buffer(reserve=16)
 
     # ------------------------------------------------------------------ info / lifetime
     @property
@@ -336,7 +336,7 @@ class GLRuntime:
         try:
             self.bind_textures(gm.textures)
             gm.weights.bind_to_storage_buffer(0)
-            (queries or self._dummy).bind_to_storage_buffer(1)
+            (queries or self.empty_buffer).bind_to_storage_buffer(1)
             out.bind_to_storage_buffer(2)
             values = dict(gm.uniforms(), uCount=count, uOutStride=stride, uGrid=grid, uGridLod=float(grid_lod),
                           uGradQueries=grad)

@@ -34,7 +34,7 @@ def kernels_dir() -> str:
     """Compiled kernels live in bcfpipe's cache (``kernels/``): the build's (``--cache``), else the
     default one; never beside the package or in numba's default places. NUMBA_CACHE_DIR, when set,
     wins."""
-    from bcfpipe.config import default_cache_root
+    from bcfpipe.process_env import default_cache_root
 
     return (os.environ.get("NUMBA_CACHE_DIR") or os.environ.get(KERNELS_ENV)
             or str(default_cache_root() / "kernels"))
@@ -45,7 +45,7 @@ def kernels_in(cache_root: str | os.PathLike | None):
     """Within the block, this process and the workers it starts keep compiled kernels under
     ``cache_root/kernels`` (a build's --cache; None keeps the default), and a fallback from the
     compiled kernel is said once for them all (`say_once`), not once per worker."""
-    from bcfpipe.config import environment
+    from bcfpipe.process_env import environment
 
     with environment(KERNELS_ENV, None if cache_root is None else str(Path(cache_root) / "kernels")):
         said = Path(kernels_dir()) / f".said-{os.getpid()}-{uuid.uuid4().hex[:8]}"

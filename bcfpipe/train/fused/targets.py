@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from bcfpipe.train.fused.common import wrap_code
-from bcfpipe.texset.reference import KEYS_A, CentreTargets, ReferencePyramid, _level_split
+from bcfpipe.texset.reference import KEYS_A, CentreTargets, ReferencePyramid, level_split
 
 
 def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: str) -> torch.Tensor:
@@ -17,7 +17,7 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: st
     fused kernel's backend (native: targets.cpp, the same sums vectorised)."""
     from bcfpipe.train.fused.step import default_backend
 
-    l0, l1, t = _level_split(float(s), pyr.num_levels)
+    l0, l1, t = level_split(float(s), pyr.num_levels)
     u = uv.detach().numpy().astype(np.float32, copy=False)
     out = np.zeros((u.shape[0], pyr.num_channels), np.float32)
     code = wrap_code(wrap)
@@ -37,7 +37,7 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: st
 
 
 def bicubic(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
-    """reference._bicubic's (N, c) lookup of one level (CPU, float32) in targets.cpp: the same taps
+    """reference.bicubic_sample's (N, c) lookup of one level (CPU, float32) in targets.cpp: the same taps
     and weights, summed in another order (CentreTargets' precomputed images, natively)."""
     from bcfpipe.train.fused import native
 

@@ -1,0 +1,40 @@
+"""What bcfpipe reads from and sets in the process environment: the cache root (``BCFPIPE_CACHE``)
+and variables set for a block (how a build points its workers at its cache's folders)."""
+from __future__ import annotations
+
+import os
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+CACHE_ENV = "BCFPIPE_CACHE"
+
+
+def default_cache_root() -> Path:
+    """The cache folder when none is given: ``BCFPIPE_CACHE``, else the platformdirs user cache
+    folder of bcfpipe. Trained materials live there (bcfpipe.cache), and compiled training kernels
+    under ``kernels/`` (bcfpipe.train.fused)."""
+    env = os.environ.get(CACHE_ENV)
+    if env:
+        return Path(env).expanduser()
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("bcfpipe", appauthor=False))
+
+
+@contextmanager
+def environment(name: str, value: str | None) -> Iterator[None]:
+    """Within the block, ``name`` is ``value`` in this process's environment (and so in the workers
+    it starts); None changes nothing. How a build points its workers at its cache's folders."""
+    if value is None:
+        yield
+        return
+    old = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = old
