@@ -76,28 +76,20 @@ def side_by_side(*panels: np.ndarray) -> np.ndarray:
 
 def write_png(path: str | os.PathLike, rgb8: np.ndarray) -> None:
     """An 8-bit sRGB PNG, written through a temporary sibling and a rename (no partial file)."""
-    import tempfile
-
     import OpenImageIO as oiio
 
-    path = os.fspath(path)
+    from bcfpipe.formats.atomic import write_atomically
+
     h, w, c = rgb8.shape
     spec = oiio.ImageSpec(w, h, c, oiio.UINT8)
-    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".png", dir=os.path.dirname(path) or ".")
-    os.close(fd)
-    try:
-        out = oiio.ImageOutput.create(tmp)
-        if out is None or not out.open(tmp, spec):
-            raise OSError(f"{path}: cannot write PNG ({oiio.geterror()})")
+
+    def write(tmp) -> None:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec):
+            raise OSError(f"{os.fspath(path)}: cannot write PNG ({oiio.geterror()})")
         try:
             out.write_image(np.ascontiguousarray(rgb8))
         finally:
             out.close()
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+    write_atomically(path, write, suffix=".png")
