@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bcfpipe.formats.atomic import write_atomically
+
 HERE = Path(__file__).parent
 SOURCES = (HERE / "step.cpp", HERE / "targets.cpp", HERE / "adam.cpp", HERE.parent.parent / "bc6h" / "quick.cpp")
 HEADERS = (HERE / "lanes.h",)
@@ -92,17 +94,13 @@ def _first_error(stderr: str) -> str:
 
 def _build(cxx: str, path: Path) -> None:
     """Compile the sources into ``path`` through a temporary file beside it (renamed when whole)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".so", dir=path.parent)
-    os.close(fd)
-    try:
-        r = subprocess.run([cxx, *FLAGS, "-o", tmp, *map(str, SOURCES)], capture_output=True, text=True)
+    def compile_to(tmp: Path) -> None:
+        r = subprocess.run([cxx, *FLAGS, "-o", str(tmp), *map(str, SOURCES)], capture_output=True, text=True)
         if r.returncode != 0:
             raise NativeUnavailable(f"building the fused kernel failed: {_first_error(r.stderr)}")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_atomically(path, compile_to, suffix=".so")
 
 
 def _open() -> ctypes.CDLL:
