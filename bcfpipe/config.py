@@ -278,7 +278,7 @@ class ModelConfig:
     signed: bool = False  # BC6H_UF16 by default: finer endpoint steps over the positive range
     wrap: tuple[str, str] = ("repeat", "repeat")  # (S, T) addressing: repeat, clamp or mirror per axis
     max_feature: float = 2.0  # decoded features are kept within +-max_feature (model.features.endpoint_range)
-    features: FeatureFormat = FeatureFormat.BC6H  # the paper's; TrainingOptions holds the user-facing default
+    features: FeatureFormat = DEFAULT_FEATURES
     # The first reference mip the features serve: 0 for a neural material; k > 0 in a mip-split
     # layout (issue 31), whose classic textures serve the mips below k, so steps draw s in [k, s_max].
     split: int = 0
@@ -339,7 +339,11 @@ class TrainConfig:
     tap_decode: bool = False
     feature_init: str = DEFAULT_INIT  # see FEATURE_INITS
     kernel: Kernel = DEFAULT_KERNEL  # phases 1-2 through torch's ops or the fused kernel; see Kernel.on
-    t0: T0 = T0.TRAINED  # what T_0 holds (bcfpipe.train.fixed_t0)
+    t0: T0 | None = None  # what T_0 holds (bcfpipe.train.fixed_t0); None: DEFAULT_T0 of the model's features
+
+    def __post_init__(self) -> None:
+        if self.t0 is None:
+            object.__setattr__(self, "t0", DEFAULT_T0[FeatureFormat(self.model.features)])
 
     def with_(self, **kw) -> "TrainConfig":
         return replace(self, **kw)

@@ -28,6 +28,7 @@ from bcfpipe.train import trainer as T  # noqa: E402
 from bcfpipe.config import PRESETS, ModelConfig, TrainConfig  # noqa: E402
 from bcfpipe.export.fit import fit_material  # noqa: E402
 from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
+from bcfpipe.formats.vocabulary import FeatureFormat  # noqa: E402
 
 
 def main():
@@ -45,7 +46,7 @@ def main():
     torch.set_num_threads(1)
     ts = load_texture_set(teapot_specs(), a.res)
     r = a.res // 2
-    mc = ModelConfig(resolutions=(r, r // 2, r // 4, r // 8))
+    mc = ModelConfig(features=FeatureFormat.BC6H, resolutions=(r, r // 2, r // 4, r // 8))
 
     rule = M.lod_biases if a.rule == "span" else (
         lambda res, w, h: tuple(math.log2(max(x / w, x / h)) for x in res))

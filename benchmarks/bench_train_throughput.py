@@ -31,6 +31,7 @@ from bcfpipe.model.decoder import mlp_raw  # noqa: E402
 from bcfpipe.model.features import BlockParams, Layers, endpoint_value  # noqa: E402
 from bcfpipe.texset.reference import ReferencePyramid, random_batch, sample_reference  # noqa: E402
 from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
+from bcfpipe.formats.vocabulary import FeatureFormat
 
 
 def _sync(dev):
@@ -218,7 +219,7 @@ def main():
     dev = torch.device(a.device)
     gen = torch.Generator().manual_seed(0)
     ts = load_texture_set(teapot_specs())
-    mc = ModelConfig(resolutions=PROFILES["1k"])
+    mc = ModelConfig(features=FeatureFormat.BC6H, resolutions=PROFILES["1k"])
     ref = ReferencePyramid.from_texture_set(ts, dev)
     biases = M.lod_biases(mc.resolutions, ts.width, ts.height)
     mlp = M.init_mlp(12, 16, ts.num_channels, gen, dev, torch.zeros(ts.num_channels))

@@ -10,6 +10,7 @@ from bcfpipe.config import ModelConfig, PhaseSchedule, Preset, TrainConfig
 from bcfpipe.formats.vocabulary import Kernel
 from bcfpipe.model.features import FixedLevel, Layers
 from bcfpipe.train.backend import FusedBackend, TorchBackend, make_backend
+from bcfpipe.formats.vocabulary import FeatureFormat
 
 
 def _fixed(size: int) -> FixedLevel:
@@ -34,7 +35,7 @@ def test_layers_keep_the_fixed_ones_apart_in_layer_order():
 @pytest.mark.parametrize("kernel,expected", [(Kernel.TORCH, TorchBackend), (Kernel.FUSED, FusedBackend),
                                              (Kernel.AUTO, None)])
 def test_the_backend_is_the_kernel_the_config_picks_on_the_device(kernel, expected):
-    cfg = TrainConfig(model=ModelConfig(resolutions=(16, 8, 8, 4)), kernel=kernel, device="cpu")
+    cfg = TrainConfig(model=ModelConfig(features=FeatureFormat.BC6H, resolutions=(16, 8, 8, 4)), kernel=kernel, device="cpu")
     backend = make_backend(cfg, torch.device("cpu"), {}, (0.0,) * 4)
     assert backend.kernel == kernel.on(torch.device("cpu"))
     assert expected is None or type(backend) is expected
@@ -56,7 +57,7 @@ def test_a_training_run_asks_which_kernel_once(kernel, monkeypatch):
                     tuple(Channel("albedo", c, "color", "a.png", i) for i, c in enumerate("rgb")), 32, 32)
     quick = Preset(PhaseSchedule(4, 0.5, 5e-3, 0.99, 0.99), PhaseSchedule(4, 0.1, 5e-3, 0.99, 0.99),
                    PhaseSchedule(2, 0.0, 2e-3, 1.0, 0.99), 256)
-    cfg = TrainConfig(model=ModelConfig(resolutions=(16, 8, 8, 4)), preset=quick, seed=1, device="cpu", threads=1,
+    cfg = TrainConfig(model=ModelConfig(features=FeatureFormat.BC6H, resolutions=(16, 8, 8, 4)), preset=quick, seed=1, device="cpu", threads=1,
                       kernel=kernel)
     tm = train(ts, cfg, measure_float=False)
     assert asked == [kernel] and [h[0] for h in tm.history] == ["warmup", "constrained", "finetune"]

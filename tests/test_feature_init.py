@@ -10,6 +10,7 @@ from bcfpipe.model.features import Layers
 from bcfpipe.train.feature_init import pca_init
 from bcfpipe.texset.reference import ReferencePyramid, sample_reference
 from bcfpipe.texset.texture_set import build_mip_chain
+from bcfpipe.formats.vocabulary import FeatureFormat
 
 
 def _psnr(pred, target):
@@ -26,7 +27,7 @@ def test_pca_start_reproduces_a_low_rank_texture_set():
     mix = rng.uniform(-0.2, 0.2, (3, 6))
     data = (0.5 + fields @ mix).astype(np.float32)
     pyr = ReferencePyramid.from_mips(build_mip_chain(data))
-    mc = ModelConfig(resolutions=(32, 16, 8, 4))
+    mc = ModelConfig(features=FeatureFormat.BC6H, resolutions=(32, 16, 8, 4))
     biases = M.lod_biases(mc.resolutions, 64, 64)
     gen = torch.Generator().manual_seed(0)
     free = M.init_free(mc, gen, "cpu")

@@ -178,7 +178,7 @@ def test_fused_training_is_deterministic_and_trains_as_well_as_torch():
     from bcfpipe.train.trainer import train
 
     ts = load_texture_set([TextureSpec.parse(f"albedo={TEXTURES / 'tiles_albedo.png'}:rgb")], resolution=128)
-    mc = ModelConfig(resolutions=(64, 32, 16, 8))
+    mc = ModelConfig(features=FeatureFormat.BC6H, resolutions=(64, 32, 16, 8))
     cfg = TrainConfig(model=mc, preset=PRESETS["smoke"], preset_name="smoke", threads=1)
     torch_run = train(ts, cfg, measure_float=False)
     a = train(ts, cfg.with_(kernel=Kernel.FUSED), measure_float=False)

@@ -38,7 +38,7 @@ def make_bc7_material(folder: Path, seed: int = 3) -> Path:
 
     from bcfpipe.config import ModelConfig, TrainConfig
     from bcfpipe.export import writer as E
-    from bcfpipe.formats.vocabulary import FeatureFormat
+    from bcfpipe.formats.vocabulary import T0, FeatureFormat
     from bcfpipe.model import neural as M
     from bcfpipe.model.decoder import MlpWeights
     from bcfpipe.model.features import Layers, codec_of
@@ -65,7 +65,7 @@ def make_bc7_material(folder: Path, seed: int = 3) -> Path:
     w = MlpWeights(rng.normal(0, 0.5, (hidden, 16)).astype(np.float32), rng.uniform(-0.3, 0.3, hidden).astype(np.float32),
                    rng.normal(0, 0.4, (n_out, hidden)).astype(np.float32), rng.uniform(-0.2, 0.2, n_out).astype(np.float32),
                    np.full(n_out, 0.8, np.float32), np.full(n_out, 0.1, np.float32)).to_fp16()
-    tm = TrainedMaterial(TrainConfig(model=mc), ts, Layers.of(layers), w, M.lod_biases(mc.resolutions, 64, 64),
+    tm = TrainedMaterial(TrainConfig(model=mc, t0=T0.TRAINED), ts, Layers.of(layers), w, M.lod_biases(mc.resolutions, 64, 64),
                          {"warmup": 0.0})
     return E.export(tm, folder)
 

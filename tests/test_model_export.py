@@ -15,8 +15,9 @@ from bcfpipe.model.decoder import MlpWeights, decode_numpy, from_bytes, mlp_raw,
 from bcfpipe.texset.texture_set import Channel, TextureSet
 from bcfpipe.model.features import Layers
 from bcfpipe.train.trainer import BlockLevel, TrainedMaterial, exact_level
+from bcfpipe.formats.vocabulary import T0, FeatureFormat
 
-MC = ModelConfig(resolutions=(32, 16, 8, 4))
+MC = ModelConfig(features=FeatureFormat.BC6H, resolutions=(32, 16, 8, 4))
 
 
 def _random_blocks(mc, seed=0, signed=False):
@@ -48,7 +49,7 @@ def _weights(seed=0, c=6, hidden=16):
 
 
 def _trained(mc, signed=False, seed=0):
-    mc = ModelConfig(resolutions=mc.resolutions, signed=signed, wrap=mc.wrap)
+    mc = ModelConfig(features=FeatureFormat.BC6H, resolutions=mc.resolutions, signed=signed, wrap=mc.wrap)
     ch = _channels()
     ts = TextureSet(np.zeros((64, 64, len(ch)), np.float32), ch, 64, 64)
     return TrainedMaterial(TrainConfig(model=mc), ts, Layers.of(_random_blocks(mc, seed, signed)), _weights(seed),
@@ -69,7 +70,7 @@ def _torch_blocks(layers, requires_grad=False):
 
 @pytest.mark.parametrize("signed", [False, True])
 def test_tap_decode_equals_level_decode(signed):
-    mc = ModelConfig(resolutions=MC.resolutions, signed=signed)
+    mc = ModelConfig(features=FeatureFormat.BC6H, resolutions=MC.resolutions, signed=signed)
     blocks = _torch_blocks(_random_blocks(mc, 3, signed))
     g = torch.Generator().manual_seed(0)
     with torch.no_grad():  # continuous parameters too, not only quantized ones
@@ -237,7 +238,7 @@ def test_bc7_constrained_forward_equals_exported_dds_and_onnx(tmp_path):
     w = _weights(3)
     rng2 = np.random.default_rng(4)
     w = MlpWeights(rng2.normal(0, 0.5, (16, 16)).astype(np.float32), w.b1, w.w2, w.b2, w.out_scale, w.out_bias).to_fp16()
-    tm = TrainedMaterial(TrainConfig(model=mc), ts, Layers.of(layers), w, M.lod_biases(mc.resolutions, 64, 64),
+    tm = TrainedMaterial(TrainConfig(model=mc, t0=T0.TRAINED), ts, Layers.of(layers), w, M.lod_biases(mc.resolutions, 64, 64),
                          {"warmup": 0.0})
     E.export(tm, tmp_path)
     em = E.load(tmp_path)

@@ -9,11 +9,12 @@ import pytest
 from bcfpipe.config import ModelConfig, PhaseSchedule, Preset, TrainConfig
 from bcfpipe.export.fit import fit_material
 from bcfpipe.texset.texture_set import Channel, TextureSet, TextureSpec, load_texture_set
+from bcfpipe.formats.vocabulary import FeatureFormat
 
 # a short schedule for tests: ~2 s of training per run on one core
 QUICK = Preset(PhaseSchedule(120, 0.5, 5e-3, 0.98, 0.98), PhaseSchedule(240, 0.1, 5e-3, 0.99, 0.99),
                PhaseSchedule(40, 0.0, 2.5e-3, 1.0, 0.95), 2048, qat_fraction=0.5)
-TINY = ModelConfig(resolutions=(32, 16, 8, 4))
+TINY = ModelConfig(features=FeatureFormat.BC6H, resolutions=(32, 16, 8, 4))
 
 
 def _crop(ts: TextureSet, y: int, x: int, size: int) -> TextureSet:
@@ -51,7 +52,7 @@ def test_training_is_deterministic_on_cpu(tmp_path):
     ts = TextureSet(data.astype(np.float32), ch, 32, 32)
     quick = Preset(PhaseSchedule(30, 0.5, 5e-3, 0.99, 0.99), PhaseSchedule(30, 0.1, 5e-3, 0.99, 0.99),
                    PhaseSchedule(10, 0.0, 2e-3, 1.0, 0.99), 512)
-    cfg = TrainConfig(model=ModelConfig(resolutions=(16, 8, 8, 4)), preset=quick, seed=3, device="cpu", threads=1)
+    cfg = TrainConfig(model=ModelConfig(features=FeatureFormat.BC6H, resolutions=(16, 8, 8, 4)), preset=quick, seed=3, device="cpu", threads=1)
     outs = []
     for run in range(2):
         fit_material(ts, tmp_path / str(run), cfg, "t")
@@ -99,7 +100,7 @@ def test_progress_comes_on_time_and_changes_nothing():
     ts = TextureSet(data, tuple(Channel("albedo", c, "color", "gen", i) for i, c in enumerate("rgb")), 32, 32)
     quick = Preset(PhaseSchedule(30, 0.5, 5e-3, 0.99, 0.99), PhaseSchedule(30, 0.1, 5e-3, 0.99, 0.99),
                    PhaseSchedule(10, 0.0, 2e-3, 1.0, 0.99), 256)
-    cfg = TrainConfig(model=ModelConfig(resolutions=(16, 8, 8, 4)), preset=quick, seed=3, device="cpu", threads=1)
+    cfg = TrainConfig(model=ModelConfig(features=FeatureFormat.BC6H, resolutions=(16, 8, 8, 4)), preset=quick, seed=3, device="cpu", threads=1)
     clock = _FakeClock(0.25)
     seen = []
     tm = train(ts, cfg, lambda p: seen.append((clock.now, p)), pace=Pace(every=10**6, seconds=1.0, clock=clock))

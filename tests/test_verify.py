@@ -18,6 +18,7 @@ from click.testing import CliRunner
 from bcfpipe.export import writer as E
 from bcfpipe.verify import checks as V
 from bcfpipe.model.decoder import HEADER_BYTES, MlpWeights, decode_numpy
+from bcfpipe.formats.vocabulary import FeatureFormat
 
 SIZES = (32, 16, 8, 4)
 REF = 64
@@ -59,7 +60,7 @@ def make_material(folder: Path, signed: bool = False, wrap: str = "repeat", norm
         np.array([0.0 if c.kind == "normal" else 0.5 for c in chans], np.float32)).to_fp16()
     if mlp_transform is not None:
         w = mlp_transform(w)
-    cfg = TrainConfig(model=ModelConfig(resolutions=tuple(resolutions), hidden=hidden, signed=signed, wrap=wrap),
+    cfg = TrainConfig(model=ModelConfig(features=FeatureFormat.BC6H, resolutions=tuple(resolutions), hidden=hidden, signed=signed, wrap=wrap),
                       preset_name="synthetic")
     tm = SimpleNamespace(config=cfg, texture_set=ts, layers=Layers.of(layers), mlp=w,
                          lod_biases=lod_biases(resolutions, ref, ref), phase_seconds={},
