@@ -12,8 +12,10 @@ setup:
 demo: setup
 	$(BCF) build samples/sample_scene.usda --quality draft --layout neural --verify
 
+# --dist loadscope: a module's tests on one worker, so its module-scoped builds run once, not once per
+# worker (test_wrap's two builds: 53 s on each worker before)
 test: setup
-	$(PY) -m pytest -n 2 --durations=15 $(PYTEST_ARGS)
+	$(PY) -m pytest -n 2 --dist loadscope --durations=15 $(PYTEST_ARGS)
 
 # the package as a user installs it (tests/test_install.py, slow: about 4 min): the sdist and the wheel,
 # the wheel in a new venv with only torch beside it, build --verify and render run outside the repository
@@ -21,7 +23,7 @@ test-install: setup
 	$(PY) -m pytest -p no:xdist -m slow tests/test_install.py $(PYTEST_ARGS)
 
 test-all: setup
-	$(PY) -m pytest -n 2 -m "" $(PYTEST_ARGS)
+	$(PY) -m pytest -n 2 --dist loadscope -m "" $(PYTEST_ARGS)
 
 clean:
 	rm -rf .venv build *.egg-info out
