@@ -4,7 +4,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 1. BC@R (every classic group, every mip), its BC7 repacks and the BC7 quality set, estimated from a
    sample of their blocks by the encoders that ship them (`bcfpipe.layout.classic_fit`,
    `bcfpipe.layout.estimate`): sizes exact, errors per mip within 0.16 dB of a full encode on the
-   sets measured (docs/benchmarks.md), at 16 % of its texels on a 2048² set.
+   sets measured (docs/benchmarks.md), at 16 % of its texels on a 2048² set. Where no repack can
+   take BC@R's place it is encoded in full at once instead: it ships or is the floor.
 2. The probe: one neural model on all channels at p0, the largest profile no larger than the one
    asked for whose bytes fit within BC@R's (the smallest when none does: it measures the neural
    part of a mip split or a mixed layout), with a T_0 of one layer of principal components (or
