@@ -147,11 +147,25 @@ def test_one_worker_encodes_inline_off_the_main_thread(tmp_path: Path, monkeypat
 
 
 _THREADS_AFTER = """
-import os, sys, numpy as np
+import os, sys, threading, numpy as np
 from bcfpipe.texset import parallel
 parallel.set_encode_workers(int(sys.argv[1]))
+px = np.zeros((512, 512, 4), np.uint8)
+if sys.argv[2] == 'beside':  # the main thread encodes first, then a thread of its own with one worker
+    parallel.quicktex_level('bc1 level 13', px, 8)
+    idle = threading.Thread(target=lambda: None)  # a first thread leaves one behind: counted before
+    idle.start()
+    idle.join()
 before = len(os.listdir('/proc/self/task'))
-parallel.quicktex_level('bc1 level 13', np.zeros((512, 512, 4), np.uint8), 8)
+if sys.argv[2] == 'beside':
+    def enc():
+        with parallel.workers(1):
+            parallel.quicktex_level('bc1 level 13', px, 8)
+    th = threading.Thread(target=enc)
+    th.start()
+    th.join()
+else:
+    parallel.quicktex_level('bc1 level 13', px, 8)
 print(len(os.listdir('/proc/self/task')) - before)
 """
 
@@ -159,10 +173,11 @@ print(len(os.listdir('/proc/self/task')) - before)
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc (Linux)")
 def test_quicktex_runs_on_the_workers_it_is_given() -> None:
     """quicktex encodes on its own OpenMP runtime (not torch's), on every core unless told: with one
-    worker no thread starts, with two one more does (`parallel.openmp_threads`)."""
-    started = [int(subprocess.run([sys.executable, "-c", _THREADS_AFTER, str(n)], capture_output=True, text=True,
-                                  check=True).stdout) for n in (1, 2)]
-    assert started == [0, 1], started
+    worker no thread starts, with two one more does, and none in a thread beside a training with one
+    worker (`parallel.openmp_threads`)."""
+    started = [int(subprocess.run([sys.executable, "-c", _THREADS_AFTER, str(n), where], capture_output=True,
+                                  text=True, check=True).stdout) for n, where in ((1, "main"), (2, "main"), (1, "beside"))]
+    assert started == [0, 1, 0], started  # OpenMP's count is per thread: a new thread is told again
 
 
 def test_trace_is_silent_without_the_variable(tmp_path: Path, monkeypatch) -> None:

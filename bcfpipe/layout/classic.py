@@ -149,19 +149,17 @@ def encode_group(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequen
         decoded = usd_normals(levels, [r.shape[:2] for r in ref_mips], wrap, m)
     else:
         decoded = [magnify(decoded[0], *ref_mips[k].shape[:2], wrap) for k in range(d)] + decoded
-    g = EncodedGroup(group, levels, decoded, slope=m)
-    g.disk = _disk_aside(g)
-    return g
+    return EncodedGroup(group, levels, decoded, slope=m)
 
 
-def _disk_aside(g: EncodedGroup):
-    """``g``'s bytes on disk measured in a thread beside what follows (zstd at level 19 releases
-    the GIL: 1.2 s for a 2048² BC1 file), when the job has a second core: a Future that
-    `disk_bytes` resolves; else None (measured when asked)."""
+def disk_bytes_aside(g: EncodedGroup) -> None:
+    """Start measuring ``g``'s bytes on disk in a thread beside what follows (zstd at level 19
+    releases the GIL: 1.2 s for a 2048² BC1 file), when the job has a second core: ``g.disk`` is
+    then a Future that `disk_bytes` resolves; else nothing (measured when asked)."""
     from bcfpipe.texset.parallel import encode_workers
 
-    if encode_workers() < 2:
-        return None
+    if encode_workers() < 2 or g.disk is not None:
+        return
     global _disk_pool
     if _disk_pool is None:
         from concurrent.futures import ThreadPoolExecutor
@@ -170,7 +168,7 @@ def _disk_aside(g: EncodedGroup):
 
         _disk_pool = ThreadPoolExecutor(1, thread_name_prefix="bcfpipe-disk-bytes")
         trace_pool("disk-bytes-thread", 1)
-    return _disk_pool.submit(_file_disk_bytes, g.levels, g.group.format)
+    g.disk = _disk_pool.submit(_file_disk_bytes, g.levels, g.group.format)
 
 
 _disk_pool = None
@@ -329,20 +327,22 @@ def measure_repack(ts: TextureSet, bc: Sequence[EncodedGroup], e_bc: np.ndarray,
     return enc, e, size
 
 
+def _taps(at: np.ndarray, n_out: int, n_in: int, mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The two texels of ``n_in`` (addressed with ``mode``) a linear filter reads at the centres of
+    target texels ``at`` of ``n_out``, and the second one's weight."""
+    x = (np.asarray(at) + 0.5) * n_in / n_out - 0.5
+    x0 = np.floor(x).astype(np.int64)
+    f = (x - x0).astype(np.float32)
+    return address(x0, n_in, mode), address(x0 + 1, n_in, mode), f
+
+
 def magnify(img: np.ndarray, height: int, width: int, wrap) -> np.ndarray:
     """Bilinear magnification at the target's texel centres (GL's LINEAR filter), with ``wrap``
     (one mode, or the (S, T) pair: S along the width, T along the height)."""
     h, w = img.shape[:2]
     wrap_s, wrap_t = wrap_axes(wrap)
-
-    def taps(n_out: int, n_in: int, mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        x = (np.arange(n_out) + 0.5) * n_in / n_out - 0.5
-        x0 = np.floor(x).astype(np.int64)
-        f = (x - x0).astype(np.float32)
-        return address(x0, n_in, mode), address(x0 + 1, n_in, mode), f
-
-    ya, yb, fy = taps(height, h, wrap_t)
-    xa, xb, fx = taps(width, w, wrap_s)
+    ya, yb, fy = _taps(np.arange(height), height, h, wrap_t)
+    xa, xb, fx = _taps(np.arange(width), width, w, wrap_s)
     out = np.empty((height, width) + img.shape[2:], np.float32)
     band = max(1, (1 << 22) // max(1, width * int(np.prod(img.shape[2:]))))  # 16 MiB temporaries, even at 8K
     for y0 in range(0, height, band):
@@ -356,15 +356,9 @@ def magnify_at(img: np.ndarray, height: int, width: int, wrap, ys: np.ndarray, x
     """`magnify`'s texels at (``ys``, ``xs``) of the (``height``, ``width``) target only, (n, ...)."""
     h, w = img.shape[:2]
     wrap_s, wrap_t = wrap_axes(wrap)
-
-    def taps(at: np.ndarray, n_out: int, n_in: int, mode: str):
-        x = (at + 0.5) * (n_in / n_out) - 0.5
-        x0 = np.floor(x).astype(np.int64)
-        f = (x - x0).astype(np.float32).reshape((-1,) + (1,) * (img.ndim - 2))
-        return address(x0, n_in, mode), address(x0 + 1, n_in, mode), f
-
-    ya, yb, fy = taps(ys, height, h, wrap_t)
-    xa, xb, fx = taps(xs, width, w, wrap_s)
+    ya, yb, fy = _taps(ys, height, h, wrap_t)
+    xa, xb, fx = _taps(xs, width, w, wrap_s)
+    fy, fx = (f.reshape((-1,) + (1,) * (img.ndim - 2)) for f in (fy, fx))
     flat = np.ascontiguousarray(img).reshape((h * w,) + img.shape[2:])
     ya, yb = ya * w, yb * w
     top = np.take(flat, ya + xa, 0) * (1 - fx) + np.take(flat, ya + xb, 0) * fx

@@ -19,7 +19,7 @@ from bcfpipe.config import DEFAULT_ENCODE, EncodePreset
 from bcfpipe.formats.display import bytes_text
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Group, Repack, bc7_quality_set, channel_errors,
-                                    disk_bytes, encode_group, planned, repacks)
+                                    disk_bytes, disk_bytes_aside, encode_group, planned, repacks)
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.estimate import estimate_errors
 from bcfpipe.texset.chain import Reference
@@ -173,6 +173,7 @@ def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None,
         g = groups[i]
         work.report(done_texels, total, t)
         groups[i] = encode_group(ts, g.group, r, ref.mips, work.wrap, work.enc)
+        disk_bytes_aside(groups[i])
         done_texels += work_of[n]
         cols = list(g.group.channels)
         e_bc[:, cols] = channel_errors(ts, [groups[i]], ref.mips, ref.masks)[:, cols]
@@ -184,6 +185,7 @@ def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None,
         for n, g in enumerate(rp.groups):
             work.report(done_texels, total, t)
             enc.append(encode_group(ts, g, r, ref.mips, work.wrap, work.enc))
+            disk_bytes_aside(enc[-1])
             done_texels += work_of[len(todo) + n]
         e = channel_errors(ts, enc, ref.mips, ref.masks)
         for g in enc:

@@ -172,16 +172,14 @@ def openmp_threads(n: int) -> None:
         except OSError:  # not Linux: quicktex's runtime keeps its own default
             paths = set()
         _gomp = [ctypes.CDLL(p) for p in sorted(paths)]
-    global _gomp_n
-    if _gomp and n != _gomp_n:
+    if _gomp and n != getattr(_local, "omp", 0):  # OpenMP's thread count is each calling thread's own
         for lib in _gomp:
             lib.omp_set_num_threads(int(n))
-        _gomp_n = n
+        _local.omp = n
         trace_pool("quicktex-openmp", n)
 
 
 _gomp: list | None = None
-_gomp_n = 0
 
 
 def threaded_bands(encode_band: Callable[[np.ndarray], bytes], px: np.ndarray, block_bytes: int) -> np.ndarray:
