@@ -78,6 +78,7 @@ def test_spec_parse_defaults_and_selection(tmp_path):
     ("albedo", "expected semantic=path"),
     ("=diff.jpg", "expected semantic=path"),
     ("shininess=s.png", "unknown texture semantic"),
+    ("albedo=arm.jpg:rgbq", "bad channel selection 'rgbq'"),  # not 'texture file not found: arm.jpg:rgbq'
 ])
 def test_spec_parse_errors(text, message):
     with pytest.raises(ValueError, match=message):

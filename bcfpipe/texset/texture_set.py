@@ -170,6 +170,9 @@ class TextureSpec:
         head, colon, tail = path.rpartition(":")
         if colon and head and _CHANNELS_RE.match(tail.lower()):
             path, channels = head, tail
+        elif colon and head and tail.isalpha() and len(tail) <= 4 and not os.path.exists(path):
+            raise ValueError(f"bad channel selection {tail!r} in {text!r}: channels are letters of "
+                             f"r, g, b, a (x, y, z, w), e.g. {sem.name}=file.png:{sem.default_channels}")
         if base_dir is not None and not os.path.isabs(path):
             path = os.path.join(os.fspath(base_dir), path)
         return cls(sem.name, path, channels)
