@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
+from typing import Literal
 
 from bcfpipe.formats.record import Record
 from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout, wrap_axes
@@ -178,17 +179,20 @@ def preset_for(name: str, t0: int, device: str, fixed_t0: bool = False) -> Prese
 # quicktex's BC1 dominates a classic layout's encode (level 18, its slowest and best: 3.1 s per 1024²
 # level on one core). Level 13 loses 0.064 dB on the teapot's colour and 0.040 on the brick's at 5.4x
 # the speed, level 16 0.014 at 2.7x (1024² crops, `benchmarks/bench_classic_presets.py`), so
-# `draft`, a preview, encodes at 13, `fast` at 16. BC7's profile stays: ISPC's alpha_veryfast loses
-# 0.17 dB on the teapot's colour with its roughness as alpha.
+# `draft`, a preview, encodes at 13, `fast` at 16. BC7 (a repack) at `draft` and `smoke` takes the
+# ``quick`` profile (`texset.baselines.BC7_PROFILES`: 0.64x the time, within 0.005 dB on the same
+# crops); ISPC's own alpha_veryfast loses 0.17 dB on the teapot's colour with its roughness as alpha.
 @dataclass(frozen=True)
 class EncodePreset:
-    """How a layout's classic textures are encoded: quicktex's BC1 level (0..18)."""
+    """How a layout's classic textures are encoded: quicktex's BC1 level (0..18) and the ISPC BC7
+    profile of its repacks (`bcfpipe.texset.baselines.BC7_PROFILES`)."""
 
     bc1_level: int = 18
+    bc7: Literal["basic", "quick"] = "basic"
 
 
 ENCODE_PRESETS: dict[str, EncodePreset] = {
-    "smoke": EncodePreset(13), "draft": EncodePreset(13), "fast": EncodePreset(16),
+    "smoke": EncodePreset(13, "quick"), "draft": EncodePreset(13, "quick"), "fast": EncodePreset(16),
     "standard": EncodePreset(18), "paper": EncodePreset(18),
 }
 DEFAULT_ENCODE = EncodePreset()

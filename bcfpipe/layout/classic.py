@@ -304,7 +304,7 @@ def group_texels(ts: TextureSet, group: Group, images: Sequence[np.ndarray], blo
         pad = 4 - len(cols)
         stored = [np.concatenate([(m[..., cols] - bias) / scale, np.zeros(m.shape[:2] + (pad,), np.float32)], -1)
                   if pad else (m[..., cols] - bias) / scale for m in images]
-        out, _ = B.bc7_mips(stored, blocks)
+        out, _ = B.bc7_mips(stored, blocks, enc.bc7)
         return [o[..., :len(cols)] * scale + bias for o in out]
     if group.slope:
         normals, _, _ = B.slope_mips([m[..., cols] for m in images], blocks, slope_m)

@@ -38,7 +38,7 @@ from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["from_storage", "encode_texture", "bilinear_up", "parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline",
            "encode_texture_set_shipped", "astcenc_path",
-           "pack_texture_set", "CODECS", "BC7_QUALITY", "USD", "NORMAL_SLOPE", "slope_mips", "BC1_LEVEL", "bc7_mips", "bc6h_mips", "is_hdr_color"]
+           "pack_texture_set", "CODECS", "BC7_QUALITY", "USD", "NORMAL_SLOPE", "slope_mips", "BC1_LEVEL", "bc7_mips", "bc7_settings", "BC7_PROFILES", "bc6h_mips", "is_hdr_color"]
 
 CODECS = ("bc", "astc")
 # The BC7 quality set (issue 52): BC@R ('bc') with every BC1 texture, a colour or a packed file, in BC7;
@@ -142,19 +142,35 @@ def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL,
 # 1/3/7, 4/5, 6) but mode 2, fast skips of 12/8/8 partitions for modes 1/3/7, 2 refinements. On the
 # sample scene's sets it is within 0.03 dB of alpha_slow (every mode, more refinement) at a third of
 # the time (benchmarks/bound_classic_bc7.py).
-BC7_SETTINGS = dict(modes=(True, True, True, True), refine=2, skip_mode2=True, fast_skip=(12, 8, 8), mode45_channel0=0)
+# ``quick`` is ISPC's alpha_veryfast (no partition search for modes 1/3, 4 for mode 7) with every
+# rotation of modes 4/5 that alpha_basic tries: on 1024² crops of the teapot's, brick's and wood's
+# colour with their roughness as alpha, 0.64x alpha_basic's time within 0.005 dB; alpha_veryfast's
+# one rotation loses 0.17 dB on the teapot (benchmarks/bench_classic_presets.py).
+BC7_PROFILES: dict[str, dict] = {
+    "basic": dict(modes=(True, True, True, True), refine=2, skip_mode2=True, fast_skip=(12, 8, 8), mode45_channel0=0),
+    "quick": dict(modes=(True, True, True, True), refine=2, skip_mode2=True, fast_skip=(0, 0, 4), mode45_channel0=0),
+}
+BC7_SETTINGS = BC7_PROFILES["basic"]  # what the BC7 quality set, a PCA T_0 and the baselines encode with
 
 
-def _ispc_bc7_levels(mips_rgba: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """(H, W, 4) [0, 1] mips -> each level's BC7 blocks, (n, 16) uint8, row-major, by ISPC, in
-    bands over the job's encode workers (the encoder releases the GIL: bcfpipe.texset.parallel)."""
+def bc7_settings(profile: str = "basic"):
+    """ISPC's BC7 settings of `BC7_PROFILES` ``profile``."""
+    import ispc_texcomp as ispc
+
+    s = BC7_PROFILES[profile]
+    return ispc.BC7EncSettings(list(s["modes"]), [s["refine"]] * 8, s["skip_mode2"], *s["fast_skip"],
+                               s["mode45_channel0"], s["refine"], 4)
+
+
+def _ispc_bc7_levels(mips_rgba: Sequence[np.ndarray], profile: str = "basic") -> list[np.ndarray]:
+    """(H, W, 4) [0, 1] mips -> each level's BC7 blocks, (n, 16) uint8, row-major, by ISPC at
+    ``profile``, in bands over the job's encode workers (the encoder releases the GIL:
+    bcfpipe.texset.parallel)."""
     import ispc_texcomp as ispc
 
     from bcfpipe.texset.parallel import threaded_bands
 
-    s = BC7_SETTINGS
-    settings = ispc.BC7EncSettings(list(s["modes"]), [s["refine"]] * 8, s["skip_mode2"], *s["fast_skip"],
-                                   s["mode45_channel0"], s["refine"], 4)
+    settings = bc7_settings(profile)
 
     def band(px: np.ndarray) -> bytes:
         return ispc.compress_blocks_bc7(ispc.RGBASurface(np.ascontiguousarray(px).tobytes(), px.shape[1],
@@ -163,8 +179,9 @@ def _ispc_bc7_levels(mips_rgba: Sequence[np.ndarray]) -> list[np.ndarray]:
     return [threaded_bands(band, _pad4(_to_u8_rgba(np.asarray(m))), 16) for m in mips_rgba]
 
 
-def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
-    """BC7-encode (ISPC, `BC7_SETTINGS`) and decode (bcfpipe.bc7) every (H, W, 4)
+def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None,
+             profile: str = "basic") -> tuple[list[np.ndarray], int]:
+    """BC7-encode (ISPC, `BC7_PROFILES` ``profile``) and decode (bcfpipe.bc7) every (H, W, 4)
     mip; returns (decoded mips, bytes). With ``blocks``, each level's (blocks, w, h) is appended. In
     a build with a cache the blocks are kept as BC1/BC4/BC5's are."""
     import ispc_texcomp as ispc
@@ -172,8 +189,8 @@ def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None) -> tup
     from bcfpipe.formats.bcn import ClassicFormat
 
     _check_mips(mips_rgba, 4, "bc7")
-    return _ispc_round_trip(f"bc7 ispc {ispc.version}|{sorted(BC7_SETTINGS.items())}", mips_rgba, _ispc_bc7_levels,
-                            ClassicFormat.BC7, blocks)
+    return _ispc_round_trip(f"bc7 ispc {ispc.version}|{sorted(BC7_PROFILES[profile].items())}", mips_rgba,
+                            lambda m: _ispc_bc7_levels(m, profile), ClassicFormat.BC7, blocks)
 
 
 def _ispc_round_trip(tag: str, mips: Sequence[np.ndarray], encode_levels, fmt, blocks: list | None,

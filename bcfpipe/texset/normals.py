@@ -63,9 +63,10 @@ def slope_normal(texels: np.ndarray, m: float) -> np.ndarray:
 def unit(v: np.ndarray) -> np.ndarray:
     """(…, 3) vectors normalised; a zero vector becomes (0, 0, 1)."""
     v = np.asarray(v, np.float32)
-    n = np.sqrt(np.sum(v.astype(np.float64) ** 2, -1, keepdims=True))
-    out = np.where(n > 1e-12, v / np.maximum(n, 1e-12), 0.0).astype(np.float32)
-    out[..., 2] = np.where(n[..., 0] > 1e-12, out[..., 2], 1.0)
+    n2 = np.einsum("...i,...i->...", v, v, dtype=np.float64)  # the length in float64, without a float64 copy
+    ok = n2 > 1e-24
+    out = v * np.where(ok, 1.0 / np.sqrt(np.maximum(n2, 1e-24)), 0.0).astype(np.float32)[..., None]
+    out[..., 2] = np.where(ok, out[..., 2], 1.0)
     return out
 
 
