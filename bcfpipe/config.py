@@ -356,6 +356,9 @@ class TrainConfig:
 #: metadata of an option field that does not change what a job trains, and so is no part of its
 #: cache key (bcfpipe.builder.plan.content_hash); the value says where its effect goes instead
 UNKEYED = "unkeyed"
+#: metadata of an option field that manifest.json does not record (`JobOptions.recorded`): how a
+#: build ran, not what it made; the value says why
+UNRECORDED = "unrecorded"
 
 
 @dataclass(frozen=True)
@@ -377,9 +380,11 @@ class TrainingOptions(Record):
     fix_nonfinite: bool = False
     seed: int = DEFAULT_SEED
     device: str = DEFAULT_DEVICE
-    threads: int = field(default=DEFAULT_THREADS, metadata={UNKEYED: "torch threads: how fast, not what"})
+    threads: int = field(default=DEFAULT_THREADS, metadata={UNKEYED: "torch threads: how fast, not what",
+                                                            UNRECORDED: "how fast, not what"})
     target_psnr: float | None = None
-    bench_data: str | None = field(default=None, metadata={UNKEYED: "read into the job's anchors, which are keyed"})
+    bench_data: str | None = field(default=None, metadata={UNKEYED: "read into the job's anchors, which are keyed",
+                                                           UNRECORDED: "a path outside the build folder"})
     features: FeatureFormat = DEFAULT_FEATURES
     kernel: Kernel = DEFAULT_KERNEL
     layout: Layout | None = None  # None: default_layout(target_psnr)
@@ -517,4 +522,9 @@ class JobOptions(TrainingOptions):
     def keyed(self) -> dict:
         """The record's canonical JSON without its `UNKEYED` fields: what the cache key states."""
         skip = {f.name for f in fields(self) if UNKEYED in f.metadata}
+        return {k: v for k, v in self.to_json().items() if k not in skip}
+
+    def recorded(self) -> dict:
+        """The record's canonical JSON without its `UNRECORDED` fields: manifest.json's ``options``."""
+        skip = {f.name for f in fields(self) if UNRECORDED in f.metadata}
         return {k: v for k, v in self.to_json().items() if k not in skip}

@@ -418,7 +418,7 @@ def test_build_layout_auto_records_each_choice_and_verifies(tmp_path):
     report = json.loads(r.stdout)
     assert all(m["layout"]["bc_size_bytes"] > 0 for m in report["materials"] if m["status"] == "built")
     man = mfst.read(out)
-    assert man.options.layout == "auto"
+    assert man.options["layout"] == "auto"
     built = man.built()
     assert built and all(m.layout is not None for m in built)
     for m in built:
@@ -526,7 +526,7 @@ def test_build_classic_applies_to_the_materials_that_have_it(tmp_path):
                                   "--quality", "smoke", "--jobs", "1", "--threads", "1", "--json"])
     assert r.exit_code == 0, r.output
     man = mfst.read(out)
-    assert man.options.classic == ("normal",)
+    assert man.options["classic"] == ["normal"]
     kept = {m.path: m.layout.classic if m.layout else () for m in man.built()}
     assert kept["/World/Looks/Bricks"] == ("normal",) and kept["/World/Looks/Leaves"] == ()
     keys = {j.name: j.content_hash for j in plan(SAMPLE / "sample_scene.usda",

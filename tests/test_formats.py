@@ -124,8 +124,9 @@ def test_minimal_manifest(tmp_path):
     assert "profile" not in data["materials"][0]
 
 
-def test_version_4_manifests_are_read(tmp_path):
-    """An OUT built by the previous version (each material listing the others of its job) reads."""
+def test_version_4_and_5_manifests_are_read(tmp_path):
+    """An OUT built by a previous version reads: version 4 (each material listing the others of its
+    job), version 5 (options as a hand-picked subset of the job record)."""
     m = mfst.Manifest(scene="s.usda", root_layer="s.bcf.usda",
                       materials=(mfst.Material("/World/A", "built", job="A"), mfst.Material("/World/B", "built", job="A")))
     mfst.write(tmp_path, m)
@@ -135,10 +136,16 @@ def test_version_4_manifests_are_read(tmp_path):
     data["materials"][1]["shared_with"] = ["/World/A"]
     (tmp_path / mfst.FILE).write_text(json.dumps(data))
     assert mfst.read(tmp_path).materials == m.materials
-    data["format_version"] = 5
+    data["format_version"] = mfst.FORMAT_VERSION
     (tmp_path / mfst.FILE).write_text(json.dumps(data))
     with pytest.raises(FormatError, match="shared_with"):
         mfst.read(tmp_path)
+    data = json.loads((tmp_path / mfst.FILE).read_text())
+    for mat in data["materials"]:
+        del mat["shared_with"]
+    data["format_version"], data["options"] = 5, {"profile": "1k", "preset": "standard", "seed": 0}
+    (tmp_path / mfst.FILE).write_text(json.dumps(data))
+    assert mfst.read(tmp_path).options["profile"] == "1k"
 
 
 SDR_CHECK = """

@@ -1,6 +1,7 @@
 """One record per job (issue 51): every field of `config.JobOptions` reaches the worker that trains
-it, in a local build and in a Ray build, and changes the job's cache key unless it is declared
-`UNKEYED` (with where its effect goes instead).
+it, in a local build and in a Ray build, changes the job's cache key unless it is declared
+`UNKEYED` (with where its effect goes instead), and reaches manifest.json unless it is declared
+`UNRECORDED` (issue 59: the record writes itself there; a new field needs no other change).
 
 The worker side is observed for real: the build runs in a subprocess whose Python processes (its
 local workers, or Ray's workers) load `sitecustomize` from a folder of this test, which wraps the
@@ -20,7 +21,7 @@ import pytest
 
 from bcfpipe.builder import plan
 from bcfpipe.builder.plan import content_hash
-from bcfpipe.config import UNKEYED, JobOptions, TrainingOptions
+from bcfpipe.config import UNKEYED, UNRECORDED, JobOptions, TrainingOptions
 
 from test_build import copy_samples
 
@@ -36,6 +37,8 @@ NON_DEFAULT = {
 }
 #: the fields that change nothing a job trains: their effect is keyed through another field or input
 UNKEYED_FIELDS = {"threads", "bench_data", "texel_density"}
+#: the fields manifest.json leaves out: how a build ran, not what it made
+UNRECORDED_FIELDS = {"threads", "bench_data"}
 
 
 def test_every_field_is_covered_and_the_unkeyed_ones_are_declared() -> None:
@@ -43,6 +46,7 @@ def test_every_field_is_covered_and_the_unkeyed_ones_are_declared() -> None:
     fields left out of the key are exactly the declared ones."""
     assert set(NON_DEFAULT) == {f.name for f in fields(JobOptions)}
     assert {f.name for f in fields(JobOptions) if UNKEYED in f.metadata} == UNKEYED_FIELDS
+    assert {f.name for f in fields(JobOptions) if UNRECORDED in f.metadata} == UNRECORDED_FIELDS
     for f in fields(JobOptions):
         assert NON_DEFAULT[f.name][0] != f.default, f.name
 
@@ -174,14 +178,21 @@ def _build_traced(tmp_path: Path, executor: str) -> list[tuple[list[dict], list[
         assert p.returncode == 0, p.stderr[-3000:]
         planned = json.loads(p.stdout.strip().splitlines()[-1])
         traced = [json.loads(line) for line in trace.read_text().splitlines()]
-        runs.append((planned, traced, mode))
+        manifest = json.loads((tmp_path / f"out{i}" / "manifest.json").read_text())
+        runs.append((planned, traced, mode, manifest["options"]))
     return runs
 
 
 def _check(runs) -> None:
-    """Each worker trained its job's record, whole, into the TrainConfig its fields ask for."""
+    """Each worker trained its job's record, whole, into the TrainConfig its fields ask for; the
+    manifest records the build's record whole, through the record's own serialisation."""
     seen: dict[str, set] = {f.name: set() for f in fields(JobOptions)}
-    for planned, traced, modes in runs:
+    recorded: dict[str, set] = {f.name: set() for f in fields(JobOptions) if UNRECORDED not in f.metadata}
+    for planned, traced, modes, manifest in runs:
+        assert set(manifest) == set(recorded)  # every field but the UNRECORDED ones, by the record's names
+        assert JobOptions.from_json(manifest).recorded() == manifest
+        for name, value in manifest.items():
+            recorded[name].add(json.dumps(value))
         assert len(traced) == len(planned) and traced
         assert {rec["mode"] for rec in traced} == modes
         for rec in traced:
@@ -202,6 +213,8 @@ def _check(runs) -> None:
     for f in fields(JobOptions):  # every field took a value other than its default in some worker
         default = json.dumps(JobOptions().to_json()[f.name])
         assert seen[f.name] - {default}, f.name
+        # and in some build's manifest, but a job's own resolution (the build's is None)
+        assert f.name in ("resolution",) or UNRECORDED in f.metadata or recorded[f.name] - {default}, f.name
 
 
 @pytest.mark.slow

@@ -102,11 +102,12 @@ def test_the_shipped_kinds_label_their_candidates():
     bc = C.Candidate(("albedo", "normal"), None, 1, (1.0,), "measured", use, kind=K.BC_AT_R)
     assert [k.name for k in K.REGISTRY] == ["bc@r", "repack", "neural", "mixed", "split"]
     assert bc.label == C.ALL_CLASSIC
-    assert C.Candidate(("normal", "albedo+roughness"), None, 1, (1.0,), "measured", use, repack="albedo+roughness as BC7",
+    assert C.Candidate(("normal", "albedo+roughness"), None, 1, (1.0,), "measured", use, K.Repacked("albedo+roughness as BC7"),
                        kind=K.REPACK).label == "BC@R with albedo+roughness as BC7"
-    assert C.Candidate((), "1k", 1, (1.0,), "predicted", use, kind=K.NEURAL).label == "neural 1k"
-    assert C.Candidate(("normal",), "1k", 1, (1.0,), "predicted", use, kind=K.MIXED).label == "neural 1k + classic normal"
-    split = C.Candidate(bc.classic, "8/8/8/4", 1, (1.0,), "predicted", use, split=2, resolutions=(8, 8, 8, 4),
+    assert C.Candidate((), "1k", 1, (1.0,), "predicted", use, K.NeuralPart(), kind=K.NEURAL).label == "neural 1k"
+    assert C.Candidate(("normal",), "1k", 1, (1.0,), "predicted", use, K.NeuralPart(2),
+                       kind=K.MIXED).label == "neural 1k, T_0 of 2 layers + classic normal"
+    split = C.Candidate(bc.classic, "8/8/8/4", 1, (1.0,), "predicted", use, K.SplitPart(2, (8, 8, 8, 4)),
                         kind=K.SPLIT)
     assert split.label == "BC@R below mip 2 + neural 8/8/8/4 from it"
     assert "kind" not in split.to_json(bc) and split == C.Candidate(**{**split.__dict__, "kind": None})

@@ -72,7 +72,7 @@ def repacked(tmp_path_factory):
     new, e, size = measure_repack(ts, enc, e_bc, rp, 32, ref)
     assert size == enc[1].size_bytes + new[0].size_bytes
     chosen = C.Candidate(("normal", "albedo+roughness"), None, size, C.combine(None, e, range(6)), "measured",
-                         bc.use, repack=rp.label, kind=REPACK)
+                         bc.use, REPACK.Part(rp.label), kind=REPACK)
     d = C.Decision(bc, (bc, chosen), chosen, "test", "quality")
     out = export_layout(LayoutFit(d, d, enc, None, (), None, 0.0, 0.0, {rp.label: (rp, new)}), ts, tmp / "m", "repeat")
     return ts, ref, out, chosen

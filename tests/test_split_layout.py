@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -189,17 +188,17 @@ def test_split_candidates_fit_bc_bytes_and_hold_the_predicted_floor():
     cf = ClassicFit(enc, e_bc, bc, use)
     better = e_bc * 0.25  # a probe 6 dB better than BC@R at every mip: every split holds the floor
     cands = split_candidates(ts, cf, better, r, (12, 16))
-    assert cands and all(c.split >= 1 and c.size_bytes <= bc.size_bytes and c.basis == "predicted" for c in cands)
+    assert cands and all(c.part.split >= 1 and c.size_bytes <= bc.size_bytes and c.basis == "predicted" for c in cands)
     for c in cands:
-        t = c.resolutions[0]
-        assert c.resolutions == (t, t, t, t // 2) and t <= 256 >> c.split
-        assert c.size_bytes >= split_bytes(enc, split_levels(c.split, r, 256))
+        t, k = c.part.resolutions[0], c.part.split
+        assert c.part.resolutions == (t, t, t, t // 2) and t <= 256 >> k
+        assert c.size_bytes >= split_bytes(enc, split_levels(k, r, 256))
         bigger = neural_bytes((2 * t, 2 * t, 2 * t, t), 12, 16, ts.num_channels)
-        assert 2 * t > 256 >> c.split or split_bytes(enc, split_levels(c.split, r, 256)) + bigger > bc.size_bytes
-        np.testing.assert_allclose(c.mse_per_mip[:c.split], bc.mse_per_mip[:c.split])
+        assert 2 * t > 256 >> k or split_bytes(enc, split_levels(k, r, 256)) + bigger > bc.size_bytes
+        np.testing.assert_allclose(c.mse_per_mip[:k], bc.mse_per_mip[:k])
     # the probe's features 2^5+ times larger than any split's: 5+ halvings at 3 dB each lose the floor
     assert split_candidates(ts, cf, better, r, (12, 16), probe_t0=4096, halving_db=3.0) == []
-    same = split_candidates(ts, cf, better, r, (12, 16), probe_t0=min(c.resolutions[0] for c in cands),
+    same = split_candidates(ts, cf, better, r, (12, 16), probe_t0=min(c.part.resolutions[0] for c in cands),
                             halving_db=3.0)
     assert same and same[-1] == cands[-1]  # the smallest features: no halving from a probe of their size
     worse = e_bc * 4.0  # 6 dB worse everywhere: no split holds the floor past its split
@@ -211,12 +210,12 @@ def test_a_chosen_split_is_exported_as_one_folder(split, tmp_path):
     from bcfpipe.layout import choose as C
     from bcfpipe.layout.export import export_layout
     from bcfpipe.layout.result import LayoutFit
-    from bcfpipe.layout.kinds import BC_AT_R, SPLIT as MIP_SPLIT
+    from bcfpipe.layout.kinds import BC_AT_R, SPLIT as MIP_SPLIT, SplitPart
 
     ts, ref, enc, neural, out, res = split
     use = tuple(range(len(ref)))
     bc = C.Candidate(tuple(g.group.name for g in enc), None, 1, (1.0,) * len(ref), "measured", use, kind=BC_AT_R)
-    ch = C.Candidate(bc.classic, "4/4/4/4", 1, (1.0,) * len(ref), "measured", use, split=SPLIT, resolutions=(4, 4, 4, 4),
+    ch = C.Candidate(bc.classic, "4/4/4/4", 1, (1.0,) * len(ref), "measured", use, SplitPart(SPLIT, (4, 4, 4, 4)),
                      kind=MIP_SPLIT)
     assert ch.label == "BC@R below mip 3 + neural 4/4/4/4 from it" and ch.to_json()["split"] == SPLIT
     d = C.Decision(bc, (bc, ch), ch, "test", "quality")
@@ -259,11 +258,11 @@ def test_the_reported_worst_margin_counts_the_mips_the_rule_counts():
     """A split's 1×1 mip may fall below BC@R (the teapot scene's did, by 1.2 dB); the rule does not
     count mips under 4 texels a side, and neither does the worst margin the reports print."""
     from bcfpipe.layout import choose as C
-    from bcfpipe.layout.kinds import BC_AT_R, SPLIT as MIP_SPLIT
+    from bcfpipe.layout.kinds import BC_AT_R, SPLIT as MIP_SPLIT, SplitPart
 
     use = (0, 1, 2)
     bc = C.Candidate(("a",), None, 10, (1e-4, 1e-4, 1e-4, 1e-4), "measured", use, kind=BC_AT_R)
-    c = C.Candidate(("a",), "8/8/8/4", 9, (1e-4, 5e-5, 5e-5, 1e-3), "measured", use, split=1, resolutions=(8, 8, 8, 4),
+    c = C.Candidate(("a",), "8/8/8/4", 9, (1e-4, 5e-5, 5e-5, 1e-3), "measured", use, SplitPart(1, (8, 8, 8, 4)),
                     kind=MIP_SPLIT)
     d = c.to_json(bc)
     assert min(d["margin_per_mip_db"]) == -10.0 and d["worst_margin_db"] == 0.0

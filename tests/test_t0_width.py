@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from bcfpipe.formats.fit_result import FitResult
+
 from test_build import copy_samples
 
 REPO = Path(__file__).resolve().parents[1]
@@ -107,6 +109,7 @@ def train(tmp: Path, specs: list[str], *options: str) -> subprocess.CompletedPro
 def test_train_writes_two_layers_of_components_at_t0(tmp_path):
     d = json.loads(ok(train(tmp_path, WIDE, "--t0-layers", "2", "--layout", "neural")).stdout)
     assert d["t0_layers"] == 2
+    assert FitResult.from_json(d).to_json() == d  # --json writes the fit's record, whole
     m = json.loads((tmp_path / "material.json").read_text())
     layers = m["layers"]
     assert [layer["file"] for layer in layers] == ["T0.dds", "T0b.dds", "T1.dds", "T2.dds", "T3.dds"]
@@ -158,7 +161,7 @@ def test_plan_predicts_a_two_layer_neural_build_exactly(scene, private_cache, tm
     layers = json.loads((out / "materials" / "Bricks" / "material.json").read_text())["layers"]
     assert [layer["file"] for layer in layers] == ["T0.dds", "T0b.dds", "T1.dds", "T2.dds", "T3.dds"]
     assert json.loads((out / "manifest.json").read_text())["options"]["t0_layers"] == 2
-    assert "t0_layers" not in json.loads((auto_build[2] / "manifest.json").read_text())["options"]
+    assert json.loads((auto_build[2] / "manifest.json").read_text())["options"]["t0_layers"] is None
 
 
 # ---------------------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from bcfpipe.formats import material as mf
 from bcfpipe.formats import weights as weightsbuf
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK
 from bcfpipe.builder.executor import JobResult
-from bcfpipe.builder.plan import BuildPlan, MaterialJob, MaterialPlan, MATERIALS_DIR, OVERRIDES, recorded_options
+from bcfpipe.builder.plan import BuildPlan, MaterialJob, MaterialPlan, MATERIALS_DIR, OVERRIDES
 from bcfpipe.formats.manifest import WEIGHTS
 from bcfpipe.scan.sources import package_split
 
@@ -78,7 +78,7 @@ def assemble(bplan: BuildPlan, results: Mapping[str, JobResult], staging: str | 
         scene=scene_rel, root_layer=root_name, overrides_layer=OVERRIDES, weights=WEIGHTS,
         variants=tuple(tuple(v) for v in bplan.variants),
         variant_selections=tuple(mfst.VariantSelection(p, s, v) for p, s, v in bplan.variant_selections),
-        all_materials=bplan.all_materials, options=recorded_options(bplan.options),
+        all_materials=bplan.all_materials, options=bplan.options.recorded(),
         stage=mfst.Stage(bplan.up_axis, bplan.meters_per_unit, bplan.default_prim),
         materials=mats, jobs=_job_entries(bplan, results, entry_of),
         weights_table=tuple(mfst.WeightsRecord(e.index, e.offset, e.size, e.n_hidden, e.n_out, j.name)
@@ -206,16 +206,13 @@ def _built(mp_: MaterialPlan, r: JobResult, e, folder: Path, sources: Mapping) -
     wsize = e.size if e else 0
     res = r.result
     return dict(
-        metrics=mfst.Metrics(res.get("psnr"), res.get("ssim"), res.get("flip"), res.get("float_psnr"),
-                             mfst.Quality.from_json(res["metrics"], "metrics")),
+        metrics=mfst.Metrics(res.psnr, res.ssim, res.flip, res.float_psnr, res.metrics),
         sizes=mfst.Sizes(feats, wsize, feats + wsize + classic,
                          sum(sources[p].size_bytes for p in mp_.sources if p in sources), classic),
         outputs=mfst.Outputs(f"{MATERIALS_DIR}/{mp_.job}", e.index if e else None, e.offset if e else None,
                              e.size if e else None),
-        layout=_layout_choice(res.get("layout")),
-        profile=res.get("profile"), resolutions=tuple(res.get("resolutions")), preset=res.get("preset"),
-        target=mfst.RateControl.from_json(res["target"], "target") if res.get("target") else None,
-        device=_device_class(res.get("device") or r.device))
+        layout=res.choice, profile=res.profile, resolutions=res.resolutions, preset=res.preset, target=res.target,
+        device=_device_class(res.device or r.device))
 
 
 def _job_entries(bplan: BuildPlan, results: Mapping[str, JobResult], entry_of: Mapping) -> tuple[mfst.Job, ...]:
@@ -240,18 +237,6 @@ def _totals(bplan: BuildPlan, mats: Sequence[mfst.Material], built: Sequence[Mat
         materials=len(mats), **counts, jobs=len(bplan.jobs), trained=len(built),
         features_bytes=feature_total, weights_bytes=weights_size,
         total_bytes=feature_total + weights_size, source_bytes=sum(s.size_bytes for s in bplan.sources.values()))
-
-
-def _layout_choice(d: dict | None) -> mfst.LayoutChoice | None:
-    """The manifest's summary of a --layout auto decision (bcfpipe.layout.choose.Decision.to_json)."""
-    if not d:
-        return None
-    ch, bc = d["chosen"], d["bc"]
-    angle = d.get("normal_angular_error")
-    return mfst.LayoutChoice(ch["layout"], tuple(ch["classic"]), ch["profile"], d["reason"], ch["size_bytes"],
-                             bc["size_bytes"], ch["psnr"], bc["psnr"], tuple(ch["margin_per_mip_db"]),
-                             ch.get("worst_margin_db"),
-                             (angle["mean_deg"], angle["p99_deg"]) if angle else None)
 
 
 def _classic_wiring(bplan: BuildPlan, descs: Mapping[str, mf.MaterialFile]) -> tuple[list, object]:

@@ -5,7 +5,7 @@ local pool's queue, Ray's queue actor) as these records."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Callable
 
 from bcfpipe.formats.vocabulary import StrEnum
 
@@ -43,8 +43,7 @@ class ProgressEvent:
 ProgressCallback = Callable[[ProgressEvent], None]
 
 
-def result_psnr(result: Mapping) -> float | None:
-    """`bcfpipe.builder.report.headline_psnr` of a job's result dict (as the cache and the workers
-    hold it): what the progress lines print, so that they agree with the table."""
-    covered = (result.get("metrics") or {}).get("psnr_covered")
-    return covered if covered is not None else result.get("psnr")
+def result_psnr(result) -> float | None:
+    """`bcfpipe.builder.report.headline_psnr` of a job's `FitResult` (None: no result): what the
+    progress lines print, so that they agree with the table."""
+    return result.headline_psnr if result is not None else None

@@ -10,10 +10,12 @@ import sys
 import tempfile
 import time
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from bcfpipe.formats.fit_result import FitResult
+from bcfpipe.formats.record import FormatError
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import DEFAULT_THREADS
 from bcfpipe.errors import one_line
@@ -78,7 +80,7 @@ def core_shares(n_jobs: int, jobs: int | None, threads: int, device: str = "cpu"
 
 @dataclass(frozen=True)
 class JobResult:
-    """What one job's worker reported."""
+    """What one job's worker reported: its `FitResult` when built."""
 
     name: str
     status: str  # built | failed
@@ -86,12 +88,19 @@ class JobResult:
     seconds: float
     device: str
     threads: int
-    result: dict = field(default_factory=dict)  # MaterialResult.to_dict() when built
+    result: FitResult | None = None
     cache: str | None = None  # "hit" / "miss" with a cache, None without
     attempts: int = 1  # > 1: its worker died and it ran again
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """JSON-able, for a worker's pipe or Ray's object store (`from_dict` reads it back)."""
+        return {**{f.name: getattr(self, f.name) for f in fields(self)},
+                "result": self.result.to_json() if self.result is not None else None}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "JobResult":
+        r = d.get("result")
+        return cls(**{**d, "result": FitResult.from_json(r, "result") if r is not None else None})
 
 
 class _Throttle:
@@ -143,24 +152,34 @@ def _run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, qu
         key = job["content_hash"]
         with cache.lock(key):
             found = cache.lookup(key)
-            if found.entry is not None:
+            if found.entry is not None and (cached := cached_result(found.entry)) is not None:
                 found.entry.copy_to(out_dir)
                 return JobResult(name, Status.BUILT, None, time.perf_counter() - t0, device, threads,
-                                 dict(found.entry.result), CacheUse.HIT).to_dict()
-            r = train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers)
-            if r["status"] == Status.BUILT:
-                store_entry(cache, key, out_dir, r["result"], name)
-            return dict(r, cache=CacheUse.MISS)
+                                 cached, CacheUse.HIT).to_dict()
+            r = JobResult.from_dict(train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers))
+            if r.status == Status.BUILT:
+                store_entry(cache, key, out_dir, r.result, name)
+            return replace(r, cache=CacheUse.MISS).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, Status.FAILED, one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
 
 
-def store_entry(cache, key: str, folder: str | os.PathLike, result: dict, name: str, take_lock: bool = False) -> None:
+def cached_result(entry) -> FitResult | None:
+    """A cache entry's result as its record (`bcfpipe.cache.store.Entry.result` holds its JSON);
+    None when it does not read as one (the job trains again)."""
+    try:
+        return FitResult.from_json(entry.result, f"cache entry {entry.key}")
+    except FormatError:
+        return None
+
+
+def store_entry(cache, key: str, folder: str | os.PathLike, result: FitResult, name: str,
+                take_lock: bool = False) -> None:
     """Put a trained job into the cache, with the key's lock held (by the caller, or taken here).
     A full or read-only cache costs a retrain later, not this build: a warning, not an error."""
     try:
         with cache.lock(key) if take_lock else contextlib.nullcontext():
-            cache.put(key, folder, result)
+            cache.put(key, folder, result.to_json())
     except OSError as exc:
         import logging
 
@@ -215,12 +234,10 @@ def train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, q
 
         fitted = fit(ts, options, out_dir, wrap=mj.wrap, coverage=_mask(mj, ts), progress=progress,
                      log=progress.phase if progress else None, anchors={(p, q): v for p, q, v in mj.anchors})
-        d = fitted.to_dict()
-        d.pop("out", None)
         from bcfpipe.train.trainer import resolve_device
 
         return JobResult(mj.name, Status.BUILT, None, time.perf_counter() - t0, str(resolve_device(device)), threads,
-                         d).to_dict()
+                         replace(fitted.record(), out=None)).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, Status.FAILED, one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
     finally:
@@ -411,7 +428,7 @@ def _run_pool(jobs: Sequence[MaterialJob], work: _Work, workers: int,
             job, dev = futures[fut]
             pending.discard(fut)
             try:
-                r = JobResult(**fut.result())
+                r = JobResult.from_dict(fut.result())
             except BrokenProcessPool:
                 broken.append(job)
                 return

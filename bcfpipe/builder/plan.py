@@ -8,13 +8,12 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import xxhash
 
-from bcfpipe.config import (CPU_PRESETS_LARGE, FIXED_T0_PRESETS, DEFAULT_KERNEL, MODEL_FORMAT, PRESETS,
+from bcfpipe.config import (CPU_PRESETS_LARGE, FIXED_T0_PRESETS, MODEL_FORMAT, PRESETS,
                             QUALITY_PRESETS, JobOptions, TrainingOptions, preset_for, resolve_profile, t0_of)
 from bcfpipe.builder.options import Selection
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
-from bcfpipe.formats.manifest import Options
-from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, Kernel, wrap_axes
+from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, wrap_axes
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import group_materials
@@ -162,20 +161,6 @@ class BuildPlan:
         return d
 
 
-def recorded_options(options: JobOptions) -> Options:
-    """The build's options as manifest.json records them (its format, schemas/manifest.schema.json):
-    the kernel only where it is not what the device runs by default, match_bc, classic, t0 and
-    t0_layers only when given, no thread count."""
-    return Options(profile=options.profile, preset=options.preset, seed=options.seed, device=options.device,
-                   hidden=options.hidden, signed=options.signed, init=options.init,
-                   fix_nonfinite=options.fix_nonfinite, texel_density=options.texel_density,
-                   resolution=options.resolution, coverage=options.coverage, target_psnr=options.target_psnr,
-                   features=options.features.value, kernel=_kernel_option(options.kernel, options.device),
-                   layout=options.layout.value, match_bc=True if options.match_bc else None,
-                   classic=tuple(options.classic) or None, t0=None if options.t0 is None else T0(options.t0).value,
-                   t0_layers=options.t0_layers)
-
-
 def _t0(sources: Mapping[str, SourceFile], options: JobOptions) -> int:
     """The T_0 side a job trains at: its profile, resolved against the set's size."""
     w, h = job_size(sources.values(), options.resolution)
@@ -212,12 +197,6 @@ def content_hash(specs, sources: Mapping[str, SourceFile], wrap, options: JobOpt
         if fixed:
             payload["schedules_fixed_t0"] = {name: asdict(p) for name, p in FIXED_T0_PRESETS.items()}
     return xxhash.xxh3_128_hexdigest(json.dumps(payload, sort_keys=True).encode())
-
-
-def _kernel_option(kernel: Kernel, device: str) -> str | None:
-    """The manifest's kernel: None when it runs what the default runs on ``device``."""
-    ran = Kernel(kernel).on(device)
-    return None if ran == DEFAULT_KERNEL.on(device) else ran.value
 
 
 def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[str, str]:

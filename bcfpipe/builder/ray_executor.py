@@ -247,7 +247,7 @@ class _Flight:
         job = self.refs[ref]
         try:
             raw, files = self.ray.get(ref)
-            r = _store(job, JobResult(**raw), files, materials_dir, root)
+            r = _store(job, JobResult.from_dict(raw), files, materials_dir, root)
         except Exception as exc:  # noqa: BLE001 - the task failed for good: its materials fail
             r = JobResult(job.name, Status.FAILED, one_line(exc), 0.0, self.device, self.threads)
         self.finish(job, r)

@@ -31,14 +31,6 @@ def headline_psnr(m: mfst.Material) -> float | None:
     return m.metrics.psnr if m.metrics else None
 
 
-def encode_seconds(result: Mapping | None) -> float | None:
-    """A job's BC encode time (BC@R and its repacks, measured: a layout fit's ``classic_encode``
-    phase; a training's ``encode`` phase is its T_0's first encode, part of training), or None for a
-    job that encoded none (all neural)."""
-    phases = (result or {}).get("phase_seconds") or {}
-    return phases.get("classic_encode")
-
-
 @dataclass(frozen=True)
 class BuildFacts:
     """What a build did besides its manifest and its jobs' results, as the report states it: OUT
@@ -63,8 +55,9 @@ def make_report(manifest: mfst.Manifest, results: Mapping[str, JobResult], facts
     for m in manifest.materials:
         r = results.get(m.job) if m.job else None
         q = m.metrics.detail if m.metrics else None
-        train = r.result.get("train_seconds") if r is not None and r.status == Status.BUILT else None
-        encode = encode_seconds(r.result) if r is not None and r.status == Status.BUILT else None
+        res = r.result if r is not None and r.status == Status.BUILT else None
+        train = res.train_seconds if res is not None else None
+        encode = res.encode_seconds if res is not None else None
         mats.append(rep.MaterialReport(
             path=m.path, status=m.status, reason=m.reason, job=m.job,
             cache=r.cache if r is not None and m.status == Status.BUILT else None,
@@ -77,7 +70,7 @@ def make_report(manifest: mfst.Manifest, results: Mapping[str, JobResult], facts
             encode_seconds=round(encode, 3) if encode is not None else None))
     built = [r for r in results.values() if r.status == Status.BUILT]
     hits = sum(1 for r in built if r.cache == CacheUse.HIT)
-    trained = [r for r in built if r.cache != CacheUse.HIT]
+    trained = [r.result for r in built if r.cache != CacheUse.HIT and r.result is not None]
     t = manifest.totals
     return rep.BuildReport(
         out=out, root_layer=str(Path(out) / manifest.root_layer), manifest=str(Path(out) / mfst.FILE),
@@ -87,8 +80,8 @@ def make_report(manifest: mfst.Manifest, results: Mapping[str, JobResult], facts
         totals=rep.ReportTotals(
             materials=t.materials, built=t.built, constant=t.constant, failed=t.failed, skipped=t.skipped, jobs=t.jobs,
             trained=len(trained), cached=hits,
-            train_seconds=round(sum(r.result.get("train_seconds") or 0.0 for r in trained), 3),
+            train_seconds=round(sum(t.train_seconds for t in trained), 3),
             wall_seconds=round(facts.wall_seconds, 3), total_bytes=t.total_bytes, written_files=len(written),
-            encode_seconds=round(sum(encode_seconds(r.result) or 0.0 for r in trained), 3)),
+            encode_seconds=round(sum(t.encode_seconds or 0.0 for t in trained), 3)),
         materials=tuple(mats), written=tuple(written), depfile=facts.depfile,
         executor=facts.executor if facts.executor != "local" else None)

@@ -19,7 +19,7 @@ from bcfpipe.errors import EXIT_OK, InputError, WorkFailed
 from bcfpipe.builder.assemble import assemble, default_out
 from bcfpipe.builder.depfile import dependencies, write as write_depfile
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
-from bcfpipe.builder.executor import JobResult, execute
+from bcfpipe.builder.executor import JobResult, cached_result, execute
 from bcfpipe.builder.report import BuildFacts, make_report
 from bcfpipe.builder.sync import OUT_LOCK, STAGING_PREFIX, install, is_incomplete
 from bcfpipe.cache import Cache, default_root
@@ -180,18 +180,18 @@ def _cached(bplan: BuildPlan, cache: Cache | None, materials_dir: Path,
         if found.problem:
             damaged.append(f"{job.name}: cache entry {job.content_hash} was damaged ({found.problem}); retraining")
             log.warning(damaged[-1])
-        if found.entry is None:
+        result = cached_result(found.entry) if found.entry is not None else None
+        if result is None:  # none, or a result this version does not read: the worker trains it
             continue
         try:
             found.entry.copy_to(materials_dir / job.name)
         except OSError:  # pruned meanwhile: the worker trains it
             shutil.rmtree(materials_dir / job.name, ignore_errors=True)
             continue
-        hits[job.name] = JobResult(job.name, Status.BUILT, None, 0.0, job.options.device, 0, dict(found.entry.result),
-                                   CacheUse.HIT)
+        hits[job.name] = JobResult(job.name, Status.BUILT, None, 0.0, job.options.device, 0, result, CacheUse.HIT)
         if progress:
             progress(ProgressEvent(EventKind.DONE, job.name, job.materials, status=Status.BUILT,
-                                   psnr=result_psnr(found.entry.result), seconds=0.0, cache=CacheUse.HIT))
+                                   psnr=result_psnr(result), seconds=0.0, cache=CacheUse.HIT))
     return hits, damaged
 
 

@@ -77,7 +77,7 @@ def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: Trai
     todo = []
     for j in mine:
         if store.lookup(j.content_hash).entry is not None:
-            results[j.name] = JobResult(j.name, Status.BUILT, None, 0.0, j.options.device, 0, {}, CacheUse.HIT)
+            results[j.name] = JobResult(j.name, Status.BUILT, None, 0.0, j.options.device, 0, None, CacheUse.HIT)
             if progress:
                 progress(ProgressEvent(EventKind.DONE, j.name, j.materials, status=Status.BUILT, seconds=0.0,
                                        cache=CacheUse.HIT))

@@ -99,29 +99,29 @@ class _Reporter:
 
 
 def _table(res) -> "object":
+    """The result (`FitResult`) as the table a person reads."""
     from rich.table import Table
 
     m = res.metrics
-    t = Table(title=f"{res.out_dir}  (profile {res.profile}, preset {res.preset}, {res.device})")
+    t = Table(title=f"{res.out}  (profile {res.profile}, preset {res.preset}, {res.device})")
     t.add_column("metric")
     t.add_column("value", justify="right")
     t.add_row("PSNR, all mips", f"{m.psnr:.2f} dB")
-    if res.float_metrics is not None:
-        t.add_row("PSNR, float model before quantization", f"{res.float_metrics.psnr:.2f} dB")
+    if res.float_psnr is not None:
+        t.add_row("PSNR, float model before quantization", f"{res.float_psnr:.2f} dB")
     for g, v in m.psnr_per_group.items():
         t.add_row(f"  PSNR {g}", f"{v:.2f} dB")
     t.add_row("SSIM (mip 0)", f"{m.ssim:.4f}" if m.ssim is not None else "-")
     t.add_row("FLIP (mip 0, colour)", f"{m.flip:.4f}" if m.flip is not None else "-")
     t.add_row("size", f"{res.size_bytes} B ({res.size_bytes / 2**20:.2f} MiB)")
-    if res.layout is not None:
-        ch, bc = res.layout["chosen"], res.layout["bc"]
-        t.add_row("layout", ch["layout"])
-        t.add_row("  against BC@R", f"{ch['psnr'] - bc['psnr']:+.2f} dB all mips, worst mip "
-                                    f"{ch.get('worst_margin_db', min(ch['margin_per_mip_db'])):+.2f} dB, "
-                                    f"{bc['size_bytes'] / 2**20:.2f} MiB")
+    if (ch := res.choice) is not None:
+        worst = ch.worst_margin_db if ch.worst_margin_db is not None else min(ch.margin_per_mip_db)
+        t.add_row("layout", ch.chosen)
+        t.add_row("  against BC@R", f"{ch.psnr - ch.bc_psnr:+.2f} dB all mips, worst mip {worst:+.2f} dB, "
+                                    f"{ch.bc_size_bytes / 2**20:.2f} MiB")
     t.add_row("train time", f"{res.train_seconds:.1f} s")
-    if "classic_encode" in (res.phase_seconds or {}):  # a layout fit: BC@R and its repacks, apart from training
-        t.add_row("BC encode time", f"{res.phase_seconds['classic_encode']:.1f} s")
+    if res.encode_seconds is not None:  # a layout fit: BC@R and its repacks, apart from training
+        t.add_row("BC encode time", f"{res.encode_seconds:.1f} s")
     return t
 
 
@@ -207,14 +207,14 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
     except (FloatingPointError, RuntimeError, MemoryError) as e:
         click.echo(f"bcfpipe train: training failed: {e}", err=True)
         ctx.exit(EXIT_FAILED)
-    res = fitted.result
+    record = fitted.record()
     if fitted.mode == FitMode.LAYOUT:
-        click.echo(f"bcfpipe train: layout {res.layout['chosen']['layout']}: {res.layout['reason']}", err=True)
+        click.echo(f"bcfpipe train: layout {record.choice.chosen}: {record.choice.reason}", err=True)
     elif fitted.target is not None and (not quiet or not fitted.target.met):
         click.echo(f"bcfpipe train: {fitted.target.summary()}", err=True)
     if as_json:
-        click.echo(json.dumps(fitted.to_dict(), default=float))
+        click.echo(json.dumps(record.to_json()))
     else:
         from rich.console import Console
 
-        Console().print(_table(res))
+        Console().print(_table(record))

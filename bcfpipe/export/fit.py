@@ -14,7 +14,7 @@ from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
 from bcfpipe.config import TrainConfig, TrainingOptions
 from bcfpipe.texset.chain import Reference
-from bcfpipe.texset.metrics import Metrics, compute_metrics, metrics_from_mse, mse_per_channel
+from bcfpipe.texset.metrics import Metrics, metrics_and_errors, metrics_from_mse
 from bcfpipe.texset.texture_set import Channel, TextureSet
 from bcfpipe.train.trainer import Progress, ProgressFn, TrainedMaterial, resolve_device, train
 
@@ -191,8 +191,7 @@ def evaluate_exported(folder: str | os.PathLike, reference: Reference, channels:
     ep.metrics()
     ref = taken(reference.mips)
     masks = None if reference.masks is None else taken(reference.masks)
-    metrics = compute_metrics(ref, dec, channels, masks=masks, ssim=image_metrics, flip=image_metrics)
-    per_channel = mse_per_channel(ref, dec, channels, masks)
+    metrics, per_channel = metrics_and_errors(ref, dec, channels, masks=masks, ssim=image_metrics, flip=image_metrics)
     ep.end()
     return Evaluation(metrics, per_channel, dec)
 

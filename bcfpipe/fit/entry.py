@@ -12,6 +12,7 @@ Three fits share the texture set, the options record and the output folder:
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -21,6 +22,7 @@ import numpy as np
 
 from bcfpipe.config import TrainingOptions
 from bcfpipe.export.fit import MaterialResult, fit_material, make_config
+from bcfpipe.formats.fit_result import FitResult
 from bcfpipe.formats.vocabulary import T0
 from bcfpipe.layout.material import fit_material_layout
 from bcfpipe.layout.predict import uses_layout
@@ -44,12 +46,13 @@ class Fitted:
     mode: FitMode
     target: object | None = None  # bcfpipe.train.rate.TargetOutcome with --target-psnr
 
-    def to_dict(self) -> dict:
-        """The result's JSON (`MaterialResult.to_dict`), with ``target`` under --target-psnr."""
+    def record(self) -> FitResult:
+        """The result as its record (`formats.fit_result.FitResult`), with ``target`` under
+        --target-psnr: numbers as JSON holds them."""
         d = self.result.to_dict()
         if self.target is not None:
             d["target"] = self.target.to_json()
-        return d
+        return FitResult.from_json(json.loads(json.dumps(d, default=float)), "result")
 
 
 def fit_mode(options: TrainingOptions, semantics) -> FitMode:

@@ -9,16 +9,19 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from bcfpipe.formats.vocabulary import Status
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.record import Record, optional, read as read_record
 
 FORMAT = "bcfpipe-build"
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 # 4 added optional keys only (options.target_psnr, materials' preset, target); 5 dropped each
-# material's shared_with (jobs[].materials says it once: the list grew as materials² / jobs)
-COMPATIBLE_VERSIONS = (3, 4)
+# material's shared_with (jobs[].materials says it once: the list grew as materials² / jobs); 6
+# records ``options`` as the job record writes itself (`bcfpipe.config.JobOptions.recorded`): every
+# field, a None one too, where 5 left some out
+COMPATIBLE_VERSIONS = (3, 4, 5)
 FILE = "manifest.json"
 WEIGHTS = "weights.bin"
 
@@ -243,31 +246,6 @@ class VariantSelection(Record):
 
 
 @dataclass(frozen=True)
-class Options(Record):
-    """The build's training options (bcfpipe.config names them)."""
-
-    profile: str
-    preset: str
-    seed: int
-    device: str
-    hidden: int
-    signed: bool
-    init: str
-    fix_nonfinite: bool = False
-    texel_density: float | None = optional()  # --texel-density, px/m
-    resolution: int | None = optional()  # the texture set resampled to this larger side (a density cap)
-    coverage: bool = True  # training draws from the texels the bound meshes read
-    target_psnr: float | None = optional()  # --target-psnr: rate control chose each job's profile and preset
-    features: str | None = optional()  # "bc7" or "bc6h"; absent (bc6h) before MODEL_FORMAT 11 (issue 29)
-    kernel: str | None = optional()  # --kernel when it differs from what the default runs on the device (issue 30)
-    layout: str | None = optional()  # --layout, auto or neural (issue 31); absent before MODEL_FORMAT 8: neural
-    match_bc: bool | None = optional()  # --match-bc (with --layout auto); absent when not given
-    classic: tuple[str, ...] | None = optional()  # --classic: semantics whose groups stay BC textures
-    t0: str | None = optional()  # --t0 when given: what T_0 holds ("pca" or "trained"; issue 29)
-    t0_layers: int | None = optional()  # --t0-layers when given: layers of components in a fixed T_0 (issue 52)
-
-
-@dataclass(frozen=True)
 class Stage(Record):
     """Stage metadata carried over to the root layer."""
 
@@ -306,7 +284,7 @@ class Manifest(Record):
     variants: tuple[tuple[str, ...], ...] = ()
     variant_selections: tuple[VariantSelection, ...] = ()
     all_materials: bool = False
-    options: Options | None = None
+    options: dict[str, Any] | None = None  # the build's job record, as its own to_json() writes it
     stage: Stage | None = None
     jobs: tuple[Job, ...] = ()
     weights_table: tuple[WeightsRecord, ...] = ()
@@ -339,7 +317,7 @@ def read(folder: str | os.PathLike) -> Manifest:
 
 
 def _upgrade(data: dict) -> dict:
-    """A version 3 or 4 manifest in version 5's keys."""
+    """A version 3, 4 or 5 manifest in version 6's keys (``options`` as the record those wrote)."""
     for m in data.get("materials") or ():
         if isinstance(m, dict):
             m.pop("shared_with", None)

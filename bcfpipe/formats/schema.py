@@ -152,11 +152,6 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Manifest", "bcfpipe_version"): "The bcfpipe release that wrote the file.",
     ("Manifest", "scene"): "The input scene, relative to the build folder.",
     ("Manifest", "root_layer"): "The USD layer to open: the overrides over the untouched scene.",
-    ("Options", "layout"): "--layout: auto (the default; neural with --target-psnr) or neural. Absent in builds "
-                           "before model format 8, where it meant neural.",
-    ("Options", "match_bc"): "--match-bc: with --layout auto, the smallest layout whose every mip reaches BC@R.",
-    ("Options", "classic"): "--classic: the semantics (e.g. normal) whose channel groups every material keeps as "
-                            "classic BC textures, as BC@R has them; the rest is neural (or chosen by --layout auto).",
     ("MaterialReport", "layout"): "--layout auto (the default) or --classic only: what was chosen against BC@R and why (as manifest.json says).",
     ("Material", "layout"): "--layout auto (the default) or --classic only: what was chosen for this material and why.",
     ("LayoutChoice", "chosen"): "The layout shipped: 'neural P', 'neural P + classic G, ...', 'all classic (BC@R)', "
@@ -177,7 +172,10 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Manifest", "variants"): "Variant selections given on the command line, as [set, value].",
     ("Manifest", "variant_selections"): "Variant selections authored into the root layer.",
     ("Manifest", "all_materials"): "Whether unbound materials were built too (--all-materials).",
-    ("Manifest", "options"): "Training options of the build.",
+    ("Manifest", "options"): "The build's job record (bcfpipe.config.JobOptions) as it writes itself: one key per "
+                             "training option, named as its field (--t0-layers: t0_layers), null where not given "
+                             "and resolved by the build; not threads or bench_data (how a build ran, not what it "
+                             "made). A reader keeps keys it does not know.",
     ("Manifest", "stage"): "Stage metadata copied to the root layer.",
     ("Manifest", "materials"): "Every Material prim of the scene, in stage order.",
     ("Manifest", "jobs"): "Every training job (texture set) the build planned.",
@@ -185,28 +183,6 @@ DESCRIPTIONS: dict[tuple[str, str], str] = {
     ("Manifest", "totals"): "Counts, sizes and times over the whole build.",
     ("Manifest", "diagnostics"): "USD composition errors and warnings met while scanning.",
     ("Manifest", "exit_code"): "0 every material built or skipped, 1 a material failed.",
-    ("Options", "profile"): "Feature-texture profile (auto, tiny, 0.5k, 1k, ...).",
-    ("Options", "preset"): "Quality preset.",
-    ("Options", "seed"): "Random seed.",
-    ("Options", "device"): "Requested torch device.",
-    ("Options", "hidden"): "Hidden units of each decoder.",
-    ("Options", "signed"): "Signed BC6H features.",
-    ("Options", "init"): "How the features start (random or pca).",
-    ("Options", "fix_nonfinite"): "Whether NaN/Inf texels were replaced (--fix-nonfinite) rather than refused.",
-    ("Options", "texel_density"): "--texel-density in px/m: the build caps each job's resolution to reach it on the most demanding mesh; absent without the option.",
-    ("Options", "resolution"): "For a job: the larger side its texture set was resampled to, to meet texel_density; absent when not capped.",
-    ("Options", "coverage"): "Whether training draws its samples from the texels the bound meshes read (false: --no-coverage).",
-    ("Options", "target_psnr"): "--target-psnr in dB: rate control chose each job's profile and preset (absent: not used).",
-    ("Options", "features"): "Feature texture format (--features): \"bc7\" (the default) or \"bc6h\"; absent in "
-                             "builds from before MODEL_FORMAT 11, where it meant bc6h.",
-    ("Options", "t0"): "--t0 when given: what the finest feature layer T_0 holds, \"pca\" (the set's principal "
-                       "components in BC7 blocks of any mode, fixed) or \"trained\"; absent: bc7's default pca, "
-                       "bc6h's trained.",
-    ("Options", "t0_layers"): "--t0-layers when given: the BC7 layers of principal components a fixed T_0 holds "
-                              "(1 to 3, capped at the set's channels); absent: --layout auto weighed the widths, "
-                              "--layout neural trained 1 (material.json's layers say what each material holds).",
-    ("Options", "kernel"): "How training steps ran when not what the default (auto: fused on the CPU, torch on "
-                           "CUDA) runs on that device: \"torch\" or \"fused\" (--kernel).",
     ("Stage", "up_axis"): "The scene's upAxis.",
     ("Stage", "meters_per_unit"): "The scene's metersPerUnit.",
     ("Stage", "default_prim"): "The scene's defaultPrim path, null if unset.",

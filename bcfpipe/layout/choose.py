@@ -27,7 +27,7 @@ The all-classic layout (BC@R itself) always qualifies, so the result is never wo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Protocol, Sequence
+from typing import Any, Literal, Protocol, Sequence
 
 import numpy as np
 
@@ -40,18 +40,20 @@ ALL_CLASSIC = "all classic (BC@R)"
 
 
 class CandidateKind(Protocol):
-    """What a candidate's kind is to the rule: a name and a label (`bcfpipe.layout.kinds.Kind`, which
-    also trains and exports it, is one)."""
+    """What a candidate's kind is to the rule: a name, a label and its own keys in layout.json
+    (`bcfpipe.layout.kinds.Kind`, which also trains and exports it, is one)."""
 
     name: str
 
     def label(self, c: "Candidate") -> str: ...
 
+    def json(self, c: "Candidate") -> dict: ...
+
 
 @dataclass(frozen=True)
 class Candidate:
     """One layout: the classic groups (by name), the neural profile (None: no neural part), and
-    its ``kind``, which labels, trains and exports it."""
+    its ``kind``, which labels, trains and exports it, with what only that kind has (``part``)."""
 
     classic: tuple[str, ...]
     profile: str | None
@@ -59,10 +61,7 @@ class Candidate:
     mse_per_mip: tuple[float, ...]
     basis: Basis
     use: tuple[int, ...] = field(repr=False, default=())  # the mips the all-mip PSNR averages
-    split: int = 0  # a mip split: every group's BC@R levels below reference mip ``split``, the features from it on
-    resolutions: tuple[int, ...] = ()  # a split's feature sizes T_0..T_3 (``profile`` names them)
-    repack: str = ""  # all classic, some of BC@R's groups merged into BC7 (`bcfpipe.layout.classic.Repack`)
-    t0_layers: int = 1  # the neural part's T_0 width: layers of principal components (issue 52)
+    part: Any = None  # its kind's own record (`bcfpipe.layout.kinds`: a repack's, a neural part's, a split's)
     disk_bytes: int | None = field(compare=False, default=None)  # its files zstd-compressed (measured ones only)
     kind: "CandidateKind | None" = field(repr=False, compare=False, default=None)  # what it is (`bcfpipe.layout.kinds`); not in to_json
 
@@ -89,11 +88,7 @@ class Candidate:
         d = {"layout": self.label, "classic": list(self.classic), "profile": self.profile,
              "size_bytes": self.size_bytes, "disk_bytes": self.disk_bytes, "psnr": round(self.psnr, 3),
              "psnr_per_mip": [round(v, 3) for v in self.psnr_per_mip], "basis": self.basis,
-             "t0_layers": self.t0_layers if self.profile is not None else None}
-        if self.split:
-            d["split"] = self.split
-        if self.repack:
-            d["repack"] = self.repack
+             **(self.kind.json(self) if self.kind is not None else {"t0_layers": None})}
         if bc is not None:
             d["margin_per_mip_db"] = [round(v, 3) for v in self.margins(bc)]
             d["worst_margin_db"] = round(min(self.margins(bc)[k] for k in bc.use), 3) if bc.use else None

@@ -89,7 +89,8 @@ class ClassicWork:
 def _candidate(names: Sequence[str], size: int, e: np.ndarray, measured: bool, use, kind, repack: str = "",
                disk: int | None = None) -> C.Candidate:
     return C.Candidate(tuple(names), None, size, C.combine(None, e, range(e.shape[1])),
-                       "measured" if measured else "estimated", use, repack=repack, disk_bytes=disk, kind=kind)
+                       "measured" if measured else "estimated", use, kind.Part(repack) if repack else None,
+                       disk_bytes=disk, kind=kind)
 
 
 def _cols(groups: Sequence[Group]) -> list[int]:
@@ -161,7 +162,7 @@ def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None,
     ``only``: just those of BC@R's groups (a mixed layout's classic part)."""
     t = time.perf_counter()
     ts, r, ref = work.ts, work.resolution, work.reference
-    rp = cf.repacked[c.repack][0] if c is not None and c.repack else None
+    rp = cf.repacked[c.part.repack][0] if c is not None and c.part else None
     e_bc = cf.e_bc.copy()
     groups = list(cf.groups)
     todo = [i for i, g in enumerate(groups) if not g.encoded and not (rp is not None and g.group.name in rp.replaces)
@@ -197,8 +198,7 @@ def measure(work: ClassicWork, cf: ClassicFit, c: C.Candidate | None = None,
     s = time.perf_counter() - t
     work.seconds += s
     if done:
-        what = out.bc if c is None or not c.repack else next(p for p in (*out.packed, out.quality)
-                                                             if p.repack == c.repack)
+        what = out.bc if c is None or not c.part else next(p for p in (*out.packed, out.quality) if p.part == c.part)
         work.log(f"encoded in full: {', '.join(done)} ({s:.1f} s); {what.label}: {what.psnr:.2f} dB over all mips")
     return replace(out, seconds=cf.seconds + s)
 

@@ -175,6 +175,35 @@ class Kind(ABC):
         chosen model, if any."""
         return export_groups(fit, [g for g in fit.classic if g.group.name in c.classic], ts, out, wrap)
 
+    def json(self, c: C.Candidate) -> dict:
+        """Its own keys in layout.json, after the figures every candidate has: the T_0 width of a
+        neural part (None without one)."""
+        return {"t0_layers": None}
+
+
+@dataclass(frozen=True)
+class Repacked:
+    """A repack's part (`BcRepack`, the BC7 quality set): which one, by its label (`classic.Repack`)."""
+
+    repack: str
+
+
+@dataclass(frozen=True)
+class NeuralPart:
+    """A neural part's (`NeuralAt`, `Mixed`): the layers of principal components its T_0 holds (issue 52)."""
+
+    t0_layers: int = 1
+
+
+@dataclass(frozen=True)
+class SplitPart:
+    """A mip split's (`MipSplit`): BC@R's levels below reference mip ``split``, features T_0..T_3 of
+    ``resolutions`` from it on; T_0 of one layer."""
+
+    split: int
+    resolutions: tuple[int, ...]
+    t0_layers: int = 1
+
 
 class BcAtR(Kind):
     """BC@R: every group classic, as a user would ship the set (measured, never trained)."""
@@ -193,12 +222,16 @@ class BcQuality(Kind):
     never weighed (its BC7 colour takes BC1's bytes twice)."""
 
     name = "bc7-quality"
+    Part = Repacked
 
     def label(self, c: C.Candidate) -> str:
-        return "BC7 quality set" if c.repack else C.ALL_CLASSIC
+        return "BC7 quality set" if c.part else C.ALL_CLASSIC
 
     def predict(self, ctx: FitContext) -> list[Weighed]:
         return []
+
+    def json(self, c: C.Candidate) -> dict:
+        return {"t0_layers": None, **({"repack": c.part.repack} if c.part else {})}
 
 
 class BcRepack(Kind):
@@ -206,16 +239,20 @@ class BcRepack(Kind):
     encoded in full when it ships (`classic_fit`)."""
 
     name = "repack"
+    Part = Repacked
 
     def label(self, c: C.Candidate) -> str:
-        return f"BC@R with {c.repack}"
+        return f"BC@R with {c.part.repack}"
+
+    def json(self, c: C.Candidate) -> dict:
+        return {"t0_layers": None, "repack": c.part.repack}
 
     def predict(self, ctx: FitContext) -> list[Weighed]:
         return [Weighed(c) for c in ctx.classic.packed if set(ctx.forced) <= set(c.classic)]
 
     def export(self, fit: LayoutFit, c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
         """BC@R's groups that were not merged, then the BC7 textures that replace the rest."""
-        rp, enc = fit.repacked[c.repack]
+        rp, enc = fit.repacked[c.part.repack]
         return export_groups(fit, [g for g in fit.classic if g.group.name not in rp.replaces] + list(enc),
                              ts, out, wrap)
 
@@ -234,16 +271,31 @@ def at_profiles(ctx: FitContext, chosen: Sequence[int], kind: Kind) -> list[Weig
             continue
         out.append(Weighed(C.Candidate(names, p, ctx.sizes[(p, w)] + classic_bytes,
                                        C.combine(ctx.neural_errors(p, w), ctx.classic.e_bc, cols),
-                                       "predicted", ctx.classic.use, t0_layers=w, kind=kind)))
+                                       "predicted", ctx.classic.use, NeuralPart(w), kind=kind)))
     return out
 
 
 def t0_text(c: C.Candidate) -> str:
     """How a candidate's T_0 width reads in its label: nothing for one layer."""
-    return f", T_0 of {c.t0_layers} layers" if c.t0_layers > 1 else ""
+    return f", T_0 of {c.part.t0_layers} layers" if c.part.t0_layers > 1 else ""
 
 
-class NeuralAt(Kind):
+class ModelOnTheRest(Kind):
+    """A model on the channels outside the candidate's classic groups, at a profile and T_0 width
+    (`NeuralPart`), predicted from the probe and trained when chosen: `NeuralAt` and `Mixed`."""
+
+    def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
+        return True
+
+    def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
+        ctx.log(f"training the channels outside the classic groups at {c.profile} for: {c.label}")
+        return train_outside(ctx, c.classic, c.profile, self, width=c.part.t0_layers)
+
+    def json(self, c: C.Candidate) -> dict:
+        return {"t0_layers": c.part.t0_layers}
+
+
+class NeuralAt(ModelOnTheRest):
     """Every channel neural at a profile and T_0 width, predicted from the probe."""
 
     name = "neural"
@@ -254,15 +306,8 @@ class NeuralAt(Kind):
     def predict(self, ctx: FitContext) -> list[Weighed]:
         return [] if ctx.forced else at_profiles(ctx, (), self)
 
-    def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
-        return True
 
-    def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
-        ctx.log(f"training the channels outside the classic groups at {c.profile} for: {c.label}")
-        return train_outside(ctx, c.classic, c.profile, self, width=c.t0_layers)
-
-
-class Mixed(Kind):
+class Mixed(ModelOnTheRest):
     """Some of BC@R's groups classic (every one --classic names among them), a model on the rest at
     a profile, predicted from the probe."""
 
@@ -277,22 +322,19 @@ class Mixed(Kind):
         return [w for r in range(1, n) for chosen in itertools.combinations(range(n), r)
                 if set(ctx.forced) <= {names[i] for i in chosen} for w in at_profiles(ctx, chosen, self)]
 
-    def trains(self, ctx: FitContext, c: C.Candidate) -> bool:
-        return True
-
-    def train(self, ctx: FitContext, c: C.Candidate) -> Weighed:
-        ctx.log(f"training the channels outside the classic groups at {c.profile} for: {c.label}")
-        return train_outside(ctx, c.classic, c.profile, self, width=c.t0_layers)
-
 
 class MipSplit(Kind):
     """BC@R's levels below a reference mip k, features for s >= k (`split_candidates`); trained only
     when its prediction beats what is measured already, and weighed only when --classic fixes no group."""
 
     name = "split"
+    MIN_SIDE = 8  # the smallest T_0 side a split's features take
 
     def label(self, c: C.Candidate) -> str:
-        return f"BC@R below mip {c.split} + neural {c.profile} from it"
+        return f"BC@R below mip {c.part.split} + neural {c.profile} from it"
+
+    def json(self, c: C.Candidate) -> dict:
+        return {"t0_layers": c.part.t0_layers, "split": c.part.split}
 
     def predict(self, ctx: FitContext) -> list[Weighed]:
         if ctx.forced:  # --classic keeps its groups classic at every mip
@@ -304,8 +346,8 @@ class MipSplit(Kind):
         for c in split_candidates(ctx.ts, ctx.classic, ctx.neural_errors(ctx.p0, 1), ctx.resolution,
                                   ctx.dims, ctx.match_bc, ctx.probe.resolutions[0], halving):
             # features smaller than the mips they serve are magnified there: held to the oracle
-            floor = ctx.oracle(c.resolutions[0]).mean(1) * 10 ** (-ORACLE_MARGIN_DB / 10)
-            c = replace(c, mse_per_mip=tuple(m if k < c.split else max(m, float(floor[k]))
+            floor = ctx.oracle(c.part.resolutions[0]).mean(1) * 10 ** (-ORACLE_MARGIN_DB / 10)
+            c = replace(c, mse_per_mip=tuple(m if k < c.part.split else max(m, float(floor[k]))
                                              for k, m in enumerate(c.mse_per_mip)))
             if C.deficit(c, ctx.classic.bc, ctx.match_bc) <= 0:
                 out.append(Weighed(c))
@@ -323,7 +365,7 @@ class MipSplit(Kind):
 
     def export(self, fit: LayoutFit, c: C.Candidate, ts: TextureSet, out: Path, wrap: str) -> Path:
         resolution = max(max(g.levels[0][1], g.levels[0][2]) for g in fit.classic)
-        return export_split(fit.classic, fit.neural.out_dir, ts, out, c.split, resolution)
+        return export_split(fit.classic, fit.neural.out_dir, ts, out, c.part.split, resolution)
 
 
 BC_AT_R, REPACK, NEURAL, MIXED, SPLIT, QUALITY = BcAtR(), BcRepack(), NeuralAt(), Mixed(), MipSplit(), BcQuality()
@@ -370,7 +412,7 @@ def train_outside(ctx: FitContext, classic: Sequence[str], name: str, kind: Kind
     classic_bytes = sum(g.size_bytes for g in groups if g.group.name in classic)
     disk = model_disk_bytes(res) + sum(disk_bytes(g) for g in groups if g.group.name in classic)
     return Weighed(C.Candidate(tuple(classic), name, res.size_bytes + classic_bytes, tuple(float(v) for v in e.mean(1)),
-                               "measured", ctx.classic.use, t0_layers=res.t0_layers, disk_bytes=disk, kind=kind),
+                               "measured", ctx.classic.use, NeuralPart(res.t0_layers), disk_bytes=disk, kind=kind),
                    res, tuple(keep))
 
 
@@ -399,7 +441,7 @@ def split_candidates(ts: TextureSet, classic: ClassicFit, e_probe: np.ndarray, r
     """The mip splits worth training, ``predicted``: for each reference mip k >= 1, BC@R's levels
     that serve the mips below k and features T = (t, t, t, t/2) for s >= k, t the largest power of
     two no larger than mip k's side whose bytes (with the DDS headers) keep the whole within BC@R's
-    size, t >= 8. Errors: BC@R's below k; from k on the probe's (T_0 = ``probe_t0``), worse by
+    size, t >= `MipSplit.MIN_SIDE`. Errors: BC@R's below k; from k on the probe's (T_0 = ``probe_t0``), worse by
     ``halving_db`` for every halving from probe_t0 to t (the measured gain between profiles, as
     rate control predicts). Only those that hold the floor on that prediction, and only where BC@R
     has more than one level to cut."""
@@ -412,9 +454,9 @@ def split_candidates(ts: TextureSet, classic: ClassicFit, e_probe: np.ndarray, r
             break
         budget = bc.size_bytes - split_bytes(groups, keep)
         t = 1 << (max(1, side >> k).bit_length() - 1)
-        while t >= 8 and neural_bytes((t, t, t, t // 2), *dims, ts.num_channels) > budget:  # its files
+        while t >= MipSplit.MIN_SIDE and neural_bytes((t, t, t, t // 2), *dims, ts.num_channels) > budget:  # its files
             t //= 2
-        if t < 8:
+        if t < MipSplit.MIN_SIDE:
             continue
         res = (t, t, t, t // 2)
         size = neural_bytes(res, *dims, ts.num_channels)
@@ -422,8 +464,7 @@ def split_candidates(ts: TextureSet, classic: ClassicFit, e_probe: np.ndarray, r
         err = e_probe * 10.0 ** (halvings * halving_db / 10.0)
         err[:k] = e_bc[:k]
         c = C.Candidate(bc.classic, "/".join(map(str, res)), bc.size_bytes - budget + size,
-                        tuple(float(v) for v in err.mean(1)), "predicted", classic.use, split=k, resolutions=res,
-                        kind=SPLIT)
+                        tuple(float(v) for v in err.mean(1)), "predicted", classic.use, SplitPart(k, res), kind=SPLIT)
         if C.deficit(c, bc, match_bc) <= 0:
             out.append(c)
     return out
@@ -433,12 +474,13 @@ def train_split(ctx: FitContext, cand: C.Candidate) -> Weighed:
     """Train ``cand``'s features (all channels, s >= its split) and measure the split layout. Below
     the split the layout decodes to BC@R exactly, from it on to the model (tests/test_split_layout.py)."""
     cfg = capped(make_config(ctx.ts, replace(ctx.options, t0_layers=1), ctx.wrap)[1], ctx.cap)  # as sized
-    cfg = cfg.with_(model=replace(cfg.model, resolutions=cand.resolutions, split=cand.split))
+    part = cand.part
+    cfg = cfg.with_(model=replace(cfg.model, resolutions=part.resolutions, split=part.split))
     res, _ = fit_material(ctx.ts, ctx.out / "split", cfg, cand.profile, progress=ctx.progress, coverage=ctx.coverage,
                           measure=FIGURES, reference=ctx.reference)
     err = res.mse_per_channel.copy()
-    err[:cand.split] = ctx.classic.e_bc[:cand.split]
-    keep = split_levels(cand.split, ctx.resolution, max(ctx.ts.width, ctx.ts.height))
+    err[:part.split] = ctx.classic.e_bc[:part.split]
+    keep = split_levels(part.split, ctx.resolution, max(ctx.ts.width, ctx.ts.height))
     m = replace(cand, size_bytes=res.size_bytes + split_bytes(ctx.classic.groups, keep),
                 mse_per_mip=tuple(float(v) for v in err.mean(1)), basis="measured",
                 disk_bytes=model_disk_bytes(res) + split_disk_bytes(ctx.classic.groups, keep))

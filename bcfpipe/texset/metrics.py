@@ -99,17 +99,28 @@ def mse_per_channel(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
     """(mips, channels) peak-normalised MSE (over the ``masks``' texels when given), an HDR channel
     in its log domain as `compute_metrics` measures it: the terms whose mean over channels is
     compute_metrics' per-mip MSE, so a layout's figures (bcfpipe.layout) are the ones its export
-    measures. One HDR channel is encoded at a time (no second copy of the whole chain)."""
-    cols = []
-    for c, ch in enumerate(channels):
-        if ch.log_gain > 0:
-            g = np.array([ch.log_gain], np.float32)
-            r = encoding.encode_levels([np.asarray(m)[..., c:c + 1] for m in ref_mips], g)
-            d = encoding.encode_levels([np.asarray(m)[..., c:c + 1] for m in dec_mips], g)
-            cols.append(mse_per_mip(r, d, [ch], None, masks))
-        else:
-            cols.append(mse_per_mip(ref_mips, dec_mips, channels, [c], masks))
-    return np.array(cols).T
+    measures. One pass over each mip, in bands of rows (float64 temporaries stay small at 8K)."""
+    channels = tuple(channels)
+    inv_peak2 = np.array([1.0 / ch.peak ** 2 for ch in channels])
+    g = encoding.gains(channels)
+    out = np.zeros((len(ref_mips), len(channels)))
+    for k, (r, d) in enumerate(zip(ref_mips, dec_mips)):
+        r, d = np.asarray(r), np.asarray(d)
+        rows = max(1, BAND_VALUES // max(1, r.shape[1] * len(channels)))
+        total, count = np.zeros(len(channels)), 0
+        for y in range(0, r.shape[0], rows):
+            rb, db = r[y:y + rows], d[y:y + rows]
+            if np.any(g > 0):  # the HDR channels in their log domain
+                rb, db = encoding.encode_levels([rb], g)[0], encoding.encode_levels([db], g)[0]
+            diff = db.astype(np.float64) - rb
+            err = diff * diff
+            if masks is not None:
+                keep = masks[k][y:y + rows]
+                err, count = err[keep], count + int(keep.sum())
+            total += err.reshape(-1, len(channels)).sum(0)
+        n = r.shape[0] * r.shape[1] if masks is None else count
+        out[k] = total * inv_peak2 / n if n else 0.0
+    return out
 
 
 def _mean_psnr(mses: Sequence[float], use: Sequence[int]) -> float:
@@ -208,22 +219,31 @@ def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
     An HDR channel (``log_gain`` > 0) is measured in its log domain (bcfpipe.texset.encoding),
     where equal errors are equal ratios: against the linear peak, every texel below a few
     percent of it would count for nothing."""
+    return metrics_and_errors(ref_mips, dec_mips, channels, min_size=min_size, ssim=ssim, flip=flip, masks=masks)[0]
+
+
+def metrics_and_errors(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
+            channels: Sequence[Channel], *, min_size: int = 4,
+            ssim: bool = True, flip: bool = True, masks: Sequence[np.ndarray] | None = None) -> tuple[Metrics, np.ndarray]:
+    """`compute_metrics`, and the (mips, channels) errors its PSNRs come from (`mse_per_channel`,
+    over the ``masks``' texels when given): each texel's error is taken once per channel, and every
+    mean (all channels, a group's, the covered texels') is a mean of those."""
     channels = tuple(channels)
     _check(ref_mips, dec_mips, channels)
-    gains = encoding.gains(channels)
-    if np.any(gains > 0):
-        ref_mips, dec_mips = encoding.encode_levels(ref_mips, gains), encoding.encode_levels(dec_mips, gains)
     use = [k for k, m in enumerate(ref_mips) if min(m.shape[:2]) >= min_size] or list(range(len(ref_mips)))
 
     groups: dict[str, list[int]] = {}
     for i, ch in enumerate(channels):
         groups.setdefault(ch.semantic, []).append(i)
 
-    mses = mse_per_mip(ref_mips, dec_mips, channels)
-    psnr_per_group = {g: _mean_psnr(mse_per_mip(ref_mips, dec_mips, channels, idx), use)
-                      for g, idx in groups.items()}
+    per_channel = mse_per_channel(ref_mips, dec_mips, channels)
+    mses = per_channel.mean(1)
+    psnr_per_group = {g: _mean_psnr(per_channel[:, idx].mean(1), use) for g, idx in groups.items()}
 
     r0, d0 = np.asarray(ref_mips[0]), np.asarray(dec_mips[0])
+    gains = encoding.gains(channels)
+    if (ssim or flip) and np.any(gains > 0):
+        r0, d0 = (encoding.encode_levels([x], gains)[0] for x in (r0, d0))
     flip_groups = [g for g, idx in groups.items() if flip and channels[idx[0]].kind == COLOR_KIND and len(idx) == 3]
 
     # SSIM's filters (scipy) release the GIL, so the groups' SSIMs run side by side (FLIP holds the
@@ -249,7 +269,13 @@ def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
         ssim_per_group = {g: v for g, v in zip(groups, values) if v is not None}
     flip_per_group = {g: flip_group(r0[..., groups[g]], d0[..., groups[g]]) for g in flip_groups}
 
-    return Metrics(
+    covered, errors = {}, per_channel
+    if masks is not None:
+        errors = mse_per_channel(ref_mips, dec_mips, channels, masks)
+        covered = {"covered_fraction": float(np.asarray(masks[0]).mean()),
+                   "psnr_covered": _mean_psnr(errors.mean(1), use),
+                   "psnr_per_mip_covered": tuple(psnr_from_mse(m) for m in errors.mean(1))}
+    metrics = Metrics(
         psnr=_mean_psnr(mses, use),
         psnr_per_mip=tuple(psnr_from_mse(m) for m in mses),
         psnr_per_group=psnr_per_group,
@@ -258,12 +284,8 @@ def compute_metrics(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
         flip=float(np.mean(list(flip_per_group.values()))) if flip_per_group else None,
         flip_per_group=flip_per_group,
         mips_in_mean=len(use),
-        **(_covered(ref_mips, dec_mips, channels, masks, use) if masks is not None else {}),
+        **covered,
     )
+    return metrics, errors
 
 
-def _covered(ref_mips, dec_mips, channels, masks, use) -> dict:
-    """PSNR over the texels the scene reads: headline and per mip, and mip 0's covered fraction."""
-    mses = mse_per_mip(ref_mips, dec_mips, channels, masks=masks)
-    return {"covered_fraction": float(np.asarray(masks[0]).mean()), "psnr_covered": _mean_psnr(mses, use),
-            "psnr_per_mip_covered": tuple(psnr_from_mse(m) for m in mses)}
