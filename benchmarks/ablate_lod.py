@@ -26,7 +26,7 @@ from common import teapot_specs  # noqa: E402
 from bcfpipe.model import neural as M  # noqa: E402
 from bcfpipe.train import trainer as T  # noqa: E402
 from bcfpipe.config import PRESETS, ModelConfig, TrainConfig  # noqa: E402
-from bcfpipe.export.fit import fit_material  # noqa: E402
+from bcfpipe.export.material import train_material  # noqa: E402
 from bcfpipe.texset.texture_set import load_texture_set  # noqa: E402
 from bcfpipe.formats.vocabulary import FeatureFormat  # noqa: E402
 
@@ -73,7 +73,7 @@ def main():
         pre = replace(pre, warmup=longer(pre.warmup), constrained=longer(pre.constrained), finetune=longer(pre.finetune))
     cfg = TrainConfig(model=mc, preset=pre, preset_name=a.preset, threads=1)
     out = a.out / a.name
-    res, _ = fit_material(ts, out, cfg)
+    res, _ = train_material(ts, out, cfg)
     rows = B.sweep(out, ts, a.step)
     worst = max(B.dips(rows), key=lambda t: t[1])
     p = np.array([row[1] for row in rows])

@@ -72,7 +72,7 @@ def main() -> None:
     import torch
 
     from bcfpipe.config import PRESETS, TrainingOptions, _cpu_preset
-    from bcfpipe.export.fit import fit_material, make_config
+    from bcfpipe.export.material import train_material, make_config
     from bcfpipe.texset.texture_set import load_texture_set
     from bcfpipe.train.trainer import train
 
@@ -154,7 +154,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory(prefix="bcfpipe-cuda-") as tmp:
             t = time.perf_counter()
             try:
-                res, _ = fit_material(texture_set(name), Path(keep or Path(tmp) / "m"), cfg, profile)
+                res, _ = train_material(texture_set(name), Path(keep or Path(tmp) / "m"), cfg, profile)
             except Exception:  # a broken device path must not cost the rest of the lease
                 traceback.print_exc()
                 return None

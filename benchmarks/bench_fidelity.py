@@ -61,7 +61,7 @@ def specs(name: str):
 
 def variant_config(ts, variant: str, profile: str, seed: int):
     from bcfpipe.config import PRESETS, TrainingOptions, _cpu_preset
-    from bcfpipe.export.fit import make_config
+    from bcfpipe.export.material import make_config
 
     if variant == "before":
         name, cfg = make_config(ts, TrainingOptions(profile=profile, preset="standard", device="cpu", seed=seed))
@@ -73,13 +73,13 @@ def variant_config(ts, variant: str, profile: str, seed: int):
 
 
 def run_variant(set_name: str, variant: str, profile: str, seed: int, out: str) -> dict:
-    from bcfpipe.export.fit import fit_material
+    from bcfpipe.export.material import train_material
     from bcfpipe.texset.texture_set import load_texture_set
 
     ts = load_texture_set(specs(set_name))
     name, cfg = variant_config(ts, variant, profile, seed)
     t0 = time.perf_counter()
-    res, tm = fit_material(ts, Path(out) / f"{set_name}_{variant}", cfg, name)
+    res, tm = train_material(ts, Path(out) / f"{set_name}_{variant}", cfg, name)
     m = res.metrics
     per_phase = {p: res.phase_samples.get(p, 0) / res.phase_seconds[p]
                  for p in ("warmup", "constrained", "finetune") if res.phase_seconds.get(p)}

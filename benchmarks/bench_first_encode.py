@@ -30,7 +30,7 @@ def one(args) -> None:
     """Child: train with the named start and print the result as JSON."""
     import bcfpipe.model.features as F
     from bcfpipe.config import TrainingOptions
-    from bcfpipe.export.fit import fit_material, make_config
+    from bcfpipe.export.material import train_material, make_config
     from bcfpipe.texset.texture_set import load_texture_set
 
     if args.child == "refined":
@@ -41,7 +41,7 @@ def one(args) -> None:
     _, cfg = make_config(ts, TrainingOptions(profile=args.profile, preset=args.preset, features=args.features,
                                              device="cpu", seed=args.seed, threads=1))
     with tempfile.TemporaryDirectory(prefix="bcfpipe-encode-") as tmp:
-        res, _ = fit_material(ts, Path(tmp) / "m", cfg, args.profile)
+        res, _ = train_material(ts, Path(tmp) / "m", cfg, args.profile)
     print(json.dumps({"psnr": res.metrics.psnr, "mips": list(res.metrics.psnr_per_mip[:2]),
                       "encode": res.phase_seconds.get("encode"), "train": res.train_seconds}))
 

@@ -35,7 +35,7 @@ def main() -> None:
     import torch
 
     from bcfpipe.config import PRESETS, TrainingOptions
-    from bcfpipe.export.fit import make_config
+    from bcfpipe.export.material import make_config
     from bcfpipe.formats.vocabulary import Kernel
     from bcfpipe.texset.texture_set import load_texture_set
     from bcfpipe.train.fused import step as fused_step

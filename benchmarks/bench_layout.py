@@ -52,7 +52,7 @@ def main() -> None:
 
     from bcfpipe.config import PROFILES, TrainingOptions
     from bcfpipe.formats.vocabulary import Layout
-    from bcfpipe.layout.fit import fit_layout
+    from bcfpipe.layout.decide import decide_layout
     from bcfpipe.texset.texture_set import load_texture_set
 
     ts = load_texture_set(specs(args.set))
@@ -66,7 +66,7 @@ def main() -> None:
         return one_layout(ts, opts, r, args.classic.split(","), args.layout_profile, args.lod_power)
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bcfpipe-layout-") as tmp:
-        fit = fit_layout(ts, tmp, opts, r, log=lambda s: print("  " + s, flush=True))
+        fit = decide_layout(ts, tmp, opts, r, log=lambda s: print("  " + s, flush=True))
     n = len(fit.decision.bc.mse_per_mip)
     head = "| layout | basis | MiB | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | admissible |"
     sep = "|---|---|---:|" + "---:|" * (n + 1) + "---|"
@@ -92,7 +92,7 @@ def one_layout(ts, opts, r, classic, profile, lod_power=None) -> None:
     """Measure one layout: ``classic`` groups as BC@R has them, a model on the rest at ``profile``."""
     from dataclasses import replace
 
-    from bcfpipe.export.fit import fit_material, make_config
+    from bcfpipe.export.material import train_material, make_config
     from bcfpipe.layout import choose as C
     from bcfpipe.layout.classic import channel_errors, encode
     from bcfpipe.layout.kinds import subset
@@ -113,7 +113,7 @@ def one_layout(ts, opts, r, classic, profile, lod_power=None) -> None:
         cfg = make_config(sub, replace(opts, profile=profile))[1]
         if lod_power is not None:
             cfg = replace(cfg, preset=replace(cfg.preset, lod_power=lod_power))
-        res, _ = fit_material(sub, Path(tmp) / "m", cfg, profile)
+        res, _ = train_material(sub, Path(tmp) / "m", cfg, profile)
     e = e_bc.copy()
     e[:, keep] = res.mse_per_channel
     c = C.Candidate(tuple(classic), profile, res.size_bytes + sum(g.size_bytes for g in enc if g.group.name in classic),

@@ -4,7 +4,7 @@ Trains one texture set at one profile with each preset named (one of config.PRES
 ``name:warmup:constrained:finetune:batch`` schedule in the CPU presets' rates), one after another on
 one thread with the default kernel, and prints one row per preset as it finishes: PSNR at every
 reference mip and over all mips (the DDS features and fp16 decoder through onnxruntime,
-``fit_material``), the training time and the wall time with export and measurement.
+``train_material``), the training time and the wall time with export and measurement.
 
   python benchmarks/bench_presets.py --set teapot --profile 1k [--features bc6h] [--kernel auto]
                                      [--presets draft,fast,standard] [--device cpu] [--keep DIR]
@@ -38,7 +38,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from bcfpipe.config import PRESETS, TrainingOptions, _cpu_preset
-    from bcfpipe.export.fit import fit_material, make_config
+    from bcfpipe.export.material import train_material, make_config
     from bcfpipe.texset.texture_set import load_texture_set
 
     ts = load_texture_set(specs(args.set))
@@ -57,7 +57,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory(prefix="bcfpipe-presets-") as tmp:
             t = time.perf_counter()
             out = args.keep / name if args.keep else Path(tmp) / "m"
-            res, _ = fit_material(ts, out, cfg, args.profile)
+            res, _ = train_material(ts, out, cfg, args.profile)
             wall = time.perf_counter() - t
         m = res.metrics
         if not header:

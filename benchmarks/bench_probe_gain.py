@@ -1,10 +1,10 @@
 """Issue 58: what a full training at the asked preset gains over the layout's probe, per mip.
 
-The default layout's probe (`bcfpipe.layout.fit._train_probe`) trains the set's model at p0 for
+The default layout's probe (`bcfpipe.layout.decide._train_probe`) trains the set's model at p0 for
 `PROBE_FRACTION` of the steps; the candidate it stands for, trained in full, holds more. For each
 set this trains both, the same model (all channels, p0, T_0 width w0) with the same reference
 chain, and prints each one's per-mip PSNR from its exported files and the difference: the table
-`bcfpipe.train.rate.PROBE_GAINS_DB` holds, by T_0's place (the mips finer than T_0, T_0's level 0,
+`bcfpipe.train.gains.PROBE_GAINS_DB` holds, by T_0's place (the mips finer than T_0, T_0's level 0,
 every coarser mip).
 
   python benchmarks/bench_probe_gain.py [--sets teapot,brick,wood,bottle] [--quality draft] [--json out.json]
@@ -34,7 +34,7 @@ def per_mip_psnr(mse: np.ndarray) -> list[float]:
 
 def table_row(rows: list[dict]) -> tuple[float, ...]:
     """The mean gain over the sets by T_0's place: finer than its level 0, at it, one finer... as
-    `bcfpipe.train.rate.probe_gains` reads it; the mips averaged are those the layout weighs (a
+    `bcfpipe.train.gains.probe_gains` reads it; the mips averaged are those the layout weighs (a
     smaller side of at least 4 texels, `choose`)."""
     cls: list[list[float]] = [[], [], [], []]
     for r in rows:
@@ -49,8 +49,8 @@ def table_row(rows: list[dict]) -> tuple[float, ...]:
 
 def main() -> None:
     from bcfpipe.config import PROFILES, TrainingOptions, shortened
-    from bcfpipe.export.fit import FIGURES, PROBE, evaluate_exported, fit_material, make_config
-    from bcfpipe.layout.fit import PROBE_FRACTION, predict_for
+    from bcfpipe.export.material import FIGURES, PROBE, evaluate_exported, train_material, make_config
+    from bcfpipe.layout.decide import PROBE_FRACTION, predict_for
     from bcfpipe.layout.kinds import capped
     from bcfpipe.layout.predict import bc_resolution
     from bcfpipe.texset.chain import Reference
@@ -80,7 +80,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             for label, c in (("probe", probe), ("full", full)):
                 t = time.perf_counter()
-                res = fit_material(ts, Path(tmp) / label, c, p0, measure=PROBE if label == "probe" else FIGURES,
+                res = train_material(ts, Path(tmp) / label, c, p0, measure=PROBE if label == "probe" else FIGURES,
                                    reference=ref)[0]  # each as the layout measures it
                 out[label] = (per_mip_psnr(res.mse_per_channel), time.perf_counter() - t)
                 if label == "probe":  # the sampled measure against every texel's

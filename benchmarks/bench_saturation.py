@@ -3,7 +3,7 @@
 Trains one set with the `standard` preset's schedule scaled k times (warm-up and constrained steps ×
 k, same batch, the same per-phase decay to the same final rates; the MLP fine-tune unchanged), with
 the fused kernel on one thread, for each k, and reports from the exported files (the DDS features
-and fp16 decoder through onnxruntime, `fit_material`): PSNR at every reference mip and over all
+and fp16 decoder through onnxruntime, `train_material`): PSNR at every reference mip and over all
 mips, against BC at the profile's T_0 resolution at every mip. Rows print as they finish, so a cut
 run keeps its rows. Run one process per set to use two cores.
 
@@ -42,7 +42,7 @@ def main() -> None:
 
     from bcfpipe.texset.baselines import encode_texture_set_baseline
     from bcfpipe.config import PRESETS, PROFILES, TrainingOptions, _cpu_preset
-    from bcfpipe.export.fit import fit_material, make_config
+    from bcfpipe.export.material import train_material, make_config
     from bcfpipe.formats.vocabulary import Kernel
     from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
@@ -71,7 +71,7 @@ def main() -> None:
             _, cfg = make_config(ts, TrainingOptions(profile=args.profile, device="cpu", seed=args.seed))
             cfg = cfg.with_(preset=preset, preset_name=f"standard x{k}", kernel=Kernel.FUSED, threads=1)
             t = time.perf_counter()
-            res, _ = fit_material(ts, Path(tmp) / f"k{k}", cfg, args.profile)
+            res, _ = train_material(ts, Path(tmp) / f"k{k}", cfg, args.profile)
             wall = time.perf_counter() - t
             samples = (preset.warmup.steps + preset.constrained.steps) * preset.batch
             m = res.metrics

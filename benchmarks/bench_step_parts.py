@@ -36,7 +36,7 @@ def main() -> None:
     import bcfpipe.train.fused.targets as TG
     import bcfpipe.train.trainer as T
     from bcfpipe.config import TrainingOptions, _cpu_preset
-    from bcfpipe.export.fit import make_config
+    from bcfpipe.export.material import make_config
     from bcfpipe.texset.texture_set import load_texture_set
 
     seconds: dict[str, float] = collections.defaultdict(float)

@@ -52,7 +52,7 @@ def _train(name: str, out: Path, args: argparse.Namespace, extra: list[str]) -> 
 
 
 def _disk(folder: Path) -> int:
-    from bcfpipe.export.fit import shipped_disk_bytes
+    from bcfpipe.export.material import shipped_disk_bytes
 
     return shipped_disk_bytes(folder)
 

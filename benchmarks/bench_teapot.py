@@ -19,7 +19,7 @@ from common import machine, teapot_specs  # noqa: E402
 
 from bcfpipe.texset.baselines import encode_texture_set_baseline  # noqa: E402
 from bcfpipe.config import TrainingOptions  # noqa: E402
-from bcfpipe.export.fit import fit_material, make_config  # noqa: E402
+from bcfpipe.export.material import train_material, make_config  # noqa: E402
 from bcfpipe.texset.metrics import compute_metrics  # noqa: E402
 from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set  # noqa: E402
 
@@ -50,7 +50,7 @@ def main():
         name, cfg = make_config(ts, TrainingOptions(profile=a.profile, preset=preset, device=a.device,
                                                     threads=a.threads))
         t0 = time.perf_counter()
-        res, _ = fit_material(ts, a.out / preset, cfg, name)
+        res, _ = train_material(ts, a.out / preset, cfg, name)
         m = res.metrics
         rows.append(dict(method=f"BCf {name} {preset}", psnr=m.psnr, ssim=m.ssim, flip=m.flip,
                          size_bytes=res.size_bytes, seconds=time.perf_counter() - t0, train_seconds=res.train_seconds,

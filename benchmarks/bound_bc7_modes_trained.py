@@ -144,7 +144,7 @@ def main() -> None:
     import torch
 
     from bcfpipe.config import TrainingOptions
-    from bcfpipe.export.fit import make_config
+    from bcfpipe.export.material import make_config
     from bcfpipe.model import neural as M
     from bcfpipe.model.features import codec_of
     from bcfpipe.texset.baselines import bc7_mips

@@ -10,7 +10,7 @@ construction. This script measures both parts from their own files:
     the reference mips above R);
   * a neural model trained only for s >= split (ModelConfig.split: the trainer's scale draw in
     [split, s_max]) with T_0 = ``--t0`` (the paper's halving pattern below it) or ``--resolutions``,
-    exported, its per-mip PSNR from the DDS features and fp16 decoder (fit_material), and its bytes;
+    exported, its per-mip PSNR from the DDS features and fp16 decoder (train_material), and its bytes;
   * the two written as one mip-split material folder (bcfpipe.layout.export.export_split: BC@R's
     levels for the mips below split as C_i.dds, material.json format 4 with ``split``), decoded
     back from its files (bcfpipe.export.writer.decode_mips) and sized as a renderer loads it;
@@ -54,7 +54,7 @@ def main() -> None:
 
     from bcfpipe.config import TrainingOptions, scaled_profile
     from bcfpipe.export import writer as E
-    from bcfpipe.export.fit import FIGURES, exported_size, fit_material, make_config
+    from bcfpipe.export.material import FIGURES, exported_size, train_material, make_config
     from bcfpipe.layout.classic import channel_errors, encode, split_levels
     from bcfpipe.layout.export import export_split
     from bcfpipe.texset.metrics import mse_per_channel, psnr_from_mse
@@ -80,7 +80,7 @@ def main() -> None:
     cfg = cfg.with_(model=model, threads=1)
     with tempfile.TemporaryDirectory(prefix="bcfpipe-split-") as tmp:
         t = time.perf_counter()
-        res, _ = fit_material(ts, Path(tmp) / "m", cfg, f"T={res_t}", measure=FIGURES)
+        res, _ = train_material(ts, Path(tmp) / "m", cfg, f"T={res_t}", measure=FIGURES)
         wall = time.perf_counter() - t
         nn_bytes = exported_size(Path(tmp) / "m")
         out = export_split(groups, Path(tmp) / "m", ts, Path(tmp) / "split", args.split, args.resolution)

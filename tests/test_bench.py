@@ -116,7 +116,7 @@ def test_disk_bytes_against_the_zstd_command_line(report: Path, tmp_path: Path) 
     """Every row's disk bytes are its files compressed by the zstd CLI at level 19, within a few
     bytes of frame header per file: the BCf cell's shipped files (its GPU bytes count the same
     files), BC@R's and the quality set's textures as `formats.dds.write` writes them."""
-    from bcfpipe.export.fit import shipped_files
+    from bcfpipe.export.material import shipped_files
     from bcfpipe.formats import dds
     from bcfpipe.formats.bcn import DXGI, ClassicFormat
     from bcfpipe.texset.baselines import BC7_QUALITY, encode_texture_set_baseline

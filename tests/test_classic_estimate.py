@@ -81,9 +81,9 @@ def test_measure_encodes_what_ships_once_and_replaces_the_estimate(bricks):
     assert est.bc.size_bytes == exact_bytes  # sizes are exact before any encode
     rp = est.packed[0]
     got = measure(work, est, rp)
-    shipped = next(p for p in got.packed if p.repack == rp.repack)
+    shipped = next(p for p in got.packed if p.part == rp.part)
     assert shipped.basis == "measured" and shipped.disk_bytes
-    kept = [g for g in got.groups if g.group.name not in got.repacked[rp.repack][0].replaces]
+    kept = [g for g in got.groups if g.group.name not in got.repacked[rp.part.repack][0].replaces]
     assert kept and all(g.encoded for g in kept)  # only what the repack ships was encoded
     assert not got.measured and got.bc.basis == "estimated"
     bc = measure(work, got)
@@ -92,24 +92,25 @@ def test_measure_encodes_what_ships_once_and_replaces_the_estimate(bricks):
 
 def test_the_default_layout_ships_a_measured_candidate_and_says_what_each_part_cost(tmp_path):
     """The probe's all-channel candidate is predicted from it with the measured gain of a full
-    training per mip (`rate.PROBE_GAINS_DB`), and a classic first choice trains nothing."""
+    training per mip (`gains.PROBE_GAINS_DB`), and a classic first choice trains nothing."""
+    from bcfpipe.layout import kinds as K
     from bcfpipe.layout.export import decision_json
-    from bcfpipe.layout.fit import fit_layout
+    from bcfpipe.layout.decide import decide_layout
     from bcfpipe.texset.metrics import psnr_from_mse
-    from bcfpipe.train.rate import probe_gains
+    from bcfpipe.train.gains import probe_gains
 
     from test_classic_layout import _set
 
     opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
     ts = _set(64)
-    fit = fit_layout(ts, tmp_path / "work", opts, 64)
+    fit = decide_layout(ts, tmp_path / "work", opts, 64)
     assert fit.decision.chosen.basis == "measured"
     d = decision_json(fit)
     assert set(fit.costs) >= {"estimate", "probe", "classic_encode"}
     assert {c["basis"] for c in d["weighed"]} == {"estimated", "predicted"}
     probe = fit.probe
-    own = next(c for c in fit.first.candidates if c.profile == probe.profile and not c.classic and not c.split
-               and c.t0_layers == probe.t0_layers)
+    own = next(c for c in fit.first.candidates if c.profile == probe.profile and not c.classic
+               and c.part == K.NeuralPart(probe.t0_layers))
     t0_mip = max(0, (max(ts.width, ts.height) // probe.resolutions[0]).bit_length() - 1)
     gains = probe_gains("smoke", probe.mse_per_channel.shape[0], t0_mip)
     for k in own.use:
@@ -122,13 +123,13 @@ def test_a_sampled_measure_decodes_the_texels_it_names_exactly(tmp_path):
     """`writer.decode_mips` with ``texels`` gives those texels of the whole decode, bit for bit; a
     sampled measure takes one texel in each 2x2 cell of a large mip, every place within a cell."""
     from bcfpipe.export import writer as E
-    from bcfpipe.export.fit import Measure, fit_material, make_config, sampled_texels
+    from bcfpipe.export.material import Measure, train_material, make_config, sampled_texels
 
     from test_classic_layout import _set
 
     ts = _set(64)
     cfg = make_config(ts, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0))[1]
-    res = fit_material(ts, tmp_path / "m", cfg, "tiny", measure=Measure(image_metrics=False, float_model=False))[0]
+    res = train_material(ts, tmp_path / "m", cfg, "tiny", measure=Measure(image_metrics=False, float_model=False))[0]
     em = E.load(res.out_dir)
     shapes = [(64, 64), (32, 32)]
     picks = [np.array([0, 5, 64 * 10 + 3, 64 * 64 - 1]), None]
@@ -187,12 +188,12 @@ def test_no_probe_when_the_oracle_rules_out_every_neural_candidate(detail, tmp_p
     """A 256² set at R = 256 with a 64² T_0 (tiny): with texel-scale detail, mips 0 and 1 magnified
     from T_0 fall far below BC@R's floor whatever a model holds, so nothing neural is trained, not
     even the probe; smooth, the probe trains."""
-    from bcfpipe.layout.fit import fit_layout
+    from bcfpipe.layout.decide import decide_layout
 
     ts = _smooth_or_detailed(detail)
     opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
     seen: list[str] = []
-    fit = fit_layout(ts, tmp_path / "work", opts, 256, log=seen.append)
+    fit = decide_layout(ts, tmp_path / "work", opts, 256, log=seen.append)
     assert (fit.probe is None) == detail and ("probe" in fit.costs) == (not detail)
     assert any(s.startswith("no probe: no neural candidate") for s in seen) == detail
     assert fit.decision.chosen.basis == "measured"
@@ -200,7 +201,7 @@ def test_no_probe_when_the_oracle_rules_out_every_neural_candidate(detail, tmp_p
 
 def test_the_largest_gain_is_at_least_the_mean_at_every_place():
     """`PROBE_GAINS_MAX_DB` is the most any measured set gained, `PROBE_GAINS_DB` their mean."""
-    from bcfpipe.train.rate import PROBE_GAINS_DB, PROBE_GAINS_MAX_DB, probe_gains
+    from bcfpipe.train.gains import PROBE_GAINS_DB, PROBE_GAINS_MAX_DB, probe_gains
 
     assert set(PROBE_GAINS_MAX_DB) == set(PROBE_GAINS_DB)
     for preset in PROBE_GAINS_DB:

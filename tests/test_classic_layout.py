@@ -11,7 +11,7 @@ import pytest
 
 from bcfpipe.config import TrainingOptions
 from bcfpipe.export import writer as E
-from bcfpipe.export.fit import FIGURES, fit_material, make_config
+from bcfpipe.export.material import FIGURES, train_material, make_config
 from bcfpipe.formats import dds, material as mf
 from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
@@ -77,7 +77,8 @@ def bc_at(ts: TextureSet, ref, resolution: int = 32):
 
 
 def _cand(classic, size, mse, basis="measured", profile="1k", kind=K.MIXED):
-    return C.Candidate(classic, profile, size, tuple(mse), basis, (0, 1, 2), kind=kind)
+    return C.Candidate(classic, profile, size, tuple(mse), basis, (0, 1, 2), K.NeuralPart() if profile else None,
+                       kind=kind)
 
 
 def test_rule_keeps_bc_when_nothing_else_qualifies_and_picks_the_best_that_does():
@@ -112,12 +113,12 @@ def mixed(tmp_path_factory):
     keep = [0, 1, 2, 5]
     sub = subset(ts, keep)
     _, cfg = make_config(sub, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
-    res, _ = fit_material(sub, tmp / "neural", cfg, "tiny")
+    res, _ = train_material(sub, tmp / "neural", cfg, "tiny")
     err = np.zeros((len(ref), ts.num_channels))
     err[:, keep] = res.mse_per_channel
     err[:, [3, 4]] = e_bc[:, [3, 4]]
     chosen = C.Candidate(("normal",), "tiny", res.size_bytes + enc[1].size_bytes, tuple(err.mean(1)), "measured",
-                         bc.use, kind=K.MIXED)
+                         bc.use, K.NeuralPart(), kind=K.MIXED)
     d = C.Decision(bc, (bc, chosen), chosen, "test", "quality")
     fit = LayoutFit(d, d, enc, res, tuple(keep), res, 0.0, 0.0)
     out = export_layout(fit, ts, tmp / "material", "repeat")
@@ -129,8 +130,8 @@ def test_a_probe_skips_ssim_and_flip_but_measures_the_same_errors(tmp_path):
     out SSIM and FLIP and changes no error (training is deterministic on the CPU)."""
     ts = _set()
     _, cfg = make_config(ts, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
-    full, _ = fit_material(ts, tmp_path / "full", cfg, "tiny")
-    probe, _ = fit_material(ts, tmp_path / "probe", cfg, "tiny", measure=FIGURES)
+    full, _ = train_material(ts, tmp_path / "full", cfg, "tiny")
+    probe, _ = train_material(ts, tmp_path / "probe", cfg, "tiny", measure=FIGURES)
     assert full.metrics.ssim is not None and full.metrics.flip is not None
     assert probe.metrics.ssim is None and probe.metrics.flip is None
     assert probe.metrics.psnr_per_mip == full.metrics.psnr_per_mip

@@ -116,7 +116,7 @@ class _WrapFit(importlib.abc.MetaPathFinder):
 
             def fit(ts, options, out, **kw):
                 from dataclasses import asdict
-                from bcfpipe.export.fit import make_config
+                from bcfpipe.export.material import make_config
 
                 _, cfg = make_config(ts, options, kw["wrap"])
                 mode = module.fit_mode(options, sorted({c.semantic for c in ts.channels}))

@@ -20,7 +20,7 @@ from bcfpipe.cli.train import train_cmd
 
 def test_library_does_not_import_click():
     code = ("import bcfpipe.builder, bcfpipe.scan, bcfpipe.train, bcfpipe.verify, bcfpipe.formats, sys; "
-            "import bcfpipe.bench.run, bcfpipe.bench.report, bcfpipe.bench.decode_cost, bcfpipe.train.rate; "
+            "import bcfpipe.bench.run, bcfpipe.bench.report, bcfpipe.bench.decode_cost, bcfpipe.fit.rate; "
             "import bcfpipe.render.frames, bcfpipe.render.compare; "
             "assert 'click' not in sys.modules, 'click imported'")
     subprocess.run([sys.executable, "-c", code], check=True)

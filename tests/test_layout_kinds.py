@@ -1,5 +1,5 @@
 """A new kind of layout candidate is one class (issue 51): registered beside the shipped kinds, with
-`fit_layout` and `export_layout` as they are, its candidate is weighed, and when it wins it is
+`decide_layout` and `export_layout` as they are, its candidate is weighed, and when it wins it is
 written by its own `export`."""
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
 from bcfpipe.layout.classic import Group, channel_errors, encode_bc7
 from bcfpipe.layout.export import export_groups, export_layout
-from bcfpipe.layout.fit import fit_layout
+from bcfpipe.layout.decide import decide_layout
 from bcfpipe.texset.metrics import mse_per_channel
 from bcfpipe.texset.texture_set import Channel, TextureSet, build_mip_chain
 
@@ -75,7 +75,7 @@ def _labels(d: C.Decision) -> list[str]:
 
 def test_a_registered_kind_that_wins_is_weighed_chosen_and_exported_by_its_own_export(bc7_kind, tmp_path):
     ts = _normal_set()
-    fit = fit_layout(ts, tmp_path / "work", OPTIONS, 64)
+    fit = decide_layout(ts, tmp_path / "work", OPTIONS, 64)
     mine = next(c for c in fit.decision.candidates if c.kind is bc7_kind)
     assert "BC@R with every group as BC7" in _labels(fit.first) and mine.label in _labels(fit.decision)
     assert mine.size_bytes == fit.decision.bc.size_bytes  # BC7 and BC5 both hold 16 bytes a block
@@ -91,7 +91,7 @@ def test_a_registered_kind_that_wins_is_weighed_chosen_and_exported_by_its_own_e
 
 def test_a_registered_kind_that_loses_is_weighed_and_rejected(bc7_kind, tmp_path):
     """On a BC1 + BC5 normal + BC4 set every group in BC7 takes more than BC@R's bytes: weighed, never shipped."""
-    fit = fit_layout(_set(), tmp_path / "work", OPTIONS, 64)
+    fit = decide_layout(_set(), tmp_path / "work", OPTIONS, 64)
     rows = {c["layout"]: c for c in fit.decision.to_json()["candidates"]}
     assert "MiB > BC@R's" in rows["BC@R with every group as BC7"]["rejected"]
     assert fit.decision.chosen.kind is not bc7_kind and bc7_kind.exports == 0

@@ -324,7 +324,7 @@ def test_verify_passes_on_a_trained_t0_of_k_layers(rt, tmp_path, k):
     """A real material with a T_0 of k layers of principal components (10 channels, 64², tiny /
     smoke; ~2 s to train): 3 + k BC7 layers, and verify's every check passes on it."""
     from bcfpipe.config import PRESETS, PROFILES, ModelConfig, TrainConfig
-    from bcfpipe.export.fit import FIGURES, fit_material
+    from bcfpipe.export.material import FIGURES, train_material
     from bcfpipe.formats.vocabulary import T0, FeatureFormat
     from bcfpipe.texset.texture_set import load_texture_set
     from bcfpipe.verify import checks as V
@@ -332,7 +332,7 @@ def test_verify_passes_on_a_trained_t0_of_k_layers(rt, tmp_path, k):
     src = Path(__file__).resolve().parents[1] / "samples" / "textures"
     ts = load_texture_set([s.format(src) for s in TRAINED_SPECS], resolution=64)
     mc = ModelConfig(resolutions=PROFILES["tiny"], features=FeatureFormat.BC7, t0_layers=k)
-    fit_material(ts, tmp_path, TrainConfig(model=mc, preset=PRESETS["smoke"], preset_name="smoke", t0=T0.PCA),
+    train_material(ts, tmp_path, TrainConfig(model=mc, preset=PRESETS["smoke"], preset_name="smoke", t0=T0.PCA),
                  measure=FIGURES)
     desc = mf.read(tmp_path)
     assert len(desc.layers) == 3 + k and desc.mlp.n_in == 4 * (3 + k)

@@ -1,4 +1,4 @@
-"""`--target-psnr` rate control (bcfpipe.train.rate): candidates, predictions, the climbing policy,
+"""`--target-psnr` rate control (bcfpipe.fit.rate): candidates, predictions, the climbing policy,
 and real trainings through `bcfpipe train` and `bcfpipe build`."""
 from __future__ import annotations
 from bcfpipe.builder import Execution
@@ -15,7 +15,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_build import add_material, new_stage, pattern, write_png  # noqa: E402
 
 from bcfpipe.config import TrainingOptions  # noqa: E402
-from bcfpipe.train import rate  # noqa: E402
+from bcfpipe.fit import rate  # noqa: E402
+from bcfpipe.train import gains  # noqa: E402
 from bcfpipe.resources import SCHEMA_DIR  # noqa: E402
 
 
@@ -35,7 +36,7 @@ def test_predictions_shift_with_the_anchors() -> None:
     c = rate.candidates(1024, "cpu")
     p = rate.predict(c, {("0.5k", "draft"): 30.0})
     assert p[("0.5k", "draft")] == 30.0
-    assert p[("1k", "standard")] == pytest.approx(30.0 + rate.GAINS_DB[("1k", "standard")])
+    assert p[("1k", "standard")] == pytest.approx(30.0 + gains.GAINS_DB[("1k", "standard")])
     two = rate.predict(c, {("0.5k", "draft"): 30.0, ("1k", "fast"): 40.0})
     assert two[("1k", "fast")] == 40.0  # measured wins
     assert two[("0.5k", "standard")] > p[("0.5k", "standard")]  # a better anchor lifts the others
@@ -78,9 +79,9 @@ GAINS = {("0.5k", "draft"): 0.0, ("0.5k", "fast"): 2.03, ("0.5k", "standard"): 2
 
 
 def test_policy_probe_predict_climb_and_unreachable(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr(rate, "GAINS_DB", GAINS)
+    monkeypatch.setattr(gains, "GAINS_DB", GAINS)
     c = rate.candidates(1024, "cpu")
-    g = rate.GAINS_DB
+    g = gains.GAINS_DB
     assert g[("0.5k", "fast")] < 2.5 < g[("0.5k", "standard")] < g[("1k", "standard")] < 4.0  # the cases below
     calls: list = []
     # met by the probe: nothing else trains

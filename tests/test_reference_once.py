@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from bcfpipe.config import TrainingOptions
-from bcfpipe.export.fit import FIGURES, fit_material, make_config
-from bcfpipe.layout.fit import fit_layout
+from bcfpipe.export.material import FIGURES, train_material, make_config
+from bcfpipe.layout.decide import decide_layout
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
@@ -63,17 +63,17 @@ def _counted(monkeypatch) -> tuple[list, list]:
 def test_fit_material_builds_one_chain_and_one_set_of_masks(tmp_path, monkeypatch, bricks, coverage):
     _, cfg = make_config(bricks, OPTIONS)
     chains, masks = _counted(monkeypatch)
-    res, _ = fit_material(bricks, tmp_path / "m", cfg, "tiny", coverage=coverage, measure=FIGURES)
+    res, _ = train_material(bricks, tmp_path / "m", cfg, "tiny", coverage=coverage, measure=FIGURES)
     assert len(chains) == 1 and len(masks) == 1
     assert res.metrics.psnr_covered is not None and 0.0 < res.metrics.covered_fraction < 1.0
 
 
 def test_a_passed_reference_is_used_and_changes_nothing(tmp_path, monkeypatch, bricks, coverage):
     _, cfg = make_config(bricks, OPTIONS)
-    own, _ = fit_material(bricks, tmp_path / "own", cfg, "tiny", coverage=coverage)
+    own, _ = train_material(bricks, tmp_path / "own", cfg, "tiny", coverage=coverage)
     ref = Reference.of(bricks, coverage, cfg.model.wrap)
     chains, masks = _counted(monkeypatch)
-    given, _ = fit_material(bricks, tmp_path / "given", cfg, "tiny", coverage=coverage, reference=ref)
+    given, _ = train_material(bricks, tmp_path / "given", cfg, "tiny", coverage=coverage, reference=ref)
     assert chains == [] and masks == []  # nothing built again
     assert given.metrics == own.metrics and given.float_metrics == own.float_metrics
     np.testing.assert_array_equal(given.mse_per_channel, own.mse_per_channel)
@@ -86,17 +86,17 @@ def test_a_passed_reference_is_used_and_changes_nothing(tmp_path, monkeypatch, b
 def test_a_reference_of_something_else_is_refused(tmp_path, bricks, coverage):
     _, cfg = make_config(bricks, OPTIONS)
     with pytest.raises(ValueError, match="coverage"):  # masks held, no coverage given
-        fit_material(bricks, tmp_path / "a", cfg, coverage=None, reference=Reference.of(bricks, coverage))
+        train_material(bricks, tmp_path / "a", cfg, coverage=None, reference=Reference.of(bricks, coverage))
     half = Reference.of(load_texture_set([TextureSpec.parse(f"albedo={SAMPLES / 'bricks_albedo.png'}:rgb")],
                                          resolution=32))
     with pytest.raises(ValueError, match="set"):
-        fit_material(bricks, tmp_path / "b", cfg, reference=half)
+        train_material(bricks, tmp_path / "b", cfg, reference=half)
 
 
 def test_evaluate_reports_steps_and_an_eta(tmp_path, bricks):
     _, cfg = make_config(bricks, OPTIONS)
     seen = []
-    fit_material(bricks, tmp_path / "m", cfg, "tiny", progress=seen.append, measure=FIGURES)
+    train_material(bricks, tmp_path / "m", cfg, "tiny", progress=seen.append, measure=FIGURES)
     ev = [p for p in seen if p.phase == "evaluate"]
     mips = 7  # 64² .. 1²
     assert ev[0].steps == 0  # it starts before there is a rate to estimate from
@@ -117,12 +117,12 @@ def test_evaluate_line_in_the_train_command():
     assert line.split() == ["evaluate", "3/12", "elapsed", "1m20s", "eta", "9s"]
 
 
-@pytest.mark.skipif("reference" not in inspect.signature(fit_layout).parameters, reason="fit_layout takes no reference yet (its owner adds it, issue 58)")
+@pytest.mark.skipif("reference" not in inspect.signature(decide_layout).parameters, reason="decide_layout takes no reference yet (its owner adds it, issue 58)")
 def test_layout_fit_builds_one_chain_and_one_set_of_masks(tmp_path, monkeypatch, bricks, coverage):
-    from bcfpipe.layout.material import fit_material_layout
+    from bcfpipe.layout.material import layout_material
 
     chains, masks = _counted(monkeypatch)
     opts = TrainingOptions(profile="tiny", preset="smoke", seed=0, device="cpu", threads=1, layout="auto")
-    res = fit_material_layout(bricks, tmp_path / "m", opts, "repeat", coverage=coverage)
+    res = layout_material(bricks, tmp_path / "m", opts, "repeat", coverage=coverage)
     assert res.metrics.psnr_covered is not None
     assert len(chains) == 1 and len(masks) == 1

@@ -14,7 +14,7 @@ import torch
 from bcfpipe.config import TrainingOptions
 from bcfpipe.formats.record import FormatError
 from bcfpipe.export import writer as E
-from bcfpipe.export.fit import FIGURES, fit_material, make_config
+from bcfpipe.export.material import FIGURES, train_material, make_config
 from bcfpipe.formats import material as mf
 from bcfpipe.layout.classic import encode
 from bcfpipe.layout.classic import split_levels
@@ -55,7 +55,7 @@ def split(tmp_path_factory):
     enc = encode(ts, R, ref)
     _, cfg = make_config(ts, TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1))
     cfg = cfg.with_(model=replace(cfg.model, resolutions=(4, 4, 4, 4), split=SPLIT))
-    res, _ = fit_material(ts, tmp / "neural", cfg, "split", measure=FIGURES)
+    res, _ = train_material(ts, tmp / "neural", cfg, "split", measure=FIGURES)
     out = export_split(enc, tmp / "neural", ts, tmp / "material", SPLIT, R)
     return ts, ref, enc, tmp / "neural", out, res
 

@@ -44,12 +44,12 @@ def ts():
 @pytest.fixture(scope="module")
 def trained(ts, tmp_path_factory):
     """k = 2 and 3, trained at tiny / smoke and exported (a few seconds each)."""
-    from bcfpipe.export.fit import fit_material
+    from bcfpipe.export.material import train_material
 
     out = {}
     for k in (2, 3):
         folder = tmp_path_factory.mktemp(f"t0x{k}")
-        res, tm = fit_material(ts, folder, _config(k))
+        res, tm = train_material(ts, folder, _config(k))
         out[k] = (folder, res, tm)
     return out
 
@@ -253,9 +253,9 @@ def test_a_layer_past_the_sets_components_is_refused_in_one_line():
 
 
 def test_torch_kernel_trains_a_two_layer_t0(ts, tmp_path):
-    from bcfpipe.export.fit import FIGURES, fit_material
+    from bcfpipe.export.material import FIGURES, train_material
 
-    res, tm = fit_material(ts, tmp_path / "m", _config(2, Kernel.TORCH), measure=FIGURES)
+    res, tm = train_material(ts, tmp_path / "m", _config(2, Kernel.TORCH), measure=FIGURES)
     assert sorted(tm.layers.fixed) == [0, 1] and res.metrics.psnr > 20
 
 

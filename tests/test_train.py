@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bcfpipe.config import ModelConfig, PhaseSchedule, Preset, TrainConfig
-from bcfpipe.export.fit import fit_material
+from bcfpipe.export.material import train_material
 from bcfpipe.texset.texture_set import Channel, TextureSet, TextureSpec, load_texture_set
 from bcfpipe.formats.vocabulary import FeatureFormat
 
@@ -32,7 +32,7 @@ def teapot_crop(shared_scenes):
 def test_tiny_training_reaches_stated_psnr(tmp_path, teapot_crop):
     """Tiny profile on a 64x64 real crop: the exported BC6H + fp16 decoder must reach 30 dB (all mips)."""
     cfg = TrainConfig(model=TINY, preset=QUICK, preset_name="test", seed=0, device="cpu", threads=1)
-    res, tm = fit_material(teapot_crop, tmp_path / "m", cfg, "tiny")
+    res, tm = train_material(teapot_crop, tmp_path / "m", cfg, "tiny")
     assert res.metrics.psnr >= 30.0, res.metrics.psnr_per_mip
     # quantization loss. This 400-step run spreads by about +-0.6 dB over seeds (float gradients
     # differ in the last bits between decoders); the 0.5 dB acceptance figure is measured on the
@@ -55,11 +55,11 @@ def test_training_is_deterministic_on_cpu(tmp_path):
     cfg = TrainConfig(model=ModelConfig(features=FeatureFormat.BC6H, resolutions=(16, 8, 8, 4)), preset=quick, seed=3, device="cpu", threads=1)
     outs = []
     for run in range(2):
-        fit_material(ts, tmp_path / str(run), cfg, "t")
+        train_material(ts, tmp_path / str(run), cfg, "t")
         outs.append({p.name: p.read_bytes() for p in (tmp_path / str(run)).iterdir() if p.suffix in (".dds", ".bin")})
     assert outs[0] == outs[1]
     cfg2 = cfg.with_(seed=4)
-    fit_material(ts, tmp_path / "other", cfg2, "t")
+    train_material(ts, tmp_path / "other", cfg2, "t")
     assert (tmp_path / "other" / "weights.bin").read_bytes() != outs[0]["weights.bin"]
 
 

@@ -87,8 +87,8 @@ def blocks_disk_bytes(textures: Sequence, astc_block: str | None = None) -> int:
 
 
 def files_disk_bytes(folder: Path) -> int:
-    """Bytes on disk of an exported material's shipped files (`export.fit.shipped_disk_bytes`)."""
-    from bcfpipe.export.fit import shipped_disk_bytes
+    """Bytes on disk of an exported material's shipped files (`export.material.shipped_disk_bytes`)."""
+    from bcfpipe.export.material import shipped_disk_bytes
 
     return shipped_disk_bytes(folder)
 

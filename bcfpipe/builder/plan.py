@@ -230,7 +230,7 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
     most demanding mesh (never above the source); ``selection.coverage`` trains on the texels the
     bound meshes read (bcfpipe.scan.coverage). ``facts``: a bcfpipe.cache.facts.FactsStore, so that
     only textures whose bytes changed are decoded. With ``training.target_psnr`` rate control
-    chooses each job's profile and preset (bcfpipe.train.rate), from the cells of
+    chooses each job's profile and preset (bcfpipe.fit.rate), from the cells of
     ``selection.bench`` (a `bcfpipe bench` report) for the jobs whose sources it measured. Raises
     `BuildError` for an unreadable stage, a damaged source or a bad option."""
     texel_density, bench = selection.texel_density, selection.bench
@@ -381,7 +381,7 @@ def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None
 
 def _bench_anchors(bench: Mapping, specs) -> tuple[tuple[str, str, float], ...]:
     """The bench report's measured cells for a job, matched by source file names and channels."""
-    from bcfpipe.train.rate import anchors_from_bench
+    from bcfpipe.fit.rate import anchors_from_bench
 
     names = [f"{sem}={os.path.basename(path)}:{ch}" for sem, path, ch in specs]
     return tuple(sorted((p, q, v) for (p, q), v in anchors_from_bench(bench, names).items()))

@@ -127,7 +127,7 @@ def _table(res) -> "object":
 
 def _load(textures, resolution: int | None, options, wrap: str):
     """The parsed specs and their texture set; a bad spec, file or option exits 2 in one line."""
-    from bcfpipe.export.fit import make_config
+    from bcfpipe.export.material import make_config
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
     try:
@@ -145,7 +145,7 @@ def _anchors(report: dict | None, specs, options):
     if report is None:
         return None
     from bcfpipe.texset.texture_set import TextureSpec
-    from bcfpipe.train import rate
+    from bcfpipe.fit import rate
 
     anchors = rate.anchors_from_bench(report, [str(TextureSpec(s.semantic, Path(s.path).name, s.channels))
                                                for s in specs])

@@ -5,8 +5,8 @@ Three fits share the texture set, the options record and the output folder:
 * ``layout`` (`--layout auto`, or `--classic` naming one of the set's semantics): per-channel
   classic BC textures and neural features, chosen against BC@R (`bcfpipe.layout`);
 * ``rate`` (`--target-psnr`): the cheapest profile and preset predicted to reach the target
-  (`bcfpipe.train.rate`);
-* ``neural``: every output from the MLP at the profile and preset asked (`bcfpipe.export.fit`).
+  (`bcfpipe.fit.rate`);
+* ``neural``: every output from the MLP at the profile and preset asked (`bcfpipe.export.material`).
 
 `bcfpipe train`, both build executors and `bcfpipe bench` call only `fit`.
 """
@@ -21,10 +21,10 @@ from typing import Callable, Mapping
 import numpy as np
 
 from bcfpipe.config import TrainingOptions
-from bcfpipe.export.fit import MaterialResult, fit_material, make_config
+from bcfpipe.export.material import MaterialResult, train_material, make_config
 from bcfpipe.formats.fit_result import FitResult
 from bcfpipe.formats.vocabulary import T0
-from bcfpipe.layout.material import fit_material_layout
+from bcfpipe.layout.material import layout_material
 from bcfpipe.layout.predict import uses_layout
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
@@ -44,7 +44,7 @@ class Fitted:
 
     result: MaterialResult
     mode: FitMode
-    target: object | None = None  # bcfpipe.train.rate.TargetOutcome with --target-psnr
+    target: object | None = None  # bcfpipe.fit.rate.TargetOutcome with --target-psnr
 
     def record(self) -> FitResult:
         """The result as its record (`formats.fit_result.FitResult`), with ``target`` under
@@ -73,19 +73,19 @@ def fit(ts: TextureSet, options: TrainingOptions, out: str | Path, *, wrap: str,
     say = log or (lambda text: None)
     mode = fit_mode(options, sorted({c.semantic for c in ts.channels}))
     if mode == FitMode.LAYOUT:
-        res = fit_material_layout(ts, out, options, wrap, lambda text: say(f"layout: {text}"),
-                                  progress=progress, coverage=coverage)
+        res = layout_material(ts, out, options, wrap, lambda text: say(f"layout: {text}"),
+                              progress=progress, coverage=coverage)
         return Fitted(res, mode)
     name, cfg = make_config(ts, options, wrap)
     if mode == FitMode.NEURAL:
-        return Fitted(fit_material(ts, out, cfg, name, progress, coverage=coverage)[0], mode)
-    from bcfpipe.train import rate
+        return Fitted(train_material(ts, out, cfg, name, progress, coverage=coverage)[0], mode)
+    from bcfpipe.fit.rate import candidates, fit_to_target
 
     def train_one(setting, folder):
         n, c = make_config(ts, options.with_(profile=setting.profile, preset=setting.preset), wrap)
-        return fit_material(ts, folder, c, n, progress, coverage=coverage)[0]
+        return train_material(ts, folder, c, n, progress, coverage=coverage)[0]
 
-    settings = rate.candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
-    res, outcome = rate.fit_to_target(options.target_psnr, settings, train_one, out, anchors,
-                                      lambda text: say(f"rate control: training {text}"))
+    settings = candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
+    res, outcome = fit_to_target(options.target_psnr, settings, train_one, out, anchors,
+                                 lambda text: say(f"rate control: training {text}"))
     return Fitted(res, mode, outcome)

@@ -156,7 +156,7 @@ class LayoutChoice(Record):
 
 @dataclass(frozen=True)
 class RateAttempt(Record):
-    """One training that rate control ran (bcfpipe.train.rate)."""
+    """One training that rate control ran (bcfpipe.fit.rate)."""
 
     profile: str
     preset: str

@@ -13,7 +13,7 @@ decoding it:
   ``measured`` once encoded in full (what ships always is);
 * neural channels, ``predicted``: from the probe, a short training on *all* channels at one
   profile, moved per mip by what a full training at the preset asked gains over it
-  (`bcfpipe.train.rate.PROBE_GAINS_DB`), and for the other profiles and T_0 widths by the
+  (`bcfpipe.train.gains.PROBE_GAINS_DB`), and for the other profiles and T_0 widths by the
   measured gains between them (`GAINS_DB`, `T0_LAYER_GAINS_DB`), held to the oracle at the mips
   finer than their T_0 (`bcfpipe.layout.oracle`). A model trained on fewer channels fits those at
   least as well in expectation;

@@ -52,7 +52,7 @@ class EncodedGroup:
     group: Group
     levels: list[tuple[np.ndarray, int, int]]  # (blocks (n, block bytes) uint8, width, height)
     decoded: list[np.ndarray]  # per reference mip: (H_k, W_k, len(channels)) set values (a slope normal: x, y, z as
-    # USD reads it); fit_layout empties it once measured
+    # USD reads it); decide_layout empties it once measured
     disk: object = None  # its file's bytes on disk (`disk_bytes`): an int once measured, a Future while measured aside
     slope: float | None = None  # a slope normal's m: slope = (2t - 1) m
     planned: tuple[tuple[int, int], ...] = ()  # (width, height) per level, for a group not yet encoded

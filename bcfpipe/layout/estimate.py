@@ -11,7 +11,7 @@ those mips see it magnified, and a magnified texel reads its neighbours' blocks.
 
 `benchmarks/bench_classic_estimate.py` measures the estimate against the full encode per
 candidate and mip (docs/benchmarks.md); the layout's rule (`choose.SLACK_DB`) absorbs it, and
-what ships is encoded in full and measured (`bcfpipe.layout.fit`).
+what ships is encoded in full and measured (`bcfpipe.layout.decide`).
 """
 from __future__ import annotations
 

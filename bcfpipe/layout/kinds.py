@@ -1,11 +1,11 @@
-"""The kinds of layout candidate (issue 51): each one class, weighed by `bcfpipe.layout.fit.fit_layout`.
+"""The kinds of layout candidate (issue 51): each one class, weighed by `bcfpipe.layout.decide.decide_layout`.
 
 A kind generates its candidates from the shared fit context (`FitContext`: BC@R and its repacks
 measured, the probe, the profiles and their bytes), says how one of them reads, trains the one the
 rule picks when it needs a model of its own, and writes the chosen layout to the material folder.
-`REGISTRY` is the ordered tuple `fit_layout` weighs; its order is the order the candidates are
+`REGISTRY` is the ordered tuple `decide_layout` weighs; its order is the order the candidates are
 weighed in (ties go to the first). A new kind is a subclass of `Kind` with an instance added there:
-`fit_layout` and `export_layout` read nothing of a kind but these methods (docs/architecture.md).
+`decide_layout` and `export_layout` read nothing of a kind but these methods (docs/architecture.md).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from bcfpipe.config import TrainingOptions
-from bcfpipe.export.fit import FIGURES, MaterialResult, fit_material, make_config
+from bcfpipe.export.material import FIGURES, MaterialResult, train_material, make_config
 from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import EncodedGroup, disk_bytes, split_levels
@@ -80,8 +80,8 @@ class FitContext:
         return tuple(range(self.ts.num_channels))
 
     def gain(self, profile: str) -> float:
-        """The measured gain of ``profile`` (`train.rate`); smoke is no rate-control preset: draft's stand in."""
-        from bcfpipe.train.rate import profile_gain
+        """The measured gain of ``profile`` (`train.gains`); smoke is no rate-control preset: draft's stand in."""
+        from bcfpipe.train.gains import profile_gain
 
         preset = self.options.preset
         return profile_gain(profile, preset if preset in ("draft", "fast", "standard", "paper") else "draft")
@@ -99,8 +99,8 @@ class FitContext:
         return max(0, (max(self.ts.width, self.ts.height) // t0).bit_length() - 1)
 
     def probe_gains(self) -> np.ndarray:
-        """Per reference mip, what a full training at the preset asked gains over the probe (`train.rate`)."""
-        from bcfpipe.train.rate import probe_gains
+        """Per reference mip, what a full training at the preset asked gains over the probe (`train.gains`)."""
+        from bcfpipe.train.gains import probe_gains
 
         return np.array(probe_gains(self.options.preset, self.probe.mse_per_channel.shape[0], self.t0_mip(self.p0),
                                     self.most))
@@ -115,8 +115,8 @@ class FitContext:
         return self.oracles[t0]
 
     def width_gains(self, profile: str, width: int) -> np.ndarray:
-        """Per reference mip, what ``width`` T_0 layers add over one at ``profile`` (`train.rate`)."""
-        from bcfpipe.train.rate import t0_layer_gains
+        """Per reference mip, what ``width`` T_0 layers add over one at ``profile`` (`train.gains`)."""
+        from bcfpipe.train.gains import t0_layer_gains
 
         return np.array(t0_layer_gains(width, self.probe.mse_per_channel.shape[0], self.t0_mip(profile)))
 
@@ -404,7 +404,7 @@ def train_outside(ctx: FitContext, classic: Sequence[str], name: str, kind: Kind
     ref = ctx.reference
     if ref is not None and len(keep) < ctx.ts.num_channels:  # the subset's chain: its channels of the set's
         ref = Reference(tuple(np.ascontiguousarray(m[..., keep]) for m in ref.mips), ref.masks, ref.wrap)
-    res, _ = fit_material(sub, ctx.out / "neural", capped(make_config(sub, options, ctx.wrap)[1], ctx.cap), name,
+    res, _ = train_material(sub, ctx.out / "neural", capped(make_config(sub, options, ctx.wrap)[1], ctx.cap), name,
                           progress=ctx.progress, coverage=ctx.coverage, measure=FIGURES, reference=ref)
     del ref
     e = e_bc.copy()
@@ -430,8 +430,8 @@ def split_disk_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
 
 def model_disk_bytes(res: MaterialResult) -> int:
     """A trained model's files on disk, each zstd-compressed: the ones its GPU bytes count (feature
-    DDS files and weights.bin; `export.fit.exported_size`)."""
-    from bcfpipe.export.fit import shipped_disk_bytes
+    DDS files and weights.bin; `export.material.exported_size`)."""
+    from bcfpipe.export.material import shipped_disk_bytes
 
     return shipped_disk_bytes(res.out_dir)
 
@@ -476,7 +476,7 @@ def train_split(ctx: FitContext, cand: C.Candidate) -> Weighed:
     cfg = capped(make_config(ctx.ts, replace(ctx.options, t0_layers=1), ctx.wrap)[1], ctx.cap)  # as sized
     part = cand.part
     cfg = cfg.with_(model=replace(cfg.model, resolutions=part.resolutions, split=part.split))
-    res, _ = fit_material(ctx.ts, ctx.out / "split", cfg, cand.profile, progress=ctx.progress, coverage=ctx.coverage,
+    res, _ = train_material(ctx.ts, ctx.out / "split", cfg, cand.profile, progress=ctx.progress, coverage=ctx.coverage,
                           measure=FIGURES, reference=ctx.reference)
     err = res.mse_per_channel.copy()
     err[:part.split] = ctx.classic.e_bc[:part.split]

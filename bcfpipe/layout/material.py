@@ -1,4 +1,4 @@
-"""`--layout auto` for one material: fit the layout, export it, and measure the exported folder."""
+"""`--layout auto` for one material: decide the layout (`decide.decide_layout`), export it, and measure the exported folder."""
 from __future__ import annotations
 
 import shutil
@@ -9,9 +9,9 @@ import numpy as np
 from typing import Callable
 
 from bcfpipe.config import TrainingOptions
-from bcfpipe.export.fit import MaterialResult, evaluate_exported, exported_size
+from bcfpipe.export.material import MaterialResult, evaluate_exported, exported_size
 from bcfpipe.layout.export import decision_json, export_layout, write_decision
-from bcfpipe.layout.fit import fit_layout
+from bcfpipe.layout.decide import decide_layout
 from bcfpipe.layout.predict import bc_resolution
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
@@ -20,7 +20,7 @@ from bcfpipe.train.trainer import ProgressFn
 WORK = ".layout-work"  # inside the output folder while the probe and the chosen model train
 
 
-def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, wrap: str,
+def layout_material(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, wrap: str,
                         log: Callable[[str], None] = lambda s: None,
                         progress: ProgressFn | None = None, coverage: np.ndarray | None = None) -> MaterialResult:
     """Choose, train and export ``ts``'s layout into ``out_dir`` (material.json says where every
@@ -33,7 +33,7 @@ def fit_material_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOp
     start = time.perf_counter()
     reference = Reference.of(ts, coverage, wrap)
     try:
-        fit = fit_layout(ts, work, options, bc_resolution(max(ts.width, ts.height), options.profile), wrap=wrap,
+        fit = decide_layout(ts, work, options, bc_resolution(max(ts.width, ts.height), options.profile), wrap=wrap,
                          log=log, progress=progress, reference=reference)
         export_layout(fit, ts, out, wrap)
     finally:

@@ -29,7 +29,7 @@ VALUES_AT_ONCE = 1 << 24
 class PerfectProbe:
     """A probe that holds all a T_0 of its ``resolutions`` can: no error at all, which every
     prediction then holds to the oracle at the mips finer than T_0. Weighed in the probe's place, it
-    tells which candidates no training can bring within the floor (`bcfpipe.layout.fit`)."""
+    tells which candidates no training can bring within the floor (`bcfpipe.layout.decide`)."""
 
     mse_per_channel: np.ndarray  # (mips, channels) zeros
     resolutions: tuple[int, ...]
@@ -39,9 +39,9 @@ def magnified_errors(reference: Reference, t0: int, channels: Sequence[Channel],
                      sampled_above: int = SAMPLED_TEXELS) -> np.ndarray:
     """(mips, channels) errors of the reference's mip of ``t0``'s size magnified to every finer mip
     (0 at the mips no finer than it); a mip of more than ``sampled_above`` texels on one texel drawn in
-    each 2×2 cell (`export.fit.sampled_texels`): on the teapot and the brick within 0.07 dB of every
+    each 2×2 cell (`export.material.sampled_texels`): on the teapot and the brick within 0.07 dB of every
     texel's per channel (0.04 over all channels), at a third of the time."""
-    from bcfpipe.export.fit import sampled_texels
+    from bcfpipe.export.material import sampled_texels
 
     ref, masks = reference.mips, reference.masks
     side = max(ref[0].shape[:2])

@@ -1,6 +1,6 @@
 """What `--layout auto` will weigh for a texture set, known before anything is encoded or trained
 (issue 50): the resolution R, the profiles, the probe's, BC@R's bytes and its repacks' (exact, from
-block counts), and the sizes the build can ship. `fit_layout` takes its probe profile and BC@R's
+block counts), and the sizes the build can ship. `decide_layout` takes its probe profile and BC@R's
 bytes from here, and `scan` and `plan` print the same figures, so the two cannot drift.
 
 What ships is decided by training, so a size is a range: under the default objective every
@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # annotations only: the texture set module loads images
 def candidate_profiles(asked: str, device: str) -> list[str]:
     """Paper profiles no larger than ``asked``, largest first; a small source's own profile
     (``auto-N``) alone."""
-    from bcfpipe.train.rate import CPU_PROFILES, GPU_PROFILES
+    from bcfpipe.train.gains import CPU_PROFILES, GPU_PROFILES
 
     if asked not in PROFILES:
         return [asked]

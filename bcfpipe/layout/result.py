@@ -1,18 +1,18 @@
-"""What a layout fit decided and trained (`bcfpipe.layout.fit.fit_layout`'s result), read by the
+"""What a layout fit decided and trained (`bcfpipe.layout.decide.decide_layout`'s result), read by the
 kinds that export it and by the material's measure; below them all, so that none imports the fit."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any
 
-from bcfpipe.export.fit import MaterialResult
+from bcfpipe.export.material import MaterialResult
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import EncodedGroup, Repack
 
 
 @dataclass
 class LayoutFit:
-    """What `fit_layout` decided and trained."""
+    """What `decide_layout` decided and trained."""
 
     decision: C.Decision  # among measured layouts
     first: C.Decision  # among all candidates, some predicted: what was trained next

@@ -198,7 +198,7 @@ def evaluate_exported(folder: str | os.PathLike, reference: Reference, channels:
 
 @dataclass(frozen=True)
 class Measure:
-    """What `fit_material` measures of the files it exports."""
+    """What `train_material` measures of the files it exports."""
 
     image_metrics: bool = True  # SSIM and FLIP (seconds at 2048²)
     float_model: bool = True  # the float model's figures just before quantization (a decode of every mip)
@@ -209,7 +209,7 @@ FIGURES = Measure(image_metrics=False)  # PSNR and per-channel errors: a layout 
 PROBE = Measure(image_metrics=False, float_model=False, sampled=True)  # what decides, never ships
 
 
-def fit_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
+def train_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig, profile: str = "",
                  progress: ProgressFn | None = None, coverage: np.ndarray | None = None,
                  measure: Measure = Measure(), reference: Reference | None = None) -> tuple[MaterialResult, TrainedMaterial]:
     """Train on ``ts``, export to ``out_dir``, then evaluate the exported files (over every texel,

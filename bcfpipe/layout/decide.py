@@ -1,4 +1,4 @@
-"""Fit one material's layout (issues 31, 58): estimate the classic candidates, probe, weigh every
+"""Decide one material's layout (issues 31, 58): estimate the classic candidates, probe, weigh every
 kind's candidates, train the one chosen at most, choose among what can ship, measured.
 
 1. BC@R (every classic group, every mip), its BC7 repacks and the BC7 quality set, estimated from a
@@ -12,7 +12,7 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    --t0-layers), trained for `PROBE_FRACTION` of the steps the preset asked takes and measured
    from its exported files, per channel; it never ships. What the same model trained in full
    holds is predicted from it with the measured per-mip gain of a full training over the probe
-   (`bcfpipe.train.rate.PROBE_GAINS_DB`). No probe, and no training, when not even the smallest
+   (`bcfpipe.train.gains.PROBE_GAINS_DB`). No probe, and no training, when not even the smallest
    features fit within BC@R's bytes (`predict`), or when no candidate with a neural part could
    clear the floor even if it held all its T_0 can (`_ruled_out`: at the mips finer than T_0 the
    oracle, the reference's T_0-sized mip magnified, holds every prediction): BC@R and its repacks
@@ -25,7 +25,7 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    split only when its prediction beats the classic choice, `Kind.worth`), through its kind. The
    BC@R groups it ships beside are encoded in full before it. When the first choice is classic, the
    candidate the rule would choose with the largest gain a full training made over the probe on
-   any measured set (`_hopeful`, `rate.PROBE_GAINS_MAX_DB`) is trained instead, if it has a neural
+   any measured set (`_hopeful`, `gains.PROBE_GAINS_MAX_DB`) is trained instead, if it has a neural
    part; else nothing is.
 5. The final choice among the trained model and the classic candidates: a classic candidate that
    its estimate puts first is encoded in full and measured, and the choice made again, until the
@@ -53,7 +53,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from bcfpipe.config import DEFAULT_ENCODE, ENCODE_PRESETS, N_LAYERS, PROFILES, TrainingOptions, shortened
-from bcfpipe.export.fit import PROBE, MaterialResult, fit_material, make_config
+from bcfpipe.export.material import PROBE, MaterialResult, train_material, make_config
 from bcfpipe.formats.display import bytes_text
 from bcfpipe.formats.sizes import neural_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
@@ -99,7 +99,7 @@ def _train_probe(ctx: K.FitContext) -> MaterialResult:
     cfg = make_config(ctx.ts, replace(ctx.options, profile=ctx.own[ctx.p0], t0_layers=ctx.w0), ctx.wrap)[1]
     cfg = capped(cfg, ctx.cap)
     cfg = cfg.with_(preset=shortened(cfg.preset, PROBE_FRACTION))
-    return fit_material(ctx.ts, ctx.out / "probe", cfg, ctx.p0, progress=ctx.progress, coverage=ctx.coverage,
+    return train_material(ctx.ts, ctx.out / "probe", cfg, ctx.p0, progress=ctx.progress, coverage=ctx.coverage,
                         measure=PROBE, reference=ctx.reference)[0]
 
 
@@ -135,7 +135,7 @@ def _probed(ctx: K.FitContext) -> K.FitContext:
     return replace(ctx, probe=probe)
 
 
-def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
+def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
                wrap: str = "repeat", log: Callable[[str], None] = lambda s: None,
                progress: ProgressFn | None = None, reference: Reference | None = None) -> LayoutFit:
     """Choose and train ``ts``'s layout at BC resolution ``resolution``; neural files of the probe
@@ -182,7 +182,7 @@ def fit_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, re
 def _hopeful(ctx: K.FitContext, held: C.Candidate) -> C.Candidate:
     """When the mean predictions ship ``held``, a classic candidate: the candidate the rule would
     choose if its full training gained over the probe the most any measured set did
-    (`rate.PROBE_GAINS_MAX_DB`), when that one has a neural part; else ``held``. Its own training
+    (`gains.PROBE_GAINS_MAX_DB`), when that one has a neural part; else ``held``. Its own training
     confirms it or not."""
     cands = [w.candidate for kind in K.REGISTRY for w in kind.predict(replace(ctx, most=True))]
     best = C.choose(cands, ctx.classic.bc, ctx.match_bc).chosen
