@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from typing import Literal
 
+from bcfpipe.errors import InputError
 from bcfpipe.formats.record import Record
 from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout, wrap_axes
 
@@ -395,8 +396,6 @@ class TrainingOptions(Record):
     t0_layers: int | None = None  # BC7 layers of principal components in a fixed T_0; None: --layout auto weighs 1..3
 
     def __post_init__(self) -> None:
-        from bcfpipe.errors import InputError
-
         if self.features in tuple(FeatureFormat) and not isinstance(self.features, FeatureFormat):
             object.__setattr__(self, "features", FeatureFormat(self.features))  # "bc7" from a command line
         if self.kernel in tuple(Kernel) and not isinstance(self.kernel, Kernel):

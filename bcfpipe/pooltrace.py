@@ -15,6 +15,7 @@ OpenMP threads on the main thread), ``disk-bytes-thread`` (zstd sizes aside), ``
 """
 from __future__ import annotations
 
+import json
 import os
 
 TRACE_ENV = "BCFPIPE_TRACE_POOLS"
@@ -25,7 +26,6 @@ def trace_pool(kind: str, workers: int, **extra) -> None:
     path = os.environ.get(TRACE_ENV)
     if not path:
         return
-    import json
 
     line = json.dumps({"kind": kind, "workers": int(workers), "pid": os.getpid(), **extra}) + "\n"
     # one write in append mode: the lines of concurrent processes do not interleave

@@ -17,7 +17,7 @@ def default_cache_root() -> Path:
     env = os.environ.get(CACHE_ENV)
     if env:
         return Path(env).expanduser()
-    import platformdirs
+    import platformdirs  # lazy: start-up
 
     return Path(platformdirs.user_cache_dir("bcfpipe", appauthor=False))
 

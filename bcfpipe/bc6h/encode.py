@@ -65,6 +65,7 @@ import torch
 
 from . import mode10
 from .tables import PARTITIONS2, WEIGHTS3
+from bcfpipe.pooltrace import trace_pool
 
 __all__ = ["validate_texels", "encode", "encode_params", "Settings", "blocks_from_image", "image_from_blocks", "MAX_UNSIGNED", "MAX_SIGNED"]
 
@@ -114,7 +115,7 @@ def image_from_blocks(blocks: np.ndarray, width: int, height: int) -> np.ndarray
 # ---------------------------------------------------------------------------
 
 
-class _Ctx:
+class EncodeContext:
     """Constant tensors for one (signed, device).
 
     Endpoints are handled as table positions ``i`` in [0, 63]; the stored code is
@@ -181,7 +182,7 @@ def _to_q(t: torch.Tensor, signed: bool) -> tuple[torch.Tensor, torch.Tensor]:
 # ---------------------------------------------------------------------------
 
 
-def _pca(ctx: _Ctx, q: torch.Tensor):
+def _pca(ctx: EncodeContext, q: torch.Tensor):
     """Per block and subset row (64): centre (B,64,3), unit axis (B,64,3), projections (B,64,16)
     of all 16 texels, and min / max projection over the subset's texels (B,64)."""
     qm = q.mean(1, keepdim=True)
@@ -219,7 +220,7 @@ def _pca(ctx: _Ctx, q: torch.Tensor):
     return mean + qm, axis, proj, pmin, pmax, off_axis
 
 
-def _shape_scores(ctx: _Ctx, om, off_axis, pmin, pmax) -> tuple[torch.Tensor, torch.Tensor]:
+def _shape_scores(ctx: EncodeContext, om, off_axis, pmin, pmax) -> tuple[torch.Tensor, torch.Tensor]:
     """Models of each shape's error, (B, 32) each, used to pick the shapes worth refining.
 
     Per subset, weighted like the decoded error (sum of the texels' weights):
@@ -240,7 +241,7 @@ def _shape_scores(ctx: _Ctx, om, off_axis, pmin, pmax) -> tuple[torch.Tensor, to
 # ---------------------------------------------------------------------------
 
 
-def _assign(ctx: _Ctx, t, ia, ib, member):
+def _assign(ctx: EncodeContext, t, ia, ib, member):
     """Exact best index per texel for endpoint positions ia, ib (M, 2, 3); member (M, 16).
 
     Returns (k (M, 16), per-subset decoded error (M, 2))."""
@@ -257,7 +258,7 @@ def _assign(ctx: _Ctx, t, ia, ib, member):
     return k, sub_err
 
 
-def _grid_step(ctx: _Ctx, qc, c, w, onehot, k, window: int):
+def _grid_step(ctx: EncodeContext, qc, c, w, onehot, k, window: int):
     """For fixed indices: per subset & channel the endpoint pair (ia, ib) minimising the
     weighted least-squares surrogate, searching A over a window of codes around the
     continuous optimum and taking the best B for each A in closed form.
@@ -300,7 +301,7 @@ def _grid_step(ctx: _Ctx, qc, c, w, onehot, k, window: int):
     return best_a, best_b
 
 
-def _bracket(ctx: _Ctx, ea, eb):
+def _bracket(ctx: EncodeContext, ea, eb):
     """Endpoint positions for a segment ea -> eb (q domain), rounded *outwards* per channel
     so that the quantized segment (and its palette) covers the continuous one."""
     ia, ib = ctx.nearest(ea), ctx.nearest(eb)
@@ -324,7 +325,7 @@ class _Starts(NamedTuple):
     seg: tuple[torch.Tensor, torch.Tensor]
 
 
-def _refine(ctx: _Ctx, starts: _Starts, rounds: int, window: int, per_block: int = 1, keep: int = 1):
+def _refine(ctx: EncodeContext, starts: _Starts, rounds: int, window: int, per_block: int = 1, keep: int = 1):
     """Refine M (block, shape) candidates, ``per_block`` consecutive ones per block.
 
     Starts: one per entry of `_SCALES` (index patterns from tau) plus one from the
@@ -416,7 +417,7 @@ class Settings:
     workers: int | None = None
 
 
-def _shortlist(ctx: _Ctx, om, pca, shapes, refine_top: int) -> torch.Tensor:
+def _shortlist(ctx: EncodeContext, om, pca, shapes, refine_top: int) -> torch.Tensor:
     """The shapes to refine per block, (B, kk): the given ``shapes`` (kk = 1), every shape, or the
     ``refine_top`` best-scoring ones, the shape closest to two exact segments always among them."""
     if shapes is not None:
@@ -435,7 +436,7 @@ def _shortlist(ctx: _Ctx, om, pca, shapes, refine_top: int) -> torch.Tensor:
     return cand
 
 
-def _starts(ctx: _Ctx, t, q, om, pca, cand) -> _Starts:
+def _starts(ctx: EncodeContext, t, q, om, pca, cand) -> _Starts:
     """The refinement's inputs for every (block, candidate shape) of ``cand`` (B, kk), block-major."""
     b, kk = cand.shape
     centre, axis, proj, pmin, pmax, _ = pca
@@ -454,7 +455,7 @@ def _starts(ctx: _Ctx, t, q, om, pca, cand) -> _Starts:
     return _Starts(t[blk], q[blk], om[blk], member, tau, seg)
 
 
-def _encode_chunk(ctx: _Ctx, t: torch.Tensor, shapes, s: Settings):
+def _encode_chunk(ctx: EncodeContext, t: torch.Tensor, shapes, s: Settings):
     b = t.shape[0]
     lim = MAX_SIGNED if ctx.signed else MAX_UNSIGNED
     t = t.clamp(-lim if ctx.signed else 0.0, lim)
@@ -515,8 +516,6 @@ def _run_chunks(run, starts: range, device: torch.device, workers: int | None) -
             for s in starts:
                 run(s)
         else:
-            from bcfpipe.pooltrace import trace_pool
-
             trace_pool("bc6h-thread-pool", workers)
             with ThreadPoolExecutor(workers) as pool:
                 list(pool.map(run, starts))
@@ -543,7 +542,7 @@ def encode_params(texels, signed: bool = False, partitions=None, **settings):
     dev = torch.device(s.device) if s.device is not None else torch.device("cpu")
     shapes_all = _fixed_shapes(partitions, n)
     s = replace(s, window=int(min(max(s.window, 0), 31)))
-    ctx = _Ctx(signed, dev)
+    ctx = EncodeContext(signed, dev)
     out_e = np.empty((n, 4, 3), np.int64)
     out_i = np.empty((n, 16), np.int64)
     out_p = np.empty((n,), np.int64)

@@ -13,11 +13,11 @@ import numpy as np
 @functools.lru_cache(maxsize=2)
 def _tables(signed: bool):
     """encode.py's tables for ``signed``: endpoint values, palette rows, weights, shapes."""
-    import torch
+    import torch  # lazy: start-up
 
-    from bcfpipe.bc6h.encode import _Ctx
+    from bcfpipe.bc6h.encode import EncodeContext  # lazy: start-up
 
-    ctx = _Ctx(signed, torch.device("cpu"))
+    ctx = EncodeContext(signed, torch.device("cpu"))
     return (np.ascontiguousarray(ctx.u.numpy(), np.float32), np.ascontiguousarray(ctx.pal_rows.numpy(), np.float32),
             np.ascontiguousarray(ctx.w3.numpy(), np.float32), np.ascontiguousarray(ctx.part.numpy(), np.int32))
 
@@ -26,7 +26,7 @@ def encode_params(texels, signed: bool, lib, *, rounds: int = 1, window: int = 1
     """Mode-10 parameters of an (H, W, 3) float image, as encode.encode_params returns them
     (endpoints (n, 4, 3), indices (n, 16), shapes (n,), int64, blocks row-major) with one shape
     refined, by ``lib``'s bcf_bc6h_quick (a ctypes library with quick.cpp built in)."""
-    from bcfpipe.bc6h.encode import validate_texels, blocks_from_image
+    from bcfpipe.bc6h.encode import validate_texels, blocks_from_image  # lazy: start-up
 
     blocks = np.ascontiguousarray(blocks_from_image(validate_texels(texels)), np.float32)
     n = blocks.shape[0]

@@ -16,9 +16,19 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bcfpipe.export import writer as E
+from bcfpipe.export.material import shipped_disk_bytes
+from bcfpipe.fit import fit
+from bcfpipe.formats.bcn import DXGI, ClassicFormat
+from bcfpipe.formats.dds import encode_header
+from bcfpipe.formats.sizes import disk_bytes
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.bench import lod_sweep as L
 from bcfpipe.texset.baselines import BC7_QUALITY, encode_texture_set_baseline
+from bcfpipe.texset.baselines import parse_block
+from bcfpipe.texset.baselines import bilinear_up, slope_mips
+from bcfpipe.texset.normals import angular_stats, rebuild_z
+from bcfpipe.texset.normals import angular_stats, rebuild_z, unit
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.texset.metrics import Metrics, compute_metrics
 
@@ -65,13 +75,9 @@ def texture_files(textures: Sequence, astc_block: str | None = None) -> list[byt
     """The files of the shipped ``textures`` ((format, channels, [(blocks, w, h) per level])): a BC
     texture is one DDS file of every level (`formats.dds` header, then the blocks, as `dds.write`
     writes it); with ``astc_block``, each ASTC level is one .astc file (16-byte header, then the blocks)."""
-    from bcfpipe.formats.bcn import DXGI, ClassicFormat
-    from bcfpipe.formats.dds import encode_header
-
     if astc_block is None:
         return [encode_header(lv[0][1], lv[0][2], len(lv), False, DXGI[ClassicFormat(fmt)])
                 + b"".join(np.ascontiguousarray(b).tobytes() for b, _, _ in lv) for fmt, _, lv in textures]
-    from bcfpipe.texset.baselines import parse_block
 
     bw, bh = parse_block(astc_block)
     return [bytes([0x13, 0xAB, 0xA1, 0x5C, bw, bh, 1]) + w.to_bytes(3, "little") + h.to_bytes(3, "little")
@@ -81,15 +87,11 @@ def texture_files(textures: Sequence, astc_block: str | None = None) -> list[byt
 def blocks_disk_bytes(textures: Sequence, astc_block: str | None = None) -> int:
     """Bytes on disk of the shipped ``textures``: each of their files (`texture_files`) zstd-compressed
     whole (`formats.sizes.disk_bytes`), as the export writes them and layout.json counts them."""
-    from bcfpipe.formats.sizes import disk_bytes
-
     return disk_bytes(texture_files(textures, astc_block))
 
 
 def files_disk_bytes(folder: Path) -> int:
     """Bytes on disk of an exported material's shipped files (`export.material.shipped_disk_bytes`)."""
-    from bcfpipe.export.material import shipped_disk_bytes
-
     return shipped_disk_bytes(folder)
 
 
@@ -123,8 +125,6 @@ def normal_angle(ts: TextureSet, ref: np.ndarray, dec: np.ndarray) -> dict:
     """``{"normal_angle_deg": {"mean", "p99"}}``: the angle at mip 0 between the set's normal map and
     the decoded one, both with z rebuilt from x, y as engines (and bcfpipe's decoder) read them
     (issue 57: beside the PSNR, which measures x and y only); {} without a normal map."""
-    from bcfpipe.texset.normals import angular_stats, rebuild_z
-
     xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
     if len(xy) != 2:
         return {}
@@ -137,9 +137,6 @@ def shipped_normal_angle(ts: TextureSet, ref: Sequence[np.ndarray], shift: int) 
     USD (BC5 of its slopes, `baselines.slope_mips`, read as (s_x, s_y, 1) normalised; level 0 at R
     magnified to mip 0 as the baseline is), beside the cell's BC5 with z rebuilt (issue 57); {}
     without a normal map."""
-    from bcfpipe.texset.baselines import bilinear_up, slope_mips
-    from bcfpipe.texset.normals import angular_stats, rebuild_z, unit
-
     xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
     if len(xy) != 2:
         return {}
@@ -178,9 +175,6 @@ def train_cell(ts: TextureSet, ref: Sequence[np.ndarray], options, out_dir: Path
     """Train BCf as ``options`` (a `config.TrainingOptions` with its profile, preset and features;
     all neural) ask into ``out_dir``; measure the exported files. A bc7 cell's method name ends in
     " bc7"."""
-    from bcfpipe.export import writer as E
-    from bcfpipe.fit import fit
-
     preset, features = options.preset, options.features.value
     curve: list[tuple[float, float]] = []
 

@@ -12,6 +12,8 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.extras import require
+from bcfpipe.texset.normals import rebuild_z
 from bcfpipe.texset.texture_set import Channel
 
 __all__ = ["crop_mips", "choose_window", "crop_figure"]
@@ -58,8 +60,6 @@ def _display(a: np.ndarray, idx: list[int], kind: str, channels: Sequence[Channe
     """A crop's channels ``idx`` as an (n, n, 3) image in [0, 1]."""
     x = a[..., idx].astype(np.float32)
     if kind == "normal" and len(idx) == 2:
-        from bcfpipe.texset.normals import rebuild_z
-
         return np.clip(rebuild_z(x) * 0.5 + 0.5, 0, 1)
     lo, hi = channels[idx[0]].value_range
     x = (x - lo) / max(hi - lo, 1e-12)
@@ -84,10 +84,8 @@ def crop_figure(path: Path, title: str, channels: Sequence[Channel], ref: np.nda
     """Write the crop figure to ``path``: one row per channel group, columns reference, each
     method, then each method's error |dec - ref| / peak on one colour scale per row. Returns
     each method's PSNR over the crop."""
-    from bcfpipe.extras import require
-
     require("matplotlib", "bench", "bcfpipe bench's figures").use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: start-up
 
     rows = _rows(channels)
     cols = 1 + 2 * len(methods)

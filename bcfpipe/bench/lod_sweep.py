@@ -15,6 +15,8 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from bcfpipe.export import writer as E
+from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, normal_xy_index
 from bcfpipe.texset.reference import ReferencePyramid, sample_reference
 from bcfpipe.model.sampling import sample_trilinear
 
@@ -39,9 +41,6 @@ class LodGrid:
 
 def exported_answer(folder: str | Path) -> Answer:
     """An exported material's answer: BC6H features sampled as hardware does, fp16 decoder (ONNX)."""
-    from bcfpipe.export import writer as E
-    from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, normal_xy_index
-
     em = E.load(folder)
     sess = E.onnx_session(em)
     nz = normal_xy_index(em.kinds)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from bcfpipe.extras import require
+
 __all__ = ["PLOTS", "draw_set"]
 
 PLOTS = ("rd", "time", "per_mip", "lod")
@@ -18,10 +20,8 @@ TITLES = {"rd": "Rate-distortion", "time": "PSNR over training time", "per_mip":
 
 
 def _plt():
-    from bcfpipe.extras import require
-
     require("matplotlib", "bench", "bcfpipe bench's figures").use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: start-up
 
     return plt
 

@@ -32,7 +32,7 @@ class BenchProgress:
     rate measured so far (estimated seconds of work done per wall second)."""
 
     def __init__(self, total: float, quiet: bool = False):
-        from rich.console import Console
+        from rich.console import Console  # lazy: start-up
 
         self.total = max(total, 1e-9)
         self.done_weight = 0.0
@@ -45,7 +45,7 @@ class BenchProgress:
         self.last = 0.0
         self.bar = None
         if self.console.is_terminal and not quiet:
-            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn  # lazy: start-up
 
             self.bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                                 TimeElapsedColumn(), TextColumn("eta {task.fields[eta]}"), console=self.console)

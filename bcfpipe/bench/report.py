@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 
 from bcfpipe.bench import plots as P
+from bcfpipe.errors import InputError
 from bcfpipe.formats.atomic import atomic_write
 
 __all__ = ["write_report", "read_report", "summary_markdown", "JSON_FILE", "HTML_FILE", "MD_FILE"]
@@ -33,8 +34,6 @@ def _clean(x):
 
 def read_report(where: str | Path) -> dict:
     """A bench report's data, from its folder or its bench.json."""
-    from bcfpipe.errors import InputError
-
     p = Path(where)
     p = p / JSON_FILE if p.is_dir() else p
     try:

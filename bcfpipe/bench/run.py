@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import platform
+import shutil
 import subprocess
 import tempfile
 from dataclasses import dataclass
@@ -18,13 +19,27 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import torch
 
+from bcfpipe import __version__
 from bcfpipe.bench import cells as C
 from bcfpipe.bench import crops as K
 from bcfpipe.bench import lod_sweep as L
+from bcfpipe.bench import decode_cost as D
 from bcfpipe.bench.progress import BenchProgress, baseline_estimate, cell_estimate
 from bcfpipe.bench.sets import BenchSet
+from bcfpipe.config import PRESETS, resolve_profile
+from bcfpipe.config import DEFAULT_HIDDEN, TrainingOptions
 from bcfpipe.errors import InputError
+from bcfpipe.errors import one_line
+from bcfpipe.formats.sizes import DISK_ZSTD_LEVEL
+from bcfpipe.formats.vocabulary import Layout
+from bcfpipe.texset.baselines import BC7_QUALITY
+from bcfpipe.texset.baselines import BC7_QUALITY, pack_texture_set
+from bcfpipe.texset.reference import ReferencePyramid
+from bcfpipe.texset.texture_set import build_mip_chain
+from bcfpipe.verify import glsl as G
+from bcfpipe.verify.targets import find_targets
 
 __all__ = ["BenchOptions", "run_bench", "machine", "FORMAT", "FORMAT_VERSION"]
 
@@ -53,8 +68,6 @@ class BenchOptions:
 
 def machine() -> dict:
     """CPU, cores, torch and the GPU torch sees: the record every bench figure carries."""
-    import torch
-
     cpu = platform.processor() or "cpu"
     try:
         for line in subprocess.run(["lscpu"], capture_output=True, text=True).stdout.splitlines():
@@ -67,8 +80,6 @@ def machine() -> dict:
 
 
 def _check(bset: BenchSet, side: int, opts: BenchOptions) -> None:
-    from bcfpipe.config import PRESETS, resolve_profile
-
     for p in opts.presets:
         if p not in PRESETS:
             raise InputError(f"unknown preset {p!r}; choose from {', '.join(PRESETS)}")
@@ -83,8 +94,6 @@ def _check(bset: BenchSet, side: int, opts: BenchOptions) -> None:
 
 
 def _gl():
-    from bcfpipe.verify import glsl as G
-
     try:
         return G.GLRuntime(), None
     except G.GLUnavailable as e:
@@ -93,9 +102,6 @@ def _gl():
 
 def _decode_costs(rt, bc: C.Cell | None, bcf: Sequence[C.Cell], opts: BenchOptions, wrap: str) -> dict:
     """Each BCf cell's full-screen decode against the set's own BC textures, in one GL context."""
-    from bcfpipe.bench import decode_cost as D
-    from bcfpipe.verify.targets import find_targets
-
     if bc is None or not bc.textures:
         return {"skipped": "no BC baseline in this bench (--baselines without bc)"}
     software = rt.is_software
@@ -109,7 +115,6 @@ def _decode_costs(rt, bc: C.Cell | None, bcf: Sequence[C.Cell], opts: BenchOptio
         finally:
             rt.delete_textures(names)
     except Exception as exc:  # noqa: BLE001 - a GL failure costs this figure, not the bench
-        from bcfpipe.errors import one_line
 
         return {"failed": one_line(exc)}
     rows = [{"method": cell.method, **c.to_json()} for cell, c in zip(bcf, costs)]
@@ -131,8 +136,6 @@ def _similar_baseline(cell: C.Cell, baselines: Sequence[C.Cell]) -> C.Cell | Non
 def _grid(opts: BenchOptions, side: int) -> list[C.Baseline]:
     """The baselines of a set whose larger side is ``side``: the requested grid, with BC and the BC7
     quality set also at each profile's R (its T_0), which the BCf cells are reported against."""
-    from bcfpipe.config import resolve_profile
-
     shifts = {(side // resolve_profile(p, side)[1][0]).bit_length() - 1 for p in opts.profiles} if opts.presets else ()
     return C.baseline_grid(opts.codecs, opts.astc_blocks, opts.shifts, sorted(shifts))
 
@@ -141,8 +144,6 @@ def _add_margins(rows: Sequence[C.Cell], baselines: Sequence[C.Cell]) -> None:
     """Each row's per-mip PSNR minus BC@R's and the BC7 quality set's at R (layout.json's keys:
     ``margin_per_mip_db``, ``margin_vs_bc7_per_mip_db``; ``against_bc``, ``against_bc7`` name
     them), R a BCf cell's T_0 side or a baseline's resolution; none against itself."""
-    from bcfpipe.texset.baselines import BC7_QUALITY
-
     refs = (("margin_per_mip_db", "against_bc", "bc"), ("margin_vs_bc7_per_mip_db", "against_bc7", BC7_QUALITY))
     for r in rows:
         res = r.extra["resolutions"][0] if r.kind == "bcf" else r.extra["resolution"]
@@ -155,9 +156,6 @@ def _add_margins(rows: Sequence[C.Cell], baselines: Sequence[C.Cell]) -> None:
 
 def _cell_options(opts: BenchOptions, profile: str, preset: str, features: str):
     """A BCf cell's training options: all neural, at ``profile`` and ``preset`` with ``features``."""
-    from bcfpipe.config import DEFAULT_HIDDEN, TrainingOptions
-    from bcfpipe.formats.vocabulary import Layout
-
     return TrainingOptions(profile=profile, preset=preset, device=opts.device, seed=opts.seed,
                            hidden=opts.hidden or DEFAULT_HIDDEN, threads=opts.threads, features=features,
                            layout=Layout.NEURAL)
@@ -165,9 +163,6 @@ def _cell_options(opts: BenchOptions, profile: str, preset: str, features: str):
 
 def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, progress: BenchProgress, rt) -> dict:
     """Everything the report shows for one texture set (``ts``, loaded from ``bset``)."""
-    from bcfpipe.texset.reference import ReferencePyramid
-    from bcfpipe.texset.texture_set import build_mip_chain
-
     ref = build_mip_chain(ts.data)
     grid = L.LodGrid(ReferencePyramid.from_mips(ref), bset.wrap, [c.peak for c in ts.channels], opts.lod_step)
     crop_at = K.crop_mips(len(ref))
@@ -192,7 +187,6 @@ def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, pro
                     bcf.append(C.train_cell(ts, ref, _cell_options(opts, prof, preset, feat), folder, grid, windows,
                                             wrap=bset.wrap, progress=progress.fraction))
                 except (FloatingPointError, RuntimeError, MemoryError) as exc:  # the other cells still count
-                    from bcfpipe.errors import one_line
 
                     failed.append({"method": f"BCf {prof} {preset}{suffix}", "error": one_line(exc)})
                 progress.done()
@@ -225,8 +219,6 @@ def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, pro
         for c in bcf:
             dest = keep / c.folder.name
             if dest.exists():
-                import shutil
-
                 shutil.rmtree(dest)
             dest.parent.mkdir(parents=True, exist_ok=True)
             os.replace(c.folder, dest)
@@ -241,15 +233,11 @@ def bench_set(bset: BenchSet, ts, opts: BenchOptions, out: Path, work: Path, pro
 
 
 def _cell_weight(preset: str) -> float:
-    from bcfpipe.config import PRESETS
-
     p = PRESETS[preset]
     return cell_estimate(p.total_steps, p.batch)
 
 
 def _baseline_weight(ts, b: C.Baseline) -> float:
-    from bcfpipe.texset.baselines import BC7_QUALITY, pack_texture_set
-
     texels = (ts.width >> b.shift) * (ts.height >> b.shift)
     k = {"4x4": 4.0, "6x6": 2.0, "8x8": 1.5}.get(b.block or "", 1.0)  # astcenc -thorough slows with small blocks
     k *= 2.0 if b.codec == BC7_QUALITY else 1.0  # ISPC's BC7 against quicktex's BC1
@@ -277,8 +265,6 @@ def run_bench(sets: Sequence[BenchSet], opts: BenchOptions, out: str | os.PathLi
     finally:
         if rt is not None:
             rt.release()
-    from bcfpipe import __version__
-    from bcfpipe.formats.sizes import DISK_ZSTD_LEVEL
 
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "bcfpipe_version": __version__,
             "machine": machine(), "gl_error": gl_error,

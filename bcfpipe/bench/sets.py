@@ -7,9 +7,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
+from bcfpipe.builder import Selection, plan
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.errors import InputError
 from bcfpipe.texset.texture_set import TextureSet, TextureSpec
+from bcfpipe.texset.texture_set import load_texture_set
 
 __all__ = ["BenchSet", "from_specs", "from_scene"]
 
@@ -27,8 +29,6 @@ class BenchSet:
         return re.sub(r"[^A-Za-z0-9_.-]+", "_", self.name.strip("/")).strip("_") or "set"
 
     def load(self) -> TextureSet:
-        from bcfpipe.texset.texture_set import load_texture_set
-
         try:
             return load_texture_set(list(self.specs))
         except ValueError as e:
@@ -55,8 +55,6 @@ def from_scene(scene: str | os.PathLike, materials: Iterable[str] = (),
                variants: Mapping[str, str] | None = None) -> list[BenchSet]:
     """One set per training job the build would run (materials with the same textures share one);
     ``materials`` keeps the jobs that hold any of those prims (a path or its last component)."""
-    from bcfpipe.builder import Selection, plan
-
     bplan = plan(scene, selection=Selection(variants, coverage=False))
     want = list(materials)
     out = []

@@ -7,6 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
+from bcfpipe.errors import WorkFailed
 from bcfpipe.formats.vocabulary import Decision, Status
 from bcfpipe import __version__
 from bcfpipe.formats import manifest as mfst
@@ -102,7 +103,7 @@ def _write_layers(bplan: BuildPlan, staging: Path, final_out: Path, descs: Mappi
                   entry_of: Mapping) -> tuple[str, str]:
     """The overrides layer (each neural material's override, the constant inputs, the classic
     wiring) and the root layer over it and the scene; (the scene relative to OUT, the root layer)."""
-    import bcfpipe.builder.usd_layer as usdout
+    import bcfpipe.builder.usd_layer as usdout  # lazy: start-up
 
     overrides = [_override(mp_, descs[mp_.job], entry_of[mp_.job]) for mp_ in bplan.materials
                  if mp_.job is not None and mp_.job in entry_of]
@@ -121,7 +122,7 @@ def _write_layers(bplan: BuildPlan, staging: Path, final_out: Path, descs: Mappi
 def _override(mp_: MaterialPlan, desc: mf.MaterialFile, e):
     """A neural material's override (usd_layer.NeuralMaterialOverride): its feature textures, its
     record ``e`` in weights.bin, its decoder and the targets it drives."""
-    import bcfpipe.builder.usd_layer as usdout
+    import bcfpipe.builder.usd_layer as usdout  # lazy: start-up
 
     folder = f"./{MATERIALS_DIR}/{mp_.job}"
     layers = desc.layers
@@ -154,7 +155,7 @@ def _override(mp_: MaterialPlan, desc: mf.MaterialFile, e):
 
 def _relative(path: str | None, final_out: Path) -> str | None:
     """A file path as the manifest records it: relative to OUT; a path inside a package as it is."""
-    import bcfpipe.builder.usd_layer as usdout
+    import bcfpipe.builder.usd_layer as usdout  # lazy: start-up
 
     return usdout.relative_asset(path, final_out) if path and package_split(path) is None else path
 
@@ -246,7 +247,7 @@ def _classic_wiring(bplan: BuildPlan, descs: Mapping[str, mf.MaterialFile]) -> t
             and any(o.source in (mf.Source.CLASSIC, mf.Source.SPLIT) for o in descs[mp_.job].outputs)]
     if not todo:
         return [], None
-    import bcfpipe.builder.usd_classic as usd_classic
+    import bcfpipe.builder.usd_classic as usd_classic  # lazy: start-up
 
     stage = usd_classic.open_source_stage(bplan.scene, bplan.variant_selections)
     out = []
@@ -265,8 +266,6 @@ def check_classic_read(job_of: Mapping[str, str | None], descs: Mapping[str, mf.
     by the decoder (a mip split's, below its split). ``job_of``: material path -> its job; ``descs``:
     each built job's material.json. A texture nothing reads is an internal inconsistency of the
     layout and the wiring: the build fails, naming it, rather than ship and count it."""
-    from bcfpipe.errors import WorkFailed
-
     read = {(job_of[cm.material], w.texture) for cm in classic for w in cm.wired}
     unread = [f"{MATERIALS_DIR}/{job}/{c.file}" for job, desc in descs.items() if desc.split is None
               for i, c in enumerate(desc.classic) if (job, i) not in read]
@@ -276,7 +275,7 @@ def check_classic_read(job_of: Mapping[str, str | None], descs: Mapping[str, mf.
 
 def _constant_inputs(bplan: BuildPlan) -> list:
     """One ConstantInput per surface input whose texture channels are all constant."""
-    from bcfpipe.builder.usd_layer import ConstantInput
+    from bcfpipe.builder.usd_layer import ConstantInput  # lazy: start-up
 
     out = []
     for mp_ in bplan.materials:

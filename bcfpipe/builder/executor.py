@@ -3,17 +3,25 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import logging
 import math
 import multiprocessing as mp
 import os
+import queue as queue_mod
 import sys
 import tempfile
 import time
+import warnings
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+import torch
+import xxhash
+
+from bcfpipe.cache import Cache
+from bcfpipe.fit import fit
 from bcfpipe.formats.fit_result import FitResult
 from bcfpipe.formats.record import FormatError
 from bcfpipe.formats.vocabulary import CacheUse, Status
@@ -22,6 +30,15 @@ from bcfpipe.errors import one_line
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
 from bcfpipe.builder.plan import MaterialJob
 from bcfpipe.errors import WorkFailed
+from bcfpipe.pooltrace import trace_pool
+from bcfpipe.scan.coverage import unpack
+from bcfpipe.scan.sources import package_split, read_asset
+from bcfpipe.texset.parallel import job_encode_workers
+from bcfpipe.texset.parallel import release_workers, set_encode_workers
+from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
+from bcfpipe.train.trainer import resolve_device
+
+
 
 
 def cpu_count() -> int:
@@ -35,8 +52,6 @@ def cpu_count() -> int:
 def _gpu_count(device: str) -> int:
     if not device.startswith("cuda"):
         return 0
-    import torch
-
     return torch.cuda.device_count() if torch.cuda.is_available() else 0
 
 
@@ -67,8 +82,6 @@ def core_shares(n_jobs: int, jobs: int | None, threads: int, device: str = "cpu"
     Without ``jobs``: one job per core (per GPU on CUDA), each with ``threads``, its encodes on the
     cores the parallel jobs leave each (at least ``threads``), as fast as the machine allows.
     """
-    from bcfpipe.texset.parallel import job_encode_workers
-
     threads = max(1, int(threads))
     if jobs is None:
         workers = default_jobs(n_jobs, device)
@@ -145,7 +158,6 @@ def _run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, qu
     name = job.get("name", "?")
     if cache_root is None:
         return train_job(job, out_dir, threads, device, queue, t0, encode_workers=encode_workers)
-    from bcfpipe.cache import Cache
 
     try:
         cache = Cache(cache_root)
@@ -181,8 +193,6 @@ def store_entry(cache, key: str, folder: str | os.PathLike, result: FitResult, n
         with cache.lock(key) if take_lock else contextlib.nullcontext():
             cache.put(key, folder, result.to_json())
     except OSError as exc:
-        import logging
-
         logging.getLogger("bcfpipe.cache").warning("could not store %s in the cache %s: %s",
                                                    name, cache.root, exc.strerror or exc)
 
@@ -200,13 +210,7 @@ def train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, q
                 os.dup2(2, 1)
             except OSError:
                 pass
-        import warnings
-
         warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad=True to a scalar")
-        import torch
-
-        from bcfpipe.pooltrace import trace_pool
-
         torch.set_num_threads(max(1, threads))
         trace_pool("torch-intra-op", torch.get_num_threads())
         try:
@@ -214,14 +218,12 @@ def train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, q
         except RuntimeError:
             pass
         trace_pool("torch-inter-op", torch.get_num_interop_threads())
-        import OpenImageIO as oiio
+        import OpenImageIO as oiio  # lazy: start-up
 
         oiio.attribute("threads", max(1, threads))
         trace_pool("oiio", oiio.get_int_attribute("threads"))
         share = max(1, encode_workers or threads)  # the cores this job may use
         set_exr_threads(oiio, share)
-        from bcfpipe.texset.parallel import set_encode_workers
-
         set_encode_workers(share)
         trace_pool("encode-share", share)
         mj = MaterialJob.from_dict(job)
@@ -230,19 +232,13 @@ def train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, q
             progress.phase("load")
         ts = _load(mj, sources)
         options = mj.options.with_(device=device, threads=max(1, threads))
-        from bcfpipe.fit import fit
-
         fitted = fit(ts, options, out_dir, wrap=mj.wrap, coverage=_mask(mj, ts), progress=progress,
                      log=progress.phase if progress else None, anchors={(p, q): v for p, q, v in mj.anchors})
-        from bcfpipe.train.trainer import resolve_device
-
         return JobResult(mj.name, Status.BUILT, None, time.perf_counter() - t0, str(resolve_device(device)), threads,
                          replace(fitted.record(), out=None)).to_dict()
     except BaseException as exc:  # noqa: BLE001 - a failing material must not stop the build
         return JobResult(name, Status.FAILED, one_line(exc), time.perf_counter() - t0, device, threads).to_dict()
     finally:
-        from bcfpipe.texset.parallel import release_workers
-
         release_workers()
 
 
@@ -250,17 +246,12 @@ def set_exr_threads(oiio, n: int) -> None:
     """OpenEXR's own thread pool (OpenImageIO's ``exr_threads``, beside its ``threads``) on ``n``
     cores: ``n`` workers, or none at all for one (-1: the reading thread decodes)."""
     oiio.attribute("exr_threads", n if n > 1 else -1)
-    from bcfpipe.pooltrace import trace_pool
 
     trace_pool("oiio-exr", max(1, oiio.get_int_attribute("exr_threads")))
 
 
 def _load(mj: MaterialJob, sources: Mapping[str, bytes] | None):
     """The job's texture set, read where the plan found its files or from their ``sources`` bytes."""
-    from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
-
-    from dataclasses import replace
-
     with tempfile.TemporaryDirectory(prefix="bcfpipe-src-") as tmp:
         local = copy_sources(mj, tmp) if sources is None else write_sources(sources, tmp)
         ts = load_texture_set([TextureSpec(sem, local[path], ch) for sem, path, ch in mj.specs],
@@ -274,7 +265,6 @@ def _mask(mj: MaterialJob, ts):
     """The texels the job's meshes read, at the set's size (None: all)."""
     if mj.coverage is None:
         return None
-    from bcfpipe.scan.coverage import unpack
 
     return unpack(mj.coverage, ts.width, ts.height)
 
@@ -314,10 +304,6 @@ def copy_sources(job: MaterialJob, folder: str | os.PathLike) -> dict[str, str]:
     """Copy each source into ``folder`` (a packaged one through USD's resolver), hashing as it goes,
     and check the plan's XXH3-128: training reads the copy, so the bytes it trains on are the
     bytes the cache key names, in O(1 MiB) of memory whatever the size; {plan path: copy}."""
-    import xxhash
-
-    from bcfpipe.scan.sources import package_split, read_asset
-
     out = {}
     for k, (path, planned) in enumerate(_planned(job)):
         dst = Path(folder) / _local_name(k, path)
@@ -340,10 +326,6 @@ def read_sources(job: MaterialJob) -> dict[str, bytes]:
     """The bytes of every source file a job reads (a packaged file's through USD's resolver),
     checked against the plan's XXH3-128: a file saved again since the plan would otherwise train
     a result that the cache stores under the old bytes' key."""
-    import xxhash
-
-    from bcfpipe.scan.sources import package_split, read_asset
-
     out = {}
     for path, planned in _planned(job):
         data = read_asset(path) if package_split(path) else Path(path).read_bytes()
@@ -355,7 +337,6 @@ def read_sources(job: MaterialJob) -> dict[str, bytes]:
 def drain_events(queue, progress: ProgressCallback | None, returned: Callable[[ProgressEvent], None] | None = None) -> None:
     if queue is None:
         return
-    import queue as queue_mod
 
     while True:
         try:
@@ -409,8 +390,6 @@ def _run_pool(jobs: Sequence[MaterialJob], work: _Work, workers: int,
     own = executor is None
     pool = executor or cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
     if own:
-        from bcfpipe.pooltrace import trace_pool
-
         trace_pool("job-pool", workers)
     encode = work.encode
     try:
@@ -488,8 +467,6 @@ def execute(jobs: Sequence[MaterialJob], materials_dir: str | os.PathLike, worke
     devices = [f"cuda:{i}" for i in range(gpus)] if gpus else [device]
     manager = mp.get_context("spawn").Manager() if progress else None
     if manager is not None:
-        from bcfpipe.pooltrace import trace_pool
-
         trace_pool("progress-queue", 1)  # a server process that forwards events: it waits, it does not compute
     try:
         queue = manager.Queue() if manager else None

@@ -12,13 +12,18 @@ from bcfpipe.config import (CPU_PRESETS_LARGE, FIXED_T0_PRESETS, MODEL_FORMAT, P
                             QUALITY_PRESETS, JobOptions, TrainingOptions, preset_for, resolve_profile, t0_of)
 from bcfpipe.builder.options import Selection
 from bcfpipe.errors import InputError
+from bcfpipe.fit.rate import anchors_from_bench
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, wrap_axes
+from bcfpipe.scan.content import nonfinite_channels
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
 from bcfpipe.scan.grouping import group_materials
+from bcfpipe.scan.results import ScanError
 from bcfpipe.scan.sources import SourceFile
 from bcfpipe.scan.texture_sets import ConstantTarget, FoldedChannel, ModelChannel, decoder_index
+from bcfpipe.texset.texture_set import SEMANTICS
+from bcfpipe.train.devices import device_class
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
     from bcfpipe.scan.results import StageScan
@@ -204,8 +209,7 @@ def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[s
         return {}
     if isinstance(variants, Mapping):
         return {str(k): str(v) for k, v in variants.items()}
-    from bcfpipe.scan.composition import parse_variants
-    from bcfpipe.scan.results import ScanError
+    from bcfpipe.scan.composition import parse_variants  # lazy: start-up
 
     try:
         return parse_variants(variants)
@@ -214,8 +218,6 @@ def _variants_dict(variants: Mapping[str, str] | Iterable[str] | None) -> dict[s
 
 
 def _resolve_device_name(device: str) -> str:
-    from bcfpipe.train.devices import device_class
-
     try:
         return device_class(device)
     except (ValueError, RuntimeError) as exc:
@@ -239,8 +241,7 @@ def plan(scene: str | os.PathLike, training: TrainingOptions = TrainingOptions()
     options = JobOptions.of(training, _resolve_device_name(training.device),
                             texel_density=float(texel_density) if texel_density is not None else None,
                             coverage=bool(selection.coverage))
-    from bcfpipe.scan.results import ScanError
-    from bcfpipe.scan.stage import scan_stage
+    from bcfpipe.scan.stage import scan_stage  # lazy: start-up
 
     vdict = _variants_dict(selection.variants)
     all_materials = selection.all_materials
@@ -294,8 +295,6 @@ def _vectors(g) -> tuple[tuple[str, tuple[int, ...]], ...]:
     colour spec holds in r, g, b order (issue 57): a folded duplicate (b equal to g) or a grey file
     leaves generic channels, which a classic layout would pack as scalars, where USD could no longer
     read the colour from one output. (semantic, the set channel of each slot), once each."""
-    from bcfpipe.texset.texture_set import SEMANTICS
-
     colours = {s.usd_input: s.name for s in SEMANTICS.values() if s.kind == "color"}
     rep = g.model
     index = {c: i for i, c in enumerate(rep.channels)}
@@ -352,8 +351,6 @@ def _material_plan(ms, grouping, job_by_name: Mapping[str, MaterialJob]) -> Mate
 def source_problems(grouping, file_cache: dict, fix_nonfinite: bool = False) -> list[str]:
     """Why a build refuses its sources, one line each: a damaged file, or a float file with NaN/Inf
     texels (without --fix-nonfinite). `scan` asks the same (its ``file_cache`` read the texels)."""
-    from bcfpipe.scan.content import nonfinite_channels
-
     problems = list(dict.fromkeys(grouping.unreadable.values()))
     if not fix_nonfinite:
         models = [*(mm for g in grouping.groups for mm in g.models), *grouping.constant.values()]
@@ -381,8 +378,6 @@ def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None
 
 def _bench_anchors(bench: Mapping, specs) -> tuple[tuple[str, str, float], ...]:
     """The bench report's measured cells for a job, matched by source file names and channels."""
-    from bcfpipe.fit.rate import anchors_from_bench
-
     names = [f"{sem}={os.path.basename(path)}:{ch}" for sem, path, ch in specs]
     return tuple(sorted((p, q, v) for (p, q), v in anchors_from_bench(bench, names).items()))
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import os
+import secrets
 import shutil
 import sys
 import tempfile
@@ -31,6 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+from bcfpipe.builder.executor import cpu_count
+from bcfpipe.cache import Cache
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.builder.executor import JobResult, emit_event, drain_events, train_job, read_sources, store_entry
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
@@ -59,7 +62,7 @@ def resolve_executor(name: str, address: str | None) -> str:
 
 def require_ray():
     try:
-        import ray
+        import ray  # lazy: start-up
     except ImportError:
         raise RayUnavailable("--executor ray needs the ray package: pip install 'bcfpipe[ray]' "
                              "(or pip install ray)") from None
@@ -117,7 +120,6 @@ def _store(job: MaterialJob, r: JobResult, files: dict[str, bytes], materials_di
         (folder / name).write_bytes(data)
     if cache_root is None or r.status != Status.BUILT:
         return r
-    from bcfpipe.cache import Cache
 
     store_entry(Cache(cache_root), job.content_hash, folder, r.result, job.name, take_lock=True)
     return JobResult(r.name, r.status, r.reason, r.seconds, r.device, r.threads, r.result, CacheUse.MISS)
@@ -165,10 +167,6 @@ def _connect(ray, address: str | None, cores: int | None = None):
         if address:
             ray.init(address=address, log_to_driver=False, include_dashboard=False, configure_logging=False)
         else:
-            import secrets
-
-            from bcfpipe.builder.executor import cpu_count
-
             tmp = tempfile.mkdtemp(prefix="bcfray-")  # short: Ray's socket paths have a length limit
             if not saved["RAY_AUTH_TOKEN"]:  # (RAY_AUTH_MODE is read when ray is imported: not set here)
                 os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
@@ -260,7 +258,7 @@ class _Flight:
 
 def _run(ray, jobs, materials_dir, threads, progress, cache_root, max_retries, cores=None):
     device = jobs[0].options.device
-    from ray.util.queue import Queue
+    from ray.util.queue import Queue  # lazy: start-up
 
     queue = Queue(actor_options={"num_cpus": 0})  # progress events, and one "attempt" per run of a task
     attempts: dict[str, int] = {}

@@ -3,6 +3,7 @@ install it as OUT, writing only the files that changed."""
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import sys
@@ -13,13 +14,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable
 
+from bcfpipe.builder.executor import JobResult, cached_result, execute, set_exr_threads
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.config import TrainingOptions
 from bcfpipe.errors import EXIT_OK, InputError, WorkFailed
 from bcfpipe.builder.assemble import assemble, default_out
 from bcfpipe.builder.depfile import dependencies, write as write_depfile
 from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent, result_psnr
-from bcfpipe.builder.executor import JobResult, cached_result, execute
 from bcfpipe.builder.report import BuildFacts, make_report
 from bcfpipe.builder.sync import OUT_LOCK, STAGING_PREFIX, install, is_incomplete
 from bcfpipe.cache import Cache, default_root
@@ -27,7 +28,10 @@ from bcfpipe.formats.report import BuildReport
 from bcfpipe.formats.manifest import FILE as MANIFEST, Manifest, is_manifest
 from bcfpipe.builder.plan import BuildError, BuildPlan, MATERIALS_DIR, plan
 from bcfpipe.builder.options import Execution, ExecutorName, Selection
+from bcfpipe.pooltrace import trace_pool
 from bcfpipe.scan.sources import package_split
+from bcfpipe.texset.blocks import blocks_in
+from bcfpipe.train.fused.common import kernels_in
 
 
 log = logging.getLogger("bcfpipe.build")
@@ -71,8 +75,6 @@ def _file_of(path: str | os.PathLike) -> Path:
 
 def _built_scene(out: Path) -> Path | None:
     """The scene whose build ``out`` holds (manifest.json's scene, resolved), or None."""
-    import json
-
     try:
         scene = json.loads((out / MANIFEST).read_text()).get("scene")
     except (OSError, ValueError, AttributeError):
@@ -222,11 +224,7 @@ def driver_threads(jobs: int | None):
     if jobs is None:
         yield
         return
-    import OpenImageIO as oiio
-
-    from bcfpipe.pooltrace import trace_pool
-
-    from bcfpipe.builder.executor import set_exr_threads
+    import OpenImageIO as oiio  # lazy: start-up
 
     n = max(1, int(jobs))
     before, exr_before = oiio.get_int_attribute("threads"), oiio.get_int_attribute("exr_threads")
@@ -296,7 +294,7 @@ def _lock_out(out: Path):
     OUT is always one build's complete output. A build that has to wait says so once. The lock
     file stays (removing a lock file others may wait on would let two builds in); a first build
     that fails removes OUT with it, and a build that waited on it then starts over."""
-    from filelock import FileLock, Timeout
+    from filelock import FileLock, Timeout  # lazy: start-up
 
     said = False
     while True:
@@ -359,13 +357,11 @@ def _train(todo: list, run: _Run, execution: Execution, threads: int | None,
     """Train the jobs the cache lacks into the staging folder, on the executor ``execution`` names."""
     root = run.store.root if run.store else None
     if execution.executor == ExecutorName.RAY:
-        from bcfpipe.builder.ray_executor import execute_ray
+        from bcfpipe.builder.ray_executor import execute_ray  # lazy: cycle
 
         done, attempts = execute_ray(todo, run.staging / MATERIALS_DIR, execution.ray_address, threads=threads,
                                      progress=progress, cache_root=root, cores=execution.jobs)
         return {k: replace(r, attempts=attempts.get(k, 1)) for k, r in done.items()}
-    from bcfpipe.texset.blocks import blocks_in
-    from bcfpipe.train.fused.common import kernels_in
 
     # compiled kernels and BC@R's blocks in the build's cache
     with kernels_in(root), blocks_in(run.store.base if run.store else None):

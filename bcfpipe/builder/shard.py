@@ -22,6 +22,8 @@ from bcfpipe.builder.events import EventKind, ProgressCallback, ProgressEvent
 from bcfpipe.builder.executor import JobResult, execute
 from bcfpipe.builder.plan import BuildError, plan
 from bcfpipe.cache import Cache, default_root
+from bcfpipe.texset.blocks import blocks_in
+from bcfpipe.train.fused.common import kernels_in
 
 __all__ = ["parse_shard", "shard_of", "ShardResult", "train_shard"]
 
@@ -86,9 +88,6 @@ def train_shard(scene: str | os.PathLike, shard: tuple[int, int], training: Trai
     work = store.base / "tmp" / f"shard-{i}-of-{n}.{uuid.uuid4().hex[:8]}"
     try:
         work.mkdir(parents=True)
-        from bcfpipe.texset.blocks import blocks_in
-        from bcfpipe.train.fused.common import kernels_in
-
         with kernels_in(store.root), blocks_in(store.base):  # compiled kernels and BC@R's blocks in its cache
             results.update(execute(todo, work, workers=execution.jobs, progress=progress, threads=training.threads,
                                    cache_root=store.root))

@@ -34,6 +34,7 @@ their sources in the universal context too (the decoder serves them in ``bcf``).
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
@@ -41,6 +42,8 @@ from pxr import Gf, Sdf, Usd, UsdShade
 
 from bcfpipe.formats import material as mf
 from bcfpipe.formats.vocabulary import ColorSpace, Source
+from bcfpipe.scan.network import COLOR_INPUTS
+from bcfpipe.scan.network import scan_input
 
 __all__ = ["Wiring", "ClassicMaterial", "wire_material", "author_classic", "open_source_stage", "usd_notes",
            "NOTE_KEY", "UNTOUCHED"]
@@ -104,8 +107,6 @@ def open_source_stage(scene: str, variant_selections: Sequence[tuple[str, str, s
 
 def _components(name: str, channel: str) -> list[tuple[str, int]]:
     """(target, slot) of an input read through UsdUVTexture output ``channel``."""
-    from bcfpipe.scan.network import COLOR_INPUTS
-
     if channel == "rgb" and name in _VECTOR_COMPONENTS:
         return [(t, _SLOT[t.split(".")[1]]) for t in _VECTOR_COMPONENTS[name]]
     if channel == "rgb" and name in COLOR_INPUTS:
@@ -188,8 +189,6 @@ def wire_material(stage: Usd.Stage, material: str, surface: str, targets: Iterab
     """How ``material``'s UsdPreviewSurface at ``surface`` reads the classic textures of ``desc``
     (``targets``: the build's TargetMap list, channels indexing desc.outputs; ``folder``: the
     material folder relative to the overrides layer). None without classic outputs."""
-    from bcfpipe.scan.network import scan_input
-
     if desc.split is not None:  # see the module's note
         return ClassicMaterial(material, surface, (), ((ALL, SPLIT_WHY),), desc.neural)
     if not any(o.source == Source.CLASSIC for o in desc.outputs):
@@ -334,8 +333,6 @@ def usd_notes(overrides_layer: str) -> dict[str, str] | None:
     """What the overrides layer did per material path: its ``bcfpipeUsd`` note, else "USD: neural
     (bcf context)" for a material with the BcfNeuralMaterialAPI; read back from the layer itself
     (a built material it does not name kept its sources: `UNTOUCHED`). None when it cannot be read."""
-    import os
-
     if not os.path.isfile(str(overrides_layer)):
         return None
     layer = Sdf.Layer.FindOrOpen(str(overrides_layer))

@@ -45,6 +45,7 @@ from typing import Iterable, Sequence
 
 from pxr import Gf, Sdf, Usd, Vt
 
+from bcfpipe.builder.usd_classic import author_classic
 from bcfpipe.formats.material import Mlp
 from bcfpipe.formats.usd_schema import component_index
 
@@ -264,8 +265,6 @@ def write_overrides_layer(path: str | os.PathLike, overrides: Iterable[NeuralMat
     for c in constants:
         _author_constant(layer, c)
     if classic:
-        from bcfpipe.builder.usd_classic import author_classic
-
         author_classic(layer, source_stage, classic)
     layer.Export(str(path))
     return path

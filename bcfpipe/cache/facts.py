@@ -10,7 +10,10 @@ removes them, and deleting them only costs a decode.
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
+
+from bcfpipe.formats.atomic import replace_atomically
 
 FORMAT = "bcfpipe-texel-facts"
 VERSION = 2  # 2: colour read as stored (unassociated alpha), not premultiplied
@@ -27,7 +30,7 @@ class FactsStore:
 
     def get(self, file_hash: str):
         """(channel contents, channel names) recorded for a file, or None."""
-        from bcfpipe.scan.content import ChannelContent
+        from bcfpipe.scan.content import ChannelContent  # lazy: start-up
 
         try:
             d = json.loads(self._path(file_hash).read_text())
@@ -39,10 +42,6 @@ class FactsStore:
 
     def put(self, file_hash: str, contents, names) -> None:
         """Record a file's facts; a cache that cannot be written costs a decode next time, nothing else."""
-        from dataclasses import asdict
-
-        from bcfpipe.formats.atomic import replace_atomically
-
         data = json.dumps({"format": FORMAT, "version": VERSION, "names": list(names),
                            "channels": [asdict(c) for c in contents]})
         replace_atomically(self._path(file_hash), lambda tmp: tmp.write_text(data))

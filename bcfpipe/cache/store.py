@@ -27,9 +27,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
+from bcfpipe.cache.facts import FactsStore
 from bcfpipe.process_env import CACHE_ENV, default_cache_root
 from bcfpipe.errors import InputError
 from bcfpipe.formats.digest import sha256_file
+from bcfpipe.texset.blocks import BlocksStore
 
 LAYOUT = "v1"
 ENTRY_META = "entry.json"
@@ -101,8 +103,6 @@ class Cache:
                 (self.base / d).mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise CacheError(f"cache folder {self.root}: {e.strerror or e}") from None
-        from bcfpipe.texset.blocks import BlocksStore
-        from bcfpipe.cache.facts import FactsStore
 
         self.facts = FactsStore(self.base)
         self.blocks = BlocksStore(self.base)
@@ -114,7 +114,7 @@ class Cache:
 
     def lock(self, key: str, timeout: float = -1):
         """An exclusive per-key lock (a context manager); blocks until it is free."""
-        from filelock import FileLock
+        from filelock import FileLock  # lazy: start-up
 
         return FileLock(str(self.base / "locks" / f"{key}.lock"), timeout=timeout)
 

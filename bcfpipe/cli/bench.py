@@ -7,10 +7,17 @@ from pathlib import Path
 
 import click
 
+from bcfpipe.bench import report as R
+from bcfpipe.bench.decode_cost import SIZES
+from bcfpipe.bench.run import BenchOptions, run_bench
+from bcfpipe.bench.sets import from_scene, from_specs
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import variant_option
 from bcfpipe.config import DEFAULT_DEVICE, DEFAULT_SEED, DEFAULT_THREADS, PRESETS, PROFILE_NAMES
 from bcfpipe.errors import EXIT_FAILED, InputError
+from bcfpipe.extras import require
+from bcfpipe.texset.baselines import CODECS, astcenc_path
+from bcfpipe.texset.baselines import parse_block
 
 __all__ = ["bench"]
 
@@ -27,8 +34,6 @@ def _list(text: str, what: str, allowed=None) -> tuple[str, ...]:
 
 
 def _size(text: str) -> tuple[int, int]:
-    from bcfpipe.bench.decode_cost import SIZES
-
     if text in SIZES:
         return SIZES[text]
     try:
@@ -42,8 +47,6 @@ def _size(text: str) -> tuple[int, int]:
 
 def _codecs(baselines: str) -> tuple[str, ...]:
     """--baselines, checked; astc without astcenc exits 2."""
-    from bcfpipe.texset.baselines import CODECS, astcenc_path
-
     codecs = _list(baselines, "--baselines", CODECS)
     if "astc" in codecs and astcenc_path() is None:
         raise InputError("astcenc not found: install it (apt-get install astcenc), set $ASTCENC, "
@@ -53,8 +56,6 @@ def _codecs(baselines: str) -> tuple[str, ...]:
 
 def _astc_blocks(text: str) -> tuple[str, ...]:
     """--astc-blocks, each a block size astcenc takes."""
-    from bcfpipe.texset.baselines import parse_block
-
     blocks = _list(text, "--astc-blocks")
     for b in blocks:
         try:
@@ -66,8 +67,6 @@ def _astc_blocks(text: str) -> tuple[str, ...]:
 
 def _sets(inputs, materials, variants, name):
     """The texture sets to measure: a scene's modelled materials, or one set of texture specs."""
-    from bcfpipe.bench.sets import from_scene, from_specs
-
     if len(inputs) == 1 and inputs[0].lower().endswith(SCENE_SUFFIXES) and "=" not in inputs[0]:
         return from_scene(inputs[0], materials, variants)
     if materials:
@@ -77,8 +76,6 @@ def _sets(inputs, materials, variants, name):
 
 def _redraw(inputs, output: Path, as_json: bool) -> None:
     """--redraw: the plots, HTML and markdown of ``output`` again, from its bench.json."""
-    from bcfpipe.bench import report as R
-
     if inputs:
         raise InputError("--redraw takes no inputs: it redraws OUTPUT from its bench.json")
     data = R.read_report(output)
@@ -136,9 +133,6 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
     The JSON's keys (format bcfpipe-bench, version 1) are a stable interface.
     Exit codes: 0 ok, 1 a measurement failed, 2 bad arguments or unreadable input.
     """
-    from bcfpipe.bench import report as R
-    from bcfpipe.extras import require
-
     require("matplotlib", "bench", "bcfpipe bench")  # before any measuring: its figures need it
     if output is None:
         raise InputError("missing -o/--output REPORT_DIR")
@@ -149,7 +143,6 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
         raise InputError("give a SCENE or texture specs (SEMANTIC=FILE[:CHANNELS]); see --help")
     if output.exists() and any(output.iterdir()) and not force:
         raise InputError(f"{output} is not empty; pass --force to write into it")
-    from bcfpipe.bench.run import BenchOptions, run_bench
 
     opts = BenchOptions(profiles=_list(profiles, "--profiles", PROFILE_NAMES),
                         presets=_list(presets, "--presets", tuple(PRESETS)), codecs=_codecs(baselines),

@@ -11,6 +11,7 @@ table, or with ``--json`` the manifest as one JSON object, goes to stdout.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 from collections import Counter
 from dataclasses import replace
@@ -21,19 +22,29 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
+from bcfpipe.builder import Execution, Selection, build as run_build
+from bcfpipe.builder import ExecutorName
+from bcfpipe.builder.ray_executor import require_ray, resolve_executor
+from bcfpipe.builder.report import headline_psnr
+from bcfpipe.builder.shard import parse_shard, train_shard
+from bcfpipe.builder.usd_classic import UNTOUCHED
+from bcfpipe.builder.usd_classic import usd_notes
+from bcfpipe.cli.options import training_record
+from bcfpipe.errors import InputError
+from bcfpipe.formats.display import bytes_text
 from bcfpipe.formats.vocabulary import CacheUse, Status
 from bcfpipe.cli.build_display import BuildDisplay
 from bcfpipe.cli.errors import Command
 from bcfpipe.formats.manifest import Manifest
 from bcfpipe.formats.report import BuildReport
 from bcfpipe.cli.options import all_materials_option, material_option, training_options, variant_option, texel_density_option
+from bcfpipe.layout.choose import ALL_CLASSIC
+from bcfpipe.scan.composition import mtlx_documents
 
 __all__ = ["build", "summary_table", "print_summary"]
 
 
 def _fmt_size(n: int | None) -> str:
-    from bcfpipe.formats.display import bytes_text
-
     return "" if n is None else bytes_text(n)
 
 
@@ -46,9 +57,6 @@ def material_notes(m, r, sharing: dict[str, tuple[str, ...]], usd: dict | None) 
     """(short, detail): the table's note for material ``m`` (report row ``r``), a few words each,
     and what the line under the table says of it in full (the layout's reason, the USD wiring, the
     shared texture set's first material)."""
-    from bcfpipe.builder.usd_classic import UNTOUCHED
-    from bcfpipe.layout.choose import ALL_CLASSIC
-
     failed = m.status == Status.FAILED and bool(m.reason)  # a failure's message is a sentence: said below
     short = ["why: below"] if failed else [m.reason] if m.reason else []
     detail = [m.reason] if failed else []
@@ -99,10 +107,6 @@ def summary_details(manifest: Manifest, report: BuildReport) -> list[tuple[str, 
 
 
 def _rows(manifest: Manifest, report: BuildReport) -> list[tuple[tuple[str, ...], list[str]]]:
-    from bcfpipe.builder.report import headline_psnr
-    from bcfpipe.builder.usd_classic import usd_notes
-    from bcfpipe.layout.choose import ALL_CLASSIC
-
     out = []
     sharing = {j.name: tuple(j.materials) for j in manifest.jobs}
     usd = usd_notes(os.path.join(report.out, manifest.overrides_layer))  # what the USD layer changed
@@ -197,8 +201,6 @@ def nothing_built(manifest) -> str | None:
         return None
     reasons = Counter(m.reason or m.status for m in manifest.materials)
     if not reasons:
-        from bcfpipe.scan.composition import mtlx_documents
-
         mtlx = mtlx_documents(manifest.diagnostics)
         if mtlx:
             return (f"bcfpipe: nothing built: the stage's materials are in {len(mtlx)} MaterialX document(s) "
@@ -271,9 +273,6 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     on the same device class give byte-identical outputs. See docs/build.md for make, ninja and
     CMake. Exit codes: 0 all built, 1 a material failed, 2 bad input or OUT refused, 130 interrupted.
     """
-    from bcfpipe.builder import Execution, Selection, build as run_build
-    from bcfpipe.cli.options import training_record
-
     training, bench = training_record(ctx)
     quiet = bool((ctx.obj or {}).get("quiet"))
     display = None if quiet else BuildDisplay(Console(stderr=True))
@@ -292,7 +291,7 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
     code = result.exit_code
     verify_code = None
     if run_verify_after:
-        from bcfpipe.cli.verify import run_verify
+        from bcfpipe.cli.verify import run_verify  # lazy: cycle
 
         # with --json the verify report goes to stderr so stdout stays one JSON object
         verify_code = run_verify(str(result.out), as_json=False,
@@ -310,9 +309,6 @@ def build(ctx: click.Context, scene: Path, out: Path | None, variants: dict[str,
 
 def _executor(name: str, ray_address: str | None):
     """--executor resolved (auto: ray when a Ray address is given); ray without its package exits 2."""
-    from bcfpipe.builder import ExecutorName
-    from bcfpipe.builder.ray_executor import require_ray, resolve_executor
-
     resolved = ExecutorName(resolve_executor(name, ray_address))
     if resolved == ExecutorName.RAY:
         require_ray()  # without the package: one line, exit 2
@@ -346,11 +342,6 @@ def _shard(ctx: click.Context, scene: Path, text: str, display, as_json: bool, r
            refused: tuple) -> None:
     """`build --shard I/N`: train one shard into the cache (bcfpipe.builder.shard). ``records``:
     (training, selection, execution); ``refused``: (given, flag) pairs a shard does not take."""
-    import json
-
-    from bcfpipe.builder.shard import parse_shard, train_shard
-    from bcfpipe.errors import InputError
-
     shard = parse_shard(text)
     for given, flag in refused:
         if given:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from bcfpipe.cache import Cache, default_root
 from bcfpipe.cli.errors import Command, Group
 
 _SIZE_UNITS = {"": 1, "B": 1, "K": 1 << 10, "KB": 1 << 10, "KIB": 1 << 10, "M": 1 << 20, "MB": 1 << 20,
@@ -41,8 +42,6 @@ def _fmt_size(n: int) -> str:
 
 
 def _open(cache_dir: Path | None):
-    from bcfpipe.cache import Cache, default_root
-
     return Cache(cache_dir or default_root())
 
 

@@ -6,10 +6,15 @@ from pathlib import Path
 
 import click
 import numpy as np
+from rich.console import Console
+from rich.table import Table
 
+from bcfpipe.bc6h import decode
+from bcfpipe.bc7 import decode as bc7_decode
 from bcfpipe.cli.errors import Group
 from bcfpipe.formats import dds as ddsmod
 from bcfpipe.errors import InputError
+from bcfpipe.formats.bcn import FORMAT_OF, ClassicFormat, decode_levels
 
 
 def _load(path: str) -> ddsmod.DdsTexture:
@@ -22,19 +27,14 @@ def _load(path: str) -> ddsmod.DdsTexture:
 def _decode_level(tex: ddsmod.DdsTexture, k: int) -> np.ndarray:
     """Mip ``k`` as (h, w, channels): 3 half-float channels for BC6H, 4 in [0, 1] for BC7, and
     a classic texture's stored channels in [0, 1] (BC1: 3, BC4: 1, BC5: 2)."""
-    from bcfpipe.formats.bcn import FORMAT_OF, ClassicFormat, decode_levels
-
     blocks, w, h = tex.levels[k]
     if FORMAT_OF.get(tex.dxgi_format) in (ClassicFormat.BC1, ClassicFormat.BC4, ClassicFormat.BC5):
         return decode_levels(FORMAT_OF[tex.dxgi_format], [tex.levels[k]])[0]
     if tex.is_bc7:
-        from bcfpipe.bc7 import decode as bc7_decode
-
         try:
             return bc7_decode(blocks, w, h)
         except ValueError as e:
             raise InputError(f"mip {k}: {e}") from None
-    from bcfpipe.bc6h import decode
 
     return decode(blocks, w, h, signed=tex.signed)
 
@@ -64,8 +64,6 @@ def info(file: str, as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps(report, indent=2))
         return
-    from rich.console import Console
-    from rich.table import Table
 
     table = Table(title=f"{file}: {tex.format_name} {tex.width}x{tex.height}, {tex.mip_count} mips, {size} bytes")
     rgb = " ".join("rgba"[:len(mips[0]["min"])]) if mips else "r g b"
@@ -86,7 +84,7 @@ def info(file: str, as_json: bool) -> None:
 def decode_cmd(file: str, output: str, mip: int, force: bool) -> None:
     """Decode one mip of FILE: half floats for BC6H, 32-bit floats (value / 255) for BC1, BC4, BC5
     and BC7."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: start-up
 
     tex = _load(file)
     if not 0 <= mip < tex.mip_count:

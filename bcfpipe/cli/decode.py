@@ -17,6 +17,11 @@ import numpy as np
 
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import InputError
+from bcfpipe.export import writer as E
+from bcfpipe.formats import material as mf
+from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT
+from bcfpipe.verify import glsl as G
+from bcfpipe.verify import checks as V
 
 if TYPE_CHECKING:
     from bcfpipe.formats.material import Output
@@ -36,8 +41,6 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 def select_target(out: str, prim: str | None):
     """The material of ``out`` named ``prim`` (a prim path, a material name or folder name)."""
-    from bcfpipe.verify import checks as V
-
     try:
         targets = V.find_targets(out)
     except V.VerifyInputError as e:
@@ -82,8 +85,6 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
     img, used = _decode_network(target, size, lod, backend) if file.neural else (None, "classic textures")
     if not file.mixed:
         return img, used
-    from bcfpipe.export import writer as E
-    from bcfpipe.formats import material as mf
 
     em = E.load(target.desc.folder)
     full = np.empty((h * w, len(file.outputs)), np.float32)
@@ -96,8 +97,6 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
 
 
 def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
-    from bcfpipe.verify import glsl as G
-
     w, h = size
     if backend in ("glsl", "auto"):
         try:
@@ -114,8 +113,6 @@ def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> 
                     rt.unload(gm)
             finally:
                 rt.release()
-    from bcfpipe.export import writer as E
-    from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT
 
     em = E.load(target.desc.folder)
     sess = E.onnx_session(em)
@@ -128,7 +125,7 @@ def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> 
 
 def write_images(img: np.ndarray, outputs: Sequence[Output], out_dir: Path) -> list[Path]:
     """One file per semantic group of ``outputs`` (material.json order, normal z included)."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: start-up
 
     out_dir.mkdir(parents=True, exist_ok=True)
     groups: dict[str, list[int]] = {}

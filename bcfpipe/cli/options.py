@@ -3,9 +3,12 @@ one definition per option, defaults from `bcfpipe.config`."""
 from __future__ import annotations
 
 import click
+from click.core import ParameterSource
 
 from dataclasses import fields
 
+from bcfpipe.bench.report import read_report
+from bcfpipe.errors import InputError
 from bcfpipe.formats.vocabulary import T0, FeatureFormat, Kernel, Layout
 from bcfpipe.config import (DEFAULT_DEVICE, DEFAULT_PCA_CLIP, DEFAULT_HIDDEN, DEFAULT_INIT, DEFAULT_PRESET, DEFAULT_PROFILE,
                             DEFAULT_SEED, DEFAULT_THREADS, DEFAULT_FEATURES, DEFAULT_KERNEL, FEATURE_INITS, MAX_T0_LAYERS, PRESETS,
@@ -96,10 +99,6 @@ def training_record(ctx: click.Context) -> tuple[TrainingOptions, dict | None]:
     """The command's `TrainingOptions`, made (and so validated) once from its parameters of the same
     names, and the bench report to predict --target-psnr from, if any. --target-psnr together with
     an explicit --profile or --quality is refused: it chooses them."""
-    from click.core import ParameterSource
-
-    from bcfpipe.errors import InputError
-
     options = TrainingOptions(**{f.name: ctx.params[f.name] for f in fields(TrainingOptions)})
     if options.target_psnr is None:
         return options, None
@@ -109,7 +108,6 @@ def training_record(ctx: click.Context) -> tuple[TrainingOptions, dict | None]:
         raise InputError(f"--target-psnr chooses the profile and preset itself; drop {' and '.join(given)}")
     if options.bench_data is None:
         return options, None
-    from bcfpipe.bench.report import read_report
 
     return options, read_report(options.bench_data)
 
@@ -124,7 +122,7 @@ def training_options(f):
 def _variants(_ctx: click.Context, _param: click.Parameter, values: tuple[str, ...]) -> dict[str, str]:
     """Parse repeated ``--variant SET=VALUE`` into a dict; a malformed one, or two values for one
     set, exits 2."""
-    from bcfpipe.scan.composition import parse_variants
+    from bcfpipe.scan.composition import parse_variants  # lazy: start-up
 
     return parse_variants(values)
 

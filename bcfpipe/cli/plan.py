@@ -12,10 +12,24 @@ import click
 from rich.console import Console
 from rich.markup import escape
 
+from bcfpipe.builder import plan
+from bcfpipe.builder import Selection
+from bcfpipe.cache.store import LAYOUT
+from bcfpipe.cli.options import training_record
+from bcfpipe.config import resolve_profile
+from bcfpipe.formats.display import bytes_text, dims_text
+from bcfpipe.formats.display import bytes_range
+from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.cli.errors import Command
+from bcfpipe.layout.classic import MAX_REPACK_SIDE
+from bcfpipe.layout.predict import build_range
+from bcfpipe.layout.predict import predict_specs
+from bcfpipe.layout.predict import bc_resolution, uses_layout
+from bcfpipe.process_env import default_cache_root
 from bcfpipe.scan.composition import counted
 from bcfpipe.cli.options import all_materials_option, material_option, texel_density_option, training_options, variant_option
+from bcfpipe.scan.texture_sets import decoder_index
 
 __all__ = ["plan_cmd"]
 
@@ -35,7 +49,6 @@ def plan_json(bplan) -> dict:
         j["prediction"] = p.to_json() if p is not None else None
         j["built"] = built_layout(job)
     known = [p for p in preds if p is not None]
-    from bcfpipe.layout.predict import build_range
 
     lo, hi = build_range(known) if known and len(known) == len(preds) else (None, None)
     d["predicted_bytes"] = {"min": lo, "max": hi} if lo is not None else None
@@ -44,9 +57,6 @@ def plan_json(bplan) -> dict:
 
 def job_prediction(job):
     """What the build will weigh for ``job`` and the bytes it can ship (None under --target-psnr)."""
-    from bcfpipe.formats.images import FLOAT_TYPES
-    from bcfpipe.layout.predict import predict_specs
-
     w, h = job.size
     return predict_specs(job.specs, [s.path for s in job.sources if s.format in FLOAT_TYPES], w, h, job.options,
                          job.vectors)
@@ -66,11 +76,7 @@ def plan_cmd(scene: Path, variants: dict[str, str], all_materials: bool, materia
     """List the training jobs `bcfpipe build SCENE` would run with these options: each job's
     content hash (its cache key), materials, channels, resolution, profile and covered fraction.
     Reads and hashes the textures; trains and writes nothing."""
-    from bcfpipe.builder import plan
-    from bcfpipe.cli.options import training_record
-
     training, bench = training_record(click.get_current_context())
-    from bcfpipe.builder import Selection
 
     bplan = plan(scene, training, Selection(variants, all_materials, tuple(materials), texel_density,
                                             not no_coverage, bench))
@@ -101,15 +107,11 @@ def _say_warnings(say, bplan) -> None:
 def _say_job(say, j) -> None:
     """One job: its size, profile, outputs, coverage and key; how its layout is decided; what it
     ships; its materials."""
-    from bcfpipe.formats.display import bytes_text, dims_text
-
     w, h = j.size
     prof = _profile(j)
     read = f"{100 * j.covered_fraction:.0f}% of texels read" if j.covered_fraction is not None else "every texel"
     say(f"[bold]{j.name}[/bold]  {dims_text(w, h)}, profile {prof}, {_outputs(j)} outputs, {read}, "
         f"content hash {j.content_hash[:16]}")
-    from bcfpipe.layout.classic import MAX_REPACK_SIDE
-    from bcfpipe.layout.predict import bc_resolution, uses_layout
 
     pred = job_prediction(j)
     if uses_layout(j.options, [sem for sem, _, _ in j.specs]):
@@ -142,8 +144,6 @@ def _say_job(say, j) -> None:
 
 def _say_weighed(say, pred) -> None:
     """The all-neural candidates' GPU bytes by profile and T_0 width, and the BC7 quality set's."""
-    from bcfpipe.formats.display import bytes_text
-
     by = {}
     for p, w, b in pred.neural:
         by.setdefault(p, []).append(f"{w} layer{'s' if w > 1 else ''} {bytes_text(b)}")
@@ -155,9 +155,6 @@ def _say_weighed(say, pred) -> None:
 def built_layout(job) -> dict | None:
     """The layout.json of ``job``'s cached build (its content hash in the default cache), if there is
     one: what a build of this job ships, measured. Read only: plan writes nothing."""
-    from bcfpipe.cache.store import LAYOUT
-    from bcfpipe.process_env import default_cache_root
-
     path = default_cache_root() / LAYOUT / "entries" / job.content_hash[:2] / job.content_hash / "layout.json"
     try:
         return json.loads(path.read_text())
@@ -167,8 +164,6 @@ def built_layout(job) -> dict | None:
 
 def _say_built(say, d: dict) -> None:
     """A cached job's layout: the one shipped, its bytes and its per-mip margins."""
-    from bcfpipe.formats.display import bytes_text
-
     c = d["chosen"]
     disk = f", {bytes_text(c['disk_bytes'])} on disk (zstd 19)" if c.get("disk_bytes") else ""
     say(f"    cached: ships {c['layout']}, {bytes_text(c['size_bytes'])}{disk}, {c['psnr']:.2f} dB")
@@ -196,10 +191,6 @@ def _say_range(say, bplan) -> None:
     """The bytes the whole build ships, when every job's can be predicted."""
     preds = [job_prediction(j) for j in bplan.jobs]
     if preds and all(p is not None for p in preds):
-        from bcfpipe.layout.predict import build_range
-
-        from bcfpipe.formats.display import bytes_range
-
         lo, hi = build_range(preds)
         exact = all(p.exact for p in preds)
         say(f"the build ships {bytes_range(lo, hi)}" + ("" if exact else
@@ -208,8 +199,6 @@ def _say_range(say, bplan) -> None:
 
 def _profile(job) -> str:
     """The profile the job trains at, as `build` reports it (``auto`` resolved from the job's size)."""
-    from bcfpipe.config import resolve_profile
-
     if job.options.target_psnr is not None:
         return f"chosen for target {job.options.target_psnr:g} dB ({'bench' if job.anchors else 'probe'})"
     name, _ = resolve_profile(job.options.profile, max(job.size))
@@ -218,7 +207,5 @@ def _profile(job) -> str:
 
 def _outputs(job) -> int:
     """Decoder outputs: the job's channels, and normal z when a normal map is modelled."""
-    from bcfpipe.scan.texture_sets import decoder_index
-
     _, z = decoder_index(job.channels)
     return len(job.channels) + (z is not None)

@@ -9,6 +9,9 @@ import click
 from bcfpipe.cli.decode import parse_size
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import InputError
+from bcfpipe.render import compare as C
+from bcfpipe.render.frames import NEURAL, ORIGINAL, load_scene, render_frames
+from bcfpipe.verify.sources import check_sources
 
 HEAT_LEGEND = "heat map of |difference| in 8-bit sRGB levels: black 0, blue 4, red 12, yellow 32, white 64+"
 
@@ -54,14 +57,9 @@ def render(scene: str, output: str, camera: str | None, size: str, zoom: float, 
     \b
     Exit codes: 0 written; 2 bad input, no OpenGL, or the output exists (use --force).
     """
-    from bcfpipe.render import compare as C
-    from bcfpipe.render.frames import NEURAL, ORIGINAL, load_scene, render_frames
-
     width, height = parse_size(size)
     scene = _stage_file(scene)
     if scene.endswith(".bcf.usda") and os.path.isfile(scene):
-        from bcfpipe.verify.sources import check_sources
-
         check_sources(scene)  # a moved OUT: say so, not "no visible mesh"
     if compare and original:
         raise InputError("--compare and --original exclude each other")

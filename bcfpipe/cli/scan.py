@@ -16,11 +16,14 @@ from rich.console import Console
 from rich.markup import escape
 from rich.text import Text
 
+from bcfpipe.builder.plan import refusal, source_problems
 from bcfpipe.errors import EXIT_USAGE
 from bcfpipe.formats.display import bytes_range, bytes_text, dims_text, file_name
 from bcfpipe.formats.vocabulary import Decision
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import all_materials_option, material_option, texel_density_option, variant_option
+from bcfpipe.layout.predict import predict_specs
+from bcfpipe.scan.requirements import requirements
 from bcfpipe.scan.results import MaterialScan, StageScan
 from bcfpipe.scan.stage import scan_stage
 from bcfpipe.scan.composition import counted, mtlx_documents
@@ -222,17 +225,13 @@ def scan(scene: Path, variants: dict[str, str], all_materials: bool, materials: 
     repeated --variant, or a texture a build would read is refused (unreadable, NaN/Inf texels):
     the build's own one-line error follows the report on stderr.
     """
-    from bcfpipe.scan.requirements import requirements
-
     result = scan_stage(scene, variants or None, all_materials=all_materials, materials=materials,
                         binding_variants_too=True)
     cache: dict = {}
     grouping = group_materials(scene, variants, result.materials, cache, digest=False)
     everything = group_materials(scene, variants, result.materials, cache, digest=False, fold=False)
-    from bcfpipe.layout.predict import predict_specs
 
     reqs = requirements(grouping, everything, texel_density=texel_density, predict=predict_specs)
-    from bcfpipe.builder.plan import refusal, source_problems
 
     refusals = source_problems(grouping, cache)  # what plan and build refuse, in the same words
     if as_json:

@@ -9,11 +9,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
+from rich.console import Console
+from rich.table import Table
 
+from bcfpipe.cli.options import training_record
+from bcfpipe.export.material import make_config
+from bcfpipe.fit import rate
+from bcfpipe.fit import FitMode, fit
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
 from bcfpipe.cli.options import training_options
+from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 from bcfpipe.train.pace import LINE_SECONDS, Ticker
 
 if TYPE_CHECKING:
@@ -44,8 +51,6 @@ class _Reporter:
     EVERY = 5.0
 
     def __init__(self, quiet: bool, console=None, clock=time.monotonic):
-        from rich.console import Console
-
         self.console = console or Console(stderr=True)
         self.quiet = quiet
         self.live = self.console.is_terminal and not quiet
@@ -100,8 +105,6 @@ class _Reporter:
 
 def _table(res) -> "object":
     """The result (`FitResult`) as the table a person reads."""
-    from rich.table import Table
-
     m = res.metrics
     t = Table(title=f"{res.out}  (profile {res.profile}, preset {res.preset}, {res.device})")
     t.add_column("metric")
@@ -127,9 +130,6 @@ def _table(res) -> "object":
 
 def _load(textures, resolution: int | None, options, wrap: str):
     """The parsed specs and their texture set; a bad spec, file or option exits 2 in one line."""
-    from bcfpipe.export.material import make_config
-    from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
-
     try:
         specs = [TextureSpec.parse(t) for t in textures]
         ts = load_texture_set(specs, resolution=resolution, fix_nonfinite=options.fix_nonfinite)
@@ -144,8 +144,6 @@ def _anchors(report: dict | None, specs, options):
     set's source files exits 2."""
     if report is None:
         return None
-    from bcfpipe.texset.texture_set import TextureSpec
-    from bcfpipe.fit import rate
 
     anchors = rate.anchors_from_bench(report, [str(TextureSpec(s.semantic, Path(s.path).name, s.channels))
                                                for s in specs])
@@ -184,8 +182,6 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
     Exit codes: 0 ok (a missed --target-psnr included: the JSON and stderr say so), 1 training
     failed, 2 bad arguments or unreadable input.
     """
-    from bcfpipe.cli.options import training_record
-
     options, report = training_record(ctx)
     out = Path(output)
     if out.exists() and any(out.iterdir()) and not force:
@@ -195,8 +191,6 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
     quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False
     try:
         with _Reporter(quiet) as rep:
-            from bcfpipe.fit import FitMode, fit
-
             def said(text: str) -> None:
                 if not quiet:
                     rep.console.print(text, highlight=False)
@@ -215,6 +209,4 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
     if as_json:
         click.echo(json.dumps(record.to_json()))
     else:
-        from rich.console import Console
-
         Console().print(_table(record))

@@ -12,10 +12,15 @@ import time
 from dataclasses import dataclass
 
 import click
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+from rich.text import Text
 
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE
 from bcfpipe.train.pace import LINE_SECONDS, Ticker
+from bcfpipe.verify import checks as V
 
 __all__ = ["verify", "run_verify", "CheckSettings", "print_report", "material_line", "VerifyOutput"]
 
@@ -97,14 +102,10 @@ class VerifyOutput:
 
     def material(self, m) -> None:
         """One material: its line, or with ``verbose`` its checks and error tables."""
-        from rich.markup import escape
-        from rich.text import Text
-
         if not self.verbose:
             status = Text("PASS", style="green") if m.passed else Text("FAIL", style="red")
             self._print(Text.assemble(status, f" {m.name}  {material_line(m)}"), soft_wrap=True, highlight=False)
             return
-        from rich.table import Table
 
         status = "[green]PASS[/green]" if m.passed else "[red]FAIL[/red]"
         shares = f"; the texture set of {escape(m.shares)}, checked with it" if m.shares else ""
@@ -137,8 +138,6 @@ class VerifyOutput:
             if not self.headed:
                 self.header(report.renderer, report.tolerance)
             if report.gl_error:
-                from rich.markup import escape
-
                 self._print(f"[red]no OpenGL:[/red] {escape(report.gl_error)}", highlight=False)
             n_ok = sum(m.passed for m in report.materials)
             gap = "\n" if self.verbose else ""
@@ -160,8 +159,6 @@ class VerifyOutput:
 def print_report(report, console=None, verbose: bool = False) -> None:
     """The whole human-readable report: the header, one line per material (``verbose``: its
     checks, then the error table per channel and per group of sample points), the count."""
-    from rich.console import Console
-
     out = VerifyOutput(console or Console(), verbose)
     out.header(report.renderer, report.tolerance)
     for m in report.materials:
@@ -185,10 +182,6 @@ def run_verify(path: str, checks: CheckSettings = CheckSettings(), as_json: bool
                to_stderr: bool = False, verbose: bool = False, quiet: bool = False) -> int:
     """Verify ``path`` and print the report as it goes, with a heartbeat on stderr unless
     ``quiet``; returns the exit code (what `bcfpipe build --verify` calls)."""
-    from rich.console import Console
-
-    from bcfpipe.verify import checks as V
-
     out = VerifyOutput(None if as_json else Console(stderr=to_stderr), verbose,
                        None if quiet else Console(stderr=True))
     filter_bits = V.FILTER_BITS if checks.filter_bits is None else checks.filter_bits

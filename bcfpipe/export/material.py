@@ -9,6 +9,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.formats.sizes import disk_bytes
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
@@ -74,8 +75,6 @@ def shipped_files(out_dir: Path) -> list[Path]:
 
 def shipped_disk_bytes(out_dir: Path) -> int:
     """`shipped_files` on disk, each zstd-compressed (`formats.sizes.disk_bytes`)."""
-    from bcfpipe.formats.sizes import disk_bytes
-
     return disk_bytes([p.read_bytes() for p in shipped_files(out_dir)])
 
 

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from bcfpipe.formats import dds
+from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.formats import material as mf
 from bcfpipe.model import neural as M
@@ -35,6 +36,7 @@ from bcfpipe.formats.vocabulary import FeatureFormat
 from bcfpipe.model.features import codec_of
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_bytes, to_bytes, to_onnx
 from bcfpipe.formats.atomic import atomic_write
+from bcfpipe.pooltrace import trace_pool
 from bcfpipe.texset.texture_set import Channel, semantic_info
 
 def output_channels(channels: tuple[Channel, ...]) -> tuple[mf.Output, ...]:
@@ -124,8 +126,6 @@ class ExportedMaterial:
 def load(folder: str | os.PathLike) -> ExportedMaterial:
     """Read an exported material folder back (DDS through bcfpipe.bc6h or bcfpipe.bc7's decoder,
     fp16 weights)."""
-    from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
-
     folder = Path(folder)
     desc = mf.read(folder)
     levels = []
@@ -165,9 +165,7 @@ def onnx_session(em: ExportedMaterial):
     # onnxruntime otherwise writes a device id and a telemetry database under ~/.cache/Microsoft:
     # bcfpipe writes only to OUT and its cache
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
-    import onnxruntime as ort
-
-    from bcfpipe.pooltrace import trace_pool
+    import onnxruntime as ort  # lazy: start-up
 
     so = ort.SessionOptions()
     so.intra_op_num_threads = 1

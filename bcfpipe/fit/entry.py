@@ -22,6 +22,7 @@ import numpy as np
 
 from bcfpipe.config import TrainingOptions
 from bcfpipe.export.material import MaterialResult, train_material, make_config
+from bcfpipe.fit.rate import candidates, fit_to_target
 from bcfpipe.formats.fit_result import FitResult
 from bcfpipe.formats.vocabulary import T0
 from bcfpipe.layout.material import layout_material
@@ -79,7 +80,6 @@ def fit(ts: TextureSet, options: TrainingOptions, out: str | Path, *, wrap: str,
     name, cfg = make_config(ts, options, wrap)
     if mode == FitMode.NEURAL:
         return Fitted(train_material(ts, out, cfg, name, progress, coverage=coverage)[0], mode)
-    from bcfpipe.fit.rate import candidates, fit_to_target
 
     def train_one(setting, folder):
         n, c = make_config(ts, options.with_(profile=setting.profile, preset=setting.preset), wrap)

@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.bc7.decode import decode as bc7_decode
 from bcfpipe.formats import s3tc
 from bcfpipe.formats.vocabulary import StrEnum
 
@@ -38,12 +39,10 @@ def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, in
     """Blocks -> stored texels, (h, w, channels) float32 per level: UNORM in [0, 1] through bcfpipe's
     own decoders (`bcfpipe.formats.s3tc`, `bcfpipe.bc7`), BC6H's half floats through bcfpipe.bc6h's."""
     if fmt == ClassicFormat.BC6H:
-        from bcfpipe.bc6h import decode
+        from bcfpipe.bc6h import decode  # lazy: start-up
 
         return [decode(blocks, w, h, signed=False).astype(np.float32) for blocks, w, h in levels]
     if fmt == ClassicFormat.BC7:
-        from bcfpipe.bc7.decode import decode as bc7_decode
-
         return [bc7_decode(blocks, w, h) for blocks, w, h in levels]
     texels = {ClassicFormat.BC1: s3tc.bc1_texels, ClassicFormat.BC4: s3tc.bc4_texels,
               ClassicFormat.BC5: s3tc.bc5_texels}[fmt]

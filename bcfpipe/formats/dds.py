@@ -16,6 +16,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from bcfpipe.errors import InputError
+from bcfpipe.formats.atomic import atomic_write
 
 DXGI_FORMAT_BC6H_UF16 = 95
 DXGI_FORMAT_BC6H_SF16 = 96
@@ -136,8 +137,6 @@ def write(path: str | os.PathLike, levels: Sequence[Level], signed: bool = False
 
     The file is written to a temporary name and renamed, so a failure never leaves a partial file.
     """
-    from bcfpipe.formats.atomic import atomic_write
-
     atomic_write(Path(path), encode(levels, signed, dxgi_format))
 
 

@@ -88,7 +88,7 @@ def read(path: str | os.PathLike, *, as_float: bool = False, unassociated_alpha:
     file is missing, empty, not 2D, or OpenImageIO reports any decode error. ``as_float``: float32
     texels (integer files as UNORM in [0, 1]); else the stored type. ``unassociated_alpha``: keep
     stored (straight) colour where alpha < 1."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: start-up
 
     local = os.fspath(path)
     shown = name or local
@@ -132,7 +132,7 @@ def read(path: str | os.PathLike, *, as_float: bool = False, unassociated_alpha:
 def probe(path: str | os.PathLike) -> tuple[int, int, int, str] | None:
     """(width, height, channels, stored base type) from the header, or None when it cannot be
     opened (the decoder's own complaint is not printed: `read` reports the file)."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: start-up
 
     with _native_stderr([False]):
         inp = oiio.ImageInput.open(os.fspath(path))

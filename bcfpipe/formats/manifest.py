@@ -6,11 +6,13 @@ re-runs of ``bcfpipe build``) go through :func:`read`. Paths are relative to the
 """
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bcfpipe import __version__
 from bcfpipe.formats.vocabulary import Status
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.record import Record, optional, read as read_record
@@ -306,8 +308,6 @@ class Manifest(Record):
 
 
 def _version() -> str:
-    from bcfpipe import __version__
-
     return __version__
 
 
@@ -326,8 +326,6 @@ def _upgrade(data: dict) -> dict:
 
 def is_manifest(folder: str | os.PathLike) -> bool:
     """Whether ``folder`` holds a bcfpipe build manifest (of any version)."""
-    import json
-
     try:
         return json.loads((Path(folder) / FILE).read_text()).get("format") == FORMAT
     except (OSError, ValueError, AttributeError):

@@ -10,6 +10,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bcfpipe import __version__
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.formats.vocabulary import Source, Wrap, wrap_axes
 from bcfpipe.formats.record import FormatError, Record, optional, read as read_record
@@ -340,8 +341,6 @@ class MaterialFile(Record):
 
 
 def _version() -> str:
-    from bcfpipe import __version__
-
     return __version__
 
 

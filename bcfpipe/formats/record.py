@@ -15,6 +15,7 @@ import json
 import types
 import typing
 from functools import lru_cache
+from pathlib import Path
 from typing import Any, Callable, TypeVar
 
 from bcfpipe.errors import InputError
@@ -153,8 +154,6 @@ def read(cls: type[R], path, fmt: str | None = None, version: int | None = None,
     """Parse ``path`` as a ``cls`` record; a ``format``/``format_version`` mismatch is refused.
     ``compatible``: older versions also read, after ``upgrade`` (which gets the parsed JSON of an
     older version and returns it in this version's keys)."""
-    from pathlib import Path
-
     path = Path(path)
     try:
         data = json.loads(path.read_text())

@@ -24,7 +24,7 @@ def disk_bytes(blobs) -> int:
     """Bytes on disk of files whose contents are ``blobs`` (bytes or buffers), each compressed on its
     own by zstd at `DISK_ZSTD_LEVEL`, with no dictionary (issue 52: sizes are given twice, as GPU
     bytes, which the layout rule judges, and as these)."""
-    import zstandard
+    import zstandard  # lazy: start-up
 
     z = zstandard.ZstdCompressor(level=DISK_ZSTD_LEVEL)
     return sum(len(z.compress(bytes(memoryview(b).cast("B")))) for b in blobs)

@@ -23,6 +23,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from bcfpipe.resources import SCHEMA_DIR, data_dir
+
 __all__ = ["SCHEMA", "SHADER_ID", "schema_dir", "plugin_path_env", "register", "is_registered",
            "shader_defs", "shader_discovery_env", "register_shader_defs"]
 
@@ -32,8 +34,6 @@ SHADER_ID = "BcfNeuralMaterial"  # the Sdr node of schemas/shaders/BcfNeuralMate
 
 def schema_dir() -> Path:
     """The folder holding plugInfo.json, generatedSchema.usda and schema.usda."""
-    from bcfpipe.resources import SCHEMA_DIR, data_dir
-
     return data_dir(SCHEMA_DIR, "BCFPIPE_SCHEMAS", "plugInfo.json")
 
 
@@ -47,7 +47,7 @@ def plugin_path_env(existing: str | None = None) -> str:
 
 def is_registered() -> bool:
     """True when this process's USD schema registry knows BcfNeuralMaterialAPI."""
-    from pxr import Usd
+    from pxr import Usd  # lazy: start-up
 
     return Usd.SchemaRegistry().FindAppliedAPIPrimDefinition(SCHEMA) is not None
 
@@ -55,7 +55,7 @@ def is_registered() -> bool:
 def register() -> bool:
     """Register schemas/ with USD's plug-in registry; returns whether the schema is now usable
     (False when the schema registry was already built without it: see the module docstring)."""
-    from pxr import Plug
+    from pxr import Plug  # lazy: start-up
 
     Plug.Registry().RegisterPlugins(str(schema_dir()))
     return is_registered()
@@ -80,7 +80,7 @@ def register_shader_defs() -> list[str]:
     returns their identifiers: the in-process alternative to `shader_discovery_env` once the
     registry exists (node source type ``glsl``). A C++ host makes the same two calls
     (UsdShadeShaderDefUtils::GetDiscoveryResults, SdrRegistry::AddDiscoveryResult)."""
-    from pxr import Sdr, Usd, UsdShade
+    from pxr import Sdr, Usd, UsdShade  # lazy: start-up
 
     path = shader_defs()
     stage = Usd.Stage.Open(str(path))

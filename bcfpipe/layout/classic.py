@@ -15,15 +15,31 @@ set's, reference mips above R see level 0 magnified bilinearly, as a GPU samples
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from bcfpipe.config import DEFAULT_ENCODE, EncodePreset
+from bcfpipe.formats import dds
 from bcfpipe.formats.addressing import address
 from bcfpipe.formats.bcn import BLOCK_BYTES, ClassicFormat
+from bcfpipe.formats.bcn import DXGI
+from bcfpipe.formats.bcn import decode_levels
+from bcfpipe.formats.dds import HEADER_BYTES
+from bcfpipe.formats.sizes import disk_bytes as zstd_bytes
 from bcfpipe.formats.vocabulary import wrap_axes
+from bcfpipe.pooltrace import trace_pool
+from bcfpipe.texset import baselines as B
+from bcfpipe.texset import encoding
+from bcfpipe.texset.baselines import NORMAL_SLOPE, USD, pack_texture_set
+from bcfpipe.texset.metrics import mse_per_mip
+from bcfpipe.texset.normals import slope_normal
+from bcfpipe.texset.normals import rebuild_z
+from bcfpipe.texset.normals import slope_scale
+from bcfpipe.texset.normals import angular_stats, rebuild_z
+from bcfpipe.texset.parallel import encode_workers
 from bcfpipe.texset.texture_set import TextureSet
 
 
@@ -77,8 +93,6 @@ class EncodedGroup:
     @property
     def size_bytes(self) -> int:
         """Its DDS file's bytes (header included), as a layout's other files are counted."""
-        from bcfpipe.formats.dds import HEADER_BYTES
-
         return HEADER_BYTES + sum(self.level_bytes())
 
 
@@ -86,8 +100,6 @@ def groups(ts: TextureSet) -> tuple[Group, ...]:
     """The classic textures of ``ts``, in pack order: BC@R as a UsdUVTexture can read it
     (`baselines.USD`: a normal map as BC5 slopes; a colour in ``ts.vectors`` in its slots' order,
     named by its semantic)."""
-    from bcfpipe.texset.baselines import NORMAL_SLOPE, USD, pack_texture_set
-
     vectors = {tuple(chans): sem for sem, chans in ts.vectors}
     out = []
     for fmt, idx in pack_texture_set(ts, USD):
@@ -140,8 +152,6 @@ def encode_group(ts: TextureSet, group: Group, resolution: int, ref_mips: Sequen
     cols = list(group.channels)
     m = None
     if group.slope:
-        from bcfpipe.texset.normals import slope_scale
-
         m = slope_scale(ref_mips[d][..., cols])
     levels: list = []
     decoded = group_texels(ts, group, ref_mips[d:], levels, m, enc)
@@ -156,16 +166,10 @@ def disk_bytes_aside(g: EncodedGroup) -> None:
     """Start measuring ``g``'s bytes on disk in a thread beside what follows (zstd at level 19
     releases the GIL: 1.2 s for a 2048² BC1 file), when the job has a second core: ``g.disk`` is
     then a Future that `disk_bytes` resolves; else nothing (measured when asked)."""
-    from bcfpipe.texset.parallel import encode_workers
-
     if encode_workers() < 2 or g.disk is not None:
         return
     global _disk_pool
     if _disk_pool is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        from bcfpipe.pooltrace import trace_pool
-
         _disk_pool = ThreadPoolExecutor(1, thread_name_prefix="bcfpipe-disk-bytes")
         trace_pool("disk-bytes-thread", 1)
     g.disk = _disk_pool.submit(_file_disk_bytes, g.levels, g.group.format)
@@ -175,10 +179,6 @@ _disk_pool = None
 
 
 def _file_disk_bytes(levels, fmt: ClassicFormat) -> int:
-    from bcfpipe.formats import dds
-    from bcfpipe.formats.bcn import DXGI
-    from bcfpipe.formats.sizes import disk_bytes as zstd_bytes
-
     return zstd_bytes([dds.encode(levels, dxgi_format=DXGI[fmt])])
 
 
@@ -187,9 +187,6 @@ def usd_normals(levels: Sequence[tuple[np.ndarray, int, int]], shapes: Sequence[
     """A slope normal's (x, y, z) per reference mip as a UsdPreviewSurface reads it: the BC5 texels
     (magnified with ``wrap`` above the texture's resolution, as a GPU samples it) as (s_x, s_y, 1),
     s = (2t - 1) m, normalised (`normals.slope_normal`)."""
-    from bcfpipe.formats.bcn import decode_levels
-    from bcfpipe.texset.normals import slope_normal
-
     d = len(shapes) - len(levels)
     t = [x[..., :2] for x in decode_levels(ClassicFormat.BC5, levels)]
     return [slope_normal(magnify(t[0], h, w, wrap), m) for h, w in shapes[:d]] + [slope_normal(x, m) for x in t]
@@ -296,8 +293,6 @@ def group_texels(ts: TextureSet, group: Group, images: Sequence[np.ndarray], blo
     that ship it: each as set values in the group's slots (a slope normal: its (x, y, z) as USD
     reads it, with the whole level's ``slope_m``). With ``blocks``, each image's (blocks, w, h).
     ``enc``: the quality preset's encoder presets (`config.ENCODE_PRESETS`)."""
-    from bcfpipe.texset import baselines as B
-
     cols = list(group.channels)
     if group.format == ClassicFormat.BC7:
         scale, bias = (np.array(v, np.float32) for v in zip(*group.texel_map(ts)))
@@ -370,9 +365,6 @@ def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Seq
     """(mips, channels) MSE of BC@R, every channel from its group (over ``masks``' texels if given),
     as `mse_per_channel` gives it (an HDR channel in its learnt log domain); channel by channel on
     views, with no decoded set assembled (2.7 GiB at 8192² × 8 channels)."""
-    from bcfpipe.texset import encoding
-    from bcfpipe.texset.metrics import mse_per_mip
-
     out = np.zeros((len(ref_mips), ts.num_channels))
     for g in groups:
         for j, c in enumerate(g.group.channels):
@@ -392,9 +384,6 @@ def normal_z_errors(ts: TextureSet, g: EncodedGroup, ref_mips: Sequence[np.ndarr
     """Per mip, the MSE of a normal's z as USD reads it (``g.decoded``'s third column) against the
     reference's rebuilt z, at the normal's peak: half of it is added to x's and half to y's, so the
     normal's channels sum the whole vector's error (issue 57: the error counts z as USD reads it)."""
-    from bcfpipe.texset.metrics import mse_per_mip
-    from bcfpipe.texset.normals import rebuild_z
-
     x = ts.channels[g.group.channels[0]]
     return np.array(mse_per_mip([rebuild_z(r[..., list(g.group.channels)])[..., 2:] for r in ref_mips],
                                 [m[..., 2:3] for m in g.decoded], [x], None, masks))
@@ -404,8 +393,6 @@ def angular_errors(ts: TextureSet, g: EncodedGroup, ref_mips: Sequence[np.ndarra
                    mask: np.ndarray | None = None) -> tuple[float, float]:
     """(mean, p99) angle in degrees at reference mip ``mip`` between a slope normal as USD reads it
     and the reference (x, y and rebuilt z)."""
-    from bcfpipe.texset.normals import angular_stats, rebuild_z
-
     return angular_stats(rebuild_z(ref_mips[mip][..., list(g.group.channels)]), g.decoded[mip], mask)
 
 

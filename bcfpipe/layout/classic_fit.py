@@ -79,7 +79,7 @@ class ClassicWork:
         """``done`` of ``total`` texels encoded since ``start``: the ETA at the rate so far."""
         if self.progress is None:
             return
-        from bcfpipe.train.trainer import Progress
+        from bcfpipe.train.trainer import Progress  # lazy: start-up
 
         el = time.perf_counter() - start
         eta = el / done * (total - done) if done else float("nan")

@@ -22,6 +22,7 @@ import numpy as np
 
 from bcfpipe.config import DEFAULT_ENCODE, EncodePreset
 from bcfpipe.layout.classic import EncodedGroup, Group, channel_errors, group_texels, magnify, usd_normals
+from bcfpipe.texset.normals import slope_scale
 from bcfpipe.texset.texture_set import TextureSet
 
 FULL_BLOCKS = 16384  # a level of at most this many blocks (512² texels) is encoded whole
@@ -118,8 +119,6 @@ def estimate_errors(ts: TextureSet, groups: Sequence[Group], resolution: int, re
         levels: list = []
         m = None
         if g.slope:
-            from bcfpipe.texset.normals import slope_scale
-
             m = slope_scale(src[0][..., list(g.channels)])
         dec = group_texels(ts, g, refs[d:], levels, m, enc)
         if g.slope:  # read as a normal as `classic.encode_group` reads it

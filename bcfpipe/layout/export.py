@@ -6,6 +6,7 @@ deterministic for the same inputs (the build's cache relies on it), and material
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 import shutil
@@ -176,8 +177,6 @@ def decision_json(fit: LayoutFit) -> dict:
 def write_decision(out_dir: str | os.PathLike, fit: LayoutFit, normal_angle: dict | None = None) -> Path:
     """layout.json beside material.json: the candidates, the choice and why (informative); with
     ``normal_angle``, the shipped normal's angular error as it is read (`layout.material.normal_angles`)."""
-    import json
-
     path = Path(out_dir) / "layout.json"
     d = decision_json(fit)
     if normal_angle is not None:

@@ -19,15 +19,25 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from bcfpipe.config import TrainingOptions
+from bcfpipe.config import PROFILES
+from bcfpipe.config import max_t0_layers
 from bcfpipe.export.material import FIGURES, MaterialResult, train_material, make_config
+from bcfpipe.export.material import shipped_disk_bytes
+from bcfpipe.formats.dds import HEADER_BYTES
 from bcfpipe.formats.sizes import neural_bytes
 from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import EncodedGroup, disk_bytes, split_levels
 from bcfpipe.layout.classic_fit import ClassicFit, ClassicKinds
 from bcfpipe.layout.export import export_groups, export_split
+from bcfpipe.layout.oracle import cap
+from bcfpipe.layout.oracle import ORACLE_MARGIN_DB
+from bcfpipe.layout.oracle import magnified_errors
 from bcfpipe.layout.result import LayoutFit
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
+from bcfpipe.train.gains import profile_gain
+from bcfpipe.train.gains import probe_gains
+from bcfpipe.train.gains import t0_layer_gains
 from bcfpipe.train.trainer import ProgressFn
 
 
@@ -81,8 +91,6 @@ class FitContext:
 
     def gain(self, profile: str) -> float:
         """The measured gain of ``profile`` (`train.gains`); smoke is no rate-control preset: draft's stand in."""
-        from bcfpipe.train.gains import profile_gain
-
         preset = self.options.preset
         return profile_gain(profile, preset if preset in ("draft", "fast", "standard", "paper") else "draft")
 
@@ -93,15 +101,11 @@ class FitContext:
 
     def t0_mip(self, profile: str) -> int:
         """The reference mip T_0's level 0 serves at ``profile``."""
-        from bcfpipe.config import PROFILES
-
         t0 = PROFILES[profile][0] if profile in PROFILES else self.probe.resolutions[0]
         return max(0, (max(self.ts.width, self.ts.height) // t0).bit_length() - 1)
 
     def probe_gains(self) -> np.ndarray:
         """Per reference mip, what a full training at the preset asked gains over the probe (`train.gains`)."""
-        from bcfpipe.train.gains import probe_gains
-
         return np.array(probe_gains(self.options.preset, self.probe.mse_per_channel.shape[0], self.t0_mip(self.p0),
                                     self.most))
 
@@ -109,15 +113,11 @@ class FitContext:
         """(mips, channels) errors of the reference's ``t0``-sized mip magnified to each finer mip
         (`bcfpipe.layout.oracle`), 0 elsewhere."""
         if t0 not in self.oracles:
-            from bcfpipe.layout.oracle import magnified_errors
-
             self.oracles[t0] = magnified_errors(self.reference, t0, self.ts.channels, self.wrap)
         return self.oracles[t0]
 
     def width_gains(self, profile: str, width: int) -> np.ndarray:
         """Per reference mip, what ``width`` T_0 layers add over one at ``profile`` (`train.gains`)."""
-        from bcfpipe.train.gains import t0_layer_gains
-
         return np.array(t0_layer_gains(width, self.probe.mse_per_channel.shape[0], self.t0_mip(profile)))
 
     def neural_errors(self, profile: str, width: int = 1) -> np.ndarray:
@@ -125,9 +125,6 @@ class FitContext:
         trained in full at the preset asked: the probe's, moved per mip by what a full training
         gains over it, by the profiles' gain and by the widths', and held to the oracle at the
         mips finer than its T_0 (`bcfpipe.layout.oracle.cap`)."""
-        from bcfpipe.config import PROFILES
-        from bcfpipe.layout.oracle import cap
-
         db = (self.probe_gains() + self.gain(profile) - self.gain(self.p0)
               + self.width_gains(profile, width) - self.width_gains(self.p0, self.w0))
         t0 = PROFILES[profile][0] if profile in PROFILES else self.probe.resolutions[0]
@@ -135,8 +132,6 @@ class FitContext:
 
     def fits_width(self, channels: int, width: int) -> bool:
         """Whether a model of ``channels`` channels can hold ``width`` layers of components."""
-        from bcfpipe.config import max_t0_layers
-
         return width <= max_t0_layers(channels, self.options.features)
 
 
@@ -339,7 +334,6 @@ class MipSplit(Kind):
     def predict(self, ctx: FitContext) -> list[Weighed]:
         if ctx.forced:  # --classic keeps its groups classic at every mip
             return []
-        from bcfpipe.layout.oracle import ORACLE_MARGIN_DB
 
         halving = max(0.0, ctx.gain("1k") - ctx.gain("0.5k"))  # one halving of T_0
         out = []
@@ -418,8 +412,6 @@ def train_outside(ctx: FitContext, classic: Sequence[str], name: str, kind: Kind
 
 def split_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
     """Bytes of BC@R's groups cut to their first ``keep`` levels (headers included)."""
-    from bcfpipe.formats.dds import HEADER_BYTES
-
     return sum(HEADER_BYTES + sum(g.level_bytes()[:keep]) for g in groups)
 
 
@@ -431,8 +423,6 @@ def split_disk_bytes(groups: Sequence[EncodedGroup], keep: int) -> int:
 def model_disk_bytes(res: MaterialResult) -> int:
     """A trained model's files on disk, each zstd-compressed: the ones its GPU bytes count (feature
     DDS files and weights.bin; `export.material.exported_size`)."""
-    from bcfpipe.export.material import shipped_disk_bytes
-
     return shipped_disk_bytes(res.out_dir)
 
 

@@ -10,10 +10,14 @@ from typing import Callable
 
 from bcfpipe.config import TrainingOptions
 from bcfpipe.export.material import MaterialResult, evaluate_exported, exported_size
+from bcfpipe.formats import dds, material as mf
+from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
+from bcfpipe.layout.classic import magnify
 from bcfpipe.layout.export import decision_json, export_layout, write_decision
 from bcfpipe.layout.decide import decide_layout
 from bcfpipe.layout.predict import bc_resolution
 from bcfpipe.texset.chain import Reference
+from bcfpipe.texset.normals import angular_stats, rebuild_z, slope_normal
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
 
@@ -67,11 +71,6 @@ def normal_angles(folder: Path, ts: TextureSet, ref: np.ndarray, dec: np.ndarray
     shipped one as it is read: a classic normal stored as slopes as a UsdPreviewSurface reads it
     ((s_x, s_y, 1) normalised; level 0 magnified to the reference's size as it is sampled), else the
     decoder's x, y with z rebuilt, as the bcf context gives it. None without a normal."""
-    from bcfpipe.formats import dds, material as mf
-    from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
-    from bcfpipe.layout.classic import magnify
-    from bcfpipe.texset.normals import angular_stats, rebuild_z, slope_normal
-
     xy = [i for i, c in enumerate(ts.channels) if c.kind == "normal"]
     if len(xy) != 2:
         return None

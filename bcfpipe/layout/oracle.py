@@ -41,7 +41,7 @@ def magnified_errors(reference: Reference, t0: int, channels: Sequence[Channel],
     (0 at the mips no finer than it); a mip of more than ``sampled_above`` texels on one texel drawn in
     each 2×2 cell (`export.material.sampled_texels`): on the teapot and the brick within 0.07 dB of every
     texel's per channel (0.04 over all channels), at a third of the time."""
-    from bcfpipe.export.material import sampled_texels
+    from bcfpipe.export.material import sampled_texels  # lazy: start-up
 
     ref, masks = reference.mips, reference.masks
     side = max(ref[0].shape[:2])

@@ -15,10 +15,23 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Sequence
 
+import numpy as np
+
 from bcfpipe.config import PROFILES
+from bcfpipe.config import LAYER_CHANNELS_OF, N_LAYERS, resolve_profile
+from bcfpipe.config import DEFAULT_T0, max_t0_layers
+from bcfpipe.formats import weights as W
+from bcfpipe.formats.display import bytes_range
+from bcfpipe.formats.display import bytes_text
 from bcfpipe.formats.sizes import feature_bytes, neural_bytes, texture_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
+from bcfpipe.formats.vocabulary import FeatureFormat
+from bcfpipe.formats.vocabulary import T0, FeatureFormat
 from bcfpipe.layout.classic import bc_levels, named_groups
+from bcfpipe.layout.classic import MAX_REPACK_SIDE, bc7_quality_set, repacks, split_levels
+from bcfpipe.layout.classic import groups as classic_groups
+from bcfpipe.texset.texture_set import Channel, TextureSet, semantic_info
+from bcfpipe.train.gains import CPU_PROFILES, GPU_PROFILES
 
 if TYPE_CHECKING:  # annotations only: the texture set module loads images
     from bcfpipe.texset.texture_set import TextureSet
@@ -27,8 +40,6 @@ if TYPE_CHECKING:  # annotations only: the texture set module loads images
 def candidate_profiles(asked: str, device: str) -> list[str]:
     """Paper profiles no larger than ``asked``, largest first; a small source's own profile
     (``auto-N``) alone."""
-    from bcfpipe.train.gains import CPU_PROFILES, GPU_PROFILES
-
     if asked not in PROFILES:
         return [asked]
     pool = GPU_PROFILES if device.startswith("cuda") else CPU_PROFILES
@@ -80,16 +91,12 @@ class LayoutPrediction:
 
     def size_text(self) -> str:
         """``X MiB`` when exact, else ``X–Y MiB`` (KiB for small sets: `display.bytes_range`)."""
-        from bcfpipe.formats.display import bytes_range
-
         return bytes_range(self.min_bytes, self.max_bytes)
 
     def probe_text(self) -> str:
         """What the probe is and why, as scan and plan say it: the largest profile within BC@R's
         bytes, the smallest when none is (it then measures the neural part of a mip split or a
         mixed layout), or no probe at all when nothing neural can fit."""
-        from bcfpipe.formats.display import bytes_text
-
         bc = bytes_text(self.bc_bytes)
         if self.probe is None:
             return (f"no probe: nothing neural fits within BC@R's {bc} (not even the smallest features), "
@@ -130,8 +137,6 @@ class Query:
 
 def predict(q: Query) -> LayoutPrediction:
     """The prediction for the set and job ``q`` describes."""
-    from bcfpipe.layout.classic import MAX_REPACK_SIDE, bc7_quality_set, repacks, split_levels
-
     groups, asked, asked_resolutions, resolution, layout = q.groups, q.asked, q.asked_resolutions, q.resolution, q.layout
     levels = bc_levels(q.width, q.height, resolution)
     by_group = {g.name: texture_bytes(g.format, levels) for g in groups}
@@ -190,10 +195,6 @@ def spec_texture_set(specs: Sequence[tuple[str, str, str]], width: int, height: 
     """A texture set of ``specs`` ((semantic, file, channels)) with no texels (a broadcast zero):
     enough for `classic.groups`. A colour read from one of ``hdr_files`` counts as HDR (BC6H);
     ``vectors``: the job's colours kept in their slots (TextureSet.vectors)."""
-    import numpy as np
-
-    from bcfpipe.texset.texture_set import Channel, TextureSet, semantic_info
-
     chans = []
     for sem, path, letters in specs:
         info = semantic_info(sem)
@@ -211,10 +212,6 @@ def predict_specs(specs: Sequence[tuple[str, str, str]], float_files: Sequence[s
     manifest.Options or TrainingOptions): None under ``--target-psnr`` (rate control sizes it). A
     colour from one of ``float_files`` may be HDR (BC6H, twice BC1's bytes) or not, which only its
     texels say: the prediction then spans both."""
-    from bcfpipe.config import LAYER_CHANNELS_OF, N_LAYERS, resolve_profile
-    from bcfpipe.formats.vocabulary import FeatureFormat
-    from bcfpipe.layout.classic import groups as classic_groups
-
     if options.target_psnr is not None or not width:
         return None
     side = max(width, height)
@@ -239,9 +236,6 @@ def widths_of(options, layout: str, n_channels: int) -> tuple[int, ...]:
     when given (capped at the set's components), one layer for --layout neural or a trained T_0,
     else every width from 1 to as many layers as the set has components (`config.max_t0_layers`).
     ``options``: a TrainingOptions or a manifest's Options."""
-    from bcfpipe.config import DEFAULT_T0, max_t0_layers
-    from bcfpipe.formats.vocabulary import T0, FeatureFormat
-
     features = FeatureFormat(options.features or FeatureFormat.BC7)
     top = max_t0_layers(n_channels, features)
     if T0(options.t0 or DEFAULT_T0[features]) != T0.PCA:
@@ -268,8 +262,6 @@ def merge(preds: Sequence[LayoutPrediction]) -> LayoutPrediction:
 def build_range(preds: Sequence[LayoutPrediction]) -> tuple[int, int]:
     """The bytes a build of these jobs writes, as its manifest totals them: every job's range and
     weights.bin's header, table and record alignment (bcfpipe.formats.weights.pack)."""
-    from bcfpipe.formats import weights as W
-
     n = len(preds)
     low = sum(p.min_bytes for p in preds) + W.align_up(W.HEADER.size)
     high = sum(p.max_bytes for p in preds) + W.align_up(W.HEADER.size + W.ENTRY.size * n) + n * (W.ALIGN - 1)

@@ -174,8 +174,8 @@ def decode_numpy(w: MlpWeights, feats: np.ndarray, kinds: tuple[str, ...]) -> np
 
 def to_onnx(w: MlpWeights, kinds: tuple[str, ...], name: str = "bcf_decoder"):
     """An onnx.ModelProto of the full decoder: features (N, n_in) float32 -> channels (N, c_out)."""
-    import onnx
-    from onnx import TensorProto, helper, numpy_helper
+    import onnx  # lazy: start-up
+    from onnx import TensorProto, helper, numpy_helper  # lazy: start-up
 
     n_in, hidden, n_out = w.dims
     lo, hi = output_ranges(kinds)

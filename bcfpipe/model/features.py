@@ -20,7 +20,16 @@ from typing import Callable, Generic, Iterator, Mapping, Sequence, TypeVar
 import numpy as np
 import torch
 
+from bcfpipe.bc6h import emulate
+from bcfpipe.bc6h import mode10
+from bcfpipe.bc6h import quick
+from bcfpipe.bc6h.encode import encode_params
+from bcfpipe.bc7 import decode_to_u8
+from bcfpipe.bc7 import emulate as bc7_emulate
+from bcfpipe.bc7 import mode6
+from bcfpipe.bc7.encode import encode_params as bc7_encode_params
 from bcfpipe.config import ModelConfig
+from bcfpipe.formats import dds
 from bcfpipe.formats.vocabulary import FeatureFormat
 
 __all__ = ["FeatureCodec", "BlockParams", "QuantizedLevel", "FixedLevel", "Layers", "codec_of", "endpoint_value",
@@ -62,8 +71,6 @@ class FixedLevel:
 
     def texels(self, device) -> torch.Tensor:
         """Every texel (n, 16, C) of its blocks in [0, 1], bit-exact as written (bcfpipe.bc7's decode)."""
-        from bcfpipe.bc7 import decode_to_u8
-
         return torch.as_tensor(decode_to_u8(self.blocks).astype(np.float32) / np.float32(255.0), device=device)
 
 
@@ -189,18 +196,13 @@ def _bc6h_start(texels, signed: bool, lib):
     (the same blocks but for a few in a thousand, where float sums taken in another order tip a
     choice)."""
     if lib is not None and _BC6H_NATIVE and _BC6H_START["refine_top"] == 1:
-        from bcfpipe.bc6h import quick
-
         return quick.encode_params(texels, signed, lib, rounds=_BC6H_START["rounds"], window=_BC6H_START["window"])
-    from bcfpipe.bc6h.encode import encode_params
 
     return encode_params(texels, signed=signed, **_BC6H_START)
 
 
 def endpoint_value(p: torch.Tensor, signed: bool = False) -> torch.Tensor:
     """Smooth texel value of a constant BC6H block with endpoint ``p`` (continuous 6-bit domain)."""
-    from bcfpipe.bc6h import emulate
-
     u = emulate.unquantize(p, signed=signed)
     return emulate.half_from_bits(u * (31.0 / 32.0 if signed else 31.0 / 64.0))
 
@@ -232,16 +234,12 @@ class _BC6H(FeatureCodec):
         return endpoint_value(p, mc.signed)
 
     def encode(self, texels, mc, device, lib=None):
-        from bcfpipe.bc6h import emulate
-
         e, idx, part = _bc6h_start(texels, mc.signed, lib)
         return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
                            (torch.as_tensor(idx, dtype=torch.float32, device=device) / 7.0).requires_grad_(True),
                            emulate.partition_mask(part, device=device), np.asarray(part))
 
     def texels(self, b, blk, pos, mc, quantized):
-        from bcfpipe.bc6h import emulate
-
         e = b.endpoints[blk]  # (M, 4, 3)
         m = b.mask[blk, pos].unsqueeze(1)
         ea = torch.where(m, e[:, 2], e[:, 0])
@@ -249,30 +247,20 @@ class _BC6H(FeatureCodec):
         return emulate.decode_texels(ea, eb, b.x[blk, pos], mc.signed, quantized)
 
     def decode_blocks(self, b, mc, quantized):
-        from bcfpipe.bc6h import emulate
-
         return emulate.decode_blocks(b.endpoints, b.x, b.mask, signed=mc.signed, quantized=quantized)
 
     def quantize(self, b, mc, size):
-        from bcfpipe.bc6h import emulate
-
         e, idx, part = emulate.to_params(b.endpoints, b.x, b.partition, signed=mc.signed)
         return QuantizedLevel(e, idx, part, size)
 
     def exact(self, q, mc, device):
-        from bcfpipe.bc6h import emulate
-
         e, x, mask, _ = emulate.from_params(q.endpoints, q.indices, q.partition, device=device)
         return emulate.decode_blocks(e, x, mask, signed=mc.signed, quantized=True)
 
     def pack(self, q, mc):
-        from bcfpipe.bc6h import mode10
-
         return mode10.pack(q.endpoints, q.indices, q.partition, signed=mc.signed)
 
     def dxgi_format(self, mc):
-        from bcfpipe.formats import dds
-
         return dds.DXGI_FORMAT_BC6H_SF16 if mc.signed else dds.DXGI_FORMAT_BC6H_UF16
 
 
@@ -299,48 +287,34 @@ class _BC7(FeatureCodec):
         return p / 255.0
 
     def encode(self, texels, mc, device, lib=None):
-        from bcfpipe.bc7.encode import encode_params
-
         h, w, c = texels.shape
         blocks = texels.reshape(h // 4, 4, w // 4, 4, c).transpose(0, 2, 1, 3, 4).reshape(-1, 16, c)
-        e, idx = encode_params(blocks, rounds=_BC7_START_ROUNDS)
+        e, idx = bc7_encode_params(blocks, rounds=_BC7_START_ROUNDS)
         return BlockParams(torch.as_tensor(e, dtype=torch.float32, device=device).requires_grad_(True),
                            (torch.as_tensor(idx, dtype=torch.float32, device=device) / 15.0).requires_grad_(True))
 
     def texels(self, b, blk, pos, mc, quantized):
-        from bcfpipe.bc7 import emulate
-
         e = b.endpoints[blk]  # (M, 2, 4)
-        return emulate.decode_texels(e[:, 0], e[:, 1], b.x[blk, pos], quantized)
+        return bc7_emulate.decode_texels(e[:, 0], e[:, 1], b.x[blk, pos], quantized)
 
     def decode_blocks(self, b, mc, quantized):
-        from bcfpipe.bc7 import emulate
-
-        return emulate.decode_blocks(b.endpoints, b.x, quantized)
+        return bc7_emulate.decode_blocks(b.endpoints, b.x, quantized)
 
     def quantize(self, b, mc, size):
         """The values quantization-aware decoding uses (the same float32 arithmetic), as integers."""
-        from bcfpipe.bc7 import emulate
-
         with torch.no_grad():
-            e = emulate.quantize_endpoints(b.endpoints.detach()).cpu().numpy().astype(np.uint8)
-            idx = torch.round(b.x.detach().clamp(0.0, 1.0) * emulate.LEVELS).cpu().numpy().astype(np.uint8)
+            e = bc7_emulate.quantize_endpoints(b.endpoints.detach()).cpu().numpy().astype(np.uint8)
+            idx = torch.round(b.x.detach().clamp(0.0, 1.0) * bc7_emulate.LEVELS).cpu().numpy().astype(np.uint8)
         return QuantizedLevel(e, idx, None, size)
 
     def exact(self, q, mc, device):
-        from bcfpipe.bc7 import mode6
-
         u8 = mode6.interpolate(q.endpoints, q.indices)
         return torch.as_tensor(u8.astype(np.float32) / np.float32(255.0), device=device)
 
     def pack(self, q, mc):
-        from bcfpipe.bc7 import mode6
-
         return mode6.pack(q.endpoints, q.indices)
 
     def dxgi_format(self, mc):
-        from bcfpipe.formats import dds
-
         return dds.DXGI_FORMAT_BC7_UNORM
 
 

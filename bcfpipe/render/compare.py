@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bcfpipe.formats.atomic import write_atomically
+
 __all__ = ["Difference", "difference", "to_srgb8", "heat_map", "side_by_side", "write_png", "BACKGROUND"]
 
 BACKGROUND = (0.05, 0.05, 0.055)  # linear, where nothing was drawn
@@ -76,9 +78,7 @@ def side_by_side(*panels: np.ndarray) -> np.ndarray:
 
 def write_png(path: str | os.PathLike, rgb8: np.ndarray) -> None:
     """An 8-bit sRGB PNG, written through a temporary sibling and a rename (no partial file)."""
-    import OpenImageIO as oiio
-
-    from bcfpipe.formats.atomic import write_atomically
+    import OpenImageIO as oiio  # lazy: start-up
 
     h, w, c = rgb8.shape
     spec = oiio.ImageSpec(w, h, c, oiio.UINT8)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bcfpipe.formats import dds
+from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
 
 __all__ = ["DecodedTexture", "read_dds", "is_dds"]
 
@@ -33,13 +34,11 @@ def is_dds(path: str) -> bool:
 
 
 def _decode(tex: dds.DdsTexture) -> tuple[list[np.ndarray], bool]:
-    from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
-
     if tex.dxgi_format in FORMAT_OF:
         levels = decode_levels(FORMAT_OF[tex.dxgi_format], tex.levels)
         return levels, "BC6H" not in tex.format_name
     if tex.dxgi_format in (dds.DXGI_FORMAT_BC6H_UF16, dds.DXGI_FORMAT_BC6H_SF16):
-        from bcfpipe.bc6h import decode
+        from bcfpipe.bc6h import decode  # lazy: start-up
 
         return [decode(b, w, h, signed=tex.signed).astype(np.float32) for b, w, h in tex.levels], False
     raise dds.DdsError(f"DXGI format {tex.dxgi_format} ({tex.format_name}) has no decoder here")

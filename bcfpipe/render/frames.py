@@ -14,6 +14,7 @@ from bcfpipe.render.raster import Lighting, Renderer
 from bcfpipe.render.scene import Batch, View, framing_view, read_batches, usd_camera_view
 from bcfpipe.render.surfaces import Surface, read_surface
 from bcfpipe.scan.composition import captured_diagnostics, composition_errors, new_diagnostics, open_stage
+from bcfpipe.verify.glsl import open_runtime
 
 __all__ = ["Frame", "Scene", "load_scene", "render_frames", "NEURAL", "ORIGINAL"]
 
@@ -117,8 +118,6 @@ def renderer_for(runtime, scene: Scene, kind: str, width: int, height: int,
 def render_frames(scene: Scene, width: int, height: int, runtime=None,
                   lighting: Lighting = Lighting()) -> dict[str, Frame]:
     """Render ``scene`` once per kind it holds surfaces for."""
-    from bcfpipe.verify.glsl import open_runtime
-
     rt = runtime or open_runtime()
     try:
         frames = {}

@@ -12,14 +12,19 @@ from __future__ import annotations
 
 import math
 import tempfile
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from bcfpipe.formats import images
 from bcfpipe.formats.addressing import wrap_codes
+from bcfpipe.formats.images import channel_index as source_channel_index
 from bcfpipe.formats.vocabulary import ColorSpace, Wrap
 from bcfpipe.errors import InputError
 from bcfpipe.formats import dds
+from bcfpipe.render.dds_texture import is_dds
+from bcfpipe.render.dds_texture import read_dds
 from bcfpipe.render.scene import Batch, View
 from bcfpipe.render.surfaces import COMPONENTS, MAX_TEXTURES, MIN_LAYERS, TEXTURE_SOURCE, Surface
 from bcfpipe.scan.results import Transform2d
@@ -174,12 +179,9 @@ class Renderer:
         key = (path, wrap, color_space)
         if key in self._originals:
             return self._originals[key]
-        from bcfpipe.render.dds_texture import is_dds
 
         if is_dds(path):
             return self._dds_texture(key)
-        from bcfpipe.formats import images
-        from bcfpipe.formats.images import channel_index as source_channel_index
 
         im = images.read(local_file(path, self._tmp.name), as_float=True, unassociated_alpha=True, name=path)
         px, names = im.pixels, im.names
@@ -214,8 +216,6 @@ class Renderer:
         """A DDS (a layout's classic texture): its stored mips decoded by bcfpipe's decoders and
         uploaded as they are (RGBA8 for UNORM formats, exact; RGBA16F for BC6H), no mips generated;
         the lod clamps to the mips it has (a mip split's DDS stops at its split)."""
-        from bcfpipe.render.dds_texture import read_dds
-
         path, wrap, color_space = key
         dec = read_dds(local_file(path, self._tmp.name))
         srgb = resolved_color_space(color_space, dec.channels, "uint8" if dec.unorm else "half") == ColorSpace.SRGB
@@ -327,8 +327,6 @@ class Renderer:
 
     def frame_time(self, view: View) -> tuple[float, float | None]:
         """(wall seconds of one frame up to glFinish, GPU seconds from a GL timer query or None)."""
-        import time
-
         self.rt.ctx.__enter__()
         self.ctx.finish()
         query = None

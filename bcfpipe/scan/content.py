@@ -22,7 +22,11 @@ from dataclasses import dataclass
 import numpy as np
 import xxhash
 
+from bcfpipe.formats import images
+from bcfpipe.formats.addressing import address
+from bcfpipe.formats.images import channel_index as source_channel_index
 from bcfpipe.formats.vocabulary import wrap_axes
+from bcfpipe.scan.sources import local_file
 
 INTEGER_STEP = 1.0 / 255.0
 
@@ -52,9 +56,6 @@ def _step(arr: np.ndarray, lo: float, hi: float) -> float:
 def read_stored(path: str) -> tuple[np.ndarray, tuple[str, ...]]:
     """The texels of a resolved path at their stored type, (H, W, C), and its channel names; colour
     as stored (unassociated alpha), as the training loader and Hydra read it."""
-    from bcfpipe.formats import images
-    from bcfpipe.scan.sources import local_file
-
     with tempfile.TemporaryDirectory() as tmp:
         im = images.read(local_file(path, tmp), unassociated_alpha=True, name=path)
     return im.pixels, im.names
@@ -82,8 +83,6 @@ def content_of(path: str, letter: str, cache: dict, file_hash: str = "", facts=N
     with the texture-set loader's channel mapping; each file is read once per ``cache``, and not
     at all when ``facts`` (a bcfpipe.cache.facts.FactsStore that outlives the run) holds the facts
     of its ``file_hash`` (XXH3-128 of its bytes)."""
-    from bcfpipe.formats.images import channel_index as source_channel_index
-
     key = (path, "content")
     if key not in cache:
         facts = facts if file_hash else None
@@ -113,10 +112,6 @@ def sample_at(path: str, letter: str, st: tuple[float, float], wrap, cache: dict
     """The value (stored units) that a UsdUVTexture reading ``path`` gives at one ``st``: bilinear
     between texel centres, v = 1 - t, addressed with ``wrap`` (one mode or (S, T): repeat, clamp,
     mirror; mip 0: a constant st has no footprint)."""
-    from bcfpipe.formats.addressing import address
-
-    from bcfpipe.formats.images import channel_index as source_channel_index
-
     key = (path, "texels")
     if key not in cache:
         cache[key] = read_stored(path)

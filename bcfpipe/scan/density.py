@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from dataclasses import replace
 from typing import TYPE_CHECKING, Iterable
 
 import numpy as np
 
+from bcfpipe.config import PROFILES
 from bcfpipe.scan.values import numbers
 
 if TYPE_CHECKING:
@@ -106,7 +108,7 @@ def _transform2d(st: np.ndarray, xf) -> np.ndarray:
 def mesh_areas(prim, varname: str, faces: np.ndarray | None, meters_per_unit: float,
                transform=None) -> tuple[MeshDensity | None, str | None]:
     """(areas, None) of a mesh prim's faces (all, or the GeomSubset's ``faces``), or (None, note)."""
-    from pxr import Usd, UsdGeom
+    from pxr import Usd, UsdGeom  # lazy: start-up
 
     mesh = UsdGeom.Mesh(prim)
     path = str(prim.GetPath())
@@ -176,9 +178,9 @@ def required_resolution(md: MaterialDensity, texel_density: float) -> int | None
 def material_bindings(stage, gprims) -> dict[str, list[tuple[object, np.ndarray | None]]]:
     """Definition path of each material -> the rendered (mesh prim, faces or None) bound to it
     (preview purpose, which falls back to all-purpose bindings; materialBind GeomSubsets first)."""
-    from pxr import UsdShade
+    from pxr import UsdShade  # lazy: start-up
 
-    from bcfpipe.scan.composition import definition_path
+    from bcfpipe.scan.composition import definition_path  # lazy: start-up
 
     out: dict[str, list] = {}
     for g in gprims:
@@ -205,7 +207,7 @@ def material_bindings(stage, gprims) -> dict[str, list[tuple[object, np.ndarray 
 def job_size(sources: Iterable[SourceFile], resolution: int | None) -> tuple[int, int]:
     """(width, height) of a texture set: its sources' common size, or, under a density cap, that
     size scaled so that its larger side is ``resolution``."""
-    from bcfpipe.scan.sources import common_resolution
+    from bcfpipe.scan.sources import common_resolution  # lazy: start-up
 
     sizes = [(s.width, s.height) for s in sources]
     if not sizes or any(w < 1 or h < 1 for w, h in sizes):  # an unreadable header: training will say why
@@ -221,10 +223,6 @@ def density_options(options: "Options", models) -> "Options":
     """The job's options under ``options.texel_density``: the largest resolution any member needs
     (no cap when a member has no density figure, or needs the source itself); the profile drops to
     what fits that resolution when it asked for more."""
-    from dataclasses import replace
-
-    from bcfpipe.config import PROFILES
-
     if options.texel_density is None:
         return options
     needs = [required_resolution(mm.density, options.texel_density) if mm.density else None for mm in models]

@@ -20,7 +20,7 @@ def instance_proxies(scene, variants: Mapping[str, str], paths: Sequence[str]) -
     """Which of ``paths`` are instance proxies on the composed stage (overrides cannot reach them)."""
     if not paths:
         return set()
-    from bcfpipe.scan.composition import apply_variants, captured_diagnostics, open_stage
+    from bcfpipe.scan.composition import apply_variants, captured_diagnostics, open_stage  # lazy: start-up
 
     with captured_diagnostics():  # the scan reported them already: not again, raw, on stderr
         stage = open_stage(scene)

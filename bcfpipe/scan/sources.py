@@ -13,6 +13,7 @@ from typing import Iterable
 
 import xxhash
 
+from bcfpipe.formats.images import probe
 from bcfpipe.formats.vocabulary import ColorSpace
 
 
@@ -42,7 +43,7 @@ def read_asset(path: str) -> bytes:
     """The bytes of a resolved texture path (a plain file, or a file inside a package via Ar)."""
     if package_split(path) is None:
         return Path(path).read_bytes()
-    from pxr import Ar
+    from pxr import Ar  # lazy: start-up
 
     asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(path))
     if asset is None:
@@ -81,8 +82,6 @@ def local_file(path: str, tmp_dir: str | os.PathLike) -> str:
 
 def _probe(path: str) -> tuple[int, int, int, str]:
     """(width, height, channels, base type) from the image header; zeros when unreadable."""
-    from bcfpipe.formats.images import probe
-
     with tempfile.TemporaryDirectory() as tmp:
         found = probe(local_file(path, tmp))
     return found if found is not None else (0, 0, 0, "unreadable")

@@ -5,12 +5,16 @@ these modules, so they agree on what is modelled."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping, Sequence
 
 from bcfpipe.formats.vocabulary import ColorSpace, Wrap, wrap_name
 from bcfpipe.errors import one_line
 from bcfpipe.formats.images import ImageReadError, MissingChannel
+from bcfpipe.scan.content import ChannelContent, content_of
+from bcfpipe.scan.content import srgb_to_linear
+from bcfpipe.scan.content import ChannelContent, sample_at
 from bcfpipe.scan.sources import SourceFile, common_resolution, source_file
 
 if TYPE_CHECKING:  # pxr and torch load lazily: `import bcfpipe` stays cheap
@@ -123,8 +127,6 @@ def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash
     """The channel's content; alpha = 1 for the ``a`` of a file without alpha (as Hydra reads it);
     for a file whose texels cannot be read, a content that is neither constant nor a duplicate of
     anything (training will report the file)."""
-    from bcfpipe.scan.content import ChannelContent, content_of
-
     try:
         return content_of(path, letter, cache, file_hash, facts)
     except MissingChannel:
@@ -141,8 +143,6 @@ def _content(path: str, letter: str, cache: dict, warnings: list[str], file_hash
 def _at(path: str, letter: str, st, wraps, cache: dict, warnings: list[str], content):
     """A constant content holding the texture's value at ``st`` (the ``unread`` fold), or
     ``content`` unchanged when the texels cannot be read."""
-    from bcfpipe.scan.content import ChannelContent, sample_at
-
     try:
         v = sample_at(path, letter, tuple(st), modelled_wrap(wraps), cache)
     except ImageReadError:
@@ -182,8 +182,6 @@ def material_wrap(wraps: Sequence[tuple[str, tuple[Wrap, Wrap]]]) -> tuple[tuple
 
 
 def _decode(value: float, color_space: str) -> float:
-    from bcfpipe.scan.content import srgb_to_linear
-
     return srgb_to_linear(value) if color_space == ColorSpace.SRGB else value
 
 
@@ -288,7 +286,7 @@ def _add_targets(inp, tex, src: SourceFile, uses, keys: list[ModelChannel | None
 def _add_fallback(inp, tex, m: _Model) -> None:
     """The constants of an input whose UsdUVTexture gives its fallback (no file, or one that does
     not resolve): the fallback's components, unscaled, as Hydra outputs them."""
-    from bcfpipe.scan.network import texture_targets  # network loads pxr: `import bcfpipe` stays cheap
+    from bcfpipe.scan.network import texture_targets  # network loads pxr: `import bcfpipe` stays cheap - lazy: start-up
 
     for channel, target in texture_targets(inp.name, tex.channel):
         m.constants.append(ConstantTarget(target, inp.name, tex.fallback_value(channel), "", channel))
@@ -337,8 +335,6 @@ def material_model(ms: MaterialScan, file_cache: dict, digest: bool = True, cano
     mm = MaterialModel(m.channels, m.specs, m.targets, m.sources, (str(wrap[0]), str(wrap[1])), st, list(dict.fromkeys(m.warnings)),
                        m.constants, m.folded)
     if ms.density is not None:
-        from dataclasses import replace
-
         mm.density = replace(ms.density, source_size=mm.source_size)
     return mm
 

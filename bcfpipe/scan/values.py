@@ -13,7 +13,7 @@ __all__ = ["is_unregistered", "numbers", "number"]
 
 def is_unregistered(value: Any) -> bool:
     """Whether ``value`` is what USD returns for a type name it does not know."""
-    from pxr import Sdf
+    from pxr import Sdf  # lazy: start-up
 
     return isinstance(value, Sdf.UnregisteredValue)
 

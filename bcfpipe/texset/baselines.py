@@ -33,7 +33,14 @@ import tempfile
 from typing import Sequence
 
 import numpy as np
+import xxhash
 
+from bcfpipe.formats.bcn import decode_levels
+from bcfpipe.formats.bcn import ClassicFormat
+from bcfpipe.texset.blocks import store as blocks_store
+from bcfpipe.texset.normals import slope_normal, slope_scale, slope_texels
+from bcfpipe.texset.parallel import quicktex_level
+from bcfpipe.texset.parallel import threaded_bands
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["from_storage", "encode_texture", "bilinear_up", "parse_block", "bc1_mips", "bc4_mips", "bc5_mips", "astc_mips", "encode_texture_set_baseline",
@@ -81,10 +88,6 @@ def _cached_levels(tag: str, mips: Sequence[np.ndarray], texels=None) -> tuple[o
     """(the build's blocks cache or None, the key of ``mips``' texels under encoder ``tag``, the
     levels' blocks recorded under it or None). The texels keyed are what the encoder reads:
     ``texels(mip)``, by default the padded 8-bit RGBA."""
-    import xxhash
-
-    from bcfpipe.texset.blocks import store as blocks_store
-
     cache = blocks_store()
     if cache is None:
         return None, "", None
@@ -104,10 +107,7 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], fmt, tag: str, channels: int
     (n, block_bytes) uint8 array, width, height), ready for a GPU upload. Inside a build with a
     cache (bcfpipe.texset.blocks), blocks already encoded from the same texels by the same encoder
     (``tag`` names it and its settings) are read back instead of encoded again."""
-    import quicktex
-
-    from bcfpipe.formats.bcn import decode_levels
-    from bcfpipe.texset.parallel import quicktex_level
+    import quicktex  # lazy: start-up
 
     cache, key, levels = _cached_levels(f"{tag}|quicktex {quicktex.__version__}|{block_bytes}", mips)
     encoded = []
@@ -132,8 +132,6 @@ def _quicktex_roundtrip(mips: Sequence[np.ndarray], fmt, tag: str, channels: int
 def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL,
              blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC1-encode and decode every (H, W, 3) mip; returns (decoded mips, bytes)."""
-    from bcfpipe.formats.bcn import ClassicFormat
-
     _check_mips(mips_rgb, 3, "bc1")
     return _quicktex_roundtrip(mips_rgb, ClassicFormat.BC1, f"bc1 level {level}", 3, 8, blocks)
 
@@ -155,7 +153,7 @@ BC7_SETTINGS = BC7_PROFILES["basic"]  # what the BC7 quality set, a PCA T_0 and 
 
 def bc7_settings(profile: str = "basic"):
     """ISPC's BC7 settings of `BC7_PROFILES` ``profile``."""
-    import ispc_texcomp as ispc
+    import ispc_texcomp as ispc  # lazy: start-up
 
     s = BC7_PROFILES[profile]
     return ispc.BC7EncSettings(list(s["modes"]), [s["refine"]] * 8, s["skip_mode2"], *s["fast_skip"],
@@ -166,9 +164,7 @@ def _ispc_bc7_levels(mips_rgba: Sequence[np.ndarray], profile: str = "basic") ->
     """(H, W, 4) [0, 1] mips -> each level's BC7 blocks, (n, 16) uint8, row-major, by ISPC at
     ``profile``, in bands over the job's encode workers (the encoder releases the GIL:
     bcfpipe.texset.parallel)."""
-    import ispc_texcomp as ispc
-
-    from bcfpipe.texset.parallel import threaded_bands
+    import ispc_texcomp as ispc  # lazy: start-up
 
     settings = bc7_settings(profile)
 
@@ -184,9 +180,7 @@ def bc7_mips(mips_rgba: Sequence[np.ndarray], blocks: list | None = None,
     """BC7-encode (ISPC, `BC7_PROFILES` ``profile``) and decode (bcfpipe.bc7) every (H, W, 4)
     mip; returns (decoded mips, bytes). With ``blocks``, each level's (blocks, w, h) is appended. In
     a build with a cache the blocks are kept as BC1/BC4/BC5's are."""
-    import ispc_texcomp as ispc
-
-    from bcfpipe.formats.bcn import ClassicFormat
+    import ispc_texcomp as ispc  # lazy: start-up
 
     _check_mips(mips_rgba, 4, "bc7")
     return _ispc_round_trip(f"bc7 ispc {ispc.version}|{sorted(BC7_PROFILES[profile].items())}", mips_rgba,
@@ -198,8 +192,6 @@ def _ispc_round_trip(tag: str, mips: Sequence[np.ndarray], encode_levels, fmt, b
     """Encode ``mips`` with ``encode_levels`` (or take the blocks the build's cache holds under
     ``tag``), decode them as ``fmt``; returns (decoded mips, bytes). With ``blocks``, each level's
     (blocks, w, h) is appended."""
-    from bcfpipe.formats.bcn import decode_levels
-
     cache, key, levels = _cached_levels(tag, mips, texels)
     fresh = levels is None
     if fresh:
@@ -233,9 +225,7 @@ def _to_half_rgba(img: np.ndarray) -> np.ndarray:
 def _ispc_bc6h_levels(mips: Sequence[np.ndarray]) -> list[np.ndarray]:
     """(H, W, c<=3) mips of linear values -> each level's BC6H_UF16 blocks, (n, 16) uint8, row-major,
     by ISPC, in bands over the job's encode workers (the encoder releases the GIL)."""
-    import ispc_texcomp as ispc
-
-    from bcfpipe.texset.parallel import threaded_bands
+    import ispc_texcomp as ispc  # lazy: start-up
 
     settings = ispc.BC6HEncSettings.from_profile(BC6H_PROFILE)
 
@@ -252,9 +242,7 @@ def bc6h_mips(mips_rgb: Sequence[np.ndarray], blocks: list | None = None) -> tup
     linear non-negative values (not [0, 1]: HDR as it is); returns (decoded mips with c channels,
     bytes). With ``blocks``, each level's (blocks, w, h) is appended; in a build with a cache the
     blocks are kept, keyed by the half-float texels the encoder reads."""
-    import ispc_texcomp as ispc
-
-    from bcfpipe.formats.bcn import ClassicFormat
+    import ispc_texcomp as ispc  # lazy: start-up
 
     if not mips_rgb or any(np.ndim(m) != 3 or not 1 <= np.shape(m)[2] <= 3 for m in mips_rgb):
         raise ValueError(f"bc6h: mips must be (H, W, 1..3), got {[np.shape(m) for m in mips_rgb]}")
@@ -266,8 +254,6 @@ def bc6h_mips(mips_rgb: Sequence[np.ndarray], blocks: list | None = None) -> tup
 
 def bc5_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC5-encode and decode every (H, W, 2) mip of [0, 1] data; returns (decoded mips, bytes)."""
-    from bcfpipe.formats.bcn import ClassicFormat
-
     _check_mips(mips_xy, 2, "bc5")
     return _quicktex_roundtrip(mips_xy, ClassicFormat.BC5, "bc5 channels 0 1", 2, 16, blocks)
 
@@ -278,8 +264,6 @@ def slope_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None,
     (`normals.slope_scale`) unless given (a sample of blocks takes the whole level's), every mip's
     slopes clip(s / m) / 2 + 1 / 2 in BC5 (quicktex, as BC@R's normal); (each mip decoded as
     (s_x, s_y, 1) normalised, (H, W, 3); m; bytes)."""
-    from bcfpipe.texset.normals import slope_normal, slope_scale, slope_texels
-
     m = slope_scale(mips_xy[0]) if m is None else m
     out, size = bc5_mips([slope_texels(x, m) for x in mips_xy], blocks)
     return [slope_normal(o, m) for o in out], m, size
@@ -287,8 +271,6 @@ def slope_mips(mips_xy: Sequence[np.ndarray], blocks: list | None = None,
 
 def bc4_mips(mips_x: Sequence[np.ndarray], blocks: list | None = None) -> tuple[list[np.ndarray], int]:
     """BC4-encode and decode every (H, W, 1) mip of [0, 1] data; returns (decoded mips, bytes)."""
-    from bcfpipe.formats.bcn import ClassicFormat
-
     _check_mips(mips_x, 1, "bc4")
     return _quicktex_roundtrip(mips_x, ClassicFormat.BC4, "bc4 channel 0", 1, 8, blocks)
 
@@ -339,7 +321,7 @@ def astc_mips(mips_rgb: Sequence[np.ndarray], block: str = "12x12", preset: str 
     The PNGs astcenc reads and writes live in a temporary folder under ``tmp_dir``. With
     ``blocks``, each level's (blocks as an (n, 16) uint8 array, w, h) is appended: astcenc then
     compresses to a .astc file (``-cl``) and decompresses it (``-dl``), the same texels as ``-tl``."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: start-up
 
     _check_mips(mips_rgb, 3, "astc")
     bw, bh = parse_block(block)
@@ -464,7 +446,7 @@ def from_storage(x: np.ndarray, normal: np.ndarray) -> np.ndarray:
 
 def bilinear_up(img: np.ndarray, height: int, width: int) -> np.ndarray:
     """Bilinear magnification (texel-centre aligned, clamp to edge), as a GPU sampler would."""
-    import torch
+    import torch  # lazy: start-up
 
     t = torch.from_numpy(np.ascontiguousarray(np.moveaxis(img, -1, 0)))[None].double()
     up = torch.nn.functional.interpolate(t, size=(height, width), mode="bilinear", align_corners=False)

@@ -18,6 +18,9 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.formats.atomic import replace_atomically
+from bcfpipe.process_env import environment
+
 BLOCKS_ENV = "BCFPIPE_BLOCKS"  # set by a build for itself and its workers: the build cache's bc-blocks/
 FORMAT = "bcfpipe-bc-blocks-v1"
 
@@ -47,8 +50,6 @@ class BlocksStore:
 
     def put(self, key: str, levels: Sequence[np.ndarray]) -> None:
         """Record the levels' blocks; a cache that cannot be written costs an encode next time."""
-        from bcfpipe.formats.atomic import replace_atomically
-
         def write(tmp: Path) -> None:
             with open(tmp, "wb") as f:  # a file object: savez adds no .npz to the temporary name
                 np.savez(f, format=np.array(FORMAT), **{f"level{k}": b for k, b in enumerate(levels)})
@@ -81,6 +82,4 @@ def store() -> BlocksStore | None:
 def blocks_in(cache_base: str | os.PathLike | None):
     """Within the block (a context manager), this process and the workers it starts keep BC@R's
     blocks under ``cache_base/bc-blocks`` (a build cache's ``v1`` folder); None changes nothing."""
-    from bcfpipe.process_env import environment
-
     return environment(BLOCKS_ENV, None if cache_base is None else str(Path(cache_base) / "bc-blocks"))

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bcfpipe.formats.vocabulary import Wrap, wrap_axes
+from bcfpipe.scan.coverage import mask_mips
 from bcfpipe.texset.texture_set import TextureSet, build_mip_chain
 
 __all__ = ["Reference"]
@@ -43,8 +44,6 @@ class Reference:
         mips = build_mip_chain(ts.data)
         masks = None
         if coverage is not None:
-            from bcfpipe.scan.coverage import mask_mips
-
             masks = mask_mips(coverage, len(mips), wrap)
         return cls(tuple(mips), None if masks is None else tuple(masks), wrap, coverage)
 

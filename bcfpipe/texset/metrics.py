@@ -35,6 +35,8 @@ from typing import Sequence
 import numpy as np
 
 from bcfpipe.formats.manifest import Quality as Metrics
+from bcfpipe.pooltrace import trace_pool
+from bcfpipe.texset.parallel import encode_workers
 from bcfpipe.texset.texture_set import Channel
 from bcfpipe.texset import encoding
 
@@ -129,7 +131,7 @@ def _mean_psnr(mses: Sequence[float], use: Sequence[int]) -> float:
 
 def ssim_group(ref: np.ndarray, dec: np.ndarray, peak: float) -> float | None:
     """SSIM of one (H, W, g) group; None when the image is smaller than 3x3."""
-    from skimage.metrics import structural_similarity
+    from skimage.metrics import structural_similarity  # lazy: start-up
 
     h, w = ref.shape[:2]
     kw: dict = dict(data_range=peak)
@@ -151,7 +153,7 @@ def _ssim_banded(ref: np.ndarray, dec: np.ndarray, kw: dict) -> float:
     """skimage's Gaussian SSIM of a large image, computed on bands of rows in float32: each band
     carries a halo of the filter's radius (5 rows), so every local SSIM value is the one the whole
     image gives, and the mean is taken over the same cropped area as skimage's."""
-    from skimage.metrics import structural_similarity
+    from skimage.metrics import structural_similarity  # lazy: start-up
 
     h, w, g = ref.shape
     pad = 5  # int(3.5 * 1.5 + 0.5): the 11-tap window's radius, and skimage's crop
@@ -171,7 +173,7 @@ def _ssim_banded(ref: np.ndarray, dec: np.ndarray, kw: dict) -> float:
 
 def flip_group(ref: np.ndarray, dec: np.ndarray) -> float:
     """Mean LDR FLIP of one (H, W, 3) sRGB-encoded colour group, values clipped to [0, 1]."""
-    import flip_evaluator as flip
+    import flip_evaluator as flip  # lazy: start-up
 
     h, w = ref.shape[:2]
     if h * w * 3 <= BAND_VALUES:
@@ -250,8 +252,6 @@ def metrics_and_errors(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.nda
     # GIL and runs alone); each value is what it is alone
     ssim_per_group: dict[str, float] = {}
     if ssim:
-        from bcfpipe.texset.parallel import encode_workers
-
         # never more than the cores the job may use (--jobs 1: one)
         threads = min(SSIM_THREADS, encode_workers(), len(groups)) if r0.size <= SSIM_PARALLEL_VALUES else 1
 
@@ -259,8 +259,6 @@ def metrics_and_errors(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.nda
             return ssim_group(r0[..., idx], d0[..., idx], channels[idx[0]].peak)
 
         if threads > 1:
-            from bcfpipe.pooltrace import trace_pool
-
             trace_pool("ssim-thread-pool", threads)
             with ThreadPoolExecutor(max_workers=threads) as pool:
                 values = list(pool.map(one, groups.values()))

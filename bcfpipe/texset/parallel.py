@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import ctypes
 import multiprocessing as mp
 import os
 import threading
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 import numpy as np
@@ -112,7 +114,7 @@ def _process_pool(n: int) -> ProcessPoolExecutor:
 
 def _quicktex_band(codec: str, raw: bytes, width: int, height: int) -> bytes:
     """One band's quicktex blocks (runs in a worker process)."""
-    import quicktex
+    import quicktex  # lazy: start-up
 
     openmp_threads(1)  # the pool's processes are the band's parallelism
     return make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(raw, width, height)).tobytes()
@@ -121,15 +123,15 @@ def _quicktex_band(codec: str, raw: bytes, width: int, height: int) -> bytes:
 def make_quicktex_encoder(codec: str):
     """quicktex's encoder for ``codec``: 'bc1 level N', 'bc4 channel 0' or 'bc5 channels 0 1'."""
     if codec.startswith("bc1 level "):
-        from quicktex.s3tc.bc1 import BC1Encoder
+        from quicktex.s3tc.bc1 import BC1Encoder  # lazy: start-up
 
         return BC1Encoder(int(codec.rsplit(" ", 1)[1]))
     if codec == "bc4 channel 0":
-        from quicktex.s3tc.bc4 import BC4Encoder
+        from quicktex.s3tc.bc4 import BC4Encoder  # lazy: start-up
 
         return BC4Encoder(0)
     if codec == "bc5 channels 0 1":
-        from quicktex.s3tc.bc5 import BC5Encoder
+        from quicktex.s3tc.bc5 import BC5Encoder  # lazy: start-up
 
         return BC5Encoder(0, 1)
     raise ValueError(f"unknown quicktex codec {codec!r}")
@@ -142,7 +144,7 @@ def quicktex_level(codec: str, px: np.ndarray, block_bytes: int) -> np.ndarray:
     Off the main thread (an encode beside a training), where quicktex would hold the GIL for the
     whole level: with more than one worker in bands over that many processes of one thread each;
     with one, inline on one thread (a thread beside a training takes its turns on the GIL)."""
-    import quicktex
+    import quicktex  # lazy: start-up
 
     n = encode_workers()
     h, w = px.shape[:2]
@@ -162,9 +164,7 @@ def openmp_threads(n: int) -> None:
     encodes on ``n`` threads. Without it every encode takes every core, whatever ``--jobs`` says."""
     global _gomp
     if _gomp is None:
-        import ctypes
-
-        import _quicktex  # noqa: F401  # loads its OpenMP runtime
+        import _quicktex  # noqa: F401  # loads its OpenMP runtime - lazy: start-up
 
         try:
             with open("/proc/self/maps") as f:
@@ -185,8 +185,6 @@ _gomp: list | None = None
 def threaded_bands(encode_band: Callable[[np.ndarray], bytes], px: np.ndarray, block_bytes: int) -> np.ndarray:
     """A padded level's blocks by ``encode_band`` (an encoder that releases the GIL), its bands
     over `encode_workers()` threads."""
-    from concurrent.futures import ThreadPoolExecutor
-
     parts = bands(px)
     n = min(encode_workers(), len(parts))
     if n > 1:

@@ -49,7 +49,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from bcfpipe.errors import InputError
+from bcfpipe.formats import images
 from bcfpipe.formats.images import channel_index as source_channel_index
+from bcfpipe.formats.images import MissingChannel
 from bcfpipe.scan.sources import common_resolution
 from bcfpipe.texset.encoding import log_gain_for
 
@@ -331,8 +333,6 @@ def _value_range(col: np.ndarray, ch: Channel, src: _Source) -> tuple[np.ndarray
 
 
 def _open(path: str, shown: str) -> _Source:
-    from bcfpipe.formats import images
-
     try:
         im = images.read(path, as_float=True, unassociated_alpha=True, name=shown)
     except images.ImageReadError as exc:
@@ -343,8 +343,6 @@ def _open(path: str, shown: str) -> _Source:
 
 
 def _source_index(src: _Source, letter: str) -> int:
-    from bcfpipe.formats.images import MissingChannel
-
     try:
         return source_channel_index(src.names, letter, src.path)
     except MissingChannel as exc:
@@ -352,7 +350,7 @@ def _source_index(src: _Source, letter: str) -> int:
 
 
 def _resampled(src: _Source, width: int, height: int) -> np.ndarray:
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: start-up
 
     if src.pixels is None:
         px = src.texels

@@ -15,6 +15,10 @@ from bcfpipe.formats.vocabulary import Kernel
 from bcfpipe.model import neural as M
 from bcfpipe.model.features import BlockParams, Layers
 from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, sample_reference
+from bcfpipe.train.fused import native
+from bcfpipe.train.fused import targets
+from bcfpipe.train.fused.step import default_backend
+from bcfpipe.train.fused.step import FusedStep
 
 __all__ = ["Step", "StepBackend", "TorchStep", "TorchBackend", "FusedBackend", "make_backend"]
 
@@ -125,11 +129,8 @@ class FusedBackend(TorchBackend):
     kernel = Kernel.FUSED
 
     def library(self):
-        from bcfpipe.train.fused.step import default_backend
-
         if default_backend() != "native":
             return None
-        from bcfpipe.train.fused import native
 
         return native.load()
 
@@ -138,13 +139,10 @@ class FusedBackend(TorchBackend):
         kernel is native."""
         if self.library() is None:
             return None
-        from bcfpipe.train.fused import targets
 
         return targets.bicubic
 
     def _fused(self, levels: Layers, quantized: Callable[[], bool]) -> Step:
-        from bcfpipe.train.fused.step import FusedStep
-
         return FusedStep(self.cfg.model, self.biases, self.mlp, levels, quantized, chunks=self.cfg.threads or 1,
                          own_adam=True)
 
@@ -156,13 +154,9 @@ class FusedBackend(TorchBackend):
 
     def centre_batch(self, centres: CentreTargets, batch: int, s: float,
                      gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        from bcfpipe.train.fused import targets
-
         return targets.centre_batch(centres, batch, s, gen)
 
     def sample_reference(self, ref: ReferencePyramid, uv: torch.Tensor, s: float, wrap: str) -> torch.Tensor:
-        from bcfpipe.train.fused import targets
-
         return targets.sample_reference(ref, uv, s, wrap)
 
 

@@ -3,11 +3,11 @@ the answer is plain: a CPU-only torch build cannot train on CUDA. A no-op rebuil
 everything in the cache then never pays torch's import time."""
 from __future__ import annotations
 
+from importlib import metadata
+
 
 def _cpu_only_torch() -> bool:
     """True when the installed torch is a CPU build (its version says +cpu)."""
-    from importlib import metadata
-
     try:
         return metadata.version("torch").endswith("+cpu")
     except metadata.PackageNotFoundError:
@@ -24,6 +24,6 @@ def device_class(name: str) -> str:
             return "cpu"
         if name.startswith("cuda"):
             raise ValueError("--device cuda requested but torch has no CUDA device (a CPU build of torch)")
-    from bcfpipe.train.trainer import resolve_device
+    from bcfpipe.train.trainer import resolve_device  # lazy: start-up
 
     return resolve_device(name).type

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from bcfpipe.bc7 import decode_to_u8
 from bcfpipe.config import ModelConfig
 from bcfpipe.errors import InputError
 from bcfpipe.model import neural as M
@@ -68,8 +69,7 @@ def t0_layers_problem(t0_layers: int, channels: int) -> str | None:
 def encoded_levels(levels, device="cpu") -> list[FixedLevel]:
     """(H, W, 4) [0, 1] levels encoded once by ISPC (every BC7 mode), as `FixedLevel`s whose values
     are bcfpipe's decode of the blocks."""
-    from bcfpipe.bc7 import decode_to_u8
-    from bcfpipe.texset.baselines import bc7_mips
+    from bcfpipe.texset.baselines import bc7_mips  # lazy: start-up
 
     shipped: list = []
     bc7_mips(levels, shipped)

@@ -23,6 +23,7 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -106,7 +107,7 @@ def _import_dynamo_quietly() -> None:
     with tempfile.TemporaryDirectory(prefix="bcfpipe-torch-") as tmp:
         os.environ["TORCHINDUCTOR_CACHE_DIR"] = tmp
         try:
-            import torch._dynamo  # noqa: F401
+            import torch._dynamo  # noqa: F401 - lazy: start-up
         finally:
             os.environ.pop("TORCHINDUCTOR_CACHE_DIR", None)
 
@@ -352,7 +353,6 @@ def _scaled(sched, codec, phase: str):
     scale = codec.lr_scale[phase]
     if scale == 1.0:
         return sched
-    from dataclasses import replace
 
     return replace(sched, lr_features=sched.lr_features * scale)
 

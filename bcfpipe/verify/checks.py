@@ -39,12 +39,18 @@ from typing import Callable, Sequence
 import numpy as np
 
 from bcfpipe.bc6h import mode10
+from bcfpipe.bc6h import decode as bc6h_decode
 from bcfpipe.bc7 import anymode, mode6
+from bcfpipe.bc7 import decode as bc7_decode
 from bcfpipe.formats import dds
 from bcfpipe.formats import material as mf
+from bcfpipe.formats import manifest as mfst
+from bcfpipe.formats.bcn import FORMAT_OF, ClassicFormat, decode_levels
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
+from bcfpipe.formats.vocabulary import Status
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes
+from bcfpipe.verify.constants import check_constants
 from bcfpipe.verify.glsl import GLRuntime, GLUnavailable, MaterialDesc
 from bcfpipe.verify.points import CATEGORIES, gradient_points, lod_from_grad, verification_points
 from bcfpipe.verify.sources import SourceNotFound, check_sources, root_layers
@@ -174,8 +180,8 @@ def check_integrity(t: Target) -> Check:
 
 def check_weights_onnx(m: MaterialDesc) -> Check:
     """The record the runtime reads == decoder.onnx's initializers, value for value."""
-    import onnx
-    from onnx import numpy_helper
+    import onnx  # lazy: start-up
+    from onnx import numpy_helper  # lazy: start-up
 
     w, _ = from_bytes(m.weights_file.read_bytes(), m.weight_offset)
     try:
@@ -208,11 +214,8 @@ def check_weights_onnx(m: MaterialDesc) -> Check:
 def check_openimageio(texs: Sequence[dds.DdsTexture], files: Sequence[Path]) -> Check:
     """Every mip as OpenImageIO's DDS reader decodes it == our spec decoder's, bit for bit (BC6H
     halves; BC7 8-bit values)."""
-    from bcfpipe.bc6h import decode as bc6h_decode
-    from bcfpipe.bc7 import decode as bc7_decode
-
     try:
-        import OpenImageIO as oiio
+        import OpenImageIO as oiio  # lazy: start-up
     except ImportError as e:
         return Check("openimageio", False, f"OpenImageIO is not importable ({e})")
     bad, n_levels = [], 0
@@ -256,13 +259,11 @@ OIIO_STEPS = {"bc1": 2, "bc4": 1, "bc5": 1, "bc7": 0}  # BC7's interpolation is 
 
 def check_classic(m: MaterialDesc) -> Check:
     """A layout's classic textures: headers against material.json, and three decoders agreeing."""
-    import OpenImageIO as oiio
-
-    from bcfpipe.formats.bcn import FORMAT_OF, ClassicFormat, decode_levels
+    import OpenImageIO as oiio  # lazy: start-up
 
     bad, n_levels, exact = [], 0, True
     try:
-        import texture2ddecoder as t2d
+        import texture2ddecoder as t2d  # lazy: start-up
     except ImportError:
         t2d, exact = None, False
     for c in m.file.classic:
@@ -455,9 +456,6 @@ def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = Non
 def constant_checks(root: Path) -> dict[str, Check]:
     """For a build folder, the ``constants`` check of each material with folded constants
     (bcfpipe.verify.constants), by material path, in the manifest's order."""
-    from bcfpipe.formats import manifest as mfst
-    from bcfpipe.verify.constants import check_constants
-
     if not (root / mfst.FILE).is_file():
         return {}
     return {name: Check("constants", passed, detail) for name, passed, detail in check_constants(root, mfst.read(root))}
@@ -466,9 +464,6 @@ def constant_checks(root: Path) -> dict[str, Check]:
 def build_order(root: Path) -> list[str]:
     """The built and constant materials of a build folder in its manifest's order ([] for a
     material folder or a folder of them: the order they are found in)."""
-    from bcfpipe.formats import manifest as mfst
-    from bcfpipe.formats.vocabulary import Status
-
     if not (root / mfst.FILE).is_file():
         return []
     return [m.path for m in mfst.read(root).materials if m.status in (Status.BUILT, Status.CONSTANT)]

@@ -10,15 +10,16 @@ from pathlib import Path
 import numpy as np
 
 from bcfpipe.formats import manifest as mfst
+from bcfpipe.formats import images
+from bcfpipe.formats.images import channel_index as source_channel_index
+from bcfpipe.formats.usd_schema import component_index
 
 VALUE_TOLERANCE = 1e-6  # the value is authored as a float: rounding only
 
 
 def check_usd_values(root: Path, manifest: mfst.Manifest, material: mfst.Material, stage) -> list[str]:
     """Problems with the composed values of ``material``'s constants (empty: all as recorded)."""
-    from pxr import UsdShade
-
-    from bcfpipe.formats.usd_schema import component_index
+    from pxr import UsdShade  # lazy: start-up
 
     prim = stage.GetPrimAtPath(material.path)
     if not prim:
@@ -43,9 +44,7 @@ def check_usd_values(root: Path, manifest: mfst.Manifest, material: mfst.Materia
 
 def check_source_constancy(root: Path, material: mfst.Material) -> list[str]:
     """Every texel of each channel folded as constant lies within one step of its stored value."""
-    from bcfpipe.formats import images
-    from bcfpipe.scan.sources import local_file, package_split
-    from bcfpipe.formats.images import channel_index as source_channel_index
+    from bcfpipe.scan.sources import local_file, package_split  # lazy: start-up
 
     problems = []
     for f in material.folded:
@@ -71,13 +70,13 @@ def check_source_constancy(root: Path, material: mfst.Material) -> list[str]:
 
 def check_constants(root: Path, manifest: mfst.Manifest) -> list[tuple[str, bool, str]]:
     """(material, passed, detail) for every material of a build with folded constants."""
-    from pxr import Usd
+    from pxr import Usd  # lazy: start-up
 
     with_constants = [m for m in manifest.materials if m.constants or any(f.reason == "constant" for f in m.folded)]
     # unread channels (st not connected) are checked through their USD values only: the texture varies
     if not with_constants:
         return []
-    from bcfpipe.scan.composition import captured_diagnostics
+    from bcfpipe.scan.composition import captured_diagnostics  # lazy: start-up
 
     with captured_diagnostics():  # the build reported the scene's composition errors already
         stage = Usd.Stage.Open(str(root / manifest.root_layer))

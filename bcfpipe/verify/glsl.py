@@ -12,6 +12,7 @@ context is headless (EGL): Mesa llvmpipe where there is no GPU, the GPU's EGL dr
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,7 @@ from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds
 from bcfpipe.formats import material as mf
+from bcfpipe.resources import GLSL_DIR, data_dir
 
 GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT = 0x8E8E
 GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT = 0x8E8F
@@ -48,8 +50,6 @@ class GLUnavailable(Unavailable):
 
 def glsl_dir() -> Path:
     """The folder with the shader sources: the package's glsl/ (``BCFPIPE_GLSL_DIR`` overrides it)."""
-    from bcfpipe.resources import GLSL_DIR, data_dir
-
     return data_dir(GLSL_DIR, "BCFPIPE_GLSL_DIR", LIBRARY)
 
 
@@ -180,8 +180,6 @@ def _current(method):
     """Make the runtime's context current before a method runs (several contexts may exist in one
     process, e.g. a second GLRuntime; EGL keeps whichever was made current last). It is left
     current: moderngl's ``with ctx:`` releases it on exit, which breaks nested calls."""
-    import functools
-
     @functools.wraps(method)
     def wrapper(self, *args, **kwargs):
         self.ctx.__enter__()
@@ -197,7 +195,7 @@ class GLRuntime:
         if os.environ["PYOPENGL_PLATFORM"] != "egl":
             raise GLUnavailable(f"PYOPENGL_PLATFORM={os.environ['PYOPENGL_PLATFORM']!r}; bcfpipe needs 'egl'")
         try:
-            import moderngl
+            import moderngl  # lazy: start-up
         except ImportError as e:
             raise GLUnavailable(f"moderngl is not installed ({e}): pip install moderngl PyOpenGL") from None
         try:
@@ -206,8 +204,8 @@ class GLRuntime:
             raise GLUnavailable(f"no OpenGL {require // 100}.{require % 100 // 10} context through EGL: "
                                 f"{type(e).__name__}: {e}") from None
         try:
-            from OpenGL import GL
-            from OpenGL.raw.GL.VERSION.GL_1_3 import glCompressedTexImage2D
+            from OpenGL import GL  # lazy: start-up
+            from OpenGL.raw.GL.VERSION.GL_1_3 import glCompressedTexImage2D  # lazy: start-up
         except Exception as e:  # noqa: BLE001
             self.ctx.release()
             raise GLUnavailable(f"PyOpenGL (EGL platform) unavailable: {type(e).__name__}: {e}") from None

@@ -20,7 +20,7 @@ class SourceNotFound(InputError):
 def unresolved_sublayers(root_layer: str | os.PathLike) -> list[tuple[str, str]]:
     """(asset path as authored, where it was looked for) for every sublayer of ``root_layer`` that
     USD's resolver does not find."""
-    from pxr import Ar, Sdf
+    from pxr import Ar, Sdf  # lazy: start-up
 
     layer = Sdf.Layer.FindOrOpen(str(root_layer))
     if layer is None:

@@ -189,7 +189,7 @@ def _through_log_expansion(g: np.ndarray, cy: np.ndarray, e: np.ndarray, lo: np.
 def output_tolerance(weights, kinds: tuple[str, ...], feats: np.ndarray, fe: FilterError,
                      ref_out: np.ndarray) -> np.ndarray:
     """Per point, per output channel (incl. normal z): bound on |GL - ONNX| (see module docstring)."""
-    from bcfpipe.model.decoder import normal_xy_index, output_ranges
+    from bcfpipe.model.decoder import normal_xy_index, output_ranges  # lazy: start-up
 
     w1, b1, w2, b2, sc, bi = (np.asarray(a, np.float64) for a in weights.arrays()[:6])
     f = feats.astype(np.float64)

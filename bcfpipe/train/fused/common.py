@@ -8,6 +8,10 @@ import sys
 import uuid
 from pathlib import Path
 
+from bcfpipe.formats.addressing import wrap_codes
+from bcfpipe.process_env import default_cache_root
+from bcfpipe.process_env import environment
+
 FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3  # free texels (warm-up) or blocks, per format
 # A slot's first field: not sampled, a trained level, or a fixed one: a level written as it was
 # encoded (a T_0 of principal components, BC7 in any mode), its UNORM8 values stored like free
@@ -20,8 +24,6 @@ WRAP_REPEAT, WRAP_CLAMP, WRAP_MIRROR = 0, 1, 2
 def wrap_code(wrap) -> int:
     """The kernels' int for an addressing (one mode or an (S, T) pair): bcfpipe.formats.addressing's codes,
     which these constants name."""
-    from bcfpipe.formats.addressing import wrap_codes
-
     s, t = wrap_codes(wrap)
     return s | t << 2
 
@@ -34,8 +36,6 @@ def kernels_dir() -> str:
     """Compiled kernels live in bcfpipe's cache (``kernels/``): the build's (``--cache``), else the
     default one; never beside the package or in numba's default places. NUMBA_CACHE_DIR, when set,
     wins."""
-    from bcfpipe.process_env import default_cache_root
-
     return (os.environ.get("NUMBA_CACHE_DIR") or os.environ.get(KERNELS_ENV)
             or str(default_cache_root() / "kernels"))
 
@@ -45,8 +45,6 @@ def kernels_in(cache_root: str | os.PathLike | None):
     """Within the block, this process and the workers it starts keep compiled kernels under
     ``cache_root/kernels`` (a build's --cache; None keeps the default), and a fallback from the
     compiled kernel is said once for them all (`say_once`), not once per worker."""
-    from bcfpipe.process_env import environment
-
     with environment(KERNELS_ENV, None if cache_root is None else str(Path(cache_root) / "kernels")):
         said = Path(kernels_dir()) / f".said-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         try:

@@ -31,6 +31,7 @@ import numba.core.config  # noqa: E402
 
 numba.core.config.CACHE_DIR = kernels_dir()  # read when the decorators below make their caches
 import numba as nb  # noqa: E402
+from numba.core.caching import NullCache
 
 
 _F32 = np.float32
@@ -473,8 +474,6 @@ def uncached(call):
     try:
         return call()
     except OSError:
-        from numba.core.caching import NullCache
-
         for obj in list(globals().values()):
             if isinstance(obj, nb.core.registry.CPUDispatcher):
                 obj._cache = NullCache()

@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from bcfpipe.formats.atomic import write_atomically
+from bcfpipe.pooltrace import trace_pool
+from bcfpipe.train.fused.common import kernels_dir
 
 HERE = Path(__file__).parent
 SOURCES = (HERE / "step.cpp", HERE / "targets.cpp", HERE / "adam.cpp", HERE.parent.parent / "bc6h" / "quick.cpp")
@@ -70,8 +72,6 @@ def _compiler() -> str:
 
 def library_path() -> Path:
     """Where this source, compiler and flag set's library lives in the cache."""
-    from bcfpipe.train.fused.common import kernels_dir
-
     cxx = _compiler()
     version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout.splitlines()[:1]
     try:
@@ -203,8 +203,6 @@ def _pool(n: int) -> ThreadPoolExecutor:
     """One lasting pool per chunk count: a step is milliseconds, a pool's start is not free."""
     with _lock:
         if n not in _pools:
-            from bcfpipe.pooltrace import trace_pool
-
             _pools[n] = ThreadPoolExecutor(n, thread_name_prefix="bcf-fused")
             trace_pool("fused-thread-pool", n)
         return _pools[n]

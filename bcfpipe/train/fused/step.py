@@ -9,12 +9,18 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from bcfpipe.bc6h import mode10
+from bcfpipe.bc6h.tables import WEIGHTS3
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
 from bcfpipe.model.features import BlockParams, Layers, codec_of
 from bcfpipe.model.sampling import level_weights
+from bcfpipe.pooltrace import trace_pool
 from bcfpipe.texset import hostmem
+from bcfpipe.train.fused import common
+from bcfpipe.train.fused import native
 from bcfpipe.train.fused.common import FIXED, TRAINED, wrap_code
+from bcfpipe.train.fused.common import say_once
 
 
 def default_backend() -> str:
@@ -23,9 +29,6 @@ def default_backend() -> str:
     encode runs in torch too (bcfpipe.model.features)."""
     global _BACKEND
     if _BACKEND is None:
-        from bcfpipe.train.fused import native
-        from bcfpipe.train.fused.common import say_once
-
         try:
             native.load()
             _BACKEND = "native"
@@ -42,9 +45,6 @@ MAX_LAYERS = 8  # step.cpp's: the layers (two slots each) one step samples
 def _tables(signed: bool):
     """The BC6H decode's tables as bcfpipe.bc6h.emulate builds them: every 6-bit endpoint's
     unquantized value and the slope to the next, and the 3-bit weights and theirs."""
-    from bcfpipe.bc6h import mode10
-    from bcfpipe.bc6h.tables import WEIGHTS3
-
     u = mode10.unquantize_table(signed)[1].astype(np.float32)
     w3 = WEIGHTS3.astype(np.float32)
     return u, np.append(np.diff(u), 0).astype(np.float32), w3, np.append(np.diff(w3), 0).astype(np.float32)
@@ -67,8 +67,6 @@ class FusedStep:
     def __init__(self, mc: ModelConfig, biases: Sequence[float], mlp: dict[str, torch.Tensor], levels: Layers,
                  quantized: Callable[[], bool] = lambda: False, chunks: int = 1, backend: str | None = None,
                  own_adam: bool = False):
-        from bcfpipe.train.fused import common
-
         if levels.fixed and FeatureFormat(mc.features) != FeatureFormat.BC7:
             raise ValueError("fixed levels are BC7 UNORM8 values; the format is " + str(mc.features))
         if mc.n_layers > MAX_LAYERS:
@@ -93,17 +91,14 @@ class FusedStep:
             self.mX, self.vX = np.zeros_like(self.X), np.zeros_like(self.X)
             self.updates = {(i, k): 0 for i, row in enumerate(self.slot) for k in range(len(row))}
         if self.backend == "native":
-            from bcfpipe.train.fused import native
-
             self.K, self.M = native, native.block_masks(self.M)
         else:
-            import numba
+            import numba  # lazy: start-up
 
-            from bcfpipe.train.fused import kernel as K
+            from bcfpipe.train.fused import kernel as K  # lazy: start-up
 
             self.K = K
             numba.set_num_threads(min(self.chunks, numba.config.NUMBA_NUM_THREADS))
-            from bcfpipe.pooltrace import trace_pool
 
             trace_pool("numba", numba.get_num_threads())
 

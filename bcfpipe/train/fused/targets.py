@@ -8,27 +8,25 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from bcfpipe.train.fused import native
 from bcfpipe.train.fused.common import wrap_code
 from bcfpipe.texset.reference import KEYS_A, CentreTargets, ReferencePyramid, level_split
+from bcfpipe.train.fused.step import default_backend
 
 
 def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: str) -> torch.Tensor:
     """:func:`bcfpipe.texset.reference.sample_reference` at one scale ``s`` (CPU, float32), in the
     fused kernel's backend (native: targets.cpp, the same sums vectorised)."""
-    from bcfpipe.train.fused.step import default_backend
-
     l0, l1, t = level_split(float(s), pyr.num_levels)
     u = uv.detach().numpy().astype(np.float32, copy=False)
     out = np.zeros((u.shape[0], pyr.num_channels), np.float32)
     code = wrap_code(wrap)
     if default_backend() == "native":
-        from bcfpipe.train.fused import native
-
         native.bicubic_into(pyr.mips[l0].numpy(), u, code, KEYS_A, -1.0, out)
         if t > 0.0:
             native.bicubic_into(pyr.mips[l1].numpy(), u, code, KEYS_A, float(t), out)
         return torch.from_numpy(out)
-    from bcfpipe.train.fused.kernel import bicubic_into, uncached
+    from bcfpipe.train.fused.kernel import bicubic_into, uncached  # lazy: start-up
 
     uncached(lambda: bicubic_into(pyr.mips[l0].numpy(), u, code, -1.0, out))
     if t > 0.0:
@@ -39,8 +37,6 @@ def sample_reference(pyr: ReferencePyramid, uv: torch.Tensor, s: float, wrap: st
 def bicubic(tex: torch.Tensor, uv: torch.Tensor, wrap: str) -> torch.Tensor:
     """reference.bicubic_sample's (N, c) lookup of one level (CPU, float32) in targets.cpp: the same taps
     and weights, summed in another order (CentreTargets' precomputed images, natively)."""
-    from bcfpipe.train.fused import native
-
     out = np.zeros((uv.shape[0], tex.shape[0]), np.float32)
     native.bicubic_into(tex.numpy(), uv.detach().numpy().astype(np.float32, copy=False), wrap_code(wrap), KEYS_A,
                         -1.0, out)
@@ -53,11 +49,8 @@ def centre_batch(centres: CentreTargets, n: int, s: float, gen: torch.Generator 
     without torch's (c, n) gathers and transposes, and in texel order, so the lookups and then the
     kernel's taps walk memory forwards (the same samples; only the order of the gradient's sums
     changes)."""
-    from bcfpipe.train.fused.step import default_backend
-
     if default_backend() != "native":
         return centres.batch(n, s, gen)
-    from bcfpipe.train.fused import native
 
     l0, t, ids = centres.draw(n, s, gen)
     up, rows = centres.up[l0], centres.texels[l0]
