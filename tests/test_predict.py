@@ -3,20 +3,18 @@ that contains what the build ships (bcfpipe.layout.predict, issue 50 item 4)."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_run import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "samples" / "sample_scene.usda"
 
 
 def _bcfpipe(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True, cwd=cwd,
-                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    return run_cli(*args, cwd=cwd)  # the real CLI, in this process (`cli_run`)
 
 
 def _plan(scene: Path, *options: str) -> dict:

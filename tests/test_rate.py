@@ -18,6 +18,7 @@ from bcfpipe.config import TrainingOptions  # noqa: E402
 from bcfpipe.fit import rate  # noqa: E402
 from bcfpipe.train import gains  # noqa: E402
 from bcfpipe.resources import SCHEMA_DIR  # noqa: E402
+import cli_run  # noqa: E402
 
 
 def test_candidates_smallest_first_then_quickest() -> None:
@@ -115,7 +116,7 @@ def test_policy_probe_predict_climb_and_unreachable(tmp_path: Path, monkeypatch)
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True, timeout=900)
+    return cli_run.run_cli(*args)  # the real CLI, in this process
 
 
 def test_train_target_met_by_the_probe(tmp_path: Path) -> None:

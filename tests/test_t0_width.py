@@ -8,16 +8,15 @@ Real runs at the tiny profile and the smoke preset; one material of the sample s
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from bcfpipe.formats.fit_result import FitResult
 
+from cli_run import run_cli
 from test_build import copy_samples
 
 REPO = Path(__file__).resolve().parents[1]
@@ -35,9 +34,8 @@ NARROW = [f"albedo={TEX / 'bricks_albedo.png'}:rgb", f"roughness={TEX / 'bricks_
 
 
 def bcfpipe(*args: str) -> subprocess.CompletedProcess:
-    """``python -m bcfpipe ARGS`` (train, build), in the session's private cache (conftest)."""
-    return subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True,
-                          env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=600)
+    """``bcfpipe ARGS`` (train, build), in this process (`cli_run`), in the session's private cache (conftest)."""
+    return run_cli(*args)
 
 
 def ok(p: subprocess.CompletedProcess) -> subprocess.CompletedProcess:

@@ -9,21 +9,21 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from pxr import Sdf, UsdGeom
 
+from cli_run import run_cli
 from test_build import add_material, new_stage, pattern, write_png
 
 FAST = ["--profile", "tiny", "--quality", "smoke", "--layout", "neural", "--jobs", "1", "--threads", "1"]
 
 
 def bcfpipe(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bcfpipe", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=600)
+    """The real CLI, in this process (`cli_run`): every check here reads its exit code and output."""
+    return run_cli(*args, cwd=cwd)
 
 
 def error_line(proc: subprocess.CompletedProcess) -> str:

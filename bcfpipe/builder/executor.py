@@ -17,11 +17,9 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-import torch
 import xxhash
 
 from bcfpipe.cache import Cache
-from bcfpipe.fit import fit
 from bcfpipe.formats.fit_result import FitResult
 from bcfpipe.formats.record import FormatError
 from bcfpipe.formats.vocabulary import CacheUse, Status
@@ -36,7 +34,6 @@ from bcfpipe.scan.sources import package_split, read_asset
 from bcfpipe.texset.parallel import job_encode_workers
 from bcfpipe.texset.parallel import release_workers, set_encode_workers
 from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
-from bcfpipe.train.trainer import resolve_device
 
 
 
@@ -52,6 +49,8 @@ def cpu_count() -> int:
 def _gpu_count(device: str) -> int:
     if not device.startswith("cuda"):
         return 0
+    import torch  # lazy: start-up
+
     return torch.cuda.device_count() if torch.cuda.is_available() else 0
 
 
@@ -211,6 +210,11 @@ def train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, q
             except OSError:
                 pass
         warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad=True to a scalar")
+        import torch  # lazy: start-up (the driver never loads torch: a cache hit needs none)
+
+        from bcfpipe.fit import fit  # lazy: start-up
+        from bcfpipe.train.trainer import resolve_device  # lazy: start-up
+
         torch.set_num_threads(max(1, threads))
         trace_pool("torch-intra-op", torch.get_num_threads())
         try:

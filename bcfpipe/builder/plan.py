@@ -12,7 +12,6 @@ from bcfpipe.config import (CPU_PRESETS_LARGE, FIXED_T0_PRESETS, MODEL_FORMAT, P
                             QUALITY_PRESETS, JobOptions, TrainingOptions, preset_for, resolve_profile, t0_of)
 from bcfpipe.builder.options import Selection
 from bcfpipe.errors import InputError
-from bcfpipe.fit.rate import anchors_from_bench
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, wrap_axes
 from bcfpipe.scan.content import nonfinite_channels
@@ -378,6 +377,8 @@ def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None
 
 def _bench_anchors(bench: Mapping, specs) -> tuple[tuple[str, str, float], ...]:
     """The bench report's measured cells for a job, matched by source file names and channels."""
+    from bcfpipe.fit.rate import anchors_from_bench  # lazy: start-up (bcfpipe.fit loads the trainer)
+
     names = [f"{sem}={os.path.basename(path)}:{ch}" for sem, path, ch in specs]
     return tuple(sorted((p, q, v) for (p, q), v in anchors_from_bench(bench, names).items()))
 

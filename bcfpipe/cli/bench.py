@@ -9,7 +9,6 @@ import click
 
 from bcfpipe.bench import report as R
 from bcfpipe.bench.decode_cost import SIZES
-from bcfpipe.bench.run import BenchOptions, run_bench
 from bcfpipe.bench.sets import from_scene, from_specs
 from bcfpipe.cli.errors import Command
 from bcfpipe.cli.options import variant_option
@@ -143,6 +142,8 @@ def bench(ctx, inputs, output, materials, variants, name, profiles, presets, bas
         raise InputError("give a SCENE or texture specs (SEMANTIC=FILE[:CHANNELS]); see --help")
     if output.exists() and any(output.iterdir()) and not force:
         raise InputError(f"{output} is not empty; pass --force to write into it")
+
+    from bcfpipe.bench.run import BenchOptions, run_bench  # lazy: start-up
 
     opts = BenchOptions(profiles=_list(profiles, "--profiles", PROFILE_NAMES),
                         presets=_list(presets, "--presets", tuple(PRESETS)), codecs=_codecs(baselines),

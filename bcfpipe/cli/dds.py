@@ -9,7 +9,6 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from bcfpipe.bc6h import decode
 from bcfpipe.bc7 import decode as bc7_decode
 from bcfpipe.cli.errors import Group
 from bcfpipe.formats import dds as ddsmod
@@ -35,6 +34,8 @@ def _decode_level(tex: ddsmod.DdsTexture, k: int) -> np.ndarray:
             return bc7_decode(blocks, w, h)
         except ValueError as e:
             raise InputError(f"mip {k}: {e}") from None
+
+    from bcfpipe.bc6h import decode  # lazy: start-up
 
     return decode(blocks, w, h, signed=tex.signed)
 

@@ -17,11 +17,8 @@ import numpy as np
 
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import InputError
-from bcfpipe.export import writer as E
 from bcfpipe.formats import material as mf
-from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT
 from bcfpipe.verify import glsl as G
-from bcfpipe.verify import checks as V
 
 if TYPE_CHECKING:
     from bcfpipe.formats.material import Output
@@ -41,6 +38,8 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 def select_target(out: str, prim: str | None):
     """The material of ``out`` named ``prim`` (a prim path, a material name or folder name)."""
+    from bcfpipe.verify import checks as V  # lazy: start-up
+
     try:
         targets = V.find_targets(out)
     except V.VerifyInputError as e:
@@ -80,6 +79,8 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
     """(H, W, outputs) float32 at the grid's texel centres, every output of material.json: the
     decoder's (through ``backend``), a layout's classic ones from their BC textures, and a mip
     split's mixed below its split, as material.json says. Returns it and what decoded it."""
+    from bcfpipe.export import writer as E  # lazy: start-up
+
     file = target.desc.file
     w, h = size
     img, used = _decode_network(target, size, lod, backend) if file.neural else (None, "classic textures")
@@ -97,6 +98,10 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
 
 
 def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
+    from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT  # lazy: start-up
+
+    from bcfpipe.export import writer as E  # lazy: start-up
+
     w, h = size
     if backend in ("glsl", "auto"):
         try:

@@ -20,7 +20,6 @@ from rich.text import Text
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE
 from bcfpipe.train.pace import LINE_SECONDS, Ticker
-from bcfpipe.verify import checks as V
 
 __all__ = ["verify", "run_verify", "CheckSettings", "print_report", "material_line", "VerifyOutput"]
 
@@ -182,6 +181,8 @@ def run_verify(path: str, checks: CheckSettings = CheckSettings(), as_json: bool
                to_stderr: bool = False, verbose: bool = False, quiet: bool = False) -> int:
     """Verify ``path`` and print the report as it goes, with a heartbeat on stderr unless
     ``quiet``; returns the exit code (what `bcfpipe build --verify` calls)."""
+    from bcfpipe.verify import checks as V  # lazy: start-up
+
     out = VerifyOutput(None if as_json else Console(stderr=to_stderr), verbose,
                        None if quiet else Console(stderr=True))
     filter_bits = V.FILTER_BITS if checks.filter_bits is None else checks.filter_bits

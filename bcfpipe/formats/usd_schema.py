@@ -23,7 +23,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from bcfpipe.resources import SCHEMA_DIR, data_dir
+from bcfpipe import resources
 
 __all__ = ["SCHEMA", "SHADER_ID", "schema_dir", "plugin_path_env", "register", "is_registered",
            "shader_defs", "shader_discovery_env", "register_shader_defs"]
@@ -34,7 +34,7 @@ SHADER_ID = "BcfNeuralMaterial"  # the Sdr node of schemas/shaders/BcfNeuralMate
 
 def schema_dir() -> Path:
     """The folder holding plugInfo.json, generatedSchema.usda and schema.usda."""
-    return data_dir(SCHEMA_DIR, "BCFPIPE_SCHEMAS", "plugInfo.json")
+    return resources.data_dir(resources.SCHEMA_DIR, "BCFPIPE_SCHEMAS", "plugInfo.json")
 
 
 def plugin_path_env(existing: str | None = None) -> str:

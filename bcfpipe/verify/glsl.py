@@ -25,7 +25,7 @@ from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds
 from bcfpipe.formats import material as mf
-from bcfpipe.resources import GLSL_DIR, data_dir
+from bcfpipe import resources
 
 GL_COMPRESSED_RGB_BPTC_SIGNED_FLOAT = 0x8E8E
 GL_COMPRESSED_RGB_BPTC_UNSIGNED_FLOAT = 0x8E8F
@@ -50,7 +50,7 @@ class GLUnavailable(Unavailable):
 
 def glsl_dir() -> Path:
     """The folder with the shader sources: the package's glsl/ (``BCFPIPE_GLSL_DIR`` overrides it)."""
-    return data_dir(GLSL_DIR, "BCFPIPE_GLSL_DIR", LIBRARY)
+    return resources.data_dir(resources.GLSL_DIR, "BCFPIPE_GLSL_DIR", LIBRARY)
 
 
 def read_source(name: str) -> str:
