@@ -144,7 +144,7 @@ DRIVER = textwrap.dedent('''
     training = TrainingOptions.from_json(json.loads(sys.argv[1]))
     selection = Selection(**{k: tuple(v) if k == "materials" else v for k, v in json.loads(sys.argv[2]).items()})
     r = build(sys.argv[3], sys.argv[4], training=training, selection=selection,
-              execution=Execution(executor=sys.argv[5], cache=False, jobs=1))
+              execution=Execution(executor=sys.argv[5], cache=False, jobs=2))  # --threads 2 fits in 2 cores
     print(json.dumps([j.options.to_json() for j in r.plan.jobs]))
     sys.exit(r.exit_code)
 ''')
@@ -196,7 +196,8 @@ def _check(runs) -> None:
         assert len(traced) == len(planned) and traced
         assert {rec["mode"] for rec in traced} == modes
         for rec in traced:
-            assert rec["options"] in planned  # the whole record, every field as the plan made it
+            assert rec["options"] in planned, [{k: (v, p.get(k)) for k, v in rec["options"].items() if p.get(k) != v}
+                                               for p in planned]  # the whole record, every field as the plan made it
             o, cfg = rec["options"], rec["config"]
             assert (cfg["model"]["hidden"], cfg["seed"], cfg["model"]["features"], cfg["kernel"],
                     cfg["feature_init"], cfg["model"]["signed"], cfg["preset_name"], cfg["threads"]) == \
