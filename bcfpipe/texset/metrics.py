@@ -72,28 +72,43 @@ def _check(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray], chann
             raise ValueError(f"decoded mip {k} contains NaN or inf")
 
 
+def _squared_errors(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray], channels: Sequence[Channel],
+                    cols: Sequence[int], masks: Sequence[np.ndarray] | None, gains: np.ndarray | None) -> np.ndarray:
+    """(mips, len(cols)) peak-normalised MSE of the channels ``cols``, over the ``masks``' texels when
+    given, the channels with a gain in their log domain (``gains``, per channel of ``channels``). One
+    pass over each mip, in bands of rows: float64 temporaries stay small at 8K."""
+    cols = list(cols)
+    inv_peak2 = np.array([1.0 / channels[i].peak ** 2 for i in cols])
+    g = None if gains is None or not np.any(gains[cols] > 0) else gains[cols]
+    out = np.zeros((len(ref_mips), len(cols)))
+    for k, (r, d) in enumerate(zip(ref_mips, dec_mips)):
+        r, d = np.asarray(r), np.asarray(d)
+        rows = max(1, BAND_VALUES // max(1, r.shape[1] * len(cols)))
+        total, count = np.zeros(len(cols)), 0
+        whole = cols == list(range(r.shape[2]))
+        for y in range(0, r.shape[0], rows):
+            rb = r[y:y + rows] if whole else r[y:y + rows, :, cols]
+            db = d[y:y + rows] if whole else d[y:y + rows, :, cols]
+            if g is not None:
+                rb, db = encoding.encode_levels([rb], g)[0], encoding.encode_levels([db], g)[0]
+            diff = db.astype(np.float64) - rb
+            err = diff * diff
+            if masks is not None:
+                keep = masks[k][y:y + rows]
+                err, count = err[keep], count + int(keep.sum())
+            total += err.reshape(-1, len(cols)).sum(0)
+        n = r.shape[0] * r.shape[1] if masks is None else count
+        out[k] = total * inv_peak2 / n if n else 0.0
+    return out
+
+
 def mse_per_mip(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
                 channels: Sequence[Channel], select: Sequence[int] | None = None,
                 masks: Sequence[np.ndarray] | None = None) -> list[float]:
     """Peak-normalised MSE of each mip over the channels in `select` (default all), and with
     ``masks`` ((H_k, W_k) bool per mip) over the texels they cover only."""
-    sel = list(range(len(channels))) if select is None else list(select)
-    inv_peak2 = np.array([1.0 / channels[i].peak ** 2 for i in sel])
-    out = []
-    for k, (r, d) in enumerate(zip(ref_mips, dec_mips)):
-        r, d = np.asarray(r), np.asarray(d)
-        rows = max(1, BAND_VALUES // max(1, r.shape[1] * len(sel)))  # float64 temporaries stay small at 8K
-        total, count = 0.0, 0
-        for y in range(0, r.shape[0], rows):
-            diff = d[y:y + rows, :, sel].astype(np.float64) - r[y:y + rows, :, sel]
-            err = diff * diff * inv_peak2
-            if masks is not None:
-                keep = masks[k][y:y + rows]
-                err, count = err[keep], count + int(keep.sum())
-            total += float(np.sum(err))
-        n = (r.shape[0] * r.shape[1] if masks is None else count) * len(sel)
-        out.append(total / n if n else 0.0)
-    return out
+    sel = range(len(channels)) if select is None else select
+    return [float(m) for m in _squared_errors(ref_mips, dec_mips, channels, sel, masks, None).mean(1)]
 
 
 def mse_per_channel(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarray],
@@ -101,28 +116,9 @@ def mse_per_channel(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.ndarra
     """(mips, channels) peak-normalised MSE (over the ``masks``' texels when given), an HDR channel
     in its log domain as `compute_metrics` measures it: the terms whose mean over channels is
     compute_metrics' per-mip MSE, so a layout's figures (bcfpipe.layout) are the ones its export
-    measures. One pass over each mip, in bands of rows (float64 temporaries stay small at 8K)."""
+    measures."""
     channels = tuple(channels)
-    inv_peak2 = np.array([1.0 / ch.peak ** 2 for ch in channels])
-    g = encoding.gains(channels)
-    out = np.zeros((len(ref_mips), len(channels)))
-    for k, (r, d) in enumerate(zip(ref_mips, dec_mips)):
-        r, d = np.asarray(r), np.asarray(d)
-        rows = max(1, BAND_VALUES // max(1, r.shape[1] * len(channels)))
-        total, count = np.zeros(len(channels)), 0
-        for y in range(0, r.shape[0], rows):
-            rb, db = r[y:y + rows], d[y:y + rows]
-            if np.any(g > 0):  # the HDR channels in their log domain
-                rb, db = encoding.encode_levels([rb], g)[0], encoding.encode_levels([db], g)[0]
-            diff = db.astype(np.float64) - rb
-            err = diff * diff
-            if masks is not None:
-                keep = masks[k][y:y + rows]
-                err, count = err[keep], count + int(keep.sum())
-            total += err.reshape(-1, len(channels)).sum(0)
-        n = r.shape[0] * r.shape[1] if masks is None else count
-        out[k] = total * inv_peak2 / n if n else 0.0
-    return out
+    return _squared_errors(ref_mips, dec_mips, channels, range(len(channels)), masks, encoding.gains(channels))
 
 
 def _mean_psnr(mses: Sequence[float], use: Sequence[int]) -> float:

@@ -31,7 +31,7 @@ import numba.core.config  # noqa: E402
 
 numba.core.config.CACHE_DIR = kernels_dir()  # read when the decorators below make their caches
 import numba as nb  # noqa: E402
-from numba.core.caching import NullCache
+from numba.core.caching import NullCache  # noqa: E402
 
 
 _F32 = np.float32
