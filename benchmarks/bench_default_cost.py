@@ -10,7 +10,11 @@ within 0.1 dB at every mip, or better; never below BC@R - 0.5 dB (BC@R as BEFORE
 encoded in full) at any mip.
 
   python benchmarks/bench_default_cost.py BEFORE_TREE [--sets teapot,brick,wood,bottle,sample]
-      [--quality draft] [--profile P] [--reps 1] [--json out.json]
+      [--quality draft] [--profile P] [--reps 1] [--json out.json] [--before-json earlier.json]
+
+``--before-json``: BEFORE's runs from an earlier ``--json`` of this script (the same quality and
+profile) instead of running BEFORE again: its code does not change, and its figures decide only
+the ratio "before" and whether the decisions held; the ratio now is always this run's, interleaved.
 """
 from __future__ import annotations
 
@@ -107,14 +111,23 @@ def held(before: dict, after: dict) -> list[str]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("before", type=Path)
+    ap.add_argument("before", type=Path, nargs="?", help="BEFORE's source tree (not with --before-json)")
     ap.add_argument("--sets", default="teapot,brick,wood,bottle,sample")
     ap.add_argument("--quality", default="draft")
     ap.add_argument("--reps", type=int, default=1)
     ap.add_argument("--profile", help="passed to every run (default: the default profile)")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--before-json", type=Path, help="BEFORE's runs from an earlier --json of this script")
     a = ap.parse_args()
-    before, after = a.before.resolve(), REPO
+    if (a.before is None) == (a.before_json is None):
+        ap.error("give BEFORE_TREE or --before-json, not both")
+    earlier = {}
+    if a.before_json:
+        d = json.loads(a.before_json.read_text())
+        if d["quality"] != a.quality or d.get("profile") != a.profile:
+            ap.error(f"{a.before_json} ran at {d['quality']}, profile {d.get('profile')}")
+        earlier = {(r["set"], r["rep"]): r["auto_before"] for r in d["runs"]}
+    before, after = (a.before.resolve() if a.before else None), REPO
     print(f"machine: {machine()}; quality {a.quality}", flush=True)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -123,7 +136,12 @@ def main() -> None:
                 r = {"set": name, "rep": rep}
                 for key, tree, layout in (("auto_before", before, "auto"), ("neural", after, "neural"),
                                           ("auto_after", after, "auto")):
-                    r[key] = run(tree, name, layout, a.quality, Path(tmp) / key, a.profile)
+                    if tree is None:
+                        if (name, rep) not in earlier:
+                            raise SystemExit(f"{a.before_json} has no run of {name} (rep {rep})")
+                        r[key] = dict(earlier[name, rep], reused=str(a.before_json))
+                    else:
+                        r[key] = run(tree, name, layout, a.quality, Path(tmp) / key, a.profile)
                     print(f"  {name} {key}: {r[key]['wall_seconds']} s "
                           f"{[(k, v['layout']) for k, v in r[key]['shipped'].items()]}", flush=True)
                 nb, na = r["auto_before"]["wall_seconds"], r["auto_after"]["wall_seconds"]
@@ -136,7 +154,8 @@ def main() -> None:
                     print("    " + line, flush=True)
                 rows.append(r)
     if a.json:
-        a.json.write_text(json.dumps({"machine": machine(), "quality": a.quality, "runs": rows}, indent=2))
+        a.json.write_text(json.dumps({"machine": machine(), "quality": a.quality, "profile": a.profile,
+                                       "runs": rows}, indent=2))
 
 
 if __name__ == "__main__":

@@ -1,12 +1,13 @@
-"""bcfpipe's own BC1/BC4/BC5 decoders (`bcfpipe.formats.s3tc`) and the BC7 one `decode_levels` uses,
-against two independent decoders, quicktex and texture2ddecoder, texel for texel (issue 59)."""
+"""bcfpipe's own BC1/BC4/BC5 decoders (`bcfpipe.formats.s3tc`) and its BC7 one (`own_decode_levels`),
+against two independent decoders, quicktex and texture2ddecoder, texel for texel (issue 59); and
+`decode_levels`, which measures through texture2ddecoder, cropped and in channels as bcfpipe's own."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from bcfpipe.formats import s3tc
-from bcfpipe.formats.bcn import ClassicFormat, decode_levels
+from bcfpipe.formats.bcn import ClassicFormat, decode_levels, own_decode_levels
 
 quicktex = pytest.importorskip("quicktex")
 t2d = pytest.importorskip("texture2ddecoder")
@@ -53,12 +54,13 @@ def test_bc4_and_bc5_match_quicktex_and_texture2ddecoder():
 
 @pytest.mark.parametrize("fmt, n_bytes", [(ClassicFormat.BC1, 8), (ClassicFormat.BC4, 8), (ClassicFormat.BC5, 16),
                                           (ClassicFormat.BC7, 16)])
-def test_decode_levels_crops_a_padded_level_as_the_oracle_does(fmt, n_bytes):
+@pytest.mark.parametrize("decode", [decode_levels, own_decode_levels], ids=["t2d", "own"])
+def test_decode_levels_crops_a_padded_level_as_the_oracle_does(fmt, n_bytes, decode):
     """A 6x5 level (2x2 blocks, padded) and a 1x1 one, as texture2ddecoder decodes the padded blocks."""
     rng = np.random.default_rng(4)
     levels = [(rng.integers(0, 256, (4, n_bytes), dtype=np.uint8), 6, 5),
               (rng.integers(0, 256, (1, n_bytes), dtype=np.uint8), 1, 1)]
-    got = decode_levels(fmt, levels)
+    got = decode(fmt, levels)
     name, cols = {ClassicFormat.BC1: ("decode_bc1", [2, 1, 0]), ClassicFormat.BC4: ("decode_bc4", [2]),
                   ClassicFormat.BC5: ("decode_bc5", [2, 1]), ClassicFormat.BC7: ("decode_bc7", [2, 1, 0, 3])}[fmt]
     for (blocks, w, h), g in zip(levels, got):
