@@ -146,7 +146,9 @@ def _decodes(rt, folder: Path, weights: bytes | None = None, desc_from: Path | N
         return {"lod": rt.decode(gm, uv, s), "grad": rt.decode_grad(gm, uv, dx, dy),
                 "grid": rt.decode_grid(gm, 40, 24, 1.25), "frag": rt.render_fullscreen(gm, 40, 24),
                 "frag_lod": rt.render_fullscreen(gm, 40, 24, lod=2.5, view=2),
-                "fixed": rt.decode(gm, uv, s, defines={"BCF_N_HIDDEN": m.n_hidden, "BCF_N_OUT": m.n_out})}
+                # the shape bcfpipe bench's decode cost compiles (`decode_cost._net`): one program each
+                "fixed": rt.decode(gm, uv, s, defines={"BCF_N_HIDDEN": m.n_hidden, "BCF_N_OUT": m.n_out,
+                                                       "BCF_MAX_OUT": gm.desc.c_out})}
     finally:
         rt.unload(gm)
 
