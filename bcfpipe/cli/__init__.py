@@ -62,8 +62,9 @@ from bcfpipe.cli.decode import decode  # noqa: E402
 from bcfpipe.cli.plan import plan_cmd  # noqa: E402
 from bcfpipe.cli.render import render  # noqa: E402
 from bcfpipe.cli.scan import scan  # noqa: E402
+from bcfpipe.cli.shaders import shaders  # noqa: E402
 from bcfpipe.cli.train import train_cmd  # noqa: E402
 from bcfpipe.cli.verify import verify  # noqa: E402
 
-for _cmd in (bench, build, cache, decode, dds, plan_cmd, render, scan, train_cmd, verify):
+for _cmd in (bench, build, cache, decode, dds, plan_cmd, render, scan, shaders, train_cmd, verify):
     main.add_command(_cmd)
