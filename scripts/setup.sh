@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One-shot, idempotent set-up: Debian packages (Mesa EGL/GL, astcenc, glslang and SPIRV-Cross, ninja, chromium
+# One-shot, idempotent set-up: Debian packages (Mesa EGL/GL and Vulkan, astcenc, glslang and SPIRV-Cross, ninja, chromium
 # for the bench report test, g++ for the fused training kernel),
 # a virtual environment in .venv, torch, and bcfpipe with its test extras.
 #
@@ -10,7 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-APT_PKGS="libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri astcenc glslang-tools spirv-cross spirv-tools ninja-build chromium g++"
+APT_PKGS="libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libvulkan1 mesa-vulkan-drivers astcenc glslang-tools spirv-cross spirv-tools ninja-build chromium g++"
 if [[ "${BCF_NO_APT:-0}" != 1 ]] && command -v apt-get >/dev/null; then
   missing=""
   for p in $APT_PKGS; do

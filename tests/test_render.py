@@ -191,6 +191,24 @@ def test_sample_compare_cli(sample, tmp_path) -> None:
     assert (spec.width, spec.height, spec.nchannels) == (3 * 320 + 2 * C.GAP, 180, 3)
 
 
+@pytest.mark.vulkan
+def test_sample_build_verifies_on_vulkan_beside_opengl(sample) -> None:
+    """Issue 60: `bcfpipe verify --runtime vulkan` on the sample scene's neural build (the combined
+    weights.bin, each material at its offset): every material passes on Vulkan as on OpenGL."""
+    pytest.importorskip("vulkan", reason="needs the vulkan package (pip install vulkan)")
+    from bcfpipe.targets.vulkan import VulkanRuntime, VulkanUnavailable
+
+    try:
+        VulkanRuntime().release()
+    except VulkanUnavailable as e:
+        pytest.skip(f"no Vulkan here: {e} (apt-get install libvulkan1 mesa-vulkan-drivers)")
+    r = CliRunner().invoke(main, ["verify", str(sample.parent), "--runtime", "vulkan", "--json"])
+    assert r.exit_code == 0, r.output[-3000:]
+    rep = json.loads(r.output)
+    checks = [{c["name"]: c for c in m["checks"]} for m in rep["materials"]]
+    assert len(checks) == 4 and all(c["vulkan"]["passed"] and c["glsl"]["passed"] for c in checks), checks
+
+
 def test_reads_only_the_stage(sample, rt, tmp_path) -> None:
     """Without manifest.json, material.json and decoder.onnx the neural frame is bit-identical:
     the renderer needs the stage and the files it names (DDS, weights.bin, the textures)."""

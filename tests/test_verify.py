@@ -342,7 +342,7 @@ def test_cli_one_line_per_material_unless_verbose(materials, tmp_path):
 
     r = CliRunner().invoke(main, ["verify", str(root), "--json"])
     rep = json.loads(r.stdout)
-    assert set(rep) == {"path", "passed", "exit_code", "renderer", "gl_error", "tolerance", "materials"}
+    assert set(rep) == {"path", "passed", "exit_code", "renderer", "vulkan", "gl_error", "tolerance", "materials"}
     assert set(rep["materials"][0]) == {"name", "folder", "passed", "input_error", "checks", "n_points", "channels",
                                         "categories", "shares"}
 

@@ -46,6 +46,8 @@ def material_line(m) -> str:
                               f"{_figures(worst)}, worst at {worst['worst']['category']}")
             else:
                 figures.append(f"glsl: {_figures(worst)}, {m.n_points} points x {len(m.channels)} channels")
+        elif c.name == "vulkan" and c.passed:  # its figure beside OpenGL's
+            figures.append(f"vulkan: {c.detail}")
         elif c.passed is False:
             failed.append(f"{c.name}: {c.detail}")
         elif c.passed:
@@ -78,7 +80,7 @@ class VerifyOutput:
         with self._lock:
             if ev.kind == "start":
                 self.total = ev.total
-                self.header(ev.renderer, ev.tolerance)
+                self.header(ev.renderer, ev.tolerance, ev.vulkan)
             elif ev.kind == "check":
                 self.where, self.since = (ev.material, ev.check), self.clock()
             elif ev.kind == "done":
@@ -90,11 +92,14 @@ class VerifyOutput:
             self.console.print(*args, **kwargs)
             self.last_line = self.clock()
 
-    def header(self, renderer, tol) -> None:
-        """The OpenGL renderer (when GLSL runs) and the tolerance, one line each."""
+    def header(self, renderer, tol, vulkan=None) -> None:
+        """The OpenGL renderer (when GLSL runs), the Vulkan device (--runtime vulkan) and the
+        tolerance, one line each."""
         self.headed = True
         if renderer:
             self._print(f"OpenGL: {renderer['renderer']} | {renderer['version']}", markup=False, highlight=False)
+        if vulkan:
+            self._print(f"Vulkan: {vulkan['renderer']} | {vulkan['version']}", markup=False, highlight=False)
         tol_text = (f"derived per point (filtering precision 2^-{tol['filter_bits']}, fp16 weights)"
                     if tol["mode"] == "derived" else f"fixed {tol['value']:g}")
         self._print(f"Tolerance: {tol_text}", markup=False, highlight=False)
@@ -135,9 +140,9 @@ class VerifyOutput:
         """The header if no material came (no OpenGL), the OpenGL error, the count."""
         with self._lock:
             if not self.headed:
-                self.header(report.renderer, report.tolerance)
+                self.header(report.renderer, report.tolerance, report.vulkan)
             if report.gl_error:
-                self._print(f"[red]no OpenGL:[/red] {escape(report.gl_error)}", highlight=False)
+                self._print(f"[red]no {report.unavailable}:[/red] {escape(report.gl_error)}", highlight=False)
             n_ok = sum(m.passed for m in report.materials)
             gap = "\n" if self.verbose else ""
             self._print(f"{gap}{n_ok}/{len(report.materials)} material(s) passed")
@@ -159,7 +164,7 @@ def print_report(report, console=None, verbose: bool = False) -> None:
     """The whole human-readable report: the header, one line per material (``verbose``: its
     checks, then the error table per channel and per group of sample points), the count."""
     out = VerifyOutput(console or Console(), verbose)
-    out.header(report.renderer, report.tolerance)
+    out.header(report.renderer, report.tolerance, report.vulkan)
     for m in report.materials:
         out.material(m)
     out.finish(report)
@@ -175,6 +180,7 @@ class CheckSettings:
     glsl: bool = True
     filter_bits: int | None = None
     seed: int = 0
+    vulkan: bool = False  # --runtime vulkan: the decoder on Vulkan too, beside OpenGL
 
 
 def run_verify(path: str, checks: CheckSettings = CheckSettings(), as_json: bool = False, echo=click.echo,
@@ -189,7 +195,7 @@ def run_verify(path: str, checks: CheckSettings = CheckSettings(), as_json: bool
     try:
         with contextlib.nullcontext() if quiet else Ticker(out.tick):
             report = V.verify(path, tolerance=checks.tolerance, glsl=checks.glsl, seed=checks.seed,
-                              filter_bits=filter_bits, progress=out)
+                              filter_bits=filter_bits, progress=out, vulkan=checks.vulkan)
     except V.VerifyInputError as e:
         if as_json:
             echo(json.dumps({"path": str(path), "passed": False, "exit_code": EXIT_USAGE, "input_error": str(e)}))
@@ -212,11 +218,14 @@ def run_verify(path: str, checks: CheckSettings = CheckSettings(), as_json: bool
               help="Fractional precision assumed for the texture unit's bilinear and mip weights.")
 @click.option("--no-glsl", is_flag=True, help="Skip the OpenGL comparison (file, weight and OpenImageIO checks only).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random part of the (u, v, s) grid.")
+@click.option("--runtime", type=click.Choice(["opengl", "vulkan"]), default="opengl", show_default=True,
+              help="vulkan: also run the decoder's SPIR-V (bcfpipe shaders) on Vulkan, a GPU's driver or Mesa's "
+                   "lavapipe, held to decoder.onnx at the same points, its figure beside OpenGL's.")
 @click.option("-v", "--verbose", is_flag=True,
               help="Per material every check and the error tables (default: one line per material).")
 @click.pass_context
 def verify(ctx: click.Context, out: str, as_json: bool, tolerance: float | None, filter_bits: int, no_glsl: bool,
-           seed: int, verbose: bool) -> None:
+           seed: int, runtime: str, verbose: bool) -> None:
     """Check the exported material(s) in OUT through the real GLSL decoder.
 
     OUT is a material folder (material.json) or a build folder (manifest.json, or subfolders with
@@ -230,8 +239,9 @@ def verify(ctx: click.Context, out: str, as_json: bool, tolerance: float | None,
     stderr a line at least every 10 s while a check runs.
 
     \b
-    Exit codes: 0 passed, 1 a check failed, 2 bad input or no OpenGL.
+    Exit codes: 0 passed, 1 a check failed, 2 bad input, or no OpenGL (no Vulkan with --runtime vulkan).
     """
-    code = run_verify(out, CheckSettings(tolerance, not no_glsl, filter_bits, seed), as_json=as_json, verbose=verbose,
+    code = run_verify(out, CheckSettings(tolerance, not no_glsl, filter_bits, seed, runtime == "vulkan"),
+                      as_json=as_json, verbose=verbose,
                       quiet=bool((ctx.obj or {}).get("quiet")))
     ctx.exit(code if code in (EXIT_OK, EXIT_FAILED, EXIT_USAGE) else EXIT_FAILED)

@@ -191,8 +191,17 @@ vec2 bcfReduceUv(vec2 uv, ivec2 wrap) {
 // Hardware trilinear samples of the N layers at s_i = s + b_i (s = +-inf is fine; NaN is not).
 void bcfSampleFeatures(sampler2D T[BCF_N_LAYERS], BcfMaterial m, vec2 uv, float s, out vec4 t[BCF_N_LAYERS]) {
     uv = bcfReduceUv(uv, m.wrap);
-    for (int i = 0; i < BCF_N_LAYERS; ++i)
-        t[i] = textureLod(T[i], uv, clamp(s + m.lodBias[i], 0.0, BCF_MAX_LOD));
+    // constant indices into T: Vulkan without shaderSampledImageArrayDynamicIndexing (lavapipe) and
+    // GLSL ES index sampler arrays with constant expressions only
+#define BCF_SAMPLE(i) t[i] = textureLod(T[i], uv, clamp(s + m.lodBias[i], 0.0, BCF_MAX_LOD))
+    BCF_SAMPLE(0); BCF_SAMPLE(1); BCF_SAMPLE(2); BCF_SAMPLE(3);
+#if BCF_N_LAYERS > 4
+    BCF_SAMPLE(4);
+#endif
+#if BCF_N_LAYERS > 5
+    BCF_SAMPLE(5);
+#endif
+#undef BCF_SAMPLE
 }
 
 // s from uv derivatives (paper sec. 5.2): log2 of the larger pixel footprint in reference texels.

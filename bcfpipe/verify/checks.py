@@ -50,6 +50,7 @@ from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
 from bcfpipe.formats.vocabulary import Status
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes
+from bcfpipe.targets.vulkan import VulkanRuntime, VulkanUnavailable
 from bcfpipe.verify.constants import check_constants
 from bcfpipe.verify.glsl import GLRuntime, GLUnavailable, MaterialDesc
 from bcfpipe.verify.points import CATEGORIES, gradient_points, lod_from_grad, verification_points
@@ -113,6 +114,7 @@ class VerifyEvent:
     renderer: dict | None = None
     tolerance: dict | None = None
     total: int = 0
+    vulkan: dict | None = None  # the Vulkan device's info with --runtime vulkan
 
 
 VerifyProgress = Callable[[VerifyEvent], None]
@@ -330,8 +332,14 @@ def _finite(x) -> float | str:
     return x if np.isfinite(x) else str(x)
 
 
-def check_glsl(rt: GLRuntime, m: MaterialDesc, em: E.ExportedMaterial, tolerance: float | None,
-               seed: int = 0, filter_bits: int = FILTER_BITS) -> tuple[Check, list[dict], list[dict], int]:
+RUNTIME_LABEL = {"glsl": "GL", "vulkan": "Vulkan"}  # a runtime check's name: what its figures say
+
+
+def check_glsl(rt, m: MaterialDesc, em: E.ExportedMaterial, tolerance: float | None,
+               seed: int = 0, filter_bits: int = FILTER_BITS, name: str = "glsl") -> tuple[Check, list[dict], list[dict], int]:
+    """bcf_decode.comp on ``rt`` (a `GLRuntime`, or with ``name`` "vulkan" a
+    `bcfpipe.targets.vulkan.VulkanRuntime`) against decoder.onnx at the verification points."""
+    label = RUNTIME_LABEL[name]
     level_sizes = [[(lv.shape[1], lv.shape[0]) for lv in layer] for layer in em.levels]
     uv, s, cat = verification_points(m, level_sizes, seed)
     guv, gdx, gdy = gradient_points(m.ref_size, seed)
@@ -348,7 +356,7 @@ def check_glsl(rt: GLRuntime, m: MaterialDesc, em: E.ExportedMaterial, tolerance
     sess = E.onnx_session(em)
     ref = sess.run([ONNX_OUTPUT], {ONNX_INPUT: feats})[0]
     if gl.shape != ref.shape:
-        return Check("glsl", False, f"GLSL gives {gl.shape[1]} channels, ONNX {ref.shape[1]}"), [], [], len(uv)
+        return Check(name, False, f"{label} gives {gl.shape[1]} channels, ONNX {ref.shape[1]}"), [], [], len(uv)
     if tolerance is None:
         fe = filter_error(em.levels, em.lod_biases, uv, s, em.wrap, filter_bits, exact_lods,
                           unorm8=em.desc.features == "bc7")
@@ -369,15 +377,15 @@ def check_glsl(rt: GLRuntime, m: MaterialDesc, em: E.ExportedMaterial, tolerance
                                    "category": CATEGORIES[cat[worst]]},
                          "passed": over == 0})
     categories = []
-    for k, name in enumerate(CATEGORIES):
+    for k, category in enumerate(CATEGORIES):
         sel = cat == k
         if sel.any():
-            categories.append({"category": name, "n": int(sel.sum()), "max_abs": float(err[sel].max()),
+            categories.append({"category": category, "n": int(sel.sum()), "max_abs": float(err[sel].max()),
                                "mean_abs": float(err[sel].mean()),
                                "over_tolerance": int((err[sel] > tol[sel]).sum())})
     n_over = sum(ch["over_tolerance"] for ch in channels)
     mode = "derived bound" if tolerance is None else f"fixed {tolerance:g}"
-    detail = (f"{len(uv)} (u, v, s) points x {ref.shape[1]} channels: max |GL - ONNX| {err.max():.3g} "
+    detail = (f"{len(uv)} (u, v, s) points x {ref.shape[1]} channels: max |{label} - ONNX| {err.max():.3g} "
               f"(tolerance: {mode}, max {tol.max():.3g})")
     if n_over:
         detail += f"; {n_over} value(s) over tolerance"
@@ -385,7 +393,7 @@ def check_glsl(rt: GLRuntime, m: MaterialDesc, em: E.ExportedMaterial, tolerance
         loose = float((tol > TARGET).mean())
         if loose > 0:  # informational: how sensitive the material is to hardware filtering precision
             detail += f"; bound > {TARGET:g} for {100 * loose:.1f}% of values"
-    return Check("glsl", n_over == 0, detail), channels, categories, len(uv)
+    return Check(name, n_over == 0, detail), channels, categories, len(uv)
 
 
 @dataclass
@@ -394,7 +402,9 @@ class Report:
     materials: list[MaterialReport]
     renderer: dict | None
     tolerance: dict
-    gl_error: str | None = None
+    gl_error: str | None = None  # the runtime that could not be had (OpenGL, or Vulkan), and why
+    vulkan: dict | None = None  # the Vulkan device's info with --runtime vulkan
+    unavailable: str = "OpenGL"  # which runtime gl_error is about
 
     @property
     def passed(self) -> bool:
@@ -408,13 +418,16 @@ class Report:
 
     def to_dict(self) -> dict:
         return {"path": self.path, "passed": self.passed, "exit_code": self.exit_code, "renderer": self.renderer,
-                "gl_error": self.gl_error, "tolerance": self.tolerance,
+                "vulkan": self.vulkan, "gl_error": self.gl_error, "tolerance": self.tolerance,
                 "materials": [m.to_dict() for m in self.materials]}
 
 
 def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = None, seed: int = 0,
-                  filter_bits: int = FILTER_BITS, on_check: Callable[[str], None] | None = None) -> MaterialReport:
-    """Every check of one material; ``on_check`` hears each check's name before it runs."""
+                  filter_bits: int = FILTER_BITS, on_check: Callable[[str], None] | None = None,
+                  vulkan=None) -> MaterialReport:
+    """Every check of one material; ``on_check`` hears each check's name before it runs. With
+    ``vulkan`` (a `VulkanRuntime`) the decoder's SPIR-V runs there too, held to decoder.onnx at the
+    same points as OpenGL (check ``vulkan``)."""
     m = t.desc
     rep = MaterialReport(m.name, str(m.folder))
     started = on_check or (lambda name: None)
@@ -437,15 +450,19 @@ def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = Non
         if m.file.classic:
             started("classic")
             rep.checks.append(check_classic(m))
-        if rt is not None:
-            started("glsl")
+        if rt is not None or vulkan is not None:
             em = E.load(m.folder)
             em = E.ExportedMaterial(em.desc, em.levels, from_bytes(m.weights_file.read_bytes(), m.weight_offset)[0],
                                     em.onnx_path)
+        if rt is not None:
+            started("glsl")
             chk, rep.channels, rep.categories, rep.n_points = check_glsl(rt, m, em, tolerance, seed, filter_bits)
             rep.checks.append(chk)
         else:
             rep.checks.append(Check("glsl", None, "skipped (--no-glsl)"))
+        if vulkan is not None:
+            started("vulkan")
+            rep.checks.append(check_glsl(vulkan, m, em, tolerance, seed, filter_bits, name="vulkan")[0])
     except VerifyInputError as e:
         rep.input_error = str(e)
     except (OSError, KeyError, dds.DdsError) as e:
@@ -514,9 +531,10 @@ def target_reports(t: Target, checked: MaterialReport, constants: dict[str, Chec
 
 def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool = True, seed: int = 0,
            filter_bits: int = FILTER_BITS, runtime: GLRuntime | None = None,
-           progress: VerifyProgress | None = None) -> Report:
+           progress: VerifyProgress | None = None, vulkan: bool = False) -> Report:
     """Verify every material under ``path``; raises VerifyInputError when there is nothing to verify.
-    ``progress`` hears `VerifyEvent`s as it goes (nothing when OpenGL is unavailable)."""
+    ``progress`` hears `VerifyEvent`s as it goes (nothing when OpenGL is unavailable). ``vulkan``:
+    run the decoder on Vulkan too (`bcfpipe.targets.vulkan`; no Vulkan device: exit 2, as no OpenGL)."""
     targets = find_targets(path)
     for root in root_layers(path):  # a build folder: its stage must still reach the scene it was built over
         try:
@@ -533,6 +551,14 @@ def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool =
             rt, own = GLRuntime(), True
         except GLUnavailable as e:
             return Report(str(path), [], None, tol_info, gl_error=str(e))
+    vk = None
+    if vulkan:
+        try:
+            vk = VulkanRuntime()
+        except VulkanUnavailable as e:
+            if own:
+                rt.release()
+            return Report(str(path), [], None, tol_info, gl_error=str(e), unavailable="Vulkan")
     tell = progress or (lambda ev: None)
     try:
         renderer = rt.info if rt is not None else None
@@ -540,16 +566,20 @@ def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool =
         constants = constant_checks(Path(path))
         users = {name for t in targets for name in t.aliases}
         total = sum(len(t.aliases) or 1 for t in targets) + sum(name not in users for name in constants)
-        tell(VerifyEvent("start", renderer=renderer, tolerance=tol_info, total=total))
+        tell(VerifyEvent("start", renderer=renderer, tolerance=tol_info, total=total,
+                         vulkan=vk.info if vk is not None else None))
         ordered = InOrder(build_order(Path(path)), lambda rep: tell(VerifyEvent("done", rep.name, report=rep)))
         for t in targets:
             name = t.desc.name
             checked = verify_target(t, rt if glsl else None, tolerance, seed, filter_bits,
-                                    on_check=lambda check, name=name: tell(VerifyEvent("check", name, check)))
+                                    on_check=lambda check, name=name: tell(VerifyEvent("check", name, check)),
+                                    vulkan=vk)
             ordered.add(target_reports(t, checked, constants))
         # a constant material: nothing but its values
         ordered.add([MaterialReport(name, str(path), [check]) for name, check in constants.items()])
-        return Report(str(path), ordered.finish(), renderer, tol_info)
+        return Report(str(path), ordered.finish(), renderer, tol_info, vulkan=vk.info if vk is not None else None)
     finally:
         if own:
             rt.release()
+        if vk is not None:
+            vk.release()

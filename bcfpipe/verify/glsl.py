@@ -97,6 +97,17 @@ class MaterialDesc:
     def layer_files(self) -> list[Path]:
         return [self.folder / layer.file for layer in self.file.layers]
 
+    def layer_textures(self):
+        """Each feature layer's DDS (`dds.DdsTexture`), checked against material.json's format."""
+        out = []
+        for path in self.layer_files:
+            tex = dds.read(path)
+            if tex.signed != self.signed or tex.is_bc7 != self.bc7:
+                raise ValueError(f"{path}: {tex.format_name} but material.json says "
+                                 f"{'bc7' if self.bc7 else 'signed=' + str(self.signed)}")
+            out.append(tex)
+        return out
+
     @property
     def lod_biases(self) -> tuple[float, ...]:
         return self.file.lod_biases
@@ -307,11 +318,7 @@ class GLRuntime:
         overrides the file)."""
         textures: list[int] = []
         try:
-            for path in m.layer_files:
-                tex = dds.read(path)
-                if tex.signed != m.signed or tex.is_bc7 != m.bc7:
-                    raise ValueError(f"{path}: {tex.format_name} but material.json says "
-                                     f"{'bc7' if m.bc7 else 'signed=' + str(m.signed)}")
+            for tex in m.layer_textures():
                 textures.append(self.upload_compressed(tex.levels, gl_format(tex), m.wrap))
         except BaseException:
             self.delete_textures(textures)

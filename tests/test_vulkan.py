@@ -1,0 +1,78 @@
+"""`bcfpipe verify --runtime vulkan` (issue 60): the decoder's SPIR-V (`bcfpipe shaders`' source)
+run on a real Vulkan device (Mesa's lavapipe on a CPU machine) against decoder.onnx at verify's
+points, beside OpenGL. Trained materials with a T_0 of 2 layers (5 BC7 layers) and 4 BC6H layers
+(tests/test_format_spec.py's, 64², tiny / smoke); the sample scene's neural build in
+tests/test_render.py. Skips where no Vulkan device with BC textures can be had."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cli_run import run_cli
+from test_format_spec import materials  # noqa: F401 - the trained materials, a module fixture
+
+
+@pytest.fixture(scope="module")
+def vk():
+    pytest.importorskip("vulkan", reason="needs the vulkan package (pip install vulkan)")
+    from bcfpipe.targets.vulkan import VulkanRuntime, VulkanUnavailable
+
+    try:
+        rt = VulkanRuntime()
+    except VulkanUnavailable as e:
+        pytest.skip(f"no Vulkan here: {e} (apt-get install libvulkan1 mesa-vulkan-drivers)")
+    yield rt
+    rt.release()
+
+
+@pytest.mark.vulkan
+@pytest.mark.parametrize("name", ["bc7-5", "bc6h-4"])
+def test_verify_runtime_vulkan_passes_with_its_figure_beside_opengls(vk, materials, name):  # noqa: F811
+    r = run_cli("verify", materials[name], "--runtime", "vulkan", "--json")
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
+    rep = json.loads(r.stdout)
+    assert rep["vulkan"]["version"].startswith("Vulkan 1.")
+    checks = {c["name"]: c for c in rep["materials"][0]["checks"]}
+    assert checks["vulkan"]["passed"] and checks["glsl"]["passed"]
+    figure = float(checks["vulkan"]["detail"].split("max |Vulkan - ONNX| ")[1].split()[0])
+    assert figure < 1e-3  # fp32 arithmetic and the texture unit's filter: the runtimes agree closely
+    text = run_cli("verify", materials[name], "--runtime", "vulkan")
+    assert "Vulkan: " in text.stdout and "max |Vulkan - ONNX|" in text.stdout and "max |GLSL - ONNX|" in text.stdout
+
+
+@pytest.mark.vulkan
+def test_vulkan_decode_equals_opengls_and_rejects_a_bad_record(vk, materials, rt):  # noqa: F811
+    """At points far outside [0, 1] on the clamp / mirror material: Vulkan's decode is OpenGL's,
+    to fp32 rounding; a record of another shape decodes to NaN, which verify fails."""
+    from bcfpipe.verify import glsl as G
+
+    m = G.read_material(materials["bc7-5"])
+    rng = np.random.default_rng(3)
+    uv = rng.uniform(-3, 4, (3000, 2)).astype(np.float32)
+    s = rng.uniform(-2, 9, 3000).astype(np.float32)
+    vm, gm = vk.load(m), rt.load(m)
+    try:
+        np.testing.assert_allclose(vk.decode(vm, uv, s), rt.decode(gm, uv, s), rtol=0, atol=2e-5)
+        dx, dy = (rng.normal(0, 1, (2, 3000, 2)) * 0.01).astype(np.float32)
+        np.testing.assert_allclose(vk.decode_grad(vm, uv, dx, dy), rt.decode_grad(gm, uv, dx, dy), rtol=0, atol=2e-5)
+    finally:
+        vk.unload(vm)
+        rt.unload(gm)
+    bad = bytearray(m.weights_file.read_bytes())
+    bad[8:12] = (99).to_bytes(4, "little")  # n_in of no layer count
+    vm = vk.load(m, weights=bytes(bad))
+    try:
+        assert np.isnan(vk.decode(vm, uv[:100], s[:100])).all()
+    finally:
+        vk.unload(vm)
+
+
+def test_no_vulkan_is_one_line_and_exit_2(materials, monkeypatch):  # noqa: F811
+    pytest.importorskip("vulkan", reason="needs the vulkan package (pip install vulkan)")
+    monkeypatch.setenv("VK_ICD_FILENAMES", "/nonexistent/icd.json")
+    monkeypatch.setenv("VK_DRIVER_FILES", "/nonexistent/icd.json")
+    r = run_cli("verify", materials["bc7-4"], "--runtime", "vulkan")
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "no Vulkan" in r.stdout + r.stderr and "Traceback" not in r.stdout + r.stderr
