@@ -33,9 +33,9 @@ def test_one_source_gives_spirv_hlsl_and_msl(layers, tmp_path):
     sh = S.shaders(layers)
     assert sh.spirv[:4] == bytes.fromhex("03022307")  # SPIR-V magic, little-endian
     spirv_val(sh.spirv, tmp_path)
-    spirv_val(S.check_hlsl(sh.hlsl), tmp_path)  # the HLSL compiles, and to valid SPIR-V
+    spirv_val(S.hlsl_spirv(sh.hlsl), tmp_path)  # the HLSL compiles, and to valid SPIR-V
     # binding k keeps its number: buffers t0, t1, u2, t3, then the textures from t4 (no overlap)
-    registers = dict(re.findall(r"(\w+(?:\[\d+\])?) : register\((\w+)\)", sh.hlsl))
+    registers = dict(re.findall(r"(\w+(?:\[\d+\])?) : register\((\w+)(?:, space0)?\)", sh.hlsl))
     assert registers[f"bcfT[{layers}]"] == "t4" and registers[f"_bcfT_sampler[{layers}]"] == "s4", registers
     assert sorted(v for k, v in registers.items() if "bcfT" not in k) == ["t0", "t1", "t3", "u2"], registers
     assert "void main(" in sh.hlsl and "kernel void main0(" in sh.msl
@@ -50,14 +50,14 @@ def test_a_fixed_network_shape_compiles_for_every_target(tmp_path):
 
     sh = S.shaders(4, {"BCF_N_HIDDEN": 16, "BCF_N_OUT": 6, "BCF_MAX_OUT": 7})
     spirv_val(sh.spirv, tmp_path)
-    spirv_val(S.check_hlsl(sh.hlsl), tmp_path)
+    spirv_val(S.hlsl_spirv(sh.hlsl), tmp_path)
 
 
 def test_a_broken_hlsl_is_reported_with_the_compilers_words():
     from bcfpipe.targets import spirv as S
 
     with pytest.raises(RuntimeError, match="HLSL front end failed"):
-        S.check_hlsl("[numthreads(64, 1, 1)] void main() { undefined_thing(); }")
+        S.hlsl_spirv("[numthreads(64, 1, 1)] void main() { undefined_thing(); }")
 
 
 def test_shaders_command_writes_every_target(tmp_path):

@@ -25,7 +25,7 @@ def shaders(out_dir: str, layer_counts: str, check: bool, as_json: bool) -> None
     Metal for materials of each layer count: bcf_decode_N.spv, .hlsl and .metal.
 
     glslang compiles the GLSL to SPIR-V; SPIRV-Cross translates that SPIR-V to HLSL (shader model
-    5.0, entry main) and MSL (Metal 2.0, kernel main0). Resources: set 0, binding 0 the weight
+    6.0, entry main) and MSL (Metal 2.0, kernel main0). Resources: set 0, binding 0 the weight
     words, 1 the queries, 2 the output, 3 the parameters, 4 the N feature textures (combined image
     samplers); HLSL registers and Metal indices keep those numbers (glsl/bcf_decode.comp's header). Exit codes: 0 ok, 2 glslang or
     SPIRV-Cross missing (apt-get install glslang-tools spirv-cross), 1 a compile failed.
@@ -42,7 +42,7 @@ def shaders(out_dir: str, layer_counts: str, check: bool, as_json: bool) -> None
     for n in counts:
         sh = S.shaders(n)
         if check:
-            S.check_hlsl(sh.hlsl)
+            S.hlsl_spirv(sh.hlsl)
         for target in S.Target:
             path = out / f"bcf_decode_{n}.{target.value}"
             atomic_write(path, sh.text(target))

@@ -1,12 +1,15 @@
 """glsl/bcf_decode.comp (with the library, `verify.glsl.assemble`) compiled by glslang to Vulkan
-SPIR-V, and that SPIR-V translated by SPIRV-Cross: HLSL (shader model 5.0, D3D11/12) and MSL
-(Metal 2.0). One source, so every engine runs the function the GLSL decoder runs; the HLSL is
-checked by compiling it again through glslang's HLSL front end (`check_hlsl`).
+SPIR-V, and that SPIR-V translated by SPIRV-Cross: HLSL (shader model 6.0, D3D12) and MSL
+(Metal 2.0). One source, so every engine runs the function the GLSL decoder runs. The HLSL is
+compiled again through glslang's HLSL front end (`hlsl_spirv`), and that SPIR-V is what
+`bcfpipe verify --runtime vulkan` runs: the HLSL itself is what is verified. MSL cannot run on this
+machine; it is SPIRV-Cross's output of the same SPIR-V.
 
 The resource layout (set 0; glsl/bcf_decode.comp's header): binding 0 the weight words, 1 the
 queries, 2 the output, 3 the parameters, 4 the N feature textures as combined image samplers.
 In HLSL binding k is register tk / uk / sk (the textures t4.., their samplers s4..); in Metal,
-buffer(k), texture(4..) and sampler(4..).
+buffer(k), texture(4..) and sampler(4..). The HLSL's SPIR-V (`hlsl_spirv`) has separate images at
+binding 4.. and samplers at `HLSL_SAMPLER_BINDING`.. (glslang's --shift-sampler-binding).
 """
 from __future__ import annotations
 
@@ -22,7 +25,8 @@ from bcfpipe.verify.glsl import assemble
 
 LAYER_COUNTS = (4, 5, 6)  # BCF_N_LAYERS: a T_0 of one to three layers
 TARGET_ENV = "vulkan1.1"
-HLSL_SHADER_MODEL = "50"
+HLSL_SHADER_MODEL = "60"
+HLSL_SAMPLER_BINDING = 12  # the HLSL's samplers s4.. in its SPIR-V: 8 past the images' bindings
 MSL_VERSION = "20000"  # Metal 2.0: arrays of textures as kernel arguments
 TOOLS = {"glslangValidator": "glslang-tools", "spirv-cross": "spirv-cross"}
 
@@ -83,7 +87,7 @@ def _cross(code: bytes, *flags: str) -> str:
 
 
 def hlsl(code: bytes) -> str:
-    """``code`` (SPIR-V) as HLSL, shader model 5.0; entry point ``main``."""
+    """``code`` (SPIR-V) as HLSL, shader model 6.0; entry point ``main``."""
     return _cross(code, "--hlsl", "--shader-model", HLSL_SHADER_MODEL)
 
 
@@ -92,14 +96,15 @@ def msl(code: bytes) -> str:
     return _cross(code, "--msl", "--msl-version", MSL_VERSION, "--msl-decoration-binding")
 
 
-def check_hlsl(text: str) -> bytes:
-    """``text`` compiled by glslang's HLSL front end (entry ``main``, compute): its SPIR-V, or
-    RuntimeError with the compiler's messages."""
+def hlsl_spirv(text: str) -> bytes:
+    """``text`` compiled by glslang's HLSL front end (entry ``main``, compute; samplers shifted to
+    `HLSL_SAMPLER_BINDING`): its Vulkan SPIR-V, or RuntimeError with the compiler's messages."""
     with tempfile.TemporaryDirectory(prefix="bcfpipe-hlsl-") as d:
         src, out = Path(d) / "bcf_decode.comp.hlsl", Path(d) / "out.spv"
         src.write_text(text)
-        _run([tool("glslangValidator"), "-D", "-e", "main", "-S", "comp", "-V", "-o", str(out), str(src)],
-             "glslang's HLSL front end")
+        shift = str(HLSL_SAMPLER_BINDING - 4)
+        _run([tool("glslangValidator"), "-D", "-e", "main", "-S", "comp", "-V", "--target-env", TARGET_ENV,
+              "--shift-sampler-binding", shift, "-o", str(out), str(src)], "glslang's HLSL front end")
         return out.read_bytes()
 
 

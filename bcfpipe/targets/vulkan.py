@@ -1,7 +1,9 @@
-"""The batch decoder on Vulkan (issue 60): the SPIR-V of `bcfpipe.targets.spirv` run as a compute
-pipeline, the feature layers as BC6H / BC7 images with the material's sampler (trilinear, its
-addressing per axis), on any Vulkan 1.1 device with BC textures: a GPU's driver, or Mesa's lavapipe
-on the CPU. `bcfpipe verify --runtime vulkan` holds it to decoder.onnx as it holds OpenGL.
+"""The batch decoder on Vulkan (issue 60): the shipped HLSL (`bcfpipe shaders`: glsl/bcf_decode.comp
+through SPIR-V and SPIRV-Cross), compiled back to SPIR-V by glslang's HLSL front end, run as a
+compute pipeline; the feature layers as BC6H / BC7 images with the material's sampler (trilinear,
+its addressing per axis); on any Vulkan 1.1 device with BC textures: a GPU's driver, or Mesa's
+lavapipe on the CPU. `bcfpipe verify --runtime vulkan` holds it to decoder.onnx as it holds OpenGL,
+so the HLSL an engine takes is what is checked.
 
 The same calls as `bcfpipe.verify.glsl.GLRuntime` that verify makes: ``load``, ``decode``,
 ``decode_grad``, ``unload``, ``release`` and ``info``.
@@ -16,10 +18,11 @@ import numpy as np
 
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds
-from bcfpipe.targets.spirv import spirv
+from bcfpipe.targets.spirv import HLSL_SAMPLER_BINDING, hlsl, hlsl_spirv, spirv
 from bcfpipe.verify.glsl import LOCAL_SIZE, MaterialDesc, wrap_codes
 
 PARAMS = struct.Struct("<IiII2i2f2IfI")  # bcf_decode.comp's BcfParams before uLodBias: 48 bytes
+TEXTURE_BINDING = 4  # the layers' images (register t4..); their samplers at HLSL_SAMPLER_BINDING
 MAX_GROUPS = 65535  # maxComputeWorkGroupCount[0] every Vulkan device has
 
 
@@ -256,14 +259,15 @@ class VulkanRuntime:
         stage = vk.VK_SHADER_STAGE_COMPUTE_BIT
         bindings = [vk.VkDescriptorSetLayoutBinding(binding=b, descriptorType=vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
                                                     descriptorCount=1, stageFlags=stage) for b in range(4)]
-        bindings.append(vk.VkDescriptorSetLayoutBinding(
-            binding=4, descriptorType=vk.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER, descriptorCount=layers,
-            stageFlags=stage))
+        bindings += [vk.VkDescriptorSetLayoutBinding(binding=b, descriptorType=t, descriptorCount=layers,
+                                                     stageFlags=stage)
+                     for b, t in ((TEXTURE_BINDING, vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE),
+                                  (HLSL_SAMPLER_BINDING, vk.VK_DESCRIPTOR_TYPE_SAMPLER))]
         dsl = vk.vkCreateDescriptorSetLayout(self.device, vk.VkDescriptorSetLayoutCreateInfo(
             bindingCount=len(bindings), pBindings=bindings), None)
         layout = vk.vkCreatePipelineLayout(self.device, vk.VkPipelineLayoutCreateInfo(
             setLayoutCount=1, pSetLayouts=[dsl]), None)
-        code = spirv({"BCF_N_LAYERS": layers} if layers != 4 else None)
+        code = hlsl_spirv(hlsl(spirv({"BCF_N_LAYERS": layers} if layers != 4 else None)))
         module = vk.vkCreateShaderModule(self.device, vk.VkShaderModuleCreateInfo(codeSize=len(code), pCode=code), None)
         # the stage info is copied into the pipeline's by value: it must outlive the call, or its
         # pName points at freed memory (python-vulkan keeps a struct's own pointers alive only)
@@ -290,11 +294,12 @@ class VulkanRuntime:
         q = np.ascontiguousarray(queries, np.float32).tobytes()
         usage = vk.VK_BUFFER_USAGE_STORAGE_BUFFER_BIT
         bufs = [self._buffer(len(q), usage), self._buffer(count * stride * 4, usage), self._buffer(len(params), usage)]
+        n = len(vm.images)
         pool = vk.vkCreateDescriptorPool(self.device, vk.VkDescriptorPoolCreateInfo(
-            maxSets=1, poolSizeCount=2, pPoolSizes=[
+            maxSets=1, poolSizeCount=3, pPoolSizes=[
                 vk.VkDescriptorPoolSize(type=vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, descriptorCount=4),
-                vk.VkDescriptorPoolSize(type=vk.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER,
-                                        descriptorCount=len(vm.images))]), None)
+                vk.VkDescriptorPoolSize(type=vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE, descriptorCount=n),
+                vk.VkDescriptorPoolSize(type=vk.VK_DESCRIPTOR_TYPE_SAMPLER, descriptorCount=n)]), None)
         try:
             self._write(bufs[0], q)
             self._write(bufs[2], params)
@@ -306,11 +311,15 @@ class VulkanRuntime:
                                                                                      range=b.size)])
                       for k, b in enumerate([vm.weights, *bufs])]
             writes.append(vk.VkWriteDescriptorSet(
-                dstSet=ds, dstBinding=4, dstArrayElement=0, descriptorCount=len(vm.images),
-                descriptorType=vk.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER,
-                pImageInfo=[vk.VkDescriptorImageInfo(sampler=vm.sampler, imageView=view,
+                dstSet=ds, dstBinding=TEXTURE_BINDING, dstArrayElement=0, descriptorCount=n,
+                descriptorType=vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE,
+                pImageInfo=[vk.VkDescriptorImageInfo(imageView=view,
                                                      imageLayout=vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL)
                             for _, _, view in vm.images]))
+            writes.append(vk.VkWriteDescriptorSet(
+                dstSet=ds, dstBinding=HLSL_SAMPLER_BINDING, dstArrayElement=0, descriptorCount=n,
+                descriptorType=vk.VK_DESCRIPTOR_TYPE_SAMPLER,
+                pImageInfo=[vk.VkDescriptorImageInfo(sampler=vm.sampler) for _ in vm.images]))
             vk.vkUpdateDescriptorSets(self.device, len(writes), writes, 0, None)
 
             def record(cmd):
