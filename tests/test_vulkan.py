@@ -76,3 +76,17 @@ def test_no_vulkan_is_one_line_and_exit_2(materials, monkeypatch):  # noqa: F811
     r = run_cli("verify", materials["bc7-4"], "--runtime", "vulkan")
     assert r.returncode == 2, r.stdout + r.stderr
     assert "no Vulkan" in r.stdout + r.stderr and "Traceback" not in r.stdout + r.stderr
+
+
+@pytest.mark.vulkan
+@pytest.mark.parametrize("name", ["bc7-6", "bc6h-4"])
+def test_decode_backend_vulkan_gives_onnxs_grid(vk, materials, name):  # noqa: F811
+    """`bcfpipe decode --backend vulkan`'s grid (the shader's grid mode) against --backend onnx's,
+    every output, at a lod between mips: within the texture unit's filtering, as verify holds it."""
+    from bcfpipe.cli.decode import decode_material, select_target
+
+    target = select_target(str(materials[name]), None)
+    ours, used = decode_material(target, (40, 24), 1.3, "vulkan")
+    theirs, _ = decode_material(target, (40, 24), 1.3, "onnx")
+    assert used == "vulkan" and ours.shape == theirs.shape == (24, 40, target.desc.c_out)
+    assert np.abs(ours - theirs).max() < 2e-3

@@ -18,6 +18,7 @@ import numpy as np
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import InputError
 from bcfpipe.formats import material as mf
+from bcfpipe.targets.vulkan import VulkanRuntime
 from bcfpipe.verify import glsl as G
 
 if TYPE_CHECKING:
@@ -103,6 +104,13 @@ def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> 
     from bcfpipe.export import writer as E  # lazy: start-up
 
     w, h = size
+    if backend == "vulkan":  # the shipped HLSL's SPIR-V on a Vulkan device (bcfpipe.targets.vulkan)
+        with VulkanRuntime() as vk:
+            vm = vk.load(target.desc)
+            try:
+                return vk.decode_grid(vm, w, h, lod), "vulkan"
+            finally:
+                vk.unload(vm)
     if backend in ("glsl", "auto"):
         try:
             rt = G.GLRuntime()
@@ -177,8 +185,9 @@ def write_images(img: np.ndarray, outputs: Sequence[Output], out_dir: Path) -> l
               help="Lod s in reference mip units (0 = full resolution; < 0 magnifies).")
 @click.option("--size", default=None, metavar="WxH",
               help="Output size; default: the reference size at mip floor(max(s, 0)).")
-@click.option("--backend", type=click.Choice(["auto", "glsl", "onnx"]), default="auto", show_default=True,
-              help="glsl: the runtime shader through OpenGL; onnx: decoder.onnx on CPU; auto: glsl if OpenGL works.")
+@click.option("--backend", type=click.Choice(["auto", "glsl", "vulkan", "onnx"]), default="auto", show_default=True,
+              help="glsl: the runtime shader through OpenGL; vulkan: the shipped HLSL's SPIR-V on a Vulkan device "
+                   "(bcfpipe shaders); onnx: decoder.onnx on CPU; auto: glsl if OpenGL works.")
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Folder for the images.")
 def decode(out: str, prim: str | None, lod: float, size: str | None, backend: str, out_dir: str) -> None:
@@ -187,7 +196,7 @@ def decode(out: str, prim: str | None, lod: float, size: str | None, backend: st
     PNG for semantics whose source files were 8-bit, EXR otherwise; normals as a normal map
     (rgb = 0.5 * xyz + 0.5). A --layout auto material's classic textures are decoded too (its
     classic groups, BC@R kept whole, or a mip split's levels below its split, mixed as
-    material.json says). Exit codes: 0 ok, 2 bad input or no OpenGL with --backend glsl.
+    material.json says). Exit codes: 0 ok, 2 bad input, no OpenGL with --backend glsl or no Vulkan with --backend vulkan.
     """
     target = select_target(out, prim)
     wh = parse_size(size)

@@ -280,7 +280,8 @@ class VulkanRuntime:
         self._pipelines[layers] = (dsl, layout, pipe)
         return self._pipelines[layers]
 
-    def _run(self, vm: VkMaterial, queries: np.ndarray, count: int, grad: bool) -> np.ndarray:
+    def _run(self, vm: VkMaterial, queries: np.ndarray, count: int, grad: bool,
+             grid: tuple[int, int] = (0, 0), grid_lod: float = 0.0) -> np.ndarray:
         vk = self.vk
         m = vm.desc
         stride = m.c_out
@@ -290,7 +291,7 @@ class VulkanRuntime:
         dsl, layout, pipe = self._pipeline(len(vm.images))
         ws, wt = wrap_codes(m.wrap)
         params = PARAMS.pack(m.weight_offset, m.normal_index, count, stride, ws, wt, *map(float, m.ref_size),
-                             0, 0, 0.0, int(grad)) + struct.pack(f"<{len(m.lod_biases)}f", *m.lod_biases)
+                             *grid, float(grid_lod), int(grad)) + struct.pack(f"<{len(m.lod_biases)}f", *m.lod_biases)
         q = np.ascontiguousarray(queries, np.float32).tobytes()
         usage = vk.VK_BUFFER_USAGE_STORAGE_BUFFER_BIT
         bufs = [self._buffer(len(q), usage), self._buffer(count * stride * 4, usage), self._buffer(len(params), usage)]
@@ -349,6 +350,21 @@ class VulkanRuntime:
         q[:, 0, :2], q[:, 0, 2:] = uv, np.asarray(duvdx, np.float32).reshape(-1, 2)
         q[:, 1, :2] = np.asarray(duvdy, np.float32).reshape(-1, 2)
         return self._chunks(vm, q, chunk, grad=True)
+
+    def decode_grid(self, vm: VkMaterial, width: int, height: int, lod: float) -> np.ndarray:
+        """The texel centres of a width x height grid at lod ``lod`` -> (height, width, c_out), row 0
+        at v = 0.5 / height (the shader's grid mode: no queries), in bands of rows past one dispatch."""
+        rows = max(1, MAX_GROUPS * LOCAL_SIZE // width)
+        out = []
+        for y0 in range(0, height, rows):
+            n = min(rows, height - y0)
+            if y0 == 0 and n == height:
+                return self._run(vm, np.zeros((1, 4), np.float32), width * height, False, (width, height),
+                                 lod).reshape(height, width, -1)
+            yy, xx = np.meshgrid((np.arange(y0, y0 + n) + 0.5) / height, (np.arange(width) + 0.5) / width,
+                                 indexing="ij")
+            out.append(self.decode(vm, np.stack([xx.ravel(), yy.ravel()], 1), lod).reshape(n, width, -1))
+        return np.concatenate(out)
 
     def _chunks(self, vm: VkMaterial, q: np.ndarray, chunk: int, grad: bool) -> np.ndarray:
         parts = [self._run(vm, q[a:a + chunk], min(chunk, len(q) - a), grad) for a in range(0, len(q), chunk)]
