@@ -196,7 +196,7 @@ def test_sample_build_verifies_on_vulkan_beside_opengl(sample) -> None:
     """Issue 60: `bcfpipe verify --runtime vulkan` on the sample scene's neural build (the combined
     weights.bin, each material at its offset): every material passes on Vulkan as on OpenGL."""
     pytest.importorskip("vulkan", reason="needs the vulkan package (pip install vulkan)")
-    from bcfpipe.targets.vulkan import VulkanRuntime, VulkanUnavailable
+    from bcfpipe.verify.vulkan import VulkanRuntime, VulkanUnavailable
 
     try:
         VulkanRuntime().release()

@@ -28,7 +28,7 @@ def spirv_val(code: bytes, tmp_path) -> None:
 
 @pytest.mark.parametrize("layers", [4, 5, 6])
 def test_one_source_gives_spirv_hlsl_and_msl(layers, tmp_path):
-    from bcfpipe.targets import spirv as S
+    from bcfpipe.verify import spirv as S
 
     sh = S.shaders(layers)
     assert sh.spirv[:4] == bytes.fromhex("03022307")  # SPIR-V magic, little-endian
@@ -46,7 +46,7 @@ def test_one_source_gives_spirv_hlsl_and_msl(layers, tmp_path):
 
 
 def test_a_fixed_network_shape_compiles_for_every_target(tmp_path):
-    from bcfpipe.targets import spirv as S
+    from bcfpipe.verify import spirv as S
 
     sh = S.shaders(4, {"BCF_N_HIDDEN": 16, "BCF_N_OUT": 6, "BCF_MAX_OUT": 7})
     spirv_val(sh.spirv, tmp_path)
@@ -54,7 +54,7 @@ def test_a_fixed_network_shape_compiles_for_every_target(tmp_path):
 
 
 def test_a_broken_hlsl_is_reported_with_the_compilers_words():
-    from bcfpipe.targets import spirv as S
+    from bcfpipe.verify import spirv as S
 
     with pytest.raises(RuntimeError, match="HLSL front end failed"):
         S.hlsl_spirv("[numthreads(64, 1, 1)] void main() { undefined_thing(); }")

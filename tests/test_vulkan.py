@@ -17,7 +17,7 @@ from test_format_spec import materials  # noqa: F401 - the trained materials, a 
 @pytest.fixture(scope="module")
 def vk():
     pytest.importorskip("vulkan", reason="needs the vulkan package (pip install vulkan)")
-    from bcfpipe.targets.vulkan import VulkanRuntime, VulkanUnavailable
+    from bcfpipe.verify.vulkan import VulkanRuntime, VulkanUnavailable
 
     try:
         rt = VulkanRuntime()

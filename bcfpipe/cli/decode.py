@@ -18,7 +18,7 @@ import numpy as np
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import InputError
 from bcfpipe.formats import material as mf
-from bcfpipe.targets.vulkan import VulkanRuntime
+from bcfpipe.verify.vulkan import VulkanRuntime
 from bcfpipe.verify import glsl as G
 
 if TYPE_CHECKING:
@@ -104,7 +104,7 @@ def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> 
     from bcfpipe.export import writer as E  # lazy: start-up
 
     w, h = size
-    if backend == "vulkan":  # the shipped HLSL's SPIR-V on a Vulkan device (bcfpipe.targets.vulkan)
+    if backend == "vulkan":  # the shipped HLSL's SPIR-V on a Vulkan device (bcfpipe.verify.vulkan)
         with VulkanRuntime() as vk:
             vm = vk.load(target.desc)
             try:

@@ -9,7 +9,7 @@ import click
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import InputError
 from bcfpipe.formats.atomic import atomic_write
-from bcfpipe.targets import spirv as S
+from bcfpipe.verify import spirv as S
 
 
 @click.command("shaders", cls=Command)

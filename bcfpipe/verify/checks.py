@@ -50,13 +50,13 @@ from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
 from bcfpipe.formats.vocabulary import Status
 from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes
-from bcfpipe.targets.vulkan import VulkanRuntime, VulkanUnavailable
 from bcfpipe.verify.constants import check_constants
 from bcfpipe.verify.glsl import GLRuntime, GLUnavailable, MaterialDesc
 from bcfpipe.verify.points import CATEGORIES, gradient_points, lod_from_grad, verification_points
 from bcfpipe.verify.sources import SourceNotFound, check_sources, root_layers
 from bcfpipe.verify.targets import Target, VerifyInputError, find_targets
 from bcfpipe.verify.tolerance import FILTER_BITS, TARGET, filter_error, output_tolerance
+from bcfpipe.verify.vulkan import VulkanRuntime, VulkanUnavailable
 
 
 @dataclass
@@ -338,7 +338,7 @@ RUNTIME_LABEL = {"glsl": "GL", "vulkan": "Vulkan"}  # a runtime check's name: wh
 def check_glsl(rt, m: MaterialDesc, em: E.ExportedMaterial, tolerance: float | None,
                seed: int = 0, filter_bits: int = FILTER_BITS, name: str = "glsl") -> tuple[Check, list[dict], list[dict], int]:
     """bcf_decode.comp on ``rt`` (a `GLRuntime`, or with ``name`` "vulkan" a
-    `bcfpipe.targets.vulkan.VulkanRuntime`) against decoder.onnx at the verification points."""
+    `bcfpipe.verify.vulkan.VulkanRuntime`) against decoder.onnx at the verification points."""
     label = RUNTIME_LABEL[name]
     level_sizes = [[(lv.shape[1], lv.shape[0]) for lv in layer] for layer in em.levels]
     uv, s, cat = verification_points(m, level_sizes, seed)
@@ -534,7 +534,7 @@ def verify(path: str | os.PathLike, tolerance: float | None = None, glsl: bool =
            progress: VerifyProgress | None = None, vulkan: bool = False) -> Report:
     """Verify every material under ``path``; raises VerifyInputError when there is nothing to verify.
     ``progress`` hears `VerifyEvent`s as it goes (nothing when OpenGL is unavailable). ``vulkan``:
-    run the decoder on Vulkan too (`bcfpipe.targets.vulkan`; no Vulkan device: exit 2, as no OpenGL)."""
+    run the decoder on Vulkan too (`bcfpipe.verify.vulkan`; no Vulkan device: exit 2, as no OpenGL)."""
     targets = find_targets(path)
     for root in root_layers(path):  # a build folder: its stage must still reach the scene it was built over
         try:

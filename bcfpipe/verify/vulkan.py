@@ -18,7 +18,7 @@ import numpy as np
 
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds
-from bcfpipe.targets.spirv import HLSL_SAMPLER_BINDING, hlsl, hlsl_spirv, spirv
+from bcfpipe.verify.spirv import HLSL_SAMPLER_BINDING, hlsl, hlsl_spirv, spirv
 from bcfpipe.verify.glsl import LOCAL_SIZE, MaterialDesc, wrap_codes
 
 PARAMS = struct.Struct("<IiII2i2f2IfI")  # bcf_decode.comp's BcfParams before uLodBias: 48 bytes
