@@ -335,34 +335,60 @@ def _finite(x) -> float | str:
 RUNTIME_LABEL = {"glsl": "GL", "vulkan": "Vulkan"}  # a runtime check's name: what its figures say
 
 
-def check_glsl(rt, m: MaterialDesc, em: E.ExportedMaterial, tolerance: float | None,
-               seed: int = 0, filter_bits: int = FILTER_BITS, name: str = "glsl") -> tuple[Check, list[dict], list[dict], int]:
-    """bcf_decode.comp on ``rt`` (a `GLRuntime`, or with ``name`` "vulkan" a
-    `bcfpipe.verify.vulkan.VulkanRuntime`) against decoder.onnx at the verification points."""
-    label = RUNTIME_LABEL[name]
+@dataclass(frozen=True)
+class Expected:
+    """What a runtime must give at verify's points: the lod queries (``uv``, ``s``) and the
+    derivative ones (``guv``, ``gdx``, ``gdy``) as a runtime takes them; over both, in that order,
+    each point's (u, v), lod (the derivative path's as the shader computes it) and category, and
+    decoder.onnx's values there with their tolerance. Made once per material, whatever the runtimes."""
+
+    uv: np.ndarray
+    s: np.ndarray
+    guv: np.ndarray
+    gdx: np.ndarray
+    gdy: np.ndarray
+    all_uv: np.ndarray
+    all_s: np.ndarray
+    cat: np.ndarray
+    ref: np.ndarray
+    tol: np.ndarray
+    tolerance: float | None
+
+
+def expected(m: MaterialDesc, em: E.ExportedMaterial, tolerance: float | None, seed: int = 0,
+             filter_bits: int = FILTER_BITS) -> Expected:
+    """decoder.onnx fed features sampled in numpy from the DDS at verify's points, and the
+    tolerance there (derived from the material, or ``tolerance`` fixed)."""
     level_sizes = [[(lv.shape[1], lv.shape[0]) for lv in layer] for layer in em.levels]
     uv, s, cat = verification_points(m, level_sizes, seed)
     guv, gdx, gdy = gradient_points(m.ref_size, seed)
-    gm = rt.load(m)
-    try:
-        gl = np.concatenate([rt.decode(gm, uv, s), rt.decode_grad(gm, guv, gdx, gdy)])
-    finally:
-        rt.unload(gm)
     # the derivative path: the reference takes the shader's fp32 lod, which may sit anywhere
     exact_lods = np.concatenate([np.ones(len(uv)), np.zeros(len(guv))])
-    uv, s = np.concatenate([uv, guv]), np.concatenate([s, lod_from_grad(gdx, gdy, m.ref_size)])
+    all_uv, all_s = np.concatenate([uv, guv]), np.concatenate([s, lod_from_grad(gdx, gdy, m.ref_size)])
     cat = np.concatenate([cat, np.full(len(guv), CATEGORIES.index("derivatives"))])
-    feats = E.sample_exported_features(em, uv, s)
-    sess = E.onnx_session(em)
-    ref = sess.run([ONNX_OUTPUT], {ONNX_INPUT: feats})[0]
-    if gl.shape != ref.shape:
-        return Check(name, False, f"{label} gives {gl.shape[1]} channels, ONNX {ref.shape[1]}"), [], [], len(uv)
+    feats = E.sample_exported_features(em, all_uv, all_s)
+    ref = E.onnx_session(em).run([ONNX_OUTPUT], {ONNX_INPUT: feats})[0]
     if tolerance is None:
-        fe = filter_error(em.levels, em.lod_biases, uv, s, em.wrap, filter_bits, exact_lods,
+        fe = filter_error(em.levels, em.lod_biases, all_uv, all_s, em.wrap, filter_bits, exact_lods,
                           unorm8=em.desc.features == "bc7")
         tol = output_tolerance(em.weights, em.kinds, feats, fe, ref)
     else:
         tol = np.full(ref.shape, float(tolerance))
+    return Expected(uv, s, guv, gdx, gdy, all_uv, all_s, cat, ref, tol, tolerance)
+
+
+def check_glsl(rt, m: MaterialDesc, ex: Expected, name: str = "glsl") -> tuple[Check, list[dict], list[dict], int]:
+    """bcf_decode.comp on ``rt`` (a `GLRuntime`, or with ``name`` "vulkan" a
+    `bcfpipe.verify.vulkan.VulkanRuntime`) against decoder.onnx at the verification points."""
+    label = RUNTIME_LABEL[name]
+    gm = rt.load(m)
+    try:
+        gl = np.concatenate([rt.decode(gm, ex.uv, ex.s), rt.decode_grad(gm, ex.guv, ex.gdx, ex.gdy)])
+    finally:
+        rt.unload(gm)
+    uv, s, cat, ref, tol, tolerance = ex.all_uv, ex.all_s, ex.cat, ex.ref, ex.tol, ex.tolerance
+    if gl.shape != ref.shape:
+        return Check(name, False, f"{label} gives {gl.shape[1]} channels, ONNX {ref.shape[1]}"), [], [], len(uv)
     err = np.abs(gl.astype(np.float64) - ref.astype(np.float64))
     err = np.where(np.isnan(err), np.inf, err)  # a NaN from GL (invalid record) always fails
     names = [o.name for o in m.outputs]
@@ -451,18 +477,20 @@ def verify_target(t: Target, rt: GLRuntime | None, tolerance: float | None = Non
             started("classic")
             rep.checks.append(check_classic(m))
         if rt is not None or vulkan is not None:
+            started("glsl" if rt is not None else "vulkan")  # the expected values are most of its time
             em = E.load(m.folder)
             em = E.ExportedMaterial(em.desc, em.levels, from_bytes(m.weights_file.read_bytes(), m.weight_offset)[0],
                                     em.onnx_path)
+            ex = expected(m, em, tolerance, seed, filter_bits)
         if rt is not None:
-            started("glsl")
-            chk, rep.channels, rep.categories, rep.n_points = check_glsl(rt, m, em, tolerance, seed, filter_bits)
+            chk, rep.channels, rep.categories, rep.n_points = check_glsl(rt, m, ex)
             rep.checks.append(chk)
         else:
             rep.checks.append(Check("glsl", None, "skipped (--no-glsl)"))
         if vulkan is not None:
-            started("vulkan")
-            rep.checks.append(check_glsl(vulkan, m, em, tolerance, seed, filter_bits, name="vulkan")[0])
+            if rt is not None:
+                started("vulkan")
+            rep.checks.append(check_glsl(vulkan, m, ex, name="vulkan")[0])
     except VerifyInputError as e:
         rep.input_error = str(e)
     except (OSError, KeyError, dds.DdsError) as e:
