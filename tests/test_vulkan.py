@@ -90,3 +90,20 @@ def test_decode_backend_vulkan_gives_onnxs_grid(vk, materials, name):  # noqa: F
     theirs, _ = decode_material(target, (40, 24), 1.3, "onnx")
     assert used == "vulkan" and ours.shape == theirs.shape == (24, 40, target.desc.c_out)
     assert np.abs(ours - theirs).max() < 2e-3
+
+
+@pytest.mark.vulkan
+@pytest.mark.parametrize("backend", ["vulkan", "onnx"])
+def test_decode_refuses_a_bad_record_in_one_line(vk, materials, tmp_path, backend):  # noqa: F811
+    """A weight record the runtimes would decode to NaN (Vulkan, OpenGL) or ONNX's reader raise on:
+    `bcfpipe decode` says so in one line and exits 2, writing nothing."""
+    import shutil
+
+    folder = tmp_path / "bad"
+    shutil.copytree(materials["bc7-4"], folder)
+    record = bytearray((folder / "weights.bin").read_bytes())
+    record[8:12] = (99).to_bytes(4, "little")  # n_in of no layer count
+    (folder / "weights.bin").write_bytes(bytes(record))
+    r = run_cli("decode", folder, "--backend", backend, "-o", tmp_path / "img")
+    assert r.returncode == 2 and "weights.bin" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "img").exists()

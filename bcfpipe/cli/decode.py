@@ -99,10 +99,18 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
 
 
 def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
-    from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT  # lazy: start-up
+    from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes  # lazy: start-up
 
     from bcfpipe.export import writer as E  # lazy: start-up
 
+    m = target.desc
+    try:  # a record the runtimes would refuse (NaN, magenta) or ONNX's reader raise on: one line, exit 2
+        weights = from_bytes(m.weights_file.read_bytes(), m.weight_offset)[0]
+    except ValueError as e:
+        raise InputError(f"{m.weights_file}: {e}") from None
+    if weights.dims[0] != m.file.mlp.n_in:
+        raise InputError(f"{m.weights_file}: the record at byte {m.weight_offset} takes {weights.dims[0]} inputs, "
+                         f"material.json's layers give {m.file.mlp.n_in}")
     w, h = size
     if backend == "vulkan":  # the shipped HLSL's SPIR-V on a Vulkan device (bcfpipe.verify.vulkan)
         with VulkanRuntime() as vk:
