@@ -3,7 +3,7 @@ PY := .venv/bin/python
 BCF := .venv/bin/bcfpipe
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test test-install test-all clean
+.PHONY: setup demo test test-install test-all decoders clean
 setup:
 	@bash scripts/setup.sh
 
@@ -24,6 +24,11 @@ test-install: setup
 
 test-all: setup
 	$(PY) -m pytest -n 2 --dist loadscope -m "" $(PYTEST_ARGS)
+
+# the shipped HLSL / SPIR-V / Metal decoders (bcfpipe/decoders/) made anew from glsl/ after a change
+# there; tests/test_shader_targets.py fails while they are stale
+decoders: setup
+	$(BCF) shaders -o bcfpipe/decoders
 
 clean:
 	rm -rf .venv build *.egg-info out

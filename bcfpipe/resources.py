@@ -1,9 +1,11 @@
 """The data folders that ship inside the package: ``glsl/`` (the runtime decoder and the renderer's
-shaders) and ``schemas/`` (the USD schema plug-in, the BcfNeuralMaterial Sdr node, the JSON Schemas).
+shaders), ``decoders/`` (that decoder as SPIR-V, HLSL and Metal: `bcfpipe shaders`' output) and
+``schemas/`` (the USD schema plug-in, the BcfNeuralMaterial Sdr node, the JSON Schemas).
 
 They are found next to this module, so an installed wheel, an sdist build and an editable checkout
 read the same files; the repository's top-level ``glsl`` and ``schemas`` are links to these.
-``BCFPIPE_GLSL_DIR`` and ``BCFPIPE_SCHEMAS`` override them (a host that keeps its own copies).
+``BCFPIPE_GLSL_DIR``, ``BCFPIPE_DECODERS`` and ``BCFPIPE_SCHEMAS`` override them (a host that keeps
+its own copies).
 """
 from __future__ import annotations
 
@@ -12,10 +14,11 @@ from pathlib import Path
 
 from bcfpipe.errors import Unavailable
 
-__all__ = ["PACKAGE_DIR", "GLSL_DIR", "SCHEMA_DIR", "MissingData", "data_dir"]
+__all__ = ["PACKAGE_DIR", "GLSL_DIR", "DECODER_DIR", "SCHEMA_DIR", "MissingData", "data_dir"]
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 GLSL_DIR = PACKAGE_DIR / "glsl"
+DECODER_DIR = PACKAGE_DIR / "decoders"
 SCHEMA_DIR = PACKAGE_DIR / "schemas"
 
 

@@ -161,6 +161,7 @@ def test_sdist_and_wheel_carry_every_file_that_runs(dist) -> None:
     runs = dist["runs"]
     for must in ("bcfpipe/bc6h/quick.cpp", "bcfpipe/train/fused/step.cpp", "bcfpipe/train/fused/lanes.h",
                  "bcfpipe/glsl/bcf_decode.glsl", "bcfpipe/glsl/bcf_render.frag", "bcfpipe/schemas/plugInfo.json",
+                 "bcfpipe/decoders/bcf_decode.hlsli", "bcfpipe/decoders/bcf_decode_5.spv",
                  "bcfpipe/schemas/generatedSchema.usda", "bcfpipe/schemas/shaders/BcfNeuralMaterial.usda",
                  "bcfpipe/schemas/material.schema.json"):
         assert must in runs, must

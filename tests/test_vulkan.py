@@ -10,7 +10,11 @@ import json
 import numpy as np
 import pytest
 
+from pathlib import Path
+
 from cli_run import run_cli
+
+REPO = Path(__file__).resolve().parents[1]
 from test_format_spec import materials  # noqa: F401 - the trained materials, a module fixture
 
 
@@ -67,6 +71,69 @@ def test_vulkan_decode_equals_opengls_and_rejects_a_bad_record(vk, materials, rt
         assert np.isnan(vk.decode(vm, uv[:100], s[:100])).all()
     finally:
         vk.unload(vm)
+
+
+@pytest.mark.vulkan
+def test_an_engines_kernel_on_the_hlsl_include_decodes_as_the_shipped_kernel(vk, materials):  # noqa: F811
+    """examples/hlsl/bcf_include_kernel.hlsl (its own main, the shipped bcf_decode.hlsli included)
+    compiled by glslang's HLSL front end and run on Vulkan: on materials of 4, 5 and 6 BC7 layers and
+    4 BC6H ones its values are the shipped kernel's, which verify holds to decoder.onnx, and within
+    verify's tolerance of decoder.onnx itself."""
+    from bcfpipe.verify import checks, glsl as G, spirv as S
+    from bcfpipe.verify.vulkan import VulkanRuntime
+
+    kernel = (REPO / "examples" / "hlsl" / "bcf_include_kernel.hlsl").read_text()
+    ek = VulkanRuntime(lambda n: S.hlsl_spirv(kernel, {"BCF_N_LAYERS": n}, (S.shipped_dir(),)))
+    rng = np.random.default_rng(5)
+    uv = rng.uniform(-2.5, 3.5, (2000, 2)).astype(np.float32)
+    s = rng.uniform(-2, 8, 2000).astype(np.float32)
+    dx, dy = (rng.normal(0, 1, (2, 2000, 2)) * 0.02).astype(np.float32)
+    try:
+        for name in ("bc7-4", "bc7-5", "bc7-6", "bc6h-4"):
+            m = G.read_material(materials[name])
+            a, b = ek.load(m), vk.load(m)
+            try:
+                ours = ek.decode(a, uv, s)
+                np.testing.assert_allclose(ours, vk.decode(b, uv, s), rtol=0, atol=2e-6, err_msg=name)
+                np.testing.assert_allclose(ek.decode_grad(a, uv, dx, dy), vk.decode_grad(b, uv, dx, dy),
+                                           rtol=0, atol=2e-6, err_msg=name)
+                np.testing.assert_allclose(ek.decode_grid(a, 24, 16, 1.5), vk.decode_grid(b, 24, 16, 1.5),
+                                           rtol=0, atol=2e-6, err_msg=name)
+            finally:
+                ek.unload(a)
+                vk.unload(b)
+            # and verify's whole check, the example kernel as its Vulkan runtime
+            rep = checks.verify_target(checks.find_targets(materials[name])[0], None, vulkan=ek)
+            assert {c.name: c.passed for c in rep.checks}["vulkan"], [c.detail for c in rep.checks]
+    finally:
+        ek.release()
+
+
+@pytest.mark.vulkan
+def test_the_engine_example_writes_what_bcfpipe_decode_writes(vk, materials, tmp_path):  # noqa: F811
+    """examples/vulkan_decode.py, which reads the folder as docs/format.md says and runs the shipped
+    SPIR-V with no bcfpipe code, in tiles of queries: its 8-bit PNGs are `bcfpipe decode
+    --backend onnx`'s within 1 step (4 for a normal map, whose z comes from x and y), on the
+    clamp / mirror material of 5 layers at a lod between mips."""
+    import subprocess
+    import sys
+
+    import OpenImageIO as oiio
+
+    folder = materials["bc7-5"]
+    ex, ours = tmp_path / "example", tmp_path / "decode"
+    r = subprocess.run([sys.executable, str(REPO / "examples" / "vulkan_decode.py"), str(folder), "-o", str(ex),
+                        "--lod", "1.37", "--size", "96", "--tile", "40"], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert run_cli("decode", folder, "--backend", "onnx", "-o", ours, "--lod", "1.37", "--size", "96x96").returncode == 0
+    compared = []
+    for png in sorted(ours.glob("*.png")):
+        a = np.asarray(oiio.ImageBuf(str(ex / png.name)).get_pixels(oiio.UINT8)).astype(int)
+        b = np.asarray(oiio.ImageBuf(str(png)).get_pixels(oiio.UINT8)).astype(int)
+        assert a.shape == b.shape, png.name
+        assert np.abs(a - b).max() <= (4 if png.stem == "normal" else 1), png.name
+        compared.append(png.stem)
+    assert compared == ["albedo", "normal", "roughness"]
 
 
 def test_no_vulkan_is_one_line_and_exit_2(materials, monkeypatch):  # noqa: F811

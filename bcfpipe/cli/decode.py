@@ -195,7 +195,7 @@ def write_images(img: np.ndarray, outputs: Sequence[Output], out_dir: Path) -> l
               help="Output size; default: the reference size at mip floor(max(s, 0)).")
 @click.option("--backend", type=click.Choice(["auto", "glsl", "vulkan", "onnx"]), default="auto", show_default=True,
               help="glsl: the runtime shader through OpenGL; vulkan: the shipped HLSL's SPIR-V on a Vulkan device "
-                   "(bcfpipe shaders); onnx: decoder.onnx on CPU; auto: glsl if OpenGL works.")
+                   "(bcfpipe/decoders/); onnx: decoder.onnx on CPU; auto: glsl if OpenGL works.")
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Folder for the images.")
 def decode(out: str, prim: str | None, lod: float, size: str | None, backend: str, out_dir: str) -> None:

@@ -17,21 +17,26 @@ from bcfpipe.verify import spirv as S
               help="Folder for the shaders (made if missing).")
 @click.option("--layers", "layer_counts", default="4,5,6", show_default=True, metavar="N[,N...]",
               help="Feature layer counts to compile for (material.json's len(layers): 4, 5 or 6).")
-@click.option("--check/--no-check", default=True, show_default=True,
-              help="Compile the HLSL again through glslang's HLSL front end.")
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
-def shaders(out_dir: str, layer_counts: str, check: bool, as_json: bool) -> None:
-    """Write the batch decoder (glsl/bcf_decode.comp, the one source) as Vulkan SPIR-V, HLSL and
-    Metal for materials of each layer count: bcf_decode_N.spv, .hlsl and .metal.
+def shaders(out_dir: str, layer_counts: str, as_json: bool) -> None:
+    """Write the runtime decoder for D3D, Vulkan and Metal engines from its one GLSL source: the set
+    the package ships in bcfpipe/decoders/ (docs/format.md, "Other APIs").
 
-    glslang compiles the GLSL to SPIR-V; SPIRV-Cross translates that SPIR-V to HLSL (shader model
-    6.0, entry main) and MSL (Metal 2.0, kernel main0). Resources: set 0, binding 0 the weight
-    words, 1 the queries, 2 the output, 3 the parameters, 4 the N feature textures (combined image
-    samplers); HLSL registers and Metal indices keep those numbers (glsl/bcf_decode.comp's header). Exit codes: 0 ok, 2 glslang or
+    \b
+    bcf_decode_N.hlsl   the batch decoder (glsl/bcf_decode.comp) as HLSL, shader model 6.0
+    bcf_decode_N.spv    that HLSL compiled by glslang's HLSL front end: Vulkan SPIR-V
+    bcf_decode_N.metal  the same SPIR-V as the HLSL's, as Metal 2.0 (kernel main0)
+    bcf_decode.hlsli    the decoder's functions as an HLSL include, for a material function
+    versions.json       the glslang and SPIRV-Cross that made them
+
+    glslang compiles the GLSL to SPIR-V; SPIRV-Cross translates that SPIR-V to HLSL and MSL.
+    Resources: set 0, binding 0 the weight words, 1 the queries, 2 the output, 3 the parameters,
+    4 the N feature textures; HLSL registers t0, t1, u2, t3, t4.. and s4.. (samplers at binding
+    12.. in the .spv). The same tools give the same bytes. Exit codes: 0 ok, 2 glslang or
     SPIRV-Cross missing (apt-get install glslang-tools spirv-cross), 1 a compile failed.
     """
     try:
-        counts = [int(x) for x in layer_counts.split(",")]
+        counts = tuple(int(x) for x in layer_counts.split(","))
     except ValueError:
         raise InputError(f"--layers {layer_counts!r}: give layer counts such as 4,5,6") from None
     if bad := [n for n in counts if n not in S.LAYER_COUNTS]:
@@ -39,16 +44,11 @@ def shaders(out_dir: str, layer_counts: str, check: bool, as_json: bool) -> None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for n in counts:
-        sh = S.shaders(n)
-        if check:
-            S.hlsl_spirv(sh.hlsl)
-        for target in S.Target:
-            path = out / f"bcf_decode_{n}.{target.value}"
-            atomic_write(path, sh.text(target))
-            written.append(str(path))
+    for name, data in S.decoder_files(counts).items():
+        atomic_write(out / name, data)
+        written.append(str(out / name))
     if as_json:
-        click.echo(json.dumps({"files": written, "hlsl_checked": check}, indent=2))
+        click.echo(json.dumps({"files": written, "versions": S.versions()}, indent=2))
     else:
         for p in written:
             click.echo(p)

@@ -219,7 +219,7 @@ def run_verify(path: str, checks: CheckSettings = CheckSettings(), as_json: bool
 @click.option("--no-glsl", is_flag=True, help="Skip the OpenGL comparison (file, weight and OpenImageIO checks only).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random part of the (u, v, s) grid.")
 @click.option("--runtime", type=click.Choice(["opengl", "vulkan"]), default="opengl", show_default=True,
-              help="vulkan: also run the decoder's SPIR-V (bcfpipe shaders) on Vulkan, a GPU's driver or Mesa's "
+              help="vulkan: also run the shipped SPIR-V decoder (bcfpipe/decoders/) on Vulkan, a GPU's driver or Mesa's "
                    "lavapipe, held to decoder.onnx at the same points, its figure beside OpenGL's.")
 @click.option("-v", "--verbose", is_flag=True,
               help="Per material every check and the error tables (default: one line per material).")

@@ -1,6 +1,6 @@
-"""The batch decoder on Vulkan (issue 60): the shipped HLSL (`bcfpipe shaders`: glsl/bcf_decode.comp
-through SPIR-V and SPIRV-Cross), compiled back to SPIR-V by glslang's HLSL front end, run as a
-compute pipeline; the feature layers as BC6H / BC7 images with the material's sampler (trilinear,
+"""The batch decoder on Vulkan (issue 60): the shipped SPIR-V, bcfpipe/decoders/bcf_decode_N.spv,
+which is the shipped HLSL (glsl/bcf_decode.comp through SPIR-V and SPIRV-Cross) compiled back by
+glslang's HLSL front end (`bcfpipe shaders`), run as a compute pipeline; the feature layers as BC6H / BC7 images with the material's sampler (trilinear,
 its addressing per axis); on any Vulkan 1.1 device with BC textures: a GPU's driver, or Mesa's
 lavapipe on the CPU. `bcfpipe verify --runtime vulkan` holds it to decoder.onnx as it holds OpenGL,
 so the HLSL an engine takes is what is checked.
@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from bcfpipe.errors import Unavailable
 from bcfpipe.formats import dds
-from bcfpipe.verify.spirv import HLSL_SAMPLER_BINDING, hlsl, hlsl_spirv, spirv
+from bcfpipe.verify.spirv import HLSL_SAMPLER_BINDING, shipped_kernel
 from bcfpipe.verify.glsl import LOCAL_SIZE, MaterialDesc, wrap_codes
 
 PARAMS = struct.Struct("<IiII2i2f2IfI")  # bcf_decode.comp's BcfParams before uLodBias: 48 bytes
@@ -48,9 +48,12 @@ class VkMaterial:
 
 
 class VulkanRuntime:
-    """One device and queue; a compute pipeline per layer count, made on first use."""
+    """One device and queue; a compute pipeline per layer count, made on first use from
+    ``kernel(layers)``: by default the shipped SPIR-V (bcfpipe/decoders/bcf_decode_N.spv), or any
+    kernel with its resources (examples/hlsl/bcf_include_kernel.hlsl)."""
 
-    def __init__(self) -> None:
+    def __init__(self, kernel: Callable[[int], bytes] = shipped_kernel) -> None:
+        self.kernel = kernel
         try:
             import vulkan as vk  # lazy: start-up
         except (ImportError, OSError) as e:
@@ -267,7 +270,7 @@ class VulkanRuntime:
             bindingCount=len(bindings), pBindings=bindings), None)
         layout = vk.vkCreatePipelineLayout(self.device, vk.VkPipelineLayoutCreateInfo(
             setLayoutCount=1, pSetLayouts=[dsl]), None)
-        code = hlsl_spirv(hlsl(spirv({"BCF_N_LAYERS": layers} if layers != 4 else None)))
+        code = self.kernel(layers)
         module = vk.vkCreateShaderModule(self.device, vk.VkShaderModuleCreateInfo(codeSize=len(code), pCode=code), None)
         # the stage info is copied into the pipeline's by value: it must outlive the call, or its
         # pName points at freed memory (python-vulkan keeps a struct's own pointers alive only)
