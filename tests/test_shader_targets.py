@@ -73,7 +73,8 @@ def test_shaders_command_writes_every_target(tmp_path):
     assert r.returncode == 0, r.stderr
     files = json.loads(r.stdout)["files"]
     assert sorted(p.rsplit("/", 1)[1] for p in files) == sorted(
-        [f"bcf_decode_{n}.{s}" for n in (4, 6) for s in ("spv", "hlsl", "metal")] + ["bcf_decode.hlsli", "versions.json"])
+        [f"bcf_decode_{n}.{s}" for n in (4, 6) for s in ("spv", "hlsl", "metal")]
+        + ["bcf_decode.hlsli", "README.md", "versions.json"])
     include = (tmp_path / "out" / "bcf_decode.hlsli").read_text()
     assert "#if BCF_N_LAYERS == 4" in include and "#elif BCF_N_LAYERS == 6" in include
     assert "BCF_N_LAYERS == 5" not in include

@@ -73,17 +73,31 @@ def test_vulkan_decode_equals_opengls_and_rejects_a_bad_record(vk, materials, rt
         vk.unload(vm)
 
 
-@pytest.mark.vulkan
-def test_an_engines_kernel_on_the_hlsl_include_decodes_as_the_shipped_kernel(vk, materials):  # noqa: F811
-    """examples/hlsl/bcf_include_kernel.hlsl (its own main, the shipped bcf_decode.hlsli included)
-    compiled by glslang's HLSL front end and run on Vulkan: on materials of 4, 5 and 6 BC7 layers and
-    4 BC6H ones its values are the shipped kernel's, which verify holds to decoder.onnx, and within
-    verify's tolerance of decoder.onnx itself."""
-    from bcfpipe.verify import checks, glsl as G, spirv as S
-    from bcfpipe.verify.vulkan import VulkanRuntime
+def _include_kernel(layers: int) -> bytes:
+    from bcfpipe.verify import spirv as S
 
     kernel = (REPO / "examples" / "hlsl" / "bcf_include_kernel.hlsl").read_text()
-    ek = VulkanRuntime(lambda n: S.hlsl_spirv(kernel, {"BCF_N_LAYERS": n}, (S.shipped_dir(),)))
+    return S.hlsl_spirv(kernel, {"BCF_N_LAYERS": layers}, (S.shipped_dir(),))
+
+
+def _glsl_kernel(layers: int) -> bytes:
+    from bcfpipe.verify import spirv as S
+
+    return S.shaders(layers).spirv
+
+
+@pytest.mark.vulkan
+@pytest.mark.parametrize("kernel", ["hlsl-include", "glsl-spirv"])
+def test_other_kernels_decode_as_the_shipped_one_and_pass_verify(vk, materials, kernel):  # noqa: F811
+    """Two more kernels run on Vulkan: examples/hlsl/bcf_include_kernel.hlsl (its own main, the
+    shipped bcf_decode.hlsli included) through glslang's HLSL front end, and glslang's SPIR-V of
+    the GLSL, the one the shipped HLSL and Metal are SPIRV-Cross's translations of (combined image
+    samplers). On materials of 4, 5 and 6 BC7 layers and 4 BC6H ones each decodes as the shipped
+    kernel does, and verify's check holds it to decoder.onnx within its tolerance."""
+    from bcfpipe.verify import checks, glsl as G
+    from bcfpipe.verify.vulkan import VulkanRuntime
+
+    other = VulkanRuntime(*((_include_kernel, False) if kernel == "hlsl-include" else (_glsl_kernel, True)))
     rng = np.random.default_rng(5)
     uv = rng.uniform(-2.5, 3.5, (2000, 2)).astype(np.float32)
     s = rng.uniform(-2, 8, 2000).astype(np.float32)
@@ -91,22 +105,21 @@ def test_an_engines_kernel_on_the_hlsl_include_decodes_as_the_shipped_kernel(vk,
     try:
         for name in ("bc7-4", "bc7-5", "bc7-6", "bc6h-4"):
             m = G.read_material(materials[name])
-            a, b = ek.load(m), vk.load(m)
+            a, b = other.load(m), vk.load(m)
             try:
-                ours = ek.decode(a, uv, s)
-                np.testing.assert_allclose(ours, vk.decode(b, uv, s), rtol=0, atol=2e-6, err_msg=name)
-                np.testing.assert_allclose(ek.decode_grad(a, uv, dx, dy), vk.decode_grad(b, uv, dx, dy),
+                np.testing.assert_allclose(other.decode(a, uv, s), vk.decode(b, uv, s), rtol=0, atol=2e-6,
+                                           err_msg=name)
+                np.testing.assert_allclose(other.decode_grad(a, uv, dx, dy), vk.decode_grad(b, uv, dx, dy),
                                            rtol=0, atol=2e-6, err_msg=name)
-                np.testing.assert_allclose(ek.decode_grid(a, 24, 16, 1.5), vk.decode_grid(b, 24, 16, 1.5),
+                np.testing.assert_allclose(other.decode_grid(a, 24, 16, 1.5), vk.decode_grid(b, 24, 16, 1.5),
                                            rtol=0, atol=2e-6, err_msg=name)
             finally:
-                ek.unload(a)
+                other.unload(a)
                 vk.unload(b)
-            # and verify's whole check, the example kernel as its Vulkan runtime
-            rep = checks.verify_target(checks.find_targets(materials[name])[0], None, vulkan=ek)
+            rep = checks.verify_target(checks.find_targets(materials[name])[0], None, vulkan=other)
             assert {c.name: c.passed for c in rep.checks}["vulkan"], [c.detail for c in rep.checks]
     finally:
-        ek.release()
+        other.release()
 
 
 @pytest.mark.vulkan

@@ -25,8 +25,9 @@ def shaders(out_dir: str, layer_counts: str, as_json: bool) -> None:
     \b
     bcf_decode_N.hlsl   the batch decoder (glsl/bcf_decode.comp) as HLSL, shader model 6.0
     bcf_decode_N.spv    that HLSL compiled by glslang's HLSL front end: Vulkan SPIR-V
-    bcf_decode_N.metal  the same SPIR-V as the HLSL's, as Metal 2.0 (kernel main0)
+    bcf_decode_N.metal  the GLSL's SPIR-V, which the HLSL comes from, as Metal 2.0 (kernel main0)
     bcf_decode.hlsli    the decoder's functions as an HLSL include, for a material function
+    README.md           what each file is
     versions.json       the glslang and SPIRV-Cross that made them
 
     glslang compiles the GLSL to SPIR-V; SPIRV-Cross translates that SPIR-V to HLSL and MSL.

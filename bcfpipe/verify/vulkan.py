@@ -50,10 +50,12 @@ class VkMaterial:
 class VulkanRuntime:
     """One device and queue; a compute pipeline per layer count, made on first use from
     ``kernel(layers)``: by default the shipped SPIR-V (bcfpipe/decoders/bcf_decode_N.spv), or any
-    kernel with its resources (examples/hlsl/bcf_include_kernel.hlsl)."""
+    kernel with its resources (examples/hlsl/bcf_include_kernel.hlsl). ``combined``: the kernel
+    takes the textures as combined image samplers at binding 4 (glslang's SPIR-V of the GLSL, which
+    SPIRV-Cross translates), not separate images and samplers (an HLSL kernel's)."""
 
-    def __init__(self, kernel: Callable[[int], bytes] = shipped_kernel) -> None:
-        self.kernel = kernel
+    def __init__(self, kernel: Callable[[int], bytes] = shipped_kernel, combined: bool = False) -> None:
+        self.kernel, self.combined = kernel, combined
         try:
             import vulkan as vk  # lazy: start-up
         except (ImportError, OSError) as e:
@@ -254,6 +256,14 @@ class VulkanRuntime:
         self._free(vm.weights)
         vm.weights = None
 
+    def _texture_bindings(self) -> list[tuple[int, int]]:
+        """(binding, descriptor type) of the layers' textures and samplers."""
+        vk = self.vk
+        if self.combined:
+            return [(TEXTURE_BINDING, vk.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER)]
+        return [(TEXTURE_BINDING, vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE),
+                (HLSL_SAMPLER_BINDING, vk.VK_DESCRIPTOR_TYPE_SAMPLER)]
+
     def _pipeline(self, layers: int) -> tuple:
         """(descriptor set layout, pipeline layout, pipeline) for ``layers`` feature layers."""
         if layers in self._pipelines:
@@ -263,9 +273,7 @@ class VulkanRuntime:
         bindings = [vk.VkDescriptorSetLayoutBinding(binding=b, descriptorType=vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
                                                     descriptorCount=1, stageFlags=stage) for b in range(4)]
         bindings += [vk.VkDescriptorSetLayoutBinding(binding=b, descriptorType=t, descriptorCount=layers,
-                                                     stageFlags=stage)
-                     for b, t in ((TEXTURE_BINDING, vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE),
-                                  (HLSL_SAMPLER_BINDING, vk.VK_DESCRIPTOR_TYPE_SAMPLER))]
+                                                     stageFlags=stage) for b, t in self._texture_bindings()]
         dsl = vk.vkCreateDescriptorSetLayout(self.device, vk.VkDescriptorSetLayoutCreateInfo(
             bindingCount=len(bindings), pBindings=bindings), None)
         layout = vk.vkCreatePipelineLayout(self.device, vk.VkPipelineLayoutCreateInfo(
@@ -299,11 +307,11 @@ class VulkanRuntime:
         usage = vk.VK_BUFFER_USAGE_STORAGE_BUFFER_BIT
         bufs = [self._buffer(len(q), usage), self._buffer(count * stride * 4, usage), self._buffer(len(params), usage)]
         n = len(vm.images)
+        textures = self._texture_bindings()
         pool = vk.vkCreateDescriptorPool(self.device, vk.VkDescriptorPoolCreateInfo(
-            maxSets=1, poolSizeCount=3, pPoolSizes=[
+            maxSets=1, poolSizeCount=1 + len(textures), pPoolSizes=[
                 vk.VkDescriptorPoolSize(type=vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, descriptorCount=4),
-                vk.VkDescriptorPoolSize(type=vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE, descriptorCount=n),
-                vk.VkDescriptorPoolSize(type=vk.VK_DESCRIPTOR_TYPE_SAMPLER, descriptorCount=n)]), None)
+                *(vk.VkDescriptorPoolSize(type=t, descriptorCount=n) for _, t in textures)]), None)
         try:
             self._write(bufs[0], q)
             self._write(bufs[2], params)
@@ -314,16 +322,14 @@ class VulkanRuntime:
                                               pBufferInfo=[vk.VkDescriptorBufferInfo(buffer=b.buffer, offset=0,
                                                                                      range=b.size)])
                       for k, b in enumerate([vm.weights, *bufs])]
-            writes.append(vk.VkWriteDescriptorSet(
-                dstSet=ds, dstBinding=TEXTURE_BINDING, dstArrayElement=0, descriptorCount=n,
-                descriptorType=vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE,
-                pImageInfo=[vk.VkDescriptorImageInfo(imageView=view,
-                                                     imageLayout=vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL)
-                            for _, _, view in vm.images]))
-            writes.append(vk.VkWriteDescriptorSet(
-                dstSet=ds, dstBinding=HLSL_SAMPLER_BINDING, dstArrayElement=0, descriptorCount=n,
-                descriptorType=vk.VK_DESCRIPTOR_TYPE_SAMPLER,
-                pImageInfo=[vk.VkDescriptorImageInfo(sampler=vm.sampler) for _ in vm.images]))
+            for binding, kind in textures:  # the views, the sampler, or both in one descriptor
+                view = kind != vk.VK_DESCRIPTOR_TYPE_SAMPLER
+                sampler = kind != vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE
+                writes.append(vk.VkWriteDescriptorSet(
+                    dstSet=ds, dstBinding=binding, dstArrayElement=0, descriptorCount=n, descriptorType=kind,
+                    pImageInfo=[vk.VkDescriptorImageInfo(
+                        sampler=vm.sampler if sampler else None, imageView=v if view else None,
+                        imageLayout=vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL) for _, _, v in vm.images]))
             vk.vkUpdateDescriptorSets(self.device, len(writes), writes, 0, None)
 
             def record(cmd):
