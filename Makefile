@@ -13,7 +13,8 @@ demo: setup
 	$(BCF) build samples/sample_scene.usda --quality draft --layout neural --verify
 
 # --dist loadscope: a module's tests on one worker, so its module-scoped builds run once, not once per
-# worker (test_wrap's two builds: 53 s on each worker before)
+# worker (test_wrap's two builds: 53 s on each worker before); the tests of the long modules that
+# share nothing go one by one to whichever worker is free, the longest modules first (tests/conftest.py)
 test: setup
 	$(PY) -m pytest -n 2 --dist loadscope --durations=15 $(PYTEST_ARGS)
 

@@ -37,6 +37,47 @@ def pytest_unconfigure(config) -> None:
         os.environ.pop(KERNELS, None)
 
 
+# The modules that take longest (their tests' summed time in `make test` at cb3b81e, longest first):
+# xdist hands work out in collection order, so these start first rather than trailing at the end.
+LONGEST_FIRST = ("test_extremes", "test_incremental", "test_fused", "test_wrap", "test_render", "test_many_layers",
+                 "test_bench", "test_classic_layout", "test_rate", "test_fold", "test_build", "test_fixed_t0",
+                 "test_concurrency", "test_predict", "test_vulkan")
+# Long modules whose tests share nothing: under `make test`'s --dist loadscope each of their tests
+# goes to whichever worker is free, not the whole module to one (tests/conftest.py checks that none
+# uses a module- or class-scoped fixture, which would then be made on both workers).
+PER_TEST = ("test_extremes", "test_incremental", "test_rate", "test_fold", "test_concurrency", "test_faults",
+            "test_predict", "test_fixed_t0", "test_native_fallback", "test_blocks_cache", "test_bad_images")
+SHARED_SCOPES = ("module", "class", "package")
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """The longest modules first (`LONGEST_FIRST`); a `PER_TEST` module that uses a shared fixture
+    is a mistake here, said before anything runs."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.stem, len(rank)))
+    for item in items:
+        defs = getattr(item, "_fixtureinfo", None)
+        if item.path.stem in PER_TEST and defs is not None and any(
+                d.scope in SHARED_SCOPES for ds in defs.name2fixturedefs.values() for d in ds):
+            raise pytest.UsageError(f"{item.nodeid} uses a {SHARED_SCOPES} fixture: take {item.path.stem} out of "
+                                    "tests/conftest.py PER_TEST")
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """--dist loadscope (`make test`), with each test of a `PER_TEST` module a unit of its own."""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class Scheduler(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            if Path(nodeid.split("::", 1)[0]).stem in PER_TEST:
+                return nodeid
+            return super()._split_scope(nodeid)
+
+    return Scheduler(config, log)
+
+
 @pytest.fixture(scope="session")
 def shared_scenes() -> Path:
     if not SHARED_SCENES.is_dir():

@@ -15,6 +15,8 @@ import time
 from pathlib import Path
 
 import pytest
+
+from cli_run import run_cli
 from pxr import Sdf, Usd, UsdShade
 
 from bcfpipe.config import TrainingOptions
@@ -334,21 +336,21 @@ def test_cache_cli(tmp_path):
     scene = small_scene(tmp_path)
     cache = tmp_path / "cache"
     build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
-    info = json.loads(cli("cache", "info", "--cache", str(cache), "--json").stdout)
+    info = json.loads(run_cli("cache", "info", "--cache", str(cache), "--json").stdout)
     assert info["entries"] == 2 and info["size_bytes"] > 0
-    rows = json.loads(cli("cache", "list", "--cache", str(cache), "--json").stdout)
+    rows = json.loads(run_cli("cache", "list", "--cache", str(cache), "--json").stdout)
     assert len(rows) == 2
     old = Cache(cache).folder(rows[0]["key"]) / "entry.json"
     os.utime(old, (time.time() - 40 * 86400,) * 2)  # last used 40 days ago
-    r = json.loads(cli("cache", "prune", "--cache", str(cache), "--older-than", "30d", "--json").stdout)
+    r = json.loads(run_cli("cache", "prune", "--cache", str(cache), "--older-than", "30d", "--json").stdout)
     assert r["removed"] == [rows[0]["key"]]
-    r = json.loads(cli("cache", "prune", "--cache", str(cache), "--max-size", "1K", "--json").stdout)
-    assert len(r["removed"]) == 1 and json.loads(cli("cache", "info", "--cache", str(cache), "--json").stdout)[
+    r = json.loads(run_cli("cache", "prune", "--cache", str(cache), "--max-size", "1K", "--json").stdout)
+    assert len(r["removed"]) == 1 and json.loads(run_cli("cache", "info", "--cache", str(cache), "--json").stdout)[
         "entries"] == 0
-    bad = cli("cache", "prune", "--cache", str(cache), "--max-size", "lots")
+    bad = run_cli("cache", "prune", "--cache", str(cache), "--max-size", "lots")
     assert bad.returncode == 2 and "500M" in bad.stderr and "Traceback" not in bad.stderr
     build(scene, tmp_path / "out", execution=Execution(cache=cache), **FAST)
-    assert "removed 2 entries" in cli("cache", "clear", "--cache", str(cache), "--yes").stdout
+    assert "removed 2 entries" in run_cli("cache", "clear", "--cache", str(cache), "--yes").stdout
 
 
 # ------------------------------------------------------------------------------------------- ninja

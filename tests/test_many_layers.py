@@ -134,8 +134,11 @@ def test_other_layer_counts_do_not_compile(n, tmp_path):
         validate_texels(G.assemble("comp", {"BCF_N_LAYERS": n}), "comp", tmp_path)
 
 
-def _decodes(rt, folder: Path, weights: bytes | None = None, desc_from: Path | None = None) -> dict[str, np.ndarray]:
-    """Every GL path at random points: lod queries, derivative queries, grids, the fragment shader."""
+def _decodes(rt, folder: Path, weights: bytes | None = None, desc_from: Path | None = None,
+             fixed: bool = False) -> dict[str, np.ndarray]:
+    """Every GL path at random points: lod queries, derivative queries, grids, the fragment shader;
+    with ``fixed`` the compute shader compiled for the record's network shape too (``fixed``: the
+    shape bcfpipe bench's decode cost compiles, `decode_cost._net`; on llvmpipe 10-15 s a compile)."""
     rng = np.random.default_rng(5)
     uv = rng.uniform(-2, 3, (4000, 2)).astype(np.float32)
     s = rng.uniform(-2, 9, 4000).astype(np.float32)
@@ -143,12 +146,13 @@ def _decodes(rt, folder: Path, weights: bytes | None = None, desc_from: Path | N
     gm = rt.load(G.read_material(desc_from or folder, weights_file=folder / "weights.bin"), weights)
     try:
         m = gm.desc.file.mlp
-        return {"lod": rt.decode(gm, uv, s), "grad": rt.decode_grad(gm, uv, dx, dy),
-                "grid": rt.decode_grid(gm, 40, 24, 1.25), "frag": rt.render_fullscreen(gm, 40, 24),
-                "frag_lod": rt.render_fullscreen(gm, 40, 24, lod=2.5, view=2),
-                # the shape bcfpipe bench's decode cost compiles (`decode_cost._net`): one program each
-                "fixed": rt.decode(gm, uv, s, defines={"BCF_N_HIDDEN": m.n_hidden, "BCF_N_OUT": m.n_out,
-                                                       "BCF_MAX_OUT": gm.desc.c_out})}
+        out = {"lod": rt.decode(gm, uv, s), "grad": rt.decode_grad(gm, uv, dx, dy),
+               "grid": rt.decode_grid(gm, 40, 24, 1.25), "frag": rt.render_fullscreen(gm, 40, 24),
+               "frag_lod": rt.render_fullscreen(gm, 40, 24, lod=2.5, view=2)}
+        if fixed:
+            out["fixed"] = rt.decode(gm, uv, s, defines={"BCF_N_HIDDEN": m.n_hidden, "BCF_N_OUT": m.n_out,
+                                                          "BCF_MAX_OUT": gm.desc.c_out})
+        return out
     finally:
         rt.unload(gm)
 
@@ -158,23 +162,28 @@ FP32_SUMS = 2e-5  # (n_hidden + n_in) fp32 roundings of sums whose terms stay be
 
 def test_glsl_decode_of_more_layers_equals_the_four_layer_one(mats, rt):
     """Every GL path of the 5- and 6-layer materials gives the 4-layer decode, to fp32 rounding:
-    the extra samplers, lod biases and W1 columns are read where they belong."""
+    the extra samplers, lod biases and W1 columns are read where they belong. The compute shader
+    compiled for the 6-layer record's shape (every BCF_N_LAYERS > 4 and > 5 line) gives it too."""
     base = _decodes(rt, mats[4])
     assert all(np.isfinite(v).all() for v in base.values())
     for n in (5, 6):
-        got = _decodes(rt, mats[n])
+        got = _decodes(rt, mats[n], fixed=n == 6)
+        if n == 6:
+            np.testing.assert_allclose(got.pop("fixed"), base["lod"], rtol=0, atol=FP32_SUMS, err_msg="fixed shape")
         for k, v in base.items():
             np.testing.assert_allclose(got[k], v, rtol=0, atol=FP32_SUMS, err_msg=f"{n} layers, {k}")
 
 
 def test_a_record_for_another_layer_count_is_rejected(mats, rt):
     """A shader compiled for the material's layer count refuses a record whose n_in is another's:
-    NaN from the compute shader, magenta from the fragment shader."""
+    NaN from the compute shader (also compiled for one network shape), magenta from the fragment
+    shader."""
     six = (mats[6] / "weights.bin").read_bytes()
     four = (mats[4] / "weights.bin").read_bytes()
     for folder, weights in ((mats[4], six), (mats[6], four), (mats[5], six)):
-        out = _decodes(rt, folder, weights)
-        assert np.isnan(out["lod"]).all() and np.isnan(out["grad"]).all() and np.isnan(out["fixed"]).all()
+        out = _decodes(rt, folder, weights, fixed=folder == mats[6])
+        assert np.isnan(out["lod"]).all() and np.isnan(out["grad"]).all()
+        assert folder != mats[6] or np.isnan(out["fixed"]).all()
         assert (out["frag"][..., :3] == (1.0, 0.0, 1.0)).all()
 
 
