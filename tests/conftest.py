@@ -37,16 +37,21 @@ def pytest_unconfigure(config) -> None:
         os.environ.pop(KERNELS, None)
 
 
-# The modules that take longest (their tests' summed time in `make test` at cb3b81e, longest first):
-# xdist hands work out in collection order, so these start first rather than trailing at the end.
-LONGEST_FIRST = ("test_extremes", "test_incremental", "test_fused", "test_wrap", "test_render", "test_many_layers",
-                 "test_bench", "test_classic_layout", "test_rate", "test_fold", "test_build", "test_fixed_t0",
-                 "test_concurrency", "test_predict", "test_vulkan")
+# Longest work unit first (LPT): a module's summed test time, or for a `PER_TEST` module its longest
+# test, in `make test` at 523a6ca. xdist hands units out in collection order, so the long ones start
+# first and the short ones fill the gaps at the end rather than one long unit trailing alone.
+LONGEST_FIRST = ("test_wrap", "test_render", "test_fused", "test_bench", "test_many_layers", "test_native_fallback",
+                 "test_classic_layout", "test_build", "test_classic_estimate", "test_extremes", "test_vulkan",
+                 "test_glsl", "test_fuzz", "test_blocks_cache", "test_verify", "test_fold", "test_incremental",
+                 "test_rate", "test_faults", "test_predict", "test_concurrency", "test_parallel_encode",
+                 "test_usd_classic", "test_reports", "test_bc7", "test_t0_width", "test_fixed_t0", "test_layout",
+                 "test_shard", "test_jobs_bound")
 # Long modules whose tests share nothing: under `make test`'s --dist loadscope each of their tests
 # goes to whichever worker is free, not the whole module to one (tests/conftest.py checks that none
 # uses a module- or class-scoped fixture, which would then be made on both workers).
-PER_TEST = ("test_extremes", "test_incremental", "test_rate", "test_fold", "test_concurrency", "test_faults",
-            "test_predict", "test_fixed_t0", "test_native_fallback", "test_blocks_cache", "test_bad_images")
+PER_TEST = ("test_extremes", "test_incremental", "test_fused", "test_rate", "test_fold", "test_concurrency",
+            "test_faults", "test_predict", "test_fixed_t0", "test_native_fallback", "test_blocks_cache",
+            "test_bad_images")
 SHARED_SCOPES = ("module", "class", "package")
 
 
