@@ -159,7 +159,6 @@ def decode(folder: Path, spirv: Path, size: int, lod: float, tile: int) -> tuple
 
     gpu = Device()
     views = [gpu.texture(folder / layer["file"]) for layer in m["layers"]]
-    max_lod = max(layer["mip_count"] for layer in m["layers"]) - 1
     samplers = [vk.vkCreateSampler(gpu.dev, vk.VkSamplerCreateInfo(
         magFilter=vk.VK_FILTER_LINEAR, minFilter=vk.VK_FILTER_LINEAR, mipmapMode=vk.VK_SAMPLER_MIPMAP_MODE_LINEAR,
         addressModeU=wrap[0][1], addressModeV=wrap[1][1], addressModeW=wrap[1][1],

@@ -68,6 +68,7 @@ def pytest_collection_modifyitems(config, items) -> None:
                                     "tests/conftest.py PER_TEST")
 
 
+@pytest.hookimpl(optionalhook=True)  # xdist's hook: `-p no:xdist` runs have no such hook
 def pytest_xdist_make_scheduler(config, log):
     """--dist loadscope (`make test`), with each test of a `PER_TEST` module a unit of its own."""
     if config.getvalue("dist") != "loadscope":

@@ -8,12 +8,12 @@ renderer's original textures).
 """
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from cli_run import run_cli
 from click.testing import CliRunner
 
 from bcfpipe.formats import images
@@ -137,15 +137,13 @@ def test_file_cut_in_half_is_one_line_naming_it_exit_2_and_nothing_written(tmp_p
     add_material(stage, "/World/Looks/M", {"diffuseColor": (f"./tex/a.{ext}", "rgb", {})}, mesh="/World/A")
     stage.Save()
     out = tmp_path / "out"
-    p = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(tmp_path / "scene.usda"), "-o", str(out),
-                        "--profile", "tiny", "--quality", "smoke", "--cache", str(tmp_path / "cache")],
-                       capture_output=True, text=True, timeout=600)
+    p = run_cli("build", tmp_path / "scene.usda", "-o", out, "--profile", "tiny", "--quality", "smoke",
+                "--cache", tmp_path / "cache")
     assert p.returncode == 2, p.stderr
     (line,) = p.stderr.strip().splitlines()
     assert line.startswith("Error: ") and str(tex) in line and "Traceback" not in p.stderr
     assert not out.exists()
-    t = subprocess.run([sys.executable, "-m", "bcfpipe", "train", f"albedo={tex}:rgb", "-o", str(out)],
-                       capture_output=True, text=True, timeout=600)
+    t = run_cli("train", f"albedo={tex}:rgb", "-o", out)
     assert t.returncode == 2 and str(tex) in t.stderr and len(t.stderr.strip().splitlines()) == 1, t.stderr
     assert not out.exists()
 

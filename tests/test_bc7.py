@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from cli_run import run_cli
 import torch
 
 from bcfpipe.bc7 import decode, decode_to_u8, emulate, encode, mode6
@@ -279,15 +281,14 @@ def test_bc7_train_exports_verifies_and_refuses_signed(tmp_path):
     material.json's bc7 record; `bcfpipe verify` passes (GLSL against ONNX where GL runs);
     --signed with bc7 is refused in one line."""
     import json
-    import subprocess
 
     from bcfpipe.formats import material as mf
 
     src = Path(__file__).resolve().parents[1] / "samples" / "textures"
-    base = [sys.executable, "-m", "bcfpipe", "train", f"albedo={src / 'bricks_albedo.png'}:rgb",
+    base = ["train", f"albedo={src / 'bricks_albedo.png'}:rgb",
             f"roughness={src / 'bricks_roughness.png'}:r", "--profile", "tiny", "--quality", "smoke", "--features", "bc7",
             "--t0", "trained", "--layout", "neural"]
-    r = subprocess.run(base + ["-o", str(tmp_path / "m"), "--json"], capture_output=True, text=True, timeout=600)
+    r = run_cli(*base, "-o", tmp_path / "m", "--json")
     assert r.returncode == 0, r.stderr[-2000:]
     desc = mf.read(tmp_path / "m")
     assert desc.features == "bc7" and desc.bc6h is None and desc.bc7.dxgi_format == dds.DXGI_FORMAT_BC7_UNORM
@@ -296,10 +297,9 @@ def test_bc7_train_exports_verifies_and_refuses_signed(tmp_path):
     for layer in desc.layers:
         tex = dds.read(tmp_path / "m" / layer.file)
         assert tex.is_bc7 and all(mode6.is_mode6(b).all() for b, _, _ in tex.levels)
-    v = subprocess.run([sys.executable, "-m", "bcfpipe", "verify", str(tmp_path / "m"), "--json"],
-                       capture_output=True, text=True, timeout=600)
+    v = run_cli("verify", tmp_path / "m", "--json")
     assert v.returncode == 0, v.stdout[-3000:] + v.stderr[-2000:]
     checks = {c["name"]: c["passed"] for c in json.loads(v.stdout)["materials"][0]["checks"]}
     assert checks["files"] and checks["openimageio"] and checks["glsl"] in (True, None)
-    bad = subprocess.run(base + ["-o", str(tmp_path / "s"), "--signed"], capture_output=True, text=True, timeout=600)
+    bad = run_cli(*base, "-o", tmp_path / "s", "--signed")
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "--signed is a BC6H choice" in bad.stderr

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_run import run_cli
+
 from bcfpipe.errors import InputError
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
@@ -596,8 +598,7 @@ def test_refuses_foreign_out(tmp_path: Path) -> None:
     (out / "sub" / "scene.usd").write_bytes(b"#usda 1.0\n")
     before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     for force in ([], ["--force"]):
-        proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), *force],
-                              capture_output=True, text=True, timeout=300)
+        proc = run_cli("build", scene, "-o", out, *force)
         assert proc.returncode == 2 and "not written by bcfpipe" in proc.stderr, proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1
         assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
@@ -616,8 +617,7 @@ def test_refuses_foreign_out(tmp_path: Path) -> None:
     with pytest.raises(BuildError, match=r"another scene .*scene\.usda.*--force"):
         build(other, out, **FAST)
     assert json.loads((out / MANIFEST).read_text())["scene"].endswith("scene.usda")
-    proc = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(other), "-o", str(out), "--force"],
-                          capture_output=True, text=True, timeout=300)
+    proc = run_cli("build", other, "-o", out, "--force")
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.count(f"replacing the build of {scene}") == 1  # said once, not per check
     assert json.loads((out / MANIFEST).read_text())["scene"].endswith("b.usda")

@@ -5,23 +5,23 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 
+from cli_run import run_cli
 from bcfpipe.bc7 import anymode, mode6
 from bcfpipe.formats import dds
 from bcfpipe.formats import material as mf
 
 SRC = Path(__file__).resolve().parents[1] / "samples" / "textures"
-BASE = [sys.executable, "-m", "bcfpipe", "train", f"albedo={SRC / 'bricks_albedo.png'}:rgb",
+BASE = ["train", f"albedo={SRC / 'bricks_albedo.png'}:rgb",
         f"roughness={SRC / 'bricks_roughness.png'}:r", "--profile", "tiny", "--quality", "smoke", "--features", "bc7",
         "--layout", "neural"]
 
 
 def _train(out: Path, *extra: str) -> subprocess.CompletedProcess:
-    return subprocess.run(BASE + ["-o", str(out), "--json", *extra], capture_output=True, text=True, timeout=600)
+    return run_cli(*BASE, "-o", out, "--json", *extra)
 
 
 def test_bc7_default_keeps_a_fixed_t0_in_any_mode_and_verifies(tmp_path):
@@ -35,8 +35,7 @@ def test_bc7_default_keeps_a_fixed_t0_in_any_mode_and_verifies(tmp_path):
     assert (modes < 8).all() and len(np.unique(modes)) > 1  # ISPC picks per block
     for layer in desc.layers[1:]:
         assert all(mode6.is_mode6(b).all() for b, _, _ in dds.read(tmp_path / "m" / layer.file).levels)
-    v = subprocess.run([sys.executable, "-m", "bcfpipe", "verify", str(tmp_path / "m"), "--json"],
-                       capture_output=True, text=True, timeout=600)
+    v = run_cli("verify", tmp_path / "m", "--json")
     assert v.returncode == 0, v.stdout[-3000:] + v.stderr[-2000:]
     checks = {c["name"]: c["passed"] for c in json.loads(v.stdout)["materials"][0]["checks"]}
     assert checks["files"] and checks["openimageio"] and checks["glsl"] in (True, None)
@@ -53,7 +52,7 @@ def test_the_same_inputs_give_the_same_bytes(tmp_path):
 
 def test_t0_pca_is_a_bc7_choice_refused_in_one_line_with_bc6h(tmp_path):
     args = [a if a != "bc7" else "bc6h" for a in BASE] + ["-o", str(tmp_path / "x"), "--t0", "pca"]
-    r = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    r = run_cli(*args)
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--t0 pca" in r.stderr
     assert not (tmp_path / "x").exists()
 
@@ -65,6 +64,5 @@ def test_a_changed_fixed_level_fails_verify(tmp_path):
     data = bytearray(path.read_bytes())
     data[-1] ^= 0x80
     path.write_bytes(bytes(data))
-    v = subprocess.run([sys.executable, "-m", "bcfpipe", "verify", str(tmp_path / "m")], capture_output=True,
-                       text=True, timeout=600)
+    v = run_cli("verify", tmp_path / "m")
     assert v.returncode != 0

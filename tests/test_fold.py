@@ -4,12 +4,13 @@ from __future__ import annotations
 from bcfpipe.builder import Execution
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from cli_run import run_cli
 from pxr import Usd, UsdShade
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -54,8 +55,7 @@ def test_vehicles_train_nothing_and_hold_their_constants(shared_scenes, tmp_path
     and `bcfpipe verify` passes."""
     scene = shared_scenes / VEHICLES
     out = tmp_path / "out"
-    p = subprocess.run([sys.executable, "-m", "bcfpipe", "build", str(scene), "-o", str(out), "--json"],
-                       capture_output=True, text=True, timeout=600)
+    p = run_cli("build", scene, "-o", out, "--json")
     assert p.returncode == 0, p.stderr
     report = json.loads(p.stdout)
     assert report["totals"]["trained"] == 0 and report["totals"]["jobs"] == 0
@@ -79,8 +79,7 @@ def test_vehicles_train_nothing_and_hold_their_constants(shared_scenes, tmp_path
             assert abs(value[c] - _oiio_linear_mean(Path(file), c)) <= 1 / 255, (prim.GetPath(), c)
         checked += 1
     assert checked == 14
-    v = subprocess.run([sys.executable, "-m", "bcfpipe", "verify", str(out), "--json"], capture_output=True,
-                       text=True, timeout=600)
+    v = run_cli("verify", out, "--json")
     assert v.returncode == 0, v.stdout[-2000:] + v.stderr
     checks = [c for m in json.loads(v.stdout)["materials"] for c in m["checks"]]
     assert len(checks) == 14 and all(c["name"] == "constants" and c["passed"] for c in checks)

@@ -17,6 +17,8 @@ import time
 from pathlib import Path
 
 import pytest
+
+from cli_run import run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -284,16 +286,13 @@ def test_random_bytes_are_refused_by_the_binary_readers(data):
 
 def test_the_cli_reports_a_mutated_file_in_one_line(real_files, tmp_path):
     """End to end: `bcfpipe dds info` and `bcfpipe verify` on damaged files exit 2 with one line."""
-    import subprocess
-    import sys
-
     rng = random.Random(5)
     bad = tmp_path / "bad.dds"
     bad.write_bytes(mutate(real_files["dds"], rng)[:100])
-    p = subprocess.run([sys.executable, "-m", "bcfpipe", "dds", "info", str(bad)], capture_output=True, text=True)
+    p = run_cli("dds", "info", bad)
     assert p.returncode == 2 and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
     mat = tmp_path / "mat"
     mat.mkdir()
     (mat / "material.json").write_text(mutate_json(real_files["material"], rng))
-    p = subprocess.run([sys.executable, "-m", "bcfpipe", "verify", str(mat)], capture_output=True, text=True)
+    p = run_cli("verify", mat)
     assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
