@@ -6,7 +6,6 @@ from bcfpipe.builder import Execution
 import json
 import subprocess
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -43,29 +42,16 @@ def test_predictions_shift_with_the_anchors() -> None:
     assert two[("0.5k", "standard")] > p[("0.5k", "standard")]  # a better anchor lifts the others
 
 
-@dataclass(frozen=True)
-class _Metrics:
-    psnr: float
-
-
-@dataclass(frozen=True)
-class _Result:
-    metrics: _Metrics
-    size_bytes: int
-    train_seconds: float
-    out_dir: Path
-
-
-def scripted(psnr: dict[tuple[str, str], float], calls: list):
-    """A trainer whose results are given (the policy is a pure function of them): writes one file."""
-
-    def train_one(s: rate.Setting, folder: Path):
-        folder.mkdir(parents=True)
-        (folder / "material.json").write_text(f"{s.profile}/{s.preset}")
-        calls.append((s.profile, s.preset))
-        return _Result(_Metrics(psnr[(s.profile, s.preset)]), s.feature_bytes, 1.0, folder)
-
-    return train_one
+def climb(target: float, settings, truth: dict[tuple[str, str], float], anchors=None):
+    """The policy (`rate.next_step`) run against results given by ``truth``, as `fit_to_target`
+    runs it against trainings: (the attempts in order, the notes, the attempt kept)."""
+    known, attempts, notes = dict(anchors or {}), [], []
+    while (step := rate.next_step(target, settings, known, attempts)) is not None:
+        key = (step.setting.profile, step.setting.preset)
+        attempts.append(rate.Attempt(step.setting, step.why, step.predicted, truth[key], 0, 1.0))
+        known[key] = truth[key]
+        notes += [step.note] if step.note else []
+    return attempts, notes, rate.chosen_attempt(target, attempts)
 
 
 TRUE = {("0.5k", "draft"): 30.0, ("0.5k", "fast"): 32.0, ("0.5k", "standard"): 31.0,
@@ -79,40 +65,35 @@ GAINS = {("0.5k", "draft"): 0.0, ("0.5k", "fast"): 2.03, ("0.5k", "standard"): 2
          ("2k", "draft"): 0.49, ("2k", "fast"): 3.36, ("2k", "standard"): 4.29}
 
 
-def test_policy_probe_predict_climb_and_unreachable(tmp_path: Path, monkeypatch) -> None:
+def test_policy_probe_predict_climb_and_unreachable(monkeypatch) -> None:
     monkeypatch.setattr(gains, "GAINS_DB", GAINS)
     c = rate.candidates(1024, "cpu")
     g = gains.GAINS_DB
     assert g[("0.5k", "fast")] < 2.5 < g[("0.5k", "standard")] < g[("1k", "standard")] < 4.0  # the cases below
-    calls: list = []
+
+    def tried(attempts):
+        return [(a.setting.profile, a.setting.preset, a.why) for a in attempts]
+
     # met by the probe: nothing else trains
-    res, out = rate.fit_to_target(29.0, c, scripted(TRUE, calls), tmp_path / "a")
-    assert calls == [("0.5k", "draft")] and out.met and out.chosen.why == "probe"
-    assert (tmp_path / "a" / "material.json").read_text() == "0.5k/draft" and not (tmp_path / "a" / ".attempts").exists()
+    attempts, _, kept = climb(29.0, c, TRUE)
+    assert tried(attempts) == [("0.5k", "draft", "probe")] and kept.why == "probe"
     # 31.5: the first setting predicted to reach 31.5 + margin is 0.5k/fast, and it does
-    calls.clear()
-    _, out = rate.fit_to_target(31.5, c, scripted(TRUE, calls), tmp_path / "b")
-    assert calls == [("0.5k", "draft"), ("0.5k", "fast")] and out.met
-    assert [a.why for a in out.attempts] == ["probe", "predicted"]
+    attempts, _, kept = climb(31.5, c, TRUE)
+    assert tried(attempts) == [("0.5k", "draft", "probe"), ("0.5k", "fast", "predicted")] and kept.psnr >= 31.5
     # 32.1: 0.5k/standard is predicted (32.66) but measures 31.0; the predictions drop, 1k/standard is next
-    calls.clear()
-    _, out = rate.fit_to_target(32.1, c, scripted(TRUE, calls), tmp_path / "c")
-    assert [(a.setting.profile, a.setting.preset, a.why) for a in out.attempts] == [
-        ("0.5k", "draft", "probe"), ("0.5k", "standard", "predicted"), ("1k", "standard", "climb")]
-    assert out.met and (tmp_path / "c" / "material.json").read_text() == "1k/standard"
+    attempts, _, kept = climb(32.1, c, TRUE)
+    assert tried(attempts) == [("0.5k", "draft", "probe"), ("0.5k", "standard", "predicted"), ("1k", "standard", "climb")]
+    assert (kept.setting.profile, kept.setting.preset) == ("1k", "standard")
     # 33.9: no setting is predicted to reach it (1k/standard: 33.7); the best effort happens to
-    calls.clear()
-    _, out = rate.fit_to_target(33.9, c, scripted(TRUE, calls), tmp_path / "d")
-    assert out.met and out.chosen.why == "best effort" and calls[-1] == ("1k", "standard")
-    # 50 dB: the best effort runs once and the target is reported unreachable, the best result kept
-    calls.clear()
-    _, out = rate.fit_to_target(50.0, c, scripted(TRUE, calls), tmp_path / "e")
-    assert not out.met and "unreachable" in out.summary() and out.chosen.psnr == 34.0
-    assert out.notes and len(calls) == 2
+    attempts, _, kept = climb(33.9, c, TRUE)
+    assert kept.why == "best effort" and kept.psnr >= 33.9 and tried(attempts)[-1][:2] == ("1k", "standard")
+    # 50 dB: the best effort runs once and the target is unreachable, the best result kept
+    attempts, notes, kept = climb(50.0, c, TRUE)
+    assert kept.psnr == 34.0 and kept.psnr < 50 and notes and len(attempts) == 2
+    assert rate.next_step(50.0, c, {(a.setting.profile, a.setting.preset): a.psnr for a in attempts}, attempts) is None
     # bench anchors replace the probe
-    calls.clear()
-    _, out = rate.fit_to_target(31.5, c, scripted(TRUE, calls), tmp_path / "f", anchors={("0.5k", "fast"): 32.0})
-    assert calls == [("0.5k", "fast")] and out.anchors == "bench" and out.met
+    attempts, _, kept = climb(31.5, c, TRUE, anchors={("0.5k", "fast"): 32.0})
+    assert tried(attempts) == [("0.5k", "fast", "predicted")] and kept.psnr >= 31.5
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:

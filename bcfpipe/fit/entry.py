@@ -22,9 +22,8 @@ import numpy as np
 
 from bcfpipe.config import TrainingOptions
 from bcfpipe.export.material import MaterialResult, train_material, make_config
-from bcfpipe.fit.rate import candidates, fit_to_target
+from bcfpipe.fit.rate import fit_to_target
 from bcfpipe.formats.fit_result import FitResult
-from bcfpipe.formats.vocabulary import T0
 from bcfpipe.layout.material import layout_material
 from bcfpipe.layout.predict import uses_layout
 from bcfpipe.texset.texture_set import TextureSet
@@ -77,15 +76,9 @@ def fit(ts: TextureSet, options: TrainingOptions, out: str | Path, *, wrap: str,
         res = layout_material(ts, out, options, wrap, lambda text: say(f"layout: {text}"),
                               progress=progress, coverage=coverage)
         return Fitted(res, mode)
-    name, cfg = make_config(ts, options, wrap)
     if mode == FitMode.NEURAL:
+        name, cfg = make_config(ts, options, wrap)
         return Fitted(train_material(ts, out, cfg, name, progress, coverage=coverage)[0], mode)
-
-    def train_one(setting, folder):
-        n, c = make_config(ts, options.with_(profile=setting.profile, preset=setting.preset), wrap)
-        return train_material(ts, folder, c, n, progress, coverage=coverage)[0]
-
-    settings = candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
-    res, outcome = fit_to_target(options.target_psnr, settings, train_one, out, anchors,
-                                 lambda text: say(f"rate control: training {text}"))
+    res, outcome = fit_to_target(ts, options, out, wrap=wrap, coverage=coverage, progress=progress, anchors=anchors,
+                                 on_attempt=lambda text: say(f"rate control: training {text}"))
     return Fitted(res, mode, outcome)

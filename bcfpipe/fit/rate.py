@@ -28,12 +28,18 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
-from bcfpipe.config import PROFILES, QUALITY_PRESETS, preset_for, resolve_profile
-from bcfpipe.formats.sizes import feature_bytes
-from bcfpipe.train.gains import CPU_PROFILES, GPU_PROFILES, profile_gain
+import numpy as np
 
-__all__ = ["Setting", "Attempt", "TargetOutcome", "candidates", "predict", "fit_to_target", "anchors_from_bench",
-           "MARGIN_DB"]
+from bcfpipe.config import PROFILES, QUALITY_PRESETS, TrainingOptions, preset_for, resolve_profile
+from bcfpipe.export.material import MaterialResult, make_config, train_material
+from bcfpipe.formats.sizes import feature_bytes
+from bcfpipe.formats.vocabulary import T0
+from bcfpipe.texset.texture_set import TextureSet
+from bcfpipe.train.gains import CPU_PROFILES, GPU_PROFILES, profile_gain
+from bcfpipe.train.trainer import ProgressFn
+
+__all__ = ["Setting", "Attempt", "TargetOutcome", "Step", "candidates", "predict", "next_step", "chosen_attempt",
+           "fit_to_target", "anchors_from_bench", "MARGIN_DB"]
 
 MARGIN_DB = 0.5
 @dataclass(frozen=True)
@@ -128,62 +134,91 @@ class TargetOutcome:
         return f"{head}; tried {tried}"
 
 
-TrainFn = Callable[[Setting, Path], "object"]  # trains into the folder, returns a MaterialResult
+@dataclass(frozen=True)
+class Step:
+    """What the policy trains next, and why."""
+
+    setting: Setting
+    why: str  # "probe", "predicted", "climb" or "best effort"
+    predicted: float | None
+    note: str | None = None  # said in the outcome (the best effort's reason)
 
 
-def fit_to_target(target: float, settings: Sequence[Setting], train_one: TrainFn, out_dir: str | Path,
+def _key(s: Setting) -> tuple[str, str]:
+    return s.profile, s.preset
+
+
+def next_step(target: float, settings: Sequence[Setting], known: Mapping[tuple[str, str], float],
+              attempts: Sequence[Attempt]) -> Step | None:
+    """The policy (module docstring), a pure function of what is known: the next setting to train,
+    or None once the target is met, a best effort has run, or nothing is predicted to do better.
+    ``known``: the anchors and every attempt's measured PSNR."""
+    if not known:
+        return Step(settings[0], "probe", None)
+    if any(a.psnr >= target for a in attempts) or any(a.why == "best effort" for a in attempts):
+        return None
+    preds = predict(settings, known)
+    tried = {_key(a.setting) for a in attempts}
+    untried = [s for s in settings if _key(s) not in tried]
+    nxt = next((s for s in untried if preds[_key(s)] >= target + MARGIN_DB), None)
+    if nxt is None:
+        nxt = next((s for s in untried if preds[_key(s)] >= target), None)
+    if nxt is not None:
+        return Step(nxt, "climb" if any(a.why != "probe" for a in attempts) else "predicted", preds[_key(nxt)])
+    best = max((a.psnr for a in attempts), default=float("-inf"))
+    top = max(untried, key=lambda s: preds[_key(s)], default=None)
+    if top is not None and preds[_key(top)] >= best + MARGIN_DB:
+        return Step(top, "best effort", preds[_key(top)],
+                    f"no setting is predicted to reach {target:.2f} dB (highest prediction "
+                    f"{max(preds.values()):.2f} dB): trained the best-predicted one")
+    return None
+
+
+def chosen_attempt(target: float, attempts: Sequence[Attempt]) -> Attempt:
+    """The attempt kept: the first that meets ``target``, else the best measured."""
+    return next((a for a in attempts if a.psnr >= target), None) or max(attempts, key=lambda a: a.psnr)
+
+
+def fit_to_target(ts: TextureSet, options: TrainingOptions, out_dir: str | Path, *, wrap: str,
+                  coverage: np.ndarray | None = None, progress: ProgressFn | None = None,
                   anchors: Mapping[tuple[str, str], float] | None = None,
-                  on_attempt: Callable[[str], None] | None = None):
-    """Train the cheapest setting predicted to reach ``target`` dB into ``out_dir`` (module
-    docstring). Attempts train in ``out_dir``/.attempts; the kept one's files are moved into
-    ``out_dir``. Returns (the kept MaterialResult, TargetOutcome)."""
+                  on_attempt: Callable[[str], None] | None = None) -> tuple[MaterialResult, TargetOutcome]:
+    """Train the cheapest setting predicted to reach ``options.target_psnr`` dB into ``out_dir``
+    (module docstring): each attempt `train_material` at its profile and preset, in
+    ``out_dir``/.attempts; the kept one's files are moved into ``out_dir``. ``anchors``: measured
+    (profile, preset) -> PSNR cells (a bench report's) in place of the probe."""
     t0 = time.perf_counter()
+    target = float(options.target_psnr)
+    cfg = make_config(ts, options, wrap)[1]
+    settings = candidates(max(ts.width, ts.height), cfg.device, cfg.t0 == T0.PCA)
     out_dir = Path(out_dir)
     work = out_dir / ".attempts"
     work.mkdir(parents=True, exist_ok=True)
     known = dict(anchors or {})
     source = "bench" if known else "probe"
     attempts: list[Attempt] = []
-    results: dict[tuple[str, str], object] = {}
+    results: dict[tuple[str, str], MaterialResult] = {}
     notes: list[str] = []
-
-    def run(s: Setting, why: str, predicted: float | None):
+    predicted_max = None  # the highest prediction when the policy last weighed the candidates
+    while True:
+        if known and not any(a.psnr >= target or a.why == "best effort" for a in attempts):
+            predicted_max = max(predict(settings, known).values())
+        step = next_step(target, settings, known, attempts)
+        if step is None:
+            break
+        if step.note:
+            notes.append(step.note)
+        s = step.setting
         if on_attempt:
-            pred = f"; {predicted:.2f} dB predicted" if predicted is not None else ""
-            on_attempt(f"{s.profile}/{s.preset} ({why}{pred})")
-        res = train_one(s, work / f"{s.profile}-{s.preset}")
-        a = Attempt(s, why, predicted, float(res.metrics.psnr), int(res.size_bytes), float(res.train_seconds))
-        attempts.append(a)
-        results[(s.profile, s.preset)] = res
-        known[(s.profile, s.preset)] = a.psnr
-        return a
-
-    if not known:
-        run(settings[0], "probe", None)
-    met = any(a.psnr >= target for a in attempts)
-    predicted_max = None
-    while not met:
-        preds = predict(settings, known)
-        predicted_max = max(preds.values())
-        untried = [s for s in settings if (s.profile, s.preset) not in results]
-        nxt = next((s for s in untried if preds[(s.profile, s.preset)] >= target + MARGIN_DB), None)
-        if nxt is None:
-            nxt = next((s for s in untried if preds[(s.profile, s.preset)] >= target), None)
-        if nxt is not None:
-            climbing = any(a.why != "probe" for a in attempts)
-            run(nxt, "climb" if climbing else "predicted", preds[(nxt.profile, nxt.preset)])
-            met = attempts[-1].psnr >= target
-            continue
-        best = max((a.psnr for a in attempts), default=float("-inf"))
-        top = max(untried, key=lambda s: preds[(s.profile, s.preset)], default=None)
-        if top is not None and preds[(top.profile, top.preset)] >= best + MARGIN_DB:
-            notes.append(f"no setting is predicted to reach {target:.2f} dB (highest prediction "
-                         f"{predicted_max:.2f} dB): trained the best-predicted one")
-            run(top, "best effort", preds[(top.profile, top.preset)])
-            met = attempts[-1].psnr >= target
-        break
-    meeting = [a for a in attempts if a.psnr >= target]
-    chosen = meeting[0] if meeting else max(attempts, key=lambda a: a.psnr)
+            pred = f"; {step.predicted:.2f} dB predicted" if step.predicted is not None else ""
+            on_attempt(f"{s.profile}/{s.preset} ({step.why}{pred})")
+        name, c = make_config(ts, options.with_(profile=s.profile, preset=s.preset), wrap)
+        res = train_material(ts, work / f"{s.profile}-{s.preset}", c, name, progress, coverage=coverage)[0]
+        attempts.append(Attempt(s, step.why, step.predicted, float(res.metrics.psnr), int(res.size_bytes),
+                                float(res.train_seconds)))
+        results[_key(s)] = res
+        known[_key(s)] = attempts[-1].psnr
+    chosen = chosen_attempt(target, attempts)
     kept = work / f"{chosen.setting.profile}-{chosen.setting.preset}"
     for f in kept.iterdir():
         dest = out_dir / f.name
@@ -191,7 +226,6 @@ def fit_to_target(target: float, settings: Sequence[Setting], train_one: TrainFn
             shutil.rmtree(dest)
         f.replace(dest)
     shutil.rmtree(work, ignore_errors=True)
-    res = replace(results[(chosen.setting.profile, chosen.setting.preset)], out_dir=out_dir)
-    return res, TargetOutcome(target, bool(meeting), chosen, tuple(attempts), source, predicted_max,
+    res = replace(results[_key(chosen.setting)], out_dir=out_dir)
+    return res, TargetOutcome(target, chosen.psnr >= target, chosen, tuple(attempts), source, predicted_max,
                               round(time.perf_counter() - t0, 3), tuple(notes))
-
