@@ -21,7 +21,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_lod_sweep as B  # noqa: E402
-from common import teapot_specs  # noqa: E402
+from common import specs  # noqa: E402
 
 from bcfpipe.model import neural as M  # noqa: E402
 from bcfpipe.train import trainer as T  # noqa: E402
@@ -44,7 +44,7 @@ def main():
     ap.add_argument("--out", type=Path, default=Path("/tmp/bcf_ablate_lod"))
     a = ap.parse_args()
     torch.set_num_threads(1)
-    ts = load_texture_set(teapot_specs(), a.res)
+    ts = load_texture_set(specs("teapot"), a.res)
     r = a.res // 2
     mc = ModelConfig(features=FeatureFormat.BC6H, resolutions=(r, r // 2, r // 4, r // 8))
 

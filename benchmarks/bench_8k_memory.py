@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
 import sys
 import tempfile
 import time
@@ -23,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine  # noqa: E402
+from common import add_options, machine, run_bcfpipe  # noqa: E402
 
 
 def write_set(folder: Path, n: int) -> list[str]:
@@ -59,9 +58,7 @@ def write_set(folder: Path, n: int) -> list[str]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--size", type=int, default=8192)
-    ap.add_argument("--profile", default="tiny")
-    ap.add_argument("--preset", default="draft")
+    add_options(ap, size=8192, profile="tiny", preset="draft")
     ap.add_argument("--kernel", default="auto", help="bcfpipe train --kernel (issue 30)")
     ap.add_argument("--layout", default=None, help="bcfpipe train --layout (issue 31); default: train's default")
     args = ap.parse_args()
@@ -71,12 +68,8 @@ def main() -> None:
         t0 = time.perf_counter()
         specs = write_set(tmp, args.size)
         print(f"wrote the {args.size}² set in {time.perf_counter() - t0:.0f} s")
-        cmd = [sys.executable, "-m", "bcfpipe", "train", *specs, "-o", str(tmp / "out"), "--profile", args.profile,
-               "--quality", args.preset, "--kernel", args.kernel, "--json",
-               *(["--layout", args.layout] if args.layout else [])]
-        t0 = time.perf_counter()
-        p = subprocess.run(cmd, capture_output=True, text=True)
-        wall = time.perf_counter() - t0
+        wall, p = run_bcfpipe("train", *specs, "-o", tmp / "out", "--profile", args.profile, "--quality", args.preset,
+                              "--kernel", args.kernel, "--json", *(["--layout", args.layout] if args.layout else []))
         peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2 ** 20  # KiB -> GiB
         if p.returncode != 0:
             raise SystemExit(f"train failed ({p.returncode}): {p.stderr.strip()[-2000:]}")

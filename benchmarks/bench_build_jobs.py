@@ -21,7 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import REPO, add_options  # noqa: E402
 
 
 def machine() -> dict:
@@ -48,9 +49,7 @@ def main() -> None:
     ap.add_argument("--scene", type=Path, default=REPO / "samples" / "sample_scene.usda")
     ap.add_argument("--jobs", type=str, nargs="+", default=["1", "2"],
                     help="worker counts; JOBSxTHREADS (e.g. 1x1) also fixes torch threads per worker")
-    ap.add_argument("--repeat", type=int, default=1)
-    ap.add_argument("--profile", default="tiny")
-    ap.add_argument("--preset", default="draft")
+    add_options(ap, repeat=1, profile="tiny", preset="draft")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     args = ap.parse_args()
 

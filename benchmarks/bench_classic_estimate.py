@@ -15,14 +15,13 @@ difference, and the seconds of each.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_default_cost import SETS  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, write_json  # noqa: E402
 
 
 def main() -> None:
@@ -33,8 +32,7 @@ def main() -> None:
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sets", default="teapot,brick,wood,bottle")
-    ap.add_argument("--quality", default="standard")
+    add_options(ap, sets="teapot,brick,wood,bottle", quality="standard")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     enc = ENCODE_PRESETS[a.quality]
@@ -64,8 +62,7 @@ def main() -> None:
             print(f"{name:7s} {c.label:45s} largest |est - full| {worst:.3f} dB over mips {use[0]}-{use[-1]} "
                   f"(per mip {diff[:len(use)]}); full encode {t_full:.1f} s", flush=True)
         print(f"{name:7s} every estimate: {t_est:.1f} s, {est.sampled:.0%} of BC@R's texels", flush=True)
-    if a.json:
-        a.json.write_text(json.dumps({"machine": machine(), "rows": rows}, indent=2))
+    write_json(a.json, rows=rows)
 
 
 if __name__ == "__main__":

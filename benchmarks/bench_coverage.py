@@ -12,16 +12,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import SHARED, machine  # noqa: E402
+from common import SHARED, add_options, machine, mip_columns, run_bcfpipe  # noqa: E402
 
 SETS = {
     "brick": {"diffuseColor": ("materialx_texture_sets/brick/brick_base_gray.jpg", "rgb"),
@@ -94,8 +91,7 @@ def covered_psnr(scene: Path, out: Path, masks_from) -> tuple[float, list[float]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--set", choices=list(SETS), default="brick")
-    ap.add_argument("--preset", default="draft")
-    ap.add_argument("--profile", default="auto")
+    add_options(ap, preset="draft", profile="auto")
     a = ap.parse_args()
     from bcfpipe.builder import plan
     from bcfpipe.config import TrainingOptions
@@ -109,11 +105,8 @@ def main() -> None:
         rows = []
         for flag in ([], ["--no-coverage"]):
             out = root / ("out" + "".join(flag))
-            t0 = time.perf_counter()
-            p = subprocess.run([sys.executable, "-m", "bcfpipe", "-q", "build", str(scene), "-o", str(out),
-                                "--no-cache", "--quality", a.preset, "--profile", a.profile, "--json", *flag],
-                               capture_output=True, text=True)
-            wall = time.perf_counter() - t0
+            wall, p = run_bcfpipe("-q", "build", scene, "-o", out, "--no-cache", "--quality", a.preset,
+                                  "--profile", a.profile, "--json", *flag)
             if p.returncode != 0:
                 raise SystemExit(p.stderr[-2000:])
             rep = json.loads(p.stdout)
@@ -123,7 +116,7 @@ def main() -> None:
             print(f"{rows[-1][0]}: covered {cov:.2f} dB (per mip {', '.join(f'{v:.2f}' for v in per_mip)}), "
                   f"all texels {whole:.2f} dB, wall {wall:.0f} s, train {rows[-1][5]:.0f} s")
         n = len(rows[0][2])
-        print("| training | PSNR covered, all mips | " + " | ".join(f"mip {k}" for k in range(n)) + " | PSNR all texels |")
+        print("| training | PSNR covered, all mips | " + mip_columns(n) + " | PSNR all texels |")
         print("|---|---:|" + "---:|" * n + "---:|")
         for name, cov, per_mip, whole, _, _ in rows:
             print(f"| {name} | {cov:.2f} | " + " | ".join(f"{v:.2f}" for v in per_mip) + f" | {whole:.2f} |")

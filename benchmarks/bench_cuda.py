@@ -31,8 +31,7 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import machine, psnr_cells, specs  # noqa: E402
 
 STD_WARM, STD_CONSTRAINED, STD_FINETUNE, STD_BATCH = 800, 4000, 300, 128 * 128
 BIG = 512 * 512
@@ -168,9 +167,8 @@ def main() -> None:
                "psnr_per_mip": m.psnr_per_mip, "psnr": m.psnr, "ssim": m.ssim, "size_bytes": res.size_bytes,
                "train_seconds": res.train_seconds, "wall_seconds": wall, "phase_seconds": phases}
         emit(row)
-        print(f"| {name} | {profile} | {label} | {features} | {samples:.2e} | "
-              + " | ".join(f"{v:.1f}" for v in m.psnr_per_mip)
-              + f" | **{m.psnr:.2f}** | {res.train_seconds:.0f} s ({wall:.0f} s with export) |", flush=True)
+        print(f"| {name} | {profile} | {label} | {features} | {samples:.2e} | {psnr_cells(m.psnr_per_mip, m.psnr)} "
+              f"| {res.train_seconds:.0f} s ({wall:.0f} s with export) |", flush=True)
         return row
 
     head = "\n| set | profile | schedule | features | samples | per-mip PSNR | | | | | | | | | | | all mips | train |"

@@ -29,22 +29,15 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import REPO, SHARED, machine  # noqa: E402
+from common import MX, REPO, SET_ARGS, add_options, machine, write_json  # noqa: E402
 
-MX = SHARED / "materialx_texture_sets"
-TEAPOT = SHARED / "usdwg_teapot" / "textures"
-BOTTLE = SHARED / "gltf_water_bottle"
 SETS = {
-    "teapot": [f"albedo={TEAPOT / 'tea_set_01_diff_2k.jpg'}:rgb", f"occlusion={TEAPOT / 'tea_set_01_arm_2k.jpg'}:r",
-               f"roughness={TEAPOT / 'tea_set_01_arm_2k.jpg'}:g", f"metallic={TEAPOT / 'tea_set_01_arm_2k.jpg'}:b"],
+    "teapot": SET_ARGS["teapot"],
+    # the grey base as an rgb albedo (SET_ARGS' brick has it as one generic channel)
     "brick": [f"albedo={MX / 'brick' / 'brick_base_gray.jpg'}:rgb", f"normal={MX / 'brick' / 'brick_normal.jpg'}:xy",
               f"roughness={MX / 'brick' / 'brick_roughness.jpg'}:r"],
-    "wood": [f"albedo={MX / 'wood' / 'wood_color.jpg'}:rgb", f"roughness={MX / 'wood' / 'wood_roughness.jpg'}:r"],
-    "bottle": [f"albedo={BOTTLE / 'WaterBottle_baseColor.png'}:rgb", f"normal={BOTTLE / 'WaterBottle_normal.png'}:xy",
-               f"occlusion={BOTTLE / 'WaterBottle_occlusionRoughnessMetallic.png'}:r",
-               f"roughness={BOTTLE / 'WaterBottle_occlusionRoughnessMetallic.png'}:g",
-               f"metallic={BOTTLE / 'WaterBottle_occlusionRoughnessMetallic.png'}:b",
-               f"emissiveColor={BOTTLE / 'WaterBottle_emissive.png'}:rgb"],
+    "wood": SET_ARGS["wood"],
+    "bottle": SET_ARGS["bottle"],
     "sample": None,  # samples/sample_scene.usda, built
 }
 
@@ -112,9 +105,7 @@ def held(before: dict, after: dict) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("before", type=Path, nargs="?", help="BEFORE's source tree (not with --before-json)")
-    ap.add_argument("--sets", default="teapot,brick,wood,bottle,sample")
-    ap.add_argument("--quality", default="draft")
-    ap.add_argument("--reps", type=int, default=1)
+    add_options(ap, sets="teapot,brick,wood,bottle,sample", quality="draft", reps=1)
     ap.add_argument("--profile", help="passed to every run (default: the default profile)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--before-json", type=Path, help="BEFORE's runs from an earlier --json of this script")
@@ -153,9 +144,7 @@ def main() -> None:
                 for line in r["decisions"]:
                     print("    " + line, flush=True)
                 rows.append(r)
-    if a.json:
-        a.json.write_text(json.dumps({"machine": machine(), "quality": a.quality, "profile": a.profile,
-                                       "runs": rows}, indent=2))
+    write_json(a.json, quality=a.quality, profile=a.profile, runs=rows)
 
 
 if __name__ == "__main__":

@@ -11,24 +11,20 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import SHARED, machine  # noqa: E402
+from common import SHARED, add_options, machine, run_bcfpipe  # noqa: E402
 
 
 def run(scene: Path, out: Path, cache: Path, preset: str, density: float | None) -> tuple[float, dict, dict]:
-    args = [sys.executable, "-m", "bcfpipe", "-q", "build", str(scene), "--variant", "modelVariant=Fancy",
-            "-o", str(out), "--cache", str(cache), "--quality", preset, "--json"]
+    args = ["-q", "build", scene, "--variant", "modelVariant=Fancy", "-o", out, "--cache", cache, "--quality", preset,
+            "--json"]
     if density:
-        args += ["--texel-density", str(density)]
-    t0 = time.perf_counter()
-    p = subprocess.run(args, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
+        args += ["--texel-density", density]
+    wall, p = run_bcfpipe(*args)
     if p.returncode != 0:
         raise SystemExit(f"build failed ({p.returncode}): {p.stderr.strip()[-2000:]}")
     manifest = json.loads((out / "manifest.json").read_text())
@@ -37,9 +33,7 @@ def run(scene: Path, out: Path, cache: Path, preset: str, density: float | None)
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--density", type=float, default=512.0)
-    ap.add_argument("--preset", default="draft")
-    ap.add_argument("--repeat", type=int, default=1)
+    add_options(ap, density=512.0, preset="draft", repeat=1)
     a = ap.parse_args()
     print(f"machine: {machine()}")
     rows = []

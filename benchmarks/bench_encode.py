@@ -18,8 +18,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -28,6 +26,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from common import SHARED  # noqa: E402
 
 import torch  # noqa: E402
 
@@ -69,20 +69,9 @@ def psnr_rmse(ref: np.ndarray, blocks: np.ndarray) -> tuple[float, float]:
     return 10.0 * np.log10(1.0 / mse), float(np.sqrt(mse))
 
 
-def cpu_model() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name:"):
-                return line.split(":", 1)[1].strip()
-    except Exception:  # noqa: BLE001
-        pass
-    return platform.processor() or "unknown"
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenes", default=str(ROOT.parent / "shared" / "scenes"))
+    ap.add_argument("--scenes", default=str(SHARED))
     ap.add_argument("--size", type=int, default=2048, help="centred square crop of each texture")
     ap.add_argument("--repeats", type=int, default=3, help="timing runs (best of)")
     args = ap.parse_args()
@@ -91,7 +80,9 @@ def main() -> int:
     print("## BC6H encoder (issue 2)\n")
     print(f"- command: `.venv/bin/python benchmarks/bench_encode.py --size {args.size}`")
     print(f"- date: {datetime.date.today().isoformat()}")
-    print(f"- machine: {os.cpu_count()}-core CPU ({cpu_model()}), torch {torch.__version__}, "
+    from bcfpipe.bench.run import machine
+
+    print(f"- machine: {os.cpu_count()}-core CPU ({machine()['cpu']}), torch {torch.__version__}, "
           f"{torch.get_num_threads()} threads")
     print("- encoder: mode 11110 only, default settings (`refine_top=4, keep=2, rounds=2, window=4`)\n")
 

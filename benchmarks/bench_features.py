@@ -20,21 +20,16 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, bc_per_mip, machine, mip_columns, psnr_cells, spec_args, specs  # noqa: E402
 
 FORMATS = ("bc6h", "bc7")
-
-
-def _spec_args(name: str) -> list[str]:
-    return [f"{s.semantic}={s.path}:{s.channels}" for s in specs(name)]
 
 
 def run_pair(name: str, profile: str, preset: str, seed: int, root: Path) -> dict[str, dict]:
     procs = {}
     for f in FORMATS:
         out = root / f"{name}-{profile}-{f}"
-        procs[f] = subprocess.Popen([sys.executable, "-m", "bcfpipe", "train", *_spec_args(name), "-o", str(out),
+        procs[f] = subprocess.Popen([sys.executable, "-m", "bcfpipe", "train", *spec_args(name), "-o", str(out),
                                      "--profile", profile, "--quality", preset, "--seed", str(seed), "--features", f,
                                      "--threads", "1", "--layout", "neural", "--json"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                     text=True)
@@ -47,42 +42,29 @@ def run_pair(name: str, profile: str, preset: str, seed: int, root: Path) -> dic
     return res
 
 
-def bc_per_mip(name: str) -> list[float]:
-    from bcfpipe.texset.baselines import encode_texture_set_baseline
-    from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
-    from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
-
-    ts = load_texture_set(specs(name))
-    ref = build_mip_chain(ts.data)
-    bc, _ = encode_texture_set_baseline(ts, "bc", 1024, ref_mips=ref)
-    return [psnr_from_mse(m) for m in mse_per_mip(ref, bc, ts.channels)]
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sets", default="teapot,brick")
-    ap.add_argument("--profiles", default="1k,0.5k")
-    ap.add_argument("--preset", default="standard")
-    ap.add_argument("--seed", type=int, default=0)
+    add_options(ap, sets="teapot,brick", profiles="1k,0.5k", preset="standard", seed=0)
     args = ap.parse_args()
+    from bcfpipe.texset.texture_set import load_texture_set
+
     print(f"machine: {machine()}; preset {args.preset}, seed {args.seed}, 1 thread per training, the two "
           "formats trained side by side")
     with tempfile.TemporaryDirectory(prefix="bcfpipe-features-") as tmp:
         for name in args.sets.split(","):
-            bc = bc_per_mip(name)
+            bc = bc_per_mip(load_texture_set(specs(name)), 1024)
             n = len(bc)
             print(f"\n### {name}\n")
-            print("| method | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | SSIM mip 0 | quantization "
-                  "loss | size | train |")
+            print("| method | " + mip_columns(n) + " | all mips | SSIM mip 0 | quantization loss | size | train |")
             print("|---|" + "---:|" * (n + 5))
-            print("| BC@1024 | " + " | ".join(f"{v:.1f}" for v in bc) + " | | | | | |")
+            print("| BC@1024 | " + psnr_cells(bc) + " | | | | | |")
             for profile in args.profiles.split(","):
                 res = run_pair(name, profile, args.preset, args.seed, Path(tmp))
                 for f in FORMATS:
                     r = res[f]
                     per = r["metrics"]["psnr_per_mip"]
-                    print(f"| {profile} {f} | " + " | ".join(f"{v:.1f}" for v in per) +
-                          f" | **{r['psnr']:.2f}** | {r['ssim']:.3f} | {r.get('quantization_loss_db', float('nan')):.2f} dB "
+                    print(f"| {profile} {f} | {psnr_cells(per, r['psnr'])} | {r['ssim']:.3f} "
+                          f"| {r.get('quantization_loss_db', float('nan')):.2f} dB "
                           f"| {r['size_bytes'] / 2**20:.2f} MiB "
                           f"| {r['train_seconds']:.0f} s |", flush=True)
 

@@ -15,7 +15,6 @@ Variants run side by side (``--parallel``, one torch thread each) so load hits t
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import sys
 import time
@@ -24,39 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import SHARED, machine, teapot_specs  # noqa: E402
-
-BRICK = SHARED / "materialx_texture_sets" / "brick"
-WOOD = SHARED / "materialx_texture_sets" / "wood"
-BOTTLE = SHARED / "gltf_water_bottle"
-
-
-def specs(name: str):
-    from bcfpipe.texset.texture_set import TextureSpec
-
-    if name == "teapot":
-        return teapot_specs()
-    if name == "brick":
-        if not BRICK.is_dir():
-            raise SystemExit(f"needs the shared scenes at {SHARED}")
-        return [TextureSpec.parse(f"generic={BRICK / 'brick_base_gray.jpg'}:r"),
-                TextureSpec.parse(f"normal={BRICK / 'brick_normal.jpg'}:xy"),
-                TextureSpec.parse(f"roughness={BRICK / 'brick_roughness.jpg'}:r")]
-    if name == "wood":  # held out: a colour and a lone scalar (BC1 + BC4 in BC@R)
-        if not WOOD.is_dir():
-            raise SystemExit(f"needs the shared scenes at {SHARED}")
-        return [TextureSpec.parse(f"albedo={WOOD / 'wood_color.jpg'}:rgb"),
-                TextureSpec.parse(f"roughness={WOOD / 'wood_roughness.jpg'}:r")]
-    if name == "bottle":  # glTF's WaterBottle, 11 channels: base colour, normal, ORM, emissive
-        if not BOTTLE.is_dir():
-            raise SystemExit(f"needs the shared scenes at {SHARED}")
-        orm = BOTTLE / "WaterBottle_occlusionRoughnessMetallic.png"
-        return [TextureSpec.parse(f"albedo={BOTTLE / 'WaterBottle_baseColor.png'}:rgb"),
-                TextureSpec.parse(f"normal={BOTTLE / 'WaterBottle_normal.png'}:xy"),
-                TextureSpec.parse(f"occlusion={orm}:r"), TextureSpec.parse(f"roughness={orm}:g"),
-                TextureSpec.parse(f"metallic={orm}:b"),
-                TextureSpec.parse(f"emissiveColor={BOTTLE / 'WaterBottle_emissive.png'}:rgb")]
-    raise SystemExit(f"unknown set {name!r}: teapot, brick, wood or bottle")
+from common import add_options, machine, psnr_cells, specs, write_json  # noqa: E402
 
 
 def variant_config(ts, variant: str, profile: str, seed: int):
@@ -108,18 +75,14 @@ def table(rows: list[dict], bc: dict) -> str:
              "|---|" + "---:|" * (n + 5)]
     for r in rows:
         train = f"{r['train_seconds']:.0f}" if "train_seconds" in r else "-"
-        lines.append(f"| {r['method']} | " + " | ".join(f"{x:.1f}" for x in r["per_mip"]) +
-                     f" | {r['psnr']:.2f} | {r['psnr'] - bc['psnr']:+.2f} | {r['ssim']:.4f} | "
-                     f"{r['size_bytes'] / 2**20:.2f} | {train} |")
+        lines.append(f"| {r['method']} | {psnr_cells(r['per_mip'])} | {r['psnr']:.2f} | {r['psnr'] - bc['psnr']:+.2f} "
+                     f"| {r['ssim']:.4f} | {r['size_bytes'] / 2**20:.2f} | {train} |")
     return "\n".join(lines)
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sets", default="teapot,brick")
-    ap.add_argument("--variants", default="before,standard")
-    ap.add_argument("--profile", default="1k")
-    ap.add_argument("--seed", type=int, default=0)
+    add_options(ap, sets="teapot,brick", variants="before,standard", profile="1k", seed=0)
     ap.add_argument("--parallel", type=int, default=2, help="variants trained at once (1 torch thread each)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/bcf_bench_fidelity"))
     ap.add_argument("--json", type=Path)
@@ -147,8 +110,7 @@ def main():
                 print(f"| {r['method']} | " + " | ".join(f"{sp.get(p, 0):,.0f}" for p in ("warmup", "constrained", "finetune"))
                       + f" | {r['wall_seconds']:.0f} |")
         print()
-    if a.json:
-        a.json.write_text(json.dumps({"machine": machine(), "baselines": bcs, "rows": rows}, indent=1))
+    write_json(a.json, indent=1, baselines=bcs, rows=rows)
 
 
 if __name__ == "__main__":

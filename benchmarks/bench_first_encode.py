@@ -20,8 +20,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, specs  # noqa: E402
 
 REFINED = {"bc6h": dict(refine_top=4, keep=2, rounds=2, window=4), "bc7": 4}
 
@@ -48,12 +47,7 @@ def one(args) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="teapot")
-    ap.add_argument("--profile", default="1k")
-    ap.add_argument("--preset", default="draft")
-    ap.add_argument("--features", default="bc6h")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--starts", default="refined,quick")
+    add_options(ap, set="teapot", profile="1k", preset="draft", features="bc6h", seed=0, starts="refined,quick")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:

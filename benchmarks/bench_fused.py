@@ -17,18 +17,14 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, specs  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="teapot")
-    ap.add_argument("--profile", default="1k")
-    ap.add_argument("--features", default="bc6h")
+    add_options(ap, set="teapot", profile="1k", features="bc6h")
     ap.add_argument("--steps", type=int, default=120, help="steps of each timed phase")
-    ap.add_argument("--reps", type=int, default=2)
-    ap.add_argument("--threads", default="1,2")
+    add_options(ap, reps=2, threads="1,2")
     ap.add_argument("--backends", default="native,numba", help="fused implementations to time beside torch")
     args = ap.parse_args()
 

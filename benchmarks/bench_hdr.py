@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import add_options, run_bcfpipe  # noqa: E402
 
 PEAK = 3000.0
 
@@ -68,9 +70,7 @@ def measure(out: Path, source: np.ndarray) -> list[dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--profile", default="tiny")
-    ap.add_argument("--quality", default="draft")
+    add_options(ap, size=256, profile="tiny", quality="draft")
     ap.add_argument("--wrap", default="clamp", choices=("clamp", "repeat"))
     ap.add_argument("--kernel", default="auto", help="bcfpipe train --kernel (issue 30)")
     ap.add_argument("--layout", default="neural", choices=("neural", "auto"),
@@ -81,10 +81,8 @@ def main() -> None:
         tmp = Path(tmp)
         ramp = hdr_ramp(a.size)
         src = write_exr(tmp / "hdr.exr", ramp)
-        p = subprocess.run([sys.executable, "-m", "bcfpipe", "train", f"emissiveColor={src}:rgb", "-o", str(tmp / "out"),
-                            "--profile", a.profile, "--quality", a.quality, "--wrap", a.wrap, "--kernel", a.kernel,
-                            "--layout", a.layout, "--json"],
-                           capture_output=True, text=True)
+        _, p = run_bcfpipe("train", f"emissiveColor={src}:rgb", "-o", tmp / "out", "--profile", a.profile,
+                           "--quality", a.quality, "--wrap", a.wrap, "--kernel", a.kernel, "--layout", a.layout, "--json")
         if p.returncode:
             raise SystemExit(p.stderr)
         import OpenImageIO as oiio

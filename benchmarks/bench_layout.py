@@ -23,23 +23,19 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, mip_columns, psnr_cells, specs  # noqa: E402
 
 
 def row(c, bc, mark="", match_bc=False):
     from bcfpipe.layout.choose import admissible
 
     why = admissible(c, bc, match_bc) or "ok"
-    return (f"| {mark}{c.label} | {c.basis} | {c.size_bytes / 2**20:.2f} | "
-            + " | ".join(f"{v:.1f}" for v in c.psnr_per_mip) + f" | **{c.psnr:.2f}** | {why} |")
+    return f"| {mark}{c.label} | {c.basis} | {c.size_bytes / 2**20:.2f} | {psnr_cells(c.psnr_per_mip, c.psnr)} | {why} |"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="teapot")
-    ap.add_argument("--profile", default="1k")
-    ap.add_argument("--preset", default="standard")
+    add_options(ap, set="teapot", profile="1k", preset="standard")
     ap.add_argument("--match-bc", action="store_true")
     ap.add_argument("--kernel", default="auto")
     ap.add_argument("--features", default="bc6h", help="the feature format of every neural candidate")
@@ -68,7 +64,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bcfpipe-layout-") as tmp:
         fit = decide_layout(ts, tmp, opts, r, log=lambda s: print("  " + s, flush=True))
     n = len(fit.decision.bc.mse_per_mip)
-    head = "| layout | basis | MiB | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | admissible |"
+    head = "| layout | basis | MiB | " + mip_columns(n) + " | all mips | admissible |"
     sep = "|---|---|---:|" + "---:|" * (n + 1) + "---|"
     print("\nCandidates (the first choice is made here):\n\n" + head + "\n" + sep)
     bc = fit.first.bc
@@ -119,7 +115,7 @@ def one_layout(ts, opts, r, classic, profile, lod_power=None) -> None:
     c = C.Candidate(tuple(classic), profile, res.size_bytes + sum(g.size_bytes for g in enc if g.group.name in classic),
                     tuple(float(v) for v in e.mean(1)), "measured", use)
     n = len(ref)
-    print("\n| layout | basis | MiB | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | admissible |")
+    print("\n| layout | basis | MiB | " + mip_columns(n) + " | all mips | admissible |")
     print("|---|---|---:|" + "---:|" * (n + 1) + "---|")
     print(row(bc, bc))
     print(row(c, bc))

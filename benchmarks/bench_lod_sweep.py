@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine, teapot_specs  # noqa: E402
+from common import machine, specs  # noqa: E402
 
 from bcfpipe.bench.lod_sweep import LodGrid, exported_answer, mips_answer, sweep as sweep_answer  # noqa: E402
 from bcfpipe.bench.lod_sweep import dips as _dips  # noqa: E402
@@ -60,12 +60,12 @@ def main():
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     if a.teapot:
-        specs = teapot_specs()
+        sources = specs("teapot")
     else:
         from bcfpipe.texset.texture_set import TextureSpec
         desc = json.loads((a.material / "material.json").read_text())
-        specs = [TextureSpec.parse(s) for s in desc["sources"]]
-    ts = load_texture_set(specs)
+        sources = [TextureSpec.parse(s) for s in desc["sources"]]
+    ts = load_texture_set(sources)
     rows = sweep(a.material, ts, a.step)
     worst = max(dips(rows), key=lambda t: t[1])
     worst_tri = max(dips(rows, 2), key=lambda t: t[1])

@@ -17,14 +17,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, specs  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="teapot")
-    ap.add_argument("--reps", type=int, default=3)
+    add_options(ap, set="teapot", reps=3)
     args = ap.parse_args()
     import bcfpipe.texset.metrics as M
     from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set

@@ -15,21 +15,16 @@ import json
 import os
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import SHARED, machine  # noqa: E402
+from common import SHARED, machine, needs, run_bcfpipe  # noqa: E402
 
 
 def run(args: list[str], cwd: Path) -> tuple[float, dict]:
-    t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "bcfpipe", "-q", *args, "--json"], cwd=cwd, capture_output=True,
-                       text=True)
-    wall = time.perf_counter() - t0
+    wall, p = run_bcfpipe("-q", *args, "--json", cwd=cwd)
     if p.returncode != 0:
         raise SystemExit(f"build failed ({p.returncode}): {p.stderr.strip()}")
     return wall, json.loads(p.stdout)
@@ -41,9 +36,7 @@ def main() -> None:
     ap.add_argument("--preset", default="draft", help="preset of the cold build (the no-op does not depend on it)")
     ap.add_argument("--profile", default="auto")
     a = ap.parse_args()
-    src = SHARED / "usdwg_teapot"
-    if not src.is_dir():
-        raise SystemExit(f"needs the shared scenes at {SHARED}")
+    src = needs(SHARED / "usdwg_teapot")
     print(f"machine: {machine()}; load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory(prefix="bcf-noop-") as tmp:
         work = Path(tmp) / "teapot"

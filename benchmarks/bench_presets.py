@@ -21,18 +21,12 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import PSNR_NOTE, add_options, machine, mip_columns, psnr_cells, specs  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="teapot")
-    ap.add_argument("--profile", default="1k")
-    ap.add_argument("--features", default="bc6h")
-    ap.add_argument("--kernel", default="auto")
-    ap.add_argument("--presets", default="draft,fast,standard")
-    ap.add_argument("--seed", type=int, default=0)
+    add_options(ap, set="teapot", profile="1k", features="bc6h", kernel="auto", presets="draft,fast,standard", seed=0)
     ap.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N")
     ap.add_argument("--keep", type=Path, default=None, help="keep each exported material in KEEP/<preset>")
     args = ap.parse_args()
@@ -62,14 +56,13 @@ def main() -> None:
         m = res.metrics
         if not header:
             n = len(m.psnr_per_mip)
-            print("\n| preset | steps (warm-up + constrained + MLP) x batch | " + " | ".join(f"mip {i}" for i in range(n))
-                  + " | all mips | train | wall |")
+            print("\n| preset | steps (warm-up + constrained + MLP) x batch | " + mip_columns(n) + " | all mips | train | wall |")
             print("|---|---|" + "---:|" * (n + 3))
             header = True
         steps = f"{preset.warmup.steps} + {preset.constrained.steps} + {preset.finetune.steps} x {preset.batch}"
-        print(f"| {name} | {steps} | " + " | ".join(f"{v:.1f}" for v in m.psnr_per_mip)
-              + f" | **{m.psnr:.2f}** | {res.train_seconds:.0f} s | {wall:.0f} s |", flush=True)
-    print("\n(PSNR in dB from the exported files; all mips: MSE averaged over the mips, as everywhere in bcfpipe)")
+        print(f"| {name} | {steps} | {psnr_cells(m.psnr_per_mip, m.psnr)} | {res.train_seconds:.0f} s | {wall:.0f} s |",
+              flush=True)
+    print(PSNR_NOTE)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,6 @@ every coarser mip).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -23,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_default_cost import SETS  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, write_json  # noqa: E402
 
 
 def per_mip_psnr(mse: np.ndarray) -> list[float]:
@@ -57,8 +56,7 @@ def main() -> None:
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sets", default="teapot,brick,wood,bottle")
-    ap.add_argument("--quality", default="draft")
+    add_options(ap, sets="teapot,brick,wood,bottle", quality="draft")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     print(f"machine: {machine()}; quality {a.quality}; probe {PROBE_FRACTION:.0%} of the steps", flush=True)
@@ -100,8 +98,7 @@ def main() -> None:
     if rows:
         print(f"PROBE_GAINS_DB[{a.quality!r}] = {table_row(rows)}  (mean over the sets: finer than T_0, "
               "T_0's level 0, its level 1, every coarser mip whose smaller side is at least 4)", flush=True)
-    if a.json:
-        a.json.write_text(json.dumps({"machine": machine(), "rows": rows}, indent=1))
+    write_json(a.json, indent=1, rows=rows)
 
 
 if __name__ == "__main__":

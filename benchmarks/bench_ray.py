@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import REPO, machine  # noqa: E402
+from common import REPO, add_options, machine  # noqa: E402
 
 RAY = Path(sys.executable).with_name("ray")
 # a token-authenticated cluster: Ray 2.60 listens on every interface even when told 127.0.0.1
@@ -118,8 +118,7 @@ def build(scene: Path, out: Path, quality: str, extra: list[str]) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", type=Path, default=REPO / "samples" / "sample_scene.usda")
-    ap.add_argument("--quality", default="draft")
-    ap.add_argument("--repeat", type=int, default=3)
+    add_options(ap, quality="draft", repeat=3)
     ap.add_argument("--cpus", type=int, default=2, help="CPUs of the Ray cluster, and local --jobs")
     ap.add_argument("--tasks", type=int, default=200, help="empty tasks submitted at once (throughput)")
     ap.add_argument("--json", action="store_true")

@@ -22,16 +22,12 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import PSNR_NOTE, add_options, bc_per_mip, machine, mip_columns, psnr_cells, specs  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="teapot")
-    ap.add_argument("--profile", default="0.5k")
-    ap.add_argument("--scales", default="1,3,10,30")
-    ap.add_argument("--seed", type=int, default=0)
+    add_options(ap, set="teapot", profile="0.5k", scales="1,3,10,30", seed=0)
     ap.add_argument("--base", default=None, metavar="WARM:CONSTRAINED",
                     help="k = 1's warm-up and constrained steps (default: the standard preset's); "
                          "800:4000 is the standard issue 30 was filed against")
@@ -40,12 +36,10 @@ def main() -> None:
                          "p = 8 gives mip 0 about 75%% of the samples, RTXNTC's share (texel-count proportional)")
     args = ap.parse_args()
 
-    from bcfpipe.texset.baselines import encode_texture_set_baseline
     from bcfpipe.config import PRESETS, PROFILES, TrainingOptions, _cpu_preset
     from bcfpipe.export.material import train_material, make_config
     from bcfpipe.formats.vocabulary import Kernel
-    from bcfpipe.texset.metrics import mse_per_mip, psnr_from_mse
-    from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set
+    from bcfpipe.texset.texture_set import load_texture_set
 
     ts = load_texture_set(specs(args.set))
     std = PRESETS["standard"]
@@ -53,16 +47,14 @@ def main() -> None:
         warm, constrained = (int(v) for v in args.base.split(":"))
         std = _cpu_preset(warm, constrained, std.finetune.steps, std.batch)
     t0_side = PROFILES[args.profile][0]
-    ref = build_mip_chain(ts.data)
-    bc, _ = encode_texture_set_baseline(ts, "bc", t0_side, ref_mips=ref)
-    bc_mips = [psnr_from_mse(m) for m in mse_per_mip(ref, bc, ts.channels)]
+    bc_mips = bc_per_mip(ts, t0_side)
     n = len(bc_mips)
     print(f"machine: {machine()}; {args.set} {ts.width}x{ts.height}, profile {args.profile}, the standard "
           f"schedule ({std.warmup.steps} + {std.constrained.steps} steps of {std.batch}) scaled k times, "
           f"--kernel fused, 1 thread, seed {args.seed}, lod power {args.lod_power or std.lod_power:g}", flush=True)
-    print("\n| k | samples | " + " | ".join(f"mip {i}" for i in range(n)) + " | all mips | train |")
+    print("\n| k | samples | " + mip_columns(n) + " | all mips | train |")
     print("|---:|---:|" + "---:|" * (n + 2))
-    print(f"| BC@{t0_side} | | " + " | ".join(f"{v:.1f}" for v in bc_mips) + " | | |", flush=True)
+    print(f"| BC@{t0_side} | | {psnr_cells(bc_mips)} | | |", flush=True)
     with tempfile.TemporaryDirectory(prefix="bcfpipe-saturation-") as tmp:
         for k in (int(s) for s in args.scales.split(",")):
             preset = _cpu_preset(std.warmup.steps * k, std.constrained.steps * k, std.finetune.steps, std.batch)
@@ -75,9 +67,9 @@ def main() -> None:
             wall = time.perf_counter() - t
             samples = (preset.warmup.steps + preset.constrained.steps) * preset.batch
             m = res.metrics
-            print(f"| {k} | {samples:.2e} | " + " | ".join(f"{v:.1f}" for v in m.psnr_per_mip)
-                  + f" | **{m.psnr:.2f}** | {res.train_seconds:.0f} s ({wall:.0f} s with export) |", flush=True)
-    print("\n(PSNR in dB from the exported files; all mips: MSE averaged over the mips, as everywhere in bcfpipe)")
+            print(f"| {k} | {samples:.2e} | {psnr_cells(m.psnr_per_mip, m.psnr)} "
+                  f"| {res.train_seconds:.0f} s ({wall:.0f} s with export) |", flush=True)
+    print(PSNR_NOTE)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -38,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine  # noqa: E402
+from common import machine, run_bcfpipe  # noqa: E402
 
 
 MATERIAL = """
@@ -132,9 +131,7 @@ def store_cost(folder: Path, reps: int = 30) -> dict[str, dict]:
 
 
 def run(*args: str) -> tuple[float, str]:
-    t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "bcfpipe", *args], capture_output=True, text=True, timeout=7200)
-    wall = time.perf_counter() - t0
+    wall, p = run_bcfpipe(*args, timeout=7200)
     if p.returncode:
         sys.exit(f"bcfpipe {' '.join(args[:2])} failed: {p.stderr[-2000:]}")
     return wall, p.stdout

@@ -19,14 +19,12 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, specs  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="teapot")
-    ap.add_argument("--profiles", default="1k,2k")
+    add_options(ap, set="teapot", profiles="1k,2k")
     ap.add_argument("--steps", default="200:600:10", help="warm-up:constrained:finetune steps")
     args = ap.parse_args()
 

@@ -15,20 +15,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, mip_columns, psnr_cells, run_bcfpipe, spec_args, specs  # noqa: E402
 
 MIPS = 4
-
-
-def _spec_args(name: str) -> list[str]:
-    return [f"{s.semantic}={s.path}:{s.channels}" for s in specs(name)]
 
 
 def _train(name: str, out: Path, args: argparse.Namespace, extra: list[str]) -> dict:
@@ -36,16 +29,14 @@ def _train(name: str, out: Path, args: argparse.Namespace, extra: list[str]) -> 
     result = out.with_suffix(".json")
     if result.is_file():
         return json.loads(result.read_text())
-    cmd = [sys.executable, "-m", "bcfpipe", "train", *_spec_args(name), "--profile", args.profile, "--quality",
-           args.quality, "--threads", str(args.threads), "-o", str(out), "--force", "--json", *extra]
-    if os.environ.get("BENCH_LOCK"):  # a file to flock(1) each training on, on a machine shared with other jobs
-        cmd = ["flock", os.environ["BENCH_LOCK"], *cmd]
-    t = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True)
+    # BENCH_LOCK: a file to flock(1) each training on, on a machine shared with other jobs
+    wall, p = run_bcfpipe("train", *spec_args(name), "--profile", args.profile, "--quality", args.quality,
+                          "--threads", args.threads, "-o", out, "--force", "--json", *extra,
+                          lock=os.environ.get("BENCH_LOCK"))
     if p.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)}: exit {p.returncode}: {p.stderr.strip().splitlines()[-1:]}")
+        raise SystemExit(f"{' '.join(p.args)}: exit {p.returncode}: {p.stderr.strip().splitlines()[-1:]}")
     d = json.loads(p.stdout)
-    d["wall_seconds"] = time.perf_counter() - t
+    d["wall_seconds"] = wall
     d["disk_bytes"] = _disk(out)
     result.write_text(json.dumps(d))
     return d
@@ -62,8 +53,7 @@ def _row(label: str, size: int, disk: int | None, mips, allm: float, bc, q) -> s
         return " / ".join(f"{mips[k] - ref[k]:+.1f}" for k in (0, 1))
 
     d = f"{disk / 2**20:.2f}" if disk else "—"
-    return (f"| {label} | {size / 2**20:.2f} | {d} | " + " | ".join(f"{v:.1f}" for v in mips[:MIPS])
-            + f" | **{allm:.2f}** | {margin(bc)} | {margin(q)} |")
+    return f"| {label} | {size / 2**20:.2f} | {d} | {psnr_cells(mips[:MIPS], allm)} | {margin(bc)} | {margin(q)} |"
 
 
 def table(name: str, auto: dict, widths: dict[int, dict]) -> str:
@@ -73,8 +63,7 @@ def table(name: str, auto: dict, widths: dict[int, dict]) -> str:
     bc, q = lay["bc"], lay["bc7_quality"] or lay["bc"]
     b, qq = bc["psnr_per_mip"], q["psnr_per_mip"]
     ch = lay["chosen"]
-    lines = ["| layout | GPU MiB | disk MiB | " + " | ".join(f"mip {k}" for k in range(MIPS))
-             + " | all mips | vs BC@R mip 0 / 1 | vs BC7 set mip 0 / 1 |",
+    lines = ["| layout | GPU MiB | disk MiB | " + mip_columns(MIPS) + " | all mips | vs BC@R mip 0 / 1 | vs BC7 set mip 0 / 1 |",
              "|---|---:|---:|" + "---:|" * (MIPS + 1) + "---|---|",
              _row("BC@R", bc["size_bytes"], bc["disk_bytes"], b, bc["psnr"], b, qq),
              _row("BC7 quality set", q["size_bytes"], q["disk_bytes"], qq, q["psnr"], b, qq),
@@ -88,10 +77,7 @@ def table(name: str, auto: dict, widths: dict[int, dict]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sets", default="teapot,brick,wood,bottle")
-    ap.add_argument("--profile", default="1k")
-    ap.add_argument("--quality", default="standard")
-    ap.add_argument("--threads", type=int, default=1)
+    add_options(ap, sets="teapot,brick,wood,bottle", profile="1k", quality="standard", threads=1)
     ap.add_argument("--widths-only", action="store_true", help="train the widths, not auto (no table)")
     ap.add_argument("--out", type=Path, required=True, help="one folder per training; results are reused")
     args = ap.parse_args()

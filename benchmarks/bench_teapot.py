@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine, teapot_specs  # noqa: E402
+from common import add_options, machine, specs  # noqa: E402
 
 from bcfpipe.texset.baselines import encode_texture_set_baseline  # noqa: E402
 from bcfpipe.config import TrainingOptions  # noqa: E402
@@ -26,15 +26,13 @@ from bcfpipe.texset.texture_set import build_mip_chain, load_texture_set  # noqa
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--presets", default="draft,fast,standard")
-    ap.add_argument("--profile", default="1k")
-    ap.add_argument("--device", default="cpu")
+    add_options(ap, presets="draft,fast,standard", profile="1k", device="cpu")
     ap.add_argument("--threads", type=int, default=1, help="torch threads per training (1: see the throughput bench)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/bcf_bench_teapot"))
     ap.add_argument("--no-baselines", action="store_true")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
-    ts = load_texture_set(teapot_specs())
+    ts = load_texture_set(specs("teapot"))
     ref = build_mip_chain(ts.data)
     rows = []
     if not a.no_baselines:

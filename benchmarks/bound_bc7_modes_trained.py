@@ -35,8 +35,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import add_options, machine, mip_columns, psnr_cells, specs  # noqa: E402
 
 
 def psnr_row(mse: np.ndarray, ts) -> tuple[list[float], float]:
@@ -132,9 +131,7 @@ def ste(ts, cfg, keep, ispc_levels, every, T, M, codec_of):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="brick")
-    ap.add_argument("--profile", default="1k")
-    ap.add_argument("--preset", default="standard")
+    add_options(ap, set="brick", profile="1k", preset="standard")
     ap.add_argument("--finetune", type=int, default=0, help="MLP fine-tune steps of the free rows (0: the preset's)")
     ap.add_argument("--skip-pipeline", action="store_true")
     ap.add_argument("--refresh", type=int, default=500, help="steps between ISPC encodes in the loop")
@@ -228,11 +225,11 @@ def main() -> None:
         rows.append(ste(ts, cfg, keep, ispc_levels, args.refresh, T, M, codec_of))
 
     n = len(rows[0][1])
-    print("\n| features | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips | time |")
+    print("\n| features | " + mip_columns(n) + " | all mips | time |")
     print("|---|" + "---:|" * (n + 2))
     for label, mse, sec in rows:
         per, allm = psnr_row(mse, ts)
-        print(f"| {label} | " + " | ".join(f"{v:.1f}" for v in per) + f" | **{allm:.2f}** | {sec:.0f} s |")
+        print(f"| {label} | {psnr_cells(per, allm)} | {sec:.0f} s |")
 
 
 if __name__ == "__main__":

@@ -24,28 +24,19 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
+from common import REPO, machine, mip_columns, psnr_cells, specs  # noqa: E402
 
 
 def load(name: str):
     """(texture set, R, level-0 coverage mask or None, addressing)."""
     from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 
-    if name == "wood":  # held out: a colour and a lone scalar, BC1 + BC4 in BC@R
-        wood = ROOT.parent / "shared" / "scenes" / "materialx_texture_sets" / "wood"
-        if not wood.is_dir():
-            raise SystemExit(f"needs the shared scenes at {wood.parent.parent}")
-        return load_texture_set([TextureSpec.parse(f"albedo={wood / 'wood_color.jpg'}:rgb"),
-                                 TextureSpec.parse(f"roughness={wood / 'wood_roughness.jpg'}:r")]), 1024, None, "repeat"
-    if not name.startswith("sample:"):
+    if not name.startswith("sample:"):  # wood: held out, a colour and a lone scalar (BC1 + BC4 in BC@R)
         return load_texture_set(specs(name)), 1024, None, "repeat"
     from bcfpipe.builder.plan import plan
     from bcfpipe.scan.coverage import unpack
 
-    bp = plan(ROOT / "samples" / "sample_scene.usda")
+    bp = plan(REPO / "samples" / "sample_scene.usda")
     job = bp.job(name.split(":", 1)[1])
     ts = load_texture_set([TextureSpec(sem, path, ch) for sem, path, ch in job.specs])
     mask = unpack(job.coverage, ts.width, ts.height) if job.coverage is not None else None
@@ -79,13 +70,11 @@ def main() -> None:
             rows.append((rp.label, C.Candidate((), None, size, tuple(float(v) for v in e.mean(1)), "measured", use)))
         print(f"\n### {name} (R = {r}, {ts.num_channels} channels{', over the texels read' if mask is not None else ''};"
               f" {time.perf_counter() - t0:.0f} s)\n")
-        mips = " | ".join(f"mip {k}" for k in use)
-        print(f"| layout | bytes | {mips} | all mips | worst margin |")
+        print(f"| layout | bytes | {mip_columns(use)} | all mips | worst margin |")
         print("|---|---:|" + "---:|" * len(use) + "---:|---:|")
         for label, c in rows:
             worst = min(c.margins(bc)[k] for k in use)
-            print(f"| {label} | {c.size_bytes:,} | " + " | ".join(f"{c.psnr_per_mip[k]:.1f}" for k in use)
-                  + f" | **{c.psnr:.2f}** | {worst:+.1f} |")
+            print(f"| {label} | {c.size_bytes:,} | {psnr_cells([c.psnr_per_mip[k] for k in use], c.psnr)} | {worst:+.1f} |")
 
 
 if __name__ == "__main__":

@@ -33,8 +33,7 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import machine, mip_columns, psnr_cells, specs  # noqa: E402
 
 
 def main() -> None:
@@ -93,12 +92,11 @@ def main() -> None:
     rows = {"BC@R": (bc_mse, bc_bytes), f"features (T {res_t}, s >= {args.split})": (nn_mse, nn_bytes),
             "split layout (exported, decoded)": (split_mse, split_bytes)}
     n = len(bc_mse)
-    print("\n| layout | MiB | " + " | ".join(f"mip {k}" for k in range(n)) + " | all mips |")
+    print("\n| layout | MiB | " + mip_columns(n) + " | all mips |")
     print("|---|---:|" + "---:|" * (n + 1))
     for name, (mse, size) in rows.items():
         allm = psnr_from_mse(float(np.mean([mse[k] for k in use])))
-        print(f"| {name} | {size / 2**20:.3f} | " + " | ".join(f"{psnr_from_mse(float(m)):.1f}" for m in mse)
-              + f" | **{allm:.2f}** |")
+        print(f"| {name} | {size / 2**20:.3f} | {psnr_cells([psnr_from_mse(float(m)) for m in mse], allm)} |")
     margin = [psnr_from_mse(float(a)) - psnr_from_mse(float(b)) for a, b in zip(split_mse, bc_mse)]
     worst = min(use, key=lambda k: margin[k])  # the floor counts the mips of >= 4 texels, as the layout rule
     gain = psnr_from_mse(float(np.mean([split_mse[k] for k in use]))) - psnr_from_mse(float(np.mean([bc_mse[k] for k in use])))

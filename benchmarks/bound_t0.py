@@ -55,8 +55,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fidelity import specs  # noqa: E402
-from common import machine  # noqa: E402
+from common import machine, specs  # noqa: E402
 
 F_LO, F_HI = 0.25, 1.7  # BC6H feature range the components are mapped to (decoded values)
 BC7_REFINE = 4          # ISPC alpha_slow: 2 + moreRefine iterations for every mode

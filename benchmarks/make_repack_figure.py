@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bound_classic_bc7 import ROOT  # noqa: E402
+from common import REPO, SHARED  # noqa: E402
 
-CHART = ROOT.parent / "shared" / "scenes" / "usdwg_texture_file_formats" / "png_rgb_8-bit.usda"
+CHART = SHARED / "usdwg_texture_file_formats" / "png_rgb_8-bit.usda"
 
 
 def job_set(scene: Path, material: str):
@@ -80,7 +80,7 @@ def main() -> None:
     ts, r, wrap = job_set(CHART, "MainMaterialWithOpacity")
     albedo = [i for i, c in enumerate(ts.channels) if c.semantic == "albedo"]
     rows.append(("colour chart, albedo, mip 0", panels(ts, r, wrap, albedo, 0)))
-    ts, r, wrap = job_set(ROOT / "samples" / "sample_scene.usda", "Tiles")
+    ts, r, wrap = job_set(REPO / "samples" / "sample_scene.usda", "Tiles")
     rough = [i for i, c in enumerate(ts.channels) if c.semantic == "roughness"]
     rows.append(("sample Tiles, roughness (ORM file), mip 1", panels(ts, r, wrap, rough, 1)))
 
