@@ -146,9 +146,25 @@ class Device:
             image=image, viewType=vk.VK_IMAGE_VIEW_TYPE_2D, format=DXGI_TO_VK[fmt], subresourceRange=whole), None)
 
 
+def read_material(folder: Path) -> dict:
+    """material.json of a material folder with a neural part, or exit with one line saying why not."""
+    path = folder / "material.json"
+    if not path.is_file():
+        inside = sorted(p.parent.name for p in (folder / "materials").glob("*/material.json"))
+        hint = f": a build; give one of {folder / 'materials'}/{{{','.join(inside)}}}" if inside else ""
+        sys.exit(f"{folder}: no material.json{hint}")
+    try:
+        m = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        sys.exit(f"{path}: not readable as JSON ({e})")
+    if m.get("format") != "bcfpipe-material" or "mlp" not in m or not m.get("layers"):
+        sys.exit(f"{path}: no neural part (a classic layout's textures are plain DDS files to sample)")
+    return m
+
+
 def decode(folder: Path, spirv: Path, size: int, lod: float, tile: int) -> tuple[dict, np.ndarray]:
     """(material.json, the decoded (size, size, channels) image) at lod ``lod``."""
-    m = json.loads((folder / "material.json").read_text())
+    m = read_material(folder)
     n_layers = len(m["layers"])
     sampling = m["sampling"]
     wrap = [WRAP[sampling.get(k, sampling.get("addressing"))] for k in ("wrap_s", "wrap_t")]
@@ -177,6 +193,8 @@ def decode(folder: Path, spirv: Path, size: int, lod: float, tile: int) -> tuple
     pipe_layout = vk.vkCreatePipelineLayout(gpu.dev, vk.VkPipelineLayoutCreateInfo(
         setLayoutCount=1, pSetLayouts=[set_layout]), None)
     code = spirv.read_bytes()
+    if code[:4] != b"\x03\x02\x23\x07" or len(code) % 4:
+        sys.exit(f"{spirv}: not SPIR-V")
     module = vk.vkCreateShaderModule(gpu.dev, vk.VkShaderModuleCreateInfo(codeSize=len(code), pCode=code), None)
     stage = vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_COMPUTE_BIT, module=module, pName="main")
     pipeline = vk.vkCreateComputePipelines(gpu.dev, None, 1, [vk.VkComputePipelineCreateInfo(
@@ -243,12 +261,14 @@ def main() -> None:
     ap.add_argument("--spirv", type=Path, default=None,
                     help="the kernel (default: the installed bcfpipe's decoders/bcf_decode_N.spv)")
     args = ap.parse_args()
-    n_layers = len(json.loads((args.material / "material.json").read_text())["layers"])
+    n_layers = len(read_material(args.material)["layers"])
     spirv = args.spirv
     if spirv is None:  # where the package ships it; an engine keeps its own copy
         import importlib.util
         spec = importlib.util.find_spec("bcfpipe")
         spirv = Path(spec.origin).parent / "decoders" / f"bcf_decode_{n_layers}.spv"
+    if not spirv.is_file():
+        sys.exit(f"{spirv}: no such kernel (pass --spirv bcfpipe/decoders/bcf_decode_{n_layers}.spv)")
     m, image = decode(args.material, spirv, args.size, args.lod, args.tile)
     args.output.mkdir(parents=True, exist_ok=True)
     neural = [o for o in m["outputs"] if o.get("source") != "classic"]

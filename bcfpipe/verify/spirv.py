@@ -172,7 +172,8 @@ def _top_level_items(text: str) -> list[str]:
 def include_functions(layers: int) -> str:
     """bcf_decode.glsl's functions for ``layers`` layers as HLSL: SPIRV-Cross's translation of
     glsl/bcf_include.comp without its entry point, resources and ``bcfWeightWord``."""
-    text = hlsl(spirv(_layer_defines(layers) | {"BCF_N_LAYERS": layers}, INCLUDE_SOURCE))
+    _layer_defines(layers)  # a layer count it knows
+    text = hlsl(spirv({"BCF_N_LAYERS": layers}, INCLUDE_SOURCE))
     kept = [item for item in _top_level_items(text) if not _ENTRY_ITEMS.match(item)]
     if not any(item.startswith("int bcfDecodeGrad(") for item in kept):
         raise RuntimeError("SPIRV-Cross's HLSL of bcf_include.comp has no bcfDecodeGrad")
