@@ -1,9 +1,9 @@
-"""The batch decoder on Vulkan (issue 60): the shipped SPIR-V, bcfpipe/decoders/bcf_decode_N.spv,
-which is the shipped HLSL (glsl/bcf_decode.comp through SPIR-V and SPIRV-Cross) compiled back by
-glslang's HLSL front end (`bcfpipe shaders`), run as a compute pipeline; the feature layers as
-BC6H / BC7 images with the material's sampler (trilinear, its addressing per axis); on any Vulkan
-1.1 device with BC textures: a GPU's driver, or Mesa's lavapipe on the CPU. `bcfpipe verify --runtime vulkan` holds it to decoder.onnx as it holds OpenGL,
-so the HLSL an engine takes is what is checked.
+"""The batch decoder on Vulkan (issue 60): the shipped SPIR-V, bcfpipe/decoders/bcf_decode_N.spv, which
+is the shipped HLSL (glsl/bcf_decode.comp through SPIR-V and SPIRV-Cross) compiled back by glslang's
+HLSL front end (`bcfpipe shaders`), run as a compute pipeline; the feature layers as BC6H / BC7
+images with the material's sampler (trilinear, its addressing per axis); on any Vulkan 1.1 device
+with BC textures: a GPU's driver, or Mesa's lavapipe on the CPU. `bcfpipe verify --runtime vulkan`
+holds it to decoder.onnx as it holds OpenGL, so the HLSL an engine takes is what is checked.
 
 The same calls as `bcfpipe.verify.glsl.GLRuntime` that verify makes: ``load``, ``decode``,
 ``decode_grad``, ``unload``, ``release`` and ``info``.
