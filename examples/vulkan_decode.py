@@ -82,11 +82,15 @@ class Device:
             pEnabledFeatures=vk.VkPhysicalDeviceFeatures(textureCompressionBC=vk.VK_TRUE)), None)
         self.queue = vk.vkGetDeviceQueue(self.dev, family, 0)
         self.cmd_pool = vk.vkCreateCommandPool(self.dev, vk.VkCommandPoolCreateInfo(queueFamilyIndex=family), None)
-        self.types = vk.vkGetPhysicalDeviceMemoryProperties(self.gpu).memoryTypes
+        # the whole struct is kept: python-vulkan frees it, and its memoryTypes array, with the object
+        self.memory_props = vk.vkGetPhysicalDeviceMemoryProperties(self.gpu)
 
     def memory(self, requirements, flags: int):
-        index = next(i for i, t in enumerate(self.types)
-                     if requirements.memoryTypeBits >> i & 1 and t.propertyFlags & flags == flags)
+        props = self.memory_props
+        index = next((i for i in range(props.memoryTypeCount) if requirements.memoryTypeBits >> i & 1
+                      and props.memoryTypes[i].propertyFlags & flags == flags), None)
+        if index is None:
+            sys.exit("no Vulkan memory type for a buffer or image here")
         return vk.vkAllocateMemory(self.dev, vk.VkMemoryAllocateInfo(allocationSize=requirements.size,
                                                                      memoryTypeIndex=index), None)
 
