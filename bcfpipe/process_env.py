@@ -8,18 +8,27 @@ from pathlib import Path
 from typing import Iterator
 
 CACHE_ENV = "BCFPIPE_CACHE"
+KERNELS_ENV = "BCFPIPE_KERNELS"  # set by a build for its workers: the kernels of the build's cache
 
 
 def default_cache_root() -> Path:
     """The cache folder when none is given: ``BCFPIPE_CACHE``, else the platformdirs user cache
-    folder of bcfpipe. Trained materials live there (bcfpipe.cache), and compiled training kernels
-    under ``kernels/`` (bcfpipe.train.fused)."""
+    folder of bcfpipe. Trained materials live there (bcfpipe.cache), and compiled kernels under
+    ``kernels/`` (`kernels_dir`)."""
     env = os.environ.get(CACHE_ENV)
     if env:
         return Path(env).expanduser()
     import platformdirs  # lazy: start-up
 
     return Path(platformdirs.user_cache_dir("bcfpipe", appauthor=False))
+
+
+def kernels_dir() -> str:
+    """Compiled kernels (the fused training step's, the BC decoders') live in bcfpipe's cache
+    (``kernels/``): the build's (``--cache``), else the default one; never beside the package or in
+    numba's default places. NUMBA_CACHE_DIR, when set, wins."""
+    return (os.environ.get("NUMBA_CACHE_DIR") or os.environ.get(KERNELS_ENV)
+            or str(default_cache_root() / "kernels"))
 
 
 @contextmanager

@@ -90,8 +90,8 @@ def test_scan_reports_the_texture_sets_that_build_trains(shared_scenes):
 
 REPO = Path(__file__).resolve().parents[1]
 BASE_IMPORTS = {"config": {"errors", "formats"}, "errors": set(), "bc6h": {"bptc", "errors", "pooltrace"},
-                "bc7": {"bptc", "errors"}, "bptc": set(),
-                "formats": {"bc6h", "bc7", "errors", "resources"}, "resources": {"errors"}, "extras": {"errors"},
+                "bc7": {"bptc", "errors", "process_env"}, "bptc": set(),
+                "formats": {"bc6h", "bc7", "errors", "process_env", "resources"}, "resources": {"errors"}, "extras": {"errors"},
                 "pooltrace": set(), "process_env": set()}
 
 

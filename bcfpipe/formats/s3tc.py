@@ -1,77 +1,176 @@
-"""BC1, BC4 and BC5 decoders (issue 59: bcfpipe's own decoder for every BC format it ships).
+"""bcfpipe's BC1, BC4 and BC5 decoders in numba: the row-major blocks of a (w, h) level decoded
+straight into its cropped (h, w, channels) uint8 image, one block at a time, on the calling thread
+(issue 59).
 
-Khronos Data Format 1.3, §"S3TC" (BC1: "BC1 with no alpha") and §"RGTC" (BC4 unsigned, BC5 as two
-BC4 blocks); D3D "Block compression", the same formats. Each block is decoded whole, vectorized
-over blocks. Interpolated values take the integer form that quicktex and texture2ddecoder (the
-tests' oracles) both use, floor((w0 e0 + w1 e1) / n), on 8-bit endpoints; BC1's 5:6:5 endpoints are
-widened by bit replication. Texel ``i`` of a block is row-major: ``i = 4 y + x``.
+Khronos Data Format 1.3 §"S3TC" (BC1, "BC1 with no alpha": its transparent texel reads as black
+RGB) and §"RGTC" (BC4 unsigned; BC5 as two BC4 blocks). Interpolated values take the integer form
+quicktex and texture2ddecoder (the tests' oracles, tests/test_s3tc.py) both use,
+floor((w0 e0 + w1 e1) / n), on 8-bit endpoints. Compiled code lives in bcfpipe's cache
+(`process_env.kernels_dir`).
 """
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
-__all__ = ["bc1_texels", "bc4_texels", "bc5_texels", "to_image"]
+from bcfpipe.bc7.kernel import block_words
+from bcfpipe.process_env import kernels_dir
+
+import numba.core.config  # noqa: E402
+
+numba.core.config.CACHE_DIR = kernels_dir()  # read when the decorators below make their caches
+import numba as nb  # noqa: E402
+
+__all__ = ["bc1_image", "bc4_image", "bc5_image"]
 
 
-def _le(b: np.ndarray, start: int, count: int) -> np.ndarray:
-    """Little-endian unsigned integers of ``count`` bytes from byte ``start`` of every block."""
-    out = np.zeros(len(b), np.uint64)
-    for i in range(count):
-        out |= b[:, start + i].astype(np.uint64) << np.uint64(8 * i)
+@nb.njit(inline="always", cache=True, nogil=True)
+def _rgb565(c):
+    """Khronos §"S3TC": a 5:6:5 colour widened to 8-bit R, G, B by bit replication."""
+    r, g, b = (c >> 11) & 31, (c >> 5) & 63, c & 31
+    return (r << 3) | (r >> 2), (g << 2) | (g >> 4), (b << 3) | (b >> 2)
+
+
+@nb.njit(cache=True, nogil=True)
+def _bc1(q, w, h, out, o32, words):
+    """Khronos §"S3TC", BC1: c0 > c1 (as 16-bit integers) four colours, floor((2 e0 + e1) / 3) and
+    floor((e0 + 2 e1) / 3) between; else three, floor((e0 + e1) / 2) and black. With ``words``
+    (rows of whole 32-bit words), a whole block's row of 4 texels is three words of ``o32``."""
+    bw = (w + 3) // 4
+    pal = np.empty(4, np.int64)
+    for by in range((h + 3) // 4):
+        ny = min(4, h - 4 * by)
+        for bx in range(bw):
+            nx = min(4, w - 4 * bx)
+            v = q[by * bw + bx]
+            c0, c1, sel = v & 0xFFFF, (v >> 16) & 0xFFFF, v >> 32
+            r0, g0, b0 = _rgb565(c0)
+            r1, g1, b1 = _rgb565(c1)
+            pal[0] = r0 | g0 << 8 | b0 << 16
+            pal[1] = r1 | g1 << 8 | b1 << 16
+            if c0 > c1:
+                pal[2] = (2 * r0 + r1) // 3 | ((2 * g0 + g1) // 3) << 8 | ((2 * b0 + b1) // 3) << 16
+                pal[3] = (r0 + 2 * r1) // 3 | ((g0 + 2 * g1) // 3) << 8 | ((b0 + 2 * b1) // 3) << 16
+            else:
+                pal[2] = (r0 + r1) // 2 | ((g0 + g1) // 2) << 8 | ((b0 + b1) // 2) << 16
+                pal[3] = 0
+            if words and ny == 4 and nx == 4:
+                for ty in range(4):
+                    p0, p1, p2, p3 = pal[sel & 3], pal[(sel >> 2) & 3], pal[(sel >> 4) & 3], pal[(sel >> 6) & 3]
+                    sel >>= 8
+                    y = 4 * by + ty
+                    o32[y, 3 * bx] = p0 | p1 << 24
+                    o32[y, 3 * bx + 1] = p1 >> 8 | p2 << 16
+                    o32[y, 3 * bx + 2] = p2 >> 16 | p3 << 8
+                continue
+            for ty in range(ny):
+                for tx in range(nx):
+                    p = pal[(sel >> (2 * (4 * ty + tx))) & 3]
+                    y, x = 4 * by + ty, 4 * bx + tx
+                    out[y, x, 0] = p & 255
+                    out[y, x, 1] = (p >> 8) & 255
+                    out[y, x, 2] = p >> 16
+
+
+@nb.njit(inline="always", cache=True, nogil=True)
+def _bc4_block(v, pal):
+    """Khronos §"RGTC", BC4 unsigned: the palette of block ``v`` (its 8 bytes, little-endian) into
+    ``pal``: a0 > a1 eight values, floor(((7 - j) a0 + j a1) / 7) between; else six,
+    floor(((5 - j) a0 + j a1) / 5) between, then 0 and 255. Returns its 48 bits of 3-bit indices."""
+    a0, a1 = v & 255, (v >> 8) & 255
+    pal[0], pal[1] = a0, a1
+    if a0 > a1:
+        for j in range(1, 7):
+            pal[1 + j] = ((7 - j) * a0 + j * a1) // 7
+    else:
+        for j in range(1, 5):
+            pal[1 + j] = ((5 - j) * a0 + j * a1) // 5
+        pal[6], pal[7] = 0, 255
+    return (v >> 16) & 0xFFFFFFFFFFFF
+
+
+@nb.njit(cache=True, nogil=True)
+def _bc4(q, w, h, out, o32, words):
+    """Khronos §"RGTC", BC4 unsigned. With ``words``, a whole block's row of 4 texels is one 32-bit
+    word of ``o32``."""
+    bw = (w + 3) // 4
+    pal = np.empty(8, np.int64)
+    for by in range((h + 3) // 4):
+        ny = min(4, h - 4 * by)
+        for bx in range(bw):
+            nx = min(4, w - 4 * bx)
+            sel = _bc4_block(q[by * bw + bx], pal)
+            if words and ny == 4 and nx == 4:
+                for ty in range(4):
+                    o32[4 * by + ty, bx] = (pal[sel & 7] | pal[(sel >> 3) & 7] << 8 | pal[(sel >> 6) & 7] << 16
+                                            | pal[(sel >> 9) & 7] << 24)
+                    sel >>= 12
+                continue
+            for ty in range(ny):
+                for tx in range(nx):
+                    out[4 * by + ty, 4 * bx + tx, 0] = pal[(sel >> (3 * (4 * ty + tx))) & 7]
+
+
+@nb.njit(cache=True, nogil=True)
+def _bc5(q, w, h, out, o32, words):
+    """Khronos §"RGTC", BC5 unsigned: a BC4 block for red, then one for green. With ``words``, a
+    whole block's row of 4 texels is two 32-bit words of ``o32``."""
+    bw = (w + 3) // 4
+    pr = np.empty(8, np.int64)
+    pg = np.empty(8, np.int64)
+    for by in range((h + 3) // 4):
+        ny = min(4, h - 4 * by)
+        for bx in range(bw):
+            nx = min(4, w - 4 * bx)
+            k = by * bw + bx
+            r, g = _bc4_block(q[k, 0], pr), _bc4_block(q[k, 1], pg)
+            if words and ny == 4 and nx == 4:
+                for ty in range(4):
+                    y = 4 * by + ty
+                    o32[y, 2 * bx] = pr[r & 7] | pg[g & 7] << 8 | pr[(r >> 3) & 7] << 16 | pg[(g >> 3) & 7] << 24
+                    o32[y, 2 * bx + 1] = (pr[(r >> 6) & 7] | pg[(g >> 6) & 7] << 8 | pr[(r >> 9) & 7] << 16
+                                          | pg[(g >> 9) & 7] << 24)
+                    r >>= 12
+                    g >>= 12
+                continue
+            for ty in range(ny):
+                for tx in range(nx):
+                    t, y, x = 3 * (4 * ty + tx), 4 * by + ty, 4 * bx + tx
+                    out[y, x, 0] = pr[(r >> t) & 7]
+                    out[y, x, 1] = pg[(g >> t) & 7]
+
+
+def _words(out: np.ndarray) -> tuple[np.ndarray, bool]:
+    """``out`` as rows of little-endian 32-bit words, and whether it is one (else a dummy)."""
+    h, w, c = out.shape
+    if (w * c) % 4 or sys.byteorder != "little":
+        return np.zeros((1, 1), np.uint32), False
+    return out.reshape(h, w * c).view(np.uint32), True
+
+
+def bc1_image(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(n, 8) BC1 blocks of a ``width`` x ``height`` level -> (height, width, 3) uint8 RGB."""
+    width, height = int(width), int(height)
+    q = block_words(blocks, 8, width, height)[:, 0]
+    out = np.empty((height, width, 3), np.uint8)
+    _bc1(q, width, height, out, *_words(out))
     return out
 
 
-def _indices(bits: np.ndarray, width: int) -> np.ndarray:
-    """(n, 16) texel indices of ``width`` bits each, texel 0 in the lowest bits."""
-    shifts = np.uint64(width) * np.arange(16, dtype=np.uint64)
-    return ((bits[:, None] >> shifts) & np.uint64((1 << width) - 1)).astype(np.int64)
+def bc4_image(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(n, 8) BC4 (unsigned) blocks -> (height, width, 1) uint8."""
+    width, height = int(width), int(height)
+    q = block_words(blocks, 8, width, height)[:, 0]
+    out = np.empty((height, width, 1), np.uint8)
+    _bc4(q, width, height, out, *_words(out))
+    return out
 
 
-def _rgb565(c: np.ndarray) -> np.ndarray:
-    """5:6:5 colours -> (n, 3) 8-bit, bit-replicated (S3TC: "RGB565 ... expanded")."""
-    r, g, b = (c >> 11) & 31, (c >> 5) & 63, c & 31
-    return np.stack([(r << 3) | (r >> 2), (g << 2) | (g >> 4), (b << 3) | (b >> 2)], -1)
-
-
-def bc1_texels(blocks: np.ndarray) -> np.ndarray:
-    """(n, 8) BC1 blocks -> (n, 16, 3) uint8 RGB. c0 > c1: four colours, 2/3 and 1/3 between the
-    endpoints; else three, the midpoint and black (its transparent texel is read as black RGB)."""
-    b = np.ascontiguousarray(np.asarray(blocks, np.uint8).reshape(-1, 8))
-    n = len(b)
-    ends = b[:, :4].copy().view("<u2").astype(np.int32)  # c0, c1 (little-endian 5:6:5)
-    c0, c1 = ends[:, 0], ends[:, 1]
-    e0, e1 = _rgb565(c0), _rgb565(c1)
-    four = (c0 > c1)[:, None]
-    palette = np.stack([e0, e1, np.where(four, (2 * e0 + e1) // 3, (e0 + e1) // 2),
-                        np.where(four, (e0 + 2 * e1) // 3, 0)], 1).astype(np.uint8)
-    bits = b[:, 4:].copy().view("<u4")[:, 0]
-    sel = (bits[:, None] >> (2 * np.arange(16, dtype=np.uint32))) & 3  # texel i's 2 bits at 2 i
-    return palette.reshape(-1, 3)[sel.astype(np.intp) + 4 * np.arange(n, dtype=np.intp)[:, None]]
-
-
-def bc4_texels(blocks: np.ndarray) -> np.ndarray:
-    """(n, 8) BC4 (unsigned) blocks -> (n, 16) uint8. a0 > a1: eight values, six between; else six,
-    four between, then 0 and 255."""
-    b = np.asarray(blocks, np.uint8).reshape(-1, 8)
-    a0, a1 = b[:, :1].astype(np.int32), b[:, 1:2].astype(np.int32)
-    k = np.arange(1, 7)
-    eight = np.concatenate([a0, a1, ((7 - k) * a0 + k * a1) // 7], 1)
-    six = np.concatenate([a0, a1, ((5 - k[:4]) * a0 + k[:4] * a1) // 5, 0 * a0, 0 * a0 + 255], 1)
-    palette = np.where(a0 > a1, eight, six)
-    return np.take_along_axis(palette, _indices(_le(b, 2, 6), 3), 1).astype(np.uint8)
-
-
-def bc5_texels(blocks: np.ndarray) -> np.ndarray:
-    """(n, 16) BC5 (unsigned) blocks -> (n, 16, 2) uint8: a BC4 block for red, then one for green."""
-    b = np.asarray(blocks, np.uint8).reshape(-1, 16)
-    return np.stack([bc4_texels(b[:, :8]), bc4_texels(b[:, 8:])], -1)
-
-
-def to_image(texels: np.ndarray, width: int, height: int) -> np.ndarray:
-    """(n, 16[, c]) texels of row-major blocks -> (height, width[, c]), the padding cropped."""
-    bw, bh = -(-width // 4), -(-height // 4)
-    if texels.shape[0] != bw * bh:
-        raise ValueError(f"a {width}x{height} image needs {bw * bh} blocks, got {texels.shape[0]}")
-    c = texels.shape[2:]
-    img = texels.reshape(bh, bw, 4, 4, *c).swapaxes(1, 2).reshape(bh * 4, bw * 4, *c)
-    return img[:height, :width]
+def bc5_image(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(n, 16) BC5 (unsigned) blocks -> (height, width, 2) uint8."""
+    width, height = int(width), int(height)
+    q = block_words(blocks, 16, width, height)
+    out = np.empty((height, width, 2), np.uint8)
+    _bc5(q, width, height, out, *_words(out))
+    return out

@@ -45,7 +45,7 @@ from bcfpipe.bc7 import decode as bc7_decode
 from bcfpipe.formats import dds
 from bcfpipe.formats import material as mf
 from bcfpipe.formats import manifest as mfst
-from bcfpipe.formats.bcn import FORMAT_OF, ClassicFormat, own_decode_levels
+from bcfpipe.formats.bcn import FORMAT_OF, ClassicFormat, decode_levels
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.export import writer as E
 from bcfpipe.formats.vocabulary import Status
@@ -287,7 +287,7 @@ def check_classic(m: MaterialDesc) -> Check:
         if fmt is None:
             bad.append(f"{c.file}: {tex.format_name} is no classic format")
             continue
-        ours = [t[..., :c.channels] for t in own_decode_levels(fmt, tex.levels)]
+        ours = [t[..., :c.channels] for t in decode_levels(fmt, tex.levels)]
         inp = oiio.ImageInput.open(str(path))
         if inp is None:
             bad.append(f"{c.file}: OpenImageIO cannot open it ({oiio.geterror()})")

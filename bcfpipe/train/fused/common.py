@@ -9,8 +9,7 @@ import uuid
 from pathlib import Path
 
 from bcfpipe.formats.addressing import wrap_codes
-from bcfpipe.process_env import default_cache_root
-from bcfpipe.process_env import environment
+from bcfpipe.process_env import KERNELS_ENV, environment, kernels_dir  # noqa: F401 (kernels_dir: the fused kernels' import)
 
 FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3  # free texels (warm-up) or blocks, per format
 # A slot's first field: not sampled, a trained level, or a fixed one: a level written as it was
@@ -28,16 +27,7 @@ def wrap_code(wrap) -> int:
     return s | t << 2
 
 
-KERNELS_ENV = "BCFPIPE_KERNELS"  # set by a build for its workers: the kernels of the build's cache
 SAID_ENV = "BCFPIPE_KERNEL_SAID"  # set by a build for its workers: the file whose creator says a fallback
-
-
-def kernels_dir() -> str:
-    """Compiled kernels live in bcfpipe's cache (``kernels/``): the build's (``--cache``), else the
-    default one; never beside the package or in numba's default places. NUMBA_CACHE_DIR, when set,
-    wins."""
-    return (os.environ.get("NUMBA_CACHE_DIR") or os.environ.get(KERNELS_ENV)
-            or str(default_cache_root() / "kernels"))
 
 
 @contextlib.contextmanager
