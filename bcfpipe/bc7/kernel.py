@@ -80,85 +80,83 @@ def _bc7(q, w, h, o32):
     e = np.zeros((6, 4), np.int64)
     wc = np.empty(16, np.int64)
     wa = np.empty(16, np.int64)
-    for by in range((h + 3) // 4):
-        ny = min(4, h - 4 * by)
-        for bx in range(bw):
-            nx = min(4, w - 4 * bx)
-            k = by * bw + bx
-            lo, hi = q[k, 0], q[k, 1]
-            b0 = lo & 255
-            if b0 == 0:
-                for ty in range(ny):
-                    for tx in range(nx):
-                        o32[4 * by + ty, 4 * bx + tx] = 0
-                continue
-            m = 0
-            while (b0 >> m) & 1 == 0:
-                m += 1
-            ns, cb, ab, ib, ib2 = _NS[m], _CB[m], _AB[m], _IB[m], _IB2[m]
-            ne = 2 * ns
-            pos = m + 1
-            part = _get(lo, hi, pos, _PB[m])
-            pos += _PB[m]
-            rot = _get(lo, hi, pos, _RB[m])
-            pos += _RB[m]
-            isb = _get(lo, hi, pos, _ISB[m])
-            pos += _ISB[m]
-            for ch in range(3):
-                for j in range(ne):
-                    e[j, ch] = _get(lo, hi, pos, cb)
-                    pos += cb
-            for j in range(ne):
-                e[j, 3] = _get(lo, hi, pos, ab)
-                pos += ab
-            cbits, abits = cb, ab
-            if _EPB[m] or _SPB[m]:
-                for j in range(ne):
-                    p = _get(lo, hi, pos + (j if _EPB[m] else j // 2), 1)
-                    for ch in range(4):
-                        e[j, ch] = (e[j, ch] << 1) | p
-                pos += ne if _EPB[m] else ns
-                cbits += 1
-                abits += 1 if ab else 0
-            for j in range(ne):
-                for ch in range(3):
-                    e[j, ch] = _widen(e[j, ch], cbits)
-                e[j, 3] = _widen(e[j, 3], abits) if abits else 255
-            row = (ns - 1) * 64 + part
-            anchors = _ANCHORS[row]
-            n1 = 16 * ib - _N_ANCHORS[row]
-            bits = _get(lo, hi, pos, n1)
-            for i in range(16):
-                width = ib - ((anchors >> i) & 1)
-                wc[i] = _WEIGHTS[ib, bits & ~(np.int64(-1) << width)]
-                bits >>= width
-            if ib2:
-                bits = _get(lo, hi, pos + n1, 16 * ib2 - 1)
-                for i in range(16):
-                    width = ib2 - (1 if i == 0 else 0)
-                    wa[i] = _WEIGHTS[ib2, bits & ~(np.int64(-1) << width)]
-                    bits >>= width
-                if isb:
-                    for i in range(16):
-                        wc[i], wa[i] = wa[i], wc[i]
-            else:
-                for i in range(16):
-                    wa[i] = wc[i]
-            # rotation r swaps alpha with channel r - 1: where each interpolated channel goes
-            d0 = 24 if rot == 1 else 0
-            d1 = 24 if rot == 2 else 8
-            d2 = 24 if rot == 3 else 16
-            d3 = 8 * (rot - 1) if rot else 24
+    for k in range(q.shape[0]):
+        by, bx = k // bw, k % bw
+        ny, nx = min(4, h - 4 * by), min(4, w - 4 * bx)
+        lo, hi = q[k, 0], q[k, 1]
+        b0 = lo & 255
+        if b0 == 0:
             for ty in range(ny):
                 for tx in range(nx):
-                    i = 4 * ty + tx
-                    s = 2 * _SUBSET[row, i]
-                    c, a = wc[i], wa[i]
-                    o32[4 * by + ty, 4 * bx + tx] = (
-                        (((64 - c) * e[s, 0] + c * e[s + 1, 0] + 32) >> 6) << d0
-                        | (((64 - c) * e[s, 1] + c * e[s + 1, 1] + 32) >> 6) << d1
-                        | (((64 - c) * e[s, 2] + c * e[s + 1, 2] + 32) >> 6) << d2
-                        | (((64 - a) * e[s, 3] + a * e[s + 1, 3] + 32) >> 6) << d3)
+                    o32[4 * by + ty, 4 * bx + tx] = 0
+            continue
+        m = 0
+        while (b0 >> m) & 1 == 0:
+            m += 1
+        ns, cb, ab, ib, ib2 = _NS[m], _CB[m], _AB[m], _IB[m], _IB2[m]
+        ne = 2 * ns
+        pos = m + 1
+        part = _get(lo, hi, pos, _PB[m])
+        pos += _PB[m]
+        rot = _get(lo, hi, pos, _RB[m])
+        pos += _RB[m]
+        isb = _get(lo, hi, pos, _ISB[m])
+        pos += _ISB[m]
+        for ch in range(3):
+            for j in range(ne):
+                e[j, ch] = _get(lo, hi, pos, cb)
+                pos += cb
+        for j in range(ne):
+            e[j, 3] = _get(lo, hi, pos, ab)
+            pos += ab
+        cbits, abits = cb, ab
+        if _EPB[m] or _SPB[m]:
+            for j in range(ne):
+                p = _get(lo, hi, pos + (j if _EPB[m] else j // 2), 1)
+                for ch in range(4):
+                    e[j, ch] = (e[j, ch] << 1) | p
+            pos += ne if _EPB[m] else ns
+            cbits += 1
+            abits += 1 if ab else 0
+        for j in range(ne):
+            for ch in range(3):
+                e[j, ch] = _widen(e[j, ch], cbits)
+            e[j, 3] = _widen(e[j, 3], abits) if abits else 255
+        row = (ns - 1) * 64 + part
+        anchors = _ANCHORS[row]
+        n1 = 16 * ib - _N_ANCHORS[row]
+        bits = _get(lo, hi, pos, n1)
+        for i in range(16):
+            width = ib - ((anchors >> i) & 1)
+            wc[i] = _WEIGHTS[ib, bits & ~(np.int64(-1) << width)]
+            bits >>= width
+        if ib2:
+            bits = _get(lo, hi, pos + n1, 16 * ib2 - 1)
+            for i in range(16):
+                width = ib2 - (1 if i == 0 else 0)
+                wa[i] = _WEIGHTS[ib2, bits & ~(np.int64(-1) << width)]
+                bits >>= width
+            if isb:
+                for i in range(16):
+                    wc[i], wa[i] = wa[i], wc[i]
+        else:
+            for i in range(16):
+                wa[i] = wc[i]
+        # rotation r swaps alpha with channel r - 1: where each interpolated channel goes
+        d0 = 24 if rot == 1 else 0
+        d1 = 24 if rot == 2 else 8
+        d2 = 24 if rot == 3 else 16
+        d3 = 8 * (rot - 1) if rot else 24
+        for ty in range(ny):
+            for tx in range(nx):
+                i = 4 * ty + tx
+                s = 2 * _SUBSET[row, i]
+                c, a = wc[i], wa[i]
+                o32[4 * by + ty, 4 * bx + tx] = (
+                    (((64 - c) * e[s, 0] + c * e[s + 1, 0] + 32) >> 6) << d0
+                    | (((64 - c) * e[s, 1] + c * e[s + 1, 1] + 32) >> 6) << d1
+                    | (((64 - c) * e[s, 2] + c * e[s + 1, 2] + 32) >> 6) << d2
+                    | (((64 - a) * e[s, 3] + a * e[s + 1, 3] + 32) >> 6) << d3)
 
 
 def block_words(blocks: np.ndarray, block_bytes: int, width: int, height: int) -> np.ndarray:

@@ -39,38 +39,37 @@ def _bc1(q, w, h, out, o32, words):
     (rows of whole 32-bit words), a whole block's row of 4 texels is three words of ``o32``."""
     bw = (w + 3) // 4
     pal = np.empty(4, np.int64)
-    for by in range((h + 3) // 4):
-        ny = min(4, h - 4 * by)
-        for bx in range(bw):
-            nx = min(4, w - 4 * bx)
-            v = q[by * bw + bx]
-            c0, c1, sel = v & 0xFFFF, (v >> 16) & 0xFFFF, v >> 32
-            r0, g0, b0 = _rgb565(c0)
-            r1, g1, b1 = _rgb565(c1)
-            pal[0] = r0 | g0 << 8 | b0 << 16
-            pal[1] = r1 | g1 << 8 | b1 << 16
-            if c0 > c1:
-                pal[2] = (2 * r0 + r1) // 3 | ((2 * g0 + g1) // 3) << 8 | ((2 * b0 + b1) // 3) << 16
-                pal[3] = (r0 + 2 * r1) // 3 | ((g0 + 2 * g1) // 3) << 8 | ((b0 + 2 * b1) // 3) << 16
-            else:
-                pal[2] = (r0 + r1) // 2 | ((g0 + g1) // 2) << 8 | ((b0 + b1) // 2) << 16
-                pal[3] = 0
-            if words and ny == 4 and nx == 4:
-                for ty in range(4):
-                    p0, p1, p2, p3 = pal[sel & 3], pal[(sel >> 2) & 3], pal[(sel >> 4) & 3], pal[(sel >> 6) & 3]
-                    sel >>= 8
-                    y = 4 * by + ty
-                    o32[y, 3 * bx] = p0 | p1 << 24
-                    o32[y, 3 * bx + 1] = p1 >> 8 | p2 << 16
-                    o32[y, 3 * bx + 2] = p2 >> 16 | p3 << 8
-                continue
-            for ty in range(ny):
-                for tx in range(nx):
-                    p = pal[(sel >> (2 * (4 * ty + tx))) & 3]
-                    y, x = 4 * by + ty, 4 * bx + tx
-                    out[y, x, 0] = p & 255
-                    out[y, x, 1] = (p >> 8) & 255
-                    out[y, x, 2] = p >> 16
+    for k in range(q.shape[0]):
+        by, bx = divmod(k, bw)
+        v = q[k]
+        ny, nx = min(4, h - 4 * by), min(4, w - 4 * bx)
+        c0, c1, sel = v & 0xFFFF, (v >> 16) & 0xFFFF, v >> 32
+        r0, g0, b0 = _rgb565(c0)
+        r1, g1, b1 = _rgb565(c1)
+        pal[0] = r0 | g0 << 8 | b0 << 16
+        pal[1] = r1 | g1 << 8 | b1 << 16
+        if c0 > c1:
+            pal[2] = (2 * r0 + r1) // 3 | ((2 * g0 + g1) // 3) << 8 | ((2 * b0 + b1) // 3) << 16
+            pal[3] = (r0 + 2 * r1) // 3 | ((g0 + 2 * g1) // 3) << 8 | ((b0 + 2 * b1) // 3) << 16
+        else:
+            pal[2] = (r0 + r1) // 2 | ((g0 + g1) // 2) << 8 | ((b0 + b1) // 2) << 16
+            pal[3] = 0
+        if words and ny == 4 and nx == 4:
+            for ty in range(4):
+                p0, p1, p2, p3 = pal[sel & 3], pal[(sel >> 2) & 3], pal[(sel >> 4) & 3], pal[(sel >> 6) & 3]
+                sel >>= 8
+                y = 4 * by + ty
+                o32[y, 3 * bx] = p0 | p1 << 24
+                o32[y, 3 * bx + 1] = p1 >> 8 | p2 << 16
+                o32[y, 3 * bx + 2] = p2 >> 16 | p3 << 8
+            continue
+        for ty in range(ny):
+            for tx in range(nx):
+                p = pal[(sel >> (2 * (4 * ty + tx))) & 3]
+                y, x = 4 * by + ty, 4 * bx + tx
+                out[y, x, 0] = p & 255
+                out[y, x, 1] = (p >> 8) & 255
+                out[y, x, 2] = p >> 16
 
 
 @nb.njit(inline="always", cache=True, nogil=True)
@@ -149,28 +148,25 @@ def _words(out: np.ndarray) -> tuple[np.ndarray, bool]:
     return out.reshape(h, w * c).view(np.uint32), True
 
 
+def _image(kernel, blocks: np.ndarray, block_bytes: int, channels: int, width: int, height: int) -> np.ndarray:
+    """``kernel``'s (height, width, channels) uint8 image of a level's blocks."""
+    width, height = int(width), int(height)
+    q = block_words(blocks, block_bytes, width, height)
+    out = np.empty((height, width, channels), np.uint8)
+    kernel(q if block_bytes == 16 else q[:, 0], width, height, out, *_words(out))
+    return out
+
+
 def bc1_image(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
     """(n, 8) BC1 blocks of a ``width`` x ``height`` level -> (height, width, 3) uint8 RGB."""
-    width, height = int(width), int(height)
-    q = block_words(blocks, 8, width, height)[:, 0]
-    out = np.empty((height, width, 3), np.uint8)
-    _bc1(q, width, height, out, *_words(out))
-    return out
+    return _image(_bc1, blocks, 8, 3, width, height)
 
 
 def bc4_image(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
     """(n, 8) BC4 (unsigned) blocks -> (height, width, 1) uint8."""
-    width, height = int(width), int(height)
-    q = block_words(blocks, 8, width, height)[:, 0]
-    out = np.empty((height, width, 1), np.uint8)
-    _bc4(q, width, height, out, *_words(out))
-    return out
+    return _image(_bc4, blocks, 8, 1, width, height)
 
 
 def bc5_image(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
     """(n, 16) BC5 (unsigned) blocks -> (height, width, 2) uint8."""
-    width, height = int(width), int(height)
-    q = block_words(blocks, 16, width, height)
-    out = np.empty((height, width, 2), np.uint8)
-    _bc5(q, width, height, out, *_words(out))
-    return out
+    return _image(_bc5, blocks, 16, 2, width, height)
