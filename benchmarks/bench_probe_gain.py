@@ -1,8 +1,7 @@
 """Issue 58: what a full training at the asked preset gains over the layout's probe, per mip.
 
-The default layout's probe (`bcfpipe.layout.decide.probe_config`) trains the set's model at p0 for
-`PROBE_FRACTION` of `draft`'s steps, whatever the preset asked; the candidate it stands for, trained
-in full at the preset asked, holds more. For each
+The default layout's probe (`bcfpipe.layout.decide._train_probe`) trains the set's model at p0 for
+`PROBE_FRACTION` of the steps; the candidate it stands for, trained in full, holds more. For each
 set this trains both, the same model (all channels, p0, T_0 width w0) with the same reference
 chain, and prints each one's per-mip PSNR from its exported files and the difference: the table
 `bcfpipe.train.gains.PROBE_GAINS_DB` holds, by T_0's place (the mips finer than T_0, T_0's level 0,
@@ -48,9 +47,9 @@ def table_row(rows: list[dict]) -> tuple[float, ...]:
 
 
 def main() -> None:
-    from bcfpipe.config import PROFILES, TrainingOptions
+    from bcfpipe.config import PROFILES, TrainingOptions, shortened
     from bcfpipe.export.material import FIGURES, PROBE, evaluate_exported, train_material, make_config
-    from bcfpipe.layout.decide import PROBE_FRACTION, predict_for, probe_config, probe_preset
+    from bcfpipe.layout.decide import PROBE_FRACTION, predict_for
     from bcfpipe.layout.kinds import capped
     from bcfpipe.layout.predict import bc_resolution
     from bcfpipe.texset.chain import Reference
@@ -60,8 +59,7 @@ def main() -> None:
     add_options(ap, sets="teapot,brick,wood,bottle", quality="draft")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
-    print(f"machine: {machine()}; quality {a.quality}; probe {PROBE_FRACTION:.0%} of "
-          f"{probe_preset(a.quality)}'s steps", flush=True)
+    print(f"machine: {machine()}; quality {a.quality}; probe {PROBE_FRACTION:.0%} of the steps", flush=True)
     rows = []
     for name in a.sets.split(","):
         ts = load_texture_set([TextureSpec.parse(s) for s in SETS[name]])
@@ -74,7 +72,7 @@ def main() -> None:
             continue
         own = p0 if p0 in PROFILES else options.profile
         full = capped(make_config(ts, replace(options, profile=own, t0_layers=w0))[1], cfg.preset)
-        probe = probe_config(ts, options, own, w0, cfg.preset)
+        probe = full.with_(preset=shortened(full.preset, PROBE_FRACTION))
         ref = Reference.of(ts, None, "repeat")
         out = {}
         with tempfile.TemporaryDirectory() as tmp:

@@ -9,7 +9,7 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 2. The probe: one neural model on all channels at p0, the largest profile no larger than the one
    asked for whose bytes fit within BC@R's (the smallest when none does: it measures the neural
    part of a mip split or a mixed layout), with a T_0 of one layer of principal components (or
-   --t0-layers), trained for `PROBE_FRACTION` of `draft`'s steps (`probe_config`) and measured
+   --t0-layers), trained for `PROBE_FRACTION` of the steps the preset asked takes and measured
    from its exported files, per channel; it never ships. What the same model trained in full
    holds is predicted from it with the measured per-mip gain of a full training over the probe
    (`bcfpipe.train.gains.PROBE_GAINS_DB`). No probe, and no training, when not even the smallest
@@ -70,12 +70,7 @@ from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
 
-PROBE_FRACTION = 0.15  # of the steps of the probe's preset
-# The probe trains at most `draft`'s schedule, shortened, whatever the preset asked: what a full
-# training at the asked preset gains over it is measured per preset (`gains.PROBE_GAINS_DB`), so a
-# `standard` fit probes in a fifth of the time a shortened `standard` took, with the same decisions.
-PROBE_PRESET = "draft"
-LIGHTER_THAN_PROBE = ("smoke",)  # presets the probe takes as they are, shortened
+PROBE_FRACTION = 0.15  # of the steps --layout neural trains: the probe's share of one training
 FLOOR_GUARD_DB = 0.25  # a choice held to BC@R's floor by less than this on BC@R's estimate measures BC@R
 
 
@@ -94,30 +89,16 @@ def _work(ctx: K.FitContext) -> ClassicWork:
                        enc=ENCODE_PRESETS.get(ctx.options.preset, DEFAULT_ENCODE))
 
 
-def probe_preset(asked: str) -> str:
-    """The preset whose schedule the probe shortens when ``asked`` is asked: `PROBE_PRESET`, or a
-    lighter one asked."""
-    return asked if asked in LIGHTER_THAN_PROBE else PROBE_PRESET
-
-
-def probe_config(ts: TextureSet, options: TrainingOptions, profile: str, t0_layers: int, cap, wrap: str = "repeat"):
-    """The probe's TrainConfig: ``options``' model at ``profile`` with a T_0 of ``t0_layers``,
-    trained for `PROBE_FRACTION` of `probe_preset`'s steps, never more than ``cap`` (--layout
-    neural's preset) takes."""
-    probe_options = replace(options, preset=probe_preset(options.preset), profile=profile, t0_layers=t0_layers)
-    cfg = capped(make_config(ts, probe_options, wrap)[1], cap)
-    return cfg.with_(preset=shortened(cfg.preset, PROBE_FRACTION))
-
-
 def _train_probe(ctx: K.FitContext) -> MaterialResult:
-    """The probe: all channels at p0, `probe_config`'s short schedule, so that it costs a fraction
-    of one training, without the float model's figures. What a full training of the same model
-    at the preset asked holds is predicted from it (`kinds.FitContext.neural_errors`); it never
-    ships."""
+    """The probe: all channels at p0, a `PROBE_FRACTION` of the steps ``ctx.cap`` (--layout neural's)
+    takes, so that it costs a fraction of one training, without the float model's figures. What
+    a full training of the same model holds is predicted from it (`kinds.FitContext.neural_errors`);
+    it never ships."""
     ctx.log(f"probe: all {ctx.ts.num_channels} channels at {ctx.p0}"
-            + (f", T_0 of {ctx.w0} layers" if ctx.w0 > 1 else "")
-            + f", {PROBE_FRACTION:.0%} of {probe_preset(ctx.options.preset)}'s steps")
-    cfg = probe_config(ctx.ts, ctx.options, ctx.own[ctx.p0], ctx.w0, ctx.cap, ctx.wrap)
+            + (f", T_0 of {ctx.w0} layers" if ctx.w0 > 1 else "") + f", {PROBE_FRACTION:.0%} of the steps")
+    cfg = make_config(ctx.ts, replace(ctx.options, profile=ctx.own[ctx.p0], t0_layers=ctx.w0), ctx.wrap)[1]
+    cfg = capped(cfg, ctx.cap)
+    cfg = cfg.with_(preset=shortened(cfg.preset, PROBE_FRACTION))
     return train_material(ctx.ts, ctx.out / "probe", cfg, ctx.p0, progress=ctx.progress, coverage=ctx.coverage,
                         measure=PROBE, reference=ctx.reference)[0]
 

@@ -39,28 +39,27 @@ T0_LAYER_GAINS_DB: dict[int, tuple[float, ...]] = {
     3: (0.27, 1.66, 0.98, 0.24),
 }
 # What a full training at a preset gains over the default layout's probe (the same model trained for
-# `layout.decide.PROBE_FRACTION` of `draft`'s steps whatever the preset asked, `layout.decide.probe_config`;
-# issue 58), in dB per reference mip by its place against T_0's level 0, as T0_LAYER_GAINS_DB reads:
-# finer than it, level 0, level 1, every coarser mip. Means over sets, from exported files,
-# `benchmarks/bench_probe_gain.py --quality Q` (docs/benchmarks.md, "Issue 58: what a full training
-# gains over the probe"):
+# `layout.decide.PROBE_FRACTION` of its steps, issue 58), in dB per reference mip by its place against
+# T_0's level 0, as T0_LAYER_GAINS_DB reads: finer than it, level 0, level 1, every coarser mip.
+# Means over sets, from exported files, `benchmarks/bench_probe_gain.py --quality Q`
+# (docs/benchmarks.md, "Issue 58: what a full training gains over the probe"):
 #   draft: teapot, brick, wood, water bottle at 1k (per set, mip 0: 0.76 / 0.08 / 0.09 / 0.68;
-#   mip 1: 1.44 / -0.24 / -0.09 / 2.06); fast: the teapot and the water bottle (mip 0: 1.72 / 1.07;
-#   mip 1: 3.01 / 3.88); standard: the teapot and the water bottle (mip 0: 1.89 / 1.32; mip 1: 2.88 /
-#   4.99). paper (a GPU's) takes standard's until measured; smoke, a pipeline check, draft's.
+#   mip 1: 1.44 / -0.24 / -0.09 / 2.06); standard: the teapot and the water bottle (mip 0: 0.55 /
+#   0.50; mip 1: 0.19 / 2.09); fast: the teapot and the water bottle (mip 0: 1.35 / 0.60; mip 1:
+#   2.33 / 2.41). paper (a GPU's) takes standard's until measured; smoke, a pipeline check, draft's.
 PROBE_GAINS_DB: dict[str, tuple[float, float, float, float]] = {
     "draft": (0.41, 0.79, 0.82, 1.6),
-    "fast": (1.39, 3.44, 3.63, 3.21),
-    "standard": (1.6, 3.93, 4.35, 3.99),
+    "fast": (0.97, 2.37, 2.52, 2.82),
+    "standard": (0.53, 1.14, 1.48, 2.05),
 }
 # The most any of those sets gained, by the same places: a set's own gain at T_0's first levels
-# ranges over 2 dB (the water bottle 5.0 dB at standard's mip 1, the teapot 2.9).
+# ranges over 2 dB about the mean (the water bottle 2.1 dB at standard's mip 1, the teapot 0.2).
 # A candidate that clears the floor only on these is the one the default layout trains when its
 # mean prediction ships classic (`layout.decide`): on the bottle at 1k standard that training ships.
 PROBE_GAINS_MAX_DB: dict[str, tuple[float, float, float, float]] = {
     "draft": (0.76, 2.06, 2.27, 2.34),
-    "fast": (1.72, 3.88, 4.5, 3.71),
-    "standard": (1.89, 4.99, 5.97, 4.4),
+    "fast": (1.35, 2.41, 2.84, 3.86),
+    "standard": (0.55, 2.09, 2.57, 2.12),
 }
 PAPER_OVER_STANDARD_DB = 1.0  # a GPU's 206k steps over `standard`'s 19.5k: a guess until measured on a GPU
 
