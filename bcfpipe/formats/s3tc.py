@@ -37,39 +37,40 @@ def _bc1(q, w, h, out, o32, words):
     """Khronos §"S3TC", BC1: c0 > c1 (as 16-bit integers) four colours, floor((2 e0 + e1) / 3) and
     floor((e0 + 2 e1) / 3) between; else three, floor((e0 + e1) / 2) and black. With ``words``
     (rows of whole 32-bit words), a whole block's row of 4 texels is three words of ``o32``."""
-    bw = (w + 3) // 4
     pal = np.empty(4, np.int64)
-    for k in range(q.shape[0]):
-        by, bx = divmod(k, bw)
-        v = q[k]
-        ny, nx = min(4, h - 4 * by), min(4, w - 4 * bx)
-        c0, c1, sel = v & 0xFFFF, (v >> 16) & 0xFFFF, v >> 32
-        r0, g0, b0 = _rgb565(c0)
-        r1, g1, b1 = _rgb565(c1)
-        pal[0] = r0 | g0 << 8 | b0 << 16
-        pal[1] = r1 | g1 << 8 | b1 << 16
-        if c0 > c1:
-            pal[2] = (2 * r0 + r1) // 3 | ((2 * g0 + g1) // 3) << 8 | ((2 * b0 + b1) // 3) << 16
-            pal[3] = (r0 + 2 * r1) // 3 | ((g0 + 2 * g1) // 3) << 8 | ((b0 + 2 * b1) // 3) << 16
-        else:
-            pal[2] = (r0 + r1) // 2 | ((g0 + g1) // 2) << 8 | ((b0 + b1) // 2) << 16
-            pal[3] = 0
-        if words and ny == 4 and nx == 4:
-            for ty in range(4):
-                p0, p1, p2, p3 = pal[sel & 3], pal[(sel >> 2) & 3], pal[(sel >> 4) & 3], pal[(sel >> 6) & 3]
-                sel >>= 8
-                y = 4 * by + ty
-                o32[y, 3 * bx] = p0 | p1 << 24
-                o32[y, 3 * bx + 1] = p1 >> 8 | p2 << 16
-                o32[y, 3 * bx + 2] = p2 >> 16 | p3 << 8
-            continue
-        for ty in range(ny):
-            for tx in range(nx):
-                p = pal[(sel >> (2 * (4 * ty + tx))) & 3]
-                y, x = 4 * by + ty, 4 * bx + tx
-                out[y, x, 0] = p & 255
-                out[y, x, 1] = (p >> 8) & 255
-                out[y, x, 2] = p >> 16
+    bw = (w + 3) // 4
+    for by in range((h + 3) // 4):
+        ny = min(4, h - 4 * by)
+        for bx in range(bw):
+            nx = min(4, w - 4 * bx)
+            v = q[by * bw + bx]
+            c0, c1, sel = v & 0xFFFF, (v >> 16) & 0xFFFF, v >> 32
+            r0, g0, b0 = _rgb565(c0)
+            r1, g1, b1 = _rgb565(c1)
+            pal[0] = r0 | g0 << 8 | b0 << 16
+            pal[1] = r1 | g1 << 8 | b1 << 16
+            if c0 > c1:
+                pal[2] = (2 * r0 + r1) // 3 | ((2 * g0 + g1) // 3) << 8 | ((2 * b0 + b1) // 3) << 16
+                pal[3] = (r0 + 2 * r1) // 3 | ((g0 + 2 * g1) // 3) << 8 | ((b0 + 2 * b1) // 3) << 16
+            else:
+                pal[2] = (r0 + r1) // 2 | ((g0 + g1) // 2) << 8 | ((b0 + b1) // 2) << 16
+                pal[3] = 0
+            if words and ny == 4 and nx == 4:
+                for ty in range(4):
+                    p0, p1, p2, p3 = pal[sel & 3], pal[(sel >> 2) & 3], pal[(sel >> 4) & 3], pal[(sel >> 6) & 3]
+                    sel >>= 8
+                    y = 4 * by + ty
+                    o32[y, 3 * bx] = p0 | p1 << 24
+                    o32[y, 3 * bx + 1] = p1 >> 8 | p2 << 16
+                    o32[y, 3 * bx + 2] = p2 >> 16 | p3 << 8
+                continue
+            for ty in range(ny):
+                for tx in range(nx):
+                    p = pal[(sel >> (2 * (4 * ty + tx))) & 3]
+                    y, x = 4 * by + ty, 4 * bx + tx
+                    out[y, x, 0] = p & 255
+                    out[y, x, 1] = (p >> 8) & 255
+                    out[y, x, 2] = p >> 16
 
 
 @nb.njit(inline="always", cache=True, nogil=True)
