@@ -3,6 +3,7 @@ and variables set for a block (how a build points its workers at its cache's fol
 from __future__ import annotations
 
 import os
+import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -29,6 +30,41 @@ def kernels_dir() -> str:
     numba's default places. NUMBA_CACHE_DIR, when set, wins."""
     return (os.environ.get("NUMBA_CACHE_DIR") or os.environ.get(KERNELS_ENV)
             or str(default_cache_root() / "kernels"))
+
+
+def kernel_cache() -> bool:
+    """Point numba's cache at `kernels_dir` (before any decorator reads it) and say whether compiled
+    kernels can be kept there (the folder exists or can be made, and takes a file). Modules of numba
+    kernels call it before they import numba's decorators and decorate with ``cache=`` its answer:
+    where the folder cannot be written they compile in each process, since numba would otherwise
+    fall back to writing beside the package."""
+    import numba.core.config  # lazy: start-up
+
+    folder = kernels_dir()
+    numba.core.config.CACHE_DIR = folder
+    try:
+        os.makedirs(folder, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".probe-"):
+            pass
+    except OSError:
+        return False
+    return True
+
+
+def without_cache(call, namespace: dict):
+    """``call()``; if numba cannot write a kernel's cache (a full cache folder), every kernel in
+    ``namespace`` (a module's globals) compiles without one and ``call`` runs again: a slower start,
+    never a failure."""
+    try:
+        return call()
+    except OSError:
+        from numba.core.caching import NullCache  # lazy: start-up
+        from numba.core.registry import CPUDispatcher  # lazy: start-up
+
+        for obj in list(namespace.values()):
+            if isinstance(obj, CPUDispatcher):
+                obj._cache = NullCache()
+        return call()
 
 
 @contextmanager

@@ -157,3 +157,28 @@ def test_kernels_match_on_an_encoded_image(fmt):
         assert len(np.unique(anymode.block_modes(b))) > 1
     got = _kernel_image(fmt, b, w, h)
     np.testing.assert_array_equal(got, _t2d_image(fmt, b, w, h))
+
+
+def test_an_unwritable_kernel_cache_decodes_and_writes_nothing_beside_the_package(tmp_path):
+    """Where the cache's kernels folder cannot be made (here: it would sit under a file), the
+    decoders compile in the process and decode as ever; numba does not fall back to caching them
+    beside the package."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    package = Path(s3tc.__file__).parents[1]
+    before = {p for p in package.rglob("*.nb[ic]")}
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    code = ("import numpy as np\n"
+            "from bcfpipe.formats.bcn import ClassicFormat, decode_levels\n"
+            "b = np.random.default_rng(0).integers(0, 256, (4, 16), dtype=np.uint8)\n"
+            "for f, n in ((ClassicFormat.BC1, 8), (ClassicFormat.BC4, 8), (ClassicFormat.BC5, 16), (ClassicFormat.BC7, 16)):\n"
+            "    print(f, decode_levels(f, [(b[:, :n], 8, 8)])[0].shape)\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(blocker / "kernels"))
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "bc7 (8, 8, 4)" in r.stdout and "bc1 (8, 8, 3)" in r.stdout, r.stdout
+    assert {p for p in package.rglob("*.nb[ic]")} == before, "numba cached a kernel beside the package"

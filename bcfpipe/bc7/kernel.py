@@ -3,7 +3,7 @@ straight into its cropped RGBA image, one block at a time, on the calling thread
 
 Khronos Data Format 1.3 §"BPTC" (BC7), Table "Mode-dependent BPTC parameters" (`anymode.MODES`);
 the reserved mode 8 decodes to zero, as D3D11 and Mesa do. Bit for bit texture2ddecoder (the tests'
-oracle, tests/test_s3tc.py). Compiled code lives in bcfpipe's cache (`process_env.kernels_dir`).
+oracle, tests/test_s3tc.py). Compiled code lives in bcfpipe's cache (`process_env.kernel_cache`).
 """
 from __future__ import annotations
 
@@ -11,11 +11,9 @@ import numpy as np
 
 from bcfpipe.bc7.anymode import MODES
 from bcfpipe.bptc import ANCHOR2, ANCHOR3, PARTITIONS2, PARTITIONS3, WEIGHTS
-from bcfpipe.process_env import kernels_dir
+from bcfpipe.process_env import kernel_cache, without_cache
 
-import numba.core.config  # noqa: E402
-
-numba.core.config.CACHE_DIR = kernels_dir()  # read when the decorators below make their caches
+CACHE = kernel_cache()  # compiled kernels live in bcfpipe's cache, or nowhere
 import numba as nb  # noqa: E402
 
 __all__ = ["bc7_image", "block_words"]
@@ -49,7 +47,7 @@ for _bits, _w in WEIGHTS.items():
     _WEIGHTS[_bits, :len(_w)] = _w
 
 
-@nb.njit(inline="always", cache=True, nogil=True)
+@nb.njit(inline="always", cache=CACHE, nogil=True)
 def _get(lo, hi, pos, n):
     """The ``n`` (< 64) bits from bit ``pos`` of the 128-bit block ``hi:lo``, bit 0 first."""
     if pos >= 64:
@@ -61,13 +59,13 @@ def _get(lo, hi, pos, n):
     return v & ~(np.int64(-1) << n)
 
 
-@nb.njit(inline="always", cache=True, nogil=True)
+@nb.njit(inline="always", cache=CACHE, nogil=True)
 def _widen(v, bits):
     """Khronos §"BPTC": an endpoint of ``bits`` bits widened to 8 by repeating its top bits."""
     return (v << (8 - bits)) | (v >> (2 * bits - 8))
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=CACHE, nogil=True)
 def _bc7(q, w, h, o32):
     """Khronos §"BPTC" (BC7): the mode from the lowest set bit of byte 0, then its fields (Table
     "Mode-dependent BPTC parameters"): partition, rotation, index selection, colour and alpha
@@ -175,5 +173,6 @@ def bc7_image(blocks: np.ndarray, width: int, height: int) -> np.ndarray:
     """(n, 16) BC7 blocks of any mode -> (height, width, 4) uint8 RGBA."""
     width, height = int(width), int(height)
     o32 = np.empty((height, width), np.uint32)
-    _bc7(block_words(blocks, 16, width, height), width, height, o32)
+    q = block_words(blocks, 16, width, height)
+    without_cache(lambda: _bc7(q, width, height, o32), globals())
     return o32.astype("<u4", copy=False).view(np.uint8).reshape(height, width, 4)

@@ -6,7 +6,7 @@ Khronos Data Format 1.3 §"S3TC" (BC1, "BC1 with no alpha": its transparent texe
 RGB) and §"RGTC" (BC4 unsigned; BC5 as two BC4 blocks). Interpolated values take the integer form
 quicktex and texture2ddecoder (the tests' oracles, tests/test_s3tc.py) both use,
 floor((w0 e0 + w1 e1) / n), on 8-bit endpoints. Compiled code lives in bcfpipe's cache
-(`process_env.kernels_dir`).
+(`process_env.kernel_cache`).
 """
 from __future__ import annotations
 
@@ -15,24 +15,22 @@ import sys
 import numpy as np
 
 from bcfpipe.bc7.kernel import block_words
-from bcfpipe.process_env import kernels_dir
+from bcfpipe.process_env import kernel_cache, without_cache
 
-import numba.core.config  # noqa: E402
-
-numba.core.config.CACHE_DIR = kernels_dir()  # read when the decorators below make their caches
+CACHE = kernel_cache()  # compiled kernels live in bcfpipe's cache, or nowhere
 import numba as nb  # noqa: E402
 
 __all__ = ["bc1_image", "bc4_image", "bc5_image"]
 
 
-@nb.njit(inline="always", cache=True, nogil=True)
+@nb.njit(inline="always", cache=CACHE, nogil=True)
 def _rgb565(c):
     """Khronos §"S3TC": a 5:6:5 colour widened to 8-bit R, G, B by bit replication."""
     r, g, b = (c >> 11) & 31, (c >> 5) & 63, c & 31
     return (r << 3) | (r >> 2), (g << 2) | (g >> 4), (b << 3) | (b >> 2)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=CACHE, nogil=True)
 def _bc1(q, w, h, out, o32, words):
     """Khronos §"S3TC", BC1: c0 > c1 (as 16-bit integers) four colours, floor((2 e0 + e1) / 3) and
     floor((e0 + 2 e1) / 3) between; else three, floor((e0 + e1) / 2) and black. With ``words``
@@ -73,7 +71,7 @@ def _bc1(q, w, h, out, o32, words):
                     out[y, x, 2] = p >> 16
 
 
-@nb.njit(inline="always", cache=True, nogil=True)
+@nb.njit(inline="always", cache=CACHE, nogil=True)
 def _bc4_block(v, pal):
     """Khronos §"RGTC", BC4 unsigned: the palette of block ``v`` (its 8 bytes, little-endian) into
     ``pal``: a0 > a1 eight values, floor(((7 - j) a0 + j a1) / 7) between; else six,
@@ -90,7 +88,7 @@ def _bc4_block(v, pal):
     return (v >> 16) & 0xFFFFFFFFFFFF
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=CACHE, nogil=True)
 def _bc4(q, w, h, out, o32, words):
     """Khronos §"RGTC", BC4 unsigned. With ``words``, a whole block's row of 4 texels is one 32-bit
     word of ``o32``."""
@@ -112,7 +110,7 @@ def _bc4(q, w, h, out, o32, words):
                     out[4 * by + ty, 4 * bx + tx, 0] = pal[(sel >> (3 * (4 * ty + tx))) & 7]
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=CACHE, nogil=True)
 def _bc5(q, w, h, out, o32, words):
     """Khronos §"RGTC", BC5 unsigned: a BC4 block for red, then one for green. With ``words``, a
     whole block's row of 4 texels is two 32-bit words of ``o32``."""
@@ -154,7 +152,7 @@ def _image(kernel, blocks: np.ndarray, block_bytes: int, channels: int, width: i
     width, height = int(width), int(height)
     q = block_words(blocks, block_bytes, width, height)
     out = np.empty((height, width, channels), np.uint8)
-    kernel(q if block_bytes == 16 else q[:, 0], width, height, out, *_words(out))
+    without_cache(lambda: kernel(q if block_bytes == 16 else q[:, 0], width, height, out, *_words(out)), globals())
     return out
 
 

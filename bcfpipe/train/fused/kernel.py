@@ -24,14 +24,12 @@ import numpy as np
 
 from bcfpipe.texset.reference import KEYS_A
 from bcfpipe.train.fused.common import (BLOCK_BC6H, BLOCK_BC7, FIXED, FREE_BC6H, FREE_BC7, TRAINED, WRAP_MIRROR,
-                                        WRAP_REPEAT, kernels_dir)
+                                        WRAP_REPEAT)
+from bcfpipe.process_env import kernel_cache, without_cache
 
 
-import numba.core.config  # noqa: E402
-
-numba.core.config.CACHE_DIR = kernels_dir()  # read when the decorators below make their caches
+CACHE = kernel_cache()  # compiled kernels live in bcfpipe's cache, or nowhere
 import numba as nb  # noqa: E402
-from numba.core.caching import NullCache  # noqa: E402
 
 
 _F32 = np.float32
@@ -40,7 +38,7 @@ _SNAP7 = np.float32(1e-4 * 15)  # bc7.emulate
 _POW2 = (2.0 ** np.arange(-64, 64)).astype(np.float32)  # _POW2[64 + e] = 2^e, exact: no pow() per texel
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _rint(v):
     """Round half to even (torch.round) of a float32 with |v| < 2^22."""
     r = np.floor(v)
@@ -50,7 +48,7 @@ def _rint(v):
     return _F32(r)
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _half(f):
     """Value of the IEEE half whose bits are the integer-valued float32 ``f`` (0 <= f <= 31743)."""
     b = int(f)
@@ -61,7 +59,7 @@ def _half(f):
     return _F32(1024 + m) * _POW2[64 + e - 25]
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _unquantize(e, lo, hi, quantized, table, slope):
     """(bc6h.emulate unquantize, d/de) of a continuous endpoint."""
     pos = min(max(e, lo), hi)
@@ -74,7 +72,7 @@ def _unquantize(e, lo, hi, quantized, table, slope):
     return table[k] + (pos - _F32(k0)) * slope[k], slope[k] * inside
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _weight3(x, quantized, w3, w3s):
     """(bc6h.emulate index_weight, d/dx) of a continuous index."""
     t = min(max(x, _F32(0.0)), _F32(1.0))
@@ -90,7 +88,7 @@ def _weight3(x, quantized, w3, w3s):
     return w3[k] + (t - _F32(k0)) * w3s[k], w3s[k] * inside * _F32(7.0)
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _weight4(x, quantized):
     """(bc7.emulate weight, d/dx without the clamp's mask, clamp mask) of a continuous index."""
     xc = min(max(x, _F32(0.0)), _F32(1.0))
@@ -108,7 +106,7 @@ def _weight4(x, quantized):
     return _F32(lo) + (t - _F32(k)) * step, step * _F32(15.0), inside
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _q7(e, j):
     """bc7.emulate.quantize_endpoints of clamped endpoint ``e[j]`` (4 channels): both p-bit choices
     into rows 2 and 3 of ``e``; returns the one chosen."""
@@ -125,7 +123,7 @@ def _q7(e, j):
     return 1 if err1 < err0 else 0
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _texel(fmt, quantized, signed, P, X, M, po, xo, mo, plane, blk, pos, C, lo, hi, utab, uslope, w3, w3s, scratch, val, t, deriv, i, lv):
     """Decode one texel into ``val`` (C,); ``deriv`` receives what its backward needs.
 
@@ -204,7 +202,7 @@ def _texel(fmt, quantized, signed, P, X, M, po, xo, mo, plane, blk, pos, C, lo, 
         deriv[i, lv, t, 13] = dw if quantized else dw * inside
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _texel_backward(fmt, signed, C, po, xo, plane, blk, pos, g, deriv, i, lv, t, gP, gX, q):
     """Add the gradient ``g`` (C,) of one decoded texel into row ``q`` of ``gP`` and ``gX`` (laid out
     as ``P`` and ``X``)."""
@@ -233,7 +231,7 @@ def _texel_backward(fmt, signed, C, po, xo, plane, blk, pos, g, deriv, i, lv, t,
         gX[q, xo + blk * 16 + pos] += acc * s * deriv[i, lv, t, 13]
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _dense_backward(dout, inp, w, gw, gb, q, din):
     """Back through ``out = w @ inp + b``: adds into row ``q`` of ``gw`` and ``gb``, sets ``din``."""
     for k in range(din.shape[0]):
@@ -246,7 +244,7 @@ def _dense_backward(dout, inp, w, gw, gb, q, din):
             din[k] += d * w[o, k]
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _address(i, n, mode):
     """Texel i of n along an axis for its mode (common.py: repeat, clamp, mirror; sampling.address)."""
     if mode == WRAP_REPEAT:
@@ -257,7 +255,7 @@ def _address(i, n, mode):
     return min(max(i, 0), n - 1)
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _reduce(x, mode):
     """One coordinate range-reduced for its axis's mode, in float32 (sampling.reduce_coord)."""
     if mode == WRAP_REPEAT:
@@ -267,7 +265,7 @@ def _reduce(x, mode):
     return min(max(x, _F32(-1.0)), _F32(2.0))
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _features(fmt, quantized, signed, wrap, n, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope,
               w3, w3s, feats, val, deriv, blks, poss, fxy, scratch, lvl):
     """Sample n's features into ``feats``; its taps, their weights and their decode derivatives
@@ -327,14 +325,14 @@ def _features(fmt, quantized, signed, wrap, n, uv, P, X, M, slots, blend, C, plo
                 f = f + (lvl[1, c] - f) * blend[i]
             feats[C * i + c] = f
 
-@nb.njit(cache=True)
+@nb.njit(cache=CACHE)
 def scratch_size(n_in, hidden, n_out, C):
     """Floats of scratch one chunk needs (see :func:`_split`); n_in // C layers."""
     L = n_in // C
     return 2 * n_in + 3 * hidden + n_out + 4 * C + L * 2 * 4 * 16 + L * 2 * 2 + 16 + 2 * C + 2 * C + n_in
 
 
-@nb.njit(inline="always", cache=True, _nrt=False)
+@nb.njit(inline="always", cache=CACHE, _nrt=False)
 def _split(sf, n_in, hidden, n_out, C):
     """Views of a chunk's float32 scratch: feats, pre, hid, draw, val (4, C), deriv (L, 2, 4, 16),
     fxy (L, 2, 2), scratch (4, 4), lvl (2, C), g, gl, dfe, for L = n_in // C layers."""
@@ -366,7 +364,7 @@ def _split(sf, n_in, hidden, n_out, C):
     return feats, pre, hid, draw, val, deriv, fxy, scratch, lvl, g, gl, dfe
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=CACHE, _nrt=False)
 def _chunk(fmt, quantized, signed, wrap, q, a, b, uv, target, weight, P, X, M, slots, blend, C,
            plo, phi, utab, uslope, w3, w3s, w1, w1t, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1, gw2,
            gb2, sf, si):
@@ -437,7 +435,7 @@ def _chunk(fmt, quantized, signed, wrap, q, a, b, uv, target, weight, P, X, M, s
     return sse
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=CACHE)
 def _step_parallel(fmt, quantized, signed, wrap, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
                    plo, phi, utab, uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1,
                    gw2, gb2):
@@ -455,7 +453,7 @@ def _step_parallel(fmt, quantized, signed, wrap, n_chunks, uv, target, weight, P
     return sse
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=CACHE)
 def _step_serial(fmt, quantized, signed, wrap, n_chunks, uv, target, weight, P, X, M, slots, blend, C,
                  plo, phi, utab, uslope, w3, w3s, w1, b1, w2, b2, out_scale, out_bias, loss_scale, gP, gX, gw1, gb1,
                  gw2, gb2):
@@ -471,13 +469,7 @@ def _step_serial(fmt, quantized, signed, wrap, n_chunks, uv, target, weight, P, 
 def uncached(call):
     """Run ``call``; if numba cannot write its cache (a full or read-only cache folder), compile
     every kernel here without caching and run it again: a slower start, never a failed training."""
-    try:
-        return call()
-    except OSError:
-        for obj in list(globals().values()):
-            if isinstance(obj, nb.core.registry.CPUDispatcher):
-                obj._cache = NullCache()
-        return call()
+    return without_cache(call, globals())
 
 
 def step(fmt, quantized, signed, wrap, n_chunks, *args):
@@ -488,7 +480,7 @@ def step(fmt, quantized, signed, wrap, n_chunks, *args):
     return uncached(lambda: run(fmt, quantized, signed, wrap, n_chunks, *args))
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=CACHE, _nrt=False)
 def _features_all(fmt, quantized, signed, wrap, uv, P, X, M, slots, blend, C, plo, phi, utab, uslope, w3, w3s,
                   out, sf, si):
     feats, pre, hid, draw, val, deriv, fxy, scratch, lvl, g, gl, dfe = _split(sf, out.shape[1], 1, 1, C)
@@ -512,7 +504,7 @@ def features(fmt, quantized, signed, wrap, uv, P, X, M, slots, blend, C, plo, ph
 
 # ---- the training targets (targets.py): the reference's bicubic lookup
 
-@nb.njit(inline="always", cache=True)
+@nb.njit(inline="always", cache=CACHE)
 def _keys(f, a, w):
     """keys_weights: cubic-convolution weights of the taps at -1, 0, 1, 2 for fraction ``f`` into ``w``."""
     f2 = f * f
@@ -523,7 +515,7 @@ def _keys(f, a, w):
     w[3] = a * (f2 - f3)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=CACHE)
 def bicubic_into(tex, uv, wrap, t, out):
     """out = lerp(out, bicubic(tex, uv), t) when ``t`` >= 0, else out = bicubic(tex, uv)."""
     c, h, w = tex.shape
