@@ -1,5 +1,6 @@
-"""What bcfpipe reads from and sets in the process environment: the cache root (``BCFPIPE_CACHE``)
-and variables set for a block (how a build points its workers at its cache's folders)."""
+"""What bcfpipe reads from and sets in the process environment: the cache root (``BCFPIPE_CACHE``),
+the folder compiled kernels live in (`kernels_dir`, `kernel_cache`), and variables set for a block
+(how a build points its workers at its cache's folders)."""
 from __future__ import annotations
 
 import os

@@ -1,7 +1,8 @@
 """bcfpipe's one decoder of each BC format it ships besides BC6H (BC1/BC4/BC5 in
 `bcfpipe.formats.s3tc`, BC7 in `bcfpipe.bc7.kernel`; issue 59) against two independent decoders,
-quicktex (BC1/BC4/BC5) and texture2ddecoder (all four), texel for texel: random blocks of every format and BC7 mode, odd level sizes and an image encoded
-by bcfpipe's encoders; and `decode_levels`, cropped and in channels as texture2ddecoder."""
+quicktex (BC1/BC4/BC5) and texture2ddecoder (all four), texel for texel: random blocks of every
+format and BC7 mode, odd level sizes and an image encoded by bcfpipe's encoders; `decode_levels`,
+cropped and in channels as texture2ddecoder; and the compiled decoders with an unwritable cache."""
 from __future__ import annotations
 
 import numpy as np
@@ -175,7 +176,8 @@ def test_an_unwritable_kernel_cache_decodes_and_writes_nothing_beside_the_packag
     code = ("import numpy as np\n"
             "from bcfpipe.formats.bcn import ClassicFormat, decode_levels\n"
             "b = np.random.default_rng(0).integers(0, 256, (4, 16), dtype=np.uint8)\n"
-            "for f, n in ((ClassicFormat.BC1, 8), (ClassicFormat.BC4, 8), (ClassicFormat.BC5, 16), (ClassicFormat.BC7, 16)):\n"
+            "for f, n in ((ClassicFormat.BC1, 8), (ClassicFormat.BC4, 8), (ClassicFormat.BC5, 16),\n"
+            "             (ClassicFormat.BC7, 16)):\n"
             "    print(f, decode_levels(f, [(b[:, :n], 8, 8)])[0].shape)\n")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(blocker / "kernels"))
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)

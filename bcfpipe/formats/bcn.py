@@ -1,10 +1,11 @@
 """The classic BC formats a layout ships beside the feature textures (issue 31): BC1, BC4 and BC5
 as BC@R has them, BC6H (UF16) for an HDR colour group, and BC7 for groups repacked at equal bytes;
 their DXGI codes, block sizes, and bcfpipe's one decoder of each (`decode_levels`: BC1/BC4/BC5 in
-`bcfpipe.formats.s3tc`, BC7 in bcfpipe.bc7, BC6H in bcfpipe.bc6h); quicktex and texture2ddecoder are the
-tests' oracles, and `bcfpipe verify` holds what ships to OpenImageIO and texture2ddecoder. BC1/BC4/BC5/BC7 texels
-are UNORM in [0, 1], BC1 in four-colour mode as bcfpipe encodes it; BC6H texels are unsigned half
-floats, the source's linear values as they are (what a UsdUVTexture reads from a float texture).
+`bcfpipe.formats.s3tc`, BC7 in bcfpipe.bc7, BC6H in bcfpipe.bc6h); quicktex and texture2ddecoder
+are the tests' oracles, and `bcfpipe verify` holds what ships to OpenImageIO and texture2ddecoder.
+BC1/BC4/BC5/BC7 texels are UNORM in [0, 1], BC1 in four-colour mode as bcfpipe encodes it; BC6H
+texels are unsigned half floats, the source's linear values as they are (what a UsdUVTexture reads
+from a float texture).
 """
 from __future__ import annotations
 
