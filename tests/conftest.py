@@ -14,7 +14,7 @@ KERNELS = "BCFPIPE_TEST_KERNELS"  # the session's compiled kernels, shared by it
 
 def pytest_configure(config) -> None:
     """One compiled-kernel cache for the whole session (issue 59): numba's and the fused C++
-    kernel's (`bcfpipe.train.fused.common.kernels_dir`: NUMBA_CACHE_DIR wins over a build's
+    kernel's (`bcfpipe.process_env.kernels_dir`: NUMBA_CACHE_DIR wins over a build's
     --cache), made once by the controller before its xdist workers start and inherited by every
     CLI subprocess; without it each build into a fresh --cache compiled them again. Removed at
     the end of the session."""

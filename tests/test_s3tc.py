@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from bcfpipe.bc7 import anymode
-from bcfpipe.bc7.kernel import bc7_image
 from bcfpipe.formats import s3tc
-from bcfpipe.formats.bcn import ClassicFormat, decode_levels
+from bcfpipe.formats.bcn import ClassicFormat, decode_levels, unorm_decoder
 
 quicktex = pytest.importorskip("quicktex")
 t2d = pytest.importorskip("texture2ddecoder")
@@ -20,8 +19,6 @@ SIDE = 64 * 4  # a 256² image of 64x64 random blocks: every mode and index, bot
 # texture2ddecoder's decoder of each format and the planes of its BGRA output that hold the format's channels
 T2D = {ClassicFormat.BC1: ("decode_bc1", [2, 1, 0]), ClassicFormat.BC4: ("decode_bc4", [2]),
        ClassicFormat.BC5: ("decode_bc5", [2, 1]), ClassicFormat.BC7: ("decode_bc7", [2, 1, 0, 3])}
-IMAGE = {ClassicFormat.BC1: s3tc.bc1_image, ClassicFormat.BC4: s3tc.bc4_image, ClassicFormat.BC5: s3tc.bc5_image,
-         ClassicFormat.BC7: bc7_image}
 FORMATS = [(ClassicFormat.BC1, 8), (ClassicFormat.BC4, 8), (ClassicFormat.BC5, 16), (ClassicFormat.BC7, 16)]
 
 
@@ -100,7 +97,7 @@ def _random_blocks(fmt: ClassicFormat, n_bytes: int, n: int, seed: int) -> np.nd
 
 
 def _kernel_image(fmt: ClassicFormat, blocks: np.ndarray, w: int, h: int) -> np.ndarray:
-    img = IMAGE[fmt](blocks, w, h)
+    img = unorm_decoder(fmt)(blocks, w, h)
     assert img.dtype == np.uint8 and img.shape == (h, w, len(T2D[fmt][1]))
     return img
 

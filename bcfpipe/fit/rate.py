@@ -42,6 +42,8 @@ __all__ = ["Setting", "Attempt", "TargetOutcome", "Step", "candidates", "predict
            "fit_to_target", "anchors_from_bench", "MARGIN_DB"]
 
 MARGIN_DB = 0.5
+
+
 @dataclass(frozen=True)
 class Setting:
     profile: str

@@ -43,9 +43,15 @@ def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, in
         from bcfpipe.bc6h import decode  # lazy: start-up
 
         return [decode(blocks, w, h, signed=False).astype(np.float32) for blocks, w, h in levels]
+    image = unorm_decoder(fmt)
+    return [np.divide(image(blocks, w, h), np.float32(255.0), dtype=np.float32) for blocks, w, h in levels]
+
+
+def unorm_decoder(fmt: ClassicFormat):
+    """bcfpipe's decoder of a UNORM format (BC1, BC4, BC5, BC7): (blocks, width, height) -> the
+    cropped (height, width, channels) uint8 image."""
     from bcfpipe.bc7.kernel import bc7_image  # lazy: start-up (numba)
     from bcfpipe.formats import s3tc  # lazy: start-up (numba)
 
-    image = {ClassicFormat.BC1: s3tc.bc1_image, ClassicFormat.BC4: s3tc.bc4_image, ClassicFormat.BC5: s3tc.bc5_image,
-             ClassicFormat.BC7: bc7_image}[fmt]
-    return [np.divide(image(blocks, w, h), np.float32(255.0), dtype=np.float32) for blocks, w, h in levels]
+    return {ClassicFormat.BC1: s3tc.bc1_image, ClassicFormat.BC4: s3tc.bc4_image, ClassicFormat.BC5: s3tc.bc5_image,
+            ClassicFormat.BC7: bc7_image}[ClassicFormat(fmt)]

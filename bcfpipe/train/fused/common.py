@@ -9,7 +9,7 @@ import uuid
 from pathlib import Path
 
 from bcfpipe.formats.addressing import wrap_codes
-from bcfpipe.process_env import KERNELS_ENV, environment, kernels_dir  # noqa: F401 (kernels_dir: the fused kernels' import)
+from bcfpipe.process_env import KERNELS_ENV, environment, kernels_dir
 
 FREE_BC6H, FREE_BC7, BLOCK_BC6H, BLOCK_BC7 = 0, 1, 2, 3  # free texels (warm-up) or blocks, per format
 # A slot's first field: not sampled, a trained level, or a fixed one: a level written as it was

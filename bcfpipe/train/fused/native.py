@@ -25,7 +25,7 @@ import numpy as np
 
 from bcfpipe.formats.atomic import write_atomically
 from bcfpipe.pooltrace import trace_pool
-from bcfpipe.train.fused.common import kernels_dir
+from bcfpipe.process_env import kernels_dir
 
 HERE = Path(__file__).parent
 SOURCES = (HERE / "step.cpp", HERE / "targets.cpp", HERE / "adam.cpp", HERE.parent.parent / "bc6h" / "quick.cpp")
