@@ -160,15 +160,28 @@ def test_the_oracle_holds_predictions_at_the_mips_finer_than_t0(detail):
 
 
 @pytest.mark.parametrize("wrap", ["repeat", "clamp", "mirror", ("repeat", "clamp")])
-def test_magnify_at_some_texels_is_magnify_there(wrap):
-    """The oracle's sampled path reads `magnify_at` at the texels it draws: the same values as the
-    whole magnified mip at those texels, at the edges too."""
+@pytest.mark.parametrize("drawn", [False, True])
+def test_the_oracle_kernel_measures_the_magnified_mip_as_numpy_does(wrap, drawn):
+    """`oracle_kernel.magnified_sse` against numpy: the whole mip magnified (`classic.magnify`), read at
+    the texels drawn (the edges among them) or at every one, those a mask keeps, an HDR channel in its
+    log domain (`encoding.encode`), the squared errors summed in float64."""
+    from bcfpipe.layout.oracle_kernel import magnified_sse
+    from bcfpipe.texset import encoding
+
     rng = np.random.default_rng(3)
-    img = rng.random((16, 32, 3), dtype=np.float32)
-    whole = L.magnify(img, 64, 128, wrap)
-    ys, xs = rng.integers(0, 64, 500), rng.integers(0, 128, 500)
-    ys[:2], xs[:2] = (0, 63), (127, 0)
-    assert np.allclose(L.magnify_at(img, 64, 128, wrap, ys, xs), whole[ys, xs], atol=1e-6)
+    src = rng.random((16, 32, 3), dtype=np.float32)
+    truth = rng.random((64, 128, 3), dtype=np.float32)
+    mask = rng.random((64, 128)) < 0.7
+    gains = np.array([0.0, 3.5, 0.0], np.float32)
+    picks = np.concatenate([[0, 63 * 128 + 127, 127, 63 * 128], rng.choice(64 * 128, 500, replace=False)]) if drawn else None
+    sse, n = magnified_sse(src, truth, picks, mask, gains, wrap)
+    at = np.arange(64 * 128) if picks is None else picks
+    at = at[mask.reshape(-1)[at]]
+    up = L.magnify(src, 64, 128, wrap).reshape(-1, 3)[at]
+    ref = truth.reshape(-1, 3)[at]
+    up[:, 1], ref[:, 1] = encoding.encode(up[:, 1], 3.5), encoding.encode(ref[:, 1], 3.5)
+    assert n == len(at)
+    assert np.allclose(sse, ((up.astype(np.float64) - ref) ** 2).sum(0), rtol=1e-5)
 
 
 def test_the_sampled_oracle_is_within_a_twentieth_of_a_db_of_every_texels():

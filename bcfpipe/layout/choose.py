@@ -27,7 +27,7 @@ The all-classic layout (BC@R itself) always qualifies, so the result is never wo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol, Sequence
+from typing import Any, Literal, Protocol, Sequence, SupportsInt
 
 import numpy as np
 
@@ -62,7 +62,8 @@ class Candidate:
     basis: Basis
     use: tuple[int, ...] = field(repr=False, default=())  # the mips the all-mip PSNR averages
     part: Any = None  # its kind's own record (`bcfpipe.layout.kinds`: a repack's, a neural part's, a split's)
-    disk_bytes: int | None = field(compare=False, default=None)  # its files zstd-compressed (measured ones only)
+    # its files zstd-compressed (measured ones only); an int, or a sum read when to_json writes it (`classic.DiskBytes`)
+    disk_bytes: SupportsInt | None = field(compare=False, default=None)
     kind: "CandidateKind | None" = field(repr=False, compare=False, default=None)  # what it is (`bcfpipe.layout.kinds`); not in to_json
 
     @property
@@ -86,7 +87,8 @@ class Candidate:
         """Its figures; with ``bc`` (BC@R) and ``quality`` (the BC7 quality set) its per-mip margins
         against each."""
         d = {"layout": self.label, "classic": list(self.classic), "profile": self.profile,
-             "size_bytes": self.size_bytes, "disk_bytes": self.disk_bytes, "psnr": round(self.psnr, 3),
+             "size_bytes": self.size_bytes,
+             "disk_bytes": None if self.disk_bytes is None else int(self.disk_bytes), "psnr": round(self.psnr, 3),
              "psnr_per_mip": [round(v, 3) for v in self.psnr_per_mip], "basis": self.basis,
              **(self.kind.json(self) if self.kind is not None else {"t0_layers": None})}
         if bc is not None:

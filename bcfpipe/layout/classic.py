@@ -35,10 +35,7 @@ from bcfpipe.texset import baselines as B
 from bcfpipe.texset import encoding
 from bcfpipe.texset.baselines import NORMAL_SLOPE, USD, pack_texture_set
 from bcfpipe.texset.metrics import mse_per_mip
-from bcfpipe.texset.normals import slope_normal
-from bcfpipe.texset.normals import rebuild_z
-from bcfpipe.texset.normals import slope_scale
-from bcfpipe.texset.normals import angular_stats, rebuild_z
+from bcfpipe.texset.normals import angular_stats, rebuild_z, slope_normal, slope_scale
 from bcfpipe.texset.parallel import encode_workers
 from bcfpipe.texset.texture_set import TextureSet
 
@@ -259,6 +256,19 @@ def disk_bytes(g: EncodedGroup, keep: int | None = None) -> int:
     return g.disk
 
 
+@dataclass(frozen=True, eq=False)
+class DiskBytes:
+    """``groups``' files on disk, summed when first read (``int()``, `disk_bytes`): the sizes measured
+    aside (`disk_bytes_aside`) are waited for where layout.json is written, after the export and the
+    final measure, whose single-threaded parts leave the zstd thread a core (the brick at draft
+    waited 1 s for it as soon as its repack was encoded)."""
+
+    groups: tuple[EncodedGroup, ...]
+
+    def __int__(self) -> int:
+        return sum(disk_bytes(g) for g in self.groups)
+
+
 def _vector(g: Group) -> bool:
     """A group one vector input reads through a UsdUVTexture's rgb: a normal (BC5) or a colour (BC1
     of one semantic; a packed ARM-style BC1 holds scalars, each its own input)."""
@@ -345,19 +355,6 @@ def magnify(img: np.ndarray, height: int, width: int, wrap) -> np.ndarray:
         rows = img[ya[y]] * (1 - fy[y])[:, None, None] + img[yb[y]] * fy[y][:, None, None]
         out[y] = rows[:, xa] * (1 - fx)[None, :, None] + rows[:, xb] * fx[None, :, None]
     return out
-
-
-def magnify_at(img: np.ndarray, height: int, width: int, wrap, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
-    """`magnify`'s texels at (``ys``, ``xs``) of the (``height``, ``width``) target only, (n, ...)."""
-    h, w = img.shape[:2]
-    wrap_s, wrap_t = wrap_axes(wrap)
-    ya, yb, fy = _taps(ys, height, h, wrap_t)
-    xa, xb, fx = _taps(xs, width, w, wrap_s)
-    fy, fx = (f.reshape((-1,) + (1,) * (img.ndim - 2)) for f in (fy, fx))
-    flat = np.ascontiguousarray(img).reshape((h * w,) + img.shape[2:])
-    ya, yb = ya * w, yb * w
-    top = np.take(flat, ya + xa, 0) * (1 - fx) + np.take(flat, ya + xb, 0) * fx
-    return top * (1 - fy) + (np.take(flat, yb + xa, 0) * (1 - fx) + np.take(flat, yb + xb, 0) * fx) * fy
 
 
 def channel_errors(ts: TextureSet, groups: Sequence[EncodedGroup], ref_mips: Sequence[np.ndarray],

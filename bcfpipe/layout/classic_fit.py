@@ -18,8 +18,8 @@ import numpy as np
 from bcfpipe.config import DEFAULT_ENCODE, EncodePreset
 from bcfpipe.formats.display import bytes_text
 from bcfpipe.layout import choose as C
-from bcfpipe.layout.classic import (MAX_REPACK_SIDE, EncodedGroup, Group, Repack, bc7_quality_set, channel_errors,
-                                    disk_bytes, disk_bytes_aside, encode_group, planned, repacks)
+from bcfpipe.layout.classic import (MAX_REPACK_SIDE, DiskBytes, EncodedGroup, Group, Repack, bc7_quality_set,
+                                    channel_errors, disk_bytes_aside, encode_group, planned, repacks)
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.estimate import estimate_errors
 from bcfpipe.texset.chain import Reference
@@ -87,7 +87,7 @@ class ClassicWork:
 
 
 def _candidate(names: Sequence[str], size: int, e: np.ndarray, measured: bool, use, kind, repack: str = "",
-               disk: int | None = None) -> C.Candidate:
+               disk: DiskBytes | None = None) -> C.Candidate:
     return C.Candidate(tuple(names), None, size, C.combine(None, e, range(e.shape[1])),
                        "measured" if measured else "estimated", use, kind.Part(repack) if repack else None,
                        disk_bytes=disk, kind=kind)
@@ -134,7 +134,7 @@ def refresh(cf: ClassicFit) -> ClassicFit:
     K = cf.kinds
     names = [g.group.name for g in cf.groups]
     bc = _candidate(names, sum(g.size_bytes for g in cf.groups), cf.e_bc, cf.measured, cf.use, K.bc,
-                    disk=sum(disk_bytes(g) for g in cf.groups) if cf.measured else None)
+                    disk=DiskBytes(tuple(cf.groups)) if cf.measured else None)
     packed, quality = [], None
     for label, (rp, enc) in cf.repacked.items():
         kept = [g for g in cf.groups if g.group.name not in rp.replaces]
@@ -143,7 +143,7 @@ def refresh(cf: ClassicFit) -> ClassicFit:
         e[:, cols] = cf.rp_errors[label][:, cols]
         done = all(g.encoded for g in kept + enc)
         size = sum(g.size_bytes for g in kept) + sum(g.size_bytes for g in enc)
-        disk = sum(disk_bytes(g) for g in kept + enc) if done else None
+        disk = DiskBytes(tuple(kept + enc)) if done else None
         if label == QUALITY_LABEL:
             quality = _candidate(names, size, e, done, cf.use, K.quality, label, disk)
             continue

@@ -174,12 +174,12 @@ def decision_json(fit: LayoutFit) -> dict:
     return d
 
 
-def write_decision(out_dir: str | os.PathLike, fit: LayoutFit, normal_angle: dict | None = None) -> Path:
+def write_decision(out_dir: str | os.PathLike, fit: LayoutFit, normal_angle: dict | None = None) -> dict:
     """layout.json beside material.json: the candidates, the choice and why (informative); with
-    ``normal_angle``, the shipped normal's angular error as it is read (`layout.material.normal_angles`)."""
-    path = Path(out_dir) / "layout.json"
+    ``normal_angle``, the shipped normal's angular error as it is read (`layout.material.normal_angles`).
+    Returns what it wrote."""
     d = decision_json(fit)
     if normal_angle is not None:
         d["normal_angular_error"] = normal_angle
-    atomic_write(path, (json.dumps(d, indent=2) + "\n").encode())
-    return path
+    atomic_write(Path(out_dir) / "layout.json", (json.dumps(d, indent=2) + "\n").encode())
+    return d

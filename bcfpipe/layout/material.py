@@ -13,7 +13,7 @@ from bcfpipe.export.material import MaterialResult, evaluate_exported, exported_
 from bcfpipe.formats import dds, material as mf
 from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
 from bcfpipe.layout.classic import magnify
-from bcfpipe.layout.export import decision_json, export_layout, write_decision
+from bcfpipe.layout.export import export_layout, write_decision
 from bcfpipe.layout.decide import decide_layout
 from bcfpipe.layout.predict import bc_resolution
 from bcfpipe.texset.chain import Reference
@@ -42,18 +42,15 @@ def layout_material(ts: TextureSet, out_dir: str | Path, options: TrainingOption
         export_layout(fit, ts, out, wrap)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    write_decision(out, fit)
     t0 = time.perf_counter()
     ev = evaluate_exported(out, reference, ts.channels, progress, start=start)
     metrics, per_channel, dec = ev.metrics, ev.per_channel, ev.decoded
     del ev
     masks = reference.masks
-    decision = decision_json(fit)
     angle = normal_angles(out, ts, reference.mips[0], dec[0], masks[0] if masks else None)
     del dec
-    if angle is not None:  # beside the PSNR: what a renderer shades with (issue 57)
-        decision["normal_angular_error"] = angle
-        write_decision(out, fit, angle)
+    # layout.json last: its sizes on disk are measured aside while the export and the measure run
+    decision = write_decision(out, fit, angle)  # with the shipped normal's angle, beside the PSNR (issue 57)
     ch, n = fit.decision.chosen, fit.neural
     res = tuple(n.resolutions) if n else ()
     return MaterialResult(out, ch.profile or "classic", res,

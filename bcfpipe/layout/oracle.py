@@ -10,19 +10,18 @@ measured 32.4 dB where the profile step predicted 39.6), or a smaller profile th
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from bcfpipe.layout.classic import magnify, magnify_at
 from bcfpipe.texset.chain import Reference
-from bcfpipe.texset.metrics import mse_per_channel
+from bcfpipe.texset import encoding
 from bcfpipe.texset.texture_set import Channel
 
 ORACLE_MARGIN_DB = 1.0
 SAMPLED_TEXELS = 1 << 18  # a finer mip of more texels is measured on a quarter of them
-VALUES_AT_ONCE = 1 << 24
 
 
 @dataclass(frozen=True)
@@ -40,31 +39,30 @@ def magnified_errors(reference: Reference, t0: int, channels: Sequence[Channel],
     """(mips, channels) errors of the reference's mip of ``t0``'s size magnified to every finer mip
     (0 at the mips no finer than it); a mip of more than ``sampled_above`` texels on one texel drawn in
     each 2×2 cell (`export.material.sampled_texels`): on the teapot and the brick within 0.07 dB of every
-    texel's per channel (0.04 over all channels), at a third of the time."""
-    from bcfpipe.export.material import sampled_texels  # lazy: start-up
+    texel's per channel (0.04 over all channels), at a third of the time. In one compiled pass a mip
+    (`oracle_kernel`), as `texset.metrics.mse_per_channel` measures the magnified image."""
+    from bcfpipe.layout.oracle_kernel import magnified_sse  # lazy: start-up (numba)
 
     ref, masks = reference.mips, reference.masks
     side = max(ref[0].shape[:2])
     j = max(0, (side // max(1, t0)).bit_length() - 1)  # the reference mip of T_0's size
     e = np.zeros((len(ref), len(channels)))
-    picks = sampled_texels(reference.shapes[:j], sampled_above)
+    picks = _picks(tuple(reference.shapes), sampled_above)
+    gains = encoding.gains(channels)
+    inv_peak2 = np.array([1.0 / c.peak ** 2 for c in channels])
     for k in range(min(j, len(ref))):
-        h, w = ref[k].shape[:2]
-        mask = None if masks is None else masks[k]
-        if picks[k] is None:
-            for c, ch in enumerate(channels):  # one channel at a time
-                up = magnify(ref[j][..., c:c + 1], h, w, wrap)
-                e[k, c] = mse_per_channel([ref[k][..., c:c + 1]], [up], (ch,), None if mask is None else [mask])[0, 0]
-            continue
-        ys, xs = np.divmod(picks[k], w)
-        keep = None if mask is None else [mask.reshape(-1)[picks[k]][:, None]]
-        per = max(1, VALUES_AT_ONCE // len(picks[k]))  # channels at once: 64 MiB at most, even at 8K
-        for c in range(0, len(channels), per):
-            cs = slice(c, c + per)
-            truth = ref[k].reshape(h * w, -1)[picks[k], cs][:, None]
-            up = magnify_at(ref[j][..., cs], h, w, wrap, ys, xs)[:, None]
-            e[k, cs] = mse_per_channel([truth], [up], channels[cs], keep)[0]
+        sse, n = magnified_sse(ref[j], ref[k], picks[k], None if masks is None else masks[k], gains, wrap)
+        e[k] = sse * inv_peak2 / n if n else 0.0
     return e
+
+
+@functools.lru_cache(maxsize=8)
+def _picks(shapes: tuple[tuple[int, int], ...], above: int) -> tuple[np.ndarray | None, ...]:
+    """`export.material.sampled_texels` of a reference's every mip, drawn once for all the T_0 sizes a
+    fit weighs: the mips finer than a T_0 are the first ones, drawn alike."""
+    from bcfpipe.export.material import sampled_texels  # lazy: start-up
+
+    return tuple(sampled_texels(shapes, above))
 
 
 def cap(errors: np.ndarray, oracle: np.ndarray) -> np.ndarray:

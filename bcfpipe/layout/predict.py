@@ -13,7 +13,7 @@ estimator, which also sizes the profiles the probe is chosen from).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -24,17 +24,12 @@ from bcfpipe.formats import weights as W
 from bcfpipe.formats.display import bytes_range
 from bcfpipe.formats.display import bytes_text
 from bcfpipe.formats.sizes import feature_bytes, neural_bytes, texture_bytes, widened, widened_inputs
-from bcfpipe.formats.vocabulary import Layout
-from bcfpipe.formats.vocabulary import FeatureFormat
-from bcfpipe.formats.vocabulary import T0, FeatureFormat
+from bcfpipe.formats.vocabulary import T0, FeatureFormat, Layout
 from bcfpipe.layout.classic import bc_levels, named_groups
 from bcfpipe.layout.classic import MAX_REPACK_SIDE, bc7_quality_set, repacks, split_levels
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.texset.texture_set import Channel, TextureSet, semantic_info
 from bcfpipe.train.gains import CPU_PROFILES, GPU_PROFILES
-
-if TYPE_CHECKING:  # annotations only: the texture set module loads images
-    from bcfpipe.texset.texture_set import TextureSet
 
 
 def candidate_profiles(asked: str, device: str) -> list[str]:
