@@ -173,7 +173,8 @@ def test_the_oracle_kernel_measures_the_magnified_mip_as_numpy_does(wrap, drawn)
     truth = rng.random((64, 128, 3), dtype=np.float32)
     mask = rng.random((64, 128)) < 0.7
     gains = np.array([0.0, 3.5, 0.0], np.float32)
-    picks = np.concatenate([[0, 63 * 128 + 127, 127, 63 * 128], rng.choice(64 * 128, 500, replace=False)]) if drawn else None
+    corners = [0, 63 * 128 + 127, 127, 63 * 128]
+    picks = np.concatenate([corners, rng.choice(64 * 128, 500, replace=False)]) if drawn else None
     sse, n = magnified_sse(src, truth, picks, mask, gains, wrap)
     at = np.arange(64 * 128) if picks is None else picks
     at = at[mask.reshape(-1)[at]]
