@@ -29,7 +29,7 @@ def numpy_oracle(reference, t0: int, channels, wrap: str) -> np.ndarray:
 
     ref, masks = reference.mips, reference.masks
     j = max(0, (max(ref[0].shape[:2]) // t0).bit_length() - 1)
-    picks = drawn_texels(reference.shapes)
+    picks = drawn_texels(reference.shapes[:j])
     e = np.zeros((len(ref), len(channels)))
     for k in range(min(j, len(ref))):
         h, w, c = ref[k].shape
@@ -56,7 +56,7 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
-    from bcfpipe.layout.oracle import drawn_texels, magnified_errors
+    from bcfpipe.layout.oracle import magnified_errors
     from bcfpipe.texset.chain import Reference
     from bcfpipe.texset.texture_set import load_texture_set
 
@@ -65,10 +65,9 @@ def main() -> None:
     for name in a.sets.split(","):
         ts = load_texture_set(specs(name))
         ref = Reference.of(ts, None, "repeat")
-        drawn = drawn_texels(ref.shapes)  # once per fit, as the layout draws them
-        magnified_errors(ref, 1024, ts.channels, "repeat", drawn=drawn)  # compiled or loaded from the cache
+        magnified_errors(ref, 1024, ts.channels, "repeat")  # compiled or loaded from the cache
         for t0 in (1024, 512, 256, 128, 64, 32, 16):
-            tk, ek = best(lambda: magnified_errors(ref, t0, ts.channels, "repeat", drawn=drawn), a.reps)
+            tk, ek = best(lambda: magnified_errors(ref, t0, ts.channels, "repeat"), a.reps)
             tn, en = best(lambda: numpy_oracle(ref, t0, ts.channels, "repeat"), a.reps)
             m = en > 0
             diff = float(np.max(np.abs(ek[m] - en[m]) / en[m])) if m.any() else 0.0

@@ -31,7 +31,7 @@ from bcfpipe.layout.classic_fit import ClassicFit, ClassicKinds
 from bcfpipe.layout.export import export_groups, export_split
 from bcfpipe.layout.oracle import cap
 from bcfpipe.layout.oracle import ORACLE_MARGIN_DB
-from bcfpipe.layout.oracle import drawn_texels, magnified_errors
+from bcfpipe.layout.oracle import magnified_errors
 from bcfpipe.layout.result import LayoutFit
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
@@ -79,7 +79,6 @@ class FitContext:
     reference: Reference | None = None  # the set's chain and coverage masks, built once per fit
     costs: dict[str, float] = field(default_factory=dict)  # seconds by part (the report's phase_seconds, layout_*)
     oracles: dict[int, np.ndarray] = field(default_factory=dict)  # `oracle` by T_0 side, made once each
-    drawn: list = field(default_factory=list)  # the texels every `oracle` reads (`oracle.drawn_texels`), drawn once
     most: bool = False  # predict with the most a full training gained over the probe on any set measured
 
     @property
@@ -114,9 +113,7 @@ class FitContext:
         """(mips, channels) errors of the reference's ``t0``-sized mip magnified to each finer mip
         (`bcfpipe.layout.oracle`), 0 elsewhere."""
         if t0 not in self.oracles:
-            if not self.drawn:
-                self.drawn.append(drawn_texels(self.reference.shapes))
-            self.oracles[t0] = magnified_errors(self.reference, t0, self.ts.channels, self.wrap, drawn=self.drawn[0])
+            self.oracles[t0] = magnified_errors(self.reference, t0, self.ts.channels, self.wrap)
         return self.oracles[t0]
 
     def width_gains(self, profile: str, width: int) -> np.ndarray:

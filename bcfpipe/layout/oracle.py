@@ -34,21 +34,19 @@ class PerfectProbe:
 
 
 def magnified_errors(reference: Reference, t0: int, channels: Sequence[Channel], wrap,
-                     sampled_above: int = SAMPLED_TEXELS,
-                     drawn: Sequence[np.ndarray | None] | None = None) -> np.ndarray:
+                     sampled_above: int = SAMPLED_TEXELS) -> np.ndarray:
     """(mips, channels) errors of the reference's mip of ``t0``'s size magnified to every finer mip
     (0 at the mips no finer than it); a mip of more than ``sampled_above`` texels on one texel drawn in
     each 2×2 cell (`export.material.sampled_texels`): on the teapot and the brick within 0.07 dB of every
     texel's per channel (0.04 over all channels), at a third of the time. In one compiled pass a mip
-    (`oracle_kernel`), as `texset.metrics.mse_per_channel` measures the magnified image. ``drawn``: the
-    reference's `drawn_texels`, when a fit that weighs several T_0 sizes drew them once."""
+    (`oracle_kernel`), as `texset.metrics.mse_per_channel` measures the magnified image."""
     from bcfpipe.layout.oracle_kernel import magnified_sse  # lazy: start-up (numba)
 
     ref, masks = reference.mips, reference.masks
     side = max(ref[0].shape[:2])
     j = max(0, (side // max(1, t0)).bit_length() - 1)  # the reference mip of T_0's size
     e = np.zeros((len(ref), len(channels)))
-    picks = drawn if drawn is not None else drawn_texels(reference.shapes, sampled_above)
+    picks = drawn_texels(reference.shapes[:j], sampled_above)
     gains = encoding.gains(channels)
     inv_peak2 = np.array([1.0 / c.peak ** 2 for c in channels])
     for k in range(min(j, len(ref))):
@@ -58,9 +56,8 @@ def magnified_errors(reference: Reference, t0: int, channels: Sequence[Channel],
 
 
 def drawn_texels(shapes: Sequence[tuple[int, int]], above: int = SAMPLED_TEXELS) -> tuple[np.ndarray | None, ...]:
-    """`export.material.sampled_texels` of a reference's every mip: one draw serves every T_0 size (the
-    mips finer than a T_0 are the first ones, drawn alike). Not kept past a fit: an 8192² reference's
-    draw holds 170 MiB."""
+    """`export.material.sampled_texels` of the mips ``shapes``, drawn again for each T_0 size (20 ms at
+    2048²): kept for a whole fit, an 8192² reference's draw (170 MiB) raised its peak memory by as much."""
     from bcfpipe.export.material import sampled_texels  # lazy: start-up
 
     return tuple(sampled_texels(shapes, above))
