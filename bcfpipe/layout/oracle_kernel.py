@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bcfpipe.formats.addressing import wrap_codes
+from bcfpipe.formats.addressing import WRAP_CODES, wrap_codes
+from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.process_env import kernel_cache, without_cache
 
 CACHE = kernel_cache()  # compiled kernels live in bcfpipe's cache, or nowhere
@@ -21,12 +22,16 @@ import numba as nb  # noqa: E402
 __all__ = ["magnified_sse"]
 
 
+_REPEAT, _MIRROR = WRAP_CODES[Wrap.REPEAT], WRAP_CODES[Wrap.MIRROR]
+
+
 @nb.njit(inline="always", cache=CACHE, nogil=True)
 def _address(i, n, mode):
-    """`formats.addressing.address` for one texel: repeat 0, clamp 1, mirror 2 (`WRAP_CODES`)."""
-    if mode == 0:
+    """`formats.addressing.address` for one texel, by `WRAP_CODES`. The fused kernel has its own: numba's
+    cache does not see a change to a kernel it inlines from another file, so each module keeps its own."""
+    if mode == _REPEAT:
         return i % n
-    if mode == 2:
+    if mode == _MIRROR:
         j = i % (2 * n)
         return j if j < n else 2 * n - 1 - j
     return min(max(i, 0), n - 1)
