@@ -196,3 +196,28 @@ def test_float_model_measured_chunk_by_chunk_equals_the_held_mips(hdr):
     assert abs(got.psnr - want.psnr) < 1e-4 and got.mips_in_mean == want.mips_in_mean
     assert got.psnr_per_group.keys() == want.psnr_per_group.keys()
     np.testing.assert_allclose(list(got.psnr_per_group.values()), list(want.psnr_per_group.values()), atol=1e-4)
+
+
+def test_a_training_sets_its_threads_only_while_it_trains():
+    """`train` runs on ``cfg.threads`` torch threads and leaves the count as it found it: a count
+    left at 1 slowed every later measure in the process (FLIP's OpenMP halved, issue 58)."""
+    import torch
+
+    from bcfpipe.train.trainer import train
+
+    rng = np.random.default_rng(1)
+    ch = tuple(Channel("albedo", c, "color", "gen", i) for i, c in enumerate("rgb"))
+    ts = TextureSet(rng.uniform(0, 1, (16, 16, 3)).astype(np.float32), ch, 16, 16)
+    quick = Preset(PhaseSchedule(4, 0.5, 5e-3, 0.99, 0.99), PhaseSchedule(4, 0.1, 5e-3, 0.99, 0.99),
+                   PhaseSchedule(2, 0.0, 2e-3, 1.0, 0.99), 64)
+    cfg = TrainConfig(model=ModelConfig(features=FeatureFormat.BC6H, resolutions=(8, 4, 4, 4)), preset=quick, seed=0,
+                      device="cpu", threads=1)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    seen = []
+    try:
+        train(ts, cfg, progress=lambda *a, **k: seen.append(torch.get_num_threads()))
+        assert seen and set(seen) == {1}
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
