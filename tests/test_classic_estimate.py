@@ -233,3 +233,34 @@ def _smooth_or_detailed(detail: bool, side: int = 256):
         v = v + 0.2 * np.random.default_rng(0).standard_normal(v.shape)
     return TextureSet(np.clip(v, 0, 1)[..., None].astype(np.float32),
                       (Channel("roughness", "r", "scalar", "r.png", 0),), side, side)
+
+
+def test_the_quality_set_estimated_beside_the_probe_is_the_one_estimated_before_it(tmp_path):
+    """With a core to spare the BC7 quality set is estimated on a thread beside the probe's training
+    (no decision reads it); with one core, inline before it. Either way it is `estimated`'s own,
+    figure for figure, and the rest of the decision is the same."""
+    from bcfpipe.layout import kinds as K
+    from bcfpipe.layout.decide import decide_layout
+    from bcfpipe.texset import parallel
+
+    from test_classic_layout import _set
+
+    opts = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
+    ts = _set(64)
+    fits = {}
+    for cores in (2, 1):
+        parallel.set_encode_workers(cores)
+        try:
+            fits[cores] = decide_layout(ts, tmp_path / str(cores), opts, 64)
+        finally:
+            parallel.set_encode_workers(None)
+    beside, inline = fits[2], fits[1]
+    assert beside.probe is not None and "estimate_beside_probe" in beside.costs
+    assert "estimate_beside_probe" not in inline.costs
+    whole = estimated(ClassicWork(ts, 64, Reference.of(ts), "repeat", K.CLASSIC))
+    for fit in (beside, inline):
+        q = fit.decision.quality
+        assert q.label == whole.quality.label == "BC7 quality set"
+        assert q.psnr_per_mip == whole.quality.psnr_per_mip and q.size_bytes == whole.quality.size_bytes
+    assert beside.decision.chosen.label == inline.decision.chosen.label
+    assert beside.decision.chosen.psnr_per_mip == inline.decision.chosen.psnr_per_mip

@@ -97,11 +97,13 @@ def _cols(groups: Sequence[Group]) -> list[int]:
     return [c for g in groups for c in g.channels]
 
 
-def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | None = None) -> ClassicFit:
+def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | None = None,
+              quality: bool = True) -> ClassicFit:
     """BC@R, its repacks and the quality set, every error estimated from a sample of blocks. With
     ``whole_bc`` (None: when no repack can take BC@R's place), BC@R is encoded in full instead
     (`measure`): it then ships or is the floor a neural part is held to, so its estimate would
-    be thrown away."""
+    be thrown away. Without ``quality`` the quality set waits for `quality_estimated` (no decision
+    reads it: it can be estimated where a core is idle)."""
     t = time.perf_counter()
     ts, r, ref = work.ts, work.resolution, work.reference
     groups = [planned(ts, g, r) for g in classic_groups(ts)]
@@ -115,7 +117,7 @@ def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | Non
     use = tuple(k for k, m in enumerate(ref.mips) if min(m.shape[:2]) >= 4) or tuple(range(len(ref.mips)))
     cf = ClassicFit(groups, e_bc, None, use, sampled=frac, kinds=work.kinds)
     rp_errors, repacked = {}, {}
-    q = bc7_quality_set([g.group for g in groups]) if with_repacks and r <= MAX_REPACK_SIDE else None
+    q = _quality_set(groups, r) if with_repacks and quality else None
     for rp in found + ([q] if q is not None else []):
         e, _ = estimate_errors(ts, rp.groups, r, ref.mips, ref.masks, work.wrap, enc=work.enc)
         rp_errors[rp.label] = e
@@ -127,6 +129,22 @@ def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | Non
     work.log(f"BC@{r}: {bytes_text(cf.bc.size_bytes)}, {cf.bc.psnr:.2f} dB over all mips, estimated from "
              f"{frac:.0%} of its texels ({time.perf_counter() - t:.1f} s with {len(found)} repack(s))")
     return cf
+
+
+def _quality_set(groups: Sequence[EncodedGroup], r: int) -> Repack | None:
+    return bc7_quality_set([g.group for g in groups]) if r <= MAX_REPACK_SIDE else None
+
+
+def quality_estimated(work: ClassicWork, cf: ClassicFit) -> ClassicFit:
+    """``cf`` (`estimated` without its quality set) with the BC7 quality set estimated as `estimated`
+    estimates it."""
+    q = _quality_set(cf.groups, work.resolution)
+    if q is None or q.label in cf.repacked:
+        return cf
+    ts, r, ref = work.ts, work.resolution, work.reference
+    e, _ = estimate_errors(ts, q.groups, r, ref.mips, ref.masks, work.wrap, enc=work.enc)
+    return refresh(replace(cf, repacked={**cf.repacked, q.label: (q, [planned(ts, g, r) for g in q.groups])},
+                           rp_errors={**cf.rp_errors, q.label: e}))
 
 
 def refresh(cf: ClassicFit) -> ClassicFit:

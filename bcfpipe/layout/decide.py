@@ -5,7 +5,9 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    sample of their blocks by the encoders that ship them (`bcfpipe.layout.classic_fit`,
    `bcfpipe.layout.estimate`): sizes exact, errors per mip within 0.16 dB of a full encode on the
    sets measured (docs/benchmarks.md), at 16 % of its texels on a 2048² set. Where no repack can
-   take BC@R's place it is encoded in full at once instead: it ships or is the floor.
+   take BC@R's place it is encoded in full at once instead: it ships or is the floor. No decision
+   reads the quality set, so where a probe trains it is estimated beside it, on the core the
+   probe leaves (`_probed`).
 2. The probe: one neural model on all channels at p0, the largest profile no larger than the one
    asked for whose bytes fit within BC@R's (the smallest when none does: it measures the neural
    part of a mip split or a mixed layout), with a T_0 of one layer of principal components (or
@@ -36,7 +38,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 Cost: the estimates, the probe, and at most one training no larger than `--layout neural`'s
 (`capped`), with BC@R encoded in full only when what ships is held to its floor by less than
 `FLOOR_GUARD_DB` on BC@R's estimate. What each part took goes to the report's ``phase_seconds``
-(``layout_estimate``, ``layout_probe``, ``layout_train``, ``layout_classic_encode``), not to
+(``layout_estimate``, ``layout_probe``, ``layout_train``, ``layout_classic_encode``, and
+``layout_estimate_beside_probe``, within the probe's), not to
 layout.json, which a build writes byte for byte the same every time.
 Splits are not weighed when ``--classic`` fixes groups.
 
@@ -46,6 +49,7 @@ Splits are not weighed when ``--classic`` fixes groups.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Sequence
@@ -61,11 +65,13 @@ from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.classic import named_groups
-from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure
+from bcfpipe.layout.classic_fit import ClassicFit, ClassicWork, estimated, measure, quality_estimated
 from bcfpipe.layout.kinds import capped
 from bcfpipe.layout.oracle import PerfectProbe
 from bcfpipe.layout.predict import LayoutPrediction, Query, predict, widths_of
 from bcfpipe.layout.result import LayoutFit
+from bcfpipe.pooltrace import trace_pool
+from bcfpipe.texset.parallel import encode_workers, workers
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
@@ -127,10 +133,37 @@ def _ruled_out(ctx: K.FitContext) -> list[K.Weighed] | None:
     return [w for w in weighed if w.candidate.basis == "measured"]
 
 
-def _probed(ctx: K.FitContext) -> K.FitContext:
-    """``ctx`` with the probe trained at its p0."""
+def _quality(ctx: K.FitContext, work: ClassicWork) -> K.FitContext:
+    """``ctx`` with the BC7 quality set estimated (`classic_fit.quality_estimated`), its seconds
+    counted with the estimates'."""
     t = time.perf_counter()
-    probe = _train_probe(ctx)
+    ctx = replace(ctx, classic=quality_estimated(work, ctx.classic))
+    ctx.costs["estimate"] = ctx.costs.get("estimate", 0.0) + time.perf_counter() - t
+    return ctx
+
+
+def _probed(ctx: K.FitContext, work: ClassicWork) -> K.FitContext:
+    """``ctx`` with the probe trained at its p0, and the BC7 quality set estimated beside it: the
+    probe trains on its ``--threads`` (one core by default) and no decision reads the quality set,
+    so its estimate takes the cores the job may use beyond the probe's (none left: before it)."""
+    t = time.perf_counter()
+    spare = encode_workers() - (ctx.options.threads or 1)
+    if spare < 1:
+        ctx = _quality(ctx, work)
+        probe = _train_probe(ctx)
+    else:
+        def beside() -> tuple[ClassicFit, float]:
+            t1 = time.perf_counter()
+            with workers(spare):
+                return quality_estimated(work, ctx.classic), time.perf_counter() - t1
+
+        trace_pool("quality-estimate-beside-probe", 1)
+        with ThreadPoolExecutor(1, thread_name_prefix="bcfpipe-quality-estimate") as pool:
+            later = pool.submit(beside)
+            probe = _train_probe(ctx)
+            classic, seconds = later.result()
+        ctx = replace(ctx, classic=classic)
+        ctx.costs["estimate_beside_probe"] = seconds
     ctx.costs["probe"] = time.perf_counter() - t
     return replace(ctx, probe=probe)
 
@@ -157,18 +190,18 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
         return _fixed(replace(ctx, classic=cf), asked, start)
     pred = predict_for(ts, options, cfg, asked, resolution)
     t, encoding = time.perf_counter(), work.seconds
-    ctx = replace(ctx, classic=estimated(work, with_repacks=True))
+    ctx = replace(ctx, classic=estimated(work, with_repacks=True, quality=False))
     ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
     if pred.probe is None:
         log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
-        return _settle(ctx, work, [], None, start)
+        return _settle(_quality(ctx, work), work, [], None, start)
     # no training here takes more steps than --layout neural's (at the profile asked)
     ctx = _sized(replace(ctx, cap=cfg.preset), cfg, pred)
     if (measured := _ruled_out(ctx)) is not None:
         log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
             "reference's T_0-sized mip magnified (the oracle) holds it")
-        return _settle(ctx, work, measured, None, start)
-    ctx = _probed(ctx)
+        return _settle(_quality(ctx, work), work, measured, None, start)
+    ctx = _probed(ctx, work)
     weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
     cands = [w.candidate for w in weighed]
     first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)
