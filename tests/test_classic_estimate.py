@@ -235,12 +235,13 @@ def _smooth_or_detailed(detail: bool, side: int = 256):
                       (Channel("roughness", "r", "scalar", "r.png", 0),), side, side)
 
 
-def test_the_quality_set_estimated_beside_the_probe_is_the_one_estimated_before_it(tmp_path):
-    """With a core to spare the BC7 quality set is estimated on a thread beside the probe's training
-    (no decision reads it); with one core, inline before it. Either way it is `estimated`'s own,
-    figure for figure, and the rest of the decision is the same."""
+def test_the_quality_set_estimated_aside_is_the_one_estimated_before_the_rest(tmp_path):
+    """With a core to spare the BC7 quality set is estimated on a thread beside the rest of the fit
+    (no decision reads it) and waited for by layout.json; with one core, inline before the probe.
+    Either way it is `estimated`'s own, figure for figure, and the decision is the same."""
     from bcfpipe.layout import kinds as K
     from bcfpipe.layout.decide import decide_layout
+    from bcfpipe.layout.export import decision_json
     from bcfpipe.texset import parallel
 
     from test_classic_layout import _set
@@ -254,13 +255,16 @@ def test_the_quality_set_estimated_beside_the_probe_is_the_one_estimated_before_
             fits[cores] = decide_layout(ts, tmp_path / str(cores), opts, 64)
         finally:
             parallel.set_encode_workers(None)
-    beside, inline = fits[2], fits[1]
-    assert beside.probe is not None and "estimate_beside_probe" in beside.costs
-    assert "estimate_beside_probe" not in inline.costs
+    aside, inline = (fits[c].resolved() for c in (2, 1))
+    assert aside.probe is not None and "estimate_aside" in aside.costs
+    assert "estimate_aside" not in inline.costs
     whole = estimated(ClassicWork(ts, 64, Reference.of(ts), "repeat", K.CLASSIC))
-    for fit in (beside, inline):
+    for fit in (aside, inline):
         q = fit.decision.quality
         assert q.label == whole.quality.label == "BC7 quality set"
         assert q.psnr_per_mip == whole.quality.psnr_per_mip and q.size_bytes == whole.quality.size_bytes
-    assert beside.decision.chosen.label == inline.decision.chosen.label
-    assert beside.decision.chosen.psnr_per_mip == inline.decision.chosen.psnr_per_mip
+        assert fit.first.quality is q
+    assert decision_json(fits[2])["bc7_quality"] == decision_json(fits[1])["bc7_quality"] == \
+        whole.quality.to_json(aside.decision.bc)
+    assert aside.decision.chosen.label == inline.decision.chosen.label
+    assert aside.decision.chosen.psnr_per_mip == inline.decision.chosen.psnr_per_mip

@@ -102,8 +102,8 @@ def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | Non
     """BC@R, its repacks and the quality set, every error estimated from a sample of blocks. With
     ``whole_bc`` (None: when no repack can take BC@R's place), BC@R is encoded in full instead
     (`measure`): it then ships or is the floor a neural part is held to, so its estimate would
-    be thrown away. Without ``quality`` the quality set waits for `quality_estimated` (no decision
-    reads it: it can be estimated where a core is idle)."""
+    be thrown away. Without ``quality`` the quality set waits for `quality_errors` and
+    `with_quality` (no decision reads it: it can be estimated where a core is idle)."""
     t = time.perf_counter()
     ts, r, ref = work.ts, work.resolution, work.reference
     groups = [planned(ts, g, r) for g in classic_groups(ts)]
@@ -135,15 +135,23 @@ def _quality_set(groups: Sequence[EncodedGroup], r: int) -> Repack | None:
     return bc7_quality_set([g.group for g in groups]) if r <= MAX_REPACK_SIDE else None
 
 
-def quality_estimated(work: ClassicWork, cf: ClassicFit) -> ClassicFit:
-    """``cf`` (`estimated` without its quality set) with the BC7 quality set estimated as `estimated`
-    estimates it."""
+def quality_errors(work: ClassicWork, cf: ClassicFit) -> tuple[Repack, np.ndarray] | None:
+    """The BC7 quality set of ``cf``'s groups and its own groups' errors, estimated as `estimated`
+    estimates them (None: no quality set at R)."""
     q = _quality_set(cf.groups, work.resolution)
-    if q is None or q.label in cf.repacked:
+    if q is None:
+        return None
+    ref = work.reference
+    return q, estimate_errors(work.ts, q.groups, work.resolution, ref.mips, ref.masks, work.wrap, enc=work.enc)[0]
+
+
+def with_quality(work: ClassicWork, cf: ClassicFit, found: tuple[Repack, np.ndarray] | None) -> ClassicFit:
+    """``cf`` (`estimated` without its quality set) with the quality set `quality_errors` found."""
+    if found is None or found[0].label in cf.repacked:
         return cf
-    ts, r, ref = work.ts, work.resolution, work.reference
-    e, _ = estimate_errors(ts, q.groups, r, ref.mips, ref.masks, work.wrap, enc=work.enc)
-    return refresh(replace(cf, repacked={**cf.repacked, q.label: (q, [planned(ts, g, r) for g in q.groups])},
+    q, e = found
+    return refresh(replace(cf, repacked={**cf.repacked, q.label: (q, [planned(work.ts, g, work.resolution)
+                                                                      for g in q.groups])},
                            rp_errors={**cf.rp_errors, q.label: e}))
 
 

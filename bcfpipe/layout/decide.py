@@ -6,8 +6,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    `bcfpipe.layout.estimate`): sizes exact, errors per mip within 0.16 dB of a full encode on the
    sets measured (docs/benchmarks.md), at 16 % of its texels on a 2048² set. Where no repack can
    take BC@R's place it is encoded in full at once instead: it ships or is the floor. No decision
-   reads the quality set, so where a probe trains it is estimated beside it, on the core the
-   probe leaves (`_probed`).
+   reads the quality set, so it is estimated on a thread beside the rest of the fit, with the
+   cores the job may use beyond the fit's (`_quality_aside`), and waited for by layout.json.
 2. The probe: one neural model on all channels at p0, the largest profile no larger than the one
    asked for whose bytes fit within BC@R's (the smallest when none does: it measures the neural
    part of a mip split or a mixed layout), with a T_0 of one layer of principal components (or
@@ -39,7 +39,7 @@ Cost: the estimates, the probe, and at most one training no larger than `--layou
 (`capped`), with BC@R encoded in full only when what ships is held to its floor by less than
 `FLOOR_GUARD_DB` on BC@R's estimate. What each part took goes to the report's ``phase_seconds``
 (``layout_estimate``, ``layout_probe``, ``layout_train``, ``layout_classic_encode``, and
-``layout_estimate_beside_probe``, within the probe's), not to
+``layout_estimate_aside``, beside the others), not to
 layout.json, which a build writes byte for byte the same every time.
 Splits are not weighed when ``--classic`` fixes groups.
 
@@ -64,8 +64,8 @@ from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
 from bcfpipe.layout.classic import groups as classic_groups
-from bcfpipe.layout.classic import named_groups
-from bcfpipe.layout.classic_fit import ClassicFit, ClassicWork, estimated, measure, quality_estimated
+from bcfpipe.layout.classic import Repack, named_groups
+from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure, quality_errors, with_quality
 from bcfpipe.layout.kinds import capped
 from bcfpipe.layout.oracle import PerfectProbe
 from bcfpipe.layout.predict import LayoutPrediction, Query, predict, widths_of
@@ -76,6 +76,7 @@ from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.trainer import ProgressFn
 
+QualityFound = tuple["tuple[Repack, np.ndarray] | None", float]  # `classic_fit.quality_errors`' result, its seconds
 PROBE_FRACTION = 0.15  # of the steps --layout neural trains: the probe's share of one training
 FLOOR_GUARD_DB = 0.25  # a choice held to BC@R's floor by less than this on BC@R's estimate measures BC@R
 
@@ -133,39 +134,37 @@ def _ruled_out(ctx: K.FitContext) -> list[K.Weighed] | None:
     return [w for w in weighed if w.candidate.basis == "measured"]
 
 
-def _quality(ctx: K.FitContext, work: ClassicWork) -> K.FitContext:
-    """``ctx`` with the BC7 quality set estimated (`classic_fit.quality_estimated`), its seconds
-    counted with the estimates'."""
+def _probed(ctx: K.FitContext) -> K.FitContext:
+    """``ctx`` with the probe trained at its p0."""
     t = time.perf_counter()
-    ctx = replace(ctx, classic=quality_estimated(work, ctx.classic))
-    ctx.costs["estimate"] = ctx.costs.get("estimate", 0.0) + time.perf_counter() - t
-    return ctx
-
-
-def _probed(ctx: K.FitContext, work: ClassicWork) -> K.FitContext:
-    """``ctx`` with the probe trained at its p0, and the BC7 quality set estimated beside it: the
-    probe trains on its ``--threads`` (one core by default) and no decision reads the quality set,
-    so its estimate takes the cores the job may use beyond the probe's (none left: before it)."""
-    t = time.perf_counter()
-    spare = encode_workers() - (ctx.options.threads or 1)
-    if spare < 1:
-        ctx = _quality(ctx, work)
-        probe = _train_probe(ctx)
-    else:
-        def beside() -> tuple[ClassicFit, float]:
-            t1 = time.perf_counter()
-            with workers(spare):
-                return quality_estimated(work, ctx.classic), time.perf_counter() - t1
-
-        trace_pool("quality-estimate-beside-probe", 1)
-        with ThreadPoolExecutor(1, thread_name_prefix="bcfpipe-quality-estimate") as pool:
-            later = pool.submit(beside)
-            probe = _train_probe(ctx)
-            classic, seconds = later.result()
-        ctx = replace(ctx, classic=classic)
-        ctx.costs["estimate_beside_probe"] = seconds
+    probe = _train_probe(ctx)
     ctx.costs["probe"] = time.perf_counter() - t
     return replace(ctx, probe=probe)
+
+
+def _quality_aside(ctx: K.FitContext, work: ClassicWork) -> Callable[[], QualityFound]:
+    """The BC7 quality set's errors (`classic_fit.quality_errors`), which no decision reads: estimated
+    on a thread beside the rest of the fit (the probe, which trains on its ``--threads``, one core by
+    default; the oracle, the full encodes, the final measure), on the cores the job may use beyond
+    the fit's; with none to spare, here, before the rest. Returns what waits for them."""
+    spare = encode_workers() - (ctx.options.threads or 1)
+    if spare < 1:
+        t = time.perf_counter()
+        found = quality_errors(work, ctx.classic)
+        ctx.costs["estimate"] = ctx.costs.get("estimate", 0.0) + time.perf_counter() - t
+        return lambda: (found, 0.0)
+    cf = ctx.classic
+
+    def aside() -> QualityFound:
+        t = time.perf_counter()
+        with workers(spare):
+            return quality_errors(work, cf), time.perf_counter() - t
+
+    trace_pool("quality-estimate-aside", 1)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="bcfpipe-quality-estimate")
+    later = pool.submit(aside)
+    pool.shutdown(wait=False)  # the thread ends with its one task
+    return later.result
 
 
 def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions, resolution: int, *,
@@ -192,16 +191,17 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
     t, encoding = time.perf_counter(), work.seconds
     ctx = replace(ctx, classic=estimated(work, with_repacks=True, quality=False))
     ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
+    quality = _quality_aside(ctx, work)
     if pred.probe is None:
         log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
-        return _settle(_quality(ctx, work), work, [], None, start)
+        return _settle(ctx, work, [], None, start, quality)
     # no training here takes more steps than --layout neural's (at the profile asked)
     ctx = _sized(replace(ctx, cap=cfg.preset), cfg, pred)
     if (measured := _ruled_out(ctx)) is not None:
         log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
             "reference's T_0-sized mip magnified (the oracle) holds it")
-        return _settle(_quality(ctx, work), work, measured, None, start)
-    ctx = _probed(ctx, work)
+        return _settle(ctx, work, measured, None, start, quality)
+    ctx = _probed(ctx)
     weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
     cands = [w.candidate for w in weighed]
     first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)
@@ -209,7 +209,7 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
     chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
     ctx, trained = _train_next(ctx, work, chosen, cands)
     ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
-    return _settle(ctx, work, ready, first, start)
+    return _settle(ctx, work, ready, first, start, quality)
 
 
 def _hopeful(ctx: K.FitContext, held: C.Candidate) -> C.Candidate:
@@ -226,7 +226,7 @@ def _hopeful(ctx: K.FitContext, held: C.Candidate) -> C.Candidate:
 
 
 def _settle(ctx: K.FitContext, work: ClassicWork, ready: list[K.Weighed], first: C.Decision | None,
-            start: float) -> LayoutFit:
+            start: float, quality: Callable[[], QualityFound]) -> LayoutFit:
     """The final choice among what can ship: what is measured (``ready``: the trained model, if
     any, and any kind's measured candidates) and the classic candidates.
     A classic candidate that an estimate puts first is encoded in full and measured, and the choice
@@ -250,10 +250,15 @@ def _settle(ctx: K.FitContext, work: ClassicWork, ready: list[K.Weighed], first:
     ctx.costs["classic_encode"] = work.seconds
     train_s = sum(t.model.train_seconds for t in ready if t.model is not None)
     probe = ctx.probe
+
+    def quality_set() -> tuple[C.Candidate, float]:
+        found, seconds = quality()
+        return with_quality(work, cf, found).quality, seconds
+
     return LayoutFit(decision, first or decision, cf.groups, model.model, model.channels, probe,
                      train_s + (probe.train_seconds if probe else 0.0), time.perf_counter() - start, cf.repacked,
                      work.seconds + ctx.costs.get("estimate", 0.0), model.parts,
-                     costs={k: round(v, 1) for k, v in ctx.costs.items()})
+                     costs={k: round(v, 1) for k, v in ctx.costs.items()}, quality_later=quality_set)
 
 
 def _near_floor(c: C.Candidate, bc: C.Candidate, match_bc: bool) -> bool:

@@ -167,6 +167,7 @@ def decision_json(fit: LayoutFit) -> dict:
     """What layout.json says: the choice among measured layouts, why, each measured layout's figures
     against BC@R and the BC7 quality set, and ``weighed``: every candidate the first choice was made
     among (profiles × T_0 widths, mixed, splits), predicted ones included, with the first choice."""
+    fit = fit.resolved()
     d = fit.decision.to_json()
     if fit.first is not fit.decision:
         d["weighed"] = fit.first.to_json()["candidates"]

@@ -49,7 +49,8 @@ def layout_material(ts: TextureSet, out_dir: str | Path, options: TrainingOption
     masks = reference.masks
     angle = normal_angles(out, ts, reference.mips[0], dec[0], masks[0] if masks else None)
     del dec
-    # layout.json last: its sizes on disk are measured aside while the export and the measure run
+    # layout.json last: its sizes on disk and the BC7 quality set are estimated aside meanwhile
+    fit = fit.resolved()
     decision = write_decision(out, fit, angle)  # with the shipped normal's angle, beside the PSNR (issue 57)
     ch, n = fit.decision.chosen, fit.neural
     res = tuple(n.resolutions) if n else ()

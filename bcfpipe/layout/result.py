@@ -2,8 +2,8 @@
 kinds that export it and by the material's measure; below them all, so that none imports the fit."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 from bcfpipe.export.material import MaterialResult
 from bcfpipe.layout import choose as C
@@ -26,3 +26,16 @@ class LayoutFit:
     encode_seconds: float = 0.0  # BC@R's and its repacks' estimates, encodes and measuring
     parts: Any = None  # what the chosen candidate's kind exports beside the model (`kinds.Weighed.parts`)
     costs: dict[str, float] = field(default_factory=dict)  # seconds by part: estimate, probe, train, classic_encode
+    # the BC7 quality set the decisions report against, and its seconds, when estimated aside
+    # (`decide._quality_aside`): `resolved` waits for it
+    quality_later: Callable[[], tuple[C.Candidate, float]] | None = None
+
+    def resolved(self) -> "LayoutFit":
+        """This fit with the BC7 quality set in its decisions (waited for when estimated aside)."""
+        if self.quality_later is None:
+            return self
+        q, seconds = self.quality_later()
+        decision = replace(self.decision, quality=q)
+        first = decision if self.first is self.decision else replace(self.first, quality=q)
+        costs = {**self.costs, "estimate_aside": round(seconds, 1)} if seconds else self.costs
+        return replace(self, decision=decision, first=first, costs=costs, quality_later=None)
