@@ -215,7 +215,12 @@ def train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, q
         from bcfpipe.fit import fit  # lazy: start-up
         from bcfpipe.train.trainer import resolve_device  # lazy: start-up
 
-        torch.set_num_threads(max(1, threads))
+        share = max(1, encode_workers or threads)  # the cores this job may use
+        # torch's count is the job's share outside a training, which runs on its own ``threads``
+        # (`trainer.torch_threads`): quicktex's and FLIP's OpenMP follow it (measured: a 2048² BC1
+        # level at quicktex level 13 took 5.5 s with torch at 1 thread and 3.0 s at 2), so a job
+        # alone on two cores encoded and measured on one
+        torch.set_num_threads(share)
         trace_pool("torch-intra-op", torch.get_num_threads())
         try:
             torch.set_num_interop_threads(1)
@@ -226,7 +231,6 @@ def train_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, q
 
         oiio.attribute("threads", max(1, threads))
         trace_pool("oiio", oiio.get_int_attribute("threads"))
-        share = max(1, encode_workers or threads)  # the cores this job may use
         set_exr_threads(oiio, share)
         set_encode_workers(share)
         trace_pool("encode-share", share)
