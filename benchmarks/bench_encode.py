@@ -31,7 +31,8 @@ from common import SHARED  # noqa: E402
 
 import torch  # noqa: E402
 
-from bcfpipe.bc6h import decode, encode  # noqa: E402
+from bcfpipe.bc6h import decode  # noqa: E402
+from bcfpipe.bc6h.encode import encode  # noqa: E402
 from bcfpipe.bc6h.encode import blocks_from_image, encode_params  # noqa: E402
 
 TEXTURES = [

@@ -62,7 +62,8 @@ BC7_REFINE = 4          # ISPC alpha_slow: 2 + moreRefine iterations for every m
 
 
 def _bc6h(img: np.ndarray) -> np.ndarray:
-    from bcfpipe.bc6h import decode, encode
+    from bcfpipe.bc6h import decode
+    from bcfpipe.bc6h.encode import encode
 
     h, w = img.shape[:2]
     lifted = F_LO + img * (F_HI - F_LO)

@@ -155,3 +155,27 @@ def test_the_checks_see_what_they_check():
     edges, heavy, trees = _graph()
     assert "torch" in set().union(*(heavy[x] for x in _closure(edges, "bcfpipe.train.trainer")))
     assert sum(1 for _ in _in_function_imports(trees)) > 50
+
+
+def test_a_classic_layout_runs_without_importing_torch(tmp_path):
+    """`bcfpipe train` where classic ships without a probe (a 64² set: nothing neural fits within
+    BC@R's bytes) estimates, encodes, exports and measures without importing torch (1 to 2 s of a
+    20 s run at 2048², docs/benchmarks.md)."""
+    import subprocess
+    import sys
+
+    import numpy as np
+    from PIL import Image
+
+    yy, xx = np.mgrid[0:64, 0:64] / 64
+    Image.fromarray((np.stack([0.5 + 0.4 * np.sin(6.28 * xx), 0.5 + 0.3 * np.cos(6.28 * yy), 0.3 + 0.2 * xx], -1)
+                     * 255).astype(np.uint8)).save(tmp_path / "a.png")
+    Image.fromarray((np.clip(0.5 + 0.3 * np.sin(6.28 * (xx + yy)), 0, 1) * 255).astype(np.uint8)).save(tmp_path / "r.png")
+    code = ("import sys\nfrom bcfpipe.cli import main\n"
+            f"try:\n    main(['train', 'albedo={tmp_path / 'a.png'}:rgb', 'roughness={tmp_path / 'r.png'}:r', "
+            f"'-o', '{tmp_path / 'out'}', '--quality', 'draft'])\nexcept SystemExit as e:\n    assert e.code == 0, e.code\n"
+            "print('torch' in sys.modules)\n")
+    p = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert (tmp_path / "out" / "layout.json").exists()
+    assert p.stdout.strip().splitlines()[-1] == "False", "torch was imported on the classic path"

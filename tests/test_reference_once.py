@@ -111,7 +111,7 @@ def test_evaluate_reports_steps_and_an_eta(tmp_path, bricks):
 def test_evaluate_line_in_the_train_command():
     """What `bcfpipe train` prints for an evaluation step (bcfpipe.cli.train._line)."""
     from bcfpipe.cli.train import _line
-    from bcfpipe.train.trainer import Progress
+    from bcfpipe.train.progress import Progress
 
     line = _line(Progress("evaluate", 3, 12, float("nan"), float("nan"), 80.0, 9.4), 80.0)
     assert line.split() == ["evaluate", "3/12", "elapsed", "1m20s", "eta", "9s"]

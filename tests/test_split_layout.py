@@ -132,7 +132,7 @@ def test_split_material_rebuilt_from_material_json_alone(split):
             theirs.append((1 - w) * v + w * y_mlp[:, j])
         theirs = np.stack(theirs, 1)
         mine = np.empty_like(theirs, dtype=np.float32)
-        mine[:] = sess.run([E.ONNX_OUTPUT], {E.ONNX_INPUT: E.sample_exported_features(em, uv.astype(np.float32), s)})[0]
+        mine[:] = sess.run([mf.ONNX_OUTPUT], {mf.ONNX_INPUT: E.sample_exported_features(em, uv.astype(np.float32), s)})[0]
         E.classic_outputs(em, uv.astype(np.float32), s, mine)
         # OpenImageIO's BC palettes round differently from quicktex (verify's classic check): a step
         step = 2 * max(abs(o.get("texel_scale") or 0) for o in d["outputs"]) / 255 * (1 - w) + 2e-4

@@ -134,7 +134,7 @@ def test_train_reporter_prints_through_a_long_call():
 
     from bcfpipe.cli.train import _Reporter
     from bcfpipe.train.pace import LINE_SECONDS
-    from bcfpipe.train.trainer import Progress
+    from bcfpipe.train.progress import Progress
 
     now = [50.0]
     buf = io.StringIO()

@@ -14,6 +14,7 @@ from bcfpipe.builder.options import Selection
 from bcfpipe.errors import InputError
 from bcfpipe.formats.images import FLOAT_TYPES
 from bcfpipe.formats.vocabulary import T0, ColorSpace, Decision, wrap_axes
+from bcfpipe.fit.rate import anchors_from_bench
 from bcfpipe.scan.content import nonfinite_channels
 from bcfpipe.scan.coverage import job_coverage
 from bcfpipe.scan.density import density_options, job_size
@@ -377,8 +378,6 @@ def _refuse_bad_sources(grouping, file_cache: dict, fix_nonfinite: bool) -> None
 
 def _bench_anchors(bench: Mapping, specs) -> tuple[tuple[str, str, float], ...]:
     """The bench report's measured cells for a job, matched by source file names and channels."""
-    from bcfpipe.fit.rate import anchors_from_bench  # lazy: start-up (bcfpipe.fit loads the trainer)
-
     names = [f"{sem}={os.path.basename(path)}:{ch}" for sem, path, ch in specs]
     return tuple(sorted((p, q, v) for (p, q), v in anchors_from_bench(bench, names).items()))
 

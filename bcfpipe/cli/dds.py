@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from bcfpipe.bc7 import decode as bc7_decode
+from bcfpipe.bc6h import decode as bc6h_decode
 from bcfpipe.cli.errors import Group
 from bcfpipe.formats import dds as ddsmod
 from bcfpipe.errors import InputError
@@ -35,9 +36,8 @@ def _decode_level(tex: ddsmod.DdsTexture, k: int) -> np.ndarray:
         except ValueError as e:
             raise InputError(f"mip {k}: {e}") from None
 
-    from bcfpipe.bc6h import decode  # lazy: start-up
 
-    return decode(blocks, w, h, signed=tex.signed)
+    return bc6h_decode(blocks, w, h, signed=tex.signed)
 
 
 @click.group(cls=Group)

@@ -18,6 +18,7 @@ import numpy as np
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import InputError
 from bcfpipe.formats import material as mf
+from bcfpipe.export import writer as E
 from bcfpipe.verify.vulkan import VulkanRuntime
 from bcfpipe.verify import glsl as G
 
@@ -80,8 +81,6 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
     """(H, W, outputs) float32 at the grid's texel centres, every output of material.json: the
     decoder's (through ``backend``), a layout's classic ones from their BC textures, and a mip
     split's mixed below its split, as material.json says. Returns it and what decoded it."""
-    from bcfpipe.export import writer as E  # lazy: start-up
-
     file = target.desc.file
     w, h = size
     img, used = _decode_network(target, size, lod, backend) if file.neural else (None, "classic textures")
@@ -101,7 +100,6 @@ def decode_material(target, size: tuple[int, int], lod: float, backend: str) -> 
 def _decode_network(target, size: tuple[int, int], lod: float, backend: str) -> tuple[np.ndarray, str]:
     from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, from_bytes  # lazy: start-up
 
-    from bcfpipe.export import writer as E  # lazy: start-up
 
     m = target.desc
     try:  # a record the runtimes would refuse (NaN, magenta) or ONNX's reader raise on: one line, exit 2

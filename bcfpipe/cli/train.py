@@ -16,12 +16,14 @@ from bcfpipe.cli.options import training_record
 from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
+from bcfpipe.export.material import make_config
+from bcfpipe.fit import FitMode, fit, rate
 from bcfpipe.cli.options import training_options
 from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
 from bcfpipe.train.pace import LINE_SECONDS, Ticker
 
 if TYPE_CHECKING:
-    from bcfpipe.train.trainer import Progress
+    from bcfpipe.train.progress import Progress
 
 
 def _fmt_eta(sec: float) -> str:
@@ -127,8 +129,6 @@ def _table(res) -> "object":
 
 def _load(textures, resolution: int | None, options, wrap: str):
     """The parsed specs and their texture set; a bad spec, file or option exits 2 in one line."""
-    from bcfpipe.export.material import make_config  # lazy: start-up
-
     try:
         specs = [TextureSpec.parse(t) for t in textures]
         ts = load_texture_set(specs, resolution=resolution, fix_nonfinite=options.fix_nonfinite)
@@ -141,8 +141,6 @@ def _load(textures, resolution: int | None, options, wrap: str):
 def _anchors(report: dict | None, specs, options):
     """--bench-data's measured cells for this set (None without a report): a report without this
     set's source files exits 2."""
-    from bcfpipe.fit import rate  # lazy: start-up
-
     if report is None:
         return None
 
@@ -183,8 +181,6 @@ def train_cmd(ctx, textures, output, resolution, wrap, force, as_json, **_traini
     Exit codes: 0 ok (a missed --target-psnr included: the JSON and stderr say so), 1 training
     failed, 2 bad arguments or unreadable input.
     """
-    from bcfpipe.fit import FitMode, fit  # lazy: start-up
-
     options, report = training_record(ctx)
     out = Path(output)
     if out.exists() and any(out.iterdir()) and not force:

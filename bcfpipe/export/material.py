@@ -5,7 +5,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -17,7 +17,11 @@ from bcfpipe.config import TrainConfig, TrainingOptions
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.metrics import Metrics, metrics_and_errors, metrics_from_mse
 from bcfpipe.texset.texture_set import Channel, TextureSet
-from bcfpipe.train.trainer import Progress, ProgressFn, TrainedMaterial, resolve_device, train
+from bcfpipe.train.devices import device_name
+from bcfpipe.train.progress import Progress, ProgressFn
+
+if TYPE_CHECKING:
+    from bcfpipe.train.trainer import TrainedMaterial
 
 # The metrics after the decode, in units of the decode's own time, for the evaluation's ETA: PSNR
 # and per-channel errors alone (0.38-0.39), and with SSIM and FLIP at mip 0 (3.15-3.24), measured
@@ -63,7 +67,7 @@ class MaterialResult:
 def make_config(ts: TextureSet, options: TrainingOptions, wrap: str = Wrap.REPEAT) -> tuple[str, TrainConfig]:
     """The TrainConfig of ``options`` (validated when it was made) for ``ts``, on the device it
     names resolved here; returns the resolved profile name too (``auto`` picks from the set's size)."""
-    return options.train_config(max(ts.width, ts.height), wrap, str(resolve_device(options.device)), ts.num_channels)
+    return options.train_config(max(ts.width, ts.height), wrap, device_name(options.device), ts.num_channels)
 
 
 def shipped_files(out_dir: Path) -> list[Path]:
@@ -204,7 +208,10 @@ class Measure:
     sampled: bool = False  # the large mips on a sample of their texels (`evaluate_exported`)
 
 
-FIGURES = Measure(image_metrics=False)  # PSNR and per-channel errors: a layout candidate's
+# PSNR and per-channel errors: a layout candidate's; not the float model's, which the layout's
+# report does not carry (a decode of every mip on the training's threads: 2.9-3.1 s for the water
+# bottle's 2048² x 11 channels at 1k and 2k, measured)
+FIGURES = Measure(image_metrics=False, float_model=False)
 PROBE = Measure(image_metrics=False, float_model=False, sampled=True)  # what decides, never ships
 
 
@@ -217,6 +224,8 @@ def train_material(ts: TextureSet, out_dir: str | os.PathLike, cfg: TrainConfig,
     judged by its PSNR and per-channel errors alone, as a layout's candidates; `PROBE` for the
     layout's probe, which never ships (`Measure`). ``reference``: ``Reference.of(ts, coverage, cfg.model.wrap)`` when
     the caller holds it already (the training and the measure share it), else built here once."""
+    from bcfpipe.train.trainer import train  # lazy: start-up
+
     start = time.perf_counter()
     if reference is None:
         reference = Reference.of(ts, coverage, cfg.model.wrap)

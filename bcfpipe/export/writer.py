@@ -17,27 +17,27 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
-import torch
 
 from bcfpipe.formats import dds
 from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
 from bcfpipe.formats.digest import sha256_file
 from bcfpipe.formats import material as mf
-from bcfpipe.model import neural as M
 from bcfpipe.bc6h import decode as bc6h_decode
 from bcfpipe.bc6h import mode10
 from bcfpipe.bc7 import decode as bc7_decode
 from bcfpipe.bc7.mode6 import DESCRIPTION as BC7_MODE
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
-from bcfpipe.model.features import codec_of
-from bcfpipe.model.decoder import ONNX_INPUT, ONNX_OUTPUT, MlpWeights, from_bytes, to_bytes, to_onnx
+from bcfpipe.formats.filtering import trilinear
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.pooltrace import trace_pool
 from bcfpipe.texset.texture_set import Channel, semantic_info
+
+if TYPE_CHECKING:
+    from bcfpipe.model.decoder import MlpWeights
 
 def output_channels(channels: tuple[Channel, ...]) -> tuple[mf.Output, ...]:
     """Decoder outputs in order, with their UsdPreviewSurface targets; normal z follows normal y."""
@@ -60,6 +60,9 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
     """Write a trained material (``bcfpipe.train.TrainedMaterial``) into ``out_dir``; material.json
     last, so a folder with one is complete. Nothing in it depends on paths or times: the same
     training gives the same bytes (the build's cache relies on it)."""
+    from bcfpipe.model.decoder import to_bytes, to_onnx  # lazy: start-up
+    from bcfpipe.model.features import codec_of  # lazy: start-up
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     mc: ModelConfig = tm.config.model
@@ -89,7 +92,7 @@ def export(tm, out_dir: str | os.PathLike) -> Path:
                          for c in "rgba"[:codec.channels]),
                    tuple(tm.mlp.out_scale.tolist()), tuple(tm.mlp.out_bias.tolist())),
         outputs=output_channels(ts.channels),
-        onnx=mf.Onnx(mf.ONNX, ONNX_INPUT, ONNX_OUTPUT, 17),
+        onnx=mf.Onnx(mf.ONNX, mf.ONNX_INPUT, mf.ONNX_OUTPUT, 17),
         training=mf.Training(tuple(mc.resolutions), tm.config.preset_name, tm.config.seed,
                              str(tm.config.device).split(":")[0]))
     # digests let `bcfpipe verify` detect any changed byte, which a decode comparison cannot
@@ -145,6 +148,8 @@ def load(folder: str | os.PathLike) -> ExportedMaterial:
         classic.append([t[..., :c.channels] for t in decode_levels(FORMAT_OF[tex.dxgi_format], tex.levels)])
     if desc.mlp is None:
         return ExportedMaterial(desc, levels, None, None, classic)
+    from bcfpipe.model.decoder import from_bytes  # lazy: start-up
+
     weights, _ = from_bytes((folder / desc.mlp.weights).read_bytes(), desc.mlp.offset)
     return ExportedMaterial(desc, levels, weights, folder / desc.onnx.file, classic)
 
@@ -152,6 +157,9 @@ def load(folder: str | os.PathLike) -> ExportedMaterial:
 def sample_exported_features(em: ExportedMaterial, uv: np.ndarray, s: float | np.ndarray) -> np.ndarray:
     """Feature vectors (N, n_in) sampled from the decoded DDS levels with the hardware conventions:
     every layer material.json lists, in its order (3 or 4 channels each)."""
+    import torch  # lazy: start-up
+    from bcfpipe.model import neural as M  # lazy: start-up
+
     levels = [[torch.from_numpy(np.ascontiguousarray(np.moveaxis(l, -1, 0))) for l in layer] for layer in em.levels]
     lvl = M.cached_level_fn(levels)
     s_t = torch.as_tensor(s, dtype=torch.float32) if isinstance(s, np.ndarray) else float(s)
@@ -196,7 +204,7 @@ def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: 
             uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1).astype(np.float32)
             y = np.empty((len(ids), len(outputs)), np.float32)
             if sess is not None:
-                y[:, mlp_cols] = sess.run([ONNX_OUTPUT], {ONNX_INPUT: sample_exported_features(em, uv, float(k))})[0]
+                y[:, mlp_cols] = sess.run([mf.ONNX_OUTPUT], {mf.ONNX_INPUT: sample_exported_features(em, uv, float(k))})[0]
             if em.classic:
                 classic_outputs(em, uv, float(k), y)
             level[a:a + len(ids)] = y[:, keep]
@@ -236,12 +244,7 @@ def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarra
     mine = [o.source == mf.Source.CLASSIC or (o.source == mf.Source.SPLIT and w < 1.0) for o in desc.outputs]
     if not any(mine):  # a split material from its split on: no texture to sample
         return
-    # (C, H, W) views of the (H, W, C) texels, no copy: sampling reads them as (H*W, C) rows
-    levels = [[torch.from_numpy(np.ascontiguousarray(m)).permute(2, 0, 1) for m in tex] for tex in em.classic]
-    lvl = M.cached_level_fn(levels)
-    with torch.no_grad():
-        t = M.sample_features(lvl, [len(tex) for tex in levels], tuple(c.lod_bias for c in desc.classic),
-                              torch.from_numpy(uv), s, desc.wrap).numpy()
+    t = np.concatenate([trilinear(tex, uv, s + c.lod_bias, desc.wrap) for tex, c in zip(em.classic, desc.classic)], 1)
     first = np.cumsum([0] + [c.channels for c in desc.classic])
     v = {i: t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias
          for i, o in enumerate(desc.outputs) if mine[i] and not o.reconstructed}

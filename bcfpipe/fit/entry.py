@@ -27,7 +27,7 @@ from bcfpipe.formats.fit_result import FitResult
 from bcfpipe.layout.material import layout_material
 from bcfpipe.layout.predict import uses_layout
 from bcfpipe.texset.texture_set import TextureSet
-from bcfpipe.train.trainer import ProgressFn
+from bcfpipe.train.progress import ProgressFn
 
 
 class FitMode(StrEnum):

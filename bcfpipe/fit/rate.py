@@ -36,7 +36,7 @@ from bcfpipe.formats.sizes import feature_bytes
 from bcfpipe.formats.vocabulary import T0
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.gains import CPU_PROFILES, GPU_PROFILES, profile_gain
-from bcfpipe.train.trainer import ProgressFn
+from bcfpipe.train.progress import ProgressFn
 
 __all__ = ["Setting", "Attempt", "TargetOutcome", "Step", "candidates", "predict", "next_step", "chosen_attempt",
            "fit_to_target", "anchors_from_bench", "MARGIN_DB"]

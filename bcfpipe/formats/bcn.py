@@ -14,6 +14,7 @@ from typing import Sequence
 import numpy as np
 
 from bcfpipe.formats.vocabulary import StrEnum
+from bcfpipe.bc6h import decode as bc6h_decode
 
 
 class ClassicFormat(StrEnum):
@@ -40,9 +41,7 @@ def decode_levels(fmt: ClassicFormat, levels: Sequence[tuple[np.ndarray, int, in
     tests/test_s3tc.py holds to quicktex and texture2ddecoder bit for bit), BC6H by bcfpipe.bc6h
     (linear half-float values)."""
     if fmt == ClassicFormat.BC6H:
-        from bcfpipe.bc6h import decode  # lazy: start-up
-
-        return [decode(blocks, w, h, signed=False).astype(np.float32) for blocks, w, h in levels]
+        return [bc6h_decode(blocks, w, h, signed=False).astype(np.float32) for blocks, w, h in levels]
     image = unorm_decoder(fmt)
     return [np.divide(image(blocks, w, h), np.float32(255.0), dtype=np.float32) for blocks, w, h in levels]
 

@@ -35,6 +35,8 @@ ANY_BC7_MODE = "any BC7 mode"  # Layer.blocks of a layer encoded once by a full 
 FILE = "material.json"
 WEIGHTS = "weights.bin"
 ONNX = "decoder.onnx"
+ONNX_INPUT = "features"  # the decoder's input and output names (material.json ``onnx``)
+ONNX_OUTPUT = "channels"
 
 
 def layer_name(i: int, t0_layers: int = 1) -> str:

@@ -24,6 +24,7 @@ from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.estimate import estimate_errors
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
+from bcfpipe.train.progress import Progress
 
 QUALITY_LABEL = "BC7 quality set"
 
@@ -79,8 +80,6 @@ class ClassicWork:
         """``done`` of ``total`` texels encoded since ``start``: the ETA at the rate so far."""
         if self.progress is None:
             return
-        from bcfpipe.train.trainer import Progress  # lazy: start-up
-
         el = time.perf_counter() - start
         eta = el / done * (total - done) if done else float("nan")
         self.progress(Progress("bc-encode", done * 100 // max(1, total), 100, float("nan"), float("nan"), el, eta))

@@ -74,7 +74,7 @@ from bcfpipe.pooltrace import trace_pool
 from bcfpipe.texset.parallel import encode_workers, workers
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
-from bcfpipe.train.trainer import ProgressFn
+from bcfpipe.train.progress import ProgressFn
 
 QualityFound = tuple["tuple[Repack, np.ndarray] | None", float]  # `classic_fit.quality_errors`' result, its seconds
 PROBE_FRACTION = 0.15  # of the steps --layout neural trains: the probe's share of one training

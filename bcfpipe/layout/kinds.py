@@ -38,7 +38,7 @@ from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.gains import profile_gain
 from bcfpipe.train.gains import probe_gains
 from bcfpipe.train.gains import t0_layer_gains
-from bcfpipe.train.trainer import ProgressFn
+from bcfpipe.train.progress import ProgressFn
 
 
 @dataclass(frozen=True)

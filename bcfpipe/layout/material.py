@@ -19,7 +19,7 @@ from bcfpipe.layout.predict import bc_resolution
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.normals import angular_stats, rebuild_z, slope_normal
 from bcfpipe.texset.texture_set import TextureSet
-from bcfpipe.train.trainer import ProgressFn
+from bcfpipe.train.progress import ProgressFn
 
 WORK = ".layout-work"  # inside the output folder while the probe and the chosen model train
 

@@ -15,6 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bcfpipe.export.material import sampled_texels
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset import encoding
 from bcfpipe.texset.texture_set import Channel
@@ -58,8 +59,6 @@ def magnified_errors(reference: Reference, t0: int, channels: Sequence[Channel],
 def drawn_texels(shapes: Sequence[tuple[int, int]], above: int = SAMPLED_TEXELS) -> tuple[np.ndarray | None, ...]:
     """`export.material.sampled_texels` of the mips ``shapes``, drawn again for each T_0 size (20 ms at
     2048²): kept for a whole fit, an 8192² reference's draw (170 MiB) raised its peak memory by as much."""
-    from bcfpipe.export.material import sampled_texels  # lazy: start-up
-
     return tuple(sampled_texels(shapes, above))
 
 

@@ -19,13 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from bcfpipe.formats.material import ONNX_INPUT, ONNX_OUTPUT
 from bcfpipe.formats.weights import (RECORD_HEADER as HEADER, RECORD_MAGIC as MAGIC, RECORD_VERSION as VERSION,
                                      RECORD_VERSION_LOG as VERSION_LOG, record_values)
 
 HEADER_BYTES = HEADER.size  # 24
 
-ONNX_INPUT = "features"
-ONNX_OUTPUT = "channels"
 
 
 @dataclass(frozen=True)

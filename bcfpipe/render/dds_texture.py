@@ -14,6 +14,7 @@ import numpy as np
 
 from bcfpipe.formats import dds
 from bcfpipe.formats.bcn import FORMAT_OF, decode_levels
+from bcfpipe.bc6h import decode as bc6h_decode
 
 __all__ = ["DecodedTexture", "read_dds", "is_dds"]
 
@@ -38,9 +39,7 @@ def _decode(tex: dds.DdsTexture) -> tuple[list[np.ndarray], bool]:
         levels = decode_levels(FORMAT_OF[tex.dxgi_format], tex.levels)
         return levels, "BC6H" not in tex.format_name
     if tex.dxgi_format in (dds.DXGI_FORMAT_BC6H_UF16, dds.DXGI_FORMAT_BC6H_SF16):
-        from bcfpipe.bc6h import decode  # lazy: start-up
-
-        return [decode(b, w, h, signed=tex.signed).astype(np.float32) for b, w, h in tex.levels], False
+        return [bc6h_decode(b, w, h, signed=tex.signed).astype(np.float32) for b, w, h in tex.levels], False
     raise dds.DdsError(f"DXGI format {tex.dxgi_format} ({tex.format_name}) has no decoder here")
 
 

@@ -27,3 +27,13 @@ def device_class(name: str) -> str:
     from bcfpipe.train.trainer import resolve_device  # lazy: start-up
 
     return resolve_device(name).type
+
+
+def device_name(name: str) -> str:
+    """The device ``name`` trains on, as torch names it ('cpu', 'cuda', 'cuda:1'), with torch
+    imported only where CUDA is possible (`device_class`)."""
+    if device_class(name) == "cpu":
+        return "cpu"
+    from bcfpipe.train.trainer import resolve_device  # lazy: start-up
+
+    return str(resolve_device(name))

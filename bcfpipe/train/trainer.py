@@ -40,6 +40,7 @@ from bcfpipe.train.backend import Step, StepBackend, make_backend
 from bcfpipe.train.feature_init import pca_init
 from bcfpipe.train.fixed_t0 import pca_t0
 from bcfpipe.train.pace import Pace, Pacer
+from bcfpipe.train.progress import Progress, ProgressFn
 from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, random_batch
 from bcfpipe.texset import encoding
 from bcfpipe.texset.chain import Reference
@@ -47,20 +48,6 @@ from bcfpipe.texset.texture_set import TextureSet
 
 
 
-@dataclass(frozen=True)
-class Progress:
-    """A progress report; ``eta`` is the estimated seconds left for the whole run."""
-
-    phase: str
-    step: int
-    steps: int
-    loss: float
-    psnr: float
-    elapsed: float
-    eta: float
-
-
-ProgressFn = Callable[[Progress], None]
 
 
 BlockLevel = QuantizedLevel  # one mip of one layer as the exact block parameters that are written

@@ -1,0 +1,37 @@
+"""`bcfpipe.formats.filtering`, the numpy trilinear filter through which the exported files'
+classic textures are measured: the same bits as the torch sampler training uses
+(`bcfpipe.model.sampling`), at every wrap mode, at lods below, between and past the levels, and at
+uvs far outside [0, 1)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from bcfpipe.formats.filtering import trilinear
+from bcfpipe.model.sampling import sample_trilinear
+
+WRAPS = ["repeat", "clamp", "mirror", ("repeat", "mirror"), ("clamp", "repeat")]
+
+
+@pytest.mark.parametrize("wrap", WRAPS)
+@pytest.mark.parametrize("lod", [-2.0, 0.0, 0.3, 1.0, 2.75, 5.0, 9.0])
+def test_numpy_trilinear_gives_the_torch_samplers_bits(wrap, lod):
+    rng = np.random.default_rng(7)
+    levels = [rng.random((48 >> k, 32 >> k, 3), dtype=np.float32) for k in range(5)]  # non-square
+    uv = (rng.random((4000, 2)) * 6 - 3).astype(np.float32)
+    uv[:200] = rng.integers(-100000, 100000, (200, 2)).astype(np.float32) + np.float32(0.37)
+    texel_centres = (np.stack([np.arange(32) % 32, np.arange(32) % 48], 1) + 0.5) / np.array([32, 48])
+    uv[200:232] = texel_centres.astype(np.float32)
+    ours = trilinear(levels, uv, lod, wrap)
+    theirs = sample_trilinear([torch.from_numpy(l).permute(2, 0, 1) for l in levels], torch.from_numpy(uv),
+                              lod, wrap).numpy()
+    assert ours.dtype == np.float32
+    assert np.array_equal(ours, theirs)
+
+
+def test_texel_centres_at_a_levels_own_lod_read_its_texels():
+    levels = [np.arange(8 * 4 * 2, dtype=np.float32).reshape(8, 4, 2), np.zeros((4, 2, 2), np.float32)]
+    yy, xx = np.mgrid[0:8, 0:4]
+    uv = np.stack([(xx.ravel() + 0.5) / 4, (yy.ravel() + 0.5) / 8], 1).astype(np.float32)
+    assert np.array_equal(trilinear(levels, uv, 0.0, "repeat"), levels[0].reshape(-1, 2))
