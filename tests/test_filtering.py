@@ -35,3 +35,18 @@ def test_texel_centres_at_a_levels_own_lod_read_its_texels():
     yy, xx = np.mgrid[0:8, 0:4]
     uv = np.stack([(xx.ravel() + 0.5) / 4, (yy.ravel() + 0.5) / 8], 1).astype(np.float32)
     assert np.array_equal(trilinear(levels, uv, 0.0, "repeat"), levels[0].reshape(-1, 2))
+
+
+@pytest.mark.parametrize("wrap", WRAPS)
+@pytest.mark.parametrize("k", [0, 2, 4])
+def test_a_levels_own_texel_centres_give_the_torch_samplers_bits(wrap, k):
+    """Every uv a texel centre of level k at lod k: `filtering.bilinear` reads each texel once."""
+    rng = np.random.default_rng(k)
+    levels = [rng.random((48 >> j, 32 >> j, 2), dtype=np.float32) for j in range(5)]
+    h, w = levels[k].shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    uv = np.stack([(xx.ravel() + 0.5) / w, (yy.ravel() + 0.5) / h], 1).astype(np.float32)
+    ours = trilinear(levels, uv, float(k), wrap)
+    theirs = sample_trilinear([torch.from_numpy(l).permute(2, 0, 1) for l in levels], torch.from_numpy(uv),
+                              float(k), wrap).numpy()
+    assert np.array_equal(ours, theirs) and np.array_equal(ours, levels[k].reshape(-1, 2))

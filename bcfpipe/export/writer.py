@@ -11,6 +11,9 @@ Folder layout (``material.json`` describes it completely for consumers that do n
   decoder.onnx       the decoder with output post-processing: features (N, n_in) -> channels (N, c_out),
                      n_in = 4 (BC7) or 3 (BC6H) per layer
   material.json      everything needed to decode (bcfpipe.formats.material, schemas/material.schema.json)
+
+Reading a folder back imports torch only for its feature layers: a classic layout's textures are
+filtered in numpy (`bcfpipe.formats.filtering`), so measuring one needs no torch.
 """
 from __future__ import annotations
 
@@ -38,6 +41,7 @@ from bcfpipe.texset.texture_set import Channel, semantic_info
 
 if TYPE_CHECKING:
     from bcfpipe.model.decoder import MlpWeights
+
 
 def output_channels(channels: tuple[Channel, ...]) -> tuple[mf.Output, ...]:
     """Decoder outputs in order, with their UsdPreviewSurface targets; normal z follows normal y."""

@@ -29,6 +29,8 @@ def bilinear(tex: np.ndarray, uv: np.ndarray, wrap) -> np.ndarray:
     xa, xb = address(x0, w, ws), address(x0 + 1, w, ws)
     ya, yb = address(y0, h, wt), address(y0 + 1, h, wt)
     flat = tex.reshape(h * w, -1)
+    if not fx.any() and not fy.any():  # the level's own texel centres: each sample is its texel, the same bits
+        return flat[ya * w + xa]
     t00, t01, t10, t11 = flat[ya * w + xa], flat[ya * w + xb], flat[yb * w + xa], flat[yb * w + xb]
     top = t00 + (t01 - t00) * fx
     bot = t10 + (t11 - t10) * fx
