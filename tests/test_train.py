@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import torch
 import pytest
 
 from bcfpipe.config import ModelConfig, PhaseSchedule, Preset, TrainConfig
@@ -221,3 +222,16 @@ def test_a_training_sets_its_threads_only_while_it_trains():
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_device_name_is_torchs_name_for_the_device_a_run_trains_on():
+    """`train.devices.device_name`, which names the device without importing torch on a CPU build,
+    names the one torch would resolve; CUDA asked for where torch has none is a one-line error."""
+    from bcfpipe.train.devices import device_name
+    from bcfpipe.train.trainer import resolve_device
+
+    assert device_name("cpu") == "cpu"
+    assert device_name("auto") == str(resolve_device("auto"))
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="no CUDA device"):
+            device_name("cuda")
