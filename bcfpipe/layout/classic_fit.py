@@ -116,12 +116,14 @@ def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | Non
     use = tuple(k for k, m in enumerate(ref.mips) if min(m.shape[:2]) >= 4) or tuple(range(len(ref.mips)))
     cf = ClassicFit(groups, e_bc, None, use, sampled=frac, kinds=work.kinds)
     rp_errors, repacked = {}, {}
-    q = _quality_set(groups, r) if with_repacks and quality else None
-    for rp in found + ([q] if q is not None else []):
+    for rp in found:
         e, _ = estimate_errors(ts, rp.groups, r, ref.mips, ref.masks, work.wrap, enc=work.enc)
         rp_errors[rp.label] = e
         repacked[rp.label] = (rp, [planned(ts, g, r) for g in rp.groups])
-    cf = replace(cf, repacked=repacked, rp_errors=rp_errors, estimate_seconds=time.perf_counter() - t)
+    cf = replace(cf, repacked=repacked, rp_errors=rp_errors)
+    if with_repacks and quality:
+        cf = with_quality(work, cf, quality_errors(work, cf))
+    cf = replace(cf, estimate_seconds=time.perf_counter() - t)
     if whole:
         return measure(work, cf)
     cf = refresh(cf)
