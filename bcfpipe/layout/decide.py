@@ -63,6 +63,7 @@ from bcfpipe.formats.sizes import neural_bytes, widened, widened_inputs
 from bcfpipe.formats.vocabulary import Layout
 from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
+from bcfpipe.layout import speculate
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.classic import Repack, named_groups
 from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure, quality_errors, with_quality
@@ -71,7 +72,7 @@ from bcfpipe.layout.oracle import PerfectProbe
 from bcfpipe.layout.predict import LayoutPrediction, Query, predict, widths_of
 from bcfpipe.layout.result import LayoutFit
 from bcfpipe.pooltrace import trace_pool
-from bcfpipe.texset.parallel import encode_workers, workers
+from bcfpipe.texset.parallel import workers
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.progress import ProgressFn
@@ -142,12 +143,12 @@ def _probed(ctx: K.FitContext) -> K.FitContext:
     return replace(ctx, probe=probe)
 
 
-def _quality_aside(ctx: K.FitContext, work: ClassicWork) -> Callable[[], QualityFound]:
+def _quality_aside(ctx: K.FitContext, work: ClassicWork, spare: int | None = None) -> Callable[[], QualityFound]:
     """The BC7 quality set's errors (`classic_fit.quality_errors`), which no decision reads: estimated
     on a thread beside the rest of the fit (the probe, which trains on its ``--threads``, one core by
     default; the oracle, the full encodes, the final measure), on the cores the job may use beyond
     the fit's; with none to spare, here, before the rest. Returns what waits for them."""
-    spare = encode_workers() - (ctx.options.threads or 1)
+    spare = speculate.spare_cores(ctx) if spare is None else spare
     if spare < 1:
         t = time.perf_counter()
         found = quality_errors(work, ctx.classic)
@@ -191,23 +192,32 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
     t, encoding = time.perf_counter(), work.seconds
     ctx = replace(ctx, classic=estimated(work, with_repacks=True, quality=False))
     ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
-    quality = _quality_aside(ctx, work)
     if pred.probe is None:
+        quality = _quality_aside(ctx, work)
         log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
         return _settle(ctx, work, [], None, start, quality)
     # no training here takes more steps than --layout neural's (at the profile asked)
     ctx = _sized(replace(ctx, cap=cfg.preset), cfg, pred)
     if (measured := _ruled_out(ctx)) is not None:
+        quality = _quality_aside(ctx, work)
         log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
             "reference's T_0-sized mip magnified (the oracle) holds it")
         return _settle(ctx, work, measured, None, start, quality)
-    ctx = _probed(ctx)
-    weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
-    cands = [w.candidate for w in weighed]
-    first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)
-    log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
-    chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
-    ctx, trained = _train_next(ctx, work, chosen, cands)
+    spec = speculate.start(ctx)  # the likeliest training, on the core the probe leaves
+    try:
+        quality = _quality_aside(ctx, work) if spec is None else None
+        ctx = _probed(ctx)
+        if quality is None:  # the spare core trains: the quality set now, beside it or the final measure
+            quality = _quality_aside(ctx, work, spare=1)
+        weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
+        cands = [w.candidate for w in weighed]
+        first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)
+        log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
+        chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
+        ctx, trained = _train_next(ctx, work, chosen, cands, spec)
+    finally:
+        if spec is not None and not spec.gate.adopted and not spec.gate.cancelled.is_set():
+            ctx.costs["speculation_dropped"] = spec.cancel(ctx)
     ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
     return _settle(ctx, work, ready, first, start, quality)
 
@@ -267,8 +277,8 @@ def _near_floor(c: C.Candidate, bc: C.Candidate, match_bc: bool) -> bool:
     return -C.deficit(c, bc, match_bc) < FLOOR_GUARD_DB
 
 
-def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate,
-                cands: Sequence[C.Candidate]) -> tuple[K.FitContext, K.Weighed | None]:
+def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate, cands: Sequence[C.Candidate],
+                spec: speculate.Speculation | None = None) -> tuple[K.FitContext, K.Weighed | None]:
     """The one training of the fit, at the preset asked, at most: ``chosen`` (the first choice, or
     `_hopeful`'s), if it has a neural part and its kind finds it worth that against the classic
     candidates; else none.
@@ -282,6 +292,14 @@ def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate,
     if not chosen.kind.worth(ctx, chosen, held):
         ctx.log(f"{chosen.label} does not beat {held.label} on its prediction: no training")
         return ctx, None
+    if spec is not None and spec.matches(chosen):
+        ctx.log(f"training the channels outside the classic groups at {chosen.profile} for: {chosen.label} "
+                f"(begun beside the probe)")
+        trained = spec.adopt()
+        ctx.costs["train"] = time.perf_counter() - spec.start
+        return ctx, trained
+    if spec is not None:
+        ctx.costs["speculation_dropped"] = spec.cancel(ctx)
     need = None if chosen.kind is K.SPLIT else chosen.classic  # what the model ships beside
     if need is None or need:
         ctx = replace(ctx, classic=measure(work, ctx.classic, only=need))

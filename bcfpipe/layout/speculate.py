@@ -1,0 +1,117 @@
+"""The likeliest training, started beside the probe on the core it leaves idle (issue 58).
+
+The probe decides which candidate trains, but the candidate a fit trains is most often the widest
+all-channel model at the probe's profile that fits within BC@R's bytes (`guess`): on the water
+bottle at 1k it is the one that ships. With a core to spare, that candidate's full training starts
+when the probe does, silent, on its own thread. When the probe's choice is that candidate it is
+adopted: its training has run as long as the probe already, and its progress is shown from then
+on; when the choice is anything else it is cancelled at its next progress report and its files
+dropped. Either way what ships is what the sequential fit ships: the same training, the same
+schedule, the same thread count (`--threads`), on the texture set's one reference chain.
+"""
+from __future__ import annotations
+
+import shutil
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, replace
+
+from bcfpipe.layout import choose as C
+from bcfpipe.layout import kinds as K
+from bcfpipe.pooltrace import trace_pool
+from bcfpipe.texset.parallel import encode_workers, workers
+from bcfpipe.train.progress import Progress, ProgressFn
+
+# At most this many reference values (texels x channels) in a set whose training runs beside the
+# probe: each training holds its own encoded copy of the chain (2.7 GiB for an 8192² set of 8
+# channels), which beside the probe's would raise an 8K fit's peak memory above its final measure's.
+MAX_VALUES = 2048 * 2048 * 16
+FOLDER = "speculative"  # under the fit's work folder
+
+
+class Cancelled(Exception):
+    """The speculative training was not chosen: it stops at its next progress report."""
+
+
+class _Gate:
+    """The speculative training's progress: silent until adopted, then the fit's; raises
+    `Cancelled` once cancelled."""
+
+    def __init__(self, progress: ProgressFn | None):
+        self.progress = progress
+        self.adopted = False
+        self.cancelled = threading.Event()
+
+    def __call__(self, p: Progress) -> None:
+        if self.cancelled.is_set():
+            raise Cancelled()
+        if self.adopted and self.progress is not None:
+            self.progress(p)
+
+
+@dataclass
+class Speculation:
+    """A full training of (``profile``, ``t0_layers``), all channels, running on its own thread."""
+
+    profile: str
+    t0_layers: int
+    future: Future
+    gate: _Gate
+    start: float
+
+    def matches(self, c: C.Candidate) -> bool:
+        """Whether ``c`` is this training's candidate."""
+        return c.kind is K.NEURAL and c.profile == self.profile and c.part.t0_layers == self.t0_layers
+
+    def adopt(self) -> K.Weighed:
+        """Its result, waited for, with its progress shown meanwhile."""
+        self.gate.adopted = True
+        return self.future.result()
+
+    def cancel(self, ctx: K.FitContext) -> float:
+        """Stop it, wait for it, drop its files; the seconds it ran."""
+        self.gate.cancelled.set()
+        try:
+            self.future.result()
+        except Exception:  # noqa: BLE001 - cancelled, or failed: either way it does not ship
+            pass
+        shutil.rmtree(ctx.out / FOLDER, ignore_errors=True)
+        return time.perf_counter() - self.start
+
+
+def guess(ctx: K.FitContext) -> tuple[str, int] | None:
+    """(profile, T_0 width) of the candidate most likely trained: all channels at the probe's profile,
+    the widest T_0 weighed whose bytes fit within BC@R's; None when none does."""
+    n, bc = ctx.ts.num_channels, ctx.classic.bc.size_bytes
+    fits = [w for w in ctx.widths if ctx.fits_width(n, w) and ctx.sizes[(ctx.p0, w)] <= bc]
+    return (ctx.p0, max(fits)) if fits and not ctx.forced else None
+
+
+def spare_cores(ctx: K.FitContext) -> int:
+    """The cores the job may use beyond its trainings' (``--threads``)."""
+    return encode_workers() - (ctx.options.threads or 1)
+
+
+def start(ctx: K.FitContext) -> Speculation | None:
+    """`guess`'s candidate trained in full on its own thread, when the job has a core to spare beyond
+    the probe's and the set is small enough (`MAX_VALUES`); else None."""
+    g = guess(ctx)
+    if g is None or spare_cores(ctx) < (ctx.options.threads or 1) or ctx.ts.data.size > MAX_VALUES:
+        return None
+    profile, width = g
+    gate = _Gate(ctx.progress)
+    quiet = replace(ctx, progress=gate, log=lambda s: None, out=ctx.out / FOLDER)
+    threads = ctx.options.threads or 1
+
+    def run() -> K.Weighed:
+        with workers(threads):
+            return K.train_outside(quiet, (), profile, K.NEURAL, width=width)
+
+    ctx.log(f"meanwhile training neural {profile}" + (f", T_0 of {width} layers" if width > 1 else "")
+            + ", the likeliest choice, on the spare core")
+    trace_pool("speculative-training", 1)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="bcfpipe-speculative-training")
+    future = pool.submit(run)
+    pool.shutdown(wait=False)
+    return Speculation(profile, width, future, gate, time.perf_counter())

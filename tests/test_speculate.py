@@ -1,0 +1,96 @@
+"""The likeliest training beside the probe (`bcfpipe.layout.speculate`, issue 58): adopted when the
+fit chooses it, it ships what the sequential fit ships, byte for byte; dropped otherwise, it leaves
+nothing; with no core to spare, or a set too large for two trainings' memory, it never starts."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from types import SimpleNamespace
+
+from bcfpipe.config import TrainingOptions
+from bcfpipe.layout import decide as D
+from bcfpipe.layout import kinds as K
+from bcfpipe.layout import speculate
+from bcfpipe.layout.decide import decide_layout
+from bcfpipe.texset import parallel
+
+from test_classic_estimate import _smooth_or_detailed
+
+OPTIONS = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
+
+
+def _fit(tmp: Path, cores: int = 2):
+    """The smooth 256² set's fit (the probe trains) on ``cores``, and what it logged."""
+    seen: list[str] = []
+    parallel.set_encode_workers(cores)
+    try:
+        return decide_layout(_smooth_or_detailed(False), tmp, OPTIONS, 256, log=seen.append), seen
+    finally:
+        parallel.set_encode_workers(None)
+
+
+def _sequential(tmp: Path, monkeypatch):
+    """`_fit` with no speculation: the fit as it runs without a core to spare for it."""
+    with monkeypatch.context() as m:
+        m.setattr(speculate, "start", lambda ctx: None)
+        return _fit(tmp)[0]
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+def _choose_the_guess(monkeypatch):
+    """The fit trains `speculate.guess`'s candidate (here the mean predictions ship BC@R, and the
+    smoke preset's largest gain clears nothing): what decides is not what is tested."""
+    def hopeful(ctx, held):
+        profile, width = speculate.guess(ctx)
+        return next(w.candidate for w in K.NEURAL.predict(ctx)
+                    if w.candidate.profile == profile and w.candidate.part.t0_layers == width)
+    monkeypatch.setattr(D, "_hopeful", hopeful)
+
+
+def test_an_adopted_training_ships_the_files_and_figures_of_the_sequential_one(tmp_path, monkeypatch):
+    _choose_the_guess(monkeypatch)
+    seq = _sequential(tmp_path / "seq", monkeypatch)
+    fit, seen = _fit(tmp_path / "spec")
+    assert any(s.startswith("meanwhile training neural tiny") for s in seen)
+    assert any(s.endswith("(begun beside the probe)") for s in seen)
+    assert "speculation_dropped" not in fit.costs and "train" in fit.costs
+    trained = [c for c in fit.decision.candidates if c.kind is K.NEURAL and c.basis == "measured"]
+    before = [c for c in seq.decision.candidates if c.kind is K.NEURAL and c.basis == "measured"]
+    assert len(trained) == len(before) == 1
+    assert trained[0].mse_per_mip == before[0].mse_per_mip and trained[0].size_bytes == before[0].size_bytes
+    assert fit.decision.chosen.label == seq.decision.chosen.label
+    mine, theirs = _files(tmp_path / "spec" / speculate.FOLDER / "neural"), _files(tmp_path / "seq" / "neural")
+    assert mine.keys() == theirs.keys() and mine == theirs
+
+
+def test_a_training_not_chosen_is_dropped_and_leaves_nothing(tmp_path, monkeypatch):
+    fit, seen = _fit(tmp_path / "spec")
+    seq = _sequential(tmp_path / "seq", monkeypatch)
+    assert any(s.startswith("meanwhile training neural tiny") for s in seen)
+    assert fit.costs["speculation_dropped"] > 0 and "train" not in fit.costs
+    assert not (tmp_path / "spec" / speculate.FOLDER).exists()
+    assert fit.decision.chosen.label == seq.decision.chosen.label
+    assert fit.decision.chosen.mse_per_mip == seq.decision.chosen.mse_per_mip
+
+
+def test_no_speculation_on_one_core_or_for_a_set_too_large_for_two_trainings(tmp_path, monkeypatch):
+    fit, seen = _fit(tmp_path / "one", cores=1)
+    assert fit.probe is not None and "speculation_dropped" not in fit.costs
+    assert not any(s.startswith("meanwhile") for s in seen)
+    monkeypatch.setattr(speculate, "MAX_VALUES", 256 * 256 - 1)
+    fit, seen = _fit(tmp_path / "large")
+    assert fit.probe is not None and "speculation_dropped" not in fit.costs
+    assert not any(s.startswith("meanwhile") for s in seen)
+
+
+def test_the_guess_is_the_widest_all_channel_model_at_the_probes_profile_within_bcs_bytes():
+    classic = SimpleNamespace(bc=SimpleNamespace(size_bytes=100))
+    ctx = K.FitContext(SimpleNamespace(num_channels=11), Path("."), OPTIONS, "repeat", 256, classic=classic,
+                       p0="1k", profiles=("1k", "0.5k"), widths=(1, 2, 3),
+                       sizes={("1k", 1): 60, ("1k", 2): 100, ("1k", 3): 140, ("0.5k", 3): 50})
+    assert speculate.guess(ctx) == ("1k", 2)
+    assert speculate.guess(replace(ctx, sizes={**ctx.sizes, ("1k", 1): 101, ("1k", 2): 120})) is None
+    assert speculate.guess(replace(ctx, forced=("roughness",))) is None
