@@ -28,7 +28,9 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    BC@R groups it ships beside are encoded in full before it. When the first choice is classic, the
    candidate the rule would choose with the largest gain a full training made over the probe on
    any measured set (`_hopeful`, `gains.PROBE_GAINS_MAX_DB`) is trained instead, if it has a neural
-   part; else nothing is.
+   part; else nothing is. With a core to spare, the likeliest of these (`speculate.guess`: all
+   channels at the probe's profile, the widest T_0 within BC@R's bytes) starts training beside the
+   probe (`bcfpipe.layout.speculate`): adopted when it is the one chosen, dropped otherwise.
 5. The final choice among the trained model and the classic candidates: a classic candidate that
    its estimate puts first is encoded in full and measured, and the choice made again, until the
    one chosen is measured (`_settle`). What ships is encoded once, at the shipping preset, and
@@ -38,8 +40,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 Cost: the estimates, the probe, and at most one training no larger than `--layout neural`'s
 (`capped`), with BC@R encoded in full only when what ships is held to its floor by less than
 `FLOOR_GUARD_DB` on BC@R's estimate. What each part took goes to the report's ``phase_seconds``
-(``layout_estimate``, ``layout_probe``, ``layout_train``, ``layout_classic_encode``, and
-``layout_estimate_aside``, beside the others), not to
+(``layout_estimate``, ``layout_probe``, ``layout_train``, ``layout_classic_encode``,
+``layout_estimate_aside`` and ``layout_speculation_dropped``, beside the others), not to
 layout.json, which a build writes byte for byte the same every time.
 Splits are not weighed when ``--classic`` fixes groups.
 
@@ -147,7 +149,8 @@ def _quality_aside(ctx: K.FitContext, work: ClassicWork, spare: int | None = Non
     """The BC7 quality set's errors (`classic_fit.quality_errors`), which no decision reads: estimated
     on a thread beside the rest of the fit (the probe, which trains on its ``--threads``, one core by
     default; the oracle, the full encodes, the final measure), on the cores the job may use beyond
-    the fit's; with none to spare, here, before the rest. Returns what waits for them."""
+    the fit's, or on ``spare`` of them (after a probe that a speculative training ran beside, on
+    the probe's core); with none to spare, here, before the rest. Returns what waits for them."""
     spare = speculate.spare_cores(ctx) if spare is None else spare
     if spare < 1:
         t = time.perf_counter()
@@ -216,7 +219,7 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
         chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
         ctx, trained = _train_next(ctx, work, chosen, cands, spec)
     finally:
-        if spec is not None and not spec.gate.adopted and not spec.gate.cancelled.is_set():
+        if spec is not None and not spec.future.done():  # not chosen, or the fit failed or was interrupted
             ctx.costs["speculation_dropped"] = spec.cancel(ctx)
     ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
     return _settle(ctx, work, ready, first, start, quality)
