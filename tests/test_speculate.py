@@ -1,11 +1,14 @@
 """The likeliest training beside the probe (`bcfpipe.layout.speculate`, issue 58): adopted when the
 fit chooses it, it ships what the sequential fit ships, byte for byte; dropped otherwise, it leaves
-nothing; with no core to spare, or a set too large for two trainings' memory, it never starts."""
+nothing once waited for; a fit that fails stops it first; with no core to spare, or a set too large
+for two trainings' memory, it never starts."""
 from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
+
+import pytest
 
 from bcfpipe.config import TrainingOptions
 from bcfpipe.layout import decide as D
@@ -71,6 +74,7 @@ def test_a_training_not_chosen_is_dropped_and_leaves_nothing(tmp_path, monkeypat
     seq = _sequential(tmp_path / "seq", monkeypatch)
     assert any(s.startswith("meanwhile training neural tiny") for s in seen)
     assert fit.costs["speculation_dropped"] > 0 and "train" not in fit.costs
+    fit.join_aside()  # it stops at its next progress report; the fit's caller waits before removing its folder
     assert not (tmp_path / "spec" / speculate.FOLDER).exists()
     assert fit.decision.chosen.label == seq.decision.chosen.label
     assert fit.decision.chosen.mse_per_mip == seq.decision.chosen.mse_per_mip
@@ -94,3 +98,22 @@ def test_the_guess_is_the_widest_all_channel_model_at_the_probes_profile_within_
     assert speculate.guess(ctx) == ("1k", 2)
     assert speculate.guess(replace(ctx, sizes={**ctx.sizes, ("1k", 1): 101, ("1k", 2): 120})) is None
     assert speculate.guess(replace(ctx, forced=("roughness",))) is None
+
+
+def test_a_fit_that_fails_beside_a_speculative_training_stops_it_first(tmp_path, monkeypatch):
+    """The probe fails (here: raises) while the likeliest training runs beside it: the fit's error
+    reaches the caller only after that training has stopped and its files are gone."""
+    started: list[speculate.Speculation] = []
+    start = speculate.start
+    monkeypatch.setattr(speculate, "start", lambda ctx: started.append(start(ctx)) or started[-1])
+
+    def failing_probe(ctx):
+        raise RuntimeError("the probe failed")
+
+    monkeypatch.setattr(D, "_probed", failing_probe)
+    with pytest.raises(RuntimeError, match="the probe failed"):
+        _fit(tmp_path / "spec")
+    (spec,) = started
+    assert spec.future.done() and spec.gate.cancelled.is_set()
+    assert isinstance(spec.future.exception(), speculate.Cancelled)
+    assert not (tmp_path / "spec" / speculate.FOLDER).exists()

@@ -218,11 +218,16 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
         log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
         chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
         ctx, trained = _train_next(ctx, work, chosen, cands, spec)
-    finally:
-        if spec is not None and not spec.future.done():  # not chosen, or the fit failed or was interrupted
-            ctx.costs["speculation_dropped"] = spec.cancel(ctx)
-    ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
-    return _settle(ctx, work, ready, first, start, quality)
+        if spec is not None and not spec.future.done() and not spec.gate.cancelled.is_set():  # nothing trains
+            ctx.costs["speculation_dropped"] = spec.cancel()
+        ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
+        fit = _settle(ctx, work, ready, first, start, quality)
+    except BaseException:  # failed or interrupted: no training left running
+        if spec is not None:
+            spec.cancel()
+            spec.join(ctx.out)
+        raise
+    return replace(fit, aside=(lambda: spec.join(ctx.out)) if spec is not None else None)
 
 
 def _hopeful(ctx: K.FitContext, held: C.Candidate) -> C.Candidate:
@@ -302,7 +307,7 @@ def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate, cands
         ctx.costs["train"] = time.perf_counter() - spec.start
         return ctx, trained
     if spec is not None:
-        ctx.costs["speculation_dropped"] = spec.cancel(ctx)
+        ctx.costs["speculation_dropped"] = spec.cancel()  # it stops while this one trains
     need = None if chosen.kind is K.SPLIT else chosen.classic  # what the model ships beside
     if need is None or need:
         ctx = replace(ctx, classic=measure(work, ctx.classic, only=need))

@@ -36,22 +36,25 @@ def layout_material(ts: TextureSet, out_dir: str | Path, options: TrainingOption
     work = out / WORK
     start = time.perf_counter()
     reference = Reference.of(ts, coverage, wrap)
+    fit = None
     try:
         fit = decide_layout(ts, work, options, bc_resolution(max(ts.width, ts.height), options.profile), wrap=wrap,
                          log=log, progress=progress, reference=reference)
         export_layout(fit, ts, out, wrap)
+        t0 = time.perf_counter()
+        ev = evaluate_exported(out, reference, ts.channels, progress, start=start)
+        metrics, per_channel, dec = ev.metrics, ev.per_channel, ev.decoded
+        del ev
+        masks = reference.masks
+        angle = normal_angles(out, ts, reference.mips[0], dec[0], masks[0] if masks else None)
+        del dec
+        # layout.json last: its sizes on disk and the BC7 quality set are estimated aside meanwhile
+        fit = fit.resolved()
+        decision = write_decision(out, fit, angle)  # with the shipped normal's angle, beside the PSNR (issue 57)
     finally:
+        if fit is not None:
+            fit.join_aside()  # a dropped training stops at its next progress report: mostly long since
         shutil.rmtree(work, ignore_errors=True)
-    t0 = time.perf_counter()
-    ev = evaluate_exported(out, reference, ts.channels, progress, start=start)
-    metrics, per_channel, dec = ev.metrics, ev.per_channel, ev.decoded
-    del ev
-    masks = reference.masks
-    angle = normal_angles(out, ts, reference.mips[0], dec[0], masks[0] if masks else None)
-    del dec
-    # layout.json last: its sizes on disk and the BC7 quality set are estimated aside meanwhile
-    fit = fit.resolved()
-    decision = write_decision(out, fit, angle)  # with the shipped normal's angle, beside the PSNR (issue 57)
     ch, n = fit.decision.chosen, fit.neural
     res = tuple(n.resolutions) if n else ()
     return MaterialResult(out, ch.profile or "classic", res,

@@ -29,6 +29,14 @@ class LayoutFit:
     # the BC7 quality set the decisions report against, and its seconds, when estimated aside
     # (`decide._quality_aside`): `resolved` waits for it
     quality_later: Callable[[], tuple[C.Candidate, float]] | None = None
+    # waits for a training the fit started and dropped (`bcfpipe.layout.speculate`) and removes its
+    # files: the fit's folder is removed after it
+    aside: Callable[[], None] | None = None
+
+    def join_aside(self) -> None:
+        """Wait for what the fit left running aside, if anything."""
+        if self.aside is not None:
+            self.aside()
 
     def resolved(self) -> "LayoutFit":
         """This fit with the BC7 quality set in its decisions (waited for when estimated aside)."""

@@ -5,8 +5,8 @@ all-channel model at the probe's profile that fits within BC@R's bytes (`guess`)
 bottle at 1k it is the one that ships. With a core to spare, that candidate's full training starts
 when the probe does, silent, on its own thread. When the probe's choice is that candidate it is
 adopted: its training has run as long as the probe already, and its progress is shown from then
-on; when the choice is anything else it is cancelled at its next progress report and its files
-dropped. Either way what ships is what the sequential fit ships: the same training, the same
+on; when the choice is anything else it is cancelled, and stops at its next progress report (a
+T_0 layer encoded, a phase's steps) while the fit goes on; its files are dropped once it has. Either way what ships is what the sequential fit ships: the same training, the same
 schedule, the same thread count (`--threads`), on the texture set's one reference chain.
 """
 from __future__ import annotations
@@ -16,6 +16,7 @@ import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 from bcfpipe.layout import choose as C
 from bcfpipe.layout import kinds as K
@@ -69,15 +70,19 @@ class Speculation:
         self.gate.adopted = True
         return self.future.result()
 
-    def cancel(self, ctx: K.FitContext) -> float:
-        """Stop it, wait for it, drop its files; the seconds it ran."""
+    def cancel(self) -> float:
+        """Ask it to stop at its next progress report (a T_0 layer encoded, a phase's steps), without
+        waiting; the seconds it ran. `join` waits for it."""
         self.gate.cancelled.set()
+        return time.perf_counter() - self.start
+
+    def join(self, work: Path) -> None:
+        """Wait for it to end, then drop its files under ``work``, the fit's folder."""
         try:
             self.future.result()
         except Exception:  # noqa: BLE001 - cancelled, or failed: either way it does not ship
             pass
-        shutil.rmtree(ctx.out / FOLDER, ignore_errors=True)
-        return time.perf_counter() - self.start
+        shutil.rmtree(work / FOLDER, ignore_errors=True)
 
 
 def guess(ctx: K.FitContext) -> tuple[str, int] | None:

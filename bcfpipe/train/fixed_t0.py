@@ -17,6 +17,8 @@ principal components").
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import torch
 
@@ -31,11 +33,14 @@ __all__ = ["pca_t0", "encoded_levels", "t0_layers_problem"]
 
 
 def pca_t0(mc: ModelConfig, ref_mips, biases, free: list[list[torch.Tensor]],
-           mlp: dict[str, torch.Tensor]) -> dict[int, list[FixedLevel]]:
+           mlp: dict[str, torch.Tensor], on_layer: Callable[[int, int], None] = lambda done, n: None,
+           ) -> dict[int, list[FixedLevel]]:
     """T_0's layers (the model's first ``mc.t0_layers``; layer j holds components 4j..4j+3) as
     `FixedLevel`s (components, ISPC's BC7 blocks, their decoded values), by layer; sets ``mlp`` to
     the components' linear decoder (in place). Their ``free`` layers are overwritten on the way.
-    A set whose components do not reach a layer is refused (`t0_layers_problem`)."""
+    A set whose components do not reach a layer is refused (`t0_layers_problem`). ``on_layer``
+    hears (layers encoded, layers) before the first layer's encode and after each (seconds apiece
+    at 1k)."""
     problem = t0_layers_problem(mc.t0_layers, ref_mips[0].shape[0])
     if problem:
         raise InputError(problem)
@@ -48,10 +53,12 @@ def pca_t0(mc: ModelConfig, ref_mips, biases, free: list[list[torch.Tensor]],
             for p in free[i]:
                 p[max(0, ref_mips[0].shape[0] - codec.channels * i):] = (lo + hi) / 2
     out = {}
+    on_layer(0, len(layers))
     for i in layers:
         with torch.no_grad():
             levels = [codec.value(p.detach().clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy() for p in free[i]]
         out[i] = encoded_levels(levels, free[i][0].device)
+        on_layer(i + 1, len(layers))
     return out
 
 
