@@ -22,12 +22,19 @@ from test_classic_estimate import _smooth_or_detailed
 OPTIONS = TrainingOptions(profile="tiny", preset="smoke", device="cpu", threads=1, seed=0, layout="auto")
 
 
-def _fit(tmp: Path, cores: int = 2):
+@pytest.fixture(autouse=True)
+def _smoke_speculates(monkeypatch):
+    """These tests train at smoke (a second a training), where no fit speculates (`PRESETS`): the
+    mechanism is what they test, and `test_no_speculation_at_draft` the presets."""
+    monkeypatch.setattr(speculate, "PRESETS", (*speculate.PRESETS, "smoke"))
+
+
+def _fit(tmp: Path, cores: int = 2, options: TrainingOptions = OPTIONS):
     """The smooth 256² set's fit (the probe trains) on ``cores``, and what it logged."""
     seen: list[str] = []
     parallel.set_encode_workers(cores)
     try:
-        return decide_layout(_smooth_or_detailed(False), tmp, OPTIONS, 256, log=seen.append), seen
+        return decide_layout(_smooth_or_detailed(False), tmp, options, 256, log=seen.append), seen
     finally:
         parallel.set_encode_workers(None)
 
@@ -117,3 +124,12 @@ def test_a_fit_that_fails_beside_a_speculative_training_stops_it_first(tmp_path,
     assert spec.future.done() and spec.gate.cancelled.is_set()
     assert isinstance(spec.future.exception(), speculate.Cancelled)
     assert not (tmp_path / "spec" / speculate.FOLDER).exists()
+
+
+def test_no_speculation_at_draft(tmp_path):
+    """At draft a dropped speculation cost more than an adopted one could save (`PRESETS`): the
+    quality set is estimated beside the probe instead."""
+    fit, seen = _fit(tmp_path / "draft", options=replace(OPTIONS, preset="draft"))
+    assert fit.probe is not None and "speculation_dropped" not in fit.costs
+    assert not any(s.startswith("meanwhile") for s in seen)
+    assert "draft" not in speculate.PRESETS and {"fast", "standard", "paper"} <= set(speculate.PRESETS)

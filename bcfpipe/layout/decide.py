@@ -195,20 +195,23 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
     t, encoding = time.perf_counter(), work.seconds
     ctx = replace(ctx, classic=estimated(work, with_repacks=True, quality=False))
     ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
+    # the quality set aside at once, unless a training may take the spare core beside the probe
+    quality = None if speculate.possible(ctx) else _quality_aside(ctx, work)
     if pred.probe is None:
-        quality = _quality_aside(ctx, work)
+        quality = quality if quality is not None else _quality_aside(ctx, work)
         log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
         return _settle(ctx, work, [], None, start, quality)
     # no training here takes more steps than --layout neural's (at the profile asked)
     ctx = _sized(replace(ctx, cap=cfg.preset), cfg, pred)
     if (measured := _ruled_out(ctx)) is not None:
-        quality = _quality_aside(ctx, work)
+        quality = quality if quality is not None else _quality_aside(ctx, work)
         log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
             "reference's T_0-sized mip magnified (the oracle) holds it")
         return _settle(ctx, work, measured, None, start, quality)
-    spec = speculate.start(ctx)  # the likeliest training, on the core the probe leaves
+    spec = speculate.start(ctx) if quality is None else None  # the likeliest training, beside the probe
     try:
-        quality = _quality_aside(ctx, work) if spec is None else None
+        if quality is None and spec is None:
+            quality = _quality_aside(ctx, work)
         ctx = _probed(ctx)
         if quality is None:  # the spare core trains: the quality set now, beside it or the final measure
             quality = _quality_aside(ctx, work, spare=1)

@@ -29,6 +29,11 @@ from bcfpipe.train.progress import Progress, ProgressFn
 # channels), which beside the probe's would raise an 8K fit's peak memory above its final measure's.
 MAX_VALUES = 2048 * 2048 * 16
 FOLDER = "speculative"  # under the fit's work folder
+# The presets whose probe is long enough for a speculation to pay (docs/benchmarks.md, "Issue 58:
+# the likeliest training beside the probe"): adopted, it saves the probe's time (the water bottle's:
+# 10-12 s at draft, 39 s at standard); dropped, as most are, it cost the bottle's fit at draft
+# 3-4 s (the quality set's estimate moved beside the final measure, its last seconds before it stops).
+PRESETS = ("fast", "standard", "paper")
 
 
 class Cancelled(Exception):
@@ -98,11 +103,18 @@ def spare_cores(ctx: K.FitContext) -> int:
     return encode_workers() - (ctx.options.threads or 1)
 
 
+def possible(ctx: K.FitContext) -> bool:
+    """Whether a fit may speculate: at a preset where it pays (`PRESETS`), with a core to spare
+    beyond the probe's, on a set small enough for two trainings' memory (`MAX_VALUES`)."""
+    return (ctx.options.preset in PRESETS and spare_cores(ctx) >= (ctx.options.threads or 1)
+            and ctx.ts.data.size <= MAX_VALUES)
+
+
 def start(ctx: K.FitContext) -> Speculation | None:
-    """`guess`'s candidate trained in full on its own thread, when the job has a core to spare beyond
-    the probe's and the set is small enough (`MAX_VALUES`); else None."""
-    g = guess(ctx)
-    if g is None or spare_cores(ctx) < (ctx.options.threads or 1) or ctx.ts.data.size > MAX_VALUES:
+    """`guess`'s candidate trained in full on its own thread, when the fit may speculate
+    (`possible`); else None."""
+    g = guess(ctx) if possible(ctx) else None
+    if g is None:
         return None
     profile, width = g
     gate = _Gate(ctx.progress)
