@@ -39,7 +39,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 
 Cost: the estimates, the probe, and at most one training no larger than `--layout neural`'s
 (`capped`), with BC@R encoded in full only when what ships is held to its floor by less than
-`FLOOR_GUARD_DB` on BC@R's estimate. What each part took goes to the report's ``phase_seconds``
+`FLOOR_GUARD_DB` on BC@R's estimate; beside the probe, on a spare core, the start of the likeliest
+training, which is that one training when adopted. What each part took goes to the report's ``phase_seconds``
 (``layout_estimate``, ``layout_probe``, ``layout_train``, ``layout_classic_encode``,
 ``layout_estimate_aside`` and ``layout_speculation_dropped``, beside the others), not to
 layout.json, which a build writes byte for byte the same every time.

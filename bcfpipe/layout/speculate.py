@@ -2,12 +2,14 @@
 
 The probe decides which candidate trains, but the candidate a fit trains is most often the widest
 all-channel model at the probe's profile that fits within BC@R's bytes (`guess`): on the water
-bottle at 1k it is the one that ships. With a core to spare, that candidate's full training starts
-when the probe does, silent, on its own thread. When the probe's choice is that candidate it is
-adopted: its training has run as long as the probe already, and its progress is shown from then
-on; when the choice is anything else it is cancelled, and stops at its next progress report (a
-T_0 layer encoded, a phase's steps) while the fit goes on; its files are dropped once it has. Either way what ships is what the sequential fit ships: the same training, the same
-schedule, the same thread count (`--threads`), on the texture set's one reference chain.
+bottle at 1k it is the one that ships. With a core to spare, at a preset where it pays
+(`PRESETS`), that candidate's full training starts when the probe does, silent, on its own thread.
+When the probe's choice is that candidate it is adopted: its training has run as long as the probe
+already, and its progress is shown from then on. When the choice is anything else it is cancelled,
+and stops at its next progress report (a T_0 layer encoded, a phase's steps) while the fit goes
+on; its files are dropped once it has. Either way what ships is what the sequential fit ships: the
+same training, the same schedule, the same thread count (`--threads`), on the texture set's one
+reference chain.
 """
 from __future__ import annotations
 
