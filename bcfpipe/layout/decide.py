@@ -214,8 +214,8 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
         if quality is None and spec is None:
             quality = _quality_aside(ctx, work)
         ctx = _probed(ctx)
-        if quality is None:  # the spare core trains: the quality set now, beside it or the final measure
-            quality = _quality_aside(ctx, work, spare=1)
+        if quality is None:  # the spare cores train: the quality set now, on the probe's
+            quality = _quality_aside(ctx, work, spare=ctx.options.threads or 1)
         weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
         cands = [w.candidate for w in weighed]
         first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)
