@@ -42,7 +42,7 @@ def _fit(tmp: Path, cores: int = 2, options: TrainingOptions = OPTIONS):
 def _sequential(tmp: Path, monkeypatch):
     """`_fit` with no speculation: the fit as it runs without a core to spare for it."""
     with monkeypatch.context() as m:
-        m.setattr(speculate, "start", lambda ctx: None)
+        m.setattr(speculate, "start", lambda ctx, bc_bytes: None)
         return _fit(tmp)[0]
 
 
@@ -112,7 +112,7 @@ def test_a_fit_that_fails_beside_a_speculative_training_stops_it_first(tmp_path,
     reaches the caller only after that training has stopped and its files are gone."""
     started: list[speculate.Speculation] = []
     start = speculate.start
-    monkeypatch.setattr(speculate, "start", lambda ctx: started.append(start(ctx)) or started[-1])
+    monkeypatch.setattr(speculate, "start", lambda ctx, bc_bytes: started.append(start(ctx, bc_bytes)) or started[-1])
 
     def failing_probe(ctx):
         raise RuntimeError("the probe failed")

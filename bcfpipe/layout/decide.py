@@ -28,9 +28,11 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    BC@R groups it ships beside are encoded in full before it. When the first choice is classic, the
    candidate the rule would choose with the largest gain a full training made over the probe on
    any measured set (`_hopeful`, `gains.PROBE_GAINS_MAX_DB`) is trained instead, if it has a neural
-   part; else nothing is. With a core to spare, the likeliest of these (`speculate.guess`: all
-   channels at the probe's profile, the widest T_0 within BC@R's bytes) starts training beside the
-   probe (`bcfpipe.layout.speculate`): adopted when it is the one chosen, dropped otherwise.
+   part; else nothing is. With a core to spare, where a probe is planned, the likeliest of these
+   (`speculate.guess`: all channels at the probe's profile, the widest T_0 within BC@R's bytes)
+   starts training before step 1, beside BC@R's full encode (on the cores it leaves), the oracle
+   and the probe (`bcfpipe.layout.speculate`): adopted when it is the one chosen, dropped
+   otherwise, or when the oracle rules out every neural candidate.
 5. The final choice among the trained model and the classic candidates: a classic candidate that
    its estimate puts first is encoded in full and measured, and the choice made again, until the
    one chosen is measured (`_settle`). What ships is encoded once, at the shipping preset, and
@@ -39,8 +41,8 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
 
 Cost: the estimates, the probe, and at most one training no larger than `--layout neural`'s
 (`capped`), with BC@R encoded in full only when what ships is held to its floor by less than
-`FLOOR_GUARD_DB` on BC@R's estimate; beside the probe, on a spare core, the start of the likeliest
-training, which is that one training when adopted. What each part took goes to the report's ``phase_seconds``
+`FLOOR_GUARD_DB` on BC@R's estimate; beside them, on a spare core from the fit's start, the
+likeliest training, which is that one training when adopted. What each part took goes to the report's ``phase_seconds``
 (``layout_estimate``, ``layout_probe``, ``layout_train``, ``layout_classic_encode``,
 ``layout_estimate_aside`` and ``layout_speculation_dropped``, beside the others), not to
 layout.json, which a build writes byte for byte the same every time.
@@ -193,45 +195,54 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
         cf = estimated(work, with_repacks=False)  # BC@R encoded in full: no repack weighed
         return _fixed(replace(ctx, classic=cf), asked, start)
     pred = predict_for(ts, options, cfg, asked, resolution)
-    t, encoding = time.perf_counter(), work.seconds
-    ctx = replace(ctx, classic=estimated(work, with_repacks=True, quality=False))
-    ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
-    # the quality set aside at once, unless a training may take the spare core beside the probe
-    quality = None if speculate.possible(ctx) else _quality_aside(ctx, work)
-    if pred.probe is None:
-        quality = quality if quality is not None else _quality_aside(ctx, work)
-        log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
-        return _settle(ctx, work, [], None, start, quality)
     # no training here takes more steps than --layout neural's (at the profile asked)
-    ctx = _sized(replace(ctx, cap=cfg.preset), cfg, pred)
-    if (measured := _ruled_out(ctx)) is not None:
-        quality = quality if quality is not None else _quality_aside(ctx, work)
-        log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
-            "reference's T_0-sized mip magnified (the oracle) holds it")
-        return _settle(ctx, work, measured, None, start, quality)
-    spec = speculate.start(ctx) if quality is None else None  # the likeliest training, beside the probe
+    sized = _sized(replace(ctx, cap=cfg.preset), cfg, pred) if pred.probe is not None else None
+    # where a probe is planned, the likeliest training at once, on a spare core, beside the rest
+    spec = speculate.start(sized, pred.bc_bytes) if sized is not None else None
     try:
-        if quality is None and spec is None:
-            quality = _quality_aside(ctx, work)
-        ctx = _probed(ctx)
-        if quality is None:  # the spare cores train: the quality set now, on the probe's
-            quality = _quality_aside(ctx, work, spare=ctx.options.threads or 1)
-        weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
-        cands = [w.candidate for w in weighed]
-        first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)
-        log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
-        chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
-        ctx, trained = _train_next(ctx, work, chosen, cands, spec)
-        if spec is not None and not spec.future.done() and not spec.gate.cancelled.is_set():  # nothing trains
-            ctx.costs["speculation_dropped"] = spec.cancel()
-        ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
-        fit = _settle(ctx, work, ready, first, start, quality)
+        t, encoding = time.perf_counter(), work.seconds
+        with speculate.beside(spec, ctx):
+            ctx = replace(sized or ctx, classic=estimated(work, with_repacks=True, quality=False))
+        ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
+        # the quality set aside at once, unless a training has taken the spare core
+        quality = _quality_aside(ctx, work) if spec is None else None
+        if pred.probe is None:
+            log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
+            return _settle(ctx, work, [], None, start, quality)
+        if (measured := _ruled_out(ctx)) is not None:
+            if spec is not None:
+                ctx.costs["speculation_dropped"] = spec.cancel()
+                quality = _quality_aside(ctx, work)
+            log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
+                "reference's T_0-sized mip magnified (the oracle) holds it")
+            fit = _settle(ctx, work, measured, None, start, quality)
+        else:
+            fit = _probe_and_train(ctx, work, spec, quality, start)
     except BaseException:  # failed or interrupted: no training left running
         if spec is not None:
             spec.cancel()
             spec.join(ctx.out)
         raise
     return replace(fit, aside=(lambda: spec.join(ctx.out)) if spec is not None else None)
+
+
+def _probe_and_train(ctx: K.FitContext, work: ClassicWork, spec: speculate.Speculation | None,
+                     quality: Callable[[], QualityFound] | None, start: float) -> LayoutFit:
+    """Steps 2-5 where a probe runs: the probe, the first choice, its one training (``spec``'s,
+    adopted, or dropped for another) and the final choice."""
+    ctx = _probed(ctx)
+    if quality is None:  # the spare cores train: the quality set now, on the probe's
+        quality = _quality_aside(ctx, work, spare=ctx.options.threads or 1)
+    weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]
+    cands = [w.candidate for w in weighed]
+    first = C.choose(cands, ctx.classic.bc, ctx.match_bc, ctx.classic.quality)
+    ctx.log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
+    chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
+    ctx, trained = _train_next(ctx, work, chosen, cands, spec)
+    if spec is not None and not spec.future.done() and not spec.gate.cancelled.is_set():  # nothing trains
+        ctx.costs["speculation_dropped"] = spec.cancel()
+    ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
+    return _settle(ctx, work, ready, first, start, quality)
 
 
 def _hopeful(ctx: K.FitContext, held: C.Candidate) -> C.Candidate:
@@ -307,7 +318,7 @@ def _train_next(ctx: K.FitContext, work: ClassicWork, chosen: C.Candidate, cands
     if spec is not None and spec.matches(chosen):
         ctx.log(f"training the channels outside the classic groups at {chosen.profile} for: {chosen.label} "
                 f"(begun beside the probe)")
-        trained = spec.adopt()
+        trained = spec.adopt(ctx)
         ctx.costs["train"] = time.perf_counter() - spec.start
         return ctx, trained
     if spec is not None:

@@ -389,19 +389,32 @@ def train_outside(ctx: FitContext, classic: Sequence[str], name: str, kind: Kind
     """Train the channels outside the ``classic`` groups at ``name`` (trained as ``profile``, by
     default ``ctx.own[name]``) with a T_0 of ``width`` layers (by default the options'), and measure
     the layout they make with those groups."""
-    groups, e_bc = ctx.classic.groups, ctx.classic.e_bc
-    keep = [c for c in range(ctx.ts.num_channels)
-            if not any(c in g.group.channels for g in groups if g.group.name in classic)]
-    sub = subset(ctx.ts, keep)
+    keep = tuple(c for c in range(ctx.ts.num_channels)
+                 if not any(c in g.group.channels for g in ctx.classic.groups if g.group.name in classic))
+    return weigh_trained(ctx, train_channels(ctx, keep, name, profile, width), classic, name, kind, keep)
+
+
+def train_channels(ctx: FitContext, keep: Sequence[int], name: str, profile: str | None = None,
+                   width: int | None = None) -> MaterialResult:
+    """`train_outside`'s training: the ``keep`` channels at ``name``, measured (`FIGURES`) from
+    their exported files under ``ctx.out``/neural. Reads no classic group: the likeliest training
+    (`bcfpipe.layout.speculate`) starts before BC@R is encoded."""
+    sub = subset(ctx.ts, list(keep))
     options = replace(ctx.options, profile=profile or ctx.own[name],
                       t0_layers=ctx.options.t0_layers if width is None else width)
     ref = ctx.reference
     if ref is not None and len(keep) < ctx.ts.num_channels:  # the subset's chain: its channels of the set's
-        ref = Reference(tuple(np.ascontiguousarray(m[..., keep]) for m in ref.mips), ref.masks, ref.wrap)
-    res, _ = train_material(sub, ctx.out / "neural", capped(make_config(sub, options, ctx.wrap)[1], ctx.cap), name,
-                          progress=ctx.progress, coverage=ctx.coverage, measure=FIGURES, reference=ref)
-    del ref
-    e = e_bc.copy()
+        ref = Reference(tuple(np.ascontiguousarray(m[..., list(keep)]) for m in ref.mips), ref.masks, ref.wrap)
+    return train_material(sub, ctx.out / "neural", capped(make_config(sub, options, ctx.wrap)[1], ctx.cap), name,
+                          progress=ctx.progress, coverage=ctx.coverage, measure=FIGURES, reference=ref)[0]
+
+
+def weigh_trained(ctx: FitContext, res: MaterialResult, classic: Sequence[str], name: str, kind: Kind,
+                  keep: Sequence[int]) -> Weighed:
+    """The candidate a model trained on the ``keep`` channels (`train_channels`) makes with the
+    ``classic`` groups of BC@R, measured."""
+    groups, keep = ctx.classic.groups, list(keep)
+    e = ctx.classic.e_bc.copy()
     e[:, keep] = res.mse_per_channel
     classic_bytes = sum(g.size_bytes for g in groups if g.group.name in classic)
     disk = model_disk_bytes(res) + sum(disk_bytes(g) for g in groups if g.group.name in classic)

@@ -1,18 +1,21 @@
-"""The likeliest training, started beside the probe on the core it leaves idle (issue 58).
+"""The likeliest training, started before BC@R's encode and the probe, on the core they leave idle (issue 58).
 
 The probe decides which candidate trains, but the candidate a fit trains is most often the widest
 all-channel model at the probe's profile that fits within BC@R's bytes (`guess`): on the water
 bottle at 1k it is the one that ships. With a core to spare, at a preset where it pays
-(`PRESETS`), that candidate's full training starts when the probe does, silent, on its own thread.
-When the probe's choice is that candidate it is adopted: its training has run as long as the probe
-already, and its progress is shown from then on. When the choice is anything else it is cancelled,
-and stops at its next progress report (a T_0 layer encoded, a phase's steps) while the fit goes
-on; its files are dropped once it has. Either way what ships is what the sequential fit ships: the
-same training, the same schedule, the same thread count (`--threads`), on the texture set's one
-reference chain.
+(`PRESETS`), when a probe is planned (`bcfpipe.layout.predict`), that candidate's full training
+starts at once, silent, on its own thread: beside BC@R's full encode (on the cores it leaves,
+quicktex in a worker process: `parallel.workers`' ``beside``), the oracle and the probe. When
+the probe's choice is that candidate it is adopted: its training has run as long as those
+already, and its progress is shown from then on. When the choice is anything else, or the oracle
+rules out every neural candidate and no probe runs, it is cancelled, and stops at its next
+progress report (a T_0 layer encoded, a phase's steps) while the fit goes on; its files are
+dropped once it has. Either way what ships is what the sequential fit ships: the same training,
+the same schedule, the same thread count (`--threads`), on the texture set's one reference chain.
 """
 from __future__ import annotations
 
+import contextlib
 import shutil
 import threading
 import time
@@ -72,10 +75,10 @@ class Speculation:
         """Whether ``c`` is this training's candidate."""
         return c.kind is K.NEURAL and c.profile == self.profile and c.part.t0_layers == self.t0_layers
 
-    def adopt(self) -> K.Weighed:
-        """Its result, waited for, with its progress shown meanwhile."""
+    def adopt(self, ctx: K.FitContext) -> K.Weighed:
+        """Its result, waited for with its progress shown meanwhile, weighed against ``ctx``'s BC@R."""
         self.gate.adopted = True
-        return self.future.result()
+        return K.weigh_trained(ctx, self.future.result(), (), self.profile, K.NEURAL, ctx.all_channels)
 
     def cancel(self) -> float:
         """Ask it to stop at its next progress report (a T_0 layer encoded, a phase's steps), without
@@ -92,10 +95,12 @@ class Speculation:
         shutil.rmtree(work / FOLDER, ignore_errors=True)
 
 
-def guess(ctx: K.FitContext) -> tuple[str, int] | None:
+def guess(ctx: K.FitContext, bc_bytes: int | None = None) -> tuple[str, int] | None:
     """(profile, T_0 width) of the candidate most likely trained: all channels at the probe's profile,
-    the widest T_0 weighed whose bytes fit within BC@R's; None when none does."""
-    n, bc = ctx.ts.num_channels, ctx.classic.bc.size_bytes
+    the widest T_0 weighed whose bytes fit within BC@R's (``bc_bytes``, exact before it is encoded:
+    `LayoutPrediction.bc_bytes`; by default ``ctx.classic``'s); None when none does."""
+    n = ctx.ts.num_channels
+    bc = ctx.classic.bc.size_bytes if bc_bytes is None else bc_bytes
     fits = [w for w in ctx.widths if ctx.fits_width(n, w) and ctx.sizes[(ctx.p0, w)] <= bc]
     return (ctx.p0, max(fits)) if fits and not ctx.forced else None
 
@@ -112,10 +117,10 @@ def possible(ctx: K.FitContext) -> bool:
             and ctx.ts.data.size <= MAX_VALUES)
 
 
-def start(ctx: K.FitContext) -> Speculation | None:
+def start(ctx: K.FitContext, bc_bytes: int) -> Speculation | None:
     """`guess`'s candidate trained in full on its own thread, when the fit may speculate
-    (`possible`); else None."""
-    g = guess(ctx) if possible(ctx) else None
+    (`possible`); else None. ``ctx``: sized for the probe (p0, widths, sizes), BC@R not yet encoded."""
+    g = guess(ctx, bc_bytes) if possible(ctx) else None
     if g is None:
         return None
     profile, width = g
@@ -123,9 +128,9 @@ def start(ctx: K.FitContext) -> Speculation | None:
     quiet = replace(ctx, progress=gate, log=lambda s: None, out=ctx.out / FOLDER)
     threads = ctx.options.threads or 1
 
-    def run() -> K.Weighed:
+    def run():
         with workers(threads):
-            return K.train_outside(quiet, (), profile, K.NEURAL, width=width)
+            return K.train_channels(quiet, ctx.all_channels, profile, width=width)
 
     ctx.log(f"meanwhile training neural {profile}" + (f", T_0 of {width} layers" if width > 1 else "")
             + ", the likeliest choice, on the spare core")
@@ -134,3 +139,14 @@ def start(ctx: K.FitContext) -> Speculation | None:
     future = pool.submit(run)
     pool.shutdown(wait=False)
     return Speculation(profile, width, future, gate, time.perf_counter())
+
+
+@contextlib.contextmanager
+def beside(spec: Speculation | None, ctx: K.FitContext):
+    """The fit's encodes meanwhile on the cores ``spec``'s training leaves (`spare_cores`), quicktex
+    in worker processes (`parallel.workers`' ``beside``); as they are without ``spec``."""
+    if spec is None or spec.future.done():
+        yield
+        return
+    with workers(spare_cores(ctx), beside=True):
+        yield

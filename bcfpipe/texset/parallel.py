@@ -60,22 +60,29 @@ def encode_workers() -> int:
 
 
 @contextlib.contextmanager
-def workers(n: int):
-    """Encodes of this thread use ``n`` cores meanwhile (the others train)."""
-    before = getattr(_local, "n", None)
-    _local.n = max(1, int(n))
-    if _off_main_thread():
+def workers(n: int, beside: bool = False):
+    """Encodes of this thread use ``n`` cores meanwhile (the others train). ``beside``: a training
+    runs on another thread of this process meanwhile, so quicktex's bands go to worker processes
+    even here on the main thread, even with one worker (`quicktex_level`)."""
+    before = getattr(_local, "n", None), getattr(_local, "beside", False)
+    _local.n, _local.beside = max(1, int(n)), beside or before[1]
+    if _off_main_thread() or beside:
         trace_pool("encode-beside-training", _local.n)
     try:
         yield
     finally:
-        _local.n = before
+        _local.n, _local.beside = before
 
 
 def _off_main_thread() -> bool:
     """A thread beside the main one: quicktex, which holds the GIL, must not run in it, or the
     main thread's training stalls."""
     return threading.current_thread() is not threading.main_thread()
+
+
+def _beside_training() -> bool:
+    """This thread encodes while a training runs on another thread (`workers`' ``beside``)."""
+    return getattr(_local, "beside", False)
 
 
 def job_encode_workers(threads: int, parallel_jobs: int, cores: int | None = None) -> int:
@@ -143,12 +150,15 @@ def quicktex_level(codec: str, px: np.ndarray, block_bytes: int) -> np.ndarray:
     runs a level's blocks on its own OpenMP runtime, every core unless told: `openmp_threads`).
     Off the main thread (an encode beside a training), where quicktex would hold the GIL for the
     whole level: with more than one worker in bands over that many processes of one thread each;
-    with one, inline on one thread (a thread beside a training takes its turns on the GIL)."""
+    with one, inline on one thread (a thread beside a training takes its turns on the GIL). On
+    any thread where a training runs beside (`workers`' ``beside``: the likeliest training, started
+    before BC@R's encode), in processes even with one worker: the training's thread would
+    otherwise wait for the GIL through each whole level."""
     import quicktex  # lazy: start-up
 
     n = encode_workers()
     h, w = px.shape[:2]
-    if n > 1 and _off_main_thread():
+    if (n > 1 and _off_main_thread()) or _beside_training():
         pool = _process_pool(n)
         futures = [pool.submit(_quicktex_band, codec, np.ascontiguousarray(b).tobytes(), w, b.shape[0])
                    for b in bands(px)]
