@@ -1,9 +1,12 @@
 """The likeliest training beside the probe (`bcfpipe.layout.speculate`, issue 58): adopted when the
 fit chooses it, it ships what the sequential fit ships, byte for byte; dropped otherwise, it leaves
-nothing once waited for; a fit that fails stops it first; with no core to spare, or a set too large
-for two trainings' memory, it never starts."""
+nothing once waited for, also when the oracle rules out every neural candidate before a probe; a
+fit that fails stops it first; with no core to spare, or a set too large for two trainings' memory,
+it never starts. It starts before BC@R's full encode, whose quicktex then runs in a worker process."""
 from __future__ import annotations
 
+import json
+import os
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -133,3 +136,42 @@ def test_no_speculation_at_draft(tmp_path):
     assert fit.probe is not None and "speculation_dropped" not in fit.costs
     assert not any(s.startswith("meanwhile") for s in seen)
     assert "draft" not in speculate.PRESETS and {"fast", "standard", "paper"} <= set(speculate.PRESETS)
+
+
+def test_it_starts_before_bcs_full_encode_whose_quicktex_runs_in_a_worker_process(tmp_path, monkeypatch):
+    """quicktex holds the GIL through a whole level: beside the training's thread it runs in a
+    worker process, on the core the training leaves, even with one."""
+    trace = tmp_path / "pools.jsonl"
+    monkeypatch.setenv("BCFPIPE_TRACE_POOLS", str(trace))
+    parallel.release_workers()  # a pool of this process's earlier encodes would not be traced again
+    fit, seen = _fit(tmp_path / "spec")
+    fit.join_aside()
+    began = next(i for i, s in enumerate(seen) if s.startswith("meanwhile training neural tiny"))
+    assert began < next(i for i, s in enumerate(seen) if s.startswith("encoded in full"))
+    pools = [json.loads(line) for line in trace.read_text().splitlines()]
+    kinds = [p["kind"] for p in pools]
+    assert kinds.index("speculative-training") < kinds.index("encode-process-pool")
+    assert {"kind": "encode-process-pool", "workers": 1, "pid": os.getpid()} in pools  # 2 cores, 1 training
+    assert any(p["kind"] == "quicktex-openmp" and p["pid"] != os.getpid() for p in pools)
+
+
+def test_a_training_begun_before_the_oracle_rules_out_every_neural_candidate_is_dropped(tmp_path, monkeypatch):
+    """No probe then: the training begun at the fit's start is cancelled, and the fit ships what the
+    sequential one does."""
+    real = D._ruled_out
+
+    def ruled_out(ctx):
+        with monkeypatch.context() as m:  # no neural candidate clears the floor, even perfect
+            m.setattr(D.C, "admissible", lambda *a, **k: "below the floor")
+            return real(ctx)
+
+    monkeypatch.setattr(D, "_ruled_out", ruled_out)
+    fit, seen = _fit(tmp_path / "spec")
+    assert any(s.startswith("meanwhile training neural tiny") for s in seen)
+    assert any(s.startswith("no probe: no neural candidate") for s in seen)
+    assert fit.probe is None and "speculation_dropped" in fit.costs and "train" not in fit.costs
+    fit.join_aside()
+    assert not (tmp_path / "spec" / speculate.FOLDER).exists()
+    seq = _sequential(tmp_path / "seq", monkeypatch)
+    assert seq.probe is None and fit.decision.chosen.label == seq.decision.chosen.label
+    assert fit.decision.chosen.mse_per_mip == seq.decision.chosen.mse_per_mip
