@@ -155,17 +155,25 @@ def test_it_starts_before_bcs_full_encode_whose_quicktex_runs_in_a_worker_proces
     assert any(p["kind"] == "quicktex-openmp" and p["pid"] != os.getpid() for p in pools)
 
 
-def test_a_training_begun_before_the_oracle_rules_out_every_neural_candidate_is_dropped(tmp_path, monkeypatch):
-    """No probe then: the training begun at the fit's start is cancelled, and the fit ships what the
-    sequential one does."""
+def _rule_out(monkeypatch, on_the_estimate: bool):
+    """The oracle rules out every neural candidate (even a perfect one) on BC@R in full, and on
+    its sampled estimate too when ``on_the_estimate`` (`decide._promising`)."""
     real = D._ruled_out
 
     def ruled_out(ctx):
-        with monkeypatch.context() as m:  # no neural candidate clears the floor, even perfect
+        if not on_the_estimate and not ctx.classic.measured:
+            return real(ctx)
+        with monkeypatch.context() as m:
             m.setattr(D.C, "admissible", lambda *a, **k: "below the floor")
             return real(ctx)
 
     monkeypatch.setattr(D, "_ruled_out", ruled_out)
+
+
+def test_a_training_begun_before_the_oracle_rules_out_every_neural_candidate_is_dropped(tmp_path, monkeypatch):
+    """No probe then: the training begun at the fit's start is cancelled, and the fit ships what the
+    sequential one does."""
+    _rule_out(monkeypatch, on_the_estimate=False)
     fit, seen = _fit(tmp_path / "spec")
     assert any(s.startswith("meanwhile training neural tiny") for s in seen)
     assert any(s.startswith("no probe: no neural candidate") for s in seen)
@@ -175,3 +183,16 @@ def test_a_training_begun_before_the_oracle_rules_out_every_neural_candidate_is_
     seq = _sequential(tmp_path / "seq", monkeypatch)
     assert seq.probe is None and fit.decision.chosen.label == seq.decision.chosen.label
     assert fit.decision.chosen.mse_per_mip == seq.decision.chosen.mse_per_mip
+
+
+def test_none_starts_where_the_oracle_rules_out_every_neural_candidate_on_bcs_estimate(tmp_path, monkeypatch):
+    """The teapot's case: BC@R's full encode, which ships, keeps every core."""
+    _rule_out(monkeypatch, on_the_estimate=True)
+    trace = tmp_path / "pools.jsonl"
+    monkeypatch.setenv("BCFPIPE_TRACE_POOLS", str(trace))
+    parallel.release_workers()
+    fit, seen = _fit(tmp_path / "spec")
+    assert not any(s.startswith("meanwhile") for s in seen) and fit.probe is None
+    assert "speculation_dropped" not in fit.costs and fit.costs["speculation_gate"] >= 0
+    kinds = {json.loads(line)["kind"] for line in trace.read_text().splitlines()}
+    assert "speculative-training" not in kinds and "encode-process-pool" not in kinds
