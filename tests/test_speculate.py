@@ -32,21 +32,22 @@ def _smoke_speculates(monkeypatch):
     monkeypatch.setattr(speculate, "PRESETS", (*speculate.PRESETS, "smoke"))
 
 
-def _fit(tmp: Path, cores: int = 2, options: TrainingOptions = OPTIONS):
-    """The smooth 256² set's fit (the probe trains) on ``cores``, and what it logged."""
+def _fit(tmp: Path, cores: int = 2, options: TrainingOptions = OPTIONS, resolution: int = 256):
+    """The smooth 256² set's fit (the probe trains) on ``cores`` at R = ``resolution``, and what it
+    logged. Below 256 the likeliest training starts before BC@R's full encode (`decide._promising`)."""
     seen: list[str] = []
     parallel.set_encode_workers(cores)
     try:
-        return decide_layout(_smooth_or_detailed(False), tmp, options, 256, log=seen.append), seen
+        return decide_layout(_smooth_or_detailed(False), tmp, options, resolution, log=seen.append), seen
     finally:
         parallel.set_encode_workers(None)
 
 
-def _sequential(tmp: Path, monkeypatch):
+def _sequential(tmp: Path, monkeypatch, resolution: int = 256):
     """`_fit` with no speculation: the fit as it runs without a core to spare for it."""
     with monkeypatch.context() as m:
         m.setattr(speculate, "start", lambda ctx, bc_bytes: None)
-        return _fit(tmp)[0]
+        return _fit(tmp, resolution=resolution)[0]
 
 
 def _files(folder: Path) -> dict[str, bytes]:
@@ -144,7 +145,7 @@ def test_it_starts_before_bcs_full_encode_whose_quicktex_runs_in_a_worker_proces
     trace = tmp_path / "pools.jsonl"
     monkeypatch.setenv("BCFPIPE_TRACE_POOLS", str(trace))
     parallel.release_workers()  # a pool of this process's earlier encodes would not be traced again
-    fit, seen = _fit(tmp_path / "spec")
+    fit, seen = _fit(tmp_path / "spec", resolution=128)
     fit.join_aside()
     began = next(i for i, s in enumerate(seen) if s.startswith("meanwhile training neural tiny"))
     assert began < next(i for i, s in enumerate(seen) if s.startswith("encoded in full"))
@@ -174,13 +175,13 @@ def test_a_training_begun_before_the_oracle_rules_out_every_neural_candidate_is_
     """No probe then: the training begun at the fit's start is cancelled, and the fit ships what the
     sequential one does."""
     _rule_out(monkeypatch, on_the_estimate=False)
-    fit, seen = _fit(tmp_path / "spec")
+    fit, seen = _fit(tmp_path / "spec", resolution=128)
     assert any(s.startswith("meanwhile training neural tiny") for s in seen)
     assert any(s.startswith("no probe: no neural candidate") for s in seen)
     assert fit.probe is None and "speculation_dropped" in fit.costs and "train" not in fit.costs
     fit.join_aside()
     assert not (tmp_path / "spec" / speculate.FOLDER).exists()
-    seq = _sequential(tmp_path / "seq", monkeypatch)
+    seq = _sequential(tmp_path / "seq", monkeypatch, resolution=128)
     assert seq.probe is None and fit.decision.chosen.label == seq.decision.chosen.label
     assert fit.decision.chosen.mse_per_mip == seq.decision.chosen.mse_per_mip
 
@@ -191,8 +192,18 @@ def test_none_starts_where_the_oracle_rules_out_every_neural_candidate_on_bcs_es
     trace = tmp_path / "pools.jsonl"
     monkeypatch.setenv("BCFPIPE_TRACE_POOLS", str(trace))
     parallel.release_workers()
-    fit, seen = _fit(tmp_path / "spec")
+    fit, seen = _fit(tmp_path / "spec", resolution=128)
     assert not any(s.startswith("meanwhile") for s in seen) and fit.probe is None
     assert "speculation_dropped" not in fit.costs and fit.costs["speculation_gate"] >= 0
     kinds = {json.loads(line)["kind"] for line in trace.read_text().splitlines()}
     assert "speculative-training" not in kinds and "encode-process-pool" not in kinds
+
+
+def test_at_the_sets_own_side_it_starts_beside_the_probe_after_bcs_encode(tmp_path):
+    """R = the set's side: BC@R ships on every set measured there, so its full encode keeps every
+    core, and the training starts when the probe does."""
+    fit, seen = _fit(tmp_path / "spec")
+    fit.join_aside()
+    began = next(i for i, s in enumerate(seen) if s.startswith("meanwhile training neural tiny"))
+    assert began > next(i for i, s in enumerate(seen) if s.startswith("encoded in full"))
+    assert "speculation_gate" not in fit.costs

@@ -197,26 +197,31 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
     pred = predict_for(ts, options, cfg, asked, resolution)
     # no training here takes more steps than --layout neural's (at the profile asked)
     sized = _sized(replace(ctx, cap=cfg.preset), cfg, pred) if pred.probe is not None else None
-    # where a probe is planned, the likeliest training at once, on a spare core, beside the rest
+    # where a probe is planned below the set's side, the likeliest training at once on a spare core;
+    # elsewhere when the probe starts (below), beside it
     spec = speculate.start(sized, pred.bc_bytes) if sized is not None and _promising(sized) else None
     try:
         t, encoding = time.perf_counter(), work.seconds
         with speculate.beside(spec, ctx):
             ctx = replace(sized or ctx, classic=estimated(work, with_repacks=True, quality=False))
         ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
-        # the quality set aside at once, unless a training has taken the spare core
-        quality = _quality_aside(ctx, work) if spec is None else None
+        # the quality set aside at once, unless a training may take the spare core beside the probe
+        quality = None if speculate.possible(ctx) else _quality_aside(ctx, work)
         if pred.probe is None:
+            quality = quality if quality is not None else _quality_aside(ctx, work)
             log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
             return _settle(ctx, work, [], None, start, quality)
         if (measured := _ruled_out(ctx)) is not None:
             if spec is not None:
                 ctx.costs["speculation_dropped"] = spec.cancel()
-                quality = _quality_aside(ctx, work)
+            quality = quality if quality is not None else _quality_aside(ctx, work)
             log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
                 "reference's T_0-sized mip magnified (the oracle) holds it")
             fit = _settle(ctx, work, measured, None, start, quality)
         else:
+            spec = spec if spec is not None or quality is not None else speculate.start(ctx)  # beside the probe
+            if quality is None and spec is None:
+                quality = _quality_aside(ctx, work)
             fit = _probe_and_train(ctx, work, spec, quality, start)
     except BaseException:  # failed or interrupted: no training left running
         if spec is not None:

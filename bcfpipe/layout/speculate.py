@@ -117,9 +117,10 @@ def possible(ctx: K.FitContext) -> bool:
             and ctx.ts.data.size <= MAX_VALUES)
 
 
-def start(ctx: K.FitContext, bc_bytes: int) -> Speculation | None:
+def start(ctx: K.FitContext, bc_bytes: int | None = None) -> Speculation | None:
     """`guess`'s candidate trained in full on its own thread, when the fit may speculate
-    (`possible`); else None. ``ctx``: sized for the probe (p0, widths, sizes), BC@R not yet encoded."""
+    (`possible`); else None. ``ctx``: sized for the probe (p0, widths, sizes); ``bc_bytes``: BC@R's,
+    when it is not yet encoded."""
     g = guess(ctx, bc_bytes) if possible(ctx) else None
     if g is None:
         return None
