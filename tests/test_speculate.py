@@ -46,7 +46,7 @@ def _fit(tmp: Path, cores: int = 2, options: TrainingOptions = OPTIONS, resoluti
 def _sequential(tmp: Path, monkeypatch, resolution: int = 256):
     """`_fit` with no speculation: the fit as it runs without a core to spare for it."""
     with monkeypatch.context() as m:
-        m.setattr(speculate, "start", lambda ctx, bc_bytes: None)
+        m.setattr(speculate, "start", lambda ctx, bc_bytes=None: None)
         return _fit(tmp, resolution=resolution)[0]
 
 
@@ -111,19 +111,20 @@ def test_the_guess_is_the_widest_all_channel_model_at_the_probes_profile_within_
     assert speculate.guess(replace(ctx, forced=("roughness",))) is None
 
 
-def test_a_fit_that_fails_beside_a_speculative_training_stops_it_first(tmp_path, monkeypatch):
+@pytest.mark.parametrize("resolution", [256, 128])  # begun beside the probe; at the fit's start
+def test_a_fit_that_fails_beside_a_speculative_training_stops_it_first(tmp_path, monkeypatch, resolution):
     """The probe fails (here: raises) while the likeliest training runs beside it: the fit's error
     reaches the caller only after that training has stopped and its files are gone."""
     started: list[speculate.Speculation] = []
     start = speculate.start
-    monkeypatch.setattr(speculate, "start", lambda ctx, bc_bytes: started.append(start(ctx, bc_bytes)) or started[-1])
+    monkeypatch.setattr(speculate, "start", lambda ctx, bc_bytes=None: started.append(start(ctx, bc_bytes)) or started[-1])
 
     def failing_probe(ctx):
         raise RuntimeError("the probe failed")
 
     monkeypatch.setattr(D, "_probed", failing_probe)
     with pytest.raises(RuntimeError, match="the probe failed"):
-        _fit(tmp_path / "spec")
+        _fit(tmp_path / "spec", resolution=resolution)
     (spec,) = started
     assert spec.future.done() and spec.gate.cancelled.is_set()
     assert isinstance(spec.future.exception(), speculate.Cancelled)
@@ -156,14 +157,11 @@ def test_it_starts_before_bcs_full_encode_whose_quicktex_runs_in_a_worker_proces
     assert any(p["kind"] == "quicktex-openmp" and p["pid"] != os.getpid() for p in pools)
 
 
-def _rule_out(monkeypatch, on_the_estimate: bool):
-    """The oracle rules out every neural candidate (even a perfect one) on BC@R in full, and on
-    its sampled estimate too when ``on_the_estimate`` (`decide._promising`)."""
+def _rule_out(monkeypatch):
+    """The oracle rules out every neural candidate (even a perfect one) on BC@R in full."""
     real = D._ruled_out
 
     def ruled_out(ctx):
-        if not on_the_estimate and not ctx.classic.measured:
-            return real(ctx)
         with monkeypatch.context() as m:
             m.setattr(D.C, "admissible", lambda *a, **k: "below the floor")
             return real(ctx)
@@ -174,7 +172,7 @@ def _rule_out(monkeypatch, on_the_estimate: bool):
 def test_a_training_begun_before_the_oracle_rules_out_every_neural_candidate_is_dropped(tmp_path, monkeypatch):
     """No probe then: the training begun at the fit's start is cancelled, and the fit ships what the
     sequential one does."""
-    _rule_out(monkeypatch, on_the_estimate=False)
+    _rule_out(monkeypatch)
     fit, seen = _fit(tmp_path / "spec", resolution=128)
     assert any(s.startswith("meanwhile training neural tiny") for s in seen)
     assert any(s.startswith("no probe: no neural candidate") for s in seen)
@@ -186,19 +184,6 @@ def test_a_training_begun_before_the_oracle_rules_out_every_neural_candidate_is_
     assert fit.decision.chosen.mse_per_mip == seq.decision.chosen.mse_per_mip
 
 
-def test_none_starts_where_the_oracle_rules_out_every_neural_candidate_on_bcs_estimate(tmp_path, monkeypatch):
-    """The teapot's case: BC@R's full encode, which ships, keeps every core."""
-    _rule_out(monkeypatch, on_the_estimate=True)
-    trace = tmp_path / "pools.jsonl"
-    monkeypatch.setenv("BCFPIPE_TRACE_POOLS", str(trace))
-    parallel.release_workers()
-    fit, seen = _fit(tmp_path / "spec", resolution=128)
-    assert not any(s.startswith("meanwhile") for s in seen) and fit.probe is None
-    assert "speculation_dropped" not in fit.costs and fit.costs["speculation_gate"] >= 0
-    kinds = {json.loads(line)["kind"] for line in trace.read_text().splitlines()}
-    assert "speculative-training" not in kinds and "encode-process-pool" not in kinds
-
-
 def test_at_the_sets_own_side_it_starts_beside_the_probe_after_bcs_encode(tmp_path):
     """R = the set's side: BC@R ships on every set measured there, so its full encode keeps every
     core, and the training starts when the probe does."""
@@ -206,4 +191,3 @@ def test_at_the_sets_own_side_it_starts_beside_the_probe_after_bcs_encode(tmp_pa
     fit.join_aside()
     began = next(i for i, s in enumerate(seen) if s.startswith("meanwhile training neural tiny"))
     assert began > next(i for i, s in enumerate(seen) if s.startswith("encoded in full"))
-    assert "speculation_gate" not in fit.costs
