@@ -127,7 +127,9 @@ def test_a_fit_that_fails_beside_a_speculative_training_stops_it_first(tmp_path,
         _fit(tmp_path / "spec", resolution=resolution)
     (spec,) = started
     assert spec.future.done() and spec.gate.cancelled.is_set()
-    assert isinstance(spec.future.exception(), speculate.Cancelled)
+    # stopped at its next report, or (a smoke training of a tiny set, begun at the fit's start)
+    # already done: either way ended before the error reached the caller
+    assert spec.future.exception() is None or isinstance(spec.future.exception(), speculate.Cancelled)
     assert not (tmp_path / "spec" / speculate.FOLDER).exists()
 
 
