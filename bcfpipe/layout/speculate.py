@@ -1,13 +1,14 @@
-"""The likeliest training, started before BC@R's encode and the probe, on the core they leave idle (issue 58).
+"""The likeliest training, started on a spare core before the probe chooses it (issue 58).
 
 The probe decides which candidate trains, but the candidate a fit trains is most often the widest
 all-channel model at the probe's profile that fits within BC@R's bytes (`guess`): on the water
 bottle at 1k it is the one that ships. With a core to spare, at a preset where it pays
-(`PRESETS`), when a probe is planned (`bcfpipe.layout.predict`), that candidate's full training
-starts at once, silent, on its own thread: beside BC@R's full encode (on the cores it leaves,
-quicktex in a worker process: `parallel.workers`' ``beside``), the oracle and the probe. When
-the probe's choice is that candidate it is adopted: its training has run as long as those
-already, and its progress is shown from then on. When the choice is anything else, or the oracle
+(`PRESETS`), that candidate's full training starts, silent, on its own thread: where R is below
+the set's side, at the fit's start, beside BC@R's full encode (on the cores it leaves, quicktex in
+a worker process: `parallel.workers`' ``beside``), the oracle and the probe
+(`decide._promising`); elsewhere when the probe starts. When the probe's choice is that candidate
+it is adopted: its training has run as long as those already, and its progress is shown from
+then on. When the choice is anything else, or the oracle
 rules out every neural candidate and no probe runs, it is cancelled, and stops at its next
 progress report (a T_0 layer encoded, a phase's steps) while the fit goes on; its files are
 dropped once it has. Either way what ships is what the sequential fit ships: the same training,
