@@ -30,9 +30,10 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    any measured set (`_hopeful`, `gains.PROBE_GAINS_MAX_DB`) is trained instead, if it has a neural
    part; else nothing is. With a core to spare, where a probe is planned, the likeliest of these
    (`speculate.guess`: all channels at the probe's profile, the widest T_0 within BC@R's bytes)
-   starts training before step 1, beside BC@R's full encode (on the cores it leaves), the oracle
-   and the probe (`bcfpipe.layout.speculate`): adopted when it is the one chosen, dropped
-   otherwise, or when the oracle rules out every neural candidate.
+   starts training on it (`bcfpipe.layout.speculate`): where R is below the set's side before
+   step 1, beside BC@R's full encode (on the cores it leaves), the oracle and the probe
+   (`_promising`); elsewhere when the probe starts. It is adopted when it is the one chosen, and
+   dropped otherwise, or when the oracle rules out every neural candidate.
 5. The final choice among the trained model and the classic candidates: a classic candidate that
    its estimate puts first is encoded in full and measured, and the choice made again, until the
    one chosen is measured (`_settle`). What ships is encoded once, at the shipping preset, and
