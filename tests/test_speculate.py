@@ -80,7 +80,21 @@ def test_an_adopted_training_ships_the_files_and_figures_of_the_sequential_one(t
     assert mine.keys() == theirs.keys() and mine == theirs
 
 
-def test_a_training_not_chosen_is_dropped_and_leaves_nothing(tmp_path, monkeypatch):
+@pytest.mark.parametrize("ended_first", [False, True])
+def test_a_training_not_chosen_is_dropped_and_leaves_nothing(tmp_path, monkeypatch, ended_first):
+    """Dropped whether it still runs when the probe chooses or (a short training on a busy
+    machine) has ended: either way counted as dropped, its files gone once waited for."""
+    if ended_first:
+        started: list[speculate.Speculation] = []
+        start, probed = speculate.start, D._probed
+        monkeypatch.setattr(speculate, "start",
+                            lambda ctx, bc_bytes=None: started.append(start(ctx, bc_bytes)) or started[-1])
+
+        def probe_once_it_ended(ctx):
+            started[-1].future.exception()  # waits for it
+            return probed(ctx)
+
+        monkeypatch.setattr(D, "_probed", probe_once_it_ended)
     fit, seen = _fit(tmp_path / "spec")
     seq = _sequential(tmp_path / "seq", monkeypatch)
     assert any(s.startswith("meanwhile training neural tiny") for s in seen)

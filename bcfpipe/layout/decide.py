@@ -257,7 +257,7 @@ def _probe_and_train(ctx: K.FitContext, work: ClassicWork, spec: speculate.Specu
     ctx.log(f"first choice: {first.chosen.label} ({first.chosen.basis})")
     chosen = first.chosen if first.chosen.profile is not None else _hopeful(ctx, first.chosen)
     ctx, trained = _train_next(ctx, work, chosen, cands, spec)
-    if spec is not None and not spec.future.done() and not spec.gate.cancelled.is_set():  # nothing trains
+    if spec is not None and spec.pending:  # nothing trains: dropped, running or (a short one) done
         ctx.costs["speculation_dropped"] = spec.cancel()
     ready = [w for w in weighed if w.candidate.basis == "measured"] + ([trained] if trained else [])
     return _settle(ctx, work, ready, first, start, quality)

@@ -54,6 +54,7 @@ class _Gate:
         self.progress = progress
         self.adopted = False
         self.cancelled = threading.Event()
+        self.ended: float | None = None  # when the training ended (`time.perf_counter`)
 
     def __call__(self, p: Progress) -> None:
         if self.cancelled.is_set():
@@ -83,9 +84,15 @@ class Speculation:
 
     def cancel(self) -> float:
         """Ask it to stop at its next progress report (a T_0 layer encoded, a phase's steps), without
-        waiting; the seconds it ran. `join` waits for it."""
+        waiting; the seconds it ran (to its end, if it has ended: a short training may, before the
+        probe chooses). `join` waits for it."""
         self.gate.cancelled.set()
-        return time.perf_counter() - self.start
+        return (self.gate.ended or time.perf_counter()) - self.start
+
+    @property
+    def pending(self) -> bool:
+        """Neither adopted nor cancelled yet."""
+        return not self.gate.adopted and not self.gate.cancelled.is_set()
 
     def join(self, work: Path) -> None:
         """Wait for it to end, then drop its files under ``work``, the fit's folder."""
@@ -131,8 +138,11 @@ def start(ctx: K.FitContext, bc_bytes: int | None = None) -> Speculation | None:
     threads = ctx.options.threads or 1
 
     def run():
-        with workers(threads):
-            return K.train_channels(quiet, ctx.all_channels, profile, width=width)
+        try:
+            with workers(threads):
+                return K.train_channels(quiet, ctx.all_channels, profile, width=width)
+        finally:
+            gate.ended = time.perf_counter()
 
     ctx.log(f"meanwhile training neural {profile}" + (f", T_0 of {width} layers" if width > 1 else "")
             + ", the likeliest choice, on the spare core")
