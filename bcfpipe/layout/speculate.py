@@ -8,10 +8,9 @@ the set's side, at the fit's start, beside BC@R's full encode (on the cores it l
 a worker process: `parallel.workers`' ``beside``), the oracle and the probe
 (`decide._promising`); elsewhere when the probe starts. When the probe's choice is that candidate
 it is adopted: its training has run as long as those already, and its progress is shown from
-then on. When the choice is anything else, or the oracle
-rules out every neural candidate and no probe runs, it is cancelled, and stops at its next
-progress report (a T_0 layer encoded, a phase's steps) while the fit goes on; its files are
-dropped once it has. Either way what ships is what the sequential fit ships: the same training,
+then on. When the choice is anything else, or the oracle rules out every neural candidate and no
+probe runs, it is cancelled, and stops at its next progress report (a T_0 layer encoded, a
+phase's steps) while the fit goes on; its files are dropped once it has. Either way what ships is what the sequential fit ships: the same training,
 the same schedule, the same thread count (`--threads`), on the texture set's one reference chain.
 """
 from __future__ import annotations
