@@ -11,7 +11,7 @@ encodes may use), ``encode-process-pool`` (quicktex bands beside a training), ``
 OpenMP threads on the main thread), ``disk-bytes-thread`` (zstd sizes aside), ``encode-thread-pool`` (ISPC bands),
 ``encode-beside-training`` (an encode in a thread beside a training), ``fused-thread-pool`` and
 ``numba`` (the fused training kernel's chunks), ``bc6h-thread-pool`` (BC6H fitting chunks),
-``ssim-thread-pool`` (evaluation) and ``onnxruntime`` (an inference session's intra-op threads).
+``ssim-thread-pool`` and ``flip-thread-pool`` (evaluation) and ``onnxruntime`` (an inference session's intra-op threads).
 """
 from __future__ import annotations
 

@@ -115,20 +115,3 @@ def test_bad_inputs(ref):
     with pytest.raises(ValueError, match="shape"):
         compute_metrics(ref, [r[:1] for r in ref], CH)
     assert psnr_from_mse(0.0) == math.inf and psnr_from_mse(0.01) == pytest.approx(20.0)
-
-
-def test_ssim_groups_side_by_side_equal_each_alone(ref, monkeypatch):
-    """The groups' SSIMs computed two at a time are each group's SSIM computed alone, in the same
-    order, and one at a time (above SSIM_PARALLEL_VALUES) gives the same record."""
-    import bcfpipe.texset.metrics as M
-
-    rng = np.random.default_rng(4)
-    dec = [np.clip(r + rng.normal(0, 0.05, r.shape).astype(np.float32), -1, 1) for r in ref]
-    alone = {}
-    for g, idx in {"albedo": [0, 1, 2], "roughness": [3], "normal": [4, 5]}.items():
-        alone[g] = M.ssim_group(ref[0][..., idx], dec[0][..., idx], CH[idx[0]].peak)
-    two = compute_metrics(ref, dec, CH)
-    monkeypatch.setattr(M, "SSIM_PARALLEL_VALUES", 0)
-    one = compute_metrics(ref, dec, CH)
-    assert two.ssim_per_group == alone and list(two.ssim_per_group) == list(alone)
-    assert one == two

@@ -19,24 +19,22 @@ PSNR (all values in dB, +inf for a perfect match):
   ``psnr_covered`` and ``psnr_per_mip_covered`` are the same formulas over covered texels only, and
   ``covered_fraction`` is mip 0's covered share.
 
-SSIM: skimage ``structural_similarity`` per channel group at mip 0 (Wang et al. settings: 11-tap
-Gaussian window, sigma 1.5, population covariance; data_range = the group's peak); ``ssim`` is the
-unweighted mean over groups. FLIP: ``flip_evaluator`` in LDR mode at mip 0 on colour groups
+SSIM: skimage's ``structural_similarity`` per channel group at mip 0 (Wang et al. settings: 11-tap
+Gaussian window, sigma 1.5, population covariance; data_range = the group's peak), computed by
+`texset.ssim` (the same values, in bands of rows over the job's cores; skimage itself below
+11x11); ``ssim`` is the unweighted mean over groups. FLIP: LDR-FLIP at mip 0 on colour groups
 (albedo, emissiveColor), values clipped to [0, 1] and treated as sRGB-encoded (as stored colour
-textures are), default 67 pixels per degree; ``flip`` is the mean over colour groups, or None when
-the set has none.
+textures are), 67 pixels per degree, computed by `texset.flip` (``flip_evaluator``'s error map);
+``flip`` is the mean over colour groups, or None when the set has none.
 """
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import numpy as np
 
 from bcfpipe.formats.manifest import Quality as Metrics
-from bcfpipe.pooltrace import trace_pool
-from bcfpipe.texset.parallel import encode_workers
 from bcfpipe.texset.texture_set import Channel
 from bcfpipe.texset import encoding
 
@@ -44,11 +42,6 @@ __all__ = ["Metrics", "compute_metrics", "metrics_from_mse", "psnr_from_mse", "m
 
 COLOR_KIND = "color"
 BAND_VALUES = 1 << 22  # values per band when a metric walks a large mip in bands of rows
-FLIP_HALO = 32
-# a set's SSIM groups two at a time, up to this many values at mip 0 (2048² x 6 channels: 8.8 -> 6.7 s
-# of metrics); above it one at a time, since each group's copy and filters would add to the peak
-# (an 8192² x 8 set: +1.3 GiB)
-SSIM_THREADS, SSIM_PARALLEL_VALUES = 2, 1 << 26
 
 
 def psnr_from_mse(mse: float, peak: float = 1.0) -> float:
@@ -126,69 +119,31 @@ def _mean_psnr(mses: Sequence[float], use: Sequence[int]) -> float:
 
 
 def ssim_group(ref: np.ndarray, dec: np.ndarray, peak: float) -> float | None:
-    """SSIM of one (H, W, g) group; None when the image is smaller than 3x3."""
+    """SSIM of one (H, W, g) group; None when the image is smaller than 3x3. From 11x11 up
+    skimage's Gaussian SSIM (`texset.ssim`, in bands over the job's cores); below, skimage's
+    uniform window as wide as the image allows."""
+    h, w = ref.shape[:2]
+    if min(h, w) >= 11:
+        from bcfpipe.texset.ssim import mean_ssim  # lazy: start-up (numba)
+
+        return mean_ssim(ref, dec, peak)
+    if min(h, w) < 3:
+        return None
     from skimage.metrics import structural_similarity  # lazy: start-up
 
-    h, w = ref.shape[:2]
-    kw: dict = dict(data_range=peak)
-    if min(h, w) >= 11:
-        kw.update(gaussian_weights=True, sigma=1.5, use_sample_covariance=False)
-    elif min(h, w) >= 3:
-        kw.update(win_size=min(h, w) - (1 - min(h, w) % 2))
-    else:
-        return None
-    if h * w * ref.shape[2] > BAND_VALUES and min(h, w) >= 11:
-        return _ssim_banded(ref, dec, kw)
+    kw = dict(data_range=peak, win_size=min(h, w) - (1 - min(h, w) % 2))
     r, d = np.asarray(ref, np.float32), np.asarray(dec, np.float32)  # skimage filters in the input's float type
     if r.shape[2] == 1:
         return float(structural_similarity(r[..., 0], d[..., 0], **kw))
     return float(structural_similarity(r, d, channel_axis=-1, **kw))
 
 
-def _ssim_banded(ref: np.ndarray, dec: np.ndarray, kw: dict) -> float:
-    """skimage's Gaussian SSIM of a large image, computed on bands of rows in float32: each band
-    carries a halo of the filter's radius (5 rows), so every local SSIM value is the one the whole
-    image gives, and the mean is taken over the same cropped area as skimage's."""
-    from skimage.metrics import structural_similarity  # lazy: start-up
-
-    h, w, g = ref.shape
-    pad = 5  # int(3.5 * 1.5 + 0.5): the 11-tap window's radius, and skimage's crop
-    rows = max(4 * pad, BAND_VALUES // w)
-    means = []
-    for c in range(g):
-        total = 0.0
-        for y0 in range(pad, h - pad, rows):
-            y1 = min(h - pad, y0 + rows)
-            a, b = max(0, y0 - pad), min(h, y1 + pad)
-            _, s_map = structural_similarity(np.asarray(ref[a:b, :, c], np.float32), np.asarray(dec[a:b, :, c], np.float32),
-                                             full=True, **kw)
-            total += float(s_map[y0 - a:y1 - a, pad:w - pad].sum(dtype=np.float64))
-        means.append(total / ((h - 2 * pad) * (w - 2 * pad)))
-    return float(np.mean(means))
-
-
 def flip_group(ref: np.ndarray, dec: np.ndarray) -> float:
-    """Mean LDR FLIP of one (H, W, 3) sRGB-encoded colour group, values clipped to [0, 1]."""
-    import flip_evaluator as flip  # lazy: start-up
+    """Mean LDR FLIP of one (H, W, 3) sRGB-encoded colour group, values clipped to [0, 1]
+    (`texset.flip`: flip_evaluator's map, in bands over the job's cores)."""
+    from bcfpipe.texset.flip import mean_flip  # lazy: start-up (numba)
 
-    h, w = ref.shape[:2]
-    if h * w * 3 <= BAND_VALUES:
-        r = np.ascontiguousarray(np.clip(ref, 0.0, 1.0), dtype=np.float32)
-        d = np.ascontiguousarray(np.clip(dec, 0.0, 1.0), dtype=np.float32)
-        _, mean, _ = flip.evaluate(r, d, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=True)
-        return float(mean)
-    # large images in bands of rows: each band carries a halo wider than FLIP's filters at 67 pixels
-    # per degree (radius 10 for the colour CSF, 9 for the feature filters, chained: 19 < FLIP_HALO)
-    rows = max(4 * FLIP_HALO, BAND_VALUES // (3 * w))
-    total = 0.0
-    for y0 in range(0, h, rows):
-        y1 = min(h, y0 + rows)
-        a, b = max(0, y0 - FLIP_HALO), min(h, y1 + FLIP_HALO)
-        r = np.ascontiguousarray(np.clip(ref[a:b], 0.0, 1.0), dtype=np.float32)
-        d = np.ascontiguousarray(np.clip(dec[a:b], 0.0, 1.0), dtype=np.float32)
-        err, _, _ = flip.evaluate(r, d, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=False)
-        total += float(np.asarray(err)[y0 - a:y1 - a].sum(dtype=np.float64))
-    return total / (h * w)
+    return mean_flip(ref, dec)
 
 
 def metrics_from_mse(mse: np.ndarray, channels: Sequence[Channel], shapes: Sequence[tuple[int, int]],
@@ -244,22 +199,10 @@ def metrics_and_errors(ref_mips: Sequence[np.ndarray], dec_mips: Sequence[np.nda
         r0, d0 = (encoding.encode_levels([x], gains)[0] for x in (r0, d0))
     flip_groups = [g for g, idx in groups.items() if flip and channels[idx[0]].kind == COLOR_KIND and len(idx) == 3]
 
-    # SSIM's filters (scipy) release the GIL, so the groups' SSIMs run side by side (FLIP holds the
-    # GIL and runs alone); each value is what it is alone
+    # each group's SSIM and FLIP run in bands of rows over the job's cores
     ssim_per_group: dict[str, float] = {}
     if ssim:
-        # never more than the cores the job may use (--jobs 1: one)
-        threads = min(SSIM_THREADS, encode_workers(), len(groups)) if r0.size <= SSIM_PARALLEL_VALUES else 1
-
-        def one(idx):
-            return ssim_group(r0[..., idx], d0[..., idx], channels[idx[0]].peak)
-
-        if threads > 1:
-            trace_pool("ssim-thread-pool", threads)
-            with ThreadPoolExecutor(max_workers=threads) as pool:
-                values = list(pool.map(one, groups.values()))
-        else:
-            values = [one(idx) for idx in groups.values()]
+        values = [ssim_group(r0[..., idx], d0[..., idx], channels[idx[0]].peak) for idx in groups.values()]
         ssim_per_group = {g: v for g, v in zip(groups, values) if v is not None}
     flip_per_group = {g: flip_group(r0[..., groups[g]], d0[..., groups[g]]) for g in flip_groups}
 
