@@ -10,7 +10,10 @@ within 0.1 dB at every mip, or better; never below BC@R - 0.5 dB (BC@R as BEFORE
 encoded in full) at any mip.
 
   python benchmarks/bench_default_cost.py BEFORE_TREE [--sets teapot,brick,wood,bottle,sample]
-      [--quality draft] [--profile P] [--reps 1] [--json out.json] [--before-json earlier.json]
+      [--quality draft] [--profile P] [--reps 1] [--neural-before] [--json out.json] [--before-json earlier.json]
+
+``--neural-before``: `--layout neural` with BEFORE too, right after BEFORE's default, for a change
+that moves both (the final measure): the ratio before is then BEFORE's own, auto / neural.
 
 ``--before-json``: BEFORE's runs from an earlier ``--json`` of this script (the same quality and
 profile) instead of running BEFORE again: its code does not change, and its figures decide only
@@ -109,9 +112,12 @@ def main() -> None:
     ap.add_argument("--profile", help="passed to every run (default: the default profile)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--before-json", type=Path, help="BEFORE's runs from an earlier --json of this script")
+    ap.add_argument("--neural-before", action="store_true", help="run --layout neural with BEFORE too")
     a = ap.parse_args()
     if (a.before is None) == (a.before_json is None):
         ap.error("give BEFORE_TREE or --before-json, not both")
+    if a.neural_before and a.before is None:
+        ap.error("--neural-before runs BEFORE_TREE: give it")
     earlier = {}
     if a.before_json:
         d = json.loads(a.before_json.read_text())
@@ -125,8 +131,10 @@ def main() -> None:
         for name in a.sets.split(","):
             for rep in range(a.reps):
                 r = {"set": name, "rep": rep}
-                for key, tree, layout in (("auto_before", before, "auto"), ("neural", after, "neural"),
-                                          ("auto_after", after, "auto")):
+                plan = [("auto_before", before, "auto"), ("neural", after, "neural"), ("auto_after", after, "auto")]
+                if a.neural_before:
+                    plan.insert(1, ("neural_before", before, "neural"))
+                for key, tree, layout in plan:
                     if tree is None:
                         if (name, rep) not in earlier:
                             raise SystemExit(f"{a.before_json} has no run of {name} (rep {rep})")
@@ -137,9 +145,10 @@ def main() -> None:
                           f"{[(k, v['layout']) for k, v in r[key]['shipped'].items()]}", flush=True)
                 nb, na = r["auto_before"]["wall_seconds"], r["auto_after"]["wall_seconds"]
                 n = r["neural"]["wall_seconds"]
-                r["ratio_before"], r["ratio_after"] = round(nb / n, 2), round(na / n, 2)
+                n_before = r["neural_before"]["wall_seconds"] if "neural_before" in r else n
+                r["ratio_before"], r["ratio_after"] = round(nb / n_before, 2), round(na / n, 2)
                 r["decisions"] = held(r["auto_before"], r["auto_after"])
-                print(f"{name}: auto before {nb} s, neural {n} s, auto after {na} s: "
+                print(f"{name}: auto before {nb} s, neural before {n_before} s, neural {n} s, auto after {na} s: "
                       f"{r['ratio_before']}x -> {r['ratio_after']}x", flush=True)
                 for line in r["decisions"]:
                     print("    " + line, flush=True)
