@@ -93,7 +93,7 @@ def feature_filter(ppd: float = PPD) -> np.ndarray:
     return taps
 
 
-# linear RGB → XYZ (D65), FLIP.h LinearRGBToXYZ
+# linear RGB → XYZ (D65), FLIP.h LinearRGBToXYZ; the kernels read both as constants
 _M = np.array([[10135552.0 / 24577794.0, 8788810.0 / 24577794.0, 4435075.0 / 24577794.0],
                [2613072.0 / 12288897.0, 8788810.0 / 12288897.0, 887015.0 / 12288897.0],
                [1425312.0 / 73733382.0, 8788810.0 / 73733382.0, 70074185.0 / 73733382.0]], np.float32)
@@ -130,9 +130,10 @@ def _linear(c):
 
 
 @nb.njit(cache=CACHE, nogil=True)
-def _to_ycxcz(img, m, inv_white, out):
+def _to_ycxcz(img, out):
     """(h, w, 3) sRGB in [0, 1] → (3, h, w) YCxCz (XYZToYCxCz of LinearRGBToXYZ)."""
     h, w = img.shape[0], img.shape[1]
+    m, inv_white = _M, _INV_WHITE
     for y in range(h):
         for x in range(w):
             r, g, b = _linear(img[y, x, 0]), _linear(img[y, x, 1]), _linear(img[y, x, 2])
@@ -145,10 +146,11 @@ def _to_ycxcz(img, m, inv_white, out):
 
 
 @nb.njit(inline="always", cache=CACHE, nogil=True)
-def _lab_hunt(lum, cx, cz, m, inv_white):
+def _lab_hunt(lum, cx, cz):
     """A filtered YCxCz colour back to linear RGB clamped to [0, 1], then CIELab with the Hunt
     adjustment (FLIP.h YCxCzToXYZ, XYZToLinearRGB, clamp, LinearRGBToXYZ, XYZToCIELab, Hunt)."""
     f = np.float32
+    m, inv_white = _M, _INV_WHITE
     yy = (lum + f(16.0)) / f(116.0)
     x0 = (yy + cx / f(500.0)) * f(0.950428545)
     y0 = yy * f(1.0)
@@ -172,7 +174,7 @@ def _lab_hunt(lum, cx, cz, m, inv_white):
 
 
 @nb.njit(cache=CACHE, nogil=True)
-def _error(ref, tst, ws, wf, m, inv_white, cmax, pccmax, out):
+def _error(ref, tst, ws, wf, cmax, pccmax, out):
     """FLIP of YCxCz planes ``ref`` and ``tst`` (3, h, w) into ``out`` (h, w) (FLIP.h
     computeColorDifference, then computeFeatureDifferenceAndFinalError). Each filter tap is summed
     in FLIP.h's order, its loops turned so that a row's texels go side by side."""
@@ -220,8 +222,8 @@ def _error(ref, tst, ws, wf, m, inv_white, cmax, pccmax, out):
                 acc[6, x] += w2 * mid[6, yy, x]
                 acc[7, x] += w3 * mid[7, yy, x]
         for x in range(w):
-            l1, a1, b1 = _lab_hunt(acc[0, x], acc[1, x], acc[2, x] + acc[3, x], m, inv_white)
-            l2, a2, b2 = _lab_hunt(acc[4, x], acc[5, x], acc[6, x] + acc[7, x], m, inv_white)
+            l1, a1, b1 = _lab_hunt(acc[0, x], acc[1, x], acc[2, x] + acc[3, x])
+            l2, a2, b2 = _lab_hunt(acc[4, x], acc[5, x], acc[6, x] + acc[7, x])
             cd = (abs(l1 - l2) + np.sqrt((a1 - a2) * (a1 - a2) + (b1 - b2) * (b1 - b2))) ** gqc
             if cd < pccmax:
                 cd *= gpt / pccmax
@@ -283,8 +285,8 @@ def flip_map(ref: np.ndarray, test: np.ndarray) -> np.ndarray:
 
     def run():
         for i, img in enumerate((ref, test)):
-            _to_ycxcz(np.ascontiguousarray(img, np.float32), _M, _INV_WHITE, planes[i])
-        _error(planes[0], planes[1], _WS, _WF, _M, _INV_WHITE, cmax, pccmax, out)
+            _to_ycxcz(np.ascontiguousarray(img, np.float32), planes[i])
+        _error(planes[0], planes[1], _WS, _WF, cmax, pccmax, out)
 
     without_cache(run, globals())
     return out
