@@ -24,9 +24,10 @@ if TYPE_CHECKING:
     from bcfpipe.train.trainer import TrainedMaterial
 
 # The metrics after the decode, in units of the decode's own time, for the evaluation's ETA: PSNR
-# and per-channel errors alone (0.38-0.39), and with SSIM and FLIP at mip 0 (3.15-3.24), measured
-# at 1024² and 2048² x 8 channels, tiny, on a 2-core CPU (docs/benchmarks.md, issue 58)
-METRICS_PER_DECODE = {False: 0.4, True: 3.2}
+# and per-channel errors alone (0.38-0.39 at 1024² and 2048² x 8 channels, tiny), and with SSIM and
+# FLIP at mip 0 (0.42-0.63 of a neural decode, 1.42-1.52 of BC@R's, the water bottle's 2048² x 11
+# channels; benchmarks/bench_evaluate_eta.py), on a 2-core CPU (docs/benchmarks.md, issue 58)
+METRICS_PER_DECODE = {False: 0.4, True: 1.0}
 
 
 @dataclass(frozen=True)
