@@ -11,7 +11,8 @@ contrast sensitivity Gaussians (Cz's a sum of two, separated), goes back to line
 [0, 1], then to CIELab with the Hunt adjustment, and takes the HyAB distance, compressed by
 q_c = 0.7 and remapped so that p_c·c_max lands on p_t; the feature path filters Y (as L*/116 + 16/116)
 with a Gaussian's first and second derivatives (edges and points); the error is
-ΔE_c^(1 − ΔE_f). Filters clamp at the image's edges.
+ΔE_c^(1 − ΔE_f). Filters clamp at the image's edges. The constants, filters and colour transforms
+are FLIP.h's (NVIDIA, BSD-3-Clause), read from github.com/NVlabs/flip.
 """
 from __future__ import annotations
 
