@@ -19,9 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
-import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from dataclasses import replace
@@ -36,6 +33,7 @@ from bcfpipe.errors import InputError
 from bcfpipe.formats.vocabulary import T0
 from bcfpipe.model.features import BlockParams, FixedLevel, Layers, QuantizedLevel, codec_of
 from bcfpipe.model.decoder import MlpWeights
+from bcfpipe.train.adam import DecayedAdam
 from bcfpipe.train.backend import Step, StepBackend, make_backend
 from bcfpipe.train.feature_init import pca_init
 from bcfpipe.train.fixed_t0 import pca_t0
@@ -86,30 +84,15 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def _import_dynamo_quietly() -> None:
-    """torch.optim imports torch._dynamo, whose import creates an inductor cache folder in the
-    temporary folder and leaves it there. Nothing here compiles, so the import gets a throwaway
-    folder: bcfpipe writes only to OUT and its cache."""
-    if "torch._dynamo" in sys.modules or "TORCHINDUCTOR_CACHE_DIR" in os.environ:
-        return
-    with tempfile.TemporaryDirectory(prefix="bcfpipe-torch-") as tmp:
-        os.environ["TORCHINDUCTOR_CACHE_DIR"] = tmp
-        try:
-            import torch._dynamo  # noqa: F401 - lazy: start-up
-        finally:
-            os.environ.pop("TORCHINDUCTOR_CACHE_DIR", None)
-
-
-def _optimizer(feature_params, mlp_params, sched, device):
-    _import_dynamo_quietly()
-    groups = [{"params": mlp_params, "lr": sched.lr_mlp}]
-    gammas = [sched.gamma_mlp]
+def _optimizer(feature_params, mlp_params, sched, device) -> DecayedAdam:
+    """Adam over the features (when the step does not update them itself) and the MLP, each at its
+    own decayed rate (`TrainConfig`'s schedule)."""
+    groups, rates, gammas = [mlp_params], [sched.lr_mlp], [sched.gamma_mlp]
     if feature_params:
-        groups.insert(0, {"params": feature_params, "lr": sched.lr_features})
+        groups.insert(0, feature_params)
+        rates.insert(0, sched.lr_features)
         gammas.insert(0, sched.gamma_features)
-    opt = torch.optim.Adam(groups, fused=torch.device(device).type in ("cpu", "cuda"))
-    lr_sched = torch.optim.lr_scheduler.LambdaLR(opt, [lambda t, g=g: g ** t for g in gammas])
-    return opt, lr_sched
+    return DecayedAdam(groups, rates, gammas, device)
 
 
 class _Clock:
@@ -261,7 +244,7 @@ def _run_phase(run: _Run, name: str, step: Step, feature_params, sched, project=
     each step's loss and gradients from ``step`` (the run's backend made it)."""
     t0 = time.perf_counter()
     own = step.owns_adam  # the step's own Adam updates the features
-    opt, lr = _optimizer([] if own else feature_params, run.mlp_params, sched, run.device)
+    opt = _optimizer([] if own else feature_params, run.mlp_params, sched, run.device)
     ema = None
     for i in range(1, sched.steps + 1):
         if on_step is not None:
@@ -269,12 +252,11 @@ def _run_phase(run: _Run, name: str, step: Step, feature_params, sched, project=
         s = run.next_s()
         uv, target, weight = _batch_at(run, s)
         run.samples[name] = run.samples.get(name, 0) + uv.shape[0]
-        opt.zero_grad(set_to_none=True)
+        opt.zero_grad()
         val = step(uv, target, weight, s)
         opt.step()
         if own:
-            step.adam(sched.lr_features * sched.gamma_features ** (i - 1))  # LambdaLR's rate for this step
-        lr.step()
+            step.adam(sched.lr_features * sched.gamma_features ** (i - 1))  # the same decayed rate
         if project is not None:
             with torch.no_grad():
                 project()
