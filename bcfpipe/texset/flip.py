@@ -17,13 +17,11 @@ are FLIP.h's (NVIDIA, BSD-3-Clause), read from github.com/NVlabs/flip.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from bcfpipe.pooltrace import trace_pool
 from bcfpipe.process_env import kernel_cache, without_cache
-from bcfpipe.texset.parallel import encode_workers
+from bcfpipe.texset.parallel import map_threads
 
 CACHE = kernel_cache()  # compiled kernels live in bcfpipe's cache, or nowhere
 import numba as nb  # noqa: E402
@@ -174,6 +172,29 @@ def _lab_hunt(lum, cx, cz):
     return big_l, f(0.01) * big_l * (f(500.0) * (vx - vy)), f(0.01) * big_l * (f(200.0) * (vy - vz))
 
 
+# the column passes: accumulator k sums taps[TAPS[k]] times plane PLANES[k] (colour: Y, Cx and Cz's
+# two Gaussians of the reference, then the test; features: each image's x-derivatives under the
+# Gaussian, then its Gaussian under the y-derivatives)
+_COLOUR_TAPS, _COLOUR_PLANES = np.array([0, 1, 2, 3, 0, 1, 2, 3]), np.arange(8)
+_FEATURE_TAPS, _FEATURE_PLANES = np.array([0, 0, 0, 0, 1, 1, 2, 2]), np.array([0, 3, 1, 4, 2, 5, 2, 5])
+
+
+@nb.njit(inline="always", cache=CACHE, nogil=True)
+def _down(mid, y, taps, tap_of, plane_of, acc):
+    """Row ``y`` of the column pass into ``acc`` (8, w): each texel's taps summed in FLIP.h's order,
+    the rows clamped at the image's edges."""
+    h, w = mid.shape[1], mid.shape[2]
+    r = taps.shape[1] // 2
+    acc[:] = 0
+    for t in range(2 * r + 1):
+        yy = min(max(0, y + t - r), h - 1)
+        for k in range(8):
+            wt = taps[tap_of[k], t]
+            p = plane_of[k]
+            for x in range(w):
+                acc[k, x] += wt * mid[p, yy, x]
+
+
 @nb.njit(cache=CACHE, nogil=True)
 def _error(ref, tst, ws, wf, cmax, pccmax, out):
     """FLIP of YCxCz planes ``ref`` and ``tst`` (3, h, w) into ``out`` (h, w) (FLIP.h
@@ -209,19 +230,7 @@ def _error(ref, tst, ws, wf, cmax, pccmax, out):
         mid[:, y, :] = acc
     gpt, gqc = f(GPT), f(GQC)
     for y in range(h):
-        acc[:] = 0
-        for t in range(2 * rs + 1):
-            yy = min(max(0, y + t - rs), h - 1)
-            w0, w1, w2, w3 = ws[0, t], ws[1, t], ws[2, t], ws[3, t]
-            for x in range(w):
-                acc[0, x] += w0 * mid[0, yy, x]
-                acc[1, x] += w1 * mid[1, yy, x]
-                acc[2, x] += w2 * mid[2, yy, x]
-                acc[3, x] += w3 * mid[3, yy, x]
-                acc[4, x] += w0 * mid[4, yy, x]
-                acc[5, x] += w1 * mid[5, yy, x]
-                acc[6, x] += w2 * mid[6, yy, x]
-                acc[7, x] += w3 * mid[7, yy, x]
+        _down(mid, y, ws, _COLOUR_TAPS, _COLOUR_PLANES, acc)
         for x in range(w):
             l1, a1, b1 = _lab_hunt(acc[0, x], acc[1, x], acc[2, x] + acc[3, x])
             l2, a2, b2 = _lab_hunt(acc[4, x], acc[5, x], acc[6, x] + acc[7, x])
@@ -251,19 +260,7 @@ def _error(ref, tst, ws, wf, cmax, pccmax, out):
         mid[:6, y, :] = acc[:6]
     norm, gqf = f(1.0) / np.sqrt(f(2.0)), f(GQF)
     for y in range(h):
-        acc[:] = 0
-        for t in range(2 * rf + 1):
-            yy = min(max(0, y + t - rf), h - 1)
-            g0, g1, g2 = wf[0, t], wf[1, t], wf[2, t]
-            for x in range(w):
-                acc[0, x] += g0 * mid[0, yy, x]
-                acc[1, x] += g0 * mid[3, yy, x]
-                acc[2, x] += g0 * mid[1, yy, x]
-                acc[3, x] += g0 * mid[4, yy, x]
-                acc[4, x] += g1 * mid[2, yy, x]
-                acc[5, x] += g1 * mid[5, yy, x]
-                acc[6, x] += g2 * mid[2, yy, x]
-                acc[7, x] += g2 * mid[5, yy, x]
+        _down(mid, y, wf, _FEATURE_TAPS, _FEATURE_PLANES, acc)
         for x in range(w):
             edge_r = np.sqrt(acc[0, x] * acc[0, x] + acc[4, x] * acc[4, x])
             edge_t = np.sqrt(acc[1, x] * acc[1, x] + acc[5, x] * acc[5, x])
@@ -306,11 +303,4 @@ def mean_flip(ref: np.ndarray, test: np.ndarray) -> float:
         err = flip_map(ref[a:b], test[a:b])
         return float(err[y0 - a:y1 - a].sum(dtype=np.float64))
 
-    n = min(encode_workers(), len(starts))
-    if n > 1:
-        trace_pool("flip-thread-pool", n)
-        with ThreadPoolExecutor(n) as pool:
-            total = sum(pool.map(band, starts))
-    else:
-        total = sum(map(band, starts))
-    return total / (h * w)
+    return sum(map_threads(band, starts, "flip-thread-pool")) / (h * w)

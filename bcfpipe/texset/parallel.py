@@ -195,6 +195,18 @@ def openmp_threads(n: int) -> None:
 _gomp: list | None = None
 
 
+def map_threads(fn: Callable, items, kind: str) -> list:
+    """``fn`` over ``items``, in order, on `encode_workers()` threads (``fn`` releases the GIL: a
+    compiled kernel's band); ``kind`` names the pool for `trace_pool`."""
+    items = list(items)
+    n = min(encode_workers(), len(items))
+    if n > 1:
+        trace_pool(kind, n)
+        with ThreadPoolExecutor(n) as pool:
+            return list(pool.map(fn, items))
+    return list(map(fn, items))
+
+
 def threaded_bands(encode_band: Callable[[np.ndarray], bytes], px: np.ndarray, block_bytes: int) -> np.ndarray:
     """A padded level's blocks by ``encode_band`` (an encoder that releases the GIL), its bands
     over `encode_workers()` threads."""

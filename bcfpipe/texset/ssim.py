@@ -12,13 +12,10 @@ needed. tests/test_ssim.py holds it to skimage.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
-from bcfpipe.pooltrace import trace_pool
 from bcfpipe.process_env import kernel_cache, without_cache
-from bcfpipe.texset.parallel import encode_workers
+from bcfpipe.texset.parallel import map_threads
 
 CACHE = kernel_cache()  # compiled kernels live in bcfpipe's cache, or nowhere
 import numba as nb  # noqa: E402
@@ -96,7 +93,7 @@ def _ssim_rows(a, b, y0, y1, w, c1, c2):
 def mean_ssim(ref: np.ndarray, dec: np.ndarray, peak: float) -> float:
     """SSIM of two (H, W, g) images, both sides at least 11 (the mean over channels, each
     channel's SSIM skimage's for a ``data_range`` of ``peak``), its bands of rows over
-    `encode_workers()` threads."""
+    the job's cores (`map_threads`)."""
     h, width, g = ref.shape
     if min(h, width) < 2 * RADIUS + 1:
         raise ValueError(f"Gaussian SSIM needs both sides at least {2 * RADIUS + 1}, got {h}x{width}")
@@ -109,13 +106,7 @@ def mean_ssim(ref: np.ndarray, dec: np.ndarray, peak: float) -> float:
         a, b = (np.ascontiguousarray(x[y0 - RADIUS:y1 + RADIUS, :, c], np.float32) for x in (ref, dec))
         return without_cache(lambda: _ssim_rows(a, b, RADIUS, RADIUS + y1 - y0, _W, c1, c2), globals())
 
-    n = min(encode_workers(), len(tasks))
-    if n > 1:
-        trace_pool("ssim-thread-pool", n)
-        with ThreadPoolExecutor(n) as pool:
-            sums = list(pool.map(band, tasks))
-    else:
-        sums = list(map(band, tasks))
+    sums = map_threads(band, tasks, "ssim-thread-pool")
     per_channel = np.zeros(g)
     for (c, _, _), s in zip(tasks, sums):
         per_channel[c] += s
