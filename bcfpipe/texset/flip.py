@@ -172,11 +172,29 @@ def _lab_hunt(lum, cx, cz):
     return big_l, f(0.01) * big_l * (f(500.0) * (vx - vy)), f(0.01) * big_l * (f(200.0) * (vy - vz))
 
 
-# the column passes: accumulator k sums taps[TAPS[k]] times plane PLANES[k] (colour: Y, Cx and Cz's
-# two Gaussians of the reference, then the test; features: each image's x-derivatives under the
-# Gaussian, then its Gaussian under the y-derivatives)
+# the passes: accumulator k sums taps[TAPS[k]] times padded row ROWS[k] (along a row) or plane
+# PLANES[k] (down the columns). Colour: Y, Cx and Cz's two Gaussians of the reference, then the
+# test's. Features: along a row each image's first and second derivative and Gaussian; down the
+# columns its x-derivatives under the Gaussian, then its Gaussian under the y-derivatives
 _COLOUR_TAPS, _COLOUR_PLANES = np.array([0, 1, 2, 3, 0, 1, 2, 3]), np.arange(8)
+_COLOUR_ROWS = np.array([0, 1, 2, 2, 3, 4, 5, 5])
+_FEATURE_ROW_TAPS, _FEATURE_ROWS = np.array([1, 2, 0, 1, 2, 0]), np.array([0, 0, 0, 1, 1, 1])
 _FEATURE_TAPS, _FEATURE_PLANES = np.array([0, 0, 0, 0, 1, 1, 2, 2]), np.array([0, 3, 1, 4, 2, 5, 2, 5])
+
+
+@nb.njit(inline="always", cache=CACHE, nogil=True)
+def _across(pad, taps, tap_of, row_of, acc):
+    """One row's pass along it into ``acc`` (one accumulator per ``tap_of``): ``pad`` holds the rows
+    with their edge texels repeated by the filter's radius."""
+    w = acc.shape[1]
+    n = tap_of.shape[0]
+    acc[:n] = 0
+    for t in range(taps.shape[1]):
+        for k in range(n):
+            wt = taps[tap_of[k], t]
+            q = row_of[k]
+            for x in range(w):
+                acc[k, x] += wt * pad[q, x + t]
 
 
 @nb.njit(inline="always", cache=CACHE, nogil=True)
@@ -215,18 +233,7 @@ def _error(ref, tst, ws, wf, cmax, pccmax, out):
             for c in range(3):
                 pad[c, x] = ref[c, y, xx]
                 pad[3 + c, x] = tst[c, y, xx]
-        acc[:] = 0
-        for t in range(2 * rs + 1):
-            w0, w1, w2, w3 = ws[0, t], ws[1, t], ws[2, t], ws[3, t]
-            for x in range(w):
-                acc[0, x] += w0 * pad[0, x + t]
-                acc[1, x] += w1 * pad[1, x + t]
-                acc[2, x] += w2 * pad[2, x + t]
-                acc[3, x] += w3 * pad[2, x + t]
-                acc[4, x] += w0 * pad[3, x + t]
-                acc[5, x] += w1 * pad[4, x + t]
-                acc[6, x] += w2 * pad[5, x + t]
-                acc[7, x] += w3 * pad[5, x + t]
+        _across(pad, ws, _COLOUR_TAPS, _COLOUR_ROWS, acc)
         mid[:, y, :] = acc
     gpt, gqc = f(GPT), f(GQC)
     for y in range(h):
@@ -247,16 +254,7 @@ def _error(ref, tst, ws, wf, cmax, pccmax, out):
             xx = min(max(0, x - rf), w - 1)
             pad[0, x] = ref[0, y, xx] * o116 + s116
             pad[1, x] = tst[0, y, xx] * o116 + s116
-        acc[:6] = 0
-        for t in range(2 * rf + 1):
-            g0, g1, g2 = wf[0, t], wf[1, t], wf[2, t]
-            for x in range(w):
-                acc[0, x] += g1 * pad[0, x + t]
-                acc[1, x] += g2 * pad[0, x + t]
-                acc[2, x] += g0 * pad[0, x + t]
-                acc[3, x] += g1 * pad[1, x + t]
-                acc[4, x] += g2 * pad[1, x + t]
-                acc[5, x] += g0 * pad[1, x + t]
+        _across(pad, wf, _FEATURE_ROW_TAPS, _FEATURE_ROWS, acc)
         mid[:6, y, :] = acc[:6]
     norm, gqf = f(1.0) / np.sqrt(f(2.0)), f(GQF)
     for y in range(h):
