@@ -1,8 +1,8 @@
 """SSIM with Gaussian weights (Wang et al. 2004: σ = 1.5, 11 taps, population covariance,
 K1 = 0.01, K2 = 0.03), as scikit-image's ``structural_similarity(..., gaussian_weights=True,
 use_sample_covariance=False)`` computes it on float32 images, in one numba pass per band of rows
-that keeps no filtered image and copies one band of a channel at a time: about five times faster
-on one core, and no whole copy of a large image.
+that keeps no filtered image and copies one band of a channel at a time: three times faster on
+one core than skimage on a 2048² × 3 image (0.48 s against 1.48), and no whole copy of a large image.
 
 Each value is skimage's: the five local moments filtered by scipy's ``gaussian_filter`` (rows,
 then columns; each pass summed in float64 with the symmetric taps paired, as ``correlate1d``
