@@ -269,6 +269,7 @@ def _error(ref, tst, ws, wf, cmax, pccmax, out):
 
 
 _WS, _WF = spatial_filters(), feature_filter()
+_CAP = colour_cap()
 HALO = max(_WS.shape[1], _WF.shape[1]) // 2  # rows a band reads beyond its own: the widest filter's radius
 
 
@@ -277,7 +278,7 @@ def flip_map(ref: np.ndarray, test: np.ndarray) -> np.ndarray:
     h, w = ref.shape[:2]
     planes = np.empty((2, 3, h, w), np.float32)
     out = np.empty((h, w), np.float32)
-    cmax, pccmax = colour_cap()
+    cmax, pccmax = _CAP
 
     def run():
         for i, img in enumerate((ref, test)):

@@ -210,12 +210,5 @@ def map_threads(fn: Callable, items, kind: str) -> list:
 def threaded_bands(encode_band: Callable[[np.ndarray], bytes], px: np.ndarray, block_bytes: int) -> np.ndarray:
     """A padded level's blocks by ``encode_band`` (an encoder that releases the GIL), its bands
     over `encode_workers()` threads."""
-    parts = bands(px)
-    n = min(encode_workers(), len(parts))
-    if n > 1:
-        trace_pool("encode-thread-pool", n)
-        with ThreadPoolExecutor(n) as pool:
-            raw = b"".join(pool.map(encode_band, parts))
-    else:
-        raw = b"".join(map(encode_band, parts))
+    raw = b"".join(map_threads(encode_band, bands(px), "encode-thread-pool"))
     return np.frombuffer(raw, np.uint8).reshape(-1, block_bytes).copy()
