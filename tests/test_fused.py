@@ -233,6 +233,35 @@ def test_targets_match_the_reference_lookup(wrap):
         fused_step._BACKEND = saved
 
 
+@pytest.mark.parametrize("wrap", ["repeat", "clamp", ("repeat", "mirror")])
+def test_lazy_centre_levels_match_precomputed_ones(wrap):
+    """A level drawn little (``draws``) is looked up per batch, not precomputed:
+    its batches are bit-identical to a precomputed level's, in both layouts, on both paths."""
+    from bcfpipe.texset.reference import CentreTargets, ReferencePyramid
+    from bcfpipe.train.fused import native
+    from bcfpipe.train.fused import targets
+
+    if native.load() is None:
+        pytest.skip("no C++ compiler: the native lookup is what makes a lazy level exact")
+    img = _image(64, 3)
+    mips = [img]
+    while mips[-1].shape[0] > 1:
+        m = mips[-1]
+        mips.append(0.25 * (m[0::2, 0::2] + m[1::2, 0::2] + m[0::2, 1::2] + m[1::2, 1::2]))
+    pyr = ReferencePyramid.from_mips(mips)
+    draws = [100.0, 5000.0, 10.0] + [0.0] * (len(mips) - 3)  # levels 0 and 2 lazy, level 1 precomputed
+    lazy = CentreTargets(pyr, wrap, min_texels=256, bicubic=targets.bicubic, draws=draws)
+    assert lazy.lazy[:3] == [True, False, True] and lazy.up[0] is None and lazy.up[1] is not None
+    for interleave in (False, True):
+        full = CentreTargets(pyr, wrap, min_texels=256, bicubic=targets.bicubic, interleave=interleave)
+        for s in (0.0, 0.3, 0.7, 1.5, 2.0, 2.6):
+            assert lazy.covers(s) == full.covers(s)
+            for f in (targets.centre_batch, lambda c, n, s, g: c.batch(n, s, g)):
+                a = f(full, 700, s, torch.Generator().manual_seed(2))
+                b = f(lazy, 700, s, torch.Generator().manual_seed(2))
+                assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1]), (interleave, s)
+
+
 def test_the_native_steps_adam_is_torchs_adam_then_the_clamp():
     """FusedStep.adam (adam.cpp) against torch.optim.Adam and the trainer's clamp on the same
     gradients: the levels a step touches move alike, with per-level step counts; the others stay."""

@@ -78,6 +78,20 @@ def test_stratified_scale_power_favours_fine_lods():
         assert abs(np.mean(s < 11.0 / 4) - share) < 0.02
 
 
+@pytest.mark.parametrize("power, s_min", [(1.0, 0.0), (2.0, 0.0), (2.0, 3.0)])
+def test_stratified_scale_share_is_what_it_draws(power, s_min):
+    """`StratifiedScale.share` (what the centre targets plan their levels by) is the share of the
+    scales it draws below s, per level to 0.02."""
+    import torch
+
+    from bcfpipe.train.trainer import StratifiedScale
+
+    nxt = StratifiedScale(11.0, torch.Generator().manual_seed(1), power=power, s_min=s_min)
+    s = np.array([nxt() for _ in range(16 * 300)])
+    for k in range(12):
+        assert abs(np.mean(np.floor(s) == k) - (nxt.share(k + 1) - nxt.share(k))) < 0.02, k
+
+
 class _FakeClock:
     """A clock that moves ``dt`` seconds each time it is read: a training of slow steps."""
 

@@ -38,6 +38,10 @@ KEYS_A = -0.5
 # CentreTargets(interleave=True) keeps a level texel by texel when its two images fit in this much
 # (a 2048² level of 8 channels does; at 8K the two largest levels stay planar: no 4 GiB copy)
 INTERLEAVE_MAX_BYTES = 256 << 20
+# A texel-centre target looked up per batch costs about this many precomputed ones (the native lookup,
+# 2048² x 11 channels, one thread: 0.22 us per texel precomputed; 0.45-0.49 us more per draw at
+# levels 0 and 1 looked up, 0.21 at level 2)
+LAZY_COST = 2.0
 
 
 @dataclass(frozen=True)
@@ -189,11 +193,18 @@ class CentreTargets:
     :data:`INTERLEAVE_MAX_BYTES`. A drawn texel's 2 c values then share one or two cache lines
     instead of 2 c planes; at a 2048² level that halves the batch's time (the fused kernel's
     centre batches). The cost is one more copy of each such mip.
+
+    ``draws``: how many texels a training will draw at each level (expected), when known. A level
+    drawn less than 1 / `LAZY_COST` of its texels is not precomputed: each batch's B_k+1 is looked
+    up at its own texel centres (`up_at`), the same values where ``bicubic`` looks each point up on
+    its own (the native lookup). The layout's probe at draft draws 16 % of a 2048² level 0's texels.
     """
 
     def __init__(self, pyr: ReferencePyramid, wrap: str, min_texels: int, chunk: int = 1 << 18,
-                 covered: Sequence[np.ndarray] | None = None, bicubic=None, interleave: bool = False):
-        self.pyr, self.wrap, self.min_texels = pyr, wrap, min_texels
+                 covered: Sequence[np.ndarray] | None = None, bicubic=None, interleave: bool = False,
+                 draws: Sequence[float] | None = None):
+        self.pyr, self.wrap, self.min_texels, self.bicubic = pyr, wrap, min_texels, bicubic
+        self.lazy: list[bool] = []
         # with a coverage mask chain (bcfpipe.scan.coverage), steps draw only texels the scene reads
         self.allowed = ([torch.as_tensor(np.flatnonzero(m), device=pyr.mips[0].device) for m in covered]
                         if covered is not None else None)
@@ -202,7 +213,9 @@ class CentreTargets:
         for k, m in enumerate(pyr.mips):
             c, h, w = m.shape
             self.texels.append(None)
-            if h * w < min_texels or k + 1 >= pyr.num_levels:
+            lazy = draws is not None and h * w >= min_texels and k + 1 < pyr.num_levels and draws[k] * LAZY_COST < h * w
+            self.lazy.append(lazy)
+            if h * w < min_texels or k + 1 >= pyr.num_levels or lazy:
                 self.up.append(None)
                 continue
             nxt = pyr.mips[k + 1]
@@ -221,9 +234,15 @@ class CentreTargets:
             self.texels[k] = up if rows else None
 
     def covers(self, s: float) -> bool:
-        """Whether a batch at scale ``s`` can be drawn at precomputed texel centres."""
+        """Whether a batch at scale ``s`` is drawn at texel centres (precomputed or looked up per batch)."""
         l0, _, _ = level_split(s, self.pyr.num_levels)
-        return self.up[l0] is not None or self.texels[l0] is not None
+        return self.up[l0] is not None or self.texels[l0] is not None or self.lazy[l0]
+
+    def up_at(self, k: int, ids: torch.Tensor) -> torch.Tensor:
+        """B_k+1 at the centres of level ``k``'s texels ``ids``: (n, c), as the precompute makes it."""
+        _, h, w = self.pyr.mips[k].shape
+        nxt = self.pyr.mips[k + 1]
+        return (self.bicubic or bicubic_sample)(nxt, texel_centres(h, w, ids).to(nxt.dtype), self.wrap)
 
     def draw(self, n: int, s: float, gen: torch.Generator | None) -> tuple[int, float, torch.Tensor]:
         """(mip floor(s), the blend t towards the next, ``n`` uniformly random texel ids of it)."""
@@ -246,5 +265,6 @@ class CentreTargets:
             return texel_centres(h, w, ids), torch.lerp(both[:, :c], both[:, c:], t) if t > 0.0 else both[:, :c]
         target = m.reshape(c, -1).index_select(1, ids)
         if t > 0.0:
-            target = torch.lerp(target, up.reshape(c, -1).index_select(1, ids), t)
+            b = self.up_at(l0, ids).t().contiguous() if up is None else up.reshape(c, -1).index_select(1, ids)
+            target = torch.lerp(target, b, t)
         return texel_centres(h, w, ids), target.t()

@@ -150,12 +150,25 @@ class StratifiedScale:
         self.s_max, self.gen, self.strata, self.power, self.s_min = s_max, gen, strata, power, min(s_min, s_max)
         self.order: list[int] = []
 
+    def share(self, s: float) -> float:
+        """The share of the scales drawn below ``s``."""
+        if self.s_max <= self.s_min:
+            return float(s > self.s_min)
+        return min(1.0, max(0.0, (s - self.s_min) / (self.s_max - self.s_min))) ** (1.0 / self.power)
+
     def __call__(self) -> float:
         if not self.order:
             self.order = torch.randperm(self.strata, generator=self.gen).tolist()
         k = self.order.pop()
         u = ((k + float(torch.rand((), generator=self.gen))) / self.strata) ** self.power
         return u * self.s_max if self.s_min == 0 else self.s_min + u * (self.s_max - self.s_min)
+
+
+def _draws(preset, scale: StratifiedScale, levels: int) -> list[float]:
+    """The texels a run of ``preset`` is expected to draw at each of ``levels`` reference mips: its
+    steps' samples times the share of its scales s (`StratifiedScale`) with floor(s) = k."""
+    samples = (preset.warmup.steps + preset.constrained.steps + preset.finetune.steps) * preset.batch
+    return [samples * (scale.share(k + 1) - scale.share(k)) for k in range(levels)]
 
 
 def evaluate_levels(level_fn: M.LevelFn, mlp: dict[str, torch.Tensor], mc, kinds: tuple[str, ...], biases,
@@ -458,7 +471,8 @@ def _train(ts: TextureSet, cfg: TrainConfig, progress: ProgressFn | None, pace: 
     next_s = StratifiedScale(float(ref.num_levels - 1), gen, power=preset.lod_power, s_min=float(mc.split))
     t0 = time.perf_counter()
     centres = (CentreTargets(ref, mc.wrap, min_texels=4 * preset.batch, covered=masks,
-                             bicubic=backend.bicubic(), interleave=backend.library() is not None)
+                             bicubic=backend.bicubic(), interleave=backend.library() is not None,
+                             draws=_draws(preset, next_s, ref.num_levels) if backend.bicubic() else None)
                if preset.centre_targets else None)
     mask_levels = [torch.as_tensor(m, device=device) for m in masks] if masks is not None else None
     run = _Run(cfg, device, backend, gen, ref, biases, mlp, clock, next_s, centres, mask_levels, progress, pace,

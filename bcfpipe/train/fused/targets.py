@@ -55,6 +55,14 @@ def centre_batch(centres: CentreTargets, n: int, s: float, gen: torch.Generator 
     l0, t, ids = centres.draw(n, s, gen)
     up, rows = centres.up[l0], centres.texels[l0]
     ids = np.sort(ids.numpy())
+    if centres.lazy[l0]:  # B_k+1 looked up at these centres, then lerped as a precomputed level's
+        mip = centres.pyr.mips[l0].numpy()
+        uv, a = native.centres(mip, None, ids, 0.0)
+        if t <= 0.0:
+            return torch.from_numpy(uv), torch.from_numpy(a)
+        both = np.concatenate([a, centres.up_at(l0, torch.from_numpy(ids)).numpy()], 1)
+        _, target = native.centre_rows(both, 1, len(ids), np.arange(len(ids)), float(t))
+        return torch.from_numpy(uv), torch.from_numpy(target)
     if rows is not None:
         _, h, w = centres.pyr.mips[l0].shape
         uv, target = native.centre_rows(rows.numpy(), h, w, ids, float(t))
