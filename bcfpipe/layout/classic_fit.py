@@ -21,12 +21,16 @@ from bcfpipe.layout import choose as C
 from bcfpipe.layout.classic import (MAX_REPACK_SIDE, DiskBytes, EncodedGroup, Group, Repack, bc7_quality_set,
                                     channel_errors, disk_bytes_aside, encode_group, planned, repacks)
 from bcfpipe.layout.classic import groups as classic_groups
-from bcfpipe.layout.estimate import estimate_errors
+from bcfpipe.layout.estimate import FULL_BLOCKS, estimate_errors
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.progress import Progress
 
 QUALITY_LABEL = "BC7 quality set"
+# Blocks per level the quality set's estimate encodes (`estimate.draw`'s budget): no decision reads it.
+# On the four 2048² sets at draft within 0.21 dB of a full encode per mip, in 0.5-1.4 s on two cores;
+# 16384 blocks (the candidates' budget): within 0.07 dB, in 1.2-2.9 s (docs/benchmarks.md)
+QUALITY_BLOCKS = 4096
 
 
 @dataclass(frozen=True)
@@ -96,8 +100,13 @@ def _cols(groups: Sequence[Group]) -> list[int]:
     return [c for g in groups for c in g.channels]
 
 
+def repackable(work: ClassicWork) -> bool:
+    """Whether any BC7 repack can take BC@R's place at R (else BC@R ships or is the floor)."""
+    return work.resolution <= MAX_REPACK_SIDE and bool(repacks(classic_groups(work.ts)))
+
+
 def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | None = None,
-              quality: bool = True) -> ClassicFit:
+              quality: bool = True, budget: int = FULL_BLOCKS) -> ClassicFit:
     """BC@R, its repacks and the quality set, every error estimated from a sample of blocks. With
     ``whole_bc`` (None: when no repack can take BC@R's place), BC@R is encoded in full instead
     (`measure`): it then ships or is the floor a neural part is held to, so its estimate would
@@ -112,7 +121,7 @@ def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | Non
         e_bc, frac = np.zeros((len(ref.mips), ts.num_channels)), 1.0
     else:
         e_bc, frac = estimate_errors(ts, [g.group for g in groups], r, ref.mips, ref.masks, work.wrap,
-                                     enc=work.enc)
+                                     budget=budget, enc=work.enc)
     use = tuple(k for k, m in enumerate(ref.mips) if min(m.shape[:2]) >= 4) or tuple(range(len(ref.mips)))
     cf = ClassicFit(groups, e_bc, None, use, sampled=frac, kinds=work.kinds)
     rp_errors, repacked = {}, {}
@@ -143,7 +152,8 @@ def quality_errors(work: ClassicWork, cf: ClassicFit) -> tuple[Repack, np.ndarra
     if q is None:
         return None
     ref = work.reference
-    return q, estimate_errors(work.ts, q.groups, work.resolution, ref.mips, ref.masks, work.wrap, enc=work.enc)[0]
+    return q, estimate_errors(work.ts, q.groups, work.resolution, ref.mips, ref.masks, work.wrap,
+                              budget=QUALITY_BLOCKS, enc=work.enc)[0]
 
 
 def with_quality(work: ClassicWork, cf: ClassicFit, found: tuple[Repack, np.ndarray] | None) -> ClassicFit:

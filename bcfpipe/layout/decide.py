@@ -5,9 +5,12 @@ kind's candidates, train the one chosen at most, choose among what can ship, mea
    sample of their blocks by the encoders that ship them (`bcfpipe.layout.classic_fit`,
    `bcfpipe.layout.estimate`): sizes exact, errors per mip within 0.16 dB of a full encode on the
    sets measured (docs/benchmarks.md), at 16 % of its texels on a 2048² set. Where no repack can
-   take BC@R's place it is encoded in full at once instead: it ships or is the floor. No decision
+   take BC@R's place it is encoded in full instead: it ships or is the floor. Where a probe is
+   planned and no training speculates, on a background thread beside the probe (`_gated`: the
+   oracle on a smaller sample of BC@R gates the probe's start); elsewhere at once. No decision
    reads the quality set, so it is estimated on a thread beside the rest of the fit, with the
-   cores the job may use beyond the fit's (`_quality_aside`), and waited for by layout.json.
+   cores the job may use beyond the fit's (`_quality_aside`; after BC@R's encode on its thread,
+   where that runs beside the probe), and waited for by layout.json.
 2. The probe: one neural model on all channels at p0, the largest profile no larger than the one
    asked for whose bytes fit within BC@R's (the smallest when none does: it measures the neural
    part of a mip split or a mixed layout), with a T_0 of one layer of principal components (or
@@ -54,8 +57,9 @@ Splits are not weighed when ``--classic`` fixes groups.
 """
 from __future__ import annotations
 
+import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Sequence
@@ -72,13 +76,13 @@ from bcfpipe.layout import kinds as K
 from bcfpipe.layout import speculate
 from bcfpipe.layout.classic import groups as classic_groups
 from bcfpipe.layout.classic import Repack, named_groups
-from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure, quality_errors, with_quality
+from bcfpipe.layout.classic_fit import ClassicWork, estimated, measure, quality_errors, repackable, with_quality
 from bcfpipe.layout.kinds import capped
 from bcfpipe.layout.oracle import PerfectProbe
 from bcfpipe.layout.predict import LayoutPrediction, Query, predict, widths_of
 from bcfpipe.layout.result import LayoutFit
 from bcfpipe.pooltrace import trace_pool
-from bcfpipe.texset.parallel import workers
+from bcfpipe.texset.parallel import background, encode_workers, workers
 from bcfpipe.texset.chain import Reference
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.progress import ProgressFn
@@ -86,6 +90,9 @@ from bcfpipe.train.progress import ProgressFn
 QualityFound = tuple["tuple[Repack, np.ndarray] | None", float]  # `classic_fit.quality_errors`' result, its seconds
 PROBE_FRACTION = 0.15  # of the steps --layout neural trains: the probe's share of one training
 FLOOR_GUARD_DB = 0.25  # a choice held to BC@R's floor by less than this on BC@R's estimate measures BC@R
+# Blocks per level of the sampled BC@R whose oracle gates the probe beside BC@R's full encode
+# (`_gated`): the bottle's within 0.6 dB of the full encode per mip, 0.7 s on two cores (16384: 2.2 s)
+GATE_BLOCKS = 1024
 
 
 def predict_for(ts: TextureSet, options: TrainingOptions, cfg, asked: str, resolution: int) -> LayoutPrediction:
@@ -201,13 +208,17 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
     # where a probe is planned below the set's side, the likeliest training at once on a spare core;
     # elsewhere when the probe starts (below), beside it
     spec = speculate.start(sized, pred.bc_bytes) if sized is not None and _promising(sized) else None
+    early = sized is not None and spec is None and _beside_bc(sized, work)
     try:
-        t, encoding = time.perf_counter(), work.seconds
-        with speculate.beside(spec, ctx):
-            ctx = replace(sized or ctx, classic=estimated(work, with_repacks=True, quality=False))
-        ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
-        # the quality set aside at once, unless a training may take the spare core beside the probe
-        quality = None if speculate.possible(ctx) else _quality_aside(ctx, work)
+        if early:  # BC@R in full, the probe beside it unless the oracle on its estimate rules it out
+            ctx, quality = _gated(sized, work)
+        else:
+            t, encoding = time.perf_counter(), work.seconds
+            with speculate.beside(spec, ctx):
+                ctx = replace(sized or ctx, classic=estimated(work, with_repacks=True, quality=False))
+            ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full: encode
+            # the quality set aside at once, unless a training may take the spare core beside the probe
+            quality = None if speculate.possible(ctx) else _quality_aside(ctx, work)
         if pred.probe is None:
             quality = quality if quality is not None else _quality_aside(ctx, work)
             log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
@@ -215,6 +226,9 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
         if (measured := _ruled_out(ctx)) is not None:
             if spec is not None:
                 ctx.costs["speculation_dropped"] = spec.cancel()
+            if ctx.probe is not None:  # trained beside BC@R's encode, whose measure rules out what it would weigh
+                ctx.costs["probe_dropped"] = ctx.costs.pop("probe")
+                ctx = replace(ctx, probe=None)
             quality = quality if quality is not None else _quality_aside(ctx, work)
             log("no probe: no neural candidate can clear the floor at the mips finer than its T_0, where the "
                 "reference's T_0-sized mip magnified (the oracle) holds it")
@@ -244,11 +258,78 @@ def _promising(ctx: K.FitContext) -> bool:
     return speculate.possible(ctx) and ctx.resolution < max(ctx.ts.width, ctx.ts.height)
 
 
+def _beside_bc(ctx: K.FitContext, work: ClassicWork) -> bool:
+    """Whether BC@R's full encode runs beside the probe rather than before it: where no repack can
+    take BC@R's place (it ships or is the floor: `classic_fit.repackable`), so that it is encoded
+    in full whatever the probe finds; where no training speculates (`speculate.possible`: at draft
+    and smoke) and the job has a core beyond the probe's; on a set small enough for the probe's
+    training and BC@R's decoded chain at once (`speculate.MAX_VALUES`)."""
+    return (not speculate.possible(ctx) and speculate.spare_cores(ctx) >= 1
+            and ctx.ts.data.size <= speculate.MAX_VALUES and not repackable(work))
+
+
+def _gated(ctx: K.FitContext, work: ClassicWork) -> tuple[K.FitContext, Callable[[], QualityFound]]:
+    """BC@R encoded in full and measured, then the quality set estimated, on a thread that yields the
+    cores to this one (`parallel.background`), on every core the job may use (quicktex in worker
+    processes: `parallel.workers`' ``beside``); meanwhile on this thread BC@R estimated from
+    `GATE_BLOCKS` blocks per level and, unless the oracle on that estimate rules out every neural
+    candidate (`_ruled_out`), the probe. Returns ``ctx`` with BC@R measured and the probe (or None),
+    and what waits for the quality set. The estimate only gates the probe's start: the fit weighs
+    the measured BC@R. A fit that fails stops the encode at its next group, and waits for it."""
+    cores = encode_workers()
+    shown, cancelled = threading.Event(), threading.Event()
+    lines: list[str] = []
+
+    def report(p) -> None:
+        if cancelled.is_set():
+            raise speculate.Cancelled()
+        if shown.is_set() and work.progress is not None:
+            work.progress(p)
+
+    quiet = replace(work, progress=report, log=lines.append, seconds=0.0)
+    encoded: Future = Future()
+
+    def encode() -> QualityFound:
+        background()  # the probe first: the fit waits for it
+        with workers(cores, beside=True):
+            try:
+                encoded.set_result(estimated(quiet, whole_bc=True, quality=False))
+            except BaseException as e:  # noqa: BLE001 - raised again on the fit's thread
+                encoded.set_exception(e)
+                raise
+            if cancelled.is_set():
+                raise speculate.Cancelled()
+            t = time.perf_counter()
+            return quality_errors(quiet, encoded.result()), time.perf_counter() - t
+
+    trace_pool("bc-encode-beside-probe", 1)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="bcfpipe-bc-encode")
+    later = pool.submit(encode)
+    pool.shutdown(wait=False)
+    try:
+        t = time.perf_counter()
+        ctx = replace(ctx, classic=estimated(work, whole_bc=False, quality=False, budget=GATE_BLOCKS))
+        ctx.costs["estimate"] = time.perf_counter() - t
+        if _ruled_out(ctx) is None:
+            ctx.log("BC@R encoded in full meanwhile, on the cores the probe leaves")
+            ctx = _probed(ctx)
+        shown.set()
+        cf = encoded.result()
+    except BaseException:
+        cancelled.set()
+        later.exception()  # it stops at its next group
+        raise
+    work.seconds += quiet.seconds
+    for line in lines:
+        ctx.log(line)
+    return replace(ctx, classic=cf), later.result
+
+
 def _probe_and_train(ctx: K.FitContext, work: ClassicWork, spec: speculate.Speculation | None,
                      quality: Callable[[], QualityFound] | None, start: float) -> LayoutFit:
     """Steps 2-5 where a probe runs: the probe, the first choice, its one training (``spec``'s,
     adopted, or dropped for another) and the final choice."""
-    ctx = _probed(ctx)
+    ctx = ctx if ctx.probe is not None else _probed(ctx)
     if quality is None:  # the spare cores train: the quality set now, on the probe's
         quality = _quality_aside(ctx, work, spare=ctx.options.threads or 1)
     weighed = [w for kind in K.REGISTRY for w in kind.predict(ctx)]

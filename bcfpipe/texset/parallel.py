@@ -17,8 +17,10 @@ from __future__ import annotations
 import atexit
 import contextlib
 import ctypes
+import functools
 import multiprocessing as mp
 import os
+import sys
 import threading
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import ThreadPoolExecutor
@@ -85,6 +87,18 @@ def _beside_training() -> bool:
     return getattr(_local, "beside", False)
 
 
+BACKGROUND_NICE = 10  # the nice value of work that fills the cores a fit's main thread leaves
+
+
+def background() -> None:
+    """This thread, and the threads and processes it starts, yield the cores to the process's other
+    threads (Linux: its own nice value, `BACKGROUND_NICE`; elsewhere nothing): work beside a step
+    that the fit waits for, such as BC@R's encode beside the layout's probe."""
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BACKGROUND_NICE)
+
+
 def job_encode_workers(threads: int, parallel_jobs: int, cores: int | None = None) -> int:
     """A job's encode workers: ``cores`` (the build's ``--jobs``) shared among the
     ``parallel_jobs`` that run at once, at least 1 (the job's ``threads`` fit in that share: the
@@ -109,14 +123,36 @@ def release_workers() -> None:
 
 
 def _process_pool(n: int) -> ProcessPoolExecutor:
-    """A spawn pool of ``n`` workers, kept for the process's later encodes."""
+    """A spawn pool of ``n`` workers, kept for the process's later encodes, started at once."""
     global _pool, _pool_size
     if _pool is None or _pool_size != n:
         release_workers()
         _pool, _pool_size = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn")), n
         trace_pool("encode-process-pool", n)
         atexit.register(release_workers)
+        with _bare_main():  # a spawn pool starts a worker per task submitted while none is idle
+            for f in [_pool.submit(int) for _ in range(n)]:
+                f.result()
     return _pool
+
+
+_main_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def _bare_main():
+    """Workers spawned meanwhile do not run the main script's imports (the CLI's: 0.6 s in each
+    worker), which they do not need: spawn imports the main module that ``__main__`` names."""
+    main = sys.modules.get("__main__")
+    with _main_lock:
+        saved = {k: main.__dict__[k] for k in ("__file__", "__spec__") if main is not None and k in main.__dict__}
+        try:
+            for k in saved:
+                setattr(main, k, None) if k == "__spec__" else delattr(main, k)
+            yield
+        finally:
+            for k, v in saved.items():
+                setattr(main, k, v)
 
 
 def _quicktex_band(codec: str, raw: bytes, width: int, height: int) -> bytes:
@@ -124,7 +160,14 @@ def _quicktex_band(codec: str, raw: bytes, width: int, height: int) -> bytes:
     import quicktex  # lazy: start-up
 
     openmp_threads(1)  # the pool's processes are the band's parallelism
-    return make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(raw, width, height)).tobytes()
+    return _band_encoder(codec).encode(quicktex.RawTexture.frombytes(raw, width, height)).tobytes()
+
+
+@functools.lru_cache(maxsize=None)
+def _band_encoder(codec: str):
+    """A worker process's encoder for ``codec``, made once: a level-13 BC1 encoder builds its tables
+    in about 0.1 s, as long as a band takes to encode."""
+    return make_quicktex_encoder(codec)
 
 
 def make_quicktex_encoder(codec: str):
