@@ -17,7 +17,6 @@ from __future__ import annotations
 import atexit
 import contextlib
 import ctypes
-import functools
 import multiprocessing as mp
 import os
 import sys
@@ -160,14 +159,16 @@ def _quicktex_band(codec: str, raw: bytes, width: int, height: int) -> bytes:
     import quicktex  # lazy: start-up
 
     openmp_threads(1)  # the pool's processes are the band's parallelism
-    return _band_encoder(codec).encode(quicktex.RawTexture.frombytes(raw, width, height)).tobytes()
+    return _encoder(codec).encode(quicktex.RawTexture.frombytes(raw, width, height)).tobytes()
 
 
-@functools.lru_cache(maxsize=None)
-def _band_encoder(codec: str):
-    """A worker process's encoder for ``codec``, made once: a level-13 BC1 encoder builds its tables
-    in about 0.1 s, as long as a band takes to encode."""
-    return make_quicktex_encoder(codec)
+def _encoder(codec: str):
+    """This thread's encoder for ``codec``, made once: a level-13 BC1 encoder builds its tables in
+    10 ms, as long as a 512² level takes to encode (the layout's sampled estimates encode dozens)."""
+    made = _local.__dict__.setdefault("encoders", {})
+    if codec not in made:
+        made[codec] = make_quicktex_encoder(codec)
+    return made[codec]
 
 
 def make_quicktex_encoder(codec: str):
@@ -208,7 +209,7 @@ def quicktex_level(codec: str, px: np.ndarray, block_bytes: int) -> np.ndarray:
         raw = b"".join(f.result() for f in futures)
     else:
         openmp_threads(n)
-        raw = make_quicktex_encoder(codec).encode(quicktex.RawTexture.frombytes(px.tobytes(), w, h)).tobytes()
+        raw = _encoder(codec).encode(quicktex.RawTexture.frombytes(px.tobytes(), w, h)).tobytes()
     return np.frombuffer(raw, np.uint8).reshape(-1, block_bytes).copy()
 
 
