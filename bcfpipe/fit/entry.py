@@ -26,6 +26,7 @@ from bcfpipe.fit.rate import fit_to_target
 from bcfpipe.formats.fit_result import FitResult
 from bcfpipe.layout.material import layout_material
 from bcfpipe.layout.predict import uses_layout
+from bcfpipe.texset import heap
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.progress import ProgressFn
 
@@ -70,15 +71,16 @@ def fit(ts: TextureSet, options: TrainingOptions, out: str | Path, *, wrap: str,
     the texels the scene reads (training draws there, figures are over them). ``progress`` hears
     the trainings; ``log`` one line per decision, prefixed by its fit ("layout: ...", "rate control:
     training ..."). ``anchors``: measured (profile, preset) -> PSNR cells for rate control."""
-    say = log or (lambda text: None)
-    mode = fit_mode(options, sorted({c.semantic for c in ts.channels}))
-    if mode == FitMode.LAYOUT:
-        res = layout_material(ts, out, options, wrap, lambda text: say(f"layout: {text}"),
-                              progress=progress, coverage=coverage)
-        return Fitted(res, mode)
-    if mode == FitMode.NEURAL:
-        name, cfg = make_config(ts, options, wrap)
-        return Fitted(train_material(ts, out, cfg, name, progress, coverage=coverage)[0], mode)
-    res, outcome = fit_to_target(ts, options, out, wrap=wrap, coverage=coverage, progress=progress, anchors=anchors,
-                                 on_attempt=lambda text: say(f"rate control: training {text}"))
-    return Fitted(res, mode, outcome)
+    with heap.reused(ts.data.size):  # a fit's large temporaries from the heap, not fresh pages
+        say = log or (lambda text: None)
+        mode = fit_mode(options, sorted({c.semantic for c in ts.channels}))
+        if mode == FitMode.LAYOUT:
+            res = layout_material(ts, out, options, wrap, lambda text: say(f"layout: {text}"),
+                                  progress=progress, coverage=coverage)
+            return Fitted(res, mode)
+        if mode == FitMode.NEURAL:
+            name, cfg = make_config(ts, options, wrap)
+            return Fitted(train_material(ts, out, cfg, name, progress, coverage=coverage)[0], mode)
+        res, outcome = fit_to_target(ts, options, out, wrap=wrap, coverage=coverage, progress=progress, anchors=anchors,
+                                     on_attempt=lambda text: say(f"rate control: training {text}"))
+        return Fitted(res, mode, outcome)

@@ -210,15 +210,8 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
     spec = speculate.start(sized, pred.bc_bytes) if sized is not None and _promising(sized) else None
     early = sized is not None and spec is None and _beside_bc(sized, work)
     try:
-        if early:  # BC@R in full, the probe beside it unless the oracle on its estimate rules it out
-            ctx, quality = _gated(sized, work)
-        else:
-            t, encoding = time.perf_counter(), work.seconds
-            with speculate.beside(spec, ctx):
-                ctx = replace(sized or ctx, classic=estimated(work, with_repacks=True, quality=False))
-            ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full: encode
-            # the quality set aside at once, unless a training may take the spare core beside the probe
-            quality = None if speculate.possible(ctx) else _quality_aside(ctx, work)
+        # BC@R in full beside the probe, unless the oracle on its estimate rules the probe out; or first
+        ctx, quality = _gated(sized, work) if early else _estimated(sized or ctx, work, spec)
         if pred.probe is None:
             quality = quality if quality is not None else _quality_aside(ctx, work)
             log(f"no probe: nothing neural fits within BC@R's {bytes_text(ctx.classic.bc.size_bytes)}")
@@ -244,6 +237,18 @@ def decide_layout(ts: TextureSet, out_dir: str | Path, options: TrainingOptions,
             spec.join(ctx.out)
         raise
     return replace(fit, aside=(lambda: spec.join(ctx.out)) if spec is not None else None)
+
+
+def _estimated(ctx: K.FitContext, work: ClassicWork, spec: speculate.Speculation | None
+               ) -> tuple[K.FitContext, Callable[[], QualityFound] | None]:
+    """Step 1 before the rest: ``ctx`` with BC@R and its repacks estimated (BC@R encoded in full where
+    no repack can take its place), on the cores ``spec``'s training leaves; and the quality set
+    aside at once, unless a training may take the spare core beside the probe (then None)."""
+    t, encoding = time.perf_counter(), work.seconds
+    with speculate.beside(spec, ctx):
+        ctx = replace(ctx, classic=estimated(work, with_repacks=True, quality=False))
+    ctx.costs["estimate"] = time.perf_counter() - t - (work.seconds - encoding)  # BC@R in full counts as encode
+    return ctx, None if speculate.possible(ctx) else _quality_aside(ctx, work)
 
 
 def _promising(ctx: K.FitContext) -> bool:

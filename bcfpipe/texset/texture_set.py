@@ -362,8 +362,8 @@ def _resampled(src: _Source, width: int, height: int) -> np.ndarray:
             if buf.has_error:
                 raise TextureError(f"{src.path}: resize to {width}x{height} failed ({buf.geterror().strip()})")
             px = np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(height, width, -1)
-        if not src.is_float:  # integer texels are UNORM: drop the filter's rounding excursions
-            px = np.clip(px, 0.0, 1.0)
+            if not src.is_float:  # integer texels are UNORM: drop the filter's rounding excursions
+                px = np.clip(px, 0.0, 1.0)
         src.pixels = px
     return src.pixels
 
