@@ -11,7 +11,9 @@ encodes may use), ``encode-process-pool`` (quicktex bands beside a training), ``
 OpenMP threads on the main thread), ``disk-bytes-thread`` (zstd sizes aside), ``encode-thread-pool`` (ISPC bands),
 ``encode-beside-training`` (an encode in a thread beside a training), ``fused-thread-pool`` and
 ``numba`` (the fused training kernel's chunks), ``bc6h-thread-pool`` (BC6H fitting chunks),
-``ssim-thread-pool`` and ``flip-thread-pool`` (evaluation) and ``onnxruntime`` (an inference session's intra-op threads).
+``ssim-thread-pool`` and ``flip-thread-pool`` (evaluation), ``onnxruntime`` (an inference session's intra-op threads),
+``speculative-training`` (the layout's likeliest training beside the probe), ``quality-estimate-aside``
+(the BC7 quality set's estimate) and ``bc-encode-beside-probe`` (BC@R's full encode beside the probe).
 """
 from __future__ import annotations
 
