@@ -45,12 +45,12 @@ def main() -> None:
         t = time.perf_counter()
         est = estimated(work, whole_bc=False)
         t_est = time.perf_counter() - t
-        cands = [est.bc, *est.packed] + ([est.quality] if est.quality.repack else [])
+        cands = [est.bc, *est.packed] + ([est.quality] if est.quality.part else [])
         for c in cands:
             t = time.perf_counter()
             full = measure(work, est, None if c.kind.name == "bc@r" else c)
             t_full = time.perf_counter() - t
-            f = full.bc if c.kind.name == "bc@r" else next(p for p in (*full.packed, full.quality) if p.repack == c.repack)
+            f = full.bc if c.kind.name == "bc@r" else next(p for p in (*full.packed, full.quality) if p.part == c.part)
             use = list(est.use)
             diff = [round(x - y, 3) for x, y in zip(c.psnr_per_mip, f.psnr_per_mip)]
             worst = max(abs(diff[k]) for k in use)
