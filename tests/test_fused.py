@@ -32,6 +32,17 @@ def _image(size: int, channels: int) -> np.ndarray:
     return t.permute(1, 2, 0).numpy()
 
 
+def _box_pyramid(size: int, channels: int):
+    """`_image`'s box-filtered mip chain as a reference pyramid."""
+    from bcfpipe.texset.reference import ReferencePyramid
+
+    mips = [_image(size, channels)]
+    while mips[-1].shape[0] > 1:
+        m = mips[-1]
+        mips.append(0.25 * (m[0::2, 0::2] + m[1::2, 0::2] + m[0::2, 1::2] + m[1::2, 1::2]))
+    return ReferencePyramid.from_mips(mips)
+
+
 def _model(fmt: str, phase: str, real: bool, signed: bool = False, wrap: str = "repeat", seed: int = 0,
            fixed_t0: bool = False):
     """A small material in ``phase`` (free / blocks): its config, levels, level fn, MLP, biases.
@@ -198,16 +209,11 @@ def test_targets_match_the_reference_lookup(wrap):
     """The fused path's targets, both backends: the bicubic lookup agrees with
     reference.sample_reference to float rounding, the texel-centre batches are bit-identical to
     CentreTargets.batch with the same draws (native: sorted into texel order)."""
-    from bcfpipe.texset.reference import CentreTargets, ReferencePyramid, sample_reference
+    from bcfpipe.texset.reference import CentreTargets, sample_reference
     from bcfpipe.train.fused import step as fused_step
     from bcfpipe.train.fused import targets
 
-    img = _image(64, 3)
-    mips = [img]
-    while mips[-1].shape[0] > 1:
-        m = mips[-1]
-        mips.append(0.25 * (m[0::2, 0::2] + m[1::2, 0::2] + m[0::2, 1::2] + m[1::2, 1::2]))
-    pyr = ReferencePyramid.from_mips(mips)
+    pyr = _box_pyramid(64, 3)
     centres = CentreTargets(pyr, wrap, min_texels=256)
     rows = CentreTargets(pyr, wrap, min_texels=256, interleave=True)  # the levels texel by texel
     gen = torch.Generator().manual_seed(3)
@@ -237,19 +243,14 @@ def test_targets_match_the_reference_lookup(wrap):
 def test_lazy_centre_levels_match_precomputed_ones(wrap):
     """A level drawn little (``draws``) is looked up per batch, not precomputed:
     its batches are bit-identical to a precomputed level's, in both layouts, on both paths."""
-    from bcfpipe.texset.reference import CentreTargets, ReferencePyramid
+    from bcfpipe.texset.reference import CentreTargets
     from bcfpipe.train.fused import native
     from bcfpipe.train.fused import targets
 
     if native.load() is None:
         pytest.skip("no C++ compiler: the native lookup is what makes a lazy level exact")
-    img = _image(64, 3)
-    mips = [img]
-    while mips[-1].shape[0] > 1:
-        m = mips[-1]
-        mips.append(0.25 * (m[0::2, 0::2] + m[1::2, 0::2] + m[0::2, 1::2] + m[1::2, 1::2]))
-    pyr = ReferencePyramid.from_mips(mips)
-    draws = [100.0, 5000.0, 10.0] + [0.0] * (len(mips) - 3)  # levels 0 and 2 lazy, level 1 precomputed
+    pyr = _box_pyramid(64, 3)
+    draws = [100.0, 5000.0, 10.0] + [0.0] * (pyr.num_levels - 3)  # levels 0 and 2 lazy, level 1 precomputed
     lazy = CentreTargets(pyr, wrap, min_texels=256, bicubic=targets.bicubic, draws=draws)
     assert lazy.lazy[:3] == [True, False, True] and lazy.up[0] is None and lazy.up[1] is not None
     for interleave in (False, True):

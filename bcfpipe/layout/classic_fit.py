@@ -111,7 +111,8 @@ def estimated(work: ClassicWork, with_repacks: bool = True, whole_bc: bool | Non
     ``whole_bc`` (None: when no repack can take BC@R's place), BC@R is encoded in full instead
     (`measure`): it then ships or is the floor a neural part is held to, so its estimate would
     be thrown away. Without ``quality`` the quality set waits for `quality_errors` and
-    `with_quality` (no decision reads it: it can be estimated where a core is idle)."""
+    `with_quality` (no decision reads it: it can be estimated where a core is idle). ``budget``:
+    blocks per level of BC@R's sample (`estimate.draw`; the probe's gate draws fewer)."""
     t = time.perf_counter()
     ts, r, ref = work.ts, work.resolution, work.reference
     groups = [planned(ts, g, r) for g in classic_groups(ts)]

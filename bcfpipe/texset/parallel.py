@@ -146,8 +146,10 @@ def _bare_main():
     with _main_lock:
         saved = {k: main.__dict__[k] for k in ("__file__", "__spec__") if main is not None and k in main.__dict__}
         try:
-            for k in saved:
-                setattr(main, k, None) if k == "__spec__" else delattr(main, k)
+            if "__spec__" in saved:
+                main.__spec__ = None
+            if "__file__" in saved:
+                del main.__file__
             yield
         finally:
             for k, v in saved.items():
