@@ -7,7 +7,8 @@ larger than that (a 2048² level of three float32 channels is 48 MiB): the water
 draft spent 9.8 % of its CPU time in the kernel's ``clear_page_erms`` (``perf record``), about
 4 CPU-s of 39. While `reused` holds, allocations up to `THRESHOLD` come from the heap and freed
 ones are kept there (up to `KEEP` at its top) for the next: that fit took 19.3 s instead of
-20.4-21.9 s, its system time 2.3 s instead of 4.1-5.3 s, at the same peak memory (1.77 GB).
+20.4-21.9 s, its system time 2.3 s instead of 4.1-5.3 s, at about the same peak (1.77-1.79 GB);
+`--layout neural` on it 43.9 -> 37.3 s, its peak 1.94 -> 2.24 GB (docs/benchmarks.md).
 
 A set larger than `MAX_VALUES` keeps glibc's own policy: a heap that keeps what it frees can hold
 blocks that no later request fits, and an 8K fit's peak memory is one of its limits.
