@@ -557,3 +557,22 @@ def test_decode_cli_writes_every_output_of_a_mixed_or_all_classic_material(mixed
             img, how = decode_material(select_target(str(folder), None), (w, h), float(k), "onnx")
             assert how == used and img.shape == (h, w, len(mf.read(folder).outputs))
             np.testing.assert_allclose(img, ours[k], atol=1e-5, err_msg=f"{folder.name} mip {k}")
+
+
+@pytest.mark.parametrize("resolution", [32, 64])
+def test_a_whole_mip_read_texel_for_texel_decodes_to_the_sampled_bits(mixed, tmp_path, resolution):
+    """`decode_mips` reads a classic level that a whole mip samples texel for texel as it is (no uv
+    made): the same bits as sampling every texel centre through `filtering.trilinear`, for a mixed
+    material and for BC@R below the set's side (mip 0 magnified) and at it."""
+    ts, ref, out, _ = mixed
+    enc, _, bc = bc_at(ts, ref, resolution)
+    d = C.Decision(bc, (bc,), bc, "test", "quality")
+    classic = export_layout(LayoutFit(d, d, enc, None, (), None, 0.0, 0.0), ts, tmp_path / "bc", "repeat")
+    shapes = [m.shape[:2] for m in ref]
+    for folder in (out, classic):
+        em = E.load(folder)
+        assert sum(E._whole_levels(em, float(k), *s) is not None for k, s in enumerate(shapes)) >= len(shapes) - 1
+        whole = E.decode_mips(em, shapes, drop_normal_z=False, chunk=1000)
+        sampled = E.decode_mips(em, shapes, drop_normal_z=False, texels=[np.arange(h * w) for h, w in shapes])
+        for k, (h, w) in enumerate(shapes):
+            assert np.array_equal(whole[k], sampled[k].reshape(h, w, -1)), f"{folder.name} mip {k}"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from bcfpipe.formats.filtering import trilinear
+from bcfpipe.formats.filtering import trilinear, whole_level
 from bcfpipe.model.sampling import sample_trilinear
 
 WRAPS = ["repeat", "clamp", "mirror", ("repeat", "mirror"), ("clamp", "repeat")]
@@ -50,3 +50,23 @@ def test_a_levels_own_texel_centres_give_the_torch_samplers_bits(wrap, k):
     theirs = sample_trilinear([torch.from_numpy(l).permute(2, 0, 1) for l in levels], torch.from_numpy(uv),
                               float(k), wrap).numpy()
     assert np.array_equal(ours, theirs) and np.array_equal(ours, levels[k].reshape(-1, 2))
+
+
+@pytest.mark.parametrize("wrap", WRAPS)
+@pytest.mark.parametrize("lod", [-1.0, 0.0, 0.5, 1.0, 3.0, 4.0, 7.0])
+def test_a_whole_level_is_what_trilinear_gives_at_every_texel_centre(wrap, lod):
+    """`whole_level`: where a mip's every texel centre reads one level texel for texel, that level,
+    the same bits as `trilinear`; None where trilinear blends, magnifies or the sides are not powers of two."""
+    rng = np.random.default_rng(3)
+    for levels in ([rng.random((64 >> k, 32 >> k, 3), dtype=np.float32) for k in range(6)],
+                   [rng.random((48 >> k, 32 >> k, 3), dtype=np.float32) for k in range(4)]):
+        for h, w in {lv.shape[:2] for lv in levels}:
+            whole = whole_level(levels, lod, h, w)
+            yy, xx = np.mgrid[0:h, 0:w]
+            uv = np.stack([(xx.ravel() + 0.5) / w, (yy.ravel() + 0.5) / h], 1).astype(np.float32)
+            read = levels[int(min(max(lod, 0), len(levels) - 1))]
+            if lod != int(lod) or read.shape[:2] != (h, w) or h & (h - 1):  # 48, 24, 12, 6 rows: not powers of two
+                assert whole is None
+                continue
+            assert whole is not None and np.shares_memory(whole, read)
+            assert np.array_equal(whole, trilinear(levels, uv, lod, wrap))

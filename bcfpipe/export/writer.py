@@ -34,7 +34,7 @@ from bcfpipe.bc7 import decode as bc7_decode
 from bcfpipe.bc7.mode6 import DESCRIPTION as BC7_MODE
 from bcfpipe.config import ModelConfig
 from bcfpipe.formats.vocabulary import FeatureFormat
-from bcfpipe.formats.filtering import trilinear
+from bcfpipe.formats.filtering import trilinear, whole_level
 from bcfpipe.formats.atomic import atomic_write
 from bcfpipe.pooltrace import trace_pool
 from bcfpipe.texset.texture_set import Channel, semantic_info
@@ -202,18 +202,23 @@ def decode_mips(em: ExportedMaterial, ref_shapes: list[tuple[int, int]], chunk: 
     for k, (h, w) in enumerate(ref_shapes):
         picked = None if texels is None or texels[k] is None else np.asarray(texels[k])
         n = h * w if picked is None else len(picked)
+        whole = _whole_levels(em, float(k), h, w) if picked is None else None
         level = np.empty((n, len(keep)), np.float32)
         for a in range(0, n, chunk):  # texel-centre uvs made per chunk: O(chunk) scratch at 8K
-            ids = np.arange(a, min(a + chunk, n)) if picked is None else picked[a:a + chunk]
-            uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1).astype(np.float32)
-            y = np.empty((len(ids), len(outputs)), np.float32)
+            m = min(chunk, n - a)
+            uv = None
+            if sess is not None or whole is None:
+                ids = np.arange(a, a + m) if picked is None else picked[a:a + chunk]
+                uv = np.stack([(ids % w + 0.5) / w, (ids // w + 0.5) / h], 1).astype(np.float32)
+            y = np.empty((m, len(outputs)), np.float32)
             if sess is not None:
                 y[:, mlp_cols] = sess.run([mf.ONNX_OUTPUT], {mf.ONNX_INPUT: sample_exported_features(em, uv, float(k))})[0]
             if em.classic:
-                classic_outputs(em, uv, float(k), y)
-            level[a:a + len(ids)] = y[:, keep]
+                samples = None if whole is None else np.concatenate([t[a:a + m] for t in whole], 1)
+                classic_outputs(em, uv, float(k), y, samples)
+            level[a:a + m] = y[:, keep]
             if on_chunk is not None:
-                on_chunk(k, len(ids))
+                on_chunk(k, m)
         out.append(level.reshape(h, w, -1) if picked is None else level[:, None])
     return out
 
@@ -236,19 +241,30 @@ def _unslope(outputs, v: dict) -> None:
         v[ix], v[iy] = v[ix] * inv, v[iy] * inv
 
 
-def classic_outputs(em: ExportedMaterial, uv: np.ndarray, s: float, y: np.ndarray) -> None:
+def _whole_levels(em: ExportedMaterial, s: float, height: int, width: int) -> list[np.ndarray] | None:
+    """Per classic texture, what sampling every texel centre of an (H, W) mip at lod ``s`` reads,
+    when each reads a level of its own texel for texel (`filtering.whole_level`), else None."""
+    whole = [whole_level(tex, s + c.lod_bias, height, width) for tex, c in zip(em.classic, em.desc.classic)]
+    return None if any(t is None for t in whole) else whole
+
+
+def classic_outputs(em: ExportedMaterial, uv: np.ndarray | None, s: float, y: np.ndarray,
+                    samples: np.ndarray | None = None) -> None:
     """Fill the classic outputs' columns of ``y`` (N, outputs): each texture sampled trilinearly at
     s + its lod_bias (lod clamped to its mips, so below 0 level 0 is magnified), value = texel *
     texel_scale + texel_bias clamped to the output's range (a normal stored as slopes: (s_x, s_y, 1)
     normalised first, `_unslope`); a normal's z from its x and y. A split
-    output's column, which holds the MLP's value, becomes the two mixed by `split_weight`."""
+    output's column, which holds the MLP's value, becomes the two mixed by `split_weight`.
+    ``samples``: the textures' samples at ``uv``, side by side, when the caller has them (a whole
+    level read texel for texel: `_whole_levels`; then ``uv`` may be None)."""
     desc = em.desc
     w = split_weight(desc.split, s) if desc.split is not None else 1.0
     # the outputs this fills: every classic one; a split one unless the MLP's value stands alone
     mine = [o.source == mf.Source.CLASSIC or (o.source == mf.Source.SPLIT and w < 1.0) for o in desc.outputs]
     if not any(mine):  # a split material from its split on: no texture to sample
         return
-    t = np.concatenate([trilinear(tex, uv, s + c.lod_bias, desc.wrap) for tex, c in zip(em.classic, desc.classic)], 1)
+    t = samples if samples is not None else \
+        np.concatenate([trilinear(tex, uv, s + c.lod_bias, desc.wrap) for tex, c in zip(em.classic, desc.classic)], 1)
     first = np.cumsum([0] + [c.channels for c in desc.classic])
     v = {i: t[:, first[o.texture] + o.texel_channel] * o.texel_scale + o.texel_bias
          for i, o in enumerate(desc.outputs) if mine[i] and not o.reconstructed}

@@ -37,6 +37,24 @@ def bilinear(tex: np.ndarray, uv: np.ndarray, wrap) -> np.ndarray:
     return top + (bot - top) * fy
 
 
+def whole_level(levels: Sequence[np.ndarray], lod: float, height: int, width: int) -> np.ndarray | None:
+    """What `trilinear` gives at every texel centre of an (``height``, ``width``) image, row-major,
+    when that is a level's texels as they are: the one level ``lod`` reads (clamped to the levels, no
+    blend) has that shape and power-of-two sides, so each centre's uv and coordinate are exact in
+    float32 and `bilinear` reads its own texel. Then (H*W, C), a view where the level allows; else
+    None. A whole mip decoded so makes no uv (`bcfpipe.export.writer.decode_mips`)."""
+    n = len(levels)
+    l = min(max(float(lod), 0.0), n - 1)
+    lo = int(l)
+    if l != lo:
+        return None
+    level = levels[lo]
+    h, w = level.shape[:2]
+    if (h, w) != (height, width) or h & (h - 1) or w & (w - 1) or max(h, w) > 1 << 23:
+        return None
+    return level.reshape(h * w, -1)
+
+
 def trilinear(levels: Sequence[np.ndarray], uv: np.ndarray, lod: float, wrap) -> np.ndarray:
     """A mip chain ``levels`` [(H_k, W_k, C)] sampled at ``uv`` (N, 2) float32 and one ``lod`` for
     every point -> (N, C)."""
