@@ -1,4 +1,4 @@
 """`python -m bcfpipe` runs the command line."""
-from bcfpipe.cli import run
+from bcfpipe.cli import main
 
-run()
+main()

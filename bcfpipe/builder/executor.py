@@ -1,10 +1,8 @@
 """Step 2 of a build: train the jobs, each in its own worker process (the local executor)."""
 from __future__ import annotations
 
-import atexit
 import concurrent.futures as cf
 import contextlib
-import gc
 import logging
 import math
 import multiprocessing as mp
@@ -136,9 +134,6 @@ class _Throttle:
         self.queue.put(ProgressEvent(EventKind.PROGRESS, self.name, phase=phase))
 
 
-_frozen_at_exit = False
-
-
 def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, queue=None,
             cache_root: str | None = None, encode_workers: int | None = None) -> dict:
     """Train and export one job into ``out_dir`` (runs in a worker process; never raises).
@@ -148,10 +143,6 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
     a `JobResult` as a dict. Only this process's own thread settings are changed. BC encodes use
     ``encode_workers`` cores (default ``threads``: bcfpipe.texset.parallel).
     """
-    global _frozen_at_exit
-    if not _frozen_at_exit:  # as `cli.run`: the worker's exit does not collect what torch left (0.42 s)
-        atexit.register(gc.freeze)
-        _frozen_at_exit = True
     try:
         return _run_job(job, out_dir, threads, device, queue, cache_root, encode_workers)
     finally:
