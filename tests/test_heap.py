@@ -37,3 +37,41 @@ def test_a_large_set_keeps_glibcs_policy():
     with heap.reused(heap.MAX_VALUES + 1):
         inside = _faults_of_second()
     assert inside >= 16
+
+
+_ON_A_THREAD = """
+import resource, sys, threading
+import numpy as np
+from bcfpipe.texset import heap
+if sys.argv[1] == "one":
+    heap.one_arena()
+faults = []
+def work():
+    with heap.reused(1024):
+        a = np.ones({size}, np.uint8)
+        del a
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        b = np.ones({size}, np.uint8)
+        del b
+        faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+t = threading.Thread(target=work)
+t.start()
+t.join()
+print(faults[0])
+"""
+
+
+def test_one_arena_lets_a_fits_threads_reuse_the_heap():
+    """A thread's own arena maps a 64 MiB array afresh whatever `reused` says; with `one_arena`
+    (as the command line and a build's worker set it, before their threads) it reuses the main heap's."""
+    import subprocess
+    import sys
+
+    def faults(mode: str) -> int:
+        p = subprocess.run([sys.executable, "-c", _ON_A_THREAD.format(size=SIZE), mode], capture_output=True,
+                           text=True, check=True)
+        return int(p.stdout.split()[-1])
+
+    own, one = faults("own"), faults("one")
+    assert own >= 16
+    assert one * 8 < own

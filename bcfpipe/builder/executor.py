@@ -31,6 +31,7 @@ from bcfpipe.errors import WorkFailed
 from bcfpipe.pooltrace import trace_pool
 from bcfpipe.scan.coverage import unpack
 from bcfpipe.scan.sources import package_split, read_asset
+from bcfpipe.texset import heap
 from bcfpipe.texset.parallel import job_encode_workers
 from bcfpipe.texset.parallel import release_workers, set_encode_workers
 from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
@@ -143,6 +144,7 @@ def run_job(job: Mapping[str, Any], out_dir: str, threads: int, device: str, que
     a `JobResult` as a dict. Only this process's own thread settings are changed. BC encodes use
     ``encode_workers`` cores (default ``threads``: bcfpipe.texset.parallel).
     """
+    heap.one_arena()  # the job's threads reuse the heap as the fit does (a worker starts none before)
     try:
         return _run_job(job, out_dir, threads, device, queue, cache_root, encode_workers)
     finally:

@@ -18,6 +18,7 @@ import click
 
 from bcfpipe import __version__
 from bcfpipe.cli.errors import Group
+from bcfpipe.texset import heap
 from bcfpipe.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, BcfError, raise_terminated  # noqa: F401
 
 
@@ -42,6 +43,7 @@ def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
     \b
     Exit codes: 0 ok, 1 work failed, 2 usage error or bad input, 130 interrupted, 143 terminated.
     """
+    heap.one_arena()  # before any thread allocates: the fit's threads reuse the heap as it does
     if threading.current_thread() is threading.main_thread():  # SIGTERM stops workers as Ctrl-C does
         before = signal.signal(signal.SIGTERM, raise_terminated)
         ctx.call_on_close(lambda: signal.signal(signal.SIGTERM, before))

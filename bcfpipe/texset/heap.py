@@ -10,6 +10,11 @@ ones are kept there (up to `KEEP` at its top) for the next: that fit took 19.3 s
 20.4-21.9 s, its system time 2.3 s instead of 4.1-5.3 s, at about the same peak (1.77-1.79 GB);
 `--layout neural` on it 43.9 -> 37.3 s, its peak 1.94 -> 2.24 GB (docs/benchmarks.md).
 
+The policy is the main heap's. A thread of its own arena grows it in heaps of at most 64 MiB and
+maps anything larger afresh, whatever the thresholds: the BC@R encode beside the probe decodes
+2048² levels of 64 MiB on its thread. `one_arena`, called before a process starts threads (the
+command line, a build's worker), puts every thread's allocations on the main heap.
+
 A set larger than `MAX_VALUES` keeps glibc's own policy: a heap that keeps what it frees can hold
 blocks that no later request fits, and an 8K fit's peak memory is one of its limits.
 """
@@ -25,7 +30,7 @@ THRESHOLD = 256 << 20  # bytes: larger allocations are still mapped (and returne
 KEEP = 1 << 30  # bytes of freed memory the heap keeps at its top before it returns any
 # glibc's own policy afterwards, as it stands once it has adjusted to large blocks (mallopt fixes both)
 AFTER = (32 << 20, 64 << 20)
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # malloc.h
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -3, -8  # malloc.h
 
 
 def _glibc():
@@ -57,3 +62,12 @@ def reused(values: int):
         libc.mallopt(_M_MMAP_THRESHOLD, AFTER[0])
         libc.mallopt(_M_TRIM_THRESHOLD, AFTER[1])
         libc.malloc_trim(0)
+
+
+def one_arena() -> None:
+    """Every thread made from now on allocates from the main heap (glibc's ``M_ARENA_MAX`` of 1),
+    so that `reused` holds on the fit's threads too; threads that have allocated already keep their
+    arenas. Nothing where the C library is not glibc."""
+    libc = _glibc()
+    if libc is not None:
+        libc.mallopt(_M_ARENA_MAX, 1)
