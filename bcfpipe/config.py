@@ -345,6 +345,10 @@ class TrainConfig:
     feature_init: str = DEFAULT_INIT  # see FEATURE_INITS
     kernel: Kernel = DEFAULT_KERNEL  # phases 1-2 through torch's ops or the fused kernel; see Kernel.on
     t0: T0 | None = None  # what T_0 holds (bcfpipe.train.fixed_t0); None: DEFAULT_T0 of the model's features
+    # the ISPC BC7 profile a T_0 of principal components is encoded with (`texset.baselines.BC7_PROFILES`):
+    # what ships takes "basic", whose blocks its figures and cache keys hold; the layout's probe, which
+    # never ships, "alpha_modes": the same blocks or nearly, in half the time
+    t0_bc7: Literal["basic", "alpha_modes"] = "basic"
 
     def __post_init__(self) -> None:
         if self.t0 is None:

@@ -66,3 +66,21 @@ def test_a_changed_fixed_level_fails_verify(tmp_path):
     path.write_bytes(bytes(data))
     v = run_cli("verify", tmp_path / "m")
     assert v.returncode != 0
+
+
+def test_the_probes_t0_profile_gives_basics_blocks_with_live_alpha_and_is_the_one_used():
+    """`alpha_modes`, the layout's probe's T_0 encode (issue 58): with four live channels, as principal
+    components fill a layer, the very blocks of `basic`; on an opaque image, where the opaque modes 0-3
+    win, other blocks: the profile is what encodes."""
+    from bcfpipe.texset.texture_set import build_mip_chain
+    from bcfpipe.train.fixed_t0 import encoded_levels
+
+    yy, xx = np.mgrid[0:64, 0:64] / 64.0
+    live = np.stack([0.5 + 0.4 * np.sin(6.3 * xx), 0.5 + 0.4 * np.cos(9.4 * yy), 0.5 + 0.3 * np.sin(6.3 * (xx + yy)),
+                     0.5 + 0.4 * np.sin(12.6 * xx * yy)], -1).astype(np.float32)
+    opaque = live.copy()
+    opaque[..., 3] = 1.0
+    for image, same in ((live, True), (opaque, False)):
+        levels = build_mip_chain(image)[:5]  # down to 4x4, as a feature texture's mips
+        basic, alpha = encoded_levels(levels), encoded_levels(levels, profile="alpha_modes")
+        assert all(np.array_equal(a.blocks, b.blocks) for a, b in zip(basic, alpha)) == same

@@ -163,3 +163,21 @@ def test_a_probe_that_fails_stops_the_encode_beside_it_first(tmp_path, monkeypat
     with pytest.raises(RuntimeError, match="the probe failed"):
         _fit(tmp_path / "failed")
     assert not [t for t in threading.enumerate() if t.name.startswith("bcfpipe-bc-encode")]
+
+
+def test_the_probe_encodes_its_t0_with_the_alpha_modes_profile(tmp_path, monkeypatch):
+    """The probe, which never ships, encodes its T_0 of principal components with `D.PROBE_T0_BC7`;
+    what a training ships keeps `basic` (`TrainConfig.t0_bc7`'s default)."""
+    from bcfpipe.config import TrainConfig
+
+    seen = []
+    train = D.train_material
+
+    def probe(ts, out, cfg, *a, **k):
+        seen.append(cfg.t0_bc7)
+        return train(ts, out, cfg, *a, **k)
+
+    monkeypatch.setattr(D, "train_material", probe)
+    fit, _ = _fit(tmp_path / "m")
+    assert fit.probe is not None and seen[0] == D.PROBE_T0_BC7 == "alpha_modes"
+    assert TrainConfig().t0_bc7 == "basic"

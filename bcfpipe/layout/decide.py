@@ -89,6 +89,7 @@ from bcfpipe.train.progress import ProgressFn
 
 QualityFound = tuple["tuple[Repack, np.ndarray] | None", float]  # `classic_fit.quality_errors`' result, its seconds
 PROBE_FRACTION = 0.15  # of the steps --layout neural trains: the probe's share of one training
+PROBE_T0_BC7 = "alpha_modes"  # the probe's T_0 in BC7's modes with alpha: half the encode (`baselines.BC7_PROFILES`)
 FLOOR_GUARD_DB = 0.25  # a choice held to BC@R's floor by less than this on BC@R's estimate measures BC@R
 # Blocks per level of the sampled BC@R whose oracle gates the probe beside BC@R's full encode
 # (`_gated`): the bottle's within 0.6 dB of the full encode per mip, 0.7 s on two cores (16384: 2.2 s)
@@ -119,7 +120,7 @@ def _train_probe(ctx: K.FitContext) -> MaterialResult:
             + (f", T_0 of {ctx.w0} layers" if ctx.w0 > 1 else "") + f", {PROBE_FRACTION:.0%} of the steps")
     cfg = make_config(ctx.ts, replace(ctx.options, profile=ctx.own[ctx.p0], t0_layers=ctx.w0), ctx.wrap)[1]
     cfg = capped(cfg, ctx.cap)
-    cfg = cfg.with_(preset=shortened(cfg.preset, PROBE_FRACTION))
+    cfg = cfg.with_(preset=shortened(cfg.preset, PROBE_FRACTION), t0_bc7=PROBE_T0_BC7)
     return train_material(ctx.ts, ctx.out / "probe", cfg, ctx.p0, progress=ctx.progress, coverage=ctx.coverage,
                         measure=PROBE, reference=ctx.reference)[0]
 

@@ -144,9 +144,16 @@ def bc1_mips(mips_rgb: Sequence[np.ndarray], level: int = BC1_LEVEL,
 # rotation of modes 4/5 that alpha_basic tries: on 1024² crops of the teapot's, brick's and wood's
 # colour with their roughness as alpha, 0.64x alpha_basic's time within 0.005 dB; alpha_veryfast's
 # one rotation loses 0.17 dB on the teapot (benchmarks/bench_classic_presets.py).
+# ``alpha_modes`` is ``basic`` in the modes that store alpha (4-7: ISPC's modes 0/2 off, modes 1 and 3
+# searching no partition), for four live channels, where the opaque modes never win: a T_0 of
+# principal components at 1k on the teapot, brick and wood gives basic's very blocks, on the water
+# bottle all but 4 of 87,381 (modes 1 and 3), in half the time (benchmarks/bench_t0_encode.py).
+# One-subset modes alone (4-6) take 0.28x but lose 0.3-1.4 dB there: mode 7 holds 10-45 % of the blocks.
 BC7_PROFILES: dict[str, dict] = {
     "basic": dict(modes=(True, True, True, True), refine=2, skip_mode2=True, fast_skip=(12, 8, 8), mode45_channel0=0),
     "quick": dict(modes=(True, True, True, True), refine=2, skip_mode2=True, fast_skip=(0, 0, 4), mode45_channel0=0),
+    "alpha_modes": dict(modes=(False, True, True, True), refine=2, skip_mode2=True, fast_skip=(0, 0, 8),
+                        mode45_channel0=0),
 }
 BC7_SETTINGS = BC7_PROFILES["basic"]  # what the BC7 quality set, a PCA T_0 and the baselines encode with
 

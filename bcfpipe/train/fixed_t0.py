@@ -34,13 +34,13 @@ __all__ = ["pca_t0", "encoded_levels", "t0_layers_problem"]
 
 def pca_t0(mc: ModelConfig, ref_mips, biases, free: list[list[torch.Tensor]],
            mlp: dict[str, torch.Tensor], on_layer: Callable[[int, int], None] = lambda done, n: None,
-           ) -> dict[int, list[FixedLevel]]:
+           profile: str = "basic") -> dict[int, list[FixedLevel]]:
     """T_0's layers (the model's first ``mc.t0_layers``; layer j holds components 4j..4j+3) as
     `FixedLevel`s (components, ISPC's BC7 blocks, their decoded values), by layer; sets ``mlp`` to
     the components' linear decoder (in place). Their ``free`` layers are overwritten on the way.
     A set whose components do not reach a layer is refused (`t0_layers_problem`). ``on_layer``
     hears (layers encoded, layers) before the first layer's encode and after each (seconds apiece
-    at 1k)."""
+    at 1k). ``profile``: the ISPC BC7 profile of the encode (`TrainConfig.t0_bc7`)."""
     problem = t0_layers_problem(mc.t0_layers, ref_mips[0].shape[0])
     if problem:
         raise InputError(problem)
@@ -57,7 +57,7 @@ def pca_t0(mc: ModelConfig, ref_mips, biases, free: list[list[torch.Tensor]],
     for i in layers:
         with torch.no_grad():
             levels = [codec.value(p.detach().clamp(lo, hi), mc).permute(1, 2, 0).cpu().numpy() for p in free[i]]
-        out[i] = encoded_levels(levels, free[i][0].device)
+        out[i] = encoded_levels(levels, free[i][0].device, profile)
         on_layer(i + 1, len(layers))
     return out
 
@@ -73,13 +73,13 @@ def t0_layers_problem(t0_layers: int, channels: int) -> str | None:
     return None
 
 
-def encoded_levels(levels, device="cpu") -> list[FixedLevel]:
-    """(H, W, 4) [0, 1] levels encoded once by ISPC (every BC7 mode), as `FixedLevel`s whose values
-    are bcfpipe's decode of the blocks."""
+def encoded_levels(levels, device="cpu", profile: str = "basic") -> list[FixedLevel]:
+    """(H, W, 4) [0, 1] levels encoded once by ISPC (every BC7 mode, or `BC7_PROFILES` ``profile``'s),
+    as `FixedLevel`s whose values are bcfpipe's decode of the blocks."""
     from bcfpipe.texset.baselines import bc7_mips  # lazy: start-up
 
     shipped: list = []
-    bc7_mips(levels, shipped)
+    bc7_mips(levels, shipped, profile)
     out = []
     for blocks, w, h in shipped:
         b = np.ascontiguousarray(np.asarray(blocks, np.uint8).reshape(-1, 16))

@@ -304,7 +304,8 @@ def _warmup(run: _Run) -> Layers[torch.Tensor]:
     if run.cfg.t0 == T0.PCA:
         t0 = time.perf_counter()
         fixed = pca_t0(mc, run.ref.mips, run.biases, layers, run.mlp,
-                       on_layer=lambda done, n: _report(run, "t0", done, n, run.clock.left("warmup")))
+                       on_layer=lambda done, n: _report(run, "t0", done, n, run.clock.left("warmup")),
+                       profile=run.cfg.t0_bc7)
         run.seconds["t0"] = time.perf_counter() - t0
     elif run.cfg.feature_init == "pca":
         pca_init(mc, run.ref.mips, run.biases, layers, run.mlp)
