@@ -17,9 +17,9 @@ from bcfpipe.formats.vocabulary import Wrap
 from bcfpipe.cli.errors import Command
 from bcfpipe.errors import EXIT_FAILED, InputError
 from bcfpipe.export.material import make_config
-from bcfpipe.fit import FitMode, fit, rate
+from bcfpipe.fit import FitMode, fit, prepare, rate
 from bcfpipe.cli.options import training_options
-from bcfpipe.texset.texture_set import TextureSpec, load_texture_set
+from bcfpipe.texset.texture_set import TextureSpec, load_texture_set, semantic_info
 from bcfpipe.train.pace import LINE_SECONDS, Ticker
 
 if TYPE_CHECKING:
@@ -131,6 +131,7 @@ def _load(textures, resolution: int | None, options, wrap: str):
     """The parsed specs and their texture set; a bad spec, file or option exits 2 in one line."""
     try:
         specs = [TextureSpec.parse(t) for t in textures]
+        prepare(options, [semantic_info(s.semantic).name for s in specs])  # before the load: it starts workers
         ts = load_texture_set(specs, resolution=resolution, fix_nonfinite=options.fix_nonfinite)
         make_config(ts, options, wrap)  # the profile, device and wrap against this set
     except ValueError as e:

@@ -24,9 +24,11 @@ from bcfpipe.config import TrainingOptions
 from bcfpipe.export.material import MaterialResult, train_material, make_config
 from bcfpipe.fit.rate import fit_to_target
 from bcfpipe.formats.fit_result import FitResult
+from bcfpipe.layout.decide import may_encode_beside
 from bcfpipe.layout.material import layout_material
 from bcfpipe.layout.predict import uses_layout
 from bcfpipe.texset import heap
+from bcfpipe.texset.parallel import encode_workers, start_workers
 from bcfpipe.texset.texture_set import TextureSet
 from bcfpipe.train.progress import ProgressFn
 
@@ -61,6 +63,14 @@ def fit_mode(options: TrainingOptions, semantics) -> FitMode:
     if uses_layout(options, semantics):
         return FitMode.LAYOUT
     return FitMode.NEURAL if options.target_psnr is None else FitMode.RATE
+
+
+def prepare(options: TrainingOptions, semantics) -> None:
+    """Start, before the set of ``semantics`` is loaded, what its fit will wait for: the encode
+    workers of a layout fit that may encode BC@R beside its probe (`parallel.start_workers`), while
+    the loading leaves the other cores idle."""
+    if fit_mode(options, sorted(set(semantics))) == FitMode.LAYOUT and may_encode_beside(options):
+        start_workers(encode_workers())
 
 
 def fit(ts: TextureSet, options: TrainingOptions, out: str | Path, *, wrap: str,

@@ -264,6 +264,13 @@ def _promising(ctx: K.FitContext) -> bool:
     return speculate.possible(ctx) and ctx.resolution < max(ctx.ts.width, ctx.ts.height)
 
 
+def may_encode_beside(options: TrainingOptions) -> bool:
+    """Whether a fit with ``options`` may encode BC@R beside its probe (`_beside_bc`), as far as the
+    options tell before the set is loaded: at a preset where no training speculates, with a core
+    beyond the probe's."""
+    return options.preset not in speculate.PRESETS and encode_workers() - (options.threads or 1) >= 1
+
+
 def _beside_bc(ctx: K.FitContext, work: ClassicWork) -> bool:
     """Whether BC@R's full encode runs beside the probe rather than before it: where no repack can
     take BC@R's place (it ships or is the floor: `classic_fit.repackable`), so that it is encoded

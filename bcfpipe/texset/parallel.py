@@ -124,15 +124,30 @@ def release_workers() -> None:
 def _process_pool(n: int) -> ProcessPoolExecutor:
     """A spawn pool of ``n`` workers, kept for the process's later encodes, started at once."""
     global _pool, _pool_size
-    if _pool is None or _pool_size != n:
-        release_workers()
-        _pool, _pool_size = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn")), n
-        trace_pool("encode-process-pool", n)
-        atexit.register(release_workers)
-        with _bare_main():  # a spawn pool starts a worker per task submitted while none is idle
-            for f in [_pool.submit(int) for _ in range(n)]:
-                f.result()
-    return _pool
+    with _pool_lock:
+        if _pool is None or _pool_size != n:
+            release_workers()
+            _pool, _pool_size = ProcessPoolExecutor(n, mp_context=mp.get_context("spawn")), n
+            trace_pool("encode-process-pool", n)
+            atexit.register(release_workers)
+            with _bare_main():  # a spawn pool starts a worker per task submitted while none is idle
+                for f in [_pool.submit(int) for _ in range(n)]:
+                    f.result()
+        return _pool
+
+
+_pool_lock = threading.Lock()
+
+
+def start_workers(n: int) -> None:
+    """Start `_process_pool`'s ``n`` workers now, on a thread of their own at `background`
+    priority, which they inherit: a fit that will encode BC@R beside its probe starts them while its
+    set loads on one core (each worker's start-up is 0.3 s of a core), and finds them up."""
+    def start() -> None:
+        background()
+        _process_pool(n)
+
+    threading.Thread(target=start, name="bcfpipe-encode-workers", daemon=True).start()
 
 
 _main_lock = threading.Lock()
