@@ -181,3 +181,40 @@ def test_the_probe_encodes_its_t0_with_the_alpha_modes_profile(tmp_path, monkeyp
     fit, _ = _fit(tmp_path / "m")
     assert fit.probe is not None and seen[0] == D.PROBE_T0_BC7 == "alpha_modes"
     assert TrainConfig().t0_bc7 == "basic"
+
+
+def test_prepare_starts_the_encode_workers_where_the_fit_may_encode_beside(monkeypatch):
+    """`fit.prepare`, before a set loads: the encode workers of a layout fit at a preset that does
+    not speculate, with a core beyond the probe's; none for `--layout neural`, a speculating preset,
+    or one core."""
+    from dataclasses import replace
+
+    from bcfpipe.fit import entry
+
+    started: list[int] = []
+    monkeypatch.setattr(entry, "start_workers", started.append)
+    draft = replace(OPTIONS, preset="draft")
+    cases = [(draft, 2, [2]), (replace(draft, layout="neural"), 2, []), (replace(draft, preset="standard"), 2, []),
+             (draft, 1, [])]
+    for options, cores, want in cases:
+        started.clear()
+        parallel.set_encode_workers(cores)
+        try:
+            entry.prepare(options, ["albedo", "roughness"])
+        finally:
+            parallel.set_encode_workers(None)
+        assert started == want, (options.layout, options.preset, cores)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="background priority is Linux's nice value")
+def test_workers_started_ahead_run_at_background_priority_and_are_the_pool_used():
+    parallel.release_workers()
+    try:
+        parallel.start_workers(2).join()
+        pool = parallel._process_pool(2)
+        pids = list(pool._processes)
+        assert len(pids) == 2
+        assert all(os.getpriority(os.PRIO_PROCESS, pid) >= parallel.BACKGROUND_NICE for pid in pids)
+        assert parallel._process_pool(2) is pool
+    finally:
+        parallel.release_workers()

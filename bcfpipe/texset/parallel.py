@@ -139,15 +139,17 @@ def _process_pool(n: int) -> ProcessPoolExecutor:
 _pool_lock = threading.Lock()
 
 
-def start_workers(n: int) -> None:
-    """Start `_process_pool`'s ``n`` workers now, on a thread of their own at `background`
+def start_workers(n: int) -> threading.Thread:
+    """Start `_process_pool`'s ``n`` workers now, on a thread of their own (returned) at `background`
     priority, which they inherit: a fit that will encode BC@R beside its probe starts them while its
     set loads on one core (each worker's start-up is 0.3 s of a core), and finds them up."""
     def start() -> None:
         background()
         _process_pool(n)
 
-    threading.Thread(target=start, name="bcfpipe-encode-workers", daemon=True).start()
+    thread = threading.Thread(target=start, name="bcfpipe-encode-workers", daemon=True)
+    thread.start()
+    return thread
 
 
 _main_lock = threading.Lock()
