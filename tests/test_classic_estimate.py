@@ -121,7 +121,8 @@ def test_the_default_layout_ships_a_measured_candidate_and_says_what_each_part_c
 
 def test_a_sampled_measure_decodes_the_texels_it_names_exactly(tmp_path):
     """`writer.decode_mips` with ``texels`` gives those texels of the whole decode, bit for bit; a
-    sampled measure takes one texel in each 2x2 cell of a large mip, every place within a cell."""
+    sampled measure takes one texel in each 2x2 cell of a large mip, or each 4x4 cell where a quarter
+    is over `SAMPLED_MOST`, every place within a cell."""
     from bcfpipe.export import writer as E
     from bcfpipe.export.material import Measure, train_material, make_config, sampled_texels
 
@@ -137,11 +138,12 @@ def test_a_sampled_measure_decodes_the_texels_it_names_exactly(tmp_path):
     part = E.decode_mips(em, shapes, texels=picks)
     assert np.array_equal(part[0][:, 0], whole[0].reshape(-1, whole[0].shape[-1])[picks[0]])
     assert np.array_equal(part[1], whole[1])
-    big, small = sampled_texels([(2048, 1024), (1024, 1024)])
-    assert small is None and len(big) == 2048 * 1024 // 4
-    y, x = big // 1024, big % 1024
-    assert len(np.unique((y // 2) * 512 + x // 2)) == len(big)  # one per 2x2 cell
-    assert {(a, b) for a, b in zip(y % 2, x % 2)} == {(0, 0), (0, 1), (1, 0), (1, 1)}
+    big, mid, small = sampled_texels([(2048, 1024), (1024, 512), (512, 512)])
+    assert small is None and len(mid) == 1024 * 512 // 4 and len(big) == 2048 * 1024 // 16
+    for picked, (h, w), k in ((mid, (1024, 512), 2), (big, (2048, 1024), 4)):
+        y, x = picked // w, picked % w
+        assert len(np.unique((y // k) * (w // k) + x // k)) == len(picked)  # one per kxk cell
+        assert {(a, b) for a, b in zip(y % k, x % k)} == {(a, b) for a in range(k) for b in range(k)}
 
 
 @pytest.mark.parametrize("detail", [False, True])

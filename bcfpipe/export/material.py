@@ -147,26 +147,39 @@ class Evaluation:
     decoded: list[np.ndarray]  # (H_k, W_k, c) per mip, as `bcfpipe.export.writer.decode_mips` returns
 
 
-# A sampled measure (the layout's probe) decodes, of a mip of more texels than this, one texel in
-# each 2x2 cell, at a place drawn per cell (fixed seed): a quarter of them, spread over the mip and
-# over the places within a BC block and a magnified texel, whose errors differ. Whole rows would not
-# do: on the teapot they missed mip 0's error by 0.36 dB.
-SAMPLED_TEXELS = 1 << 20
+# A sampled measure (the layout's probe) decodes, of a mip of more texels than `SAMPLED_TEXELS`, one
+# texel in each k×k cell, at a place drawn per cell (fixed seed), k = 2, or 4 where a quarter would
+# still be more than `SAMPLED_MOST` texels: spread over the mip and over the places within a BC block
+# and a magnified texel, whose errors differ. Whole rows would not do: on the teapot they missed
+# mip 0's error by 0.36 dB. A 2048² set's probe decodes 0.9 M texels, where a quarter of its mips
+# over 1 M texels (2.4 M) took 2.1 s of its 10 (benchmarks/bench_probe_sample.py).
+SAMPLED_TEXELS = 1 << 18
+SAMPLED_MOST = 1 << 18
 SAMPLE_SEED = 58
 
 
-def sampled_texels(shapes: Sequence[tuple[int, int]], above: int = SAMPLED_TEXELS) -> list[np.ndarray | None]:
-    """Per mip, the texels a sampled measure decodes, row-major indices (None: all, at a mip of
-    no more than ``above`` texels)."""
+def sample_cell(h: int, w: int, above: int, most: int | None = None) -> int:
+    """The side of the cells of a (h, w) mip of which a sampled measure decodes one texel each: 1 (every
+    texel) at ``above`` texels or fewer; else 2, or 4 where a quarter is more than ``most``."""
+    if h * w <= above:
+        return 1
+    return 4 if most is not None and (h // 2) * (w // 2) > most and h % 4 == 0 and w % 4 == 0 else 2
+
+
+def sampled_texels(shapes: Sequence[tuple[int, int]], above: int = SAMPLED_TEXELS,
+                   most: int | None = SAMPLED_MOST) -> list[np.ndarray | None]:
+    """Per mip, the texels a sampled measure decodes (`sample_cell`), row-major indices, cell by
+    cell in row-major order (None: all)."""
     out: list[np.ndarray | None] = []
     rng = np.random.default_rng(SAMPLE_SEED)
     for h, w in shapes:
-        if h * w <= above:
+        k = sample_cell(h, w, above, most)
+        if k == 1:
             out.append(None)
             continue
-        cy, cx = np.mgrid[0:h // 2, 0:w // 2]
-        dy, dx = rng.integers(0, 2, (2,) + cy.shape)
-        out.append(((2 * cy + dy) * w + 2 * cx + dx).ravel())
+        cy, cx = np.mgrid[0:h // k, 0:w // k]
+        dy, dx = rng.integers(0, k, (2,) + cy.shape)
+        out.append(((k * cy + dy) * w + k * cx + dx).ravel())
     return out
 
 
@@ -176,13 +189,14 @@ def evaluate_exported(folder: str | os.PathLike, reference: Reference, channels:
     """Decode ``folder`` at every mip of ``reference`` and measure it (over ``reference.masks``'
     texels too, when it has masks), reporting ``evaluate`` step by step to ``progress``
     (`EvaluateProgress`; elapsed from ``start``, a `time.perf_counter` reading). ``sampled``: of
-    the mips over `SAMPLED_TEXELS`, a quarter of the texels (`sampled_texels`), for figures that
-    decide rather than ship (no image metrics then; ``decoded`` holds those texels, one per 2x2 cell
-    in the cells' order, (H/2, W/2, c))."""
+    the mips over `SAMPLED_TEXELS`, a sixteenth or a quarter of the texels (`sampled_texels`), for
+    figures that decide rather than ship (no image metrics then; ``decoded`` holds those texels, one
+    per k×k cell in the cells' order, (H/k, W/k, c))."""
     shapes = reference.shapes
-    picks = sampled_texels(shapes) if sampled else [None] * len(shapes)
+    picks = sampled_texels(shapes, SAMPLED_TEXELS, SAMPLED_MOST) if sampled else [None] * len(shapes)
     image_metrics = image_metrics and not sampled
-    cells = [s if p is None else (s[0] // 2, s[1] // 2) for s, p in zip(shapes, picks)]
+    cells = [(h // k, w // k) for h, w in shapes
+             for k in [sample_cell(h, w, SAMPLED_TEXELS, SAMPLED_MOST) if sampled else 1]]
 
     def taken(levels):
         return [m if p is None else m.reshape(-1, *m.shape[2:])[p].reshape(*c, *m.shape[2:])
