@@ -162,7 +162,7 @@ def settled():  # threads a join let go of take a moment to leave /proc: the cou
 
 
 parallel.set_encode_workers(int(sys.argv[1]))
-px = np.zeros((512, 512, 4), np.uint8)
+px = np.random.default_rng(0).integers(0, 256, (512, 512, 4), dtype=np.uint8)  # distinct blocks: a whole level's encode (`distinct_blocks`)
 if sys.argv[2] == 'beside':  # the main thread encodes first, then a thread of its own with one worker
     parallel.quicktex_level('bc1 level 13', px, 8)
     idle = threading.Thread(target=lambda: None)  # a first thread leaves one behind: counted before
