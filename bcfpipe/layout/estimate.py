@@ -22,6 +22,7 @@ import numpy as np
 
 from bcfpipe.config import DEFAULT_ENCODE, EncodePreset
 from bcfpipe.layout.classic import EncodedGroup, Group, channel_errors, group_texels, magnify, usd_normals
+from bcfpipe.texset.mosaic import block_grid, mosaic
 from bcfpipe.texset.normals import slope_scale
 from bcfpipe.texset.texture_set import TextureSet
 
@@ -71,15 +72,7 @@ def gather(img: np.ndarray, pick: np.ndarray | None) -> np.ndarray:
     the last row filled with the first block again (`mosaic_weights` leaves those out)."""
     if pick is None:
         return img
-    n = len(pick)
-    rows = -(-n // MOSAIC_COLUMNS)
-    idx = np.concatenate([np.arange(n), np.zeros(rows * MOSAIC_COLUMNS - n, np.int64)])
-    ty = (pick[idx, 0][:, None] * 4 + np.arange(4)[None, :])  # (blocks, 4) texel rows
-    tx = (pick[idx, 1][:, None] * 4 + np.arange(4)[None, :])
-    blocks = img[ty[:, :, None], tx[:, None, :]]  # (blocks, 4, 4, ...)
-    tail = blocks.shape[3:]
-    blocks = blocks.reshape((rows, MOSAIC_COLUMNS, 4, 4) + tail)
-    return np.ascontiguousarray(np.moveaxis(blocks, 2, 1).reshape((rows * 4, MOSAIC_COLUMNS * 4) + tail))
+    return mosaic(block_grid(img)[pick[:, 0], pick[:, 1]], MOSAIC_COLUMNS)
 
 
 def mosaic_mask(pick: np.ndarray | None, mask: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:

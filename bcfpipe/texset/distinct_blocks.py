@@ -15,6 +15,8 @@ from typing import Callable
 
 import numpy as np
 
+from bcfpipe.texset.mosaic import block_grid, mosaic
+
 MIN_BLOCKS = 4096  # a level of fewer blocks (256²) is encoded as it is: the search would cost more than it saves
 MAX_DISTINCT = 0.85  # a level with a larger share of distinct blocks is encoded as it is
 MOSAIC_COLUMNS = 256  # distinct blocks per mosaic row (1024 texels)
@@ -40,22 +42,6 @@ def _hashes(px: np.ndarray) -> np.ndarray:
     return acc.ravel()
 
 
-def _grid(px: np.ndarray) -> np.ndarray:
-    """``px`` (H, W, C) as its (H/4, W/4, 4, 4, C) blocks: a view."""
-    h, w, c = px.shape
-    return px.reshape(h // 4, 4, w // 4, 4, c).transpose(0, 2, 1, 3, 4)
-
-
-def mosaic(blocks: np.ndarray) -> np.ndarray:
-    """(n, 4, 4, C) blocks as a level, `MOSAIC_COLUMNS` per row, in order (the last row filled with
-    the first block again)."""
-    n, cols = len(blocks), min(MOSAIC_COLUMNS, len(blocks))
-    rows = -(-n // cols)
-    filled = np.concatenate([blocks, np.repeat(blocks[:1], rows * cols - n, 0)])
-    c = blocks.shape[3]
-    return np.ascontiguousarray(filled.reshape(rows, cols, 4, 4, c).transpose(0, 2, 1, 3, 4).reshape(rows * 4, cols * 4, c))
-
-
 def distinct(px: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """(the mosaic of ``px``'s distinct blocks, each block's number in it) for a padded (H, W, C)
     level, or None where encoding it as it is costs no more: a small level, one with few repeats,
@@ -67,13 +53,13 @@ def distinct(px: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     if len(first) > MAX_DISTINCT * len(keys):
         return None
-    grid = _grid(px)
+    grid = block_grid(px)
     tiles = grid[np.divmod(first, w // 4)]  # (distinct, 4, 4, C)
     for y in range(0, h // 4, _CHUNK_ROWS):  # every block equal to the one it is encoded as
         part = grid[y:y + _CHUNK_ROWS]
         if not np.array_equal(part, tiles[inverse[y * (w // 4):(y + len(part)) * (w // 4)]].reshape(part.shape)):
             return None
-    return mosaic(tiles), inverse
+    return mosaic(tiles, MOSAIC_COLUMNS), inverse
 
 
 def encode_distinct(encode: Callable[[np.ndarray], np.ndarray], px: np.ndarray) -> np.ndarray:
